@@ -1,0 +1,146 @@
+"""Batched simulator of the A-type DFVOSS model, paper (9)–(11) and (43)–(45)."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor
+
+from .gl import gl_coefficients
+from .model import OrderSchedule, Structure
+
+__all__ = ["Simulation", "simulate", "gaussian_input"]
+
+
+@dataclass(frozen=True)
+class Simulation:
+    """A batch of simulated realisations; time is dimension ``-2``.
+
+    Attributes
+    ----------
+    t : Tensor ``(N,)``; inputs ``u`` ``(*B, N, d)``; states ``x`` ``(*B, N, n)``;
+    outputs ``y`` ``(*B, N, p)``; orders ``alpha`` ``(*B, N, n)``; the noise draws
+    ``process_noise`` ω ``(*B, N, n)`` (ω_k drives x_{k+1}) and ``measurement_noise`` ν ``(*B, N, p)``.
+    """
+
+    t: Tensor
+    u: Tensor
+    x: Tensor
+    y: Tensor
+    alpha: Tensor
+    process_noise: Tensor
+    measurement_noise: Tensor
+
+
+def _chol(cov, size: int, like: Tensor) -> Tensor:
+    c = torch.as_tensor(cov, dtype=like.dtype, device=like.device)
+    if c.ndim == 0:
+        c = c * torch.eye(size, dtype=like.dtype, device=like.device)
+    if c.shape[-2:] != (size, size):
+        raise ValueError(f"covariance must be {size}x{size}, got {tuple(c.shape)}")
+    if torch.all(c == 0):
+        return c
+    return torch.linalg.cholesky(c)
+
+
+def gaussian_input(batch_shape, n_steps: int, n_inputs: int, std: float, *, generator=None,
+                   dtype=torch.float64, device=None) -> Tensor:
+    """Known input ``u_k ~ N(0, std²)`` of shape ``(*batch_shape, N, d)``."""
+    z = torch.randn(tuple(batch_shape) + (n_steps, n_inputs), generator=generator, dtype=dtype, device=device)
+    return std * z
+
+
+def simulate(
+    structure: Structure,
+    *,
+    n_steps: int,
+    h: float,
+    order: OrderSchedule,
+    parameters,
+    process_noise,
+    measurement_noise,
+    inputs: Tensor | None = None,
+    x0=None,
+    batch_shape=(),
+    generator: torch.Generator | None = None,
+    dtype=torch.float64,
+    device=None,
+) -> Simulation:
+    r"""Simulate realisations of paper (9)–(11).
+
+    ``x_0 = x0`` (zero by default) and, for ``k = 0 … N−2``,
+    ``x_{k+1} = h^{α_{k+1}} (A(w) x_k + B u_k + ω_k) − Σ_{j=1}^{k+1} c_j(α_{k+1}) x_{k+1−j}``,
+    ``y_k = C x_k + ν_k`` with ``ω ~ N(0, Q)``, ``ν ~ N(0, R)``. The GL sums run over
+    the whole history (exact).
+
+    Parameters
+    ----------
+    structure : Structure
+    n_steps : int
+        ``N``, number of samples (including ``k = 0``).
+    h : float
+        Sample time.
+    order : OrderSchedule
+        True orders; evaluated to ``(*B, N, n)``.
+    parameters : Tensor, shape ``(*B, m)`` or ``(m,)``
+        True ``w``.
+    process_noise, measurement_noise : float or Tensor ``(n, n)`` / ``(p, p)``
+        ``Q`` and ``R``; a float means ``value · I``.
+    inputs : Tensor, shape ``(*B, N, d)``, optional
+        Known inputs (zero when absent).
+    batch_shape : tuple
+        Number of realisations; broadcast with the batch shapes of the other arguments.
+    generator : torch.Generator, optional
+        Source of all random draws (ω first, then ν).
+
+    Returns
+    -------
+    Simulation
+    """
+    if n_steps < 1:
+        raise ValueError("n_steps must be >= 1")
+    ref = torch.empty((), dtype=dtype, device=device)
+    n, p, d = structure.n_states, structure.n_outputs, structure.n_inputs
+    w = torch.as_tensor(parameters, dtype=dtype, device=device)
+    if w.ndim == 0:
+        w = w.reshape(1)
+    alpha = order.values(n_steps, h, n, inputs).to(ref)
+    shapes = [tuple(batch_shape), w.shape[:-1], alpha.shape[:-2]]
+    if inputs is not None:
+        inputs = torch.as_tensor(inputs).to(ref)
+        if inputs.shape[-2:] != (n_steps, d):
+            raise ValueError(f"inputs must have shape (*B, {n_steps}, {d}), got {tuple(inputs.shape)}")
+        shapes.append(inputs.shape[:-2])
+    batch = torch.broadcast_shapes(*shapes)
+    u = torch.zeros(batch + (n_steps, d), dtype=dtype, device=device) if inputs is None else inputs.expand(batch + (n_steps, d))
+    alpha = alpha.expand(batch + (n_steps, n))
+    A = structure.A(w).expand(batch + (n, n))
+    B = structure.B.to(ref)
+    C = structure.C.to(ref)
+    Lq = _chol(process_noise, n, ref)
+    Lr = _chol(measurement_noise, p, ref)
+    omega = torch.randn(batch + (n_steps, n), generator=generator, dtype=dtype, device=device) @ Lq.mT
+    nu = torch.randn(batch + (n_steps, p), generator=generator, dtype=dtype, device=device) @ Lr.mT
+
+    x = torch.empty(batch + (n_steps, n), dtype=dtype, device=device)
+    x[..., 0, :] = 0.0 if x0 is None else torch.as_tensor(x0).to(ref)
+    # Past states newest first: hist[..., i] = x_{k-i}; kept time-reversed so
+    # that every step reads one contiguous slice (no flip copies).
+    hist = torch.zeros(batch + (n, n_steps), dtype=dtype, device=device)
+    hist[..., n_steps - 1] = x[..., 0, :]
+    constant = bool(torch.all(alpha == alpha[..., :1, :]))
+    if constant:
+        coeff_all = gl_coefficients(alpha[..., 0, :], n_steps)  # (*B, n, N+1)
+    hpow = torch.as_tensor(h, dtype=dtype, device=device) ** alpha
+    drive = (A @ x[..., 0, :, None]).squeeze(-1)
+    for k in range(n_steps - 1):
+        a = alpha[..., k + 1, :]
+        past = hist[..., n_steps - 1 - k :]  # x_k … x_0, length k+1
+        c = coeff_all[..., 1 : k + 2] if constant else gl_coefficients(a, k + 1)[..., 1:]
+        memory = (c * past).sum(-1)
+        drive = (A @ x[..., k, :, None]).squeeze(-1) + u[..., k, :] @ B.mT + omega[..., k, :]
+        x[..., k + 1, :] = hpow[..., k + 1, :] * drive - memory
+        hist[..., n_steps - 2 - k] = x[..., k + 1, :]
+    y = x @ C.mT + nu
+    t = torch.arange(n_steps, dtype=dtype, device=device) * h
+    return Simulation(t=t, u=u, x=x, y=y, alpha=alpha, process_noise=omega, measurement_noise=nu)

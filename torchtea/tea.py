@@ -1,0 +1,642 @@
+r"""The Triple Estimation Algorithm (TEA): KFx, KFo and KFw, batched.
+
+Paper §3 (Macias, Sierociuk & Malesza, *Sensors* 2022, eqs. (12)–(42)); the
+original description is Sierociuk & Macias, *Sensors* 2021, 21, 8159.
+
+One step ``k ≥ 1`` (time is the loop; every tensor carries leading batch dims ``*B``):
+
+1. **KFo** (order, unscented; (12)–(25)): ``α̃ = α̂_{k−1}``, ``P̃ᵒ = Pᵒ + Qᵒ``, sigma
+   points of α; each goes through the model replica (16)–(18) with ``x̂`` history
+   and ``ŵ_{k−1}``; unscented update; Robbins–Monro adaptation (25) of ``Qᵒ``.
+2. **KFw** (parameters, unscented; (37)–(42)): the same with sigma points of ``w``
+   and the order fixed at ``α̂_{k−1}``.
+   The sigma points of KFo and KFw pass through the replica as **one** batched
+   evaluation (:func:`_replica`).
+3. **KFx** (state, fractional KF; (29)–(35)): prediction with ``α̂_k`` and
+   ``ŵ_{k−1}`` — the indices of (31); covariance
+   ``P̃ = (h^α A + α) P (…)ᵀ + Q + Σ_{j=2}^{k} c_j P_{k−j} c_j`` and update with ``y_k``.
+
+At ``k = 0`` only KFx updates, from its prior ``x₀, P₀``.
+
+The paper's open points (ALGORITHMS.md §3) are options of :class:`TEAConfig`;
+``experiments/paper/README.md`` has the measurements behind the defaults.
+
+Shapes: ``n`` states, ``L`` estimated orders, ``m`` parameters, ``d`` inputs,
+``p`` outputs; sigma points sit between the batch and the event dimensions.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, fields, replace
+from typing import Any, NamedTuple, Sequence
+
+import torch
+from torch import Tensor
+
+from .gl import gl_coefficients, history_sum
+from .model import Structure
+
+__all__ = [
+    "StateFilterConfig",
+    "UnscentedConfig",
+    "TEAConfig",
+    "TEAParams",
+    "TEAResult",
+    "make_params",
+    "stack_params",
+    "run_tea",
+    "ut_weights",
+]
+
+
+# --------------------------------------------------------------------------- configuration
+
+
+@dataclass(frozen=True)
+class StateFilterConfig:
+    """KFx settings, paper (29)–(36).
+
+    Attributes
+    ----------
+    x0 : initial state estimate ``x₀``.
+    P0 : initial covariance ``P₀``.
+    Q0 : process-noise covariance ``Q`` of ω (the paper's ``Q₀``; constant).
+    R : measurement-noise covariance ``R`` of ν.
+
+    A number means that value times the identity; a list of numbers a diagonal;
+    a nested list a full matrix.
+    """
+
+    x0: Any = 0.0
+    P0: Any = 0.01
+    Q0: Any = 1e-4
+    R: Any = 1e-3
+
+
+@dataclass(frozen=True)
+class UnscentedConfig:
+    """KFo or KFw settings, paper (12)–(28) and (37)–(42).
+
+    Attributes
+    ----------
+    x0 : initial estimate (``α₀`` for KFo, ``w₀`` for KFw).
+    P0 : initial covariance ``P₀ᵒ`` / ``P₀ʷ``.
+    Q0 : initial random-walk covariance ``Q₀ᵒ`` / ``Q₀ʷ`` (adapted by (25)).
+    R : the filter's measurement covariance ``Rᵒ`` / ``Rʷ``.
+    ut_alpha : 𝔄, spread of the sigma points.
+    ut_beta : 𝔅, prior knowledge of the distribution (2 for Gaussian).
+    kappa : κ; ``None`` means ``3 − L``.
+    delta : δ, Robbins–Monro forgetting factor of (25); 0 keeps ``Q`` fixed.
+    Q_max : upper bound on the adapted ``Q`` (largest diagonal entry), or ``None``
+        for none — the guard against (25) feeding on itself (open point 4).
+    """
+
+    x0: Any = 0.0
+    P0: Any = 0.01
+    Q0: Any = 0.1
+    R: Any = 1e-3
+    ut_alpha: float = 1.0
+    ut_beta: float = 2.0
+    kappa: float | None = None
+    delta: float = 0.5
+    Q_max: float | None = None
+
+
+NOISE_SCALINGS = ("scaled", "unscaled")
+
+
+@dataclass(frozen=True)
+class TEAConfig:
+    """Settings of the whole Triple Estimation Algorithm.
+
+    Attributes
+    ----------
+    kfx, kfo, kfw : the three filters' settings.
+    sigma_sum_start : 0 or 1 — first sigma point in the covariance sums (20)–(21).
+        The paper prints ``i = 1``; the standard unscented transform uses ``i = 0``
+        (open point 1). Default 0.
+    noise_scaling : "scaled" or "unscaled" — whether KFx adds ``h^α Q h^α`` (the
+        process noise as it enters the model (10)) or ``Q`` as printed in (31)
+        (open point 2). Default "scaled".
+    order_bounds : (low, high) — every order estimate is projected onto this
+        interval after each update (open point 3). Sigma points are not clipped.
+    divergence_limit : a realisation whose estimates or covariances leave
+        ``[−limit, limit]`` or become non-finite is flagged and frozen.
+    """
+
+    kfx: StateFilterConfig = field(default_factory=StateFilterConfig)
+    kfo: UnscentedConfig = field(default_factory=lambda: UnscentedConfig(x0=1.0))
+    kfw: UnscentedConfig = field(default_factory=UnscentedConfig)
+    sigma_sum_start: int = 0
+    noise_scaling: str = "scaled"
+    order_bounds: tuple = (0.0, 2.5)
+    divergence_limit: float = 1e8
+
+    def __post_init__(self):
+        if self.sigma_sum_start not in (0, 1):
+            raise ValueError("sigma_sum_start must be 0 or 1")
+        if self.noise_scaling not in NOISE_SCALINGS:
+            raise ValueError(f"noise_scaling must be one of {NOISE_SCALINGS}")
+        lo, hi = self.order_bounds
+        if not lo < hi:
+            raise ValueError("order_bounds must be (low, high) with low < high")
+        for f in (self.kfo, self.kfw):
+            if not 0.0 <= f.delta <= 1.0:
+                raise ValueError("delta must lie in [0, 1]")
+
+    def to_dict(self) -> dict:
+        """Plain nested dict (TOML-friendly; ``None`` entries dropped)."""
+
+        def conv(obj):
+            out = {}
+            for f in fields(obj):
+                v = getattr(obj, f.name)
+                if v is None:
+                    continue
+                out[f.name] = conv(v) if hasattr(v, "__dataclass_fields__") else (list(v) if isinstance(v, tuple) else v)
+            return out
+
+        return conv(self)
+
+    @classmethod
+    def from_dict(cls, data: dict, base: "TEAConfig | None" = None) -> "TEAConfig":
+        """Build from a nested dict (e.g. parsed TOML), overriding ``base`` (default settings)."""
+        base = base or cls()
+        known = {f.name for f in fields(cls)}
+        unknown = set(data) - known
+        if unknown:
+            raise ValueError(f"unknown TEA settings: {sorted(unknown)}")
+        kw = {}
+        for name, value in data.items():
+            current = getattr(base, name)
+            if hasattr(current, "__dataclass_fields__"):
+                if not isinstance(value, dict):
+                    raise ValueError(f"[{name}] must be a table")
+                sub = {f.name for f in fields(current)}
+                bad = set(value) - sub
+                if bad:
+                    raise ValueError(f"unknown settings in [{name}]: {sorted(bad)}")
+                kw[name] = replace(current, **value)
+            else:
+                kw[name] = tuple(value) if isinstance(value, list) else value
+        return replace(base, **kw)
+
+
+# --------------------------------------------------------------------------- tensors
+
+
+def _mat(value, size: int, like: Tensor, name: str) -> Tensor:
+    t = torch.as_tensor(value, dtype=like.dtype, device=like.device)
+    eye = torch.eye(size, dtype=like.dtype, device=like.device)
+    if t.ndim == 0:
+        return t * eye
+    if t.ndim == 1:
+        if t.shape[0] != size:
+            raise ValueError(f"{name}: expected {size} diagonal entries, got {t.shape[0]}")
+        return torch.diag(t)
+    if t.shape[-2:] != (size, size):
+        raise ValueError(f"{name}: expected a {size}x{size} matrix, got {tuple(t.shape)}")
+    return t
+
+
+def _vec(value, size: int, like: Tensor, name: str) -> Tensor:
+    t = torch.as_tensor(value, dtype=like.dtype, device=like.device)
+    if t.ndim == 0:
+        return t.expand(size).clone()
+    if t.shape[-1] != size:
+        raise ValueError(f"{name}: expected {size} entries, got {tuple(t.shape)}")
+    return t
+
+
+class TEAParams(NamedTuple):
+    """Tensor form of a :class:`TEAConfig` for one :class:`Structure`.
+
+    Tensor fields have a leading batch shape (possibly empty) that broadcasts
+    with the data; :func:`stack_params` stacks configs of e.g. three axes.
+    """
+
+    x0: Tensor  # (*B, n)
+    P0: Tensor  # (*B, n, n)
+    Q: Tensor  # (*B, n, n)
+    R: Tensor  # (*B, p, p)
+    alpha0: Tensor  # (*B, L)
+    P0o: Tensor  # (*B, L, L)
+    Q0o: Tensor  # (*B, L, L)
+    Ro: Tensor  # (*B, p, p)
+    w0: Tensor  # (*B, m)
+    P0w: Tensor  # (*B, m, m)
+    Q0w: Tensor  # (*B, m, m)
+    Rw: Tensor  # (*B, p, p)
+    config: TEAConfig
+
+
+def make_params(config: TEAConfig, structure: Structure, *, dtype=torch.float64, device=None) -> TEAParams:
+    """Turn a config into tensors shaped for ``structure``."""
+    like = torch.empty((), dtype=dtype, device=device)
+    n, p, L, m = structure.n_states, structure.n_outputs, structure.n_estimated_orders, structure.n_params
+    x, o, w = config.kfx, config.kfo, config.kfw
+    return TEAParams(
+        x0=_vec(x.x0, n, like, "kfx.x0"), P0=_mat(x.P0, n, like, "kfx.P0"),
+        Q=_mat(x.Q0, n, like, "kfx.Q0"), R=_mat(x.R, p, like, "kfx.R"),
+        alpha0=_vec(o.x0, L, like, "kfo.x0"), P0o=_mat(o.P0, L, like, "kfo.P0"),
+        Q0o=_mat(o.Q0, L, like, "kfo.Q0"), Ro=_mat(o.R, p, like, "kfo.R"),
+        w0=_vec(w.x0, m, like, "kfw.x0"), P0w=_mat(w.P0, m, like, "kfw.P0"),
+        Q0w=_mat(w.Q0, m, like, "kfw.Q0"), Rw=_mat(w.R, p, like, "kfw.R"),
+        config=config,
+    )
+
+
+def stack_params(params: Sequence[TEAParams]) -> TEAParams:
+    """Stack parameter sets (e.g. one per axis) along a new leading batch dimension.
+
+    The non-tensor settings (UT constants, δ, options) must agree.
+    """
+    params = list(params)
+    if not params:
+        raise ValueError("nothing to stack")
+    first = params[0].config
+
+    def strip(c: TEAConfig):
+        keep = lambda f: replace(f, x0=0, P0=0, Q0=0, R=0)  # noqa: E731
+        return replace(c, kfx=keep(c.kfx), kfo=keep(c.kfo), kfw=keep(c.kfw))
+
+    for p in params[1:]:
+        if strip(p.config) != strip(first):
+            raise ValueError("stacked configs may differ only in x0, P0, Q0 and R")
+    tensors = [torch.stack([getattr(p, name) for p in params]) for name in TEAParams._fields[:-1]]
+    return TEAParams(*tensors, config=first)
+
+
+# --------------------------------------------------------------------------- unscented pieces
+
+
+def ut_weights(L: int, ut_alpha: float, ut_beta: float, kappa: float | None, *, dtype=torch.float64, device=None):
+    """Unscented weights, paper (26)–(28).
+
+    ``λ = 𝔄²(L+κ) − L``; ``W₀ᵐ = λ/(L+λ)``, ``W₀ᶜ = W₀ᵐ + 1 − 𝔄² + 𝔅``,
+    ``Wᵢᵐ = Wᵢᶜ = 1/(2(L+λ))``. Returns ``(Wm, Wc, L+λ)`` with weights of shape ``(2L+1,)``.
+    """
+    k = 3.0 - L if kappa is None else kappa
+    lam = ut_alpha**2 * (L + k) - L
+    if L + lam <= 0:
+        raise ValueError(f"L + λ = {L + lam} must be positive (check ut_alpha and kappa)")
+    wi = 1.0 / (2.0 * (L + lam))
+    wm = torch.full((2 * L + 1,), wi, dtype=dtype, device=device)
+    wc = wm.clone()
+    wm[0] = lam / (L + lam)
+    wc[0] = lam / (L + lam) + (1.0 - ut_alpha**2 + ut_beta)
+    return wm, wc, L + lam
+
+
+def _symmetrise(M: Tensor) -> Tensor:
+    return 0.5 * (M + M.mT)
+
+
+def _psd(M: Tensor) -> Tensor:
+    """Project a batch of symmetric matrices onto the PSD cone."""
+    M = _symmetrise(M)
+    if M.shape[-1] == 1:
+        return M.clamp(min=0.0)
+    vals, vecs = torch.linalg.eigh(M)
+    return (vecs * vals.clamp(min=0.0).unsqueeze(-2)) @ vecs.mT
+
+
+def _sqrt_psd(M: Tensor) -> Tensor:
+    """A square root ``S`` with ``S Sᵀ = M``: Cholesky (the paper's choice), eigen fallback."""
+    if M.shape[-1] == 1:
+        return M.clamp(min=0.0).sqrt()
+    Lc, info = torch.linalg.cholesky_ex(M)
+    if bool((info != 0).any()):
+        vals, vecs = torch.linalg.eigh(_symmetrise(M))
+        alt = vecs * vals.clamp(min=0.0).sqrt().unsqueeze(-2)
+        Lc = torch.where((info != 0)[..., None, None], alt, Lc)
+    return Lc
+
+
+def _sigma_points(mean: Tensor, cov: Tensor, scale: float) -> Tensor:
+    """Sigma points (15)/(40): ``[m, m + Sᵢ, m − Sᵢ]`` with ``S Sᵀ = scale · cov``; ``(*B, 2L+1, L)``."""
+    S = _sqrt_psd(scale * cov).mT  # rows are the columns of the root
+    m = mean.unsqueeze(-2)
+    return torch.cat([m, m + S, m - S], dim=-2)
+
+
+def _gain(Pxy: Tensor, Pyy: Tensor, mask: Tensor) -> Tensor:
+    """Kalman gain ``Pxy Pyy⁻¹`` (22)/(33) with unobserved outputs (``mask`` False) ignored.
+
+    Pxy ``(*B, q, p)``, Pyy ``(*B, p, p)``, mask ``(*B, p)`` → ``(*B, q, p)``;
+    columns of missing outputs are zero.
+    """
+    if Pyy.shape[-1] == 1:
+        return torch.where(mask.unsqueeze(-2), Pxy / Pyy, torch.zeros_like(Pxy))
+    both = mask.unsqueeze(-1) & mask.unsqueeze(-2)
+    eye = torch.eye(Pyy.shape[-1], dtype=Pyy.dtype, device=Pyy.device)
+    Pyy_m = torch.where(both, Pyy, eye.expand_as(Pyy))
+    Pxy_m = torch.where(mask.unsqueeze(-2), Pxy, torch.zeros_like(Pxy))
+    return torch.linalg.solve(Pyy_m, Pxy_m.mT).mT
+
+
+def _ut_update(points, Y, prior_mean, prior_cov, R, y, mask, wm, wc, start):
+    """Unscented update (19)–(24): returns (mean, cov, gain, innovation, Pyy)."""
+    y_pred = torch.einsum("s,...sp->...p", wm, Y)  # (19)
+    dY = Y - y_pred.unsqueeze(-2)
+    dX = points - prior_mean.unsqueeze(-2)
+    wc_s = wc[start:]
+    Pyy = torch.einsum("s,...sp,...sq->...pq", wc_s, dY[..., start:, :], dY[..., start:, :]) + R  # (20)
+    Pxy = torch.einsum("s,...sl,...sp->...lp", wc_s, dX[..., start:, :], dY[..., start:, :])  # (21)
+    K = _gain(Pxy, Pyy, mask)  # (22)
+    e = torch.where(mask, y - y_pred, torch.zeros_like(y_pred))
+    mean = prior_mean + (K @ e.unsqueeze(-1)).squeeze(-1)  # (23)
+    cov = _psd(prior_cov - K @ Pyy @ K.mT)  # (24)
+    return mean, cov, K, e, Pyy
+
+
+def _adapt_q(Q, K, e, delta: float, q_max: float | None, observed):
+    """Robbins–Monro adaptation (25): ``Q ← (1−δ) Q + δ (K e)(K e)ᵀ``, optionally capped."""
+    if delta == 0.0:
+        return Q
+    Ke = (K @ e.unsqueeze(-1))
+    Qn = (1.0 - delta) * Q + delta * (Ke @ Ke.mT)
+    if q_max is not None:
+        top = torch.diagonal(Qn, dim1=-2, dim2=-1).amax(-1).clamp(min=torch.finfo(Qn.dtype).tiny)
+        Qn = Qn * (q_max / top).clamp(max=1.0)[..., None, None]
+    return torch.where(observed[..., None, None], Qn, Q)
+
+
+# --------------------------------------------------------------------------- one step
+
+
+class Carry(NamedTuple):
+    """Filter state between steps (all at time ``k−1``)."""
+
+    x: Tensor  # (*B, n)
+    P: Tensor  # (*B, n, n)
+    alpha: Tensor  # (*B, L)
+    Po: Tensor  # (*B, L, L)
+    Qo: Tensor  # (*B, L, L)
+    w: Tensor  # (*B, m)
+    Pw: Tensor  # (*B, m, m)
+    Qw: Tensor  # (*B, m, m)
+    diverged: Tensor  # (*B,) bool
+
+
+class StepOutput(NamedTuple):
+    innovation: Tensor  # (*B, p), KFx: y_k − C x̃_k (0 where missing)
+    innovation_cov: Tensor  # (*B, p, p), C P̃ Cᵀ + R
+
+
+@dataclass(frozen=True)
+class _Model:
+    """The structure as tensors of one dtype/device (internal)."""
+
+    structure: Structure
+    h: Tensor
+    B: Tensor
+    C: Tensor
+
+    def A(self, w):
+        return self.structure.A(w)
+
+    def full(self, est):
+        return self.structure.full_orders(est)
+
+
+def _replica(model: _Model, orders_o, w_prev, alpha_prev_full, sigma_w, x_prev, u_prev, xh):
+    """Model replica (16)–(18) and (41)–(42) for the sigma points of KFo **and** KFw at once.
+
+    orders_o ``(*B, So, n)`` (KFo sigma orders, with ``A(ŵ_{k−1})``); sigma_w
+    ``(*B, Sw, m)`` (KFw sigma parameters, with order ``α̂_{k−1}``). One GL history
+    evaluation covers the ``So + 1`` distinct orders, one batched matrix product
+    every drive term. Returns predicted outputs ``(*B, So + Sw, p)``.
+    """
+    So, Sw = orders_o.shape[-2], sigma_w.shape[-2]
+    orders = torch.cat([orders_o, alpha_prev_full.unsqueeze(-2)], dim=-2)  # (*B, So+1, n)
+    memory = history_sum(orders, xh)  # (*B, So+1, n)
+    hpow = model.h ** orders
+    A_all = torch.cat([model.A(w_prev).unsqueeze(-3).expand(x_prev.shape[:-1] + (So,) + (x_prev.shape[-1],) * 2),
+                       model.A(sigma_w)], dim=-3)  # (*B, So+Sw, n, n)
+    bu = 0.0 if u_prev is None else u_prev @ model.B.mT
+    drive = (A_all @ x_prev.unsqueeze(-2).unsqueeze(-1)).squeeze(-1) + (bu.unsqueeze(-2) if u_prev is not None else 0.0)
+    expand_w = lambda t: t[..., So:, :].expand(t.shape[:-2] + (Sw, t.shape[-1]))  # noqa: E731
+    hp = torch.cat([hpow[..., :So, :], expand_w(hpow)], dim=-2)
+    mem = torch.cat([memory[..., :So, :], expand_w(memory)], dim=-2)
+    chi = hp * drive - mem
+    return chi @ model.C.mT
+
+
+def _tea_step(model: _Model, params: TEAParams, weights, carry: Carry, y, u_prev, xh, Ph):
+    """One TEA step ``k ≥ 1`` — a pure function of its arguments.
+
+    y ``(*B, p)`` (NaN = missing); u_prev ``(*B, d)`` or None; xh ``(*B, n, k)``
+    and Ph ``(*B, n, n, k)`` the KFx history newest first (``x̂_{k−1} … x̂_0``).
+    Returns ``(Carry, StepOutput)`` at time ``k``.
+    """
+    cfg = params.config
+    (wm_o, wc_o, scale_o), (wm_w, wc_w, scale_w) = weights
+    start = cfg.sigma_sum_start
+    mask = ~torch.isnan(y)
+    observed = mask.any(-1)
+    y0 = torch.where(mask, y, torch.zeros_like(y))
+
+    # KFo and KFw predictions (13)–(15), (38)–(40)
+    Po_t = carry.Po + carry.Qo
+    Pw_t = carry.Pw + carry.Qw
+    sig_o = _sigma_points(carry.alpha, Po_t, scale_o)
+    sig_w = _sigma_points(carry.w, Pw_t, scale_w)
+    alpha_prev_full = model.full(carry.alpha)
+    Y = _replica(model, model.full(sig_o), carry.w, alpha_prev_full, sig_w, carry.x, u_prev, xh)
+    So = sig_o.shape[-2]
+    alpha, Po, Ko, eo, _ = _ut_update(sig_o, Y[..., :So, :], carry.alpha, Po_t, params.Ro, y0, mask, wm_o, wc_o, start)
+    lo, hi = cfg.order_bounds
+    alpha = alpha.clamp(lo, hi)
+    Qo = _adapt_q(carry.Qo, Ko, eo, cfg.kfo.delta, cfg.kfo.Q_max, observed)
+    w, Pw, Kw, ew, _ = _ut_update(sig_w, Y[..., So:, :], carry.w, Pw_t, params.Rw, y0, mask, wm_w, wc_w, start)
+    Qw = _adapt_q(carry.Qw, Kw, ew, cfg.kfw.delta, cfg.kfw.Q_max, observed)
+
+    # KFx (29)–(35) with α̂_k and ŵ_{k−1}
+    a = model.full(alpha)  # (*B, n)
+    k = xh.shape[-1]
+    c = gl_coefficients(a, k)  # (*B, n, k+1)
+    hp = model.h ** a
+    A = model.A(carry.w)
+    drive = (A @ carry.x.unsqueeze(-1)).squeeze(-1)
+    if u_prev is not None:
+        drive = drive + u_prev @ model.B.mT
+    x_pred = hp * drive - (c[..., 1:] * xh).sum(-1)
+    F = hp.unsqueeze(-1) * A + torch.diag_embed(a)
+    Qx = params.Q * (hp.unsqueeze(-1) * hp.unsqueeze(-2)) if cfg.noise_scaling == "scaled" else params.Q
+    cj = c[..., 2:]  # lags 2…k
+    if cj.shape[-1]:
+        mem_cov = torch.einsum("...sj,...tj,...stj->...st", cj, cj, Ph[..., 1:])
+    else:
+        mem_cov = torch.zeros_like(carry.P)
+    P_pred = _symmetrise(F @ carry.P @ F.mT + Qx + mem_cov)
+    x, P, e, S = _kfx_update(model, params, x_pred, P_pred, y0, mask)
+
+    new = Carry(x, P, alpha, Po, Qo, w, Pw, Qw, carry.diverged)
+    return _guard(new, carry, cfg.divergence_limit), StepOutput(e, S)
+
+
+def _kfx_update(model: _Model, params: TEAParams, x_pred, P_pred, y, mask):
+    """KFx measurement update (33)–(35), symmetric form ``P = P̃ − K S Kᵀ``."""
+    C = model.C
+    S = C @ P_pred @ C.mT + params.R
+    K = _gain(P_pred @ C.mT, S, mask)
+    e = torch.where(mask, y - (x_pred.unsqueeze(-2) @ C.mT).squeeze(-2), torch.zeros_like(y))
+    x = x_pred + (K @ e.unsqueeze(-1)).squeeze(-1)
+    P = _psd(P_pred - K @ S @ K.mT)
+    return x, P, e, S
+
+
+def _guard(new: Carry, old: Carry, limit: float) -> Carry:
+    """Flag realisations whose carry became non-finite or left ``[−limit, limit]``; freeze them."""
+    bad = torch.zeros_like(old.diverged)
+    nb = old.diverged.ndim
+    for t in new[:-1]:
+        flat = t.reshape(t.shape[:nb] + (-1,))
+        bad = bad | ~torch.isfinite(flat).all(-1) | (flat.abs() > limit).any(-1)
+    diverged = old.diverged | bad
+    out = []
+    for tn, to in zip(new[:-1], old[:-1]):
+        d = diverged.reshape(diverged.shape + (1,) * (tn.ndim - nb))
+        out.append(torch.where(d, to, tn))
+    return Carry(*out, diverged)
+
+
+# --------------------------------------------------------------------------- the loop
+
+
+@dataclass(frozen=True)
+class TEAResult:
+    """Per-step TEA outputs; time is dimension ``-2`` (``-3`` for covariances).
+
+    Attributes
+    ----------
+    x, P : state estimates ``(*B, N, n)`` and covariances ``(*B, N, n, n)`` (KFx).
+    alpha, P_alpha, Q_alpha : order estimates ``(*B, N, L)`` and their covariance and
+        adapted noise ``(*B, N, L, L)`` (KFo).
+    w, P_w, Q_w : parameter estimates ``(*B, N, m)``, covariances ``(*B, N, m, m)`` (KFw).
+    innovation, innovation_cov : KFx innovations ``(*B, N, p)`` and their predicted
+        covariance ``(*B, N, p, p)``; zero innovation where ``y`` was missing.
+    diverged : ``(*B,)`` bool; diverged_at : ``(*B,)`` first step flagged, −1 if never.
+    """
+
+    x: Tensor
+    P: Tensor
+    alpha: Tensor
+    P_alpha: Tensor
+    Q_alpha: Tensor
+    w: Tensor
+    P_w: Tensor
+    Q_w: Tensor
+    innovation: Tensor
+    innovation_cov: Tensor
+    diverged: Tensor
+    diverged_at: Tensor
+
+
+def run_tea(
+    y: Tensor,
+    *,
+    h: float,
+    params: TEAParams,
+    structure: Structure | None = None,
+    inputs: Tensor | None = None,
+    progress=None,
+) -> TEAResult:
+    """Run the TEA over a batch of measurement series.
+
+    Parameters
+    ----------
+    y : Tensor, shape ``(*B, N, p)``
+        Measurements; NaN marks a missing sample (predict without update).
+    h : float
+        Sample time.
+    params : TEAParams
+        From :func:`make_params` (or :func:`stack_params`); its batch shape
+        broadcasts with ``*B``.
+    structure : Structure, optional
+        Model structure (default: the paper's scalar noise model).
+    inputs : Tensor, shape ``(*B, N, d)``, optional
+        Known inputs ``u``; ``u_{k−1}`` drives step ``k``.
+    progress : callable, optional
+        Called as ``progress(k, N)`` after each step (for progress bars).
+
+    Returns
+    -------
+    TEAResult
+    """
+    structure = structure or Structure.scalar_noise()
+    y = torch.as_tensor(y)
+    if not y.is_floating_point():
+        y = y.to(torch.float64)
+    dtype, device = y.dtype, y.device
+    n, p, L, m = structure.n_states, structure.n_outputs, structure.n_estimated_orders, structure.n_params
+    if y.ndim < 2 or y.shape[-1] != p:
+        raise ValueError(f"y must have shape (*B, N, {p}), got {tuple(y.shape)}")
+    N = y.shape[-2]
+    params = TEAParams(*[t.to(device=device, dtype=dtype) for t in params[:-1]], config=params.config)
+    shapes = [y.shape[:-2], params.x0.shape[:-1], params.R.shape[:-2], params.Ro.shape[:-2], params.Rw.shape[:-2],
+              params.alpha0.shape[:-1], params.w0.shape[:-1], params.P0.shape[:-2], params.Q.shape[:-2]]
+    if inputs is not None:
+        inputs = torch.as_tensor(inputs, dtype=dtype, device=device)
+        if inputs.shape[-2:] != (N, structure.n_inputs):
+            raise ValueError(f"inputs must have shape (*B, {N}, {structure.n_inputs}), got {tuple(inputs.shape)}")
+        shapes.append(inputs.shape[:-2])
+    batch = torch.broadcast_shapes(*shapes)
+    like = torch.empty((), dtype=dtype, device=device)
+    model = _Model(structure, torch.as_tensor(h, dtype=dtype, device=device), structure.B.to(like), structure.C.to(like))
+    cfg = params.config
+    weights = (ut_weights(L, cfg.kfo.ut_alpha, cfg.kfo.ut_beta, cfg.kfo.kappa, dtype=dtype, device=device),
+               ut_weights(m, cfg.kfw.ut_alpha, cfg.kfw.ut_beta, cfg.kfw.kappa, dtype=dtype, device=device))
+    y = y.expand(batch + (N, p))
+    if inputs is not None:
+        inputs = inputs.expand(batch + (N, structure.n_inputs))
+    ex = lambda t, ev: t.expand(batch + ev).clone()  # noqa: E731
+
+    # outputs (time at dim -2 / -3) and the time-reversed KFx history
+    out = {
+        "x": torch.empty(batch + (N, n), dtype=dtype, device=device),
+        "P": torch.empty(batch + (N, n, n), dtype=dtype, device=device),
+        "alpha": torch.empty(batch + (N, L), dtype=dtype, device=device),
+        "P_alpha": torch.empty(batch + (N, L, L), dtype=dtype, device=device),
+        "Q_alpha": torch.empty(batch + (N, L, L), dtype=dtype, device=device),
+        "w": torch.empty(batch + (N, m), dtype=dtype, device=device),
+        "P_w": torch.empty(batch + (N, m, m), dtype=dtype, device=device),
+        "Q_w": torch.empty(batch + (N, m, m), dtype=dtype, device=device),
+        "innovation": torch.empty(batch + (N, p), dtype=dtype, device=device),
+        "innovation_cov": torch.empty(batch + (N, p, p), dtype=dtype, device=device),
+    }
+    xh = torch.zeros(batch + (n, N), dtype=dtype, device=device)
+    Ph = torch.zeros(batch + (n, n, N), dtype=dtype, device=device)
+    diverged_at = torch.full(batch, -1, dtype=torch.long, device=device)
+
+    # k = 0: KFx update from the prior only
+    y_0 = y[..., 0, :]
+    mask0 = ~torch.isnan(y_0)
+    x, P, e, S = _kfx_update(model, params, ex(params.x0, (n,)), ex(params.P0, (n, n)),
+                             torch.where(mask0, y_0, torch.zeros_like(y_0)), mask0)
+    carry = Carry(x, P, ex(params.alpha0, (L,)), ex(params.P0o, (L, L)), ex(params.Q0o, (L, L)),
+                  ex(params.w0, (m,)), ex(params.P0w, (m, m)), ex(params.Q0w, (m, m)),
+                  torch.zeros(batch, dtype=torch.bool, device=device))
+    prior = Carry(ex(params.x0, (n,)), ex(params.P0, (n, n)), *carry[2:])
+    carry = _guard(carry, prior, cfg.divergence_limit)
+
+    def record(k, c: Carry, o: StepOutput):
+        for name, t in (("x", c.x), ("alpha", c.alpha), ("w", c.w), ("innovation", o.innovation)):
+            out[name][..., k, :] = t
+        for name, t in (("P", c.P), ("P_alpha", c.Po), ("Q_alpha", c.Qo), ("P_w", c.Pw), ("Q_w", c.Qw),
+                        ("innovation_cov", o.innovation_cov)):
+            out[name][..., k, :, :] = t
+        xh[..., N - 1 - k] = c.x
+        Ph[..., N - 1 - k] = c.P
+
+    record(0, carry, StepOutput(e, S))
+    diverged_at = torch.where(carry.diverged & (diverged_at < 0), 0, diverged_at)
+    for k in range(1, N):
+        u_prev = None if inputs is None else inputs[..., k - 1, :]
+        carry, o = _tea_step(model, params, weights, carry, y[..., k, :], u_prev, xh[..., N - k :], Ph[..., N - k :])
+        record(k, carry, o)
+        diverged_at = torch.where(carry.diverged & (diverged_at < 0), k, diverged_at)
+        if progress is not None:
+            progress(k, N)
+    return TEAResult(**out, diverged=carry.diverged, diverged_at=diverged_at)

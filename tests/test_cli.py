@@ -1,0 +1,220 @@
+"""End-to-end command-line tests: the contract of simulate / estimate / identify, and bad input."""
+import json
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from torchtea.cli import main
+from torchtea.gl import difference
+from torchtea.io import bundled_recording
+
+SHARED = Path(__file__).resolve().parents[2] / "shared" / "data" / "mpu6050_arduino_100hz"
+
+
+def run(*argv, capsys=None):
+    code = main([str(a) for a in argv])
+    return code
+
+
+def test_simulate_contract(tmp_path):
+    out = tmp_path / "sim.csv"
+    assert run("simulate", "--n", 400, "--h", 0.01, "--order", "linear:0.3,0.2", "--param", -2.0, "--q", 0.01,
+               "--r", 1e-3, "--input-std", 0.5, "--seed", 3, "--out", out) == 0
+    header = out.read_text().splitlines()[0]
+    assert header == "t,u,x,y,alpha"
+    d = np.genfromtxt(out, delimiter=",", names=True)
+    assert len(d) == 400
+    k = np.arange(400)
+    np.testing.assert_allclose(d["t"], k * 0.01, rtol=0, atol=1e-15)
+    np.testing.assert_allclose(d["alpha"], 0.3 + 0.2 * k * 0.01, rtol=1e-15)
+    assert d["x"][0] == 0.0
+    # the CSV satisfies the model: h^{-α_{k+1}} Σ c_j(α_{k+1}) x_{k+1−j} − f x_k − u_k = ω_k, Var ω = Q
+    lhs = difference(torch.tensor(d["x"]), torch.tensor(d["alpha"]), 0.01, "A").numpy()[1:]
+    omega = lhs - (-2.0 * d["x"][:-1] + d["u"][:-1])
+    assert abs(omega.var() / 0.01 - 1) < 4 * math.sqrt(2 / 399)
+    assert abs(d["u"].std() / 0.5 - 1) < 0.1
+    assert abs(np.var(d["y"] - d["x"]) / 1e-3 - 1) < 4 * math.sqrt(2 / 400)
+
+
+def test_simulate_parabolic_no_input(tmp_path):
+    out = tmp_path / "p.csv"
+    assert run("simulate", "--n", 50, "--h", 0.1, "--order", "parabolic:0.2,0.05", "--param", -1, "--q", 1e-4,
+               "--r", 0, "--out", out) == 0
+    d = np.genfromtxt(out, delimiter=",", names=True)
+    np.testing.assert_allclose(d["alpha"], 0.2 + 0.05 * (np.arange(50) * 0.1) ** 2)
+    assert np.all(d["u"] == 0) and np.all(d["y"] == d["x"])
+
+
+def test_simulate_seed_reproducible(tmp_path):
+    a, b = tmp_path / "a.csv", tmp_path / "b.csv"
+    for o in (a, b):
+        run("simulate", "--n", 30, "--h", 0.01, "--order", 0.4, "--param", -1, "--q", 1e-2, "--r", 1e-3,
+            "--seed", 9, "--out", o)
+    assert a.read_bytes() == b.read_bytes()
+
+
+def test_estimate_json_contract_and_outputs(tmp_path, capsys):
+    sim = tmp_path / "ex1.csv"
+    run("simulate", "--n", 1500, "--h", 0.001, "--order", 0.35, "--param", -1, "--q", 1e-4, "--r", 1e-3,
+        "--input-std", 1, "--seed", 1, "--out", sim)
+    capsys.readouterr()
+    assert run("estimate", sim, "--h", 0.001, "--preset", "paper-example1", "--json") == 0
+    out = json.loads(capsys.readouterr().out)
+    for key in ("alpha_final", "alpha_mean_last_third", "param_final", "param_mean_last_third", "diverged"):
+        assert key in out
+    assert out["diverged"] is False
+    assert abs(out["alpha_mean_last_third"] - 0.35) < 0.05
+    traj = Path(out["out"])
+    assert traj == sim.with_suffix(".tea.csv") and traj.exists()
+    d = np.genfromtxt(traj, delimiter=",", names=True)
+    assert len(d) == 1500
+    assert out["alpha_final"] == pytest.approx(d["alpha_hat"][-1], rel=1e-12)
+    assert out["alpha_mean_last_third"] == pytest.approx(d["alpha_hat"][1000:].mean(), rel=1e-12)
+    assert traj.with_suffix(".toml").exists()
+
+
+def test_estimate_with_config_file(tmp_path, capsys):
+    sim = tmp_path / "s.csv"
+    run("simulate", "--n", 300, "--h", 0.001, "--order", 0.35, "--param", -1, "--q", 1e-4, "--r", 1e-3,
+        "--input-std", 1, "--seed", 2, "--out", sim)
+    cfg = tmp_path / "c.toml"
+    cfg.write_text('preset = "paper-example1"\norder_bounds = [0.3, 0.4]\n[kfw]\ndelta = 0.0\n')
+    capsys.readouterr()
+    assert run("estimate", sim, "--h", 0.001, "--config", cfg, "--json", "--out", tmp_path / "o.csv") == 0
+    out = json.loads(capsys.readouterr().out)
+    assert 0.3 <= out["alpha_final"] <= 0.4
+    written = (tmp_path / "o.toml").read_text()
+    assert "delta = 0.0" in written and "order_bounds = [0.3, 0.4]" in written
+
+
+def test_estimate_missing_samples(tmp_path, capsys):
+    f = tmp_path / "gap.csv"
+    f.write_text("y\n0.1\n\n0.2\nnan\n0.3\n0.1\n")
+    assert run("estimate", f, "--h", 0.01, "--preset", "paper-mems-x", "--json") == 2
+    assert "--allow-missing" in capsys.readouterr().err
+    f.write_text("y\n0.1\n\n0.2\nnan\n0.3\n0.1\n\n")
+    # an interior blank line is an empty sample; the trailing one is not a sample
+    assert run("estimate", f, "--h", 0.01, "--preset", "paper-mems-x", "--allow-missing", "--json") == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["samples"] == 6 and not out["diverged"]
+
+
+@pytest.mark.parametrize("content,needle", [
+    ("x,u\n1,2\n", "missing column(s) 'y'"),
+    ("y\n0.1\nabc\n", "line 3: column 'y' holds 'abc'"),
+    ("y\n0.1\ninf\n", "line 3: column 'y' is not finite"),
+    ("y,u\n0.1,1\n0.2\n", "line 3: 1 fields"),
+    ("", "empty file"),
+])
+def test_estimate_bad_files(tmp_path, capsys, content, needle):
+    f = tmp_path / "bad.csv"
+    f.write_text(content)
+    assert run("estimate", f, "--h", 0.01) == 2
+    err = capsys.readouterr().err
+    assert needle in err and str(f) in err
+    assert err.count("\n") == 1 and "Traceback" not in err
+
+
+def test_bad_arguments_one_line(tmp_path, capsys):
+    assert run("estimate", tmp_path / "nope.csv", "--h", 0.01) == 2
+    assert "no such file" in capsys.readouterr().err
+    f = tmp_path / "ok.csv"
+    f.write_text("y\n0.1\n0.2\n")
+    assert run("estimate", f, "--h", 0.01, "--preset", "paper-example9") == 2
+    err = capsys.readouterr().err
+    assert "unknown preset 'paper-example9'" in err and "paper-mems-z" in err
+    assert run("simulate", "--n", 10, "--h", 0.1, "--order", "cubic:1,2", "--param", -1, "--q", 1, "--r", 1,
+               "--out", tmp_path / "x.csv") == 2
+    assert "bad order SPEC 'cubic:1,2'" in capsys.readouterr().err
+    cfg = tmp_path / "bad.toml"
+    cfg.write_text("[kfo]\ngain = 3\n")
+    assert run("estimate", f, "--h", 0.01, "--config", cfg) == 2
+    assert "unknown settings in [kfo]: ['gain']" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["simulate", "--n", "10", "--h", "-1", "--order", "0.3", "--param", "1", "--q", "1", "--r", "1",
+              "--out", "x.csv"])
+
+
+def test_debug_shows_traceback(tmp_path):
+    f = tmp_path / "bad.csv"
+    f.write_text("x\n1\n")
+    r = subprocess.run([sys.executable, "-m", "torchtea.cli", "--debug", "estimate", str(f), "--h", "0.01"],
+                       capture_output=True, text=True)
+    assert r.returncode != 0 and "Traceback" in r.stderr
+    r = subprocess.run([sys.executable, "-m", "torchtea.cli", "estimate", str(f), "--h", "0.01"],
+                       capture_output=True, text=True)
+    assert r.returncode == 2 and "Traceback" not in r.stderr and r.stderr.count("\n") == 1
+
+
+def test_identify_bundled_json_contract(tmp_path, capsys):
+    assert run("identify", "--json", "--samples", 600, "--out", tmp_path / "id") == 0
+    out = json.loads(capsys.readouterr().out)
+    assert set(out["axes"]) == {"x", "y", "z"}
+    for axis in "xyz":
+        a = out["axes"][axis]
+        assert math.isfinite(a["alpha"]) and math.isfinite(a["param"])
+        assert 0.0 <= a["alpha"] <= 2.5
+    d = np.genfromtxt(tmp_path / "id" / "trajectories.csv", delimiter=",", names=True)
+    assert len(d) == 600
+    assert out["axes"]["y"]["alpha"] == pytest.approx(d["alpha_y"][400:].mean(), rel=1e-12)
+    # the mean was removed per axis, and R is each axis's measured variance
+    assert abs(d["y_z"].mean()) < 1e-12
+    assert out["axes"]["z"]["R"] == pytest.approx(d["y_z"].var(), rel=1e-9)
+    for axis in "xyz":
+        png = tmp_path / "id" / f"axis_{axis}.png"
+        assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_identify_batched_equals_per_axis(tmp_path, capsys):
+    """The three axes in one batch give what each axis gives alone through `estimate`."""
+    run("identify", "--json", "--samples", 300, "--no-plots", "--out", tmp_path / "id")
+    ident = json.loads(capsys.readouterr().out)
+    d = np.genfromtxt(tmp_path / "id" / "trajectories.csv", delimiter=",", names=True)
+    for axis in "xyz":
+        f = tmp_path / f"{axis}.csv"
+        np.savetxt(f, d[f"y_{axis}"], header="y", comments="", fmt="%.17g")
+        r = ident["axes"][axis]["R"]
+        cfg = tmp_path / f"{axis}.toml"
+        cfg.write_text(f'preset = "paper-mems-{axis}"\n[kfx]\nR = {r!r}\n[kfo]\nR = {r!r}\n[kfw]\nR = {r!r}\n')
+        assert run("estimate", f, "--h", 0.01, "--config", cfg, "--json") == 0
+        one = json.loads(capsys.readouterr().out)
+        assert one["alpha_mean_last_third"] == pytest.approx(ident["axes"][axis]["alpha"], rel=1e-9, abs=1e-12)
+        assert one["param_mean_last_third"] == pytest.approx(ident["axes"][axis]["param"], rel=1e-9, abs=1e-12)
+
+
+def test_identify_bad_recordings(tmp_path, capsys):
+    f = tmp_path / "r.csv"
+    f.write_text("Fs,100\nax,ay,gz\n1,2,3\n")
+    assert run("identify", f) == 2
+    assert "line 2: expected a header naming columns ax, ay, az" in capsys.readouterr().err
+    f.write_text("Fs,100\nax,ay,az\n1,2,3\n1,x,3\n")
+    assert run("identify", f) == 2
+    assert "line 4: column 'ay' holds 'x'" in capsys.readouterr().err
+    f.write_text("ax,ay,az\n1,2,3\n")
+    assert run("identify", f) == 2
+    assert "--rate" in capsys.readouterr().err
+    assert run("identify", tmp_path / "missing.csv") == 2
+    assert "no such file" in capsys.readouterr().err
+
+
+def test_bundled_recording_is_the_shared_one():
+    """The vendored copy is byte-for-byte the recording in shared/data (and its licence travels with it)."""
+    ours = bundled_recording()
+    assert (ours.parent / "LICENSE").read_text().startswith("MIT License")
+    if SHARED.exists():
+        assert ours.read_bytes() == (SHARED / "example_data_tinit_calc.csv").read_bytes()
+
+
+def test_presets_command(capsys):
+    assert run("presets") == 0
+    names = capsys.readouterr().out
+    for n in ("paper-example1", "paper-example2", "paper-mems-x", "paper-mems-y", "paper-mems-z"):
+        assert n in names
+    assert run("presets", "paper-mems-z") == 0
+    text = capsys.readouterr().out
+    assert "R = 0.0011" in text and 'preset = "paper-mems-z"' in text

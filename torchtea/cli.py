@@ -1,0 +1,339 @@
+"""The ``torchtea`` command line: simulate, estimate, identify, presets."""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+from pathlib import Path
+
+__all__ = ["main"]
+
+
+class CLIError(Exception):
+    """A user-facing error: one line, non-zero exit."""
+
+
+def _positive_float(text):
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not (v > 0 and math.isfinite(v)):
+        raise argparse.ArgumentTypeError(f"must be a positive number, got {text}")
+    return v
+
+
+def _nonneg_float(text):
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not (v >= 0 and math.isfinite(v)):
+        raise argparse.ArgumentTypeError(f"must be a non-negative number, got {text}")
+    return v
+
+
+def _finite_float(text):
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not math.isfinite(v):
+        raise argparse.ArgumentTypeError(f"must be finite, got {text}")
+    return v
+
+
+def _count(text):
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
+    if v < 2:
+        raise argparse.ArgumentTypeError(f"must be at least 2, got {v}")
+    return v
+
+
+def _progress(total, enabled, desc):
+    if not enabled:
+        return None, lambda: None
+    from tqdm import tqdm
+
+    bar = tqdm(total=total - 1, desc=desc, unit="step", file=sys.stderr, leave=False, mininterval=0.5)
+
+    def step(k, n):
+        bar.update(1)
+
+    return step, bar.close
+
+
+# --------------------------------------------------------------------------- simulate
+
+
+def cmd_simulate(args) -> int:
+    import torch
+
+    from .io import write_columns
+    from .model import Structure, parse_order_spec
+    from .simulate import gaussian_input, simulate
+
+    try:
+        order = parse_order_spec(args.order)
+    except ValueError as exc:
+        raise CLIError(str(exc)) from None
+    g = torch.Generator().manual_seed(args.seed)
+    u = None if args.input_std is None else gaussian_input((), args.n, 1, args.input_std, generator=g)
+    sim = simulate(Structure(), n_steps=args.n, h=args.h, order=order, parameters=[args.param],
+                   process_noise=args.q, measurement_noise=args.r, inputs=u, generator=g)
+    out = write_columns(args.out, {"t": sim.t, "u": sim.u[:, 0], "x": sim.x[:, 0], "y": sim.y[:, 0],
+                                   "alpha": sim.alpha[:, 0]})
+    if not bool(torch.isfinite(sim.x).all()):
+        print(f"torchtea: warning: the simulated state is not finite (unstable settings?); written to {out}",
+              file=sys.stderr)
+    print(f"wrote {args.n} samples to {out}", file=sys.stderr)
+    return 0
+
+
+# --------------------------------------------------------------------------- estimate
+
+
+def _tea_config(args):
+    from .config import load_config
+    from .presets import get_preset
+
+    if args.config and args.preset:
+        raise CLIError("give either --preset or --config, not both")
+    if args.config:
+        return load_config(args.config), str(args.config)
+    name = args.preset or "paper-example1"
+    try:
+        return get_preset(name), name
+    except ValueError as exc:
+        raise CLIError(str(exc)) from None
+
+
+def cmd_estimate(args) -> int:
+    import numpy as np
+    import torch
+
+    from .config import write_config
+    from .io import read_series, write_columns
+    from .model import Structure
+    from .tea import make_params, run_tea
+
+    cfg, source = _tea_config(args)
+    cols = read_series(args.file, ["y"], ["u"], allow_missing=args.allow_missing)
+    y = torch.as_tensor(cols["y"]).unsqueeze(-1)
+    u = torch.as_tensor(cols["u"]).unsqueeze(-1) if "u" in cols else None
+    if u is not None and torch.isnan(u).any():
+        raise CLIError(f"{args.file}: column 'u' has missing values; a known input cannot be missing")
+    N = y.shape[0]
+    if N < 2:
+        raise CLIError(f"{args.file}: need at least 2 samples, found {N}")
+    step, close = _progress(N, sys.stderr.isatty() and not args.json, "TEA")
+    t0 = time.perf_counter()
+    res = run_tea(y, h=args.h, params=make_params(cfg, Structure()), inputs=u, progress=step)
+    elapsed = time.perf_counter() - t0
+    close()
+    out = Path(args.out) if args.out else Path(args.file).with_suffix(".tea.csv")
+    t = np.arange(N) * args.h
+    cols_out = {"t": t, "y": cols["y"]}
+    if u is not None:
+        cols_out["u"] = cols["u"]
+    cols_out.update({
+        "x_hat": res.x[:, 0], "P": res.P[:, 0, 0], "alpha_hat": res.alpha[:, 0], "P_alpha": res.P_alpha[:, 0, 0],
+        "w_hat": res.w[:, 0], "P_w": res.P_w[:, 0, 0], "innovation": res.innovation[:, 0],
+        "innovation_var": res.innovation_cov[:, 0, 0],
+    })
+    write_columns(out, cols_out)
+    write_config(out.with_suffix(".toml"), cfg, {"h": args.h, "source": source})
+    third = slice(N - N // 3, N)
+    summary = {
+        "alpha_final": float(res.alpha[-1, 0]),
+        "alpha_mean_last_third": float(res.alpha[third, 0].mean()),
+        "param_final": float(res.w[-1, 0]),
+        "param_mean_last_third": float(res.w[third, 0].mean()),
+        "diverged": bool(res.diverged),
+        "diverged_at_step": int(res.diverged_at),
+        "samples": N,
+        "h": args.h,
+        "settings": source,
+        "out": str(out),
+        "seconds": round(elapsed, 3),
+    }
+    if res.diverged:
+        print(f"torchtea: warning: the estimator diverged at step {int(res.diverged_at)}; estimates are frozen "
+              "from there (see docs: adaptive Q, --config)", file=sys.stderr)
+    if args.json:
+        print(json.dumps(summary))
+    else:
+        print(f"order α̂: final {summary['alpha_final']:.4f}, mean of last third {summary['alpha_mean_last_third']:.4f}")
+        print(f"parameter ŵ: final {summary['param_final']:.4f}, mean of last third {summary['param_mean_last_third']:.4f}")
+        print(f"trajectories: {out}")
+    return 0
+
+
+# --------------------------------------------------------------------------- identify
+
+
+def cmd_identify(args) -> int:
+    import numpy as np
+
+    from .config import load_config, write_config
+    from .identify import AXES, identify
+    from .io import read_recording, write_columns
+
+    rec = read_recording(args.recording, lsb_per_g=args.lsb_per_g, rate_hz=args.rate)
+    n = None if args.samples == "all" else int(args.samples)
+    if n is not None and n < 2:
+        raise CLIError("--samples must be at least 2 or 'all'")
+    overrides = None
+    if args.config:
+        overrides = load_config(args.config).to_dict()
+        for f in ("kfx", "kfo", "kfw"):  # per-axis R stays the axis's own unless the file says otherwise
+            overrides[f].pop("R", None)
+    total = min(n or len(rec.accel_counts), len(rec.accel_counts))
+    step, close = _progress(total, sys.stderr.isatty() and not args.json, "TEA x,y,z")
+    t0 = time.perf_counter()
+    ident = identify(rec, n_samples=n, r_mode=args.r, overrides=overrides, progress=step)
+    elapsed = time.perf_counter() - t0
+    close()
+    summary = ident.summary()
+    out_dir = Path(args.out) if args.out else Path(f"identify-{Path(rec.path).stem}")
+    out_dir.mkdir(parents=True, exist_ok=True)
+    res = ident.result
+    cols = {"t": ident.t}
+    for i, a in enumerate(AXES):
+        cols.update({f"y_{a}": ident.y[i, :, 0], f"x_hat_{a}": res.x[i, :, 0], f"alpha_{a}": res.alpha[i, :, 0],
+                     f"P_alpha_{a}": res.P_alpha[i, :, 0, 0], f"w_{a}": res.w[i, :, 0], f"P_w_{a}": res.P_w[i, :, 0, 0],
+                     f"innovation_{a}": res.innovation[i, :, 0], f"innovation_var_{a}": res.innovation_cov[i, :, 0, 0]})
+    write_columns(out_dir / "trajectories.csv", cols)
+    for i, a in enumerate(AXES):
+        write_config(out_dir / f"config_{a}.toml", ident.configs[i], {"h": ident.h, "axis": a})
+    figures = []
+    if not args.no_plots:
+        from .plots import estimation_figure
+
+        t = ident.t
+        for i, a in enumerate(AXES):
+            figures.append(str(estimation_figure(
+                out_dir / f"axis_{a}.png", t, y=ident.y[i, :, 0].numpy(), x_hat=res.x[i, :, 0].numpy(),
+                alpha_hat=res.alpha[i, :, 0].numpy(), alpha_sd=res.P_alpha[i, :, 0, 0].clamp(min=0).sqrt().numpy(),
+                w_hat=res.w[i, :, 0].numpy(), w_sd=res.P_w[i, :, 0, 0].clamp(min=0).sqrt().numpy(),
+                title=f"{Path(rec.path).name}: {a}-axis noise (cf. paper Figs. {12 + 3 * i}–{14 + 3 * i})",
+                state_label="noise [m/s²]", zoom=(t[-1] - 5.0, t[-1]))))
+    summary.update({"recording": str(rec.path), "samples": int(ident.y.shape[-2]), "h": ident.h,
+                    "r_mode": args.r, "out": str(out_dir), "figures": figures, "seconds": round(elapsed, 3)})
+    (out_dir / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    for a, s in summary["axes"].items():
+        if s["diverged"]:
+            print(f"torchtea: warning: axis {a} diverged; its estimates are frozen at the last good step",
+                  file=sys.stderr)
+    if args.json:
+        print(json.dumps(summary))
+    else:
+        print(f"{Path(rec.path).name}: {summary['samples']} samples at {1 / ident.h:g} Hz, "
+              f"mean removed per axis, TEA with the paper's §5.1 settings (R = {args.r} variance)")
+        print(f"{'axis':>4} {'R [(m/s²)²]':>12} {'α̂ last⅓':>9} {'±sd':>7} {'α̂ final':>9} "
+              f"{'ŵ last⅓':>9} {'±sd':>7} {'ŵ final':>9}")
+        for a, s in summary["axes"].items():
+            print(f"{a:>4} {s['R']:12.3e} {s['alpha']:9.4f} {s['alpha_std_last_third']:7.4f} {s['alpha_final']:9.4f} "
+                  f"{s['param']:9.4f} {s['param_std_last_third']:7.4f} {s['param_final']:9.4f}"
+                  + ("  DIVERGED" if s["diverged"] else ""))
+        print(f"outputs in {out_dir}/ ({elapsed:.1f} s)")
+    return 0
+
+
+# --------------------------------------------------------------------------- presets
+
+
+def cmd_presets(args) -> int:
+    from .config import dumps_toml
+    from .presets import PRESET_H, PRESETS, get_preset
+
+    if args.name is None:
+        for name in PRESETS:
+            print(f"{name}  (h = {PRESET_H[name]:g} s)")
+        return 0
+    try:
+        cfg = get_preset(args.name)
+    except ValueError as exc:
+        raise CLIError(str(exc)) from None
+    print(dumps_toml({"preset": args.name, **cfg.to_dict()}), end="")
+    return 0
+
+
+# --------------------------------------------------------------------------- main
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="torchtea", description=__doc__)
+    p.add_argument("--debug", action="store_true", help="show tracebacks")
+    sub = p.add_subparsers(dest="command", required=True)
+
+    s = sub.add_parser("simulate", help="simulate the fractional noise model (43)–(45) to CSV")
+    s.add_argument("--n", type=_count, required=True, help="number of samples")
+    s.add_argument("--h", type=_positive_float, required=True, help="sample time [s]")
+    s.add_argument("--order", required=True, help="SPEC: a number, linear:A0,SLOPE or parabolic:A0,C")
+    s.add_argument("--param", type=_finite_float, required=True, help="the parameter f (A = f)")
+    s.add_argument("--q", type=_nonneg_float, required=True, help="variance of the process noise ω")
+    s.add_argument("--r", type=_nonneg_float, required=True, help="variance of the measurement noise ν")
+    s.add_argument("--input-std", type=_nonneg_float, help="known input u ~ N(0, S²) (zero when absent)")
+    s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--out", required=True, help="output CSV (t,u,x,y,alpha)")
+    s.set_defaults(func=cmd_simulate)
+
+    e = sub.add_parser("estimate", help="run the TEA on a CSV with column y (and u)")
+    e.add_argument("file")
+    e.add_argument("--h", type=_positive_float, required=True, help="sample time [s]")
+    e.add_argument("--preset", help="named settings (see `torchtea presets`); default paper-example1")
+    e.add_argument("--config", help="TOML settings file")
+    e.add_argument("--out", help="trajectory CSV (default: FILE.tea.csv next to the input)")
+    e.add_argument("--allow-missing", action="store_true", help="treat empty/NaN y as missing samples")
+    e.add_argument("--json", action="store_true", help="print a JSON summary")
+    e.set_defaults(func=cmd_estimate)
+
+    i = sub.add_parser("identify", help="identify the noise model of an accelerometer recording")
+    i.add_argument("recording", nargs="?", help="recording CSV (default: the bundled MPU-6050 recording)")
+    i.add_argument("--samples", default="3000", help="use the first N samples (default 3000 = the paper's 30 s), or 'all'")
+    i.add_argument("--r", choices=("measured", "paper"), default="measured",
+                   help="R, Rᵒ, Rʷ per axis: the axis's measured variance (default) or the paper's printed values")
+    i.add_argument("--config", help="TOML settings applied on top of the paper's MEMS settings")
+    i.add_argument("--rate", type=_positive_float, help="sample rate [Hz] if the file does not say")
+    i.add_argument("--lsb-per-g", type=_positive_float, help="accelerometer counts per g (bundled format: 16384)")
+    i.add_argument("--out", help="output directory (default identify-<recording name>)")
+    i.add_argument("--no-plots", action="store_true")
+    i.add_argument("--json", action="store_true", help="print a JSON summary")
+    i.set_defaults(func=cmd_identify)
+
+    r = sub.add_parser("presets", help="list presets, or print one as TOML")
+    r.add_argument("name", nargs="?")
+    r.set_defaults(func=cmd_presets)
+    return p
+
+
+def main(argv=None) -> int:
+    from .io import InputError
+
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return args.func(args)
+    except (CLIError, InputError) as exc:
+        if args.debug:
+            raise
+        print(f"torchtea: error: {exc}", file=sys.stderr)
+        return 2
+    except (ValueError, OSError) as exc:
+        if args.debug:
+            raise
+        print(f"torchtea: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("torchtea: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,80 @@
+"""TEA configs as TOML: load (with an optional base preset) and write next to outputs."""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+try:  # Python ≥ 3.11
+    import tomllib
+except ModuleNotFoundError:  # pragma: no cover
+    import tomli as tomllib
+
+from .io import InputError
+from .presets import get_preset
+from .tea import TEAConfig
+
+__all__ = ["load_config", "dumps_toml", "write_config"]
+
+
+def load_config(path) -> TEAConfig:
+    """Read a TEA config from TOML.
+
+    A top-level ``preset = "paper-example1"`` picks the base settings (default:
+    :class:`TEAConfig` defaults); tables ``[kfx]``, ``[kfo]``, ``[kfw]`` and the
+    top-level options override it, e.g.::
+
+        preset = "paper-example2"
+        sigma_sum_start = 0
+        [kfw]
+        delta = 0.0
+    """
+    path = Path(path)
+    try:
+        with open(path, "rb") as fh:
+            data = tomllib.load(fh)
+    except FileNotFoundError:
+        raise InputError(f"{path}: no such config file") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise InputError(f"{path}: not valid TOML ({exc})") from None
+    base = get_preset(data.pop("preset")) if "preset" in data else TEAConfig()
+    try:
+        return TEAConfig.from_dict(data, base)
+    except (TypeError, ValueError) as exc:
+        raise InputError(f"{path}: {exc}") from None
+
+
+def _value(v) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, (int, float)):
+        f = float(v)
+        if isinstance(v, int):
+            return str(v)
+        return repr(f) if math.isfinite(f) else ("nan" if math.isnan(f) else ("inf" if f > 0 else "-inf"))
+    if isinstance(v, str):
+        return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(_value(x) for x in v) + "]"
+    raise TypeError(f"cannot write {type(v).__name__} to TOML")
+
+
+def dumps_toml(data: dict) -> str:
+    """Minimal TOML writer for nested dicts of numbers, strings, booleans and lists."""
+    top = [f"{k} = {_value(v)}" for k, v in data.items() if not isinstance(v, dict)]
+    tables = [(k, v) for k, v in data.items() if isinstance(v, dict)]
+    out = top[:]
+    for name, table in tables:
+        out.append("")
+        out.append(f"[{name}]")
+        out.extend(f"{k} = {_value(v)}" for k, v in table.items())
+    return "\n".join(out) + "\n"
+
+
+def write_config(path, config: TEAConfig, extra: dict | None = None) -> Path:
+    """Write ``config`` (plus ``extra`` top-level keys, e.g. ``h``) as TOML."""
+    data = dict(extra or {})
+    data.update(config.to_dict())
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(dumps_toml(data))
+    return path

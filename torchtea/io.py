@@ -1,0 +1,197 @@
+"""Reading recordings and series, writing trajectories.
+
+Every reader raises :class:`InputError` with a message that names the file
+(and line or column) and says what is wrong.
+"""
+from __future__ import annotations
+
+import csv
+import math
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+__all__ = ["InputError", "Recording", "bundled_recording", "read_recording", "read_series", "write_columns",
+           "STANDARD_GRAVITY", "BUNDLED"]
+
+STANDARD_GRAVITY = 9.80665  # m/s² per g (CGPM 1901)
+
+#: The vendored recordings (MIT, see torchtea/data/LICENSE and PROVENANCE.md).
+BUNDLED = {"main": "example_data_tinit_calc.csv", "second": "imu_static_test.csv"}
+
+
+class InputError(ValueError):
+    """Bad user input: an unreadable file, a missing column, a non-numeric value …"""
+
+
+@dataclass(frozen=True)
+class Recording:
+    """A static IMU recording.
+
+    Attributes
+    ----------
+    path : source file.
+    rate_hz : sample rate.
+    accel_counts : ``(N, 3)`` raw accelerometer counts (x, y, z); NaN = missing sample.
+    accel_lsb_per_g : counts per g.
+    gyro_counts : ``(N, 3)`` or None.
+    metadata : whatever the file's header said.
+    """
+
+    path: Path
+    rate_hz: float
+    accel_counts: np.ndarray
+    accel_lsb_per_g: float
+    gyro_counts: np.ndarray | None = None
+    metadata: dict = field(default_factory=dict)
+
+    @property
+    def h(self) -> float:
+        return 1.0 / self.rate_hz
+
+    def accel_ms2(self) -> np.ndarray:
+        """Acceleration in m/s², ``(N, 3)``: counts / (LSB per g) · g₀."""
+        return self.accel_counts / self.accel_lsb_per_g * STANDARD_GRAVITY
+
+
+def bundled_recording(which: str = "main") -> Path:
+    """Path of a vendored MPU-6050 recording (``"main"``: 449 s, ``"second"``: 100 s)."""
+    return Path(str(resources.files("torchtea") / "data" / BUNDLED[which]))
+
+
+def _open_lines(path: Path) -> list[str]:
+    try:
+        with open(path, newline="") as fh:
+            return fh.read().splitlines()
+    except FileNotFoundError:
+        raise InputError(f"{path}: no such file") from None
+    except IsADirectoryError:
+        raise InputError(f"{path}: is a directory, expected a CSV file") from None
+    except UnicodeDecodeError:
+        raise InputError(f"{path}: not a text file") from None
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read ({exc.strerror})") from None
+
+
+def _number(text: str, path: Path, line: int, column: str, *, allow_missing: bool) -> float:
+    t = text.strip()
+    if t == "" or t.lower() == "nan":
+        if allow_missing:
+            return math.nan
+        raise InputError(f"{path}, line {line}: column {column!r} is empty or NaN "
+                         "(use --allow-missing to treat such samples as missing)")
+    try:
+        v = float(t)
+    except ValueError:
+        raise InputError(f"{path}, line {line}: column {column!r} holds {t!r}, not a number") from None
+    if not math.isfinite(v):
+        raise InputError(f"{path}, line {line}: column {column!r} is not finite ({t})")
+    return v
+
+
+def read_series(path, columns: Sequence[str], optional: Sequence[str] = (), *, allow_missing=False) -> dict:
+    """Read named numeric columns of a CSV with a header row.
+
+    Returns ``{name: (N,) float64 array}`` for the required ``columns`` and those
+    ``optional`` columns that exist.
+    """
+    path = Path(path)
+    lines = _open_lines(path)
+    rows = list(csv.reader(lines))
+    if not rows:
+        raise InputError(f"{path}: empty file")
+    header = [h.strip() for h in rows[0]]
+    missing = [c for c in columns if c not in header]
+    if missing:
+        raise InputError(f"{path}: missing column(s) {', '.join(map(repr, missing))}; the header has {header}")
+    wanted = list(columns) + [c for c in optional if c in header]
+    idx = {c: header.index(c) for c in wanted}
+    out = {c: [] for c in wanted}
+    body = rows[1:]
+    while body and not any(v.strip() for v in body[-1]):
+        body.pop()  # trailing blank lines are not samples
+    for i, row in enumerate(body, start=2):
+        if not row:
+            row = [""] * len(header)  # an interior blank line is a sample with every field empty
+        if len(row) != len(header):
+            raise InputError(f"{path}, line {i}: {len(row)} fields, the header has {len(header)}")
+        for c in wanted:
+            out[c].append(_number(row[idx[c]], path, i, c, allow_missing=allow_missing))
+    if not out[columns[0]] if columns else False:
+        raise InputError(f"{path}: no data rows")
+    return {c: np.asarray(v, dtype=np.float64) for c, v in out.items()}
+
+
+def read_recording(path=None, *, lsb_per_g: float | None = None, rate_hz: float | None = None,
+                   columns: Sequence[str] = ("ax", "ay", "az")) -> Recording:
+    """Read an accelerometer recording.
+
+    Formats:
+
+    * the bundled format (``Fs,100`` and other ``key,value`` lines, then a header
+      ``ax,ay,az,gx,gy,gz`` and integer rows) — the vendored MPU-6050 files; the
+      accelerometer scale defaults to ±2 g, 16384 LSB/g (see PROVENANCE.md);
+    * a generic CSV whose header names the three accelerometer ``columns``
+      (``rate_hz`` and ``lsb_per_g`` then required; use ``lsb_per_g = 1/g₀`` for
+      data already in m/s²… or see the CLI's ``--units``).
+    """
+    path = bundled_recording() if path is None else Path(path)
+    lines = _open_lines(path)
+    meta: dict = {}
+    start = 0
+    for i, line in enumerate(lines):
+        parts = [p.strip() for p in line.split(",")]
+        if all(c in parts for c in columns):
+            start = i
+            break
+        if len(parts) == 2:
+            meta[parts[0]] = parts[1]
+            continue
+        raise InputError(f"{path}, line {i + 1}: expected a header naming columns {', '.join(columns)}; got {line[:80]!r}")
+    else:
+        raise InputError(f"{path}: no header with columns {', '.join(columns)} found")
+    if rate_hz is None:
+        if "Fs" not in meta:
+            raise InputError(f"{path}: no sample rate in the file (an 'Fs,<Hz>' line); give it with --rate")
+        try:
+            rate_hz = float(meta["Fs"])
+        except ValueError:
+            raise InputError(f"{path}: sample rate 'Fs,{meta['Fs']}' is not a number") from None
+    if not (rate_hz > 0 and math.isfinite(rate_hz)):
+        raise InputError(f"{path}: sample rate must be positive, got {rate_hz}")
+    if lsb_per_g is None:
+        if "Fs" not in meta:
+            raise InputError(f"{path}: unknown accelerometer scale; give it with --lsb-per-g")
+        lsb_per_g = 16384.0  # bundled format: MPU-6050 library default ±2 g
+    header = [h.strip() for h in lines[start].split(",")]
+    idx = [header.index(c) for c in columns]
+    gyro_idx = [header.index(c) for c in ("gx", "gy", "gz")] if all(c in header for c in ("gx", "gy", "gz")) else None
+    acc, gyr = [], []
+    for i in range(start + 1, len(lines)):
+        line = lines[i]
+        if not line.strip():
+            continue
+        parts = line.split(",")
+        if len(parts) != len(header):
+            raise InputError(f"{path}, line {i + 1}: {len(parts)} fields, the header has {len(header)}")
+        acc.append([_number(parts[j], path, i + 1, header[j], allow_missing=True) for j in idx])
+        if gyro_idx:
+            gyr.append([_number(parts[j], path, i + 1, header[j], allow_missing=True) for j in gyro_idx])
+    if not acc:
+        raise InputError(f"{path}: no data rows")
+    return Recording(path=path, rate_hz=float(rate_hz), accel_counts=np.asarray(acc, dtype=np.float64),
+                     accel_lsb_per_g=float(lsb_per_g),
+                     gyro_counts=np.asarray(gyr, dtype=np.float64) if gyro_idx else None, metadata=meta)
+
+
+def write_columns(path, columns: dict) -> Path:
+    """Write equal-length 1-D arrays as CSV columns (full float64 precision)."""
+    path = Path(path)
+    names = list(columns)
+    data = np.column_stack([np.asarray(columns[n], dtype=np.float64) for n in names])
+    path.parent.mkdir(parents=True, exist_ok=True)
+    np.savetxt(path, data, delimiter=",", header=",".join(names), comments="", fmt="%.17g")
+    return path

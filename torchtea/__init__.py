@@ -1,0 +1,34 @@
+"""torchtea — fractional-order noise identification with the Triple Estimation Algorithm, batched in PyTorch.
+
+Batch convention (used everywhere)
+----------------------------------
+* Leading dimensions ``*B`` are batch: realisations, axes, candidate models. A
+  Monte Carlo study is "just a bigger batch". Batch shapes are combined with
+  :func:`torch.broadcast_shapes`, never guessed from ``ndim``.
+* Inside filters time is the loop, not a dimension. Stored trajectories put
+  time at dimension ``-2`` for vectors (``(*B, N, n)``) and ``-3`` for matrices
+  (``(*B, N, n, n)``).
+* Sigma points sit between batch and event: ``(*B, S, n)``.
+* GL series functions (:mod:`torchtea.gl`) take time as the last dimension.
+* float64 by default; dtype and device follow the inputs; randomness comes
+  from an explicit :class:`torch.Generator`.
+"""
+from .gl import difference, gl_coefficients, history_sum
+from .model import (ConstantOrder, FunctionOrder, InputOrder, LinearOrder, OrderSchedule, ParabolicOrder,
+                    ParametricMatrix, Structure, parse_order_spec)
+from .presets import PRESETS, SCENARIOS, get_preset
+from .simulate import Simulation, gaussian_input, simulate
+from .tea import (StateFilterConfig, TEAConfig, TEAParams, TEAResult, UnscentedConfig, make_params, run_tea,
+                  stack_params)
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "difference", "gl_coefficients", "history_sum",
+    "ConstantOrder", "FunctionOrder", "InputOrder", "LinearOrder", "OrderSchedule", "ParabolicOrder",
+    "ParametricMatrix", "Structure", "parse_order_spec",
+    "PRESETS", "SCENARIOS", "get_preset",
+    "Simulation", "gaussian_input", "simulate",
+    "StateFilterConfig", "TEAConfig", "TEAParams", "TEAResult", "UnscentedConfig", "make_params", "run_tea",
+    "stack_params",
+]

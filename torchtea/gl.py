@@ -18,9 +18,40 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-__all__ = ["gl_coefficients", "difference", "history_sum", "KINDS"]
+__all__ = ["gl_coefficients", "gl_tail_coefficients", "difference", "history_sum", "KINDS"]
 
 KINDS = ("A", "B", "D", "E")
+
+
+_LAG_CACHE: dict = {}
+
+
+def _lag_constants(n: int, dtype, device):
+    """``(1 − 1/j, −1/j)`` for ``j = 1 … n``, cached per dtype and device (sliced from the longest built)."""
+    key = (dtype, str(device))
+    cached = _LAG_CACHE.get(key)
+    if cached is None or cached[0].shape[0] < n:
+        size = max(n, 1024 if cached is None else 2 * cached[0].shape[0])
+        j = torch.arange(1, size + 1, dtype=dtype, device=device)
+        cached = (1.0 - 1.0 / j, -1.0 / j)
+        _LAG_CACHE[key] = cached
+    return cached[0][:n], cached[1][:n]
+
+
+def gl_tail_coefficients(order: Tensor, n: int) -> Tensor:
+    r"""GL coefficients without the leading ``c_0 = 1``: ``c_1 … c_n``, shape ``(*S, n)``.
+
+    The recursion factor is written :math:`1 - (1+\alpha)/j = (1 - 1/j) + \alpha\,(-1/j)`, one fused
+    multiply-add per lag, followed by one cumulative product.
+    """
+    order = torch.as_tensor(order)
+    if not order.is_floating_point():
+        order = order.to(torch.get_default_dtype())
+    if n < 0:
+        raise ValueError(f"n must be >= 0, got {n}")
+    a, b = _lag_constants(n, order.dtype, order.device)
+    factors = torch.addcmul(a, order.unsqueeze(-1), b)
+    return torch.cumprod(factors, dim=-1)
 
 
 def gl_coefficients(order: Tensor, n: int) -> Tensor:
@@ -41,15 +72,9 @@ def gl_coefficients(order: Tensor, n: int) -> Tensor:
     Tensor, shape ``(*S, n + 1)``
         ``out[..., j] = c_j(order)``; ``out[..., 0] = 1``.
     """
-    order = torch.as_tensor(order)
-    if not order.is_floating_point():
-        order = order.to(torch.get_default_dtype())
-    if n < 0:
-        raise ValueError(f"n must be >= 0, got {n}")
-    j = torch.arange(1, n + 1, dtype=order.dtype, device=order.device)
-    factors = 1.0 - (1.0 + order.unsqueeze(-1)) / j
-    ones = torch.ones(order.shape + (1,), dtype=order.dtype, device=order.device)
-    return torch.cat([ones, torch.cumprod(factors, dim=-1)], dim=-1)
+    tail = gl_tail_coefficients(order, n)
+    ones = torch.ones(tail.shape[:-1] + (1,), dtype=tail.dtype, device=tail.device)
+    return torch.cat([ones, tail], dim=-1)
 
 
 def history_sum(order: Tensor, history: Tensor) -> Tensor:
@@ -71,7 +96,7 @@ def history_sum(order: Tensor, history: Tensor) -> Tensor:
     k = history.shape[-1]
     if k == 0:
         return torch.zeros_like(order)
-    c = gl_coefficients(order, k)[..., 1:]  # (*B, S, n, k)
+    c = gl_tail_coefficients(order, k)  # (*B, S, n, k)
     # (*B, n, S, k) @ (*B, n, k, 1) -> (*B, n, S, 1)
     out = torch.matmul(c.transpose(-3, -2), history.unsqueeze(-1)).squeeze(-1)
     return out.transpose(-1, -2)

@@ -6,7 +6,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from .gl import gl_coefficients
+from .gl import gl_tail_coefficients
 from .model import OrderSchedule, Structure
 
 __all__ = ["Simulation", "simulate", "gaussian_input"]
@@ -130,13 +130,12 @@ def simulate(
     hist[..., n_steps - 1] = x[..., 0, :]
     constant = bool(torch.all(alpha == alpha[..., :1, :]))
     if constant:
-        coeff_all = gl_coefficients(alpha[..., 0, :], n_steps)  # (*B, n, N+1)
+        coeff_all = gl_tail_coefficients(alpha[..., 0, :], n_steps)  # (*B, n, N): c_1 … c_N
     hpow = torch.as_tensor(h, dtype=dtype, device=device) ** alpha
-    drive = (A @ x[..., 0, :, None]).squeeze(-1)
     for k in range(n_steps - 1):
         a = alpha[..., k + 1, :]
         past = hist[..., n_steps - 1 - k :]  # x_k … x_0, length k+1
-        c = coeff_all[..., 1 : k + 2] if constant else gl_coefficients(a, k + 1)[..., 1:]
+        c = coeff_all[..., : k + 1] if constant else gl_tail_coefficients(a, k + 1)
         memory = (c * past).sum(-1)
         drive = (A @ x[..., k, :, None]).squeeze(-1) + u[..., k, :] @ B.mT + omega[..., k, :]
         x[..., k + 1, :] = hpow[..., k + 1, :] * drive - memory

@@ -33,7 +33,7 @@ from typing import Any, NamedTuple, Sequence
 import torch
 from torch import Tensor
 
-from .gl import gl_coefficients, history_sum
+from .gl import gl_tail_coefficients, history_sum
 from .model import Structure
 
 __all__ = [
@@ -455,16 +455,16 @@ def _tea_step(model: _Model, params: TEAParams, weights, carry: Carry, y, u_prev
     # KFx (29)–(35) with α̂_k and ŵ_{k−1}
     a = model.full(alpha)  # (*B, n)
     k = xh.shape[-1]
-    c = gl_coefficients(a, k)  # (*B, n, k+1)
+    c = gl_tail_coefficients(a, k)  # (*B, n, k): c_1 … c_k
     hp = model.h ** a
     A = model.A(carry.w)
     drive = (A @ carry.x.unsqueeze(-1)).squeeze(-1)
     if u_prev is not None:
         drive = drive + u_prev @ model.B.mT
-    x_pred = hp * drive - (c[..., 1:] * xh).sum(-1)
+    x_pred = hp * drive - (c.unsqueeze(-2) @ xh.unsqueeze(-1))[..., 0, 0]
     F = hp.unsqueeze(-1) * A + torch.diag_embed(a)
     Qx = params.Q * (hp.unsqueeze(-1) * hp.unsqueeze(-2)) if cfg.noise_scaling == "scaled" else params.Q
-    cj = c[..., 2:]  # lags 2…k
+    cj = c[..., 1:]  # lags 2…k
     if cj.shape[-1]:
         mem_cov = torch.einsum("...sj,...tj,...stj->...st", cj, cj, Ph[..., 1:])
     else:

@@ -336,13 +336,16 @@ def _gain(Pxy: Tensor, Pyy: Tensor, mask: Tensor) -> Tensor:
 
 
 def _ut_update(points, Y, prior_mean, prior_cov, R, y, mask, wm, wc, start):
-    """Unscented update (19)–(24): returns (mean, cov, gain, innovation, Pyy)."""
-    y_pred = torch.einsum("s,...sp->...p", wm, Y)  # (19)
-    dY = Y - y_pred.unsqueeze(-2)
-    dX = points - prior_mean.unsqueeze(-2)
-    wc_s = wc[start:]
-    Pyy = torch.einsum("s,...sp,...sq->...pq", wc_s, dY[..., start:, :], dY[..., start:, :]) + R  # (20)
-    Pxy = torch.einsum("s,...sl,...sp->...lp", wc_s, dX[..., start:, :], dY[..., start:, :])  # (21)
+    """Unscented update (19)–(24): returns (mean, cov, gain, innovation, Pyy).
+
+    points ``(*B, S, q)``, Y ``(*B, S, p)``; sums over sigma points ``i ≥ start`` in (20)–(21).
+    """
+    y_pred = torch.matmul(wm, Y)  # (19): Σ_i W_i^m Y_i
+    dY = (Y - y_pred.unsqueeze(-2))[..., start:, :]
+    dX = (points - prior_mean.unsqueeze(-2))[..., start:, :]
+    wdY = dY * wc[start:].unsqueeze(-1)
+    Pyy = wdY.mT @ dY + R  # (20)
+    Pxy = dX.mT @ wdY  # (21)
     K = _gain(Pxy, Pyy, mask)  # (22)
     e = torch.where(mask, y - y_pred, torch.zeros_like(y_pred))
     mean = prior_mean + (K @ e.unsqueeze(-1)).squeeze(-1)  # (23)
@@ -489,12 +492,12 @@ def _kfx_update(model: _Model, params: TEAParams, x_pred, P_pred, y, mask):
 
 def _guard(new: Carry, old: Carry, limit: float) -> Carry:
     """Flag realisations whose carry became non-finite or left ``[−limit, limit]``; freeze them."""
-    bad = torch.zeros_like(old.diverged)
     nb = old.diverged.ndim
-    for t in new[:-1]:
-        flat = t.reshape(t.shape[:nb] + (-1,))
-        bad = bad | ~torch.isfinite(flat).all(-1) | (flat.abs() > limit).any(-1)
+    flat = torch.cat([t.reshape(t.shape[:nb] + (-1,)) for t in new[:-1]], dim=-1)
+    bad = ~torch.isfinite(flat).all(-1) | (flat.abs() > limit).any(-1)
     diverged = old.diverged | bad
+    if not bool(diverged.any()):
+        return new._replace(diverged=diverged)
     out = []
     for tn, to in zip(new[:-1], old[:-1]):
         d = diverged.reshape(diverged.shape + (1,) * (tn.ndim - nb))
@@ -593,19 +596,9 @@ def run_tea(
         inputs = inputs.expand(batch + (N, structure.n_inputs))
     ex = lambda t, ev: t.expand(batch + ev).clone()  # noqa: E731
 
-    # outputs (time at dim -2 / -3) and the time-reversed KFx history
-    out = {
-        "x": torch.empty(batch + (N, n), dtype=dtype, device=device),
-        "P": torch.empty(batch + (N, n, n), dtype=dtype, device=device),
-        "alpha": torch.empty(batch + (N, L), dtype=dtype, device=device),
-        "P_alpha": torch.empty(batch + (N, L, L), dtype=dtype, device=device),
-        "Q_alpha": torch.empty(batch + (N, L, L), dtype=dtype, device=device),
-        "w": torch.empty(batch + (N, m), dtype=dtype, device=device),
-        "P_w": torch.empty(batch + (N, m, m), dtype=dtype, device=device),
-        "Q_w": torch.empty(batch + (N, m, m), dtype=dtype, device=device),
-        "innovation": torch.empty(batch + (N, p), dtype=dtype, device=device),
-        "innovation_cov": torch.empty(batch + (N, p, p), dtype=dtype, device=device),
-    }
+    # per-step outputs, stacked along time at the end; the KFx history is kept time-reversed
+    names = ("x", "P", "alpha", "P_alpha", "Q_alpha", "w", "P_w", "Q_w", "innovation", "innovation_cov")
+    out = {name: [] for name in names}
     xh = torch.zeros(batch + (n, N), dtype=dtype, device=device)
     Ph = torch.zeros(batch + (n, n, N), dtype=dtype, device=device)
     diverged_at = torch.full(batch, -1, dtype=torch.long, device=device)
@@ -622,11 +615,8 @@ def run_tea(
     carry = _guard(carry, prior, cfg.divergence_limit)
 
     def record(k, c: Carry, o: StepOutput):
-        for name, t in (("x", c.x), ("alpha", c.alpha), ("w", c.w), ("innovation", o.innovation)):
-            out[name][..., k, :] = t
-        for name, t in (("P", c.P), ("P_alpha", c.Po), ("Q_alpha", c.Qo), ("P_w", c.Pw), ("Q_w", c.Qw),
-                        ("innovation_cov", o.innovation_cov)):
-            out[name][..., k, :, :] = t
+        for name, t in zip(names, (c.x, c.P, c.alpha, c.Po, c.Qo, c.w, c.Pw, c.Qw, o.innovation, o.innovation_cov)):
+            out[name].append(t)
         xh[..., N - 1 - k] = c.x
         Ph[..., N - 1 - k] = c.P
 
@@ -639,4 +629,5 @@ def run_tea(
         diverged_at = torch.where(carry.diverged & (diverged_at < 0), k, diverged_at)
         if progress is not None:
             progress(k, N)
-    return TEAResult(**out, diverged=carry.diverged, diverged_at=diverged_at)
+    stacked = {name: torch.stack(v, dim=len(batch)) for name, v in out.items()}
+    return TEAResult(**stacked, diverged=carry.diverged, diverged_at=diverged_at)

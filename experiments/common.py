@@ -1,0 +1,39 @@
+"""Shared helpers for the experiments: simulate scenario seeds exactly as `torchtea simulate --seed K` does."""
+from __future__ import annotations
+
+import json
+import platform
+import sys
+from pathlib import Path
+
+import torch
+
+from torchtea import Structure, gaussian_input, simulate
+
+ROOT = Path(__file__).resolve().parent
+
+
+def simulate_seed(sc, seed: int):
+    """One realisation of a Scenario with the CLI's draw order (input first, then ω, then ν)."""
+    g = torch.Generator().manual_seed(seed)
+    u = None if sc.input_std is None else gaussian_input((), sc.n_steps, 1, sc.input_std, generator=g)
+    return simulate(Structure(), n_steps=sc.n_steps, h=sc.h, order=sc.order, parameters=[sc.param],
+                    process_noise=sc.q, measurement_noise=sc.r, inputs=u, generator=g)
+
+
+def simulate_seeds(sc, seeds):
+    """Stack realisations of many seeds into one batch: y, u, x, alpha with batch dim first."""
+    sims = [simulate_seed(sc, s) for s in seeds]
+    stack = lambda name: torch.stack([getattr(s, name) for s in sims])  # noqa: E731
+    return stack("y"), stack("u"), stack("x"), stack("alpha")
+
+
+def machine() -> dict:
+    return {"python": sys.version.split()[0], "torch": torch.__version__, "threads": torch.get_num_threads(),
+            "cpu": platform.processor() or platform.machine()}
+
+
+def write_json(path: Path, data) -> Path:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(data, indent=2) + "\n")
+    return path

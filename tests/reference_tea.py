@@ -115,12 +115,13 @@ def tea_reference(y, u, h, s):
 def settings_from_config(cfg) -> dict:
     """Flatten a scalar :class:`torchtea.tea.TEAConfig` into the reference's dict."""
     f = lambda v: float(v)  # noqa: E731
+    cap = lambda c: None if c.Q_max == "none" else (float(c.Q0) if c.Q_max == "Q0" else float(c.Q_max))  # noqa: E731
     return dict(
         x0=f(cfg.kfx.x0), P0=f(cfg.kfx.P0), Q=f(cfg.kfx.Q0), R=f(cfg.kfx.R),
         a0=f(cfg.kfo.x0), P0o=f(cfg.kfo.P0), Q0o=f(cfg.kfo.Q0), Ro=f(cfg.kfo.R),
         w0=f(cfg.kfw.x0), P0w=f(cfg.kfw.P0), Q0w=f(cfg.kfw.Q0), Rw=f(cfg.kfw.R),
         ua=cfg.kfo.ut_alpha, ub=cfg.kfo.ut_beta, kappa=2.0 if cfg.kfo.kappa is None else cfg.kfo.kappa,
-        delta_o=cfg.kfo.delta, delta_w=cfg.kfw.delta, Qmax_o=cfg.kfo.Q_max, Qmax_w=cfg.kfw.Q_max,
+        delta_o=cfg.kfo.delta, delta_w=cfg.kfw.delta, Qmax_o=cap(cfg.kfo), Qmax_w=cap(cfg.kfw),
         start=cfg.sigma_sum_start, scaled=cfg.noise_scaling == "scaled",
         lo=cfg.order_bounds[0], hi=cfg.order_bounds[1],
     )

@@ -87,8 +87,10 @@ class UnscentedConfig:
     ut_beta : 𝔅, prior knowledge of the distribution (2 for Gaussian).
     kappa : κ; ``None`` means ``3 − L``.
     delta : δ, Robbins–Monro forgetting factor of (25); 0 keeps ``Q`` fixed.
-    Q_max : upper bound on the adapted ``Q`` (largest diagonal entry), or ``None``
-        for none — the guard against (25) feeding on itself (open point 4).
+    Q_max : upper bound on the adapted ``Q`` (its largest diagonal entry): ``"Q0"`` (default) caps it
+        at the initial ``Q₀``, a number caps it there, ``"none"`` adapts exactly as (25). The cap is
+        the guard against (25) feeding on itself (open point 4): ``Q`` may shrink as the filter
+        settles but never grow past what the user declared plausible.
     """
 
     x0: Any = 0.0
@@ -99,7 +101,14 @@ class UnscentedConfig:
     ut_beta: float = 2.0
     kappa: float | None = None
     delta: float = 0.5
-    Q_max: float | None = None
+    Q_max: float | str = "Q0"
+
+    def __post_init__(self):
+        if isinstance(self.Q_max, str):
+            if self.Q_max not in ("Q0", "none"):
+                raise ValueError(f"Q_max must be a number, 'Q0' or 'none', got {self.Q_max!r}")
+        elif not (float(self.Q_max) > 0):
+            raise ValueError(f"Q_max must be positive, got {self.Q_max}")
 
 
 NOISE_SCALINGS = ("scaled", "unscaled")
@@ -227,6 +236,8 @@ class TEAParams(NamedTuple):
     P0w: Tensor  # (*B, m, m)
     Q0w: Tensor  # (*B, m, m)
     Rw: Tensor  # (*B, p, p)
+    Qmax_o: Tensor  # (*B,), +inf for no cap
+    Qmax_w: Tensor  # (*B,)
     config: TEAConfig
 
 
@@ -242,8 +253,18 @@ def make_params(config: TEAConfig, structure: Structure, *, dtype=torch.float64,
         Q0o=_mat(o.Q0, L, like, "kfo.Q0"), Ro=_mat(o.R, p, like, "kfo.R"),
         w0=_vec(w.x0, m, like, "kfw.x0"), P0w=_mat(w.P0, m, like, "kfw.P0"),
         Q0w=_mat(w.Q0, m, like, "kfw.Q0"), Rw=_mat(w.R, p, like, "kfw.R"),
+        Qmax_o=_q_cap(o.Q_max, _mat(o.Q0, L, like, "kfo.Q0"), like),
+        Qmax_w=_q_cap(w.Q_max, _mat(w.Q0, m, like, "kfw.Q0"), like),
         config=config,
     )
+
+
+def _q_cap(q_max, Q0: Tensor, like: Tensor) -> Tensor:
+    if q_max == "none":
+        return torch.tensor(math.inf, dtype=like.dtype, device=like.device)
+    if q_max == "Q0":
+        return torch.diagonal(Q0, dim1=-2, dim2=-1).amax(-1)
+    return torch.tensor(float(q_max), dtype=like.dtype, device=like.device)
 
 
 def stack_params(params: Sequence[TEAParams]) -> TEAParams:
@@ -258,11 +279,12 @@ def stack_params(params: Sequence[TEAParams]) -> TEAParams:
 
     def strip(c: TEAConfig):
         keep = lambda f: replace(f, x0=0, P0=0, Q0=0, R=0)  # noqa: E731
-        return replace(c, kfx=keep(c.kfx), kfo=keep(c.kfo), kfw=keep(c.kfw))
+        cap = lambda f: replace(keep(f), Q_max=1.0 if f.Q_max != "none" else "none")  # noqa: E731
+        return replace(c, kfx=keep(c.kfx), kfo=cap(c.kfo), kfw=cap(c.kfw))
 
     for p in params[1:]:
         if strip(p.config) != strip(first):
-            raise ValueError("stacked configs may differ only in x0, P0, Q0 and R")
+            raise ValueError("stacked configs may differ only in x0, P0, Q0, R and the Q cap")
     tensors = [torch.stack([getattr(p, name) for p in params]) for name in TEAParams._fields[:-1]]
     return TEAParams(*tensors, config=first)
 
@@ -353,15 +375,15 @@ def _ut_update(points, Y, prior_mean, prior_cov, R, y, mask, wm, wc, start):
     return mean, cov, K, e, Pyy
 
 
-def _adapt_q(Q, K, e, delta: float, q_max: float | None, observed):
-    """Robbins–Monro adaptation (25): ``Q ← (1−δ) Q + δ (K e)(K e)ᵀ``, optionally capped."""
+def _adapt_q(Q, K, e, delta: float, q_max: Tensor, observed):
+    """Robbins–Monro adaptation (25): ``Q ← (1−δ) Q + δ (K e)(K e)ᵀ``, scaled down so that its largest
+    diagonal entry stays ≤ ``q_max`` (``(*B,)``, +inf for no cap)."""
     if delta == 0.0:
         return Q
     Ke = (K @ e.unsqueeze(-1))
     Qn = (1.0 - delta) * Q + delta * (Ke @ Ke.mT)
-    if q_max is not None:
-        top = torch.diagonal(Qn, dim1=-2, dim2=-1).amax(-1).clamp(min=torch.finfo(Qn.dtype).tiny)
-        Qn = Qn * (q_max / top).clamp(max=1.0)[..., None, None]
+    top = torch.diagonal(Qn, dim1=-2, dim2=-1).amax(-1).clamp(min=torch.finfo(Qn.dtype).tiny)
+    Qn = Qn * (q_max / top).clamp(max=1.0)[..., None, None]
     return torch.where(observed[..., None, None], Qn, Q)
 
 
@@ -451,9 +473,9 @@ def _tea_step(model: _Model, params: TEAParams, weights, carry: Carry, y, u_prev
     alpha, Po, Ko, eo, _ = _ut_update(sig_o, Y[..., :So, :], carry.alpha, Po_t, params.Ro, y0, mask, wm_o, wc_o, start)
     lo, hi = cfg.order_bounds
     alpha = alpha.clamp(lo, hi)
-    Qo = _adapt_q(carry.Qo, Ko, eo, cfg.kfo.delta, cfg.kfo.Q_max, observed)
+    Qo = _adapt_q(carry.Qo, Ko, eo, cfg.kfo.delta, params.Qmax_o, observed)
     w, Pw, Kw, ew, _ = _ut_update(sig_w, Y[..., So:, :], carry.w, Pw_t, params.Rw, y0, mask, wm_w, wc_w, start)
-    Qw = _adapt_q(carry.Qw, Kw, ew, cfg.kfw.delta, cfg.kfw.Q_max, observed)
+    Qw = _adapt_q(carry.Qw, Kw, ew, cfg.kfw.delta, params.Qmax_w, observed)
 
     # KFx (29)–(35) with α̂_k and ŵ_{k−1}
     a = model.full(alpha)  # (*B, n)

@@ -15,34 +15,24 @@ class CLIError(Exception):
     """A user-facing error: one line, non-zero exit."""
 
 
-def _positive_float(text):
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-    if not (v > 0 and math.isfinite(v)):
-        raise argparse.ArgumentTypeError(f"must be a positive number, got {text}")
-    return v
+def _float_arg(accept, requirement):
+    """An argparse type: a float for which ``accept(v)`` holds, else one message saying ``requirement``."""
+
+    def parse(text):
+        try:
+            v = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+        if not (math.isfinite(v) and accept(v)):
+            raise argparse.ArgumentTypeError(f"must be {requirement}, got {text}")
+        return v
+
+    return parse
 
 
-def _nonneg_float(text):
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-    if not (v >= 0 and math.isfinite(v)):
-        raise argparse.ArgumentTypeError(f"must be a non-negative number, got {text}")
-    return v
-
-
-def _finite_float(text):
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-    if not math.isfinite(v):
-        raise argparse.ArgumentTypeError(f"must be finite, got {text}")
-    return v
+_positive_float = _float_arg(lambda v: v > 0, "a positive number")
+_nonneg_float = _float_arg(lambda v: v >= 0, "a non-negative number")
+_finite_float = _float_arg(lambda v: True, "finite")
 
 
 def _count(text):

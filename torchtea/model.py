@@ -176,6 +176,11 @@ class OrderSchedule:
     def _time(self, n_steps: int, h: float) -> Tensor:
         return torch.arange(n_steps, dtype=torch.float64) * h
 
+    @staticmethod
+    def _per_state(v: Tensor, n_states: int) -> Tensor:
+        """The same order ``(N,)`` for every state → ``(N, n)``."""
+        return v.unsqueeze(-1).expand(v.shape[0], n_states).clone()
+
 
 @dataclass(frozen=True)
 class ConstantOrder(OrderSchedule):
@@ -195,8 +200,7 @@ class LinearOrder(OrderSchedule):
     slope: float
 
     def values(self, n_steps, h, n_states, inputs=None):
-        t = self._time(n_steps, h)
-        return (self.start + self.slope * t).unsqueeze(-1).expand(n_steps, n_states).clone()
+        return self._per_state(self.start + self.slope * self._time(n_steps, h), n_states)
 
 
 @dataclass(frozen=True)
@@ -207,8 +211,7 @@ class ParabolicOrder(OrderSchedule):
     curvature: float
 
     def values(self, n_steps, h, n_states, inputs=None):
-        t = self._time(n_steps, h)
-        return (self.start + self.curvature * t**2).unsqueeze(-1).expand(n_steps, n_states).clone()
+        return self._per_state(self.start + self.curvature * self._time(n_steps, h) ** 2, n_states)
 
 
 @dataclass(frozen=True)
@@ -220,7 +223,7 @@ class FunctionOrder(OrderSchedule):
     def values(self, n_steps, h, n_states, inputs=None):
         v = torch.as_tensor(self.fn(self._time(n_steps, h)), dtype=torch.float64)
         if v.shape == (n_steps,):
-            v = v.unsqueeze(-1).expand(n_steps, n_states)
+            v = self._per_state(v, n_states)
         if v.shape != (n_steps, n_states):
             raise ValueError(f"order function returned shape {tuple(v.shape)}, expected ({n_steps},) or ({n_steps}, {n_states})")
         return v.clone()

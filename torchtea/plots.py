@@ -15,6 +15,15 @@ def _plt():
     return plt
 
 
+def _save(plt, fig, path) -> Path:
+    fig.tight_layout()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
 def estimation_figure(path, t, *, y=None, x_true=None, x_hat=None, alpha_true=None, alpha_hat=None,
                       alpha_sd=None, w_true=None, w_hat=None, w_sd=None, title="", state_label="state",
                       zoom=None) -> Path:
@@ -45,12 +54,7 @@ def estimation_figure(path, t, *, y=None, x_true=None, x_hat=None, alpha_true=No
         panel.legend(loc="upper right", fontsize=8)
     ax[2].set_xlabel("time [s]")
     ax[0].set_title(title)
-    fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return _save(plt, fig, path)
 
 
 def fan_figure(path, t, truth, runs, *, ylabel, title="") -> Path:
@@ -67,9 +71,4 @@ def fan_figure(path, t, truth, runs, *, ylabel, title="") -> Path:
     ax.set_ylabel(ylabel)
     ax.set_title(title)
     ax.legend(loc="upper right", fontsize=8)
-    fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return _save(plt, fig, path)

@@ -47,7 +47,7 @@ def variants(name: str) -> dict:
     }
 
 
-def metrics(example: int, t, alpha_true, res) -> dict:
+def metrics(example: int, t, alpha_true, x_true, res) -> dict:
     a = res.alpha[..., 0].numpy()
     w = res.w[..., 0].numpy()
     div = res.diverged.numpy()
@@ -62,6 +62,11 @@ def metrics(example: int, t, alpha_true, res) -> dict:
     out["order_rmse_1_6s"] = _stats(rmse[ok])
     out["order_rmse_1_6s_all_runs"] = _stats(rmse)
     out["fraction_rmse_le_0.05"] = float((rmse <= 0.05).mean())
+    # KFx: state error and consistency (mean NIS ≈ 1 when the predicted innovation variance is right)
+    xe = res.x[..., 0].numpy() - x_true
+    out["state_rmse_1_6s"] = _stats(np.sqrt((xe[:, band] ** 2).mean(1))[ok])
+    nis = (res.innovation[..., 0] ** 2 / res.innovation_cov[..., 0, 0]).numpy()
+    out["nis_mean_1_6s"] = _stats(nis[:, band].mean(1)[ok])
     return out
 
 
@@ -88,13 +93,15 @@ def run_examples(examples, seeds, fig_dir: Path) -> dict:
             t0 = time.perf_counter()
             res = run_tea(y, h=sc.h, params=make_params(cfg, Structure()), inputs=u)
             el = time.perf_counter() - t0
-            m = metrics(ex, t, alpha[..., 0].numpy(), res)
+            m = metrics(ex, t, alpha[..., 0].numpy(), x[..., 0].numpy(), res)
             m["tea_s"] = round(el, 2)
             results[name]["variants"][vname] = m
             print(f"{name:15s} {vname:9s} {el:6.1f}s  diverged {m['diverged_fraction']:.2f}  "
                   f"|α̂(5–6s)−α| median {m['abs_alpha_error_5_6s'].get('median', float('nan')):.4f}  "
                   f"RMSE(1–6s) median {m['order_rmse_1_6s'].get('median', float('nan')):.4f}  "
-                  f"ŵ(5–6s) median {m['param_mean_5_6s'].get('median', float('nan')):.3f}", flush=True)
+                  f"ŵ(5–6s) median {m['param_mean_5_6s'].get('median', float('nan')):.3f}  "
+                  f"x RMSE {m['state_rmse_1_6s'].get('median', float('nan')):.2e}  "
+                  f"NIS {m['nis_mean_1_6s'].get('median', float('nan')):.2f}", flush=True)
             if vname in ("torchtea", "as-printed"):
                 tag = f"example{ex}_{vname}"
                 sd = lambda P: P[0, :, 0, 0].clamp(min=0).sqrt().numpy()  # noqa: E731

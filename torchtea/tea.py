@@ -425,6 +425,17 @@ class _Model:
         return self.structure.full_orders(est)
 
 
+def _drive(model: _Model, A: Tensor, x: Tensor, u: Tensor | None) -> Tensor:
+    """``A x + B u`` — the right-hand side of (9); A ``(*B, S, n, n)`` or ``(*B, n, n)`` with x ``(*B, n)``."""
+    extra = A.ndim - x.ndim - 1  # sigma dimensions in A that x lacks
+    xs = x.reshape(x.shape[:-1] + (1,) * extra + x.shape[-1:])
+    out = (A @ xs.unsqueeze(-1)).squeeze(-1)
+    if u is not None:
+        bu = u @ model.B.mT
+        out = out + bu.reshape(bu.shape[:-1] + (1,) * extra + bu.shape[-1:])
+    return out
+
+
 def _replica(model: _Model, orders_o, w_prev, alpha_prev_full, sigma_w, x_prev, u_prev, xh):
     """Model replica (16)–(18) and (41)–(42) for the sigma points of KFo **and** KFw at once.
 
@@ -439,8 +450,7 @@ def _replica(model: _Model, orders_o, w_prev, alpha_prev_full, sigma_w, x_prev, 
     hpow = model.h ** orders
     A_all = torch.cat([model.A(w_prev).unsqueeze(-3).expand(x_prev.shape[:-1] + (So,) + (x_prev.shape[-1],) * 2),
                        model.A(sigma_w)], dim=-3)  # (*B, So+Sw, n, n)
-    bu = 0.0 if u_prev is None else u_prev @ model.B.mT
-    drive = (A_all @ x_prev.unsqueeze(-2).unsqueeze(-1)).squeeze(-1) + (bu.unsqueeze(-2) if u_prev is not None else 0.0)
+    drive = _drive(model, A_all, x_prev, u_prev)
     expand_w = lambda t: t[..., So:, :].expand(t.shape[:-2] + (Sw, t.shape[-1]))  # noqa: E731
     hp = torch.cat([hpow[..., :So, :], expand_w(hpow)], dim=-2)
     mem = torch.cat([memory[..., :So, :], expand_w(memory)], dim=-2)
@@ -483,10 +493,7 @@ def _tea_step(model: _Model, params: TEAParams, weights, carry: Carry, y, u_prev
     c = gl_tail_coefficients(a, k)  # (*B, n, k): c_1 … c_k
     hp = model.h ** a
     A = model.A(carry.w)
-    drive = (A @ carry.x.unsqueeze(-1)).squeeze(-1)
-    if u_prev is not None:
-        drive = drive + u_prev @ model.B.mT
-    x_pred = hp * drive - (c.unsqueeze(-2) @ xh.unsqueeze(-1))[..., 0, 0]
+    x_pred = hp * _drive(model, A, carry.x, u_prev) - (c.unsqueeze(-2) @ xh.unsqueeze(-1))[..., 0, 0]
     F = hp.unsqueeze(-1) * A + torch.diag_embed(a)
     Qx = params.Q * (hp.unsqueeze(-1) * hp.unsqueeze(-2)) if cfg.noise_scaling == "scaled" else params.Q
     cj = c[..., 1:]  # lags 2…k
@@ -601,7 +608,8 @@ def run_tea(
     N = y.shape[-2]
     params = TEAParams(*[t.to(device=device, dtype=dtype) for t in params[:-1]], config=params.config)
     shapes = [y.shape[:-2], params.x0.shape[:-1], params.R.shape[:-2], params.Ro.shape[:-2], params.Rw.shape[:-2],
-              params.alpha0.shape[:-1], params.w0.shape[:-1], params.P0.shape[:-2], params.Q.shape[:-2]]
+              params.alpha0.shape[:-1], params.w0.shape[:-1], params.P0.shape[:-2], params.Q.shape[:-2],
+              params.Qmax_o.shape, params.Qmax_w.shape]
     if inputs is not None:
         inputs = torch.as_tensor(inputs, dtype=dtype, device=device)
         if inputs.shape[-2:] != (N, structure.n_inputs):

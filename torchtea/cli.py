@@ -184,6 +184,9 @@ def cmd_identify(args) -> int:
         for f in ("kfx", "kfo", "kfw"):  # per-axis R stays the axis's own unless the file says otherwise
             overrides[f].pop("R", None)
     total = min(n or len(rec.accel_counts), len(rec.accel_counts))
+    if total > 20000:
+        print(f"torchtea: note: {total} samples with the exact full-history GL sums cost O(N²); "
+              "the whole bundled recording (44930 samples) takes about 4 minutes on 2 cores", file=sys.stderr)
     step, close = _progress(total, sys.stderr.isatty() and not args.json, "TEA x,y,z")
     t0 = time.perf_counter()
     ident = identify(rec, n_samples=n, r_mode=args.r, overrides=overrides, progress=step)

@@ -234,3 +234,26 @@ def test_bundled_recordings_read_completely():
     assert second.accel_counts.shape == (9986, 3)
     lines = bundled_recording("second").read_text().splitlines()
     assert len(lines) == 5 + 9986
+
+
+def test_identify_warns_about_long_recordings(tmp_path, capsys, monkeypatch):
+    import torchtea.cli as cli
+
+    monkeypatch.setattr(cli, "LONG_RECORDING", 100)
+    assert run("identify", "--samples", 150, "--no-plots", "--json", "--out", tmp_path / "id") == 0
+    err = capsys.readouterr().err
+    assert "150 samples" in err and "O(N²)" in err
+    monkeypatch.setattr(cli, "LONG_RECORDING", 1000)
+    assert run("identify", "--samples", 150, "--no-plots", "--json", "--out", tmp_path / "id") == 0
+    assert "O(N²)" not in capsys.readouterr().err
+
+
+def test_generic_csv_in_g(tmp_path, capsys):
+    f = tmp_path / "g.csv"
+    rows = "\n".join(f"{0.001 * ((7 * i) % 5 - 2)},{0.002 * ((3 * i) % 7 - 3)},{1 + 0.001 * ((5 * i) % 3 - 1)}"
+                     for i in range(200))
+    f.write_text("ax,ay,az\n" + rows + "\n")
+    assert run("identify", f, "--rate", 100, "--lsb-per-g", 1, "--no-plots", "--json", "--out", tmp_path / "o") == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["samples"] == 200
+    assert out["axes"]["z"]["mean_removed_ms2"] == pytest.approx(9.80665 * (1 + 0.001 * np.mean([(5 * i) % 3 - 1 for i in range(200)])))

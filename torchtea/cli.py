@@ -11,6 +11,10 @@ from pathlib import Path
 __all__ = ["main"]
 
 
+#: Above this many samples `identify` warns that the exact O(N²) history sums take minutes.
+LONG_RECORDING = 20000
+
+
 class CLIError(Exception):
     """A user-facing error: one line, non-zero exit."""
 
@@ -184,7 +188,7 @@ def cmd_identify(args) -> int:
         for f in ("kfx", "kfo", "kfw"):  # per-axis R stays the axis's own unless the file says otherwise
             overrides[f].pop("R", None)
     total = min(n or len(rec.accel_counts), len(rec.accel_counts))
-    if total > 20000:
+    if total > LONG_RECORDING:
         print(f"torchtea: note: {total} samples with the exact full-history GL sums cost O(N²); "
               "the whole bundled recording (44930 samples) takes about 4 minutes on 2 cores", file=sys.stderr)
     step, close = _progress(total, sys.stderr.isatty() and not args.json, "TEA x,y,z")

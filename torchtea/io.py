@@ -120,7 +120,7 @@ def read_series(path, columns: Sequence[str], optional: Sequence[str] = (), *, a
             raise InputError(f"{path}, line {i}: {len(row)} fields, the header has {len(header)}")
         for c in wanted:
             out[c].append(_number(row[idx[c]], path, i, c, allow_missing=allow_missing))
-    if not out[columns[0]] if columns else False:
+    if columns and not out[columns[0]]:
         raise InputError(f"{path}: no data rows")
     return {c: np.asarray(v, dtype=np.float64) for c, v in out.items()}
 
@@ -135,8 +135,8 @@ def read_recording(path=None, *, lsb_per_g: float | None = None, rate_hz: float 
       ``ax,ay,az,gx,gy,gz`` and integer rows) — the vendored MPU-6050 files; the
       accelerometer scale defaults to ±2 g, 16384 LSB/g (see PROVENANCE.md);
     * a generic CSV whose header names the three accelerometer ``columns``
-      (``rate_hz`` and ``lsb_per_g`` then required; use ``lsb_per_g = 1/g₀`` for
-      data already in m/s²… or see the CLI's ``--units``).
+      (``rate_hz`` and ``lsb_per_g`` then required: ``lsb_per_g = 1`` for data in g,
+      ``lsb_per_g = 9.80665`` for data already in m/s²).
     """
     path = bundled_recording() if path is None else Path(path)
     lines = _open_lines(path)

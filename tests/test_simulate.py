@@ -82,3 +82,22 @@ def test_stationary_spectrum_matches_theory():
     for lo in range(8, I.shape[1] - 8, 64):
         band = slice(lo, lo + 8)
         assert Ibar[band].mean() / S[band].mean() == pytest.approx(1.0, abs=0.15), f"band at ω={omega[lo]:.2f}"
+
+
+def test_standard_draws_replace_the_generator():
+    g = torch.Generator().manual_seed(21)
+    n = 40
+    z_w = torch.randn(3, n, 1, generator=g, dtype=torch.float64)
+    z_v = torch.randn(3, n, 1, generator=g, dtype=torch.float64)
+    s = simulate(Structure(), n_steps=n, h=0.01, order=ConstantOrder(0.4), parameters=[-1.0], process_noise=4.0,
+                 measurement_noise=0.25, standard_draws=(z_w, z_v))
+    assert s.x.shape == (3, n, 1)
+    torch.testing.assert_close(s.process_noise, 2.0 * z_w)
+    torch.testing.assert_close(s.measurement_noise, 0.5 * z_v)
+    # realisation 1 alone gives the same series as inside the batch
+    one = simulate(Structure(), n_steps=n, h=0.01, order=ConstantOrder(0.4), parameters=[-1.0], process_noise=4.0,
+                   measurement_noise=0.25, standard_draws=(z_w[1], z_v[1]))
+    torch.testing.assert_close(one.y, s.y[1], rtol=0, atol=1e-13)
+    with pytest.raises(ValueError, match="standard_draws"):
+        simulate(Structure(), n_steps=n, h=0.01, order=ConstantOrder(0.4), parameters=[-1.0], process_noise=1.0,
+                 measurement_noise=1.0, standard_draws=(z_w[..., :10, :], z_v))

@@ -63,6 +63,7 @@ def simulate(
     x0=None,
     batch_shape=(),
     generator: torch.Generator | None = None,
+    standard_draws: tuple[Tensor, Tensor] | None = None,
     dtype=torch.float64,
     device=None,
 ) -> Simulation:
@@ -92,6 +93,10 @@ def simulate(
         Number of realisations; broadcast with the batch shapes of the other arguments.
     generator : torch.Generator, optional
         Source of all random draws (ω first, then ν).
+    standard_draws : (Tensor ``(*B, N, n)``, Tensor ``(*B, N, p)``), optional
+        Standard-normal draws to use instead of the generator (scaled by the
+        Cholesky factors of Q and R) — for Monte Carlo studies whose realisation i
+        must not depend on how the batch is chunked.
 
     Returns
     -------
@@ -119,8 +124,19 @@ def simulate(
     C = structure.C.to(ref)
     Lq = _chol(process_noise, n, ref)
     Lr = _chol(measurement_noise, p, ref)
-    omega = torch.randn(batch + (n_steps, n), generator=generator, dtype=dtype, device=device) @ Lq.mT
-    nu = torch.randn(batch + (n_steps, p), generator=generator, dtype=dtype, device=device) @ Lr.mT
+    if standard_draws is None:
+        z_omega = torch.randn(batch + (n_steps, n), generator=generator, dtype=dtype, device=device)
+        z_nu = torch.randn(batch + (n_steps, p), generator=generator, dtype=dtype, device=device)
+    else:
+        z_omega, z_nu = (torch.as_tensor(z).to(ref) for z in standard_draws)
+        if z_omega.shape[-2:] != (n_steps, n) or z_nu.shape[-2:] != (n_steps, p):
+            raise ValueError(f"standard_draws must have shapes (*B, {n_steps}, {n}) and (*B, {n_steps}, {p})")
+        batch = torch.broadcast_shapes(batch, z_omega.shape[:-2], z_nu.shape[:-2])
+        u = u.expand(batch + (n_steps, d))
+        alpha = alpha.expand(batch + (n_steps, n))
+        A = A.expand(batch + (n, n))
+    omega = z_omega.expand(batch + (n_steps, n)) @ Lq.mT
+    nu = z_nu.expand(batch + (n_steps, p)) @ Lr.mT
 
     x = torch.empty(batch + (n_steps, n), dtype=dtype, device=device)
     x[..., 0, :] = 0.0 if x0 is None else torch.as_tensor(x0).to(ref)

@@ -1,0 +1,172 @@
+"""Monte Carlo studies of the TEA: many simulated realisations as one (chunked) batch.
+
+Realisation ``i`` of a study with seed ``s`` draws its input and noises from its own generator, seeded by
+``numpy.random.SeedSequence(s, spawn_key=(i,))``, so a realisation is the same whatever the chunking.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from .model import OrderSchedule, Structure, parse_order_spec
+from .simulate import simulate
+from .stats import chi2_band, convergence_time, coverage, nees, nis, over_realisations
+from .tea import TEAConfig, make_params, run_tea
+
+__all__ = ["Truth", "Study", "StudyResult", "realisation_seed", "draw_realisation", "run_study", "auto_chunk"]
+
+
+@dataclass(frozen=True)
+class Truth:
+    """The simulated truth: the paper's scalar noise model (43)–(45) with a known Gaussian input or none."""
+
+    h: float
+    n_steps: int
+    order: str  # SPEC as on the command line
+    param: float
+    q: float
+    r: float
+    input_std: float | None = None
+
+    def schedule(self) -> OrderSchedule:
+        return parse_order_spec(self.order)
+
+
+@dataclass(frozen=True)
+class Study:
+    """A Monte Carlo study: truth, estimator settings, size and seed."""
+
+    truth: Truth
+    estimator: TEAConfig = field(default_factory=TEAConfig)
+    realisations: int = 100
+    seed: int = 0
+    chunk: int | None = None  # realisations per batch; None = automatic
+    order_tolerance: float = 0.05
+    param_tolerance: float = 0.2
+
+
+def realisation_seed(seed: int, index: int) -> int:
+    """A 63-bit torch seed for realisation ``index`` of a study seeded ``seed``."""
+    state = np.random.SeedSequence(seed, spawn_key=(index,)).generate_state(2, dtype=np.uint32)
+    return int((int(state[0]) << 31) ^ int(state[1])) & ((1 << 63) - 1)
+
+
+def draw_realisation(truth: Truth, seed: int, index: int, dtype=torch.float64):
+    """Input ``(N, 1)`` (or None) and standard-normal ω, ν draws ``(N, 1)`` of one realisation."""
+    g = torch.Generator().manual_seed(realisation_seed(seed, index))
+    N = truth.n_steps
+    u = None if truth.input_std is None else truth.input_std * torch.randn(N, 1, generator=g, dtype=dtype)
+    z_w = torch.randn(N, 1, generator=g, dtype=dtype)
+    z_v = torch.randn(N, 1, generator=g, dtype=dtype)
+    return u, z_w, z_v
+
+
+def auto_chunk(n_steps: int, budget_bytes: float = 2e9) -> int:
+    """Realisations per batch so that one chunk's tensors stay within ``budget_bytes``.
+
+    Per realisation and step the TEA keeps ~16 float64 values (outputs and histories) and builds ~6 lag
+    coefficients per step transiently; the study keeps ~8 trajectories: ~30·N·8 bytes of N-length data.
+    """
+    per = 30 * n_steps * 8 + 6 * n_steps * 8
+    return max(1, int(budget_bytes // per))
+
+
+@dataclass
+class StudyResult:
+    """Per-realisation trajectories of the finished realisations (time at dim 1)."""
+
+    study: Study
+    t: Tensor  # (N,)
+    alpha_true: Tensor  # (R, N)
+    alpha: Tensor  # (R, N)
+    P_alpha: Tensor  # (R, N)
+    w: Tensor  # (R, N)
+    P_w: Tensor  # (R, N)
+    nees: Tensor  # (R, N)
+    nis: Tensor  # (R, N)
+    diverged: Tensor  # (R,)
+    finished: int
+    interrupted: bool = False
+
+
+def run_study(study: Study, *, progress=None) -> StudyResult:
+    """Run a study chunk by chunk; Ctrl-C between or during chunks keeps the finished chunks.
+
+    ``progress(done, total)`` is called after each chunk.
+    """
+    tr = study.truth
+    R, N = study.realisations, tr.n_steps
+    chunk = study.chunk or auto_chunk(N)
+    schedule = tr.schedule()
+    params = make_params(study.estimator, Structure())
+    parts: dict = {k: [] for k in ("alpha_true", "alpha", "P_alpha", "w", "P_w", "nees", "nis", "diverged")}
+    done = 0
+    interrupted = False
+    try:
+        while done < R:
+            idx = range(done, min(R, done + chunk))
+            draws = [draw_realisation(tr, study.seed, i) for i in idx]
+            u = None if tr.input_std is None else torch.stack([d[0] for d in draws])
+            z_w = torch.stack([d[1] for d in draws])
+            z_v = torch.stack([d[2] for d in draws])
+            sim = simulate(Structure(), n_steps=N, h=tr.h, order=schedule, parameters=[tr.param],
+                           process_noise=tr.q, measurement_noise=tr.r, inputs=u, standard_draws=(z_w, z_v))
+            res = run_tea(sim.y, h=tr.h, params=params, inputs=u)
+            parts["alpha_true"].append(sim.alpha[..., 0])
+            parts["alpha"].append(res.alpha[..., 0])
+            parts["P_alpha"].append(res.P_alpha[..., 0, 0])
+            parts["w"].append(res.w[..., 0])
+            parts["P_w"].append(res.P_w[..., 0, 0])
+            parts["nees"].append(nees(res.x, sim.x, res.P))
+            parts["nis"].append(nis(res.innovation, res.innovation_cov))
+            parts["diverged"].append(res.diverged)
+            done = idx.stop
+            if progress is not None:
+                progress(done, R)
+    except KeyboardInterrupt:
+        interrupted = True
+    if done == 0:
+        empty = torch.empty(0, N, dtype=torch.float64)
+        cat = {k: (torch.empty(0, dtype=torch.bool) if k == "diverged" else empty) for k in parts}
+    else:
+        cat = {k: torch.cat(v) for k, v in parts.items()}
+    t = torch.arange(N, dtype=torch.float64) * tr.h
+    return StudyResult(study=study, t=t, finished=done, interrupted=interrupted, **cat)
+
+
+def summarise(result: StudyResult) -> dict:
+    """Final and over-time statistics of a study (diverged realisations excluded and counted)."""
+    st, tr = result.study, result.study.truth
+    keep = ~result.diverged
+    kept = int(keep.sum())
+    out = {"realisations": result.finished, "requested": st.realisations, "interrupted": result.interrupted,
+           "diverged": int(result.diverged.sum()),
+           "diverged_fraction": float(result.diverged.double().mean()) if result.finished else math.nan,
+           "excluded_from_statistics": "diverged realisations"}
+    truth_w = torch.full_like(result.w, tr.param)
+    for name, est, truth, var, tol in (("order", result.alpha, result.alpha_true, result.P_alpha, st.order_tolerance),
+                                       ("param", result.w, truth_w, result.P_w, st.param_tolerance)):
+        final = over_realisations(est[:, -1:, None], truth[:, -1:, None], keep)
+        ct = convergence_time(est[keep].unsqueeze(-1), truth[keep].unsqueeze(-1), tol, tr.h)[:, 0]
+        cov = coverage(est[keep], truth[keep], var[keep])
+        entry = {k: float(final[k][0, 0]) for k in ("mean", "bias", "std", "rmse")}
+        entry["quantiles"] = {f"{int(q * 100)}%": float(v) for q, v in zip((0.05, 0.25, 0.5, 0.75, 0.95),
+                                                                           final["quantiles"][:, 0, 0])}
+        entry["convergence_tolerance"] = tol
+        entry["converged_fraction"] = float((~torch.isnan(ct)).double().mean()) if kept else math.nan
+        entry["convergence_time_quantiles"] = (
+            {f"{int(q * 100)}%": float(v) for q, v in zip((0.05, 0.5, 0.95), torch.nanquantile(
+                ct, torch.tensor([0.05, 0.5, 0.95], dtype=ct.dtype)))} if kept and not torch.isnan(ct).all() else {})
+        entry["coverage_2sigma"] = float(cov.double().mean()) if kept else math.nan
+        out[name] = entry
+    if kept:
+        lo, hi = chi2_band(1, kept)
+        for name, series in (("nees", result.nees[keep]), ("nis", result.nis[keep])):
+            avg = series[:, 1:].mean(0)
+            out[name] = {"mean": float(avg.mean()), "band_95": [lo, hi],
+                         "fraction_of_steps_inside_band": float(((avg >= lo) & (avg <= hi)).double().mean())}
+    return out

@@ -61,3 +61,30 @@ def test_interrupt_keeps_finished_chunks():
     torch.testing.assert_close(res.alpha, full.alpha, rtol=0, atol=0)
     s = summarise(res)
     assert s["interrupted"] and s["realisations"] == 4 and s["requested"] == 10
+
+
+def test_tensorboard_event_files_read_back(tmp_path):
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    from torchtea.tblog import log_study
+
+    study = Study(TRUTH, get_preset("paper-example1"), realisations=5, seed=3)
+    res = run_study(study)
+    summary = summarise(res)
+    log_study(tmp_path / "run", res, summary, {"realisations": 5, "order": "0.35", "preset": "paper-example1"},
+              max_points=50)
+    ea = EventAccumulator(str(tmp_path / "run"), size_guidance={"scalars": 0, "histograms": 0, "tensors": 0})
+    ea.Reload()
+    tags = ea.Tags()
+    for tag in ("order/truth", "order/mean", "order/q05", "order/q95", "order/rmse", "param/mean",
+                "consistency/nees", "consistency/nis", "metric/order_rmse"):
+        assert tag in tags["scalars"], tag
+    assert "final/order" in tags["histograms"]
+    mean = ea.Scalars("order/mean")
+    assert len(mean) == 50 and [e.step for e in mean[:3]] == [0, 3, 6]
+    k = mean[-1].step
+    keep = ~res.diverged
+    assert mean[-1].value == pytest.approx(float(res.alpha[keep, k].mean()), rel=1e-6)
+    assert ea.Scalars("order/truth")[0].value == pytest.approx(0.35)
+    assert ea.Scalars("metric/order_rmse")[0].value == pytest.approx(summary["order"]["rmse"], rel=1e-6)
+    assert any("summary" in t for t in tags["tensors"])

@@ -88,3 +88,45 @@ def test_tensorboard_event_files_read_back(tmp_path):
     assert ea.Scalars("order/truth")[0].value == pytest.approx(0.35)
     assert ea.Scalars("metric/order_rmse")[0].value == pytest.approx(summary["order"]["rmse"], rel=1e-6)
     assert any("summary" in t for t in tags["tensors"])
+
+
+def test_montecarlo_cli_json_contract_and_run_directory(tmp_path, capsys):
+    import json
+
+    import numpy as np
+
+    from torchtea.cli import main
+
+    logdir = tmp_path / "mc"
+    code = main(["montecarlo", "--preset", "paper-example1", "--n", "120", "--realisations", "6", "--seed", "4",
+                 "--chunk", "4", "--logdir", str(logdir), "--json"])
+    assert code == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["realisations"] == 6 and out["logdir"] == str(logdir)
+    for name in ("order", "param"):
+        assert set(("bias", "std", "rmse")) <= set(out[name])
+    assert 0.0 <= out["diverged_fraction"] <= 1.0
+    for f in ("study.toml", "estimator.toml", "summary.json", "final_estimates.csv"):
+        assert (logdir / f).exists(), f
+    assert any(p.name.startswith("events.out.tfevents") for p in logdir.iterdir())
+    fin = np.genfromtxt(logdir / "final_estimates.csv", delimiter=",", names=True)
+    assert len(fin) == 6
+    keep = fin["diverged"] == 0
+    assert out["order"]["bias"] == pytest.approx((fin["alpha_final"][keep] - 0.35).mean(), rel=1e-9, abs=1e-12)
+    # the written study file reproduces the run
+    code = main(["montecarlo", "--config", str(logdir / "study.toml"), "--logdir", str(tmp_path / "again"), "--json"])
+    again = json.loads(capsys.readouterr().out)
+    assert again["order"]["rmse"] == pytest.approx(out["order"]["rmse"], rel=1e-9)
+
+
+def test_montecarlo_cli_errors(tmp_path, capsys):
+    from torchtea.cli import main
+
+    assert main(["montecarlo", "--preset", "paper-mems-x", "--realisations", "2", "--logdir", str(tmp_path)]) == 2
+    assert "the truth needs" in capsys.readouterr().err
+    bad = tmp_path / "s.toml"
+    bad.write_text("realisations = 3\n[truht]\nh = 0.1\n")
+    assert main(["montecarlo", "--config", str(bad)]) == 2
+    assert "unknown study settings ['truht']" in capsys.readouterr().err
+    assert main(["montecarlo", "--config", str(tmp_path / "none.toml")]) == 2
+    assert "no such study file" in capsys.readouterr().err

@@ -101,3 +101,10 @@ def test_standard_draws_replace_the_generator():
     with pytest.raises(ValueError, match="standard_draws"):
         simulate(Structure(), n_steps=n, h=0.01, order=ConstantOrder(0.4), parameters=[-1.0], process_noise=1.0,
                  measurement_noise=1.0, standard_draws=(z_w[..., :10, :], z_v))
+
+
+def test_order_spec_roundtrip():
+    for sched in (ConstantOrder(0.35), LinearOrder(0.2, 0.1), ParabolicOrder(0.2, 0.05)):
+        assert parse_order_spec(sched.spec()) == sched
+    with pytest.raises(ValueError, match="no command-line SPEC"):
+        FunctionOrder(lambda t: t).spec()

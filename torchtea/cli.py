@@ -242,6 +242,142 @@ def cmd_identify(args) -> int:
     return 0
 
 
+# --------------------------------------------------------------------------- montecarlo
+
+
+def _study_from_args(args):
+    """A Study from an optional STUDY.toml, then the command-line flags on top."""
+    from dataclasses import replace
+
+    from .config import load_config, tomllib
+    from .io import InputError
+    from .montecarlo import Study, Truth
+    from .presets import SCENARIOS, get_preset
+    from .tea import TEAConfig
+
+    data = {}
+    if args.config:
+        try:
+            with open(args.config, "rb") as fh:
+                data = tomllib.load(fh)
+        except FileNotFoundError:
+            raise InputError(f"{args.config}: no such study file") from None
+        except tomllib.TOMLDecodeError as exc:
+            raise InputError(f"{args.config}: not valid TOML ({exc})") from None
+    unknown = set(data) - {"realisations", "seed", "chunk", "truth", "estimator"}
+    if unknown:
+        raise InputError(f"{args.config}: unknown study settings {sorted(unknown)}")
+    est = dict(data.get("estimator", {}))
+    preset = args.preset or est.pop("preset", None) or "paper-example1"
+    est.pop("preset", None)
+    try:
+        estimator = TEAConfig.from_dict(est, get_preset(preset))
+    except ValueError as exc:
+        raise CLIError(f"{args.config or 'estimator'}: {exc}") from None
+    truth = dict(data.get("truth", {}))
+    if "n" in truth:
+        truth["n_steps"] = truth.pop("n")
+    sc = SCENARIOS.get(preset)
+    base = {}
+    if sc is not None:
+        base = dict(h=sc.h, n_steps=sc.n_steps, order=sc.order.spec(), param=sc.param, q=sc.q, r=sc.r,
+                    input_std=sc.input_std)
+    base.update(truth)
+    for flag, key in (("n", "n_steps"), ("h", "h"), ("order", "order"), ("param", "param"), ("q", "q"), ("r", "r"),
+                      ("input_std", "input_std")):
+        v = getattr(args, flag)
+        if v is not None:
+            base[key] = v
+    missing = [k for k in ("h", "n_steps", "order", "param", "q", "r") if k not in base]
+    if missing:
+        raise CLIError(f"the truth needs {', '.join(missing)} (flags --n --h --order --param --q --r, a [truth] table, "
+                       "or a paper-example preset)")
+    try:
+        tr = Truth(**base)
+        tr.schedule()
+    except (TypeError, ValueError) as exc:
+        raise CLIError(f"bad truth: {exc}") from None
+    study = Study(tr, estimator, realisations=int(data.get("realisations", 100)), seed=int(data.get("seed", 0)),
+                  chunk=data.get("chunk"))
+    if args.realisations is not None:
+        study = replace(study, realisations=args.realisations)
+    if args.seed is not None:
+        study = replace(study, seed=args.seed)
+    if args.chunk is not None:
+        study = replace(study, chunk=args.chunk)
+    if study.realisations < 1:
+        raise CLIError("--realisations must be at least 1")
+    return study, preset
+
+
+def cmd_montecarlo(args) -> int:
+    import datetime
+
+    import numpy as np
+
+    from .config import dumps_toml, write_config
+    from .io import write_columns
+    from .montecarlo import run_study, summarise
+    from .tblog import log_study
+
+    study, preset = _study_from_args(args)
+    tr = study.truth
+    logdir = Path(args.logdir) if args.logdir else Path("runs") / datetime.datetime.now().strftime("mc-%Y%m%d-%H%M%S")
+    logdir.mkdir(parents=True, exist_ok=True)
+    study_dict = {"realisations": study.realisations, "seed": study.seed,
+                  **({"chunk": study.chunk} if study.chunk else {}),
+                  "truth": {k: v for k, v in vars(tr).items() if v is not None},
+                  "estimator": {"preset": preset, **study.estimator.to_dict()}}
+    (logdir / "study.toml").write_text(dumps_toml(study_dict))
+    write_config(logdir / "estimator.toml", study.estimator, {"preset": preset})
+    bar = None
+    if sys.stderr.isatty() and not args.json:
+        from tqdm import tqdm
+
+        bar = tqdm(total=study.realisations, desc="realisations", unit="run", file=sys.stderr)
+    last = [0]
+
+    def progress(done, total):
+        if bar is not None:
+            bar.update(done - last[0])
+        last[0] = done
+
+    t0 = time.perf_counter()
+    result = run_study(study, progress=progress)
+    elapsed = time.perf_counter() - t0
+    if bar is not None:
+        bar.close()
+    if result.finished == 0:
+        raise CLIError("interrupted before any realisation finished; nothing to summarise")
+    summary = summarise(result)
+    summary.update({"logdir": str(logdir), "seconds": round(elapsed, 2), "preset": preset})
+    idx = np.arange(result.finished)
+    write_columns(logdir / "final_estimates.csv", {
+        "realisation": idx, "diverged": result.diverged.numpy().astype(float),
+        "alpha_true": result.alpha_true[:, -1], "alpha_final": result.alpha[:, -1], "P_alpha_final": result.P_alpha[:, -1],
+        "param_true": np.full(result.finished, tr.param), "param_final": result.w[:, -1], "P_param_final": result.P_w[:, -1]})
+    hp = {"realisations": result.finished, "seed": study.seed, "preset": preset, "order": tr.order, "param": tr.param,
+          "q": tr.q, "r": tr.r, "h": tr.h, "n": tr.n_steps, "input_std": tr.input_std if tr.input_std is not None else 0.0}
+    log_study(logdir, result, summary, hp)
+    (logdir / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    if result.interrupted:
+        print(f"torchtea: interrupted: kept {result.finished} of {study.realisations} realisations in {logdir}",
+              file=sys.stderr)
+    if summary["diverged"]:
+        print(f"torchtea: warning: {summary['diverged']} realisation(s) diverged; excluded from the statistics",
+              file=sys.stderr)
+    if args.json:
+        print(json.dumps(summary))
+    else:
+        print(f"{result.finished} realisations, {summary['diverged']} diverged, {elapsed:.1f} s")
+        for name in ("order", "param"):
+            s = summary[name]
+            print(f"{name:>6}: bias {s['bias']:+.4g}  std {s['std']:.4g}  RMSE {s['rmse']:.4g}  "
+                  f"2σ coverage {s['coverage_2sigma']:.3f}")
+        print(f"run directory: {logdir}   (tensorboard --logdir {logdir.parent})")
+    return 130 if result.interrupted else 0
+
+
 # --------------------------------------------------------------------------- presets
 
 
@@ -303,6 +439,23 @@ def build_parser() -> argparse.ArgumentParser:
     i.add_argument("--no-plots", action="store_true")
     i.add_argument("--json", action="store_true", help="print a JSON summary")
     i.set_defaults(func=cmd_identify)
+
+    mc = sub.add_parser("montecarlo", help="Monte Carlo study of the TEA, logged to TensorBoard")
+    mc.add_argument("--config", help="STUDY.toml: realisations, seed, chunk, [truth], [estimator]")
+    mc.add_argument("--realisations", type=int)
+    mc.add_argument("--seed", type=int)
+    mc.add_argument("--chunk", type=int, help="realisations per batch (default: sized to memory)")
+    mc.add_argument("--logdir", help="run directory (default runs/mc-<time>)")
+    mc.add_argument("--preset", help="estimator settings (default paper-example1); a paper example also sets the truth")
+    mc.add_argument("--n", type=_count)
+    mc.add_argument("--h", type=_positive_float)
+    mc.add_argument("--order")
+    mc.add_argument("--param", type=_finite_float)
+    mc.add_argument("--q", type=_nonneg_float)
+    mc.add_argument("--r", type=_nonneg_float)
+    mc.add_argument("--input-std", type=_nonneg_float)
+    mc.add_argument("--json", action="store_true")
+    mc.set_defaults(func=cmd_montecarlo)
 
     r = sub.add_parser("presets", help="list presets, or print one as TOML")
     r.add_argument("name", nargs="?")

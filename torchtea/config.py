@@ -13,7 +13,7 @@ from .io import InputError
 from .presets import get_preset
 from .tea import TEAConfig
 
-__all__ = ["load_config", "dumps_toml", "write_config"]
+__all__ = ["load_config", "dumps_toml", "write_config", "tomllib"]
 
 
 def load_config(path) -> TEAConfig:
@@ -58,16 +58,16 @@ def _value(v) -> str:
     raise TypeError(f"cannot write {type(v).__name__} to TOML")
 
 
-def dumps_toml(data: dict) -> str:
-    """Minimal TOML writer for nested dicts of numbers, strings, booleans and lists."""
-    top = [f"{k} = {_value(v)}" for k, v in data.items() if not isinstance(v, dict)]
-    tables = [(k, v) for k, v in data.items() if isinstance(v, dict)]
-    out = top[:]
-    for name, table in tables:
-        out.append("")
-        out.append(f"[{name}]")
-        out.extend(f"{k} = {_value(v)}" for k, v in table.items())
-    return "\n".join(out) + "\n"
+def dumps_toml(data: dict, _prefix: str = "") -> str:
+    """Minimal TOML writer for nested dicts of numbers, strings, booleans and lists (sub-dicts become tables)."""
+    out = [f"{k} = {_value(v)}" for k, v in data.items() if not isinstance(v, dict)]
+    for name, table in data.items():
+        if isinstance(table, dict):
+            header = f"{_prefix}{name}"
+            out.append("")
+            out.append(f"[{header}]")
+            out.append(dumps_toml(table, header + ".").rstrip("\n"))
+    return "\n".join(line for line in out) + "\n"
 
 
 def write_config(path, config: TEAConfig, extra: dict | None = None) -> Path:

@@ -176,6 +176,10 @@ class OrderSchedule:
     def _time(self, n_steps: int, h: float) -> Tensor:
         return torch.arange(n_steps, dtype=torch.float64) * h
 
+    def spec(self) -> str:
+        """The command-line SPEC of this schedule (inverse of :func:`parse_order_spec`)."""
+        raise ValueError(f"{type(self).__name__} has no command-line SPEC")
+
     @staticmethod
     def _per_state(v: Tensor, n_states: int) -> Tensor:
         """The same order ``(N,)`` for every state → ``(N, n)``."""
@@ -188,6 +192,9 @@ class ConstantOrder(OrderSchedule):
 
     value: float
 
+    def spec(self) -> str:
+        return repr(float(self.value))
+
     def values(self, n_steps, h, n_states, inputs=None):
         return torch.full((n_steps, n_states), float(self.value), dtype=torch.float64)
 
@@ -199,6 +206,9 @@ class LinearOrder(OrderSchedule):
     start: float
     slope: float
 
+    def spec(self) -> str:
+        return f"linear:{float(self.start)!r},{float(self.slope)!r}"
+
     def values(self, n_steps, h, n_states, inputs=None):
         return self._per_state(self.start + self.slope * self._time(n_steps, h), n_states)
 
@@ -209,6 +219,9 @@ class ParabolicOrder(OrderSchedule):
 
     start: float
     curvature: float
+
+    def spec(self) -> str:
+        return f"parabolic:{float(self.start)!r},{float(self.curvature)!r}"
 
     def values(self, n_steps, h, n_states, inputs=None):
         return self._per_state(self.start + self.curvature * self._time(n_steps, h) ** 2, n_states)

@@ -62,6 +62,18 @@ def _progress(total, enabled, desc):
     return step, bar.close
 
 
+def _report(out_dir: Path, summary: dict, warnings, as_json: bool) -> bool:
+    """Write ``summary.json``, print the warnings on stderr and, with ``--json``, the summary on stdout.
+
+    Returns True when the JSON was printed (the caller then prints no table)."""
+    (out_dir / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    for w in warnings:
+        print(f"torchtea: {w}", file=sys.stderr)
+    if as_json:
+        print(json.dumps(summary))
+    return as_json
+
+
 # --------------------------------------------------------------------------- simulate
 
 
@@ -222,14 +234,9 @@ def cmd_identify(args) -> int:
                 state_label="noise [m/s²]", zoom=(t[-1] - 5.0, t[-1]))))
     summary.update({"recording": str(rec.path), "samples": int(ident.y.shape[-2]), "h": ident.h,
                     "r_mode": args.r, "out": str(out_dir), "figures": figures, "seconds": round(elapsed, 3)})
-    (out_dir / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
-    for a, s in summary["axes"].items():
-        if s["diverged"]:
-            print(f"torchtea: warning: axis {a} diverged; its estimates are frozen at the last good step",
-                  file=sys.stderr)
-    if args.json:
-        print(json.dumps(summary))
-    else:
+    warnings = [f"warning: axis {a} diverged; its estimates are frozen at the last good step"
+                for a, s in summary["axes"].items() if s["diverged"]]
+    if not _report(out_dir, summary, warnings, args.json):
         print(f"{Path(rec.path).name}: {summary['samples']} samples at {1 / ident.h:g} Hz, "
               f"mean removed per axis, TEA with the paper's §5.1 settings (R = {args.r} variance)")
         print(f"{'axis':>4} {'R [(m/s²)²]':>12} {'α̂ last⅓':>9} {'±sd':>7} {'α̂ final':>9} "
@@ -359,16 +366,12 @@ def cmd_montecarlo(args) -> int:
     hp = {"realisations": result.finished, "seed": study.seed, "preset": preset, "order": tr.order, "param": tr.param,
           "q": tr.q, "r": tr.r, "h": tr.h, "n": tr.n_steps, "input_std": tr.input_std if tr.input_std is not None else 0.0}
     log_study(logdir, result, summary, hp)
-    (logdir / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    warnings = []
     if result.interrupted:
-        print(f"torchtea: interrupted: kept {result.finished} of {study.realisations} realisations in {logdir}",
-              file=sys.stderr)
+        warnings.append(f"interrupted: kept {result.finished} of {study.realisations} realisations in {logdir}")
     if summary["diverged"]:
-        print(f"torchtea: warning: {summary['diverged']} realisation(s) diverged; excluded from the statistics",
-              file=sys.stderr)
-    if args.json:
-        print(json.dumps(summary))
-    else:
+        warnings.append(f"warning: {summary['diverged']} realisation(s) diverged; excluded from the statistics")
+    if not _report(logdir, summary, warnings, args.json):
         print(f"{result.finished} realisations, {summary['diverged']} diverged, {elapsed:.1f} s")
         for name in ("order", "param"):
             s = summary[name]

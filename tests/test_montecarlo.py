@@ -130,3 +130,61 @@ def test_montecarlo_cli_errors(tmp_path, capsys):
     assert "unknown study settings ['truht']" in capsys.readouterr().err
     assert main(["montecarlo", "--config", str(tmp_path / "none.toml")]) == 2
     assert "no such study file" in capsys.readouterr().err
+
+
+def test_tensorboard_server_serves_a_scalar_series(tmp_path):
+    """The real `tensorboard` server on a free loopback port serves the study's scalars over its HTTP API."""
+    import json
+    import socket
+    import subprocess
+    import sys
+    import time
+    import urllib.request
+
+    from torchtea.tblog import log_study
+
+    res = run_study(Study(TRUTH, get_preset("paper-example1"), realisations=3, seed=1))
+    log_study(tmp_path / "run", res, summarise(res), {"realisations": 3}, max_points=20)
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    proc = subprocess.Popen([sys.executable, "-m", "tensorboard.main", "--logdir", str(tmp_path / "run"),
+                             "--host", "127.0.0.1", "--port", str(port)],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        base = f"http://127.0.0.1:{port}"
+        deadline = time.monotonic() + 90
+        runs = None
+        while time.monotonic() < deadline:
+            try:
+                with urllib.request.urlopen(base + "/data/runs", timeout=5) as r:
+                    runs = json.loads(r.read())
+                if runs:
+                    break
+            except OSError:
+                pass
+            time.sleep(0.5)
+        assert runs == ["."]
+        with urllib.request.urlopen(base + "/data/plugin/scalars/scalars?run=.&tag=order%2Ftruth", timeout=10) as r:
+            series = json.loads(r.read())
+        stride = math.ceil(150 / 20)  # ≤ 20 points of a 150-sample series
+        assert len(series) == len(range(0, 150, stride)) == 19
+        assert [p[1] for p in series[:2]] == [0, stride] and all(p[2] == pytest.approx(0.35) for p in series)
+    finally:
+        proc.terminate()
+        proc.wait(timeout=30)
+    assert proc.returncode is not None
+
+
+def test_fan_figures_in_tensorboard(tmp_path):
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    from torchtea.tblog import log_study
+
+    res = run_study(Study(TRUTH, get_preset("paper-example1"), realisations=3, seed=1))
+    log_study(tmp_path / "run", res, summarise(res), {"realisations": 3}, max_points=20)
+    ea = EventAccumulator(str(tmp_path / "run"), size_guidance={"images": 0})
+    ea.Reload()
+    assert {"figures/order_fan", "figures/param_fan"} <= set(ea.Tags()["images"])
+    img = ea.Images("figures/order_fan")[0]
+    assert img.encoded_image_string[:8] == b"\x89PNG\r\n\x1a\n" and img.width > 100

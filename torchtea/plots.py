@@ -57,8 +57,11 @@ def estimation_figure(path, t, *, y=None, x_true=None, x_hat=None, alpha_true=No
     return _save(plt, fig, path)
 
 
-def fan_figure(path, t, truth, runs, *, ylabel, title="") -> Path:
-    """Median and 5–95 % / 25–75 % bands of many estimated trajectories ``runs (R, N)`` against the truth."""
+def fan_figure(path, t, truth, runs, *, ylabel, title=""):
+    """Median and 5–95 % / 25–75 % bands of many estimated trajectories ``runs (R, N)`` against the truth.
+
+    Saves to ``path`` and returns it; with ``path=None`` returns the open matplotlib figure instead
+    (e.g. for TensorBoard's ``add_figure``, which closes it)."""
     plt = _plt()
     q = np.nanquantile(runs, [0.05, 0.25, 0.5, 0.75, 0.95], axis=0)
     fig, ax = plt.subplots(figsize=(9, 3.5))
@@ -71,4 +74,7 @@ def fan_figure(path, t, truth, runs, *, ylabel, title="") -> Path:
     ax.set_ylabel(ylabel)
     ax.set_title(title)
     ax.legend(loc="upper right", fontsize=8)
+    if path is None:
+        fig.tight_layout()
+        return fig
     return _save(plt, fig, path)

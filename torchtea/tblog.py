@@ -21,7 +21,7 @@ def log_study(logdir, result, summary: dict, hparams: dict, *, max_points: int =
 
     Scalars (x axis: sample index k, decimated to ≤ ``max_points``): ``order/{truth,mean,q05…q95,rmse}``,
     ``param/{…}``, ``consistency/{nees,nis,band_lo,band_hi}``; histograms ``final/order``, ``final/param``;
-    text ``summary``; hparams (study settings → final metrics, tags ``metric/…``) so that several studies
+    figures ``figures/{order,param}_fan`` (quantile fan charts); text ``summary``; hparams (study settings → final metrics, tags ``metric/…``) so that several studies
     can be compared side by side in TensorBoard's HParams view.
     """
     from torch.utils.tensorboard import SummaryWriter
@@ -44,6 +44,12 @@ def log_study(logdir, result, summary: dict, hparams: dict, *, max_points: int =
                         w.add_scalar(f"{name}/q{int(round(q * 100)):02d}", float(v), k)
             if st["count"]:
                 w.add_histogram(f"final/{name}", est[keep, -1], 0)
+                from .plots import fan_figure
+
+                label = "order α̂" if name == "order" else "parameter ŵ"
+                w.add_figure(f"figures/{name}_fan", fan_figure(
+                    None, result.t.numpy(), truth[0].numpy(), est[keep].numpy(), ylabel=label,
+                    title=f"{label} over {st['count']} realisations"), 0)
         if "nees" in summary:
             nees_avg = result.nees[keep].mean(0)
             nis_avg = result.nis[keep].mean(0)

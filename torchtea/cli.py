@@ -348,6 +348,8 @@ def cmd_montecarlo(args) -> int:
         if bar is not None:
             bar.update(done - last[0])
         last[0] = done
+        if args.progress_file:
+            Path(args.progress_file).write_text(f"{done} {total}\n")
 
     t0 = time.perf_counter()
     result = run_study(study, progress=progress)
@@ -457,6 +459,7 @@ def build_parser() -> argparse.ArgumentParser:
     mc.add_argument("--q", type=_nonneg_float)
     mc.add_argument("--r", type=_nonneg_float)
     mc.add_argument("--input-std", type=_nonneg_float)
+    mc.add_argument("--progress-file", help="rewrite 'done total' in this file after each chunk (headless runs)")
     mc.add_argument("--json", action="store_true")
     mc.set_defaults(func=cmd_montecarlo)
 

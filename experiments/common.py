@@ -8,17 +8,15 @@ from pathlib import Path
 
 import torch
 
-from torchtea import Structure, gaussian_input, simulate
+from torchtea.simulate import simulate_noise_model
 
 ROOT = Path(__file__).resolve().parent
 
 
 def simulate_seed(sc, seed: int):
-    """One realisation of a Scenario with the CLI's draw order (input first, then ω, then ν)."""
-    g = torch.Generator().manual_seed(seed)
-    u = None if sc.input_std is None else gaussian_input((), sc.n_steps, 1, sc.input_std, generator=g)
-    return simulate(Structure(), n_steps=sc.n_steps, h=sc.h, order=sc.order, parameters=[sc.param],
-                    process_noise=sc.q, measurement_noise=sc.r, inputs=u, generator=g)
+    """One realisation of a Scenario, as `torchtea simulate --seed seed` draws it."""
+    return simulate_noise_model(n_steps=sc.n_steps, h=sc.h, order=sc.order, param=sc.param, q=sc.q, r=sc.r,
+                                input_std=sc.input_std, seed=seed)
 
 
 def simulate_seeds(sc, seeds):

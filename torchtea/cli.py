@@ -49,15 +49,16 @@ def _count(text):
     return v
 
 
-def _progress(total, enabled, desc):
+def _progress(total, enabled, desc, unit="step"):
+    """A tqdm bar on stderr and a callback ``(done, total)`` that advances it to ``done``; no-ops when disabled."""
     if not enabled:
-        return None, lambda: None
+        return (lambda done, total: None), lambda: None
     from tqdm import tqdm
 
-    bar = tqdm(total=total - 1, desc=desc, unit="step", file=sys.stderr, leave=False, mininterval=0.5)
+    bar = tqdm(total=total, desc=desc, unit=unit, file=sys.stderr, leave=False, mininterval=0.5)
 
-    def step(k, n):
-        bar.update(1)
+    def step(done, _total):
+        bar.update(done - bar.n)
 
     return step, bar.close
 
@@ -81,17 +82,15 @@ def cmd_simulate(args) -> int:
     import torch
 
     from .io import write_columns
-    from .model import Structure, parse_order_spec
-    from .simulate import gaussian_input, simulate
+    from .model import parse_order_spec
+    from .simulate import simulate_noise_model
 
     try:
         order = parse_order_spec(args.order)
     except ValueError as exc:
         raise CLIError(str(exc)) from None
-    g = torch.Generator().manual_seed(args.seed)
-    u = None if args.input_std is None else gaussian_input((), args.n, 1, args.input_std, generator=g)
-    sim = simulate(Structure(), n_steps=args.n, h=args.h, order=order, parameters=[args.param],
-                   process_noise=args.q, measurement_noise=args.r, inputs=u, generator=g)
+    sim = simulate_noise_model(n_steps=args.n, h=args.h, order=order, param=args.param, q=args.q, r=args.r,
+                               input_std=args.input_std, seed=args.seed)
     out = write_columns(args.out, {"t": sim.t, "u": sim.u[:, 0], "x": sim.x[:, 0], "y": sim.y[:, 0],
                                    "alpha": sim.alpha[:, 0]})
     if not bool(torch.isfinite(sim.x).all()):
@@ -137,7 +136,7 @@ def cmd_estimate(args) -> int:
     N = y.shape[0]
     if N < 2:
         raise CLIError(f"{args.file}: need at least 2 samples, found {N}")
-    step, close = _progress(N, sys.stderr.isatty() and not args.json, "TEA")
+    step, close = _progress(N - 1, sys.stderr.isatty() and not args.json, "TEA")
     t0 = time.perf_counter()
     res = run_tea(y, h=args.h, params=make_params(cfg, Structure()), inputs=u, progress=step)
     elapsed = time.perf_counter() - t0
@@ -203,7 +202,7 @@ def cmd_identify(args) -> int:
     if total > LONG_RECORDING:
         print(f"torchtea: note: {total} samples with the exact full-history GL sums cost O(N²); "
               "the whole bundled recording (44930 samples) takes about 4 minutes on 2 cores", file=sys.stderr)
-    step, close = _progress(total, sys.stderr.isatty() and not args.json, "TEA x,y,z")
+    step, close = _progress(total - 1, sys.stderr.isatty() and not args.json, "TEA x,y,z")
     t0 = time.perf_counter()
     ident = identify(rec, n_samples=n, r_mode=args.r, overrides=overrides, progress=step)
     elapsed = time.perf_counter() - t0
@@ -256,21 +255,13 @@ def _study_from_args(args):
     """A Study from an optional STUDY.toml, then the command-line flags on top."""
     from dataclasses import replace
 
-    from .config import load_config, tomllib
+    from .config import read_toml
     from .io import InputError
     from .montecarlo import Study, Truth
     from .presets import SCENARIOS, get_preset
     from .tea import TEAConfig
 
-    data = {}
-    if args.config:
-        try:
-            with open(args.config, "rb") as fh:
-                data = tomllib.load(fh)
-        except FileNotFoundError:
-            raise InputError(f"{args.config}: no such study file") from None
-        except tomllib.TOMLDecodeError as exc:
-            raise InputError(f"{args.config}: not valid TOML ({exc})") from None
+    data = read_toml(args.config, "study") if args.config else {}
     unknown = set(data) - {"realisations", "seed", "chunk", "truth", "estimator"}
     if unknown:
         raise InputError(f"{args.config}: unknown study settings {sorted(unknown)}")
@@ -337,25 +328,17 @@ def cmd_montecarlo(args) -> int:
                   "estimator": {"preset": preset, **study.estimator.to_dict()}}
     (logdir / "study.toml").write_text(dumps_toml(study_dict))
     write_config(logdir / "estimator.toml", study.estimator, {"preset": preset})
-    bar = None
-    if sys.stderr.isatty() and not args.json:
-        from tqdm import tqdm
-
-        bar = tqdm(total=study.realisations, desc="realisations", unit="run", file=sys.stderr)
-    last = [0]
+    step, close = _progress(study.realisations, sys.stderr.isatty() and not args.json, "realisations", "run")
 
     def progress(done, total):
-        if bar is not None:
-            bar.update(done - last[0])
-        last[0] = done
+        step(done, total)
         if args.progress_file:
             Path(args.progress_file).write_text(f"{done} {total}\n")
 
     t0 = time.perf_counter()
     result = run_study(study, progress=progress)
     elapsed = time.perf_counter() - t0
-    if bar is not None:
-        bar.close()
+    close()
     if result.finished == 0:
         raise CLIError("interrupted before any realisation finished; nothing to summarise")
     summary = summarise(result)

@@ -13,7 +13,19 @@ from .io import InputError
 from .presets import get_preset
 from .tea import TEAConfig
 
-__all__ = ["load_config", "dumps_toml", "write_config", "tomllib"]
+__all__ = ["read_toml", "load_config", "dumps_toml", "write_config"]
+
+
+def read_toml(path, what: str = "config") -> dict:
+    """Parse a TOML file; a missing file or bad syntax is an :class:`InputError` naming the file."""
+    path = Path(path)
+    try:
+        with open(path, "rb") as fh:
+            return tomllib.load(fh)
+    except FileNotFoundError:
+        raise InputError(f"{path}: no such {what} file") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise InputError(f"{path}: not valid TOML ({exc})") from None
 
 
 def load_config(path) -> TEAConfig:
@@ -29,13 +41,7 @@ def load_config(path) -> TEAConfig:
         delta = 0.0
     """
     path = Path(path)
-    try:
-        with open(path, "rb") as fh:
-            data = tomllib.load(fh)
-    except FileNotFoundError:
-        raise InputError(f"{path}: no such config file") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise InputError(f"{path}: not valid TOML ({exc})") from None
+    data = read_toml(path)
     base = get_preset(data.pop("preset")) if "preset" in data else TEAConfig()
     try:
         return TEAConfig.from_dict(data, base)

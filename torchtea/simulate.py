@@ -9,7 +9,7 @@ from torch import Tensor
 from .gl import gl_tail_coefficients
 from .model import OrderSchedule, Structure
 
-__all__ = ["Simulation", "simulate", "gaussian_input"]
+__all__ = ["Simulation", "simulate", "gaussian_input", "simulate_noise_model"]
 
 
 @dataclass(frozen=True)
@@ -159,3 +159,16 @@ def simulate(
     y = x @ C.mT + nu
     t = torch.arange(n_steps, dtype=dtype, device=device) * h
     return Simulation(t=t, u=u, x=x, y=y, alpha=alpha, process_noise=omega, measurement_noise=nu)
+
+
+def simulate_noise_model(*, n_steps: int, h: float, order: OrderSchedule, param: float, q: float, r: float,
+                         input_std: float | None = None, seed: int = 0) -> Simulation:
+    """One realisation of the paper's scalar noise model (43)–(45) from one seed.
+
+    The known input ``u ~ N(0, input_std²)`` is drawn first (none when ``input_std`` is None), then ω, then ν,
+    all from ``torch.Generator().manual_seed(seed)`` — exactly what ``torchtea simulate --seed`` writes.
+    """
+    g = torch.Generator().manual_seed(seed)
+    u = None if input_std is None else gaussian_input((), n_steps, 1, input_std, generator=g)
+    return simulate(Structure(), n_steps=n_steps, h=h, order=order, parameters=[param], process_noise=q,
+                    measurement_noise=r, inputs=u, generator=g)

@@ -27,6 +27,8 @@ def log_study(logdir, result, summary: dict, hparams: dict, *, max_points: int =
     from torch.utils.tensorboard import SummaryWriter
     from torch.utils.tensorboard.summary import hparams as hparams_summary
 
+    from .plots import fan_figure
+
     logdir = Path(logdir)
     keep = ~result.diverged
     N = result.t.shape[0]
@@ -34,18 +36,17 @@ def log_study(logdir, result, summary: dict, hparams: dict, *, max_points: int =
     with SummaryWriter(log_dir=str(logdir)) as w:
         truth_w = torch.full_like(result.w, result.study.truth.param)
         for name, est, truth in (("order", result.alpha, result.alpha_true), ("param", result.w, truth_w)):
-            st = over_realisations(est.unsqueeze(-1), truth.unsqueeze(-1), keep)
-            for k in steps:
+            # statistics only at the logged steps
+            st = over_realisations(est[:, steps].unsqueeze(-1), truth[:, steps].unsqueeze(-1), keep)
+            for i, k in enumerate(steps):
                 w.add_scalar(f"{name}/truth", float(truth[0, k]), k)
                 if st["count"]:
-                    w.add_scalar(f"{name}/mean", float(st["mean"][k, 0]), k)
-                    w.add_scalar(f"{name}/rmse", float(st["rmse"][k, 0]), k)
-                    for q, v in zip(QUANTILES, st["quantiles"][:, k, 0]):
+                    w.add_scalar(f"{name}/mean", float(st["mean"][i, 0]), k)
+                    w.add_scalar(f"{name}/rmse", float(st["rmse"][i, 0]), k)
+                    for q, v in zip(QUANTILES, st["quantiles"][:, i, 0]):
                         w.add_scalar(f"{name}/q{int(round(q * 100)):02d}", float(v), k)
             if st["count"]:
                 w.add_histogram(f"final/{name}", est[keep, -1], 0)
-                from .plots import fan_figure
-
                 label = "order α̂" if name == "order" else "parameter ŵ"
                 w.add_figure(f"figures/{name}_fan", fan_figure(
                     None, result.t.numpy(), truth[0].numpy(), est[keep].numpy(), ylabel=label,

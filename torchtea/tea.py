@@ -246,15 +246,16 @@ def make_params(config: TEAConfig, structure: Structure, *, dtype=torch.float64,
     like = torch.empty((), dtype=dtype, device=device)
     n, p, L, m = structure.n_states, structure.n_outputs, structure.n_estimated_orders, structure.n_params
     x, o, w = config.kfx, config.kfo, config.kfw
+    Q0o, Q0w = _mat(o.Q0, L, like, "kfo.Q0"), _mat(w.Q0, m, like, "kfw.Q0")
     return TEAParams(
         x0=_vec(x.x0, n, like, "kfx.x0"), P0=_mat(x.P0, n, like, "kfx.P0"),
         Q=_mat(x.Q0, n, like, "kfx.Q0"), R=_mat(x.R, p, like, "kfx.R"),
         alpha0=_vec(o.x0, L, like, "kfo.x0"), P0o=_mat(o.P0, L, like, "kfo.P0"),
-        Q0o=_mat(o.Q0, L, like, "kfo.Q0"), Ro=_mat(o.R, p, like, "kfo.R"),
+        Q0o=Q0o, Ro=_mat(o.R, p, like, "kfo.R"),
         w0=_vec(w.x0, m, like, "kfw.x0"), P0w=_mat(w.P0, m, like, "kfw.P0"),
-        Q0w=_mat(w.Q0, m, like, "kfw.Q0"), Rw=_mat(w.R, p, like, "kfw.R"),
-        Qmax_o=_q_cap(o.Q_max, _mat(o.Q0, L, like, "kfo.Q0"), like),
-        Qmax_w=_q_cap(w.Q_max, _mat(w.Q0, m, like, "kfw.Q0"), like),
+        Q0w=Q0w, Rw=_mat(w.R, p, like, "kfw.R"),
+        Qmax_o=_q_cap(o.Q_max, Q0o, like),
+        Qmax_w=_q_cap(w.Q_max, Q0w, like),
         config=config,
     )
 

@@ -8,7 +8,7 @@ import torch
 from torchtea.model import ConstantOrder, LinearOrder, Structure
 from torchtea.presets import SCENARIOS, get_preset
 from torchtea.simulate import gaussian_input, simulate
-from torchtea.tea import (TEAConfig, _replica, _Model, _sigma_points, make_params, run_tea, stack_params,
+from torchtea.tea import (TEAConfig, _ExactMemory, _replica, _Model, _sigma_points, make_params, run_tea, stack_params,
                           ut_weights)
 
 from .reference_tea import settings_from_config, tea_reference
@@ -96,12 +96,12 @@ def test_sigma_points_batched_equal_one_at_a_time():
     w = -1.0 + 0.2 * torch.randn(B + (1,), generator=g, dtype=torch.float64)
     sig_o = _sigma_points(alpha, torch.full(B + (1, 1), 0.05, dtype=torch.float64), 3.0)
     sig_w = _sigma_points(w, torch.full(B + (1, 1), 0.2, dtype=torch.float64), 3.0)
-    Y = _replica(model, sig_o, w, alpha, sig_w, x_prev, u_prev, xh)
+    Y = _replica(model, _ExactMemory(), (xh, None), sig_o, w, sig_w, x_prev, u_prev)
     assert Y.shape == B + (6, 1)
     for i in range(3):
-        one_o = _replica(model, sig_o[..., i : i + 1, :], w, alpha, sig_w[..., :1, :], x_prev, u_prev, xh)
+        one_o = _replica(model, _ExactMemory(), (xh, None), sig_o[..., i : i + 1, :], w, sig_w[..., :1, :], x_prev, u_prev)
         torch.testing.assert_close(Y[..., i, :], one_o[..., 0, :], rtol=0, atol=1e-14)
-        one_w = _replica(model, sig_o[..., :1, :], w, alpha, sig_w[..., i : i + 1, :], x_prev, u_prev, xh)
+        one_w = _replica(model, _ExactMemory(), (xh, None), sig_o[..., :1, :], w, sig_w[..., i : i + 1, :], x_prev, u_prev)
         torch.testing.assert_close(Y[..., 3 + i, :], one_w[..., 1, :], rtol=0, atol=1e-14)
     # and each equals the model formula written out, (17) and (42)
     from torchtea.gl import gl_coefficients

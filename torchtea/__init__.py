@@ -14,6 +14,7 @@ Batch convention (used everywhere)
   from an explicit :class:`torch.Generator`.
 """
 from .gl import difference, gl_coefficients, history_sum
+from .memory import MemoryConfig, parse_memory
 from .model import (ConstantOrder, FunctionOrder, InputOrder, LinearOrder, OrderSchedule, ParabolicOrder,
                     ParametricMatrix, Structure, parse_order_spec)
 from .presets import PRESETS, SCENARIOS, get_preset
@@ -25,6 +26,7 @@ __version__ = "0.1.0"
 
 __all__ = [
     "difference", "gl_coefficients", "history_sum",
+    "MemoryConfig", "parse_memory",
     "ConstantOrder", "FunctionOrder", "InputOrder", "LinearOrder", "OrderSchedule", "ParabolicOrder",
     "ParametricMatrix", "Structure", "parse_order_spec",
     "PRESETS", "SCENARIOS", "get_preset",

@@ -19,6 +19,12 @@ class CLIError(Exception):
     """A user-facing error: one line, non-zero exit."""
 
 
+MEMORY_HELP = ("GL history sums: exact (full history, O(N²) per series), soe[:TOL] (exponential sums, "
+               "O(N); default TOL 1e-8) or window:L (last L lags only); default: the config's, else exact")
+COMPILE_HELP = ("soe/window memory: run the filter through torch.compile (about 1-2 min to compile on first use, "
+                "cached afterwards; pays off for long recordings, not for large batches)")
+
+
 def _float_arg(accept, requirement):
     """An argparse type: a float for which ``accept(v)`` holds, else one message saying ``requirement``."""
 
@@ -78,6 +84,25 @@ def _report(out_dir: Path, summary: dict, warnings, as_json: bool) -> bool:
 # --------------------------------------------------------------------------- simulate
 
 
+def _memory(spec):
+    """Parse --memory SPEC (None keeps the config's)."""
+    from .memory import parse_memory
+
+    if spec is None:
+        return None
+    try:
+        return parse_memory(spec)
+    except ValueError as exc:
+        raise CLIError(str(exc)) from None
+
+
+def _with_memory(cfg, spec):
+    from dataclasses import replace
+
+    mem = _memory(spec)
+    return cfg if mem is None else replace(cfg, memory=mem)
+
+
 def cmd_simulate(args) -> int:
     import torch
 
@@ -90,7 +115,7 @@ def cmd_simulate(args) -> int:
     except ValueError as exc:
         raise CLIError(str(exc)) from None
     sim = simulate_noise_model(n_steps=args.n, h=args.h, order=order, param=args.param, q=args.q, r=args.r,
-                               input_std=args.input_std, seed=args.seed)
+                               input_std=args.input_std, seed=args.seed, memory=_memory(args.memory) or "exact")
     out = write_columns(args.out, {"t": sim.t, "u": sim.u[:, 0], "x": sim.x[:, 0], "y": sim.y[:, 0],
                                    "alpha": sim.alpha[:, 0]})
     if not bool(torch.isfinite(sim.x).all()):
@@ -128,6 +153,7 @@ def cmd_estimate(args) -> int:
     from .tea import make_params, run_tea
 
     cfg, source = _tea_config(args)
+    cfg = _with_memory(cfg, args.memory)
     cols = read_series(args.file, ["y"], ["u"], allow_missing=args.allow_missing)
     y = torch.as_tensor(cols["y"]).unsqueeze(-1)
     u = torch.as_tensor(cols["u"]).unsqueeze(-1) if "u" in cols else None
@@ -138,7 +164,7 @@ def cmd_estimate(args) -> int:
         raise CLIError(f"{args.file}: need at least 2 samples, found {N}")
     step, close = _progress(N - 1, sys.stderr.isatty() and not args.json, "TEA")
     t0 = time.perf_counter()
-    res = run_tea(y, h=args.h, params=make_params(cfg, Structure()), inputs=u, progress=step)
+    res = run_tea(y, h=args.h, params=make_params(cfg, Structure()), inputs=u, progress=step, compile=args.compile)
     elapsed = time.perf_counter() - t0
     close()
     out = Path(args.out) if args.out else Path(args.file).with_suffix(".tea.csv")
@@ -164,6 +190,7 @@ def cmd_estimate(args) -> int:
         "samples": N,
         "h": args.h,
         "settings": source,
+        "memory": cfg.memory.spec(),
         "out": str(out),
         "seconds": round(elapsed, 3),
     }
@@ -198,13 +225,19 @@ def cmd_identify(args) -> int:
         overrides = load_config(args.config).to_dict()
         for f in ("kfx", "kfo", "kfw"):  # per-axis R stays the axis's own unless the file says otherwise
             overrides[f].pop("R", None)
+    mem = _memory(args.memory)
+    if mem is not None:
+        overrides = dict(overrides or {}, memory=mem.to_dict())
     total = min(n or len(rec.accel_counts), len(rec.accel_counts))
-    if total > LONG_RECORDING:
-        print(f"torchtea: note: {total} samples with the exact full-history GL sums cost O(N²); "
-              "the whole bundled recording (44930 samples) takes about 4 minutes on 2 cores", file=sys.stderr)
+    chosen = mem or (load_config(args.config).memory if args.config else None)
+    exact = chosen is None or chosen.kind == "exact"
+    if total > LONG_RECORDING and exact:
+        print(f"torchtea: note: {total} samples with the exact full-history GL sums cost O(N²) "
+              "(the whole bundled recording takes about 4 minutes on 2 cores); --memory soe costs O(N)",
+              file=sys.stderr)
     step, close = _progress(total - 1, sys.stderr.isatty() and not args.json, "TEA x,y,z")
     t0 = time.perf_counter()
-    ident = identify(rec, n_samples=n, r_mode=args.r, overrides=overrides, progress=step)
+    ident = identify(rec, n_samples=n, r_mode=args.r, overrides=overrides, progress=step, compile=args.compile)
     elapsed = time.perf_counter() - t0
     close()
     summary = ident.summary()
@@ -232,7 +265,7 @@ def cmd_identify(args) -> int:
                 title=f"{Path(rec.path).name}: {a}-axis noise (cf. paper Figs. {12 + 3 * i}–{14 + 3 * i})",
                 state_label="noise [m/s²]", zoom=(t[-1] - 5.0, t[-1]))))
     summary.update({"recording": str(rec.path), "samples": int(ident.y.shape[-2]), "h": ident.h,
-                    "r_mode": args.r, "out": str(out_dir), "figures": figures, "seconds": round(elapsed, 3)})
+                    "r_mode": args.r, "memory": ident.configs[0].memory.spec(), "out": str(out_dir), "figures": figures, "seconds": round(elapsed, 3)})
     warnings = [f"warning: axis {a} diverged; its estimates are frozen at the last good step"
                 for a, s in summary["axes"].items() if s["diverged"]]
     if not _report(out_dir, summary, warnings, args.json):
@@ -272,6 +305,7 @@ def _study_from_args(args):
         estimator = TEAConfig.from_dict(est, get_preset(preset))
     except ValueError as exc:
         raise CLIError(f"{args.config or 'estimator'}: {exc}") from None
+    estimator = _with_memory(estimator, args.memory)
     truth = dict(data.get("truth", {}))
     if "n" in truth:
         truth["n_steps"] = truth.pop("n")
@@ -402,6 +436,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--r", type=_nonneg_float, required=True, help="variance of the measurement noise ν")
     s.add_argument("--input-std", type=_nonneg_float, help="known input u ~ N(0, S²) (zero when absent)")
     s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--memory", help=MEMORY_HELP)
     s.add_argument("--out", required=True, help="output CSV (t,u,x,y,alpha)")
     s.set_defaults(func=cmd_simulate)
 
@@ -412,6 +447,8 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--config", help="TOML settings file")
     e.add_argument("--out", help="trajectory CSV (default: FILE.tea.csv next to the input)")
     e.add_argument("--allow-missing", action="store_true", help="treat empty/NaN y as missing samples")
+    e.add_argument("--memory", help=MEMORY_HELP)
+    e.add_argument("--compile", action="store_true", help=COMPILE_HELP)
     e.add_argument("--json", action="store_true", help="print a JSON summary")
     e.set_defaults(func=cmd_estimate)
 
@@ -425,6 +462,8 @@ def build_parser() -> argparse.ArgumentParser:
     i.add_argument("--lsb-per-g", type=_positive_float, help="accelerometer counts per g (bundled format: 16384)")
     i.add_argument("--out", help="output directory (default identify-<recording name>)")
     i.add_argument("--no-plots", action="store_true")
+    i.add_argument("--memory", help=MEMORY_HELP)
+    i.add_argument("--compile", action="store_true", help=COMPILE_HELP)
     i.add_argument("--json", action="store_true", help="print a JSON summary")
     i.set_defaults(func=cmd_identify)
 
@@ -442,6 +481,7 @@ def build_parser() -> argparse.ArgumentParser:
     mc.add_argument("--q", type=_nonneg_float)
     mc.add_argument("--r", type=_nonneg_float)
     mc.add_argument("--input-std", type=_nonneg_float)
+    mc.add_argument("--memory", help="estimator's " + MEMORY_HELP)
     mc.add_argument("--progress-file", help="rewrite 'done total' in this file after each chunk (headless runs)")
     mc.add_argument("--json", action="store_true")
     mc.set_defaults(func=cmd_montecarlo)

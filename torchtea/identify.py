@@ -63,7 +63,7 @@ def axis_configs(y: torch.Tensor, r_mode: str = "measured", overrides: dict | No
 
 
 def identify(recording: Recording, *, n_samples: int | None = None, r_mode: str = "measured",
-             overrides: dict | None = None, progress=None) -> Identification:
+             overrides: dict | None = None, progress=None, compile: bool = False) -> Identification:
     """Run the TEA on the three accelerometer axes of a recording as one batch.
 
     Parameters
@@ -74,7 +74,10 @@ def identify(recording: Recording, *, n_samples: int | None = None, r_mode: str 
     r_mode : {"measured", "paper"}
         See :func:`axis_configs`.
     overrides : dict, optional
-        TEA settings applied on top of the presets (as in a TOML config).
+        TEA settings applied on top of the presets (as in a TOML config), e.g.
+        ``{"memory": {"kind": "soe"}}`` for long recordings.
+    compile : bool
+        Passed to :func:`torchtea.tea.run_tea`.
     """
     acc = recording.accel_ms2()
     if n_samples is not None:
@@ -85,7 +88,7 @@ def identify(recording: Recording, *, n_samples: int | None = None, r_mode: str 
     y = torch.as_tensor((acc - means).T.copy(), dtype=torch.float64).unsqueeze(-1)  # (3, N, 1)
     configs = axis_configs(y, r_mode, overrides)
     params = stack_params([make_params(c, Structure()) for c in configs])
-    result = run_tea(y, h=recording.h, params=params, progress=progress)
+    result = run_tea(y, h=recording.h, params=params, progress=progress, compile=compile)
     return Identification(recording, recording.h, y, means, configs, result)
 
 

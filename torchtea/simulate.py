@@ -7,6 +7,7 @@ import torch
 from torch import Tensor
 
 from .gl import gl_tail_coefficients
+from .memory import BoundedHistory, kernel_for, parse_memory
 from .model import OrderSchedule, Structure
 
 __all__ = ["Simulation", "simulate", "gaussian_input", "simulate_noise_model"]
@@ -64,6 +65,7 @@ def simulate(
     batch_shape=(),
     generator: torch.Generator | None = None,
     standard_draws: tuple[Tensor, Tensor] | None = None,
+    memory="exact",
     dtype=torch.float64,
     device=None,
 ) -> Simulation:
@@ -97,6 +99,10 @@ def simulate(
         Standard-normal draws to use instead of the generator (scaled by the
         Cholesky factors of Q and R) — for Monte Carlo studies whose realisation i
         must not depend on how the batch is chunked.
+    memory : str or MemoryConfig
+        How the GL sums see the past (:mod:`torchtea.memory`): ``"exact"`` (default, O(k) per step),
+        ``"soe"``/``"soe:TOL"`` (exponential sums over the orders simulated, O(1) per step — for long
+        series) or ``"window:L"``.
 
     Returns
     -------
@@ -140,29 +146,49 @@ def simulate(
 
     x = torch.empty(batch + (n_steps, n), dtype=dtype, device=device)
     x[..., 0, :] = 0.0 if x0 is None else torch.as_tensor(x0).to(ref)
-    # Past states newest first: hist[..., i] = x_{k-i}; kept time-reversed so
-    # that every step reads one contiguous slice (no flip copies).
-    hist = torch.zeros(batch + (n, n_steps), dtype=dtype, device=device)
-    hist[..., n_steps - 1] = x[..., 0, :]
-    constant = bool(torch.all(alpha == alpha[..., :1, :]))
-    if constant:
-        coeff_all = gl_tail_coefficients(alpha[..., 0, :], n_steps)  # (*B, n, N): c_1 … c_N
     hpow = torch.as_tensor(h, dtype=dtype, device=device) ** alpha
-    for k in range(n_steps - 1):
-        a = alpha[..., k + 1, :]
-        past = hist[..., n_steps - 1 - k :]  # x_k … x_0, length k+1
-        c = coeff_all[..., : k + 1] if constant else gl_tail_coefficients(a, k + 1)
-        memory = (c * past).sum(-1)
-        drive = (A @ x[..., k, :, None]).squeeze(-1) + u[..., k, :] @ B.mT + omega[..., k, :]
-        x[..., k + 1, :] = hpow[..., k + 1, :] * drive - memory
-        hist[..., n_steps - 2 - k] = x[..., k + 1, :]
+    constant = bool(torch.all(alpha == alpha[..., :1, :]))
+    mem = parse_memory(memory)
+
+    def drive(k):
+        return (A @ x[..., k, :, None]).squeeze(-1) + u[..., k, :] @ B.mT + omega[..., k, :]
+
+    if mem.kind == "exact":
+        # Past states newest first: hist[..., i] = x_{k-i}; kept time-reversed so
+        # that every step reads one contiguous slice (no flip copies).
+        hist = torch.zeros(batch + (n, n_steps), dtype=dtype, device=device)
+        hist[..., n_steps - 1] = x[..., 0, :]
+        if constant:
+            coeff_all = gl_tail_coefficients(alpha[..., 0, :], n_steps)  # (*B, n, N): c_1 … c_N
+        for k in range(n_steps - 1):
+            a = alpha[..., k + 1, :]
+            past = hist[..., n_steps - 1 - k :]  # x_k … x_0, length k+1
+            c = coeff_all[..., : k + 1] if constant else gl_tail_coefficients(a, k + 1)
+            x[..., k + 1, :] = hpow[..., k + 1, :] * drive(k) - (c * past).sum(-1)
+            hist[..., n_steps - 2 - k] = x[..., k + 1, :]
+    else:
+        if mem.kind == "soe":
+            kernel = kernel_for(mem, n_steps, float(alpha.min()) - 0.01, float(alpha.max()) + 0.01)
+            _, _, decay, inject = kernel.tensors(dtype, device)
+            lags, modes = mem.exact_lags, kernel.n_modes
+        else:
+            kernel, decay, inject, lags, modes = None, None, None, mem.window, 0
+        past = BoundedHistory.zeros(batch, n, lags, modes, dtype=dtype, device=device).push(x[..., 0, :], decay, inject)
+        if constant:
+            coeff = gl_tail_coefficients(alpha[..., 0, :], lags).unsqueeze(-3)  # (*B, 1, n, J)
+        for k in range(n_steps - 1):
+            a = alpha[..., k + 1, :]
+            c = coeff if constant else gl_tail_coefficients(a, lags).unsqueeze(-3)
+            memory_sum = past.sum(c, a.unsqueeze(-2), kernel)[..., 0, :]
+            x[..., k + 1, :] = hpow[..., k + 1, :] * drive(k) - memory_sum
+            past = past.push(x[..., k + 1, :], decay, inject)
     y = x @ C.mT + nu
     t = torch.arange(n_steps, dtype=dtype, device=device) * h
     return Simulation(t=t, u=u, x=x, y=y, alpha=alpha, process_noise=omega, measurement_noise=nu)
 
 
 def simulate_noise_model(*, n_steps: int, h: float, order: OrderSchedule, param: float, q: float, r: float,
-                         input_std: float | None = None, seed: int = 0) -> Simulation:
+                         input_std: float | None = None, seed: int = 0, memory="exact") -> Simulation:
     """One realisation of the paper's scalar noise model (43)–(45) from one seed.
 
     The known input ``u ~ N(0, input_std²)`` is drawn first (none when ``input_std`` is None), then ω, then ν,
@@ -171,4 +197,4 @@ def simulate_noise_model(*, n_steps: int, h: float, order: OrderSchedule, param:
     g = torch.Generator().manual_seed(seed)
     u = None if input_std is None else gaussian_input((), n_steps, 1, input_std, generator=g)
     return simulate(Structure(), n_steps=n_steps, h=h, order=order, parameters=[param], process_noise=q,
-                    measurement_noise=r, inputs=u, generator=g)
+                    measurement_noise=r, inputs=u, generator=g, memory=memory)

@@ -34,6 +34,7 @@ import torch
 from torch import Tensor
 
 from .gl import gl_tail_coefficients, history_sum
+from .memory import BoundedHistory, MemoryConfig, cov_tail_mass, gl_coefficients_at, kernel_for, parse_memory
 from .model import Structure
 
 __all__ = [
@@ -131,6 +132,8 @@ class TEAConfig:
         interval after each update (open point 3). Sigma points are not clipped.
     divergence_limit : a realisation whose estimates or covariances leave
         ``[−limit, limit]`` or become non-finite is flagged and frozen.
+    memory : how the GL history sums of all three filters are evaluated
+        (:class:`torchtea.memory.MemoryConfig`: ``exact``, ``soe`` or ``window``).
     """
 
     kfx: StateFilterConfig = field(default_factory=StateFilterConfig)
@@ -140,6 +143,7 @@ class TEAConfig:
     noise_scaling: str = "scaled"
     order_bounds: tuple = (0.0, 2.5)
     divergence_limit: float = 1e8
+    memory: MemoryConfig = field(default_factory=MemoryConfig)
 
     def __post_init__(self):
         if self.sigma_sum_start not in (0, 1):
@@ -178,6 +182,9 @@ class TEAConfig:
         kw = {}
         for name, value in data.items():
             current = getattr(base, name)
+            if name == "memory":
+                kw[name] = parse_memory(value if isinstance(value, (str, MemoryConfig)) else {**current.to_dict(), **value})
+                continue
             if hasattr(current, "__dataclass_fields__"):
                 if not isinstance(value, dict):
                     raise ValueError(f"[{name}] must be a table")
@@ -311,6 +318,15 @@ def ut_weights(L: int, ut_alpha: float, ut_beta: float, kappa: float | None, *, 
     return wm, wc, L + lam
 
 
+def _mm(a: Tensor, b: Tensor) -> Tensor:
+    """``a @ b``. While torch.compile traces, a broadcast product and sum instead, which the compiler
+    fuses with its neighbours: the matrices here are a few rows wide, and an external GEMM call per
+    product costs more than its arithmetic."""
+    if torch.compiler.is_compiling():
+        return (a.unsqueeze(-1) * b.unsqueeze(-3)).sum(-2)
+    return a @ b
+
+
 def _symmetrise(M: Tensor) -> Tensor:
     return 0.5 * (M + M.mT)
 
@@ -432,38 +448,129 @@ def _drive(model: _Model, A: Tensor, x: Tensor, u: Tensor | None) -> Tensor:
     xs = x.reshape(x.shape[:-1] + (1,) * extra + x.shape[-1:])
     out = (A @ xs.unsqueeze(-1)).squeeze(-1)
     if u is not None:
-        bu = u @ model.B.mT
+        bu = _mm(u, model.B.mT)
         out = out + bu.reshape(bu.shape[:-1] + (1,) * extra + bu.shape[-1:])
     return out
 
 
-def _replica(model: _Model, orders_o, w_prev, alpha_prev_full, sigma_w, x_prev, u_prev, xh):
+def _replica(model: _Model, memory, hist, orders_o, w_prev, sigma_w, x_prev, u_prev):
     """Model replica (16)–(18) and (41)–(42) for the sigma points of KFo **and** KFw at once.
 
     orders_o ``(*B, So, n)`` (KFo sigma orders, with ``A(ŵ_{k−1})``); sigma_w
-    ``(*B, Sw, m)`` (KFw sigma parameters, with order ``α̂_{k−1}``). One GL history
-    evaluation covers the ``So + 1`` distinct orders, one batched matrix product
-    every drive term. Returns predicted outputs ``(*B, So + Sw, p)``.
+    ``(*B, Sw, m)`` (KFw sigma parameters, with order ``α̂_{k−1}``). KFw's order is KFo's
+    centre sigma point (sigma point 0 is the mean), so one GL history evaluation over the ``So``
+    orders serves both, and one batched matrix product every drive term. Returns predicted
+    outputs ``(*B, So + Sw, p)``.
     """
     So, Sw = orders_o.shape[-2], sigma_w.shape[-2]
-    orders = torch.cat([orders_o, alpha_prev_full.unsqueeze(-2)], dim=-2)  # (*B, So+1, n)
-    memory = history_sum(orders, xh)  # (*B, So+1, n)
-    hpow = model.h ** orders
+    mem_sum = memory.mean_sums(hist, orders_o)  # (*B, So, n)
+    hpow = model.h ** orders_o
     A_all = torch.cat([model.A(w_prev).unsqueeze(-3).expand(x_prev.shape[:-1] + (So,) + (x_prev.shape[-1],) * 2),
                        model.A(sigma_w)], dim=-3)  # (*B, So+Sw, n, n)
     drive = _drive(model, A_all, x_prev, u_prev)
-    expand_w = lambda t: t[..., So:, :].expand(t.shape[:-2] + (Sw, t.shape[-1]))  # noqa: E731
-    hp = torch.cat([hpow[..., :So, :], expand_w(hpow)], dim=-2)
-    mem = torch.cat([memory[..., :So, :], expand_w(memory)], dim=-2)
+    centre = lambda t: t[..., :1, :].expand(t.shape[:-2] + (Sw, t.shape[-1]))  # noqa: E731
+    hp = torch.cat([hpow, centre(hpow)], dim=-2)
+    mem = torch.cat([mem_sum, centre(mem_sum)], dim=-2)
     chi = hp * drive - mem
-    return chi @ model.C.mT
+    return _mm(chi, model.C.mT)
 
 
-def _tea_step(model: _Model, params: TEAParams, weights, carry: Carry, y, u_prev, xh, Ph):
+# --------------------------------------------------------------------------- memory strategies
+
+
+class _ExactMemory:
+    """Full-history sums (O(k) per step). ``hist = (xh, Ph)``: the KFx history newest first,
+    ``x̂_{k−1} … x̂_0`` ``(*B, n, k)`` and ``P_{k−1} … P_0`` ``(*B, n, n, k)``."""
+
+    bounded = False
+
+    def mean_sums(self, hist, orders):
+        return history_sum(orders, hist[0])
+
+    def kfx_sums(self, hist, a, k):
+        xh, Ph = hist
+        c = gl_tail_coefficients(a, xh.shape[-1])  # (*B, n, k): c_1 … c_k
+        mean = (c.unsqueeze(-2) @ xh.unsqueeze(-1))[..., 0, 0]
+        cj = c[..., 1:]  # lags 2…k
+        if cj.shape[-1]:
+            cov = torch.einsum("...sj,...tj,...stj->...st", cj, cj, Ph[..., 1:])
+        else:
+            cov = torch.zeros_like(Ph[..., 0])
+        return mean, cov
+
+
+class _BoundedMemory:
+    """``soe`` or ``window`` memory: constant work per step.
+
+    ``hist = (BoundedHistory, Pwin, Phead)``: ``Pwin`` ``(*B, n, n, J_P)`` = ``P_{k−1} … P_{k−J_P}`` and
+    (``soe``) ``Phead`` ``(*B, n, n, H)`` = ``P_0 … P_{H−1}``, the start-up covariances whose terms stay exact.
+    """
+
+    bounded = True
+
+    def __init__(self, cfg: MemoryConfig, order_bounds, horizon: int, dtype, device):
+        self.cfg = cfg
+        if cfg.kind == "soe":
+            # sigma points may leave the order bounds: serve half an order beyond them
+            self.kernel = kernel_for(cfg, horizon, order_bounds[0] - 0.5, order_bounds[1] + 0.5)
+            _, _, self.decay, self.inject = self.kernel.tensors(dtype, device)
+            self.x_lags, self.p_lags, self.n_modes = cfg.exact_lags, max(cfg.cov_lags, cfg.exact_lags), self.kernel.n_modes
+            self.head = cfg.cov_head
+        else:
+            self.kernel, self.decay, self.inject = None, None, None
+            self.x_lags = self.p_lags = cfg.window
+            self.n_modes = self.head = 0
+        self.head_index = torch.arange(self.head, dtype=dtype, device=device)
+
+    def init(self, batch, n: int, dtype, device):
+        z = lambda *s: torch.zeros(tuple(batch) + s, dtype=dtype, device=device)  # noqa: E731
+        return (BoundedHistory.zeros(batch, n, self.x_lags, self.n_modes, dtype=dtype, device=device),
+                z(n, n, self.p_lags), z(n, n, self.head))
+
+    def push(self, hist, x, P, k):
+        """Append ``x̂_k``, ``P_k`` (``k`` the step they belong to)."""
+        xhist, Pwin, Phead = hist
+        if self.head:
+            slot = (self.head_index == k).to(P.dtype)  # P_k goes to head slot k while k < H
+            Phead = Phead + P.unsqueeze(-1) * slot
+        return (xhist.push(x, self.decay, self.inject), torch.cat([P.unsqueeze(-1), Pwin[..., :-1]], dim=-1), Phead)
+
+    def mean_sums(self, hist, orders):
+        c = gl_tail_coefficients(orders, self.x_lags)
+        return hist[0].sum(c, orders, self.kernel)
+
+    def kfx_sums(self, hist, a, k):
+        xhist, Pwin, Phead = hist
+        c = gl_tail_coefficients(a, self.p_lags)  # (*B, n, J_P)
+        mean = xhist.sum(c[..., : self.x_lags].unsqueeze(-3), a.unsqueeze(-2), self.kernel)[..., 0, :]
+        cj = c[..., 1:]
+        cov = torch.einsum("...sj,...tj,...stj->...st", cj, cj, Pwin[..., 1:])
+        if self.kernel is not None:
+            J, H = self.p_lags, self.head
+            ac = a.clamp(min=max(-0.49, self.kernel.order_range[0]))  # Gauss's sum needs a + b > −1
+            # lags J+1 … k−H: coefficient mass × the oldest windowed covariance
+            mass = cov_tail_mass(ac.unsqueeze(-1), ac.unsqueeze(-2), c.unsqueeze(-2), c.unsqueeze(-3), k - H)
+            cov = cov + mass * Pwin[..., -1]
+            if H:
+                # lags k−H+1 … k (P_{H−1} … P_0), where beyond the window: exact terms
+                lags = k - self.head_index  # lag of P_i is k − i
+                ch = gl_coefficients_at(ac.unsqueeze(-1), lags.clamp(min=J + 1))  # (*B, n, H)
+                ch = ch * (lags > J).to(ch.dtype)
+                cov = cov + torch.einsum("...sj,...tj,...stj->...st", ch, ch, Phead)
+        return mean, cov
+
+
+def _make_memory(cfg: TEAConfig, horizon: int, dtype, device):
+    if cfg.memory.kind == "exact":
+        return _ExactMemory()
+    return _BoundedMemory(cfg.memory, cfg.order_bounds, horizon, dtype, device)
+
+
+def _tea_step(model: _Model, params: TEAParams, weights, memory, carry: Carry, y, u_prev, hist, k, branchless=False):
     """One TEA step ``k ≥ 1`` — a pure function of its arguments.
 
-    y ``(*B, p)`` (NaN = missing); u_prev ``(*B, d)`` or None; xh ``(*B, n, k)``
-    and Ph ``(*B, n, n, k)`` the KFx history newest first (``x̂_{k−1} … x̂_0``).
+    y ``(*B, p)`` (NaN = missing); u_prev ``(*B, d)`` or None; ``hist`` the KFx history up to
+    ``x̂_{k−1}, P_{k−1}`` in the form ``memory`` keeps it; ``k`` the step (int or 0-d tensor).
     Returns ``(Carry, StepOutput)`` at time ``k``.
     """
     cfg = params.config
@@ -478,8 +585,7 @@ def _tea_step(model: _Model, params: TEAParams, weights, carry: Carry, y, u_prev
     Pw_t = carry.Pw + carry.Qw
     sig_o = _sigma_points(carry.alpha, Po_t, scale_o)
     sig_w = _sigma_points(carry.w, Pw_t, scale_w)
-    alpha_prev_full = model.full(carry.alpha)
-    Y = _replica(model, model.full(sig_o), carry.w, alpha_prev_full, sig_w, carry.x, u_prev, xh)
+    Y = _replica(model, memory, hist, model.full(sig_o), carry.w, sig_w, carry.x, u_prev)
     So = sig_o.shape[-2]
     alpha, Po, Ko, eo, _ = _ut_update(sig_o, Y[..., :So, :], carry.alpha, Po_t, params.Ro, y0, mask, wm_o, wc_o, start)
     lo, hi = cfg.order_bounds
@@ -490,43 +596,41 @@ def _tea_step(model: _Model, params: TEAParams, weights, carry: Carry, y, u_prev
 
     # KFx (29)–(35) with α̂_k and ŵ_{k−1}
     a = model.full(alpha)  # (*B, n)
-    k = xh.shape[-1]
-    c = gl_tail_coefficients(a, k)  # (*B, n, k): c_1 … c_k
+    mem_mean, mem_cov = memory.kfx_sums(hist, a, k)
     hp = model.h ** a
     A = model.A(carry.w)
-    x_pred = hp * _drive(model, A, carry.x, u_prev) - (c.unsqueeze(-2) @ xh.unsqueeze(-1))[..., 0, 0]
+    x_pred = hp * _drive(model, A, carry.x, u_prev) - mem_mean
     F = hp.unsqueeze(-1) * A + torch.diag_embed(a)
     Qx = params.Q * (hp.unsqueeze(-1) * hp.unsqueeze(-2)) if cfg.noise_scaling == "scaled" else params.Q
-    cj = c[..., 1:]  # lags 2…k
-    if cj.shape[-1]:
-        mem_cov = torch.einsum("...sj,...tj,...stj->...st", cj, cj, Ph[..., 1:])
-    else:
-        mem_cov = torch.zeros_like(carry.P)
     P_pred = _symmetrise(F @ carry.P @ F.mT + Qx + mem_cov)
     x, P, e, S = _kfx_update(model, params, x_pred, P_pred, y0, mask)
 
     new = Carry(x, P, alpha, Po, Qo, w, Pw, Qw, carry.diverged)
-    return _guard(new, carry, cfg.divergence_limit), StepOutput(e, S)
+    return _guard(new, carry, cfg.divergence_limit, branchless), StepOutput(e, S)
 
 
 def _kfx_update(model: _Model, params: TEAParams, x_pred, P_pred, y, mask):
     """KFx measurement update (33)–(35), symmetric form ``P = P̃ − K S Kᵀ``."""
     C = model.C
-    S = C @ P_pred @ C.mT + params.R
-    K = _gain(P_pred @ C.mT, S, mask)
-    e = torch.where(mask, y - (x_pred.unsqueeze(-2) @ C.mT).squeeze(-2), torch.zeros_like(y))
+    PCt = _mm(P_pred, C.mT)
+    S = _mm(C, PCt) + params.R
+    K = _gain(PCt, S, mask)
+    e = torch.where(mask, y - _mm(x_pred.unsqueeze(-2), C.mT).squeeze(-2), torch.zeros_like(y))
     x = x_pred + (K @ e.unsqueeze(-1)).squeeze(-1)
     P = _psd(P_pred - K @ S @ K.mT)
     return x, P, e, S
 
 
-def _guard(new: Carry, old: Carry, limit: float) -> Carry:
-    """Flag realisations whose carry became non-finite or left ``[−limit, limit]``; freeze them."""
+def _guard(new: Carry, old: Carry, limit: float, branchless: bool = False) -> Carry:
+    """Flag realisations whose carry became non-finite or left ``[−limit, limit]``; freeze them.
+
+    ``branchless`` always applies the freeze (no data-dependent Python branch, for torch.compile).
+    """
     nb = old.diverged.ndim
     flat = torch.cat([t.reshape(t.shape[:nb] + (-1,)) for t in new[:-1]], dim=-1)
     bad = ~torch.isfinite(flat).all(-1) | (flat.abs() > limit).any(-1)
     diverged = old.diverged | bad
-    if not bool(diverged.any()):
+    if not branchless and not bool(diverged.any()):
         return new._replace(diverged=diverged)
     out = []
     for tn, to in zip(new[:-1], old[:-1]):
@@ -544,13 +648,14 @@ class TEAResult:
 
     Attributes
     ----------
-    x, P : state estimates ``(*B, N, n)`` and covariances ``(*B, N, n, n)`` (KFx).
-    alpha, P_alpha, Q_alpha : order estimates ``(*B, N, L)`` and their covariance and
-        adapted noise ``(*B, N, L, L)`` (KFo).
-    w, P_w, Q_w : parameter estimates ``(*B, N, m)``, covariances ``(*B, N, m, m)`` (KFw).
-    innovation, innovation_cov : KFx innovations ``(*B, N, p)`` and their predicted
-        covariance ``(*B, N, p, p)``; zero innovation where ``y`` was missing.
+    x, P : state estimates ``(*B, T, n)`` and covariances ``(*B, T, n, n)`` (KFx).
+    alpha, P_alpha, Q_alpha : order estimates ``(*B, T, L)`` and their covariance and
+        adapted noise ``(*B, T, L, L)`` (KFo).
+    w, P_w, Q_w : parameter estimates ``(*B, T, m)``, covariances ``(*B, T, m, m)`` (KFw).
+    innovation, innovation_cov : KFx innovations ``(*B, T, p)`` and their predicted
+        covariance ``(*B, T, p, p)``; zero innovation where ``y`` was missing.
     diverged : ``(*B,)`` bool; diverged_at : ``(*B,)`` first step flagged, −1 if never.
+    steps : ``(T,)`` the sample index of each stored row (``0, every, 2·every, …``; all ``N`` by default).
     """
 
     x: Tensor
@@ -565,6 +670,18 @@ class TEAResult:
     innovation_cov: Tensor
     diverged: Tensor
     diverged_at: Tensor
+    steps: Tensor | None = None
+
+
+_OUTPUT_NAMES = ("x", "P", "alpha", "P_alpha", "Q_alpha", "w", "P_w", "Q_w", "innovation", "innovation_cov")
+
+
+def _outputs(c: Carry, o: StepOutput):
+    return (c.x, c.P, c.alpha, c.Po, c.Qo, c.w, c.Pw, c.Qw, o.innovation, o.innovation_cov)
+
+
+#: Steps per compiled call of the bounded-memory loop (amortises the call overhead of a compiled graph).
+COMPILE_BLOCK = 8
 
 
 def run_tea(
@@ -575,6 +692,8 @@ def run_tea(
     structure: Structure | None = None,
     inputs: Tensor | None = None,
     progress=None,
+    record_every: int = 1,
+    compile: bool = False,
 ) -> TEAResult:
     """Run the TEA over a batch of measurement series.
 
@@ -586,13 +705,20 @@ def run_tea(
         Sample time.
     params : TEAParams
         From :func:`make_params` (or :func:`stack_params`); its batch shape
-        broadcasts with ``*B``.
+        broadcasts with ``*B``. ``params.config.memory`` selects the history sums.
     structure : Structure, optional
         Model structure (default: the paper's scalar noise model).
     inputs : Tensor, shape ``(*B, N, d)``, optional
         Known inputs ``u``; ``u_{k−1}`` drives step ``k``.
     progress : callable, optional
-        Called as ``progress(k, N)`` after each step (for progress bars).
+        Called as ``progress(k, N)`` as steps complete (for progress bars).
+    record_every : int
+        Store every this many steps (``k = 0, every, …``); the filter still runs every step.
+        Long recordings need not keep millions of rows.
+    compile : bool
+        ``soe``/``window`` memory only: run blocks of :data:`COMPILE_BLOCK` steps through
+        ``torch.compile`` (worth it for long series: compiling takes ~1 min on a 2-core CPU, then
+        steps are several times cheaper). Falls back to eager with a warning if compiling fails.
 
     Returns
     -------
@@ -606,6 +732,9 @@ def run_tea(
     n, p, L, m = structure.n_states, structure.n_outputs, structure.n_estimated_orders, structure.n_params
     if y.ndim < 2 or y.shape[-1] != p:
         raise ValueError(f"y must have shape (*B, N, {p}), got {tuple(y.shape)}")
+    if int(record_every) < 1:
+        raise ValueError(f"record_every must be >= 1, got {record_every}")
+    every = int(record_every)
     N = y.shape[-2]
     params = TEAParams(*[t.to(device=device, dtype=dtype) for t in params[:-1]], config=params.config)
     shapes = [y.shape[:-2], params.x0.shape[:-1], params.R.shape[:-2], params.Ro.shape[:-2], params.Rw.shape[:-2],
@@ -617,22 +746,38 @@ def run_tea(
             raise ValueError(f"inputs must have shape (*B, {N}, {structure.n_inputs}), got {tuple(inputs.shape)}")
         shapes.append(inputs.shape[:-2])
     batch = torch.broadcast_shapes(*shapes)
+    nb = len(batch)
     like = torch.empty((), dtype=dtype, device=device)
     model = _Model(structure, torch.as_tensor(h, dtype=dtype, device=device), structure.B.to(like), structure.C.to(like))
     cfg = params.config
     weights = (ut_weights(L, cfg.kfo.ut_alpha, cfg.kfo.ut_beta, cfg.kfo.kappa, dtype=dtype, device=device),
                ut_weights(m, cfg.kfw.ut_alpha, cfg.kfw.ut_beta, cfg.kfw.kappa, dtype=dtype, device=device))
+    memory = _make_memory(cfg, N, dtype, device)
     y = y.expand(batch + (N, p))
     if inputs is not None:
         inputs = inputs.expand(batch + (N, structure.n_inputs))
     ex = lambda t, ev: t.expand(batch + ev).clone()  # noqa: E731
 
-    # per-step outputs, stacked along time at the end; the KFx history is kept time-reversed
-    names = ("x", "P", "alpha", "P_alpha", "Q_alpha", "w", "P_w", "Q_w", "innovation", "innovation_cov")
-    out = {name: [] for name in names}
-    xh = torch.zeros(batch + (n, N), dtype=dtype, device=device)
-    Ph = torch.zeros(batch + (n, n, N), dtype=dtype, device=device)
-    diverged_at = torch.full(batch, -1, dtype=torch.long, device=device)
+    # per-step outputs, preallocated (rows k = 0, every, 2·every, …)
+    n_out = (N - 1) // every + 1
+    events = ((n,), (n, n), (L,), (L, L), (L, L), (m,), (m, m), (m, m), (p,), (p, p))
+    out = {name: torch.empty(batch + (n_out,) + ev, dtype=dtype, device=device) for name, ev in zip(_OUTPUT_NAMES, events)}
+
+    def record_block(k0: int, tensors, stacked: bool):
+        """Store outputs of steps k0 … (one step, or a block stacked along dim nb)."""
+        if not stacked:
+            if k0 % every == 0:
+                for name, t in zip(_OUTPUT_NAMES, tensors):
+                    out[name].select(nb, k0 // every).copy_(t)
+            return
+        T = tensors[0].shape[nb]
+        first = (-k0) % every  # offset of the first stored step in the block
+        if first >= T:
+            return
+        rows = torch.arange(first, T, every, device=device)
+        i0 = (k0 + first) // every
+        for name, t in zip(_OUTPUT_NAMES, tensors):
+            out[name].narrow(nb, i0, rows.shape[0]).copy_(t.index_select(nb, rows))
 
     # k = 0: KFx update from the prior only
     y_0 = y[..., 0, :]
@@ -644,21 +789,72 @@ def run_tea(
                   torch.zeros(batch, dtype=torch.bool, device=device))
     prior = Carry(ex(params.x0, (n,)), ex(params.P0, (n, n)), *carry[2:])
     carry = _guard(carry, prior, cfg.divergence_limit)
+    record_block(0, _outputs(carry, StepOutput(e, S)), False)
+    diverged_at = torch.where(carry.diverged, 0, torch.full(batch, -1, dtype=torch.long, device=device))
+    u_at = (lambda k: None) if inputs is None else (lambda k: inputs[..., k, :])  # noqa: E731
 
-    def record(k, c: Carry, o: StepOutput):
-        for name, t in zip(names, (c.x, c.P, c.alpha, c.Po, c.Qo, c.w, c.Pw, c.Qw, o.innovation, o.innovation_cov)):
-            out[name].append(t)
-        xh[..., N - 1 - k] = c.x
-        Ph[..., N - 1 - k] = c.P
+    if not memory.bounded:
+        # the KFx history is kept time-reversed so that each step reads one contiguous slice
+        xh = torch.zeros(batch + (n, N), dtype=dtype, device=device)
+        Ph = torch.zeros(batch + (n, n, N), dtype=dtype, device=device)
+        xh[..., N - 1] = carry.x
+        Ph[..., N - 1] = carry.P
+        for k in range(1, N):
+            carry, o = _tea_step(model, params, weights, memory, carry, y[..., k, :], u_at(k - 1),
+                                 (xh[..., N - k:], Ph[..., N - k:]), k)
+            xh[..., N - 1 - k] = carry.x
+            Ph[..., N - 1 - k] = carry.P
+            record_block(k, _outputs(carry, o), False)
+            diverged_at = torch.where(carry.diverged & (diverged_at < 0), k, diverged_at)
+            if progress is not None:
+                progress(k, N)
+    else:
+        hist = memory.push(memory.init(batch, n, dtype, device), carry.x, carry.P, 0)
 
-    record(0, carry, StepOutput(e, S))
-    diverged_at = torch.where(carry.diverged & (diverged_at < 0), 0, diverged_at)
-    for k in range(1, N):
-        u_prev = None if inputs is None else inputs[..., k - 1, :]
-        carry, o = _tea_step(model, params, weights, carry, y[..., k, :], u_prev, xh[..., N - k :], Ph[..., N - k :])
-        record(k, carry, o)
-        diverged_at = torch.where(carry.diverged & (diverged_at < 0), k, diverged_at)
-        if progress is not None:
-            progress(k, N)
-    stacked = {name: torch.stack(v, dim=len(batch)) for name, v in out.items()}
-    return TEAResult(**stacked, diverged=carry.diverged, diverged_at=diverged_at)
+        def advance(carry, hist, diverged_at, ys, us, k0, branchless):
+            """Steps k0 … k0+T−1 (T = ys.shape[nb]); outputs stacked along dim nb."""
+            rows = []
+            for t in range(ys.shape[nb]):
+                k = k0 + t
+                carry, o = _tea_step(model, params, weights, memory, carry, ys.select(nb, t),
+                                     None if us is None else us.select(nb, t), hist, k, branchless)
+                hist = memory.push(hist, carry.x, carry.P, k)
+                diverged_at = torch.where(carry.diverged & (diverged_at < 0), k, diverged_at)
+                rows.append(_outputs(carry, o))
+            return carry, hist, diverged_at, tuple(torch.stack(r, dim=nb) for r in zip(*rows))
+
+        compiled = _compiled(advance) if compile else None
+        T = COMPILE_BLOCK if compiled is not None else 1
+        k = 1
+        while k < N:
+            span = T if k + T <= N else 1
+            ys = y.narrow(nb, k, span)
+            us = None if inputs is None else inputs.narrow(nb, k - 1, span)
+            if span == T and compiled is not None:
+                try:
+                    res = compiled(carry, hist, diverged_at, ys, us, torch.tensor(k, device=device), True)
+                except Exception as exc:  # noqa: BLE001 — any compiler failure: keep going in eager mode
+                    import warnings
+
+                    warnings.warn(f"torch.compile failed ({type(exc).__name__}: {exc}); continuing eagerly", stacklevel=2)
+                    compiled, T = None, 1
+                    continue
+            else:
+                res = advance(carry, hist, diverged_at, ys, us, k, False)
+            carry, hist, diverged_at, rows = res
+            record_block(k, rows, True)
+            k += span
+            if progress is not None:
+                progress(k - 1, N)
+    return TEAResult(**out, diverged=carry.diverged, diverged_at=diverged_at,
+                     steps=torch.arange(0, N, every, device=device))
+
+
+def _compiled(fn):
+    try:
+        return torch.compile(fn, dynamic=False, options={"cpp_wrapper": True})
+    except Exception as exc:  # noqa: BLE001 — e.g. a platform without a C++ compiler
+        import warnings
+
+        warnings.warn(f"torch.compile unavailable ({type(exc).__name__}: {exc}); running eagerly", stacklevel=3)
+        return None

@@ -25,6 +25,10 @@ COMPILE_HELP = ("soe/window memory: run the filter through torch.compile (about 
                 "cached afterwards; pays off for long recordings, not for large batches)")
 
 
+CLAMP_NOTE = ("soe memory: at {n} steps a KFo sigma order fell below the exponential-sum range (−0.95); "
+              "those steps used the clamped order and differ from --memory exact")
+
+
 def _float_arg(accept, requirement):
     """An argparse type: a float for which ``accept(v)`` holds, else one message saying ``requirement``."""
 
@@ -194,6 +198,10 @@ def cmd_estimate(args) -> int:
         "out": str(out),
         "seconds": round(elapsed, 3),
     }
+    if res.memory_clamped is not None:
+        summary["memory_clamped_steps"] = int(res.memory_clamped)
+        if int(res.memory_clamped):
+            print(f"torchtea: warning: {CLAMP_NOTE.format(n=int(res.memory_clamped))}", file=sys.stderr)
     if res.diverged:
         print(f"torchtea: warning: the estimator diverged at step {int(res.diverged_at)}; estimates are frozen "
               "from there (see docs: adaptive Q, --config)", file=sys.stderr)
@@ -268,6 +276,11 @@ def cmd_identify(args) -> int:
                     "r_mode": args.r, "memory": ident.configs[0].memory.spec(), "out": str(out_dir), "figures": figures, "seconds": round(elapsed, 3)})
     warnings = [f"warning: axis {a} diverged; its estimates are frozen at the last good step"
                 for a, s in summary["axes"].items() if s["diverged"]]
+    if res.memory_clamped is not None:
+        for i, a in enumerate(AXES):
+            summary["axes"][a]["memory_clamped_steps"] = int(res.memory_clamped[i])
+            if int(res.memory_clamped[i]):
+                warnings.append(f"warning: axis {a}: " + CLAMP_NOTE.format(n=int(res.memory_clamped[i])))
     if not _report(out_dir, summary, warnings, args.json):
         print(f"{Path(rec.path).name}: {summary['samples']} samples at {1 / ident.h:g} Hz, "
               f"mean removed per axis, TEA with the paper's §5.1 settings (R = {args.r} variance)")

@@ -511,8 +511,9 @@ class _BoundedMemory:
     def __init__(self, cfg: MemoryConfig, order_bounds, horizon: int, dtype, device):
         self.cfg = cfg
         if cfg.kind == "soe":
-            # sigma points may leave the order bounds: serve half an order beyond them
-            self.kernel = kernel_for(cfg, horizon, order_bounds[0] - 0.5, order_bounds[1] + 0.5)
+            # sigma points leave the order bounds (by ±√(3 P̃ᵒ), ~0.9 on the MEMS settings): serve one order
+            # below (down to −0.95, where (★) stops) and half an order above them
+            self.kernel = kernel_for(cfg, horizon, order_bounds[0] - 1.0, order_bounds[1] + 0.5)
             _, _, self.decay, self.inject = self.kernel.tensors(dtype, device)
             self.x_lags, self.p_lags, self.n_modes = cfg.exact_lags, max(cfg.cov_lags, cfg.exact_lags), self.kernel.n_modes
             self.head = cfg.cov_head
@@ -656,6 +657,9 @@ class TEAResult:
         covariance ``(*B, T, p, p)``; zero innovation where ``y`` was missing.
     diverged : ``(*B,)`` bool; diverged_at : ``(*B,)`` first step flagged, −1 if never.
     steps : ``(T,)`` the sample index of each stored row (``0, every, 2·every, …``; all ``N`` by default).
+    memory_clamped : ``(*B,)`` ``soe`` only: steps at which a KFo sigma order may have fallen below the
+        exponential-sum kernel's range (−0.95 by default, where (★) stops holding); there the tail of the
+        memory sum used the clamped order, so the run departs from ``exact``. ``None`` otherwise.
     """
 
     x: Tensor
@@ -671,6 +675,7 @@ class TEAResult:
     diverged: Tensor
     diverged_at: Tensor
     steps: Tensor | None = None
+    memory_clamped: Tensor | None = None
 
 
 _OUTPUT_NAMES = ("x", "P", "alpha", "P_alpha", "Q_alpha", "w", "P_w", "Q_w", "innovation", "innovation_cov")
@@ -811,20 +816,27 @@ def run_tea(
     else:
         hist = memory.push(memory.init(batch, n, dtype, device), carry.x, carry.P, 0)
 
-        def advance(carry, hist, diverged_at, ys, us, k0, branchless):
+        kernel_low = -math.inf if memory.kernel is None else memory.kernel.order_range[0]
+        scale_o = weights[0][2]
+
+        def advance(carry, hist, diverged_at, clamped, ys, us, k0, branchless):
             """Steps k0 … k0+T−1 (T = ys.shape[nb]); outputs stacked along dim nb."""
             rows = []
             for t in range(ys.shape[nb]):
                 k = k0 + t
+                # lowest KFo sigma order, bounded through the diagonal of P̃ᵒ (conservative)
+                spread = (scale_o * torch.diagonal(carry.Po + carry.Qo, dim1=-2, dim2=-1)).clamp(min=0).sqrt()
+                clamped = clamped + ((carry.alpha - spread) < kernel_low).any(-1).to(clamped.dtype)
                 carry, o = _tea_step(model, params, weights, memory, carry, ys.select(nb, t),
                                      None if us is None else us.select(nb, t), hist, k, branchless)
                 hist = memory.push(hist, carry.x, carry.P, k)
                 diverged_at = torch.where(carry.diverged & (diverged_at < 0), k, diverged_at)
                 rows.append(_outputs(carry, o))
-            return carry, hist, diverged_at, tuple(torch.stack(r, dim=nb) for r in zip(*rows))
+            return carry, hist, diverged_at, clamped, tuple(torch.stack(r, dim=nb) for r in zip(*rows))
 
         compiled = _compiled(advance) if compile else None
         T = COMPILE_BLOCK if compiled is not None else 1
+        clamped = torch.zeros(batch, dtype=torch.long, device=device)
         k = 1
         while k < N:
             span = T if k + T <= N else 1
@@ -832,7 +844,7 @@ def run_tea(
             us = None if inputs is None else inputs.narrow(nb, k - 1, span)
             if span == T and compiled is not None:
                 try:
-                    res = compiled(carry, hist, diverged_at, ys, us, torch.tensor(k, device=device), True)
+                    res = compiled(carry, hist, diverged_at, clamped, ys, us, torch.tensor(k, device=device), True)
                 except Exception as exc:  # noqa: BLE001 — any compiler failure: keep going in eager mode
                     import warnings
 
@@ -840,14 +852,15 @@ def run_tea(
                     compiled, T = None, 1
                     continue
             else:
-                res = advance(carry, hist, diverged_at, ys, us, k, False)
-            carry, hist, diverged_at, rows = res
+                res = advance(carry, hist, diverged_at, clamped, ys, us, k, False)
+            carry, hist, diverged_at, clamped, rows = res
             record_block(k, rows, True)
             k += span
             if progress is not None:
                 progress(k - 1, N)
     return TEAResult(**out, diverged=carry.diverged, diverged_at=diverged_at,
-                     steps=torch.arange(0, N, every, device=device))
+                     steps=torch.arange(0, N, every, device=device),
+                     memory_clamped=clamped if memory.bounded and memory.kernel is not None else None)
 
 
 def _compiled(fn):

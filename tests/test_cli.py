@@ -257,3 +257,62 @@ def test_generic_csv_in_g(tmp_path, capsys):
     out = json.loads(capsys.readouterr().out)
     assert out["samples"] == 200
     assert out["axes"]["z"]["mean_removed_ms2"] == pytest.approx(9.80665 * (1 + 0.001 * np.mean([(5 * i) % 3 - 1 for i in range(200)])))
+
+
+def test_memory_option_on_estimate_identify_simulate(tmp_path, capsys, monkeypatch):
+    import torchtea.cli as cli
+
+    sim = tmp_path / "s.csv"
+    assert run("simulate", "--n", 1200, "--h", 0.001, "--order", 0.35, "--param", -1, "--q", 1e-4, "--r", 1e-3,
+               "--input-std", 1, "--seed", 4, "--out", sim, "--memory", "soe") == 0
+    exact_sim = tmp_path / "e.csv"
+    assert run("simulate", "--n", 1200, "--h", 0.001, "--order", 0.35, "--param", -1, "--q", 1e-4, "--r", 1e-3,
+               "--input-std", 1, "--seed", 4, "--out", exact_sim) == 0
+    a, b = (np.genfromtxt(p, delimiter=",", names=True) for p in (sim, exact_sim))
+    assert np.abs(a["x"] - b["x"]).max() < 1e-8 * np.abs(b["x"]).max()
+    capsys.readouterr()
+    outs = {}
+    for mem in ("exact", "soe:1e-10", "window:100"):
+        assert run("estimate", sim, "--h", 0.001, "--preset", "paper-example1", "--memory", mem, "--json",
+                   "--out", tmp_path / f"{mem.replace(':', '_')}.csv") == 0
+        outs[mem] = json.loads(capsys.readouterr().out)
+    assert outs["soe:1e-10"]["memory"] == "soe:1e-10" and outs["exact"]["memory"] == "exact"
+    assert outs["soe:1e-10"]["memory_clamped_steps"] == 0
+    assert abs(outs["soe:1e-10"]["alpha_final"] - outs["exact"]["alpha_final"]) < 1e-8
+    assert abs(outs["window:100"]["alpha_final"] - outs["exact"]["alpha_final"]) > 1e-6  # short memory is biased
+    written = (tmp_path / "soe_1e-10.toml").read_text()
+    assert "[memory]" in written and 'kind = "soe"' in written
+    # the written config reproduces the run
+    assert run("estimate", sim, "--h", 0.001, "--config", tmp_path / "soe_1e-10.toml", "--json",
+               "--out", tmp_path / "again.csv") == 0
+    assert json.loads(capsys.readouterr().out)["alpha_final"] == outs["soe:1e-10"]["alpha_final"]
+    assert run("estimate", sim, "--h", 0.001, "--memory", "fast") == 2
+    assert "bad memory spec 'fast'" in capsys.readouterr().err
+    # identify: no O(N²) note with soe, per-axis clamp counts in the summary
+    monkeypatch.setattr(cli, "LONG_RECORDING", 100)
+    assert run("identify", "--samples", 400, "--no-plots", "--json", "--memory", "soe", "--out", tmp_path / "id") == 0
+    cap = capsys.readouterr()
+    assert "O(N²)" not in cap.err
+    summary = json.loads(cap.out)
+    assert summary["memory"] == "soe:1e-08"
+    assert all("memory_clamped_steps" in s for s in summary["axes"].values())
+
+
+def test_compiled_bounded_loop_equals_eager(monkeypatch):
+    """torch.compile of blocks of steps gives the eager numbers (blocks of 2 here to keep compiling short)."""
+    import torchtea.tea as tea
+    from torchtea import SCENARIOS, MemoryConfig, Structure, gaussian_input, get_preset, make_params, run_tea, simulate
+    from dataclasses import replace
+
+    monkeypatch.setattr(tea, "COMPILE_BLOCK", 2)
+    sc = SCENARIOS["paper-example1"]
+    g = torch.Generator().manual_seed(5)
+    u = gaussian_input((2,), 301, 1, sc.input_std, generator=g)
+    sim = simulate(Structure(), n_steps=301, h=sc.h, order=sc.order, parameters=[sc.param], process_noise=sc.q,
+                   measurement_noise=sc.r, inputs=u, batch_shape=(2,), generator=g)
+    params = make_params(replace(get_preset("paper-example1"), memory=MemoryConfig("soe")), Structure())
+    eager = run_tea(sim.y, h=sc.h, params=params, inputs=u)
+    compiled = run_tea(sim.y, h=sc.h, params=params, inputs=u, compile=True, record_every=3)
+    torch.testing.assert_close(compiled.alpha, eager.alpha[:, ::3], rtol=0, atol=1e-12)
+    torch.testing.assert_close(compiled.x, eager.x[:, ::3], rtol=0, atol=1e-12)
+    assert torch.equal(compiled.memory_clamped, eager.memory_clamped)

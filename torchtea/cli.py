@@ -25,7 +25,7 @@ COMPILE_HELP = ("soe/window memory: run the filter through torch.compile (about 
                 "cached afterwards; pays off for long recordings, not for large batches)")
 
 
-CLAMP_NOTE = ("soe memory: at {n} steps a KFo sigma order fell below the exponential-sum range (−0.95); "
+CLAMP_NOTE = ("soe memory: at {n} steps a KFo sigma order left the exponential-sum range; "
               "those steps used the clamped order and differ from --memory exact")
 
 

@@ -77,10 +77,10 @@ def dumps_toml(data: dict, _prefix: str = "") -> str:
 
 
 def write_config(path, config: TEAConfig, extra: dict | None = None) -> Path:
-    """Write ``config`` (plus ``extra`` top-level keys, e.g. ``h``) as TOML."""
-    data = dict(extra or {})
-    data.update(config.to_dict())
+    """Write ``config`` as TOML that :func:`load_config` reads back; ``extra`` (e.g. ``h``, the source)
+    goes in as comments above it, since it is context, not a setting."""
+    notes = "".join(f"# {k} = {_value(v)}\n" for k, v in (extra or {}).items())
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(dumps_toml(data))
+    path.write_text(notes + dumps_toml(config.to_dict()))
     return path

@@ -512,8 +512,8 @@ class _BoundedMemory:
         self.cfg = cfg
         if cfg.kind == "soe":
             # sigma points leave the order bounds (by ±√(3 P̃ᵒ), ~0.9 on the MEMS settings): serve one order
-            # below (down to −0.95, where (★) stops) and half an order above them
-            self.kernel = kernel_for(cfg, horizon, order_bounds[0] - 1.0, order_bounds[1] + 0.5)
+            # beyond them on both sides (down to −0.95 at most, where (★) stops)
+            self.kernel = kernel_for(cfg, horizon, order_bounds[0] - 1.0, order_bounds[1] + 1.0)
             _, _, self.decay, self.inject = self.kernel.tensors(dtype, device)
             self.x_lags, self.p_lags, self.n_modes = cfg.exact_lags, max(cfg.cov_lags, cfg.exact_lags), self.kernel.n_modes
             self.head = cfg.cov_head
@@ -657,9 +657,10 @@ class TEAResult:
         covariance ``(*B, T, p, p)``; zero innovation where ``y`` was missing.
     diverged : ``(*B,)`` bool; diverged_at : ``(*B,)`` first step flagged, −1 if never.
     steps : ``(T,)`` the sample index of each stored row (``0, every, 2·every, …``; all ``N`` by default).
-    memory_clamped : ``(*B,)`` ``soe`` only: steps at which a KFo sigma order may have fallen below the
-        exponential-sum kernel's range (−0.95 by default, where (★) stops holding); there the tail of the
-        memory sum used the clamped order, so the run departs from ``exact``. ``None`` otherwise.
+    memory_clamped : ``(*B,)`` ``soe`` only: steps at which a KFo sigma order may have left the
+        exponential-sum kernel's range (by default one order beyond ``order_bounds``, but not below −0.95,
+        where (★) stops holding); there the tail of the memory sum used the clamped order, so the run
+        departs from ``exact``. ``None`` otherwise.
     """
 
     x: Tensor
@@ -816,46 +817,51 @@ def run_tea(
     else:
         hist = memory.push(memory.init(batch, n, dtype, device), carry.x, carry.P, 0)
 
-        kernel_low = -math.inf if memory.kernel is None else memory.kernel.order_range[0]
+        kernel_low, kernel_high = (-math.inf, math.inf) if memory.kernel is None else memory.kernel.order_range
         scale_o = weights[0][2]
 
-        def advance(carry, hist, diverged_at, clamped, ys, us, k0, branchless):
-            """Steps k0 … k0+T−1 (T = ys.shape[nb]); outputs stacked along dim nb."""
+        def one_step(carry, hist, diverged_at, clamped, y_k, u_prev, k, branchless):
+            # extreme KFo sigma orders, bounded through the diagonal of P̃ᵒ (conservative)
+            spread = (scale_o * torch.diagonal(carry.Po + carry.Qo, dim1=-2, dim2=-1)).clamp(min=0).sqrt()
+            outside = ((carry.alpha - spread) < kernel_low) | ((carry.alpha + spread) > kernel_high)
+            clamped = clamped + outside.any(-1).to(clamped.dtype)
+            carry, o = _tea_step(model, params, weights, memory, carry, y_k, u_prev, hist, k, branchless)
+            hist = memory.push(hist, carry.x, carry.P, k)
+            diverged_at = torch.where(carry.diverged & (diverged_at < 0), k, diverged_at)
+            return carry, hist, diverged_at, clamped, _outputs(carry, o)
+
+        def advance(carry, hist, diverged_at, clamped, ys, us, k0):
+            """Steps k0 … k0+T−1 (T = ys.shape[nb]), branch-free for the compiler; outputs stacked along dim nb."""
             rows = []
             for t in range(ys.shape[nb]):
-                k = k0 + t
-                # lowest KFo sigma order, bounded through the diagonal of P̃ᵒ (conservative)
-                spread = (scale_o * torch.diagonal(carry.Po + carry.Qo, dim1=-2, dim2=-1)).clamp(min=0).sqrt()
-                clamped = clamped + ((carry.alpha - spread) < kernel_low).any(-1).to(clamped.dtype)
-                carry, o = _tea_step(model, params, weights, memory, carry, ys.select(nb, t),
-                                     None if us is None else us.select(nb, t), hist, k, branchless)
-                hist = memory.push(hist, carry.x, carry.P, k)
-                diverged_at = torch.where(carry.diverged & (diverged_at < 0), k, diverged_at)
-                rows.append(_outputs(carry, o))
+                carry, hist, diverged_at, clamped, row = one_step(
+                    carry, hist, diverged_at, clamped, ys.select(nb, t), None if us is None else us.select(nb, t),
+                    k0 + t, True)
+                rows.append(row)
             return carry, hist, diverged_at, clamped, tuple(torch.stack(r, dim=nb) for r in zip(*rows))
 
         compiled = _compiled(advance) if compile else None
-        T = COMPILE_BLOCK if compiled is not None else 1
         clamped = torch.zeros(batch, dtype=torch.long, device=device)
         k = 1
         while k < N:
-            span = T if k + T <= N else 1
-            ys = y.narrow(nb, k, span)
-            us = None if inputs is None else inputs.narrow(nb, k - 1, span)
-            if span == T and compiled is not None:
+            if compiled is not None and k + COMPILE_BLOCK <= N:
                 try:
-                    res = compiled(carry, hist, diverged_at, clamped, ys, us, torch.tensor(k, device=device), True)
+                    carry, hist, diverged_at, clamped, rows = compiled(
+                        carry, hist, diverged_at, clamped, y.narrow(nb, k, COMPILE_BLOCK),
+                        None if inputs is None else inputs.narrow(nb, k - 1, COMPILE_BLOCK), torch.tensor(k, device=device))
                 except Exception as exc:  # noqa: BLE001 — any compiler failure: keep going in eager mode
                     import warnings
 
                     warnings.warn(f"torch.compile failed ({type(exc).__name__}: {exc}); continuing eagerly", stacklevel=2)
-                    compiled, T = None, 1
+                    compiled = None
                     continue
+                record_block(k, rows, True)
+                k += COMPILE_BLOCK
             else:
-                res = advance(carry, hist, diverged_at, clamped, ys, us, k, False)
-            carry, hist, diverged_at, clamped, rows = res
-            record_block(k, rows, True)
-            k += span
+                carry, hist, diverged_at, clamped, row = one_step(carry, hist, diverged_at, clamped, y[..., k, :],
+                                                                  u_at(k - 1), k, False)
+                record_block(k, row, False)
+                k += 1
             if progress is not None:
                 progress(k - 1, N)
     return TEAResult(**out, diverged=carry.diverged, diverged_at=diverged_at,

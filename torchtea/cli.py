@@ -229,15 +229,16 @@ def cmd_identify(args) -> int:
     if n is not None and n < 2:
         raise CLIError("--samples must be at least 2 or 'all'")
     overrides = None
-    if args.config:
-        overrides = load_config(args.config).to_dict()
+    file_cfg = load_config(args.config) if args.config else None
+    if file_cfg is not None:
+        overrides = file_cfg.to_dict()
         for f in ("kfx", "kfo", "kfw"):  # per-axis R stays the axis's own unless the file says otherwise
             overrides[f].pop("R", None)
     mem = _memory(args.memory)
     if mem is not None:
         overrides = dict(overrides or {}, memory=mem.to_dict())
     total = min(n or len(rec.accel_counts), len(rec.accel_counts))
-    chosen = mem or (load_config(args.config).memory if args.config else None)
+    chosen = mem or (file_cfg.memory if file_cfg is not None else None)
     exact = chosen is None or chosen.kind == "exact"
     if total > LONG_RECORDING and exact:
         print(f"torchtea: note: {total} samples with the exact full-history GL sums cost O(N²) "

@@ -182,25 +182,14 @@ class SOEKernel:
         inject = torch.cat([torch.exp(-(self.exact_lags + 1) * s), one])
         return tuple(t.to(dtype=dtype, device=device) for t in (a, b, decay, inject))
 
-    def weights(self, order: Tensor) -> Tensor:
-        r"""Mode weights :math:`W_n(\alpha)` and :math:`W_\star(\alpha)`, shape ``(*order.shape, L+1)``.
-
-        Orders are clamped to the kernel's range (the exponential sum is only checked there).
-        """
-        a, b, _, _ = self.tensors(order.dtype, order.device)
-        alpha = order.clamp(*self.order_range).unsqueeze(-1)
-        w = torch.exp(torch.addcmul(a, alpha, b))
-        # the running-sum mode also carries q/(1−q) = 1/expm1((1+α)η)
-        lump = torch.expm1((1.0 + alpha) * self.eta)
-        w = torch.cat([w[..., :-1], w[..., -1:] / lump], dim=-1)
-        return w * (torch.sin(math.pi * alpha) * (-1.0 / math.pi))
-
     def tail_sums(self, order: Tensor, modes: Tensor) -> Tensor:
         r""":math:`\sum_n W_n(\alpha) H_n + W_\star(\alpha) R` for ``S`` orders against one set of modes.
 
-        order ``(*B, S, n)``, modes ``(*B, n, L+1)`` → ``(*B, S, n)``. Same value as
-        ``(weights(order) * modes.unsqueeze(-3)).sum(-1)`` with fewer passes over the ``S × L`` block:
-        the order-dependent factors of the weight are applied after the contraction.
+        order ``(*B, S, n)``, modes ``(*B, n, L+1)`` → ``(*B, S, n)``. The weights are
+        :math:`W_n(\alpha) = -(\sin\pi\alpha/\pi)\,e^{a_n+\alpha b_n}` (and ``W_⋆`` carries
+        ``q/(1−q) = 1/expm1((1+α)η)`` too); the order-dependent factors are applied after the contraction,
+        so the ``S × L`` block is passed over once. Orders are clamped to the kernel's range (the
+        exponential sum is only checked there).
         """
         a, b, _, _ = self.tensors(order.dtype, order.device)
         alpha = order.clamp(*self.order_range)
@@ -211,10 +200,9 @@ class SOEKernel:
 
     def coefficients(self, order: Tensor, lags: Tensor) -> Tensor:
         """The kernel's approximation of ``c_j(order)`` at the given lags (> J₀), shape ``(*order.shape, len(lags))``."""
-        W = self.weights(order)  # (*S, L+1)
         s = torch.cat([self.u.exp(), torch.zeros(1, dtype=torch.float64)]).to(order)
-        E = torch.exp(-lags.to(order).unsqueeze(-1) * s)  # (J, L+1); the running mode has rate 0
-        return W @ E.mT
+        E = torch.exp(-lags.to(order).unsqueeze(-1) * s)  # (J, L+1): the modes of a unit impulse J lags back
+        return self.tail_sums(order.unsqueeze(-1).expand(order.shape + lags.shape), E)
 
 
 def _check_grid(order_range, exact_lags: int, horizon: int):

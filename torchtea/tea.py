@@ -509,7 +509,6 @@ class _BoundedMemory:
     bounded = True
 
     def __init__(self, cfg: MemoryConfig, order_bounds, horizon: int, dtype, device):
-        self.cfg = cfg
         if cfg.kind == "soe":
             # sigma points leave the order bounds (by ±√(3 P̃ᵒ), ~0.9 on the MEMS settings): serve one order
             # beyond them on both sides (down to −0.95 at most, where (★) stops)

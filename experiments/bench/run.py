@@ -237,13 +237,7 @@ def child(*argv):
 
 
 def long_recording(path, every, compile_):
-    cmd = [sys.executable, __file__, "--child-long", str(path), str(every), "1" if compile_ else "0"]
-    t0 = time.perf_counter()
-    out = subprocess.run(cmd, capture_output=True, text=True)
-    wall = time.perf_counter() - t0
-    if out.returncode != 0:
-        raise RuntimeError(f"long-recording child failed:\n{out.stderr[-3000:]}")
-    row = json.loads(out.stdout.strip().splitlines()[-1])
+    row, wall = timed(lambda: child("--child-long", path, every, "1" if compile_ else "0"))
     row["process_wall_s"] = round(wall, 1)
     return row
 

@@ -242,7 +242,7 @@ def cmd_identify(args) -> int:
     exact = chosen is None or chosen.kind == "exact"
     if total > LONG_RECORDING and exact:
         print(f"torchtea: note: {total} samples with the exact full-history GL sums cost O(N²) "
-              "(the whole bundled recording takes about 4 minutes on 2 cores); --memory soe costs O(N)",
+              "(the whole bundled recording takes about 2.5 minutes on 2 cores); --memory soe costs O(N)",
               file=sys.stderr)
     step, close = _progress(total - 1, sys.stderr.isatty() and not args.json, "TEA x,y,z")
     t0 = time.perf_counter()

@@ -1,4 +1,4 @@
-"""The ``torchtea`` command line: simulate, estimate, identify, presets."""
+"""The ``torchtea`` command line: simulate, estimate, identify, record, montecarlo, presets."""
 from __future__ import annotations
 
 import argparse
@@ -295,6 +295,29 @@ def cmd_identify(args) -> int:
     return 0
 
 
+# --------------------------------------------------------------------------- record
+
+
+def cmd_record(args) -> int:
+    from .recorder import Recorder
+
+    if args.duration is not None and args.duration <= 0:
+        raise CLIError("--duration must be positive")
+    live = None
+    if args.live:
+        from .live import LiveEstimator
+
+        logdir = Path(args.logdir) if args.logdir else Path(args.out).with_suffix("").with_name(Path(args.out).stem + "-live")
+        live = LiveEstimator(logdir, memory=args.memory or "soe", warmup_s=args.warmup)
+        print(f"torchtea record: live estimates in {logdir} (tensorboard --logdir {logdir})", file=sys.stderr)
+    rec = Recorder(args.port, args.out, baud=args.baud, duration=args.duration, reconnect=args.reconnect,
+                   request_header=None if args.port.startswith("loop://") else 1.0, live=live)
+    code = rec.run()
+    if live is not None and live.summary is not None:
+        print(json.dumps(live.summary) if args.json else live.describe())
+    return code
+
+
 # --------------------------------------------------------------------------- montecarlo
 
 
@@ -480,6 +503,20 @@ def build_parser() -> argparse.ArgumentParser:
     i.add_argument("--compile", action="store_true", help=COMPILE_HELP)
     i.add_argument("--json", action="store_true", help="print a JSON summary")
     i.set_defaults(func=cmd_identify)
+
+    rc = sub.add_parser("record", help="record a protocol-v1 IMU from a serial port (docs/protocol.md)")
+    rc.add_argument("--port", required=True, help="serial device (/dev/ttyACM0, COM3) or pyserial URL")
+    rc.add_argument("--baud", type=int, default=115200, help="baud rate (default 115200, as the firmware)")
+    rc.add_argument("--duration", type=float, help="stop after S seconds (default: Ctrl-C or the port going away)")
+    rc.add_argument("--reconnect", action="store_true", help="when the port goes away, wait for it to come back")
+    rc.add_argument("--out", required=True, help="recording CSV; the sidecar REC.json is written beside it")
+    rc.add_argument("--live", action="store_true", help="run the TEA on the three axes while recording (TensorBoard)")
+    rc.add_argument("--logdir", help="live mode: TensorBoard directory (default REC-live/)")
+    rc.add_argument("--warmup", type=float, default=2.0,
+                    help="live mode: seconds of data that set each axis's mean and R before the TEA starts")
+    rc.add_argument("--memory", help="live mode: " + MEMORY_HELP.replace("default: the config's, else exact", "default soe"))
+    rc.add_argument("--json", action="store_true", help="live mode: print the final estimates as JSON")
+    rc.set_defaults(func=cmd_record)
 
     mc = sub.add_parser("montecarlo", help="Monte Carlo study of the TEA, logged to TensorBoard")
     mc.add_argument("--config", help="STUDY.toml: realisations, seed, chunk, [truth], [estimator]")

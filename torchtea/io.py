@@ -6,6 +6,7 @@ Every reader raises :class:`InputError` with a message that names the file
 from __future__ import annotations
 
 import csv
+import json
 import math
 from dataclasses import dataclass, field
 from importlib import resources
@@ -126,10 +127,14 @@ def read_series(path, columns: Sequence[str], optional: Sequence[str] = (), *, a
 
 
 def read_recording(path=None, *, lsb_per_g: float | None = None, rate_hz: float | None = None,
-                   columns: Sequence[str] = ("ax", "ay", "az")) -> Recording:
+                   columns: Sequence[str] = ("ax", "ay", "az"), segment: int | None = None) -> Recording:
     """Read an accelerometer recording.
 
     Formats:
+
+    * ``torchtea record``'s format (first line ``# torchtea-recording 1``, physical units, see
+      ``docs/recording.md``): rate and scale come from the segment's header; ``segment`` picks one
+      segment (default: the longest). Counts are recovered exactly from the m/s² values;
 
     * the bundled format (``Fs,100`` and other ``key,value`` lines, then a header
       ``ax,ay,az,gx,gy,gz`` and integer rows) — the vendored MPU-6050 files; the
@@ -140,6 +145,10 @@ def read_recording(path=None, *, lsb_per_g: float | None = None, rate_hz: float 
     """
     path = bundled_recording() if path is None else Path(path)
     lines = _open_lines(path)
+    if lines and lines[0].strip() == RECORDING_MAGIC:
+        return _read_recorder_format(path, lines, segment)
+    if segment is not None:
+        raise InputError(f"{path}: not a torchtea recording, it has no segments")
     meta: dict = {}
     start = 0
     for i, line in enumerate(lines):
@@ -185,6 +194,70 @@ def read_recording(path=None, *, lsb_per_g: float | None = None, rate_hz: float 
     return Recording(path=path, rate_hz=float(rate_hz), accel_counts=np.asarray(acc, dtype=np.float64),
                      accel_lsb_per_g=float(lsb_per_g),
                      gyro_counts=np.asarray(gyr, dtype=np.float64) if gyro_idx else None, metadata=meta)
+
+
+RECORDING_MAGIC = "# torchtea-recording 1"
+_RECORDER_COLUMNS = ("segment", "counter", "t_s", "ax", "ay", "az", "gx", "gy", "gz", "temp")
+
+
+def _read_recorder_format(path: Path, lines: list[str], segment: int | None) -> Recording:
+    headers: dict = {}
+    rows: dict = {}
+    columns = None
+    for i, line in enumerate(lines[1:], start=2):
+        if not line.strip():
+            continue
+        if line.startswith("#"):
+            if line.startswith("# segment "):
+                seg, _, rest = line[len("# segment "):].partition(":")
+                try:
+                    headers[int(seg)] = json.loads(rest)
+                except ValueError:
+                    raise InputError(f"{path}, line {i}: malformed segment header {line[:80]!r}") from None
+            continue
+        parts = line.split(",")
+        if columns is None:
+            columns = tuple(p.strip() for p in parts)
+            if columns != _RECORDER_COLUMNS:
+                raise InputError(f"{path}, line {i}: expected columns {','.join(_RECORDER_COLUMNS)}, got {line[:80]!r}")
+            continue
+        if len(parts) != len(columns):
+            raise InputError(f"{path}, line {i}: {len(parts)} fields, the header has {len(columns)}")
+        try:
+            seg = int(parts[0])
+        except ValueError:
+            raise InputError(f"{path}, line {i}: segment {parts[0]!r} is not a whole number") from None
+        if seg not in headers:
+            raise InputError(f"{path}, line {i}: segment {seg} has no '# segment {seg}:' header line")
+        rows.setdefault(seg, []).append(
+            [_number(v, path, i, c, allow_missing=True) for v, c in zip(parts[1:], columns[1:])])
+    if not rows:
+        raise InputError(f"{path}: no data rows")
+    sizes = {s: len(r) for s, r in rows.items()}
+    if segment is None:
+        segment = max(sizes, key=lambda s: (sizes[s], -s))
+    elif segment not in rows:
+        raise InputError(f"{path}: no segment {segment} (segments: {', '.join(map(str, sorted(rows)))})")
+    meta = dict(headers[segment])
+    try:
+        rate = float(meta["rate_hz"])
+        lsb = float(meta["accel_lsb_per_g"])
+        dps = float(meta["gyro_lsb_per_dps"])
+    except (KeyError, ValueError):
+        raise InputError(f"{path}: segment {segment}'s header lacks a numeric rate_hz, accel_lsb_per_g or "
+                         "gyro_lsb_per_dps") from None
+    data = np.asarray(rows[segment], dtype=np.float64)  # counter, t_s, ax … temp
+    counters = data[:, 0]
+    if np.any(np.diff(counters) != 1):
+        raise InputError(f"{path}: segment {segment}: counters are not consecutive (rows missing or reordered)")
+    acc = data[:, 2:5] / STANDARD_GRAVITY * lsb
+    rounded = np.rint(acc)
+    if np.nanmax(np.abs(acc - rounded), initial=0.0) < 1e-6:
+        acc = rounded  # values written by the recorder: the counts come back exactly
+    gyr = data[:, 5:8] / (math.pi / 180.0) * dps
+    meta.update(segment=segment, segments=sizes, first_counter=int(counters[0]),
+                missing_samples=int(np.isnan(data[:, 2]).sum()))
+    return Recording(path=path, rate_hz=rate, accel_counts=acc, accel_lsb_per_g=lsb, gyro_counts=gyr, metadata=meta)
 
 
 def write_columns(path, columns: dict) -> Path:

@@ -170,6 +170,50 @@ def test_identify_bundled_json_contract(tmp_path, capsys):
         assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
+def test_identify_report_and_tensorboard(tmp_path, capsys):
+    """report.md carries the numbers of summary.json; the TensorBoard events read back to the trajectories."""
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    assert run("identify", "--json", "--samples", 450, "--out", tmp_path / "id") == 0
+    out = json.loads(capsys.readouterr().out)
+    report = (tmp_path / "id" / "report.md").read_text()
+    for axis, a in out["axes"].items():
+        st = out["statistics"][axis]
+        row = next(ln for ln in report.splitlines() if ln.startswith(f"| {axis} | {a['alpha']:.4f} |"))
+        assert f"| {a['param']:.4f} |" in row
+        assert f"{st['noise_var']:.4e}" in report and st["noise_var"] == pytest.approx(a["R"], rel=1e-12)
+    assert "Samples**: 450 of 44930 at 100 Hz" in report
+    for png in ("axis_x.png", "axis_y.png", "axis_z.png", "orders.png"):
+        assert f"]({png})" in report and (tmp_path / "id" / png).read_bytes()[:4] == b"\x89PNG"
+    d = np.genfromtxt(tmp_path / "id" / "trajectories.csv", delimiter=",", names=True)
+    ea = EventAccumulator(str(tmp_path / "id" / "tb"), size_guidance={"scalars": 0})
+    ea.Reload()
+    ev = ea.Scalars("order/y")
+    assert len(ev) == 450 and ev[-1].step == 449
+    assert ev[-1].value == pytest.approx(d["alpha_y"][-1], rel=1e-6)  # float32 in the event file
+    assert {"param/z", "innovation/x", "order_sd/x"} <= set(ea.Tags()["scalars"])
+
+
+def test_identify_generic_csv_columns_and_units(tmp_path, capsys):
+    from torchtea.io import read_recording
+
+    rec = read_recording()
+    g = rec.accel_counts[:400] / 16384.0
+    f = tmp_path / "g.csv"
+    np.savetxt(f, np.column_stack([np.arange(400), g]), delimiter=",", header="i,X,Y,Z", comments="", fmt="%.17g")
+    assert run("identify", f, "--columns", "X,Y,Z", "--units", "g", "--rate", 100, "--json", "--no-plots",
+               "--out", tmp_path / "a") == 0
+    generic = json.loads(capsys.readouterr().out)
+    assert run("identify", "--samples", 400, "--json", "--no-plots", "--out", tmp_path / "b") == 0
+    bundled = json.loads(capsys.readouterr().out)
+    for axis in "xyz":
+        assert generic["axes"][axis]["alpha"] == pytest.approx(bundled["axes"][axis]["alpha"], rel=1e-9, abs=1e-12)
+    assert run("identify", f, "--columns", "X,Y", "--rate", 100) == 2
+    assert "--columns needs three names" in capsys.readouterr().err
+    assert run("identify", f, "--columns", "X,Y,Z", "--units", "g", "--lsb-per-g", 1, "--rate", 100) == 2
+    assert "not both" in capsys.readouterr().err
+
+
 def test_identify_batched_equals_per_axis(tmp_path, capsys):
     """The three axes in one batch give what each axis gives alone through `estimate`."""
     run("identify", "--json", "--samples", 300, "--no-plots", "--out", tmp_path / "id")

@@ -222,9 +222,21 @@ def cmd_identify(args) -> int:
 
     from .config import load_config, write_config
     from .identify import AXES, identify
-    from .io import read_recording, write_columns
+    from .io import STANDARD_GRAVITY, read_recording, write_columns
+    from .report import axis_statistics, log_identification, orders_figure, write_report
 
-    rec = read_recording(args.recording, lsb_per_g=args.lsb_per_g, rate_hz=args.rate)
+    lsb = args.lsb_per_g
+    if args.units is not None:
+        if lsb is not None:
+            raise CLIError("give --units or --lsb-per-g, not both")
+        lsb = {"g": 1.0, "ms2": STANDARD_GRAVITY}[args.units]
+    columns = tuple(c.strip() for c in args.columns.split(",")) if args.columns else ("ax", "ay", "az")
+    if len(columns) != 3 or not all(columns):
+        raise CLIError(f"--columns needs three names (x,y,z), got {args.columns!r}")
+    rec = read_recording(args.recording, lsb_per_g=lsb, rate_hz=args.rate, columns=columns, segment=args.segment)
+    if rec.metadata.get("segments") and len(rec.metadata["segments"]) > 1 and args.segment is None:
+        print(f"torchtea: note: {Path(rec.path).name} has {len(rec.metadata['segments'])} segments (device resets); "
+              f"using the longest, segment {rec.metadata['segment']} (choose with --segment)", file=sys.stderr)
     n = None if args.samples == "all" else int(args.samples)
     if n is not None and n < 2:
         raise CLIError("--samples must be at least 2 or 'all'")
@@ -273,8 +285,16 @@ def cmd_identify(args) -> int:
                 w_hat=res.w[i, :, 0].numpy(), w_sd=res.P_w[i, :, 0, 0].clamp(min=0).sqrt().numpy(),
                 title=f"{Path(rec.path).name}: {a}-axis noise (cf. paper Figs. {12 + 3 * i}–{14 + 3 * i})",
                 state_label="noise [m/s²]", zoom=(t[-1] - 5.0, t[-1]))))
+    if not args.no_plots:
+        figures.append(str(orders_figure(out_dir / "orders.png", ident, summary)))
     summary.update({"recording": str(rec.path), "samples": int(ident.y.shape[-2]), "h": ident.h,
-                    "r_mode": args.r, "memory": ident.configs[0].memory.spec(), "out": str(out_dir), "figures": figures, "seconds": round(elapsed, 3)})
+                    "r_mode": args.r, "memory": ident.configs[0].memory.spec(), "out": str(out_dir), "figures": figures,
+                    "seconds": round(elapsed, 3), "statistics": axis_statistics(ident)})
+    if "segment" in rec.metadata:
+        summary["segment"] = rec.metadata["segment"]
+    summary["tensorboard"] = str(log_identification(out_dir / "tb", ident, summary))
+    summary["report"] = str(write_report(out_dir / "report.md", ident, summary, figures,
+                                         command="torchtea " + " ".join(sys.argv[1:]) if sys.argv[1:] else ""))
     warnings = [f"warning: axis {a} diverged; its estimates are frozen at the last good step"
                 for a, s in summary["axes"].items() if s["diverged"]]
     if res.memory_clamped is not None:
@@ -497,6 +517,9 @@ def build_parser() -> argparse.ArgumentParser:
     i.add_argument("--config", help="TOML settings applied on top of the paper's MEMS settings")
     i.add_argument("--rate", type=_positive_float, help="sample rate [Hz] if the file does not say")
     i.add_argument("--lsb-per-g", type=_positive_float, help="accelerometer counts per g (bundled format: 16384)")
+    i.add_argument("--columns", help="generic CSV: the three accelerometer columns (default ax,ay,az)")
+    i.add_argument("--units", choices=("g", "ms2"), help="generic CSV already in g or m/s² (else counts: --lsb-per-g)")
+    i.add_argument("--segment", type=int, help="torchtea recording: which segment (default: the longest)")
     i.add_argument("--out", help="output directory (default identify-<recording name>)")
     i.add_argument("--no-plots", action="store_true")
     i.add_argument("--memory", help=MEMORY_HELP)

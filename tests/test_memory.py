@@ -290,3 +290,30 @@ def test_memory_config_round_trip_and_from_dict():
         TEAConfig.from_dict({"memory": {"kind": "fast"}})
     with pytest.raises(ValueError, match="unknown settings in \\[memory\\]"):
         TEAConfig.from_dict({"memory": {"speed": 1}})
+
+
+def test_stream_equals_run_tea_with_bounded_memory():
+    """TEAStream fed sample by sample (with a missing sample) gives run_tea's trajectories exactly."""
+    from dataclasses import replace
+
+    from torchtea.identify import axis_configs
+    from torchtea.io import read_recording
+    from torchtea.model import Structure
+    from torchtea.tea import TEAStream, make_params, run_tea, stack_params
+
+    acc = read_recording().accel_ms2()[:400]
+    y = torch.as_tensor((acc - acc.mean(0)).T.copy()).unsqueeze(-1)
+    y[1, 123, 0] = float("nan")
+    cfgs = [replace(c, memory=parse_memory("soe")) for c in axis_configs(y)]
+    params = stack_params([make_params(c, Structure()) for c in cfgs])
+    ref = run_tea(y, h=0.01, params=params)
+    stream = TEAStream(h=0.01, params=params, batch=(3,), horizon=400)
+    alpha, x = [], []
+    for k in range(400):
+        carry, out = stream.step(y[:, k])
+        alpha.append(carry.alpha)
+        x.append(carry.x)
+    torch.testing.assert_close(torch.stack(alpha, 1), ref.alpha, rtol=0, atol=0)
+    torch.testing.assert_close(torch.stack(x, 1), ref.x, rtol=0, atol=0)
+    with pytest.raises(ValueError, match="bounded memory"):
+        TEAStream(h=0.01, params=make_params(cfgs[0].__class__(), Structure()))

@@ -216,3 +216,29 @@ def test_recording_survives_the_recorder_being_killed(tmp_path):
     assert side["status"] == "recording"  # the sidecar as last rewritten, still valid JSON
     text = (tmp_path / "rec.csv").read_text()
     assert text.endswith("\n")  # whole lines only
+
+
+def test_live_mode_logs_to_tensorboard_every_second_and_keeps_up(tmp_path):
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    fake, port = _fake("--seconds", "20", "--rate", "100")
+    try:
+        rec = _torchtea("record", "--port", port, "--duration", "7", "--out", str(tmp_path / "rec.csv"), "--live",
+                        "--json", "--logdir", str(tmp_path / "tb"))
+        out, err = rec.communicate(timeout=120)
+    finally:
+        _stop(fake)
+    assert rec.returncode == 0, err
+    live = json.loads(out.strip().splitlines()[-1])
+    side = json.loads((tmp_path / "rec.json").read_text())
+    assert live["steps"] == side["good_samples"] + side["missing_samples"]  # every row estimated
+    assert live["lag_at_close_samples"] <= 50  # kept up with 100 Hz
+    assert set(live["axes"]) == {"x", "y", "z"} and not any(a["diverged"] for a in live["axes"].values())
+    ea = EventAccumulator(str(tmp_path / "tb"), size_guidance={"scalars": 0})
+    ea.Reload()
+    ev = ea.Scalars("order/x")
+    assert ev[-1].step == live["steps"] - 1 and ev[-1].value == pytest.approx(live["axes"]["x"]["alpha"], rel=1e-6)
+    gaps = np.diff([e.wall_time for e in ev])
+    assert len(ev) >= 4 and gaps.max() < 1.6  # at least once a second while samples arrive
+    for tag in ("param/z", "innovation/y", "innovation_rms/x", "live/lag_samples"):
+        assert tag in ea.Tags()["scalars"]

@@ -325,7 +325,11 @@ def cmd_record(args) -> int:
         raise CLIError("--duration must be positive")
     live = None
     if args.live:
+        import torch
+
         from .live import LiveEstimator
+
+        torch.set_num_threads(1)  # one step of 3 axes is too small to share; leave a core to the reader
 
         logdir = Path(args.logdir) if args.logdir else Path(args.out).with_suffix("").with_name(Path(args.out).stem + "-live")
         live = LiveEstimator(logdir, memory=args.memory or "soe", warmup_s=args.warmup)

@@ -46,6 +46,7 @@ __all__ = [
     "make_params",
     "stack_params",
     "run_tea",
+    "TEAStream",
     "ut_weights",
 ]
 
@@ -689,6 +690,69 @@ def _outputs(c: Carry, o: StepOutput):
 COMPILE_BLOCK = 8
 
 
+def _model_and_weights(structure: Structure, params: TEAParams, h: float, dtype, device):
+    like = torch.empty((), dtype=dtype, device=device)
+    model = _Model(structure, torch.as_tensor(h, dtype=dtype, device=device), structure.B.to(like), structure.C.to(like))
+    cfg = params.config
+    L, m = structure.n_estimated_orders, structure.n_params
+    weights = (ut_weights(L, cfg.kfo.ut_alpha, cfg.kfo.ut_beta, cfg.kfo.kappa, dtype=dtype, device=device),
+               ut_weights(m, cfg.kfw.ut_alpha, cfg.kfw.ut_beta, cfg.kfw.kappa, dtype=dtype, device=device))
+    return model, weights
+
+
+def _first_step(model: _Model, params: TEAParams, y_0: Tensor, batch) -> tuple[Carry, StepOutput]:
+    """k = 0: the KFx update from the prior only; KFo and KFw start at their priors."""
+    n, L, m = params.x0.shape[-1], params.alpha0.shape[-1], params.w0.shape[-1]
+    ex = lambda t, ev: t.expand(batch + ev).clone()  # noqa: E731
+    mask0 = ~torch.isnan(y_0)
+    x, P, e, S = _kfx_update(model, params, ex(params.x0, (n,)), ex(params.P0, (n, n)),
+                             torch.where(mask0, y_0, torch.zeros_like(y_0)), mask0)
+    carry = Carry(x, P, ex(params.alpha0, (L,)), ex(params.P0o, (L, L)), ex(params.Q0o, (L, L)),
+                  ex(params.w0, (m,)), ex(params.P0w, (m, m)), ex(params.Q0w, (m, m)),
+                  torch.zeros(batch, dtype=torch.bool, device=y_0.device))
+    prior = Carry(ex(params.x0, (n,)), ex(params.P0, (n, n)), *carry[2:])
+    return _guard(carry, prior, params.config.divergence_limit), StepOutput(e, S)
+
+
+class TEAStream:
+    """The TEA one sample at a time, for data that arrive while it runs (``torchtea record --live``).
+
+    Needs bounded memory (``soe`` or ``window``): the history is kept in O(1) per step, designed for
+    ``horizon`` samples (beyond it the ``soe`` kernel's error bound no longer holds). A stream fed the
+    samples of a series gives exactly what :func:`run_tea` gives on the whole series.
+
+    ``step(y_k)`` with ``y_k`` of shape ``(*batch, p)`` (NaN = missing) returns ``(Carry, StepOutput)``
+    at the sample's time; ``k`` counts the samples taken.
+    """
+
+    def __init__(self, *, h: float, params: TEAParams, batch=(), structure: Structure | None = None,
+                 horizon: int = 10**6, dtype=torch.float64, device=None):
+        self.structure = structure or Structure.scalar_noise()
+        cfg = params.config
+        if cfg.memory.kind == "exact":
+            raise ValueError("TEAStream needs bounded memory: set config.memory to soe or window")
+        self.params = TEAParams(*[t.to(device=device, dtype=dtype) for t in params[:-1]], config=cfg)
+        self.batch = torch.broadcast_shapes(tuple(batch), self.params.x0.shape[:-1], self.params.R.shape[:-2])
+        self.model, self.weights = _model_and_weights(self.structure, self.params, h, dtype, device)
+        self.memory = _make_memory(cfg, horizon, dtype, device)
+        self.dtype, self.device = dtype, device
+        self.k = 0
+        self.carry: Carry | None = None
+        self._hist = None
+
+    def step(self, y_k: Tensor, u_prev: Tensor | None = None) -> tuple[Carry, StepOutput]:
+        y_k = torch.as_tensor(y_k, dtype=self.dtype, device=self.device).expand(self.batch + (self.structure.n_outputs,))
+        if self.k == 0:
+            self.carry, out = _first_step(self.model, self.params, y_k, self.batch)
+            self._hist = self.memory.init(self.batch, self.structure.n_states, self.dtype, self.device)
+        else:
+            self.carry, out = _tea_step(self.model, self.params, self.weights, self.memory, self.carry, y_k, u_prev,
+                                        self._hist, self.k)
+        self._hist = self.memory.push(self._hist, self.carry.x, self.carry.P, self.k)
+        self.k += 1
+        return self.carry, out
+
+
 def run_tea(
     y: Tensor,
     *,
@@ -752,16 +816,12 @@ def run_tea(
         shapes.append(inputs.shape[:-2])
     batch = torch.broadcast_shapes(*shapes)
     nb = len(batch)
-    like = torch.empty((), dtype=dtype, device=device)
-    model = _Model(structure, torch.as_tensor(h, dtype=dtype, device=device), structure.B.to(like), structure.C.to(like))
+    model, weights = _model_and_weights(structure, params, h, dtype, device)
     cfg = params.config
-    weights = (ut_weights(L, cfg.kfo.ut_alpha, cfg.kfo.ut_beta, cfg.kfo.kappa, dtype=dtype, device=device),
-               ut_weights(m, cfg.kfw.ut_alpha, cfg.kfw.ut_beta, cfg.kfw.kappa, dtype=dtype, device=device))
     memory = _make_memory(cfg, N, dtype, device)
     y = y.expand(batch + (N, p))
     if inputs is not None:
         inputs = inputs.expand(batch + (N, structure.n_inputs))
-    ex = lambda t, ev: t.expand(batch + ev).clone()  # noqa: E731
 
     # per-step outputs, preallocated (rows k = 0, every, 2·every, …)
     n_out = (N - 1) // every + 1
@@ -784,17 +844,8 @@ def run_tea(
         for name, t in zip(_OUTPUT_NAMES, tensors):
             out[name].narrow(nb, i0, rows.shape[0]).copy_(t.index_select(nb, rows))
 
-    # k = 0: KFx update from the prior only
-    y_0 = y[..., 0, :]
-    mask0 = ~torch.isnan(y_0)
-    x, P, e, S = _kfx_update(model, params, ex(params.x0, (n,)), ex(params.P0, (n, n)),
-                             torch.where(mask0, y_0, torch.zeros_like(y_0)), mask0)
-    carry = Carry(x, P, ex(params.alpha0, (L,)), ex(params.P0o, (L, L)), ex(params.Q0o, (L, L)),
-                  ex(params.w0, (m,)), ex(params.P0w, (m, m)), ex(params.Q0w, (m, m)),
-                  torch.zeros(batch, dtype=torch.bool, device=device))
-    prior = Carry(ex(params.x0, (n,)), ex(params.P0, (n, n)), *carry[2:])
-    carry = _guard(carry, prior, cfg.divergence_limit)
-    record_block(0, _outputs(carry, StepOutput(e, S)), False)
+    carry, first = _first_step(model, params, y[..., 0, :], batch)
+    record_block(0, _outputs(carry, first), False)
     diverged_at = torch.where(carry.diverged, 0, torch.full(batch, -1, dtype=torch.long, device=device))
     u_at = (lambda k: None) if inputs is None else (lambda k: inputs[..., k, :])  # noqa: E731
 

@@ -242,3 +242,14 @@ def test_live_mode_logs_to_tensorboard_every_second_and_keeps_up(tmp_path):
     assert len(ev) >= 4 and gaps.max() < 1.6  # at least once a second while samples arrive
     for tag in ("param/z", "innovation/y", "innovation_rms/x", "live/lag_samples"):
         assert tag in ea.Tags()["scalars"]
+
+
+def test_scripts_identify_imu_and_record_imu(tmp_path):
+    r = subprocess.run([sys.executable, str(ROOT / "scripts" / "identify_imu.py"), "--seconds", "4", "--out",
+                        str(tmp_path / "id")], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    assert "x: α̂ =" in r.stdout and (tmp_path / "id" / "report.md").exists()
+    assert "GL history `soe" in (tmp_path / "id" / "report.md").read_text()
+    r = subprocess.run([sys.executable, str(ROOT / "scripts" / "record_imu.py"), "--port", "/dev/nonexistent-tty",
+                        "--out", str(tmp_path / "r.csv")], capture_output=True, text=True, timeout=60)
+    assert r.returncode == 2 and "cannot open /dev/nonexistent-tty" in r.stderr and r.stderr.count("\n") == 1

@@ -220,10 +220,10 @@ def cmd_estimate(args) -> int:
 def cmd_identify(args) -> int:
     import numpy as np
 
-    from .config import load_config, write_config
+    from .config import load_config
     from .identify import AXES, identify
-    from .io import STANDARD_GRAVITY, read_recording, write_columns
-    from .report import axis_statistics, log_identification, orders_figure, write_report
+    from .io import STANDARD_GRAVITY, read_recording
+    from .report import save_identification
 
     lsb = args.lsb_per_g
     if args.units is not None:
@@ -261,40 +261,10 @@ def cmd_identify(args) -> int:
     ident = identify(rec, n_samples=n, r_mode=args.r, overrides=overrides, progress=step, compile=args.compile)
     elapsed = time.perf_counter() - t0
     close()
-    summary = ident.summary()
     out_dir = Path(args.out) if args.out else Path(f"identify-{Path(rec.path).stem}")
-    out_dir.mkdir(parents=True, exist_ok=True)
+    summary = save_identification(ident, out_dir, plots=not args.no_plots, r_mode=args.r, seconds=elapsed,
+                                  command="torchtea " + " ".join(sys.argv[1:]) if sys.argv[1:] else "")
     res = ident.result
-    cols = {"t": ident.t}
-    for i, a in enumerate(AXES):
-        cols.update({f"y_{a}": ident.y[i, :, 0], f"x_hat_{a}": res.x[i, :, 0], f"alpha_{a}": res.alpha[i, :, 0],
-                     f"P_alpha_{a}": res.P_alpha[i, :, 0, 0], f"w_{a}": res.w[i, :, 0], f"P_w_{a}": res.P_w[i, :, 0, 0],
-                     f"innovation_{a}": res.innovation[i, :, 0], f"innovation_var_{a}": res.innovation_cov[i, :, 0, 0]})
-    write_columns(out_dir / "trajectories.csv", cols)
-    for i, a in enumerate(AXES):
-        write_config(out_dir / f"config_{a}.toml", ident.configs[i], {"h": ident.h, "axis": a})
-    figures = []
-    if not args.no_plots:
-        from .plots import estimation_figure
-
-        t = ident.t
-        for i, a in enumerate(AXES):
-            figures.append(str(estimation_figure(
-                out_dir / f"axis_{a}.png", t, y=ident.y[i, :, 0].numpy(), x_hat=res.x[i, :, 0].numpy(),
-                alpha_hat=res.alpha[i, :, 0].numpy(), alpha_sd=res.P_alpha[i, :, 0, 0].clamp(min=0).sqrt().numpy(),
-                w_hat=res.w[i, :, 0].numpy(), w_sd=res.P_w[i, :, 0, 0].clamp(min=0).sqrt().numpy(),
-                title=f"{Path(rec.path).name}: {a}-axis noise (cf. paper Figs. {12 + 3 * i}–{14 + 3 * i})",
-                state_label="noise [m/s²]", zoom=(t[-1] - 5.0, t[-1]))))
-    if not args.no_plots:
-        figures.append(str(orders_figure(out_dir / "orders.png", ident, summary)))
-    summary.update({"recording": str(rec.path), "samples": int(ident.y.shape[-2]), "h": ident.h,
-                    "r_mode": args.r, "memory": ident.configs[0].memory.spec(), "out": str(out_dir), "figures": figures,
-                    "seconds": round(elapsed, 3), "statistics": axis_statistics(ident)})
-    if "segment" in rec.metadata:
-        summary["segment"] = rec.metadata["segment"]
-    summary["tensorboard"] = str(log_identification(out_dir / "tb", ident, summary))
-    summary["report"] = str(write_report(out_dir / "report.md", ident, summary, figures,
-                                         command="torchtea " + " ".join(sys.argv[1:]) if sys.argv[1:] else ""))
     warnings = [f"warning: axis {a} diverged; its estimates are frozen at the last good step"
                 for a, s in summary["axes"].items() if s["diverged"]]
     if res.memory_clamped is not None:

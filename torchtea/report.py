@@ -8,7 +8,8 @@ import numpy as np
 
 from .identify import AXES, Identification
 
-__all__ = ["settle_time", "axis_statistics", "write_report", "log_identification"]
+__all__ = ["settle_time", "axis_statistics", "write_report", "log_identification", "orders_figure",
+           "save_identification"]
 
 #: An order estimate has settled once it stays within this distance of its last-third mean.
 SETTLE_BAND = 0.05
@@ -154,3 +155,47 @@ def log_identification(logdir, ident: Identification, summary: dict, *, max_poin
         table += [f"| {a} | {s['alpha']:.4f} | {s['param']:.4f} | {s['R']:.3e} |" for a, s in summary["axes"].items()]
         w.add_text("summary", "\n".join(table), 0)
     return logdir
+
+
+def save_identification(ident: Identification, out_dir, *, plots: bool = True, r_mode: str = "measured",
+                        seconds: float | None = None, command: str = "") -> dict:
+    """Everything ``torchtea identify`` writes, into ``out_dir``: ``trajectories.csv``, ``config_<axis>.toml``,
+    the figures (per axis like the paper's Figs. 12–20, and ``orders.png``), TensorBoard logs in ``tb/``,
+    ``report.md``. Returns the summary (``summary.json`` is the caller's to write, with its warnings)."""
+    from .config import write_config
+    from .io import write_columns
+
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    rec, res, t = ident.recording, ident.result, ident.t
+    summary = ident.summary()
+    cols = {"t": t}
+    for i, a in enumerate(AXES):
+        cols.update({f"y_{a}": ident.y[i, :, 0], f"x_hat_{a}": res.x[i, :, 0], f"alpha_{a}": res.alpha[i, :, 0],
+                     f"P_alpha_{a}": res.P_alpha[i, :, 0, 0], f"w_{a}": res.w[i, :, 0], f"P_w_{a}": res.P_w[i, :, 0, 0],
+                     f"innovation_{a}": res.innovation[i, :, 0], f"innovation_var_{a}": res.innovation_cov[i, :, 0, 0]})
+    write_columns(out_dir / "trajectories.csv", cols)
+    for i, a in enumerate(AXES):
+        write_config(out_dir / f"config_{a}.toml", ident.configs[i], {"h": ident.h, "axis": a})
+    figures = []
+    if plots:
+        from .plots import estimation_figure
+
+        for i, a in enumerate(AXES):
+            figures.append(str(estimation_figure(
+                out_dir / f"axis_{a}.png", t, y=ident.y[i, :, 0].numpy(), x_hat=res.x[i, :, 0].numpy(),
+                alpha_hat=res.alpha[i, :, 0].numpy(), alpha_sd=res.P_alpha[i, :, 0, 0].clamp(min=0).sqrt().numpy(),
+                w_hat=res.w[i, :, 0].numpy(), w_sd=res.P_w[i, :, 0, 0].clamp(min=0).sqrt().numpy(),
+                title=f"{Path(rec.path).name}: {a}-axis noise (cf. paper Figs. {12 + 3 * i}–{14 + 3 * i})",
+                state_label="noise [m/s²]", zoom=(t[-1] - 5.0, t[-1]))))
+        figures.append(str(orders_figure(out_dir / "orders.png", ident, summary)))
+    summary.update({"recording": str(rec.path), "samples": int(ident.y.shape[-2]), "h": ident.h, "r_mode": r_mode,
+                    "memory": ident.configs[0].memory.spec(), "out": str(out_dir), "figures": figures,
+                    "statistics": axis_statistics(ident)})
+    if seconds is not None:
+        summary["seconds"] = round(seconds, 3)
+    if "segment" in rec.metadata:
+        summary["segment"] = rec.metadata["segment"]
+    summary["tensorboard"] = str(log_identification(out_dir / "tb", ident, summary))
+    summary["report"] = str(write_report(out_dir / "report.md", ident, summary, figures, command=command))
+    return summary

@@ -253,3 +253,24 @@ def test_scripts_identify_imu_and_record_imu(tmp_path):
     r = subprocess.run([sys.executable, str(ROOT / "scripts" / "record_imu.py"), "--port", "/dev/nonexistent-tty",
                         "--out", str(tmp_path / "r.csv")], capture_output=True, text=True, timeout=60)
     assert r.returncode == 2 and "cannot open /dev/nonexistent-tty" in r.stderr and r.stderr.count("\n") == 1
+
+
+def test_ctrl_c_finishes_the_file_and_the_sidecar(tmp_path):
+    fake, port = _fake("--seconds", "30")
+    try:
+        rec = _torchtea("record", "--port", port, "--out", str(tmp_path / "rec.csv"))
+        deadline = time.monotonic() + 30
+        while time.monotonic() < deadline:
+            time.sleep(0.5)
+            p = tmp_path / "rec.csv"
+            if p.exists() and p.read_text().count("\n") > 100:
+                break
+        rec.send_signal(signal.SIGINT)
+        out, err = rec.communicate(timeout=20)
+    finally:
+        _stop(fake)
+    assert rec.returncode == 0, err
+    side = json.loads((tmp_path / "rec.json").read_text())
+    assert side["status"] == "stopped (Ctrl-C)" and "finished_utc" in side
+    r = read_recording(tmp_path / "rec.csv")
+    assert len(r.accel_counts) == side["rows"] == side["good_samples"] and side["bad_lines"] == 0

@@ -43,11 +43,10 @@ def main(argv=None) -> int:
         rate = args.rate or file_rate
     else:
         p.error(f"unknown source {args.source!r}")
-    meta = {"sensor": "MPU-6050" if args.source.startswith("replay") else "MPU-9250", "rate_hz": f"{rate:g}",
-            "accel_lsb_per_g": f"{lsb:g}", "gyro_lsb_per_dps": "131",
-            "temp_lsb_per_c": "340" if args.source.startswith("replay") else "333.87",
-            "temp_offset_c": "36.53" if args.source.startswith("replay") else "21", "dlpf_hz": "44",
-            "firmware": "fake_imu.py"}
+    replay = args.source.startswith("replay")  # the bundled recordings are an MPU-6050's
+    meta = {"sensor": "MPU-6050" if replay else "MPU-9250", "rate_hz": f"{rate:g}", "accel_lsb_per_g": f"{lsb:g}",
+            "gyro_lsb_per_dps": "131", "temp_lsb_per_c": "340" if replay else "333.87",
+            "temp_offset_c": "36.53" if replay else "21", "dlpf_hz": "44", "firmware": "fake_imu.py"}
     dev = FakeIMU(counts, rate_hz=rate, meta=meta, faults=faults, counter0=args.counter0, t0_us=args.t0_us,
                   seed=args.seed)
     state = {}

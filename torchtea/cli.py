@@ -301,7 +301,7 @@ def cmd_record(args) -> int:
 
         torch.set_num_threads(1)  # one step of 3 axes is too small to share; leave a core to the reader
 
-        logdir = Path(args.logdir) if args.logdir else Path(args.out).with_suffix("").with_name(Path(args.out).stem + "-live")
+        logdir = Path(args.logdir) if args.logdir else Path(args.out).with_name(Path(args.out).stem + "-live")
         live = LiveEstimator(logdir, memory=args.memory or "soe", warmup_s=args.warmup)
         print(f"torchtea record: live estimates in {logdir} (tensorboard --logdir {logdir})", file=sys.stderr)
     rec = Recorder(args.port, args.out, baud=args.baud, duration=args.duration, reconnect=args.reconnect,

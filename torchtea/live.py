@@ -21,9 +21,9 @@ import numpy as np
 import torch
 
 from .identify import AXES, axis_configs
-from .io import STANDARD_GRAVITY
 from .memory import parse_memory
 from .model import Structure
+from .recorder import physical_row
 from .tea import TEAStream, make_params, stack_params
 
 __all__ = ["LiveEstimator"]
@@ -54,14 +54,8 @@ class LiveEstimator:
     # -- recorder side
     def put(self, rows, headers) -> None:
         hdr = dict(headers)
-        data = []
-        for r in rows:
-            if r.sample is None:
-                data.append((r.segment, r.counter, math.nan, math.nan, math.nan))
-            else:
-                a = STANDARD_GRAVITY / hdr[r.segment].scale["accel_lsb_per_g"]
-                ax, ay, az = r.sample.values[:3]
-                data.append((r.segment, r.counter, ax * a, ay * a, az * a))
+        data = [(r.segment, r.counter, math.nan, math.nan, math.nan) if r.sample is None
+                else (r.segment, r.counter, *physical_row(r.sample.values, hdr[r.segment].scale)[:3]) for r in rows]
         rate = {s: h.scale["rate_hz"] for s, h in hdr.items()}
         with self._lock:
             self._queued += len(data)
@@ -94,14 +88,13 @@ class LiveEstimator:
                     with self._lock:
                         self._queued -= 1
                         self.max_lag = max(self.max_lag, self._queued)
-                self._maybe_log(force=False)
         except Exception as exc:  # noqa: BLE001 — the recording must go on; say what happened
             self.error = f"{type(exc).__name__}: {exc}"
             import sys
 
             print(f"torchtea record: live estimation stopped ({self.error}); recording continues", file=sys.stderr)
         finally:
-            self._maybe_log(force=True)
+            self._log()
             self._writer.close()
             self.summary = self._summary()
 
@@ -152,15 +145,14 @@ class LiveEstimator:
         self.steps += 1
         self._k_steps += 1
         if time.monotonic() - self._last_log >= self.log_every_s:
-            self._maybe_log(force=True)
+            self._log()
 
-    def _maybe_log(self, force: bool) -> None:
+    def _log(self) -> None:
+        """Write the latest estimates (called from :meth:`_step` once ``log_every_s`` has passed, and at the end)."""
         stream = getattr(self, "_stream", None)
         if stream is None or stream.k == 0:
             return
         now = time.monotonic()
-        if not force and now - self._last_log < self.log_every_s:
-            return
         carry, out = self._last
         k = stream.k - 1
         w = self._writer

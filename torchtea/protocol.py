@@ -20,6 +20,7 @@ may come again at any time (the device reset): it starts a new segment.
 """
 from __future__ import annotations
 
+import math
 from collections import Counter
 from dataclasses import dataclass, field
 
@@ -38,7 +39,6 @@ I16 = (-32768, 32767)
 MAX_LINE = 160
 
 _HEX = frozenset(b"0123456789abcdefABCDEF")
-_INT_CHARS = frozenset(b"-0123456789")
 
 
 def checksum(body: bytes) -> int:
@@ -163,7 +163,7 @@ class Parser:
         ints = []
         for f in fields:
             digits = f[1:] if f[:1] == b"-" else f
-            if not digits or not digits.isdigit() or len(digits) > 11 or not all(b in _INT_CHARS for b in f):
+            if not digits.isdigit() or len(digits) > 11:  # bytes.isdigit: ASCII digits only, False if empty
                 self.bad["not_integer"] += 1
                 return
             ints.append(int(f))
@@ -212,7 +212,7 @@ def _validate(block: dict, columns: str) -> Header | None:
             v = float(block[k])
         except ValueError:
             return None
-        if v != v or v in (float("inf"), float("-inf")):
+        if not math.isfinite(v):
             return None
         scale[k] = v
     if scale["rate_hz"] <= 0 or scale["accel_lsb_per_g"] <= 0 or scale["gyro_lsb_per_dps"] <= 0 \

@@ -120,6 +120,22 @@ def _reader(ser, q: queue.Queue, stop: threading.Event) -> None:
             q.put(_Gone(f"{type(exc).__name__}: {exc}"))
 
 
+def _drain(q: queue.Queue, first=None) -> tuple[list, _Gone | None]:
+    """``first`` (if given) and everything queued now: the byte chunks in order, and the lost-port
+    report if one came (it ends the drain)."""
+    chunks: list = []
+    item = first
+    while True:
+        if isinstance(item, _Gone):
+            return chunks, item
+        if item is not None:
+            chunks.append(item)
+        try:
+            item = q.get_nowait()
+        except queue.Empty:
+            return chunks, None
+
+
 class Recorder:
     """Record a protocol-v1 device to ``out``.
 
@@ -244,21 +260,13 @@ class Recorder:
                     item = q.get(timeout=0.1 if deadline is None else max(0.0, min(0.1, deadline - now)))
                 except queue.Empty:
                     item = None
-                if isinstance(item, _Gone):
-                    gone = item.reason
-                    break
                 if item is not None:
-                    chunks = [item]
-                    while True:  # drain what is there: one write and one fsync per chunk
-                        try:
-                            nxt = q.get_nowait()
-                        except queue.Empty:
-                            break
-                        if isinstance(nxt, _Gone):
-                            q.put(nxt)
-                            break
-                        chunks.append(nxt)
-                    self._consume(b"".join(chunks))
+                    chunks, lost = _drain(q, item)  # one write and one fsync for what is there
+                    if chunks:
+                        self._consume(b"".join(chunks))
+                    if lost is not None:
+                        gone = lost.reason
+                        break
                 if not asked and self.assembler.header is None and time.monotonic() - opened > self.request_header:
                     asked = True
                     try:
@@ -276,13 +284,9 @@ class Recorder:
                 pass
             th.join(timeout=1.0)
             if gone is None:  # bytes read before the thread stopped are still received
-                while True:
-                    try:
-                        item = q.get_nowait()
-                    except queue.Empty:
-                        break
-                    if isinstance(item, bytes):
-                        self._consume(item)
+                chunks, _ = _drain(q)
+                if chunks:
+                    self._consume(b"".join(chunks))
         return gone
 
     def _consume(self, data: bytes) -> None:

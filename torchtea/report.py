@@ -25,20 +25,20 @@ def settle_time(est: np.ndarray, t: np.ndarray, target: float, band: float = SET
     return float(t[first])
 
 
-def axis_statistics(ident: Identification) -> dict:
+def axis_statistics(ident: Identification, axes: dict) -> dict:
     """Per axis: sample variance and standard deviation of the (mean-removed) noise, the KFx
-    innovation and residual variances over the last third, the settling time of α̂ and ŵ."""
+    innovation and residual variances over the last third, the settling time of α̂ and ŵ towards
+    their last-third means in ``axes`` (``ident.summary()["axes"]``)."""
     res, t = ident.result, ident.t
     N = len(t)
     third = slice(N - N // 3, N)
     out = {}
-    summary = ident.summary()["axes"]
     for i, axis in enumerate(AXES):
         y = ident.y[i, :, 0].numpy()
         x = res.x[i, :, 0].numpy()
         e = res.innovation[i, :, 0].numpy()
         obs = ~np.isnan(y)
-        s = summary[axis]
+        s = axes[axis]
         out[axis] = {
             "noise_var": float(np.nanvar(y)),
             "noise_std": float(np.nanstd(y)),
@@ -112,7 +112,7 @@ def write_report(path, ident: Identification, summary: dict, figures: list, *, c
     return path
 
 
-def orders_figure(path, ident: Identification, summary: dict) -> Path:
+def orders_figure(path, ident: Identification) -> Path:
     """α̂ of the three axes on one plot with ±2σ (the filter's) — convergence at a glance."""
     from .plots import _plt, _save
 
@@ -188,10 +188,10 @@ def save_identification(ident: Identification, out_dir, *, plots: bool = True, r
                 w_hat=res.w[i, :, 0].numpy(), w_sd=res.P_w[i, :, 0, 0].clamp(min=0).sqrt().numpy(),
                 title=f"{Path(rec.path).name}: {a}-axis noise (cf. paper Figs. {12 + 3 * i}–{14 + 3 * i})",
                 state_label="noise [m/s²]", zoom=(t[-1] - 5.0, t[-1]))))
-        figures.append(str(orders_figure(out_dir / "orders.png", ident, summary)))
+        figures.append(str(orders_figure(out_dir / "orders.png", ident)))
     summary.update({"recording": str(rec.path), "samples": int(ident.y.shape[-2]), "h": ident.h, "r_mode": r_mode,
                     "memory": ident.configs[0].memory.spec(), "out": str(out_dir), "figures": figures,
-                    "statistics": axis_statistics(ident)})
+                    "statistics": axis_statistics(ident, summary["axes"])})
     if seconds is not None:
         summary["seconds"] = round(seconds, 3)
     if "segment" in rec.metadata:

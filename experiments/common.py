@@ -1,7 +1,6 @@
 """Shared helpers for the experiments: simulate scenario seeds exactly as `torchtea simulate --seed K` does."""
 from __future__ import annotations
 
-import json
 import platform
 import sys
 from pathlib import Path
@@ -32,6 +31,7 @@ def machine() -> dict:
 
 
 def write_json(path: Path, data) -> Path:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(data, indent=2) + "\n")
-    return path
+    """Strict JSON (NaN → null), as every torchtea output."""
+    from torchtea import strictjson
+
+    return strictjson.write(path, data)

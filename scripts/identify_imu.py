@@ -14,7 +14,8 @@ from dataclasses import replace
 
 import torch
 
-from torchtea.identify import Identification, axis_configs
+from torchtea.datacheck import check_timing, find_missing, missing_error
+from torchtea.identify import AXES, Identification, axis_configs
 from torchtea.io import read_recording
 from torchtea.memory import parse_memory
 from torchtea.model import Structure
@@ -25,11 +26,18 @@ ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
 ap.add_argument("recording", nargs="?", help="default: the bundled MPU-6050 recording")
 ap.add_argument("--seconds", type=float, default=30.0, help="how much of the recording to use (default 30 s)")
 ap.add_argument("--out", default="identify-imu")
+ap.add_argument("--allow-missing", action="store_true", help="predict through missing samples instead of stopping")
 args = ap.parse_args()
 
-# 1. The recording: counts → m/s², each axis's mean removed (paper §5.1).
+# 1. The recording: counts → m/s², each axis's mean removed (paper §5.1). Missing samples stop the run
+#    unless allowed; the file's time stamps, if any, are checked against the rate.
 rec = read_recording(args.recording)
 acc = rec.accel_ms2()[: int(args.seconds * rec.rate_hz)]
+missing = find_missing(acc, AXES)
+if missing.count and not args.allow_missing:
+    raise SystemExit(missing_error(rec.path, missing, per="axis"))
+timing = None if rec.time_s is None else check_timing(rec.time_s[: len(acc)], rec.rate_hz, column=rec.time_column,
+                                                      rate_source=rec.rate_source)
 means = torch.as_tensor(acc).nanmean(0)
 y = (torch.as_tensor(acc) - means).T.unsqueeze(-1)  # (3 axes, N, 1): the axes are a batch
 
@@ -42,9 +50,14 @@ params = stack_params([make_params(c, Structure()) for c in configs])
 result = run_tea(y, h=rec.h, params=params)
 
 # 4. Report, figures, trajectories, TensorBoard.
-ident = Identification(rec, rec.h, y, means.numpy(), tuple(configs), result)
+ident = Identification(rec, rec.h, y, means.numpy(), tuple(configs), result, missing, timing)
 summary = save_identification(ident, args.out, command="python scripts/identify_imu.py")
 for axis, s in summary["axes"].items():
-    print(f"{axis}: α̂ = {s['alpha']:.4f} ± {s['alpha_std_last_third']:.4f}, ŵ = {s['param']:.4f} "
-          f"± {s['param_std_last_third']:.4f}, noise variance {summary['statistics'][axis]['noise_var']:.3e} (m/s²)²")
+    print(f"{axis}: α̂ = {s['alpha']:.4f} (sd over the last third {s['alpha_std_last_third']:.4f}), ŵ = {s['param']:.4f} "
+          f"(sd {s['param_std_last_third']:.4f}), NIS {s['innovation_nis_last_third']:.3f}, noise variance "
+          f"{summary['statistics'][axis]['noise_var']:.3e} (m/s²)²")
+print("the sd is how much an estimate still moves over the last third, not its uncertainty; NIS is 1 for a "
+      "consistent filter")
+for w in summary["warnings"]:
+    print(f"warning: {w}")
 print(f"report: {summary['report']}")

@@ -187,6 +187,7 @@ def _tea_loop(y, u, h, params, memory):
     return torch.stack(alphas, 1)[..., 0], torch.stack(xs, 1)[..., 0], torch.stack(Ps, 1)[..., 0, 0]
 
 
+@pytest.mark.slow
 def test_tea_soe_against_exact_example1_within_first_order_bound():
     """TEA with ``soe`` against ``exact`` on paper Example 1, within a bound derived to first order.
 
@@ -258,6 +259,7 @@ def test_tea_soe_against_exact_example1_within_first_order_bound():
     assert max(ratios) > 1e-3, ratios
 
 
+@pytest.mark.slow
 def test_run_tea_memory_kinds_agree_on_example1_and_record_every():
     sc = SCENARIOS["paper-example1"]
     N = 1500

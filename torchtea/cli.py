@@ -2,11 +2,12 @@
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import sys
 import time
 from pathlib import Path
+
+from . import strictjson
 
 __all__ = ["main"]
 
@@ -24,6 +25,9 @@ MEMORY_HELP = ("GL history sums: exact (full history, O(N²) per series), soe[:T
 COMPILE_HELP = ("soe/window memory: run the filter through torch.compile (about 1-2 min to compile on first use, "
                 "cached afterwards; pays off for long recordings, not for large batches)")
 
+
+ALLOW_MISSING_HELP = ("predict through missing samples (empty or NaN values, the recorder's NaN rows) instead of "
+                      "stopping; they are left out of every statistic and counted in the output")
 
 CLAMP_NOTE = ("soe memory: at {n} steps a KFo sigma order left the exponential-sum range; "
               "those steps used the clamped order and differ from --memory exact")
@@ -59,29 +63,47 @@ def _count(text):
     return v
 
 
-def _progress(total, enabled, desc, unit="step"):
-    """A tqdm bar on stderr and a callback ``(done, total)`` that advances it to ``done``; no-ops when disabled."""
-    if not enabled:
-        return (lambda done, total: None), lambda: None
-    from tqdm import tqdm
+#: Off a terminal, progress is a line on stderr at most this often (and none for runs shorter than that).
+PROGRESS_EVERY_S = 10.0
 
-    bar = tqdm(total=total, desc=desc, unit=unit, file=sys.stderr, leave=False, mininterval=0.5)
 
-    def step(done, _total):
-        bar.update(done - bar.n)
+def _progress(total, desc, unit="step", *, bar=True):
+    """Progress on stderr and a callback ``(done, total)``: a tqdm bar on a terminal (when ``bar``), else a
+    line every :data:`PROGRESS_EVERY_S` seconds (``torchtea TEA: 12000/44930 steps (27 %), 31 s elapsed, about
+    85 s left``), so that logs of headless runs show that a long run is alive. Returns ``(step, close)``."""
+    if bar and sys.stderr.isatty():
+        from tqdm import tqdm
 
-    return step, bar.close
+        tq = tqdm(total=total, desc=desc, unit=unit, file=sys.stderr, leave=False, mininterval=0.5)
+
+        def step(done, _total):
+            tq.update(done - tq.n)
+
+        return step, tq.close
+    t0 = time.monotonic()
+    last = [t0]
+
+    def line(done, _total):
+        now = time.monotonic()
+        if now - last[0] < PROGRESS_EVERY_S or done <= 0:
+            return
+        last[0] = now
+        left = (now - t0) * (total - done) / done
+        print(f"torchtea {desc}: {done}/{total} {unit}s ({100 * done / total:.0f} %), {now - t0:.0f} s elapsed, "
+              f"about {left:.0f} s left", file=sys.stderr, flush=True)
+
+    return line, lambda: None
 
 
 def _report(out_dir: Path, summary: dict, warnings, as_json: bool) -> bool:
-    """Write ``summary.json``, print the warnings on stderr and, with ``--json``, the summary on stdout.
-
-    Returns True when the JSON was printed (the caller then prints no table)."""
-    (out_dir / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    """Write ``summary.json`` (strict JSON: null for a missing number), print the warnings on stderr and,
+    with ``--json``, the summary on stdout. Returns True when the JSON was printed (the caller then prints
+    no table)."""
+    strictjson.write(out_dir / "summary.json", summary)
     for w in warnings:
         print(f"torchtea: {w}", file=sys.stderr)
     if as_json:
-        print(json.dumps(summary))
+        print(strictjson.dumps(summary))
     return as_json
 
 
@@ -147,18 +169,36 @@ def _tea_config(args):
         raise CLIError(str(exc)) from None
 
 
+def _check_missing(source, values, names, allow: bool):
+    """The missing-sample policy (:mod:`torchtea.datacheck`): an error without ``--allow-missing``."""
+    from .datacheck import find_missing, missing_error
+
+    missing = find_missing(values, names)
+    if missing.count and not allow:
+        raise CLIError(missing_error(source, missing))
+    return missing
+
+
+def _interrupted_note(res, total, where) -> str:
+    return (f"interrupted after {int(res.steps[-1]) + 1} of {total} steps; the partial results are in {where} "
+            "(marked interrupted)")
+
+
 def cmd_estimate(args) -> int:
     import numpy as np
     import torch
 
     from .config import write_config
+    from .datacheck import check_timing, stamp_rate
+    from .identify import summarise
     from .io import read_series, write_columns
     from .model import Structure
     from .tea import make_params, run_tea
 
     cfg, source = _tea_config(args)
     cfg = _with_memory(cfg, args.memory)
-    cols = read_series(args.file, ["y"], ["u"], allow_missing=args.allow_missing)
+    cols = read_series(args.file, ["y"], ["u", "t"], allow_missing=True)
+    missing = _check_missing(args.file, cols["y"], ["y"], args.allow_missing)
     y = torch.as_tensor(cols["y"]).unsqueeze(-1)
     u = torch.as_tensor(cols["u"]).unsqueeze(-1) if "u" in cols else None
     if u is not None and torch.isnan(u).any():
@@ -166,61 +206,119 @@ def cmd_estimate(args) -> int:
     N = y.shape[0]
     if N < 2:
         raise CLIError(f"{args.file}: need at least 2 samples, found {N}")
-    step, close = _progress(N - 1, sys.stderr.isatty() and not args.json, "TEA")
+    h, h_source = args.h, "--h"
+    if h is None:
+        rate = stamp_rate(cols["t"]) if "t" in cols else math.nan
+        if not math.isfinite(rate):
+            raise CLIError(f"{args.file}: give the sample time with --h (the file has no increasing time column 't')")
+        h, h_source = 1.0 / rate, "the mean interval of column 't'"
+    timing = check_timing(cols["t"], 1.0 / h, column="t", rate_source=h_source) if "t" in cols else None
+    step, close = _progress(N - 1, "TEA", bar=not args.json)
     t0 = time.perf_counter()
-    res = run_tea(y, h=args.h, params=make_params(cfg, Structure()), inputs=u, progress=step, compile=args.compile)
+    res = run_tea(y.unsqueeze(0), h=h, params=make_params(cfg, Structure()), inputs=None if u is None else u.unsqueeze(0),
+                  progress=step, compile=args.compile, partial=True)
     elapsed = time.perf_counter() - t0
     close()
+    done = int(res.alpha.shape[-2])
     out = Path(args.out) if args.out else Path(args.file).with_suffix(".tea.csv")
-    t = np.arange(N) * args.h
-    cols_out = {"t": t, "y": cols["y"]}
+    t = np.arange(done) * h
+    cols_out = {"t": t, "y": cols["y"][:done]}
     if u is not None:
-        cols_out["u"] = cols["u"]
+        cols_out["u"] = cols["u"][:done]
     cols_out.update({
-        "x_hat": res.x[:, 0], "P": res.P[:, 0, 0], "alpha_hat": res.alpha[:, 0], "P_alpha": res.P_alpha[:, 0, 0],
-        "w_hat": res.w[:, 0], "P_w": res.P_w[:, 0, 0], "innovation": res.innovation[:, 0],
-        "innovation_var": res.innovation_cov[:, 0, 0],
+        "x_hat": res.x[0, :, 0], "P": res.P[0, :, 0, 0], "alpha_hat": res.alpha[0, :, 0], "P_alpha": res.P_alpha[0, :, 0, 0],
+        "w_hat": res.w[0, :, 0], "P_w": res.P_w[0, :, 0, 0], "innovation": res.innovation[0, :, 0],
+        "innovation_var": res.innovation_cov[0, :, 0, 0],
     })
     write_columns(out, cols_out)
-    write_config(out.with_suffix(".toml"), cfg, {"h": args.h, "source": source})
-    third = slice(N - N // 3, N)
+    write_config(out.with_suffix(".toml"), cfg, {"h": h, "source": source})
+    stats = summarise(res, (cfg,), y=y[:done].unsqueeze(0), h=h, names=("y",), label="column 'y'")
+    s = stats["axes"]["y"]
     summary = {
-        "alpha_final": float(res.alpha[-1, 0]),
-        "alpha_mean_last_third": float(res.alpha[third, 0].mean()),
-        "param_final": float(res.w[-1, 0]),
-        "param_mean_last_third": float(res.w[third, 0].mean()),
-        "diverged": bool(res.diverged),
-        "diverged_at_step": int(res.diverged_at),
+        "alpha_final": s["alpha_final"],
+        "alpha_mean_last_third": s["alpha"],
+        "alpha_std_last_third": s["alpha_std_last_third"],
+        "alpha_filter_sd_final": s["alpha_filter_sd_final"],
+        "param_final": s["param_final"],
+        "param_mean_last_third": s["param"],
+        "param_std_last_third": s["param_std_last_third"],
+        "param_filter_sd_final": s["param_filter_sd_final"],
+        "innovation_nis": s["innovation_nis"],
+        "innovation_nis_last_third": s["innovation_nis_last_third"],
+        "diverged": bool(res.diverged[0]),
+        "diverged_at_step": int(res.diverged_at[0]),
         "samples": N,
-        "h": args.h,
+        "steps_done": done,
+        "interrupted": bool(res.interrupted),
+        "h": h,
+        "h_source": h_source,
+        "missing_samples": missing.count,
+        "missing": missing.to_dict(),
+        "timing": timing.to_dict() if timing is not None else None,
         "settings": source,
         "memory": cfg.memory.spec(),
         "out": str(out),
         "seconds": round(elapsed, 3),
+        "last_third": stats["last_third"],
+        "meaning": {"alpha_mean_last_third": stats["meaning"]["alpha"],
+                    "param_mean_last_third": stats["meaning"]["param"],
+                    **{k: v for k, v in stats["meaning"].items() if k not in ("alpha", "param", "R", "alpha_settle_s")}},
     }
+    warnings = (list(timing.warnings) if timing is not None else []) + stats["warnings"]
     if res.memory_clamped is not None:
-        summary["memory_clamped_steps"] = int(res.memory_clamped)
-        if int(res.memory_clamped):
-            print(f"torchtea: warning: {CLAMP_NOTE.format(n=int(res.memory_clamped))}", file=sys.stderr)
-    if res.diverged:
-        print(f"torchtea: warning: the estimator diverged at step {int(res.diverged_at)}; estimates are frozen "
-              "from there (see docs: adaptive Q, --config)", file=sys.stderr)
+        summary["memory_clamped_steps"] = int(res.memory_clamped[0])
+        if int(res.memory_clamped[0]):
+            warnings.append(CLAMP_NOTE.format(n=int(res.memory_clamped[0])))
+    if res.interrupted:
+        warnings.append(_interrupted_note(res, N, out))
+    summary["warnings"] = warnings
+    for w in warnings:
+        print(f"torchtea: warning: {w}", file=sys.stderr)
     if args.json:
-        print(json.dumps(summary))
+        print(strictjson.dumps(summary))
     else:
-        print(f"order α̂: final {summary['alpha_final']:.4f}, mean of last third {summary['alpha_mean_last_third']:.4f}")
+        print(f"order α̂: final {summary['alpha_final']:.4f}, mean of last third {summary['alpha_mean_last_third']:.4f} "
+              f"(sd over the last third {summary['alpha_std_last_third']:.4f}: movement, not uncertainty)")
         print(f"parameter ŵ: final {summary['param_final']:.4f}, mean of last third {summary['param_mean_last_third']:.4f}")
+        print(f"NIS (1 for a consistent filter): last third {_num(summary['innovation_nis_last_third'], '.3f')}, "
+              f"whole run {_num(summary['innovation_nis'], '.3f')}; missing samples: {missing.describe()}")
         print(f"trajectories: {out}")
-    return 0
+    return 130 if res.interrupted else 0
+
+
+def _num(v, spec: str) -> str:
+    return "n/a" if v is None or not math.isfinite(v) else format(v, spec)
 
 
 # --------------------------------------------------------------------------- identify
 
 
-def cmd_identify(args) -> int:
-    import numpy as np
+def _identify_overrides(args):
+    """The settings table of ``--config`` (partial, merged onto each axis's MEMS preset) and ``--memory``;
+    returns ``(overrides or None, where they came from or None, the memory kind they give)``."""
+    from .config import read_toml
+    from .identify import axis_configs
 
-    from .config import load_config
+    overrides, where = {}, []
+    if args.config:
+        overrides = read_toml(args.config)
+        where.append(f"--config {args.config}")
+    mem = _memory(args.memory)
+    if mem is not None:
+        overrides = dict(overrides, memory=mem.to_dict())
+        where.append(f"--memory {args.memory}")
+    if not overrides:
+        return None, None, "exact"
+    import torch
+
+    try:  # check the file once, before any work, so its errors name it
+        cfg = axis_configs(torch.zeros(3, 2, 1, dtype=torch.float64), args.r, overrides)[0]
+    except (TypeError, ValueError) as exc:
+        raise CLIError(f"{args.config or '--memory'}: {exc}") from None
+    return overrides, " and ".join(where), cfg.memory.kind
+
+
+def cmd_identify(args) -> int:
     from .identify import AXES, identify
     from .io import STANDARD_GRAVITY, read_recording
     from .report import save_identification
@@ -233,56 +331,60 @@ def cmd_identify(args) -> int:
     columns = tuple(c.strip() for c in args.columns.split(",")) if args.columns else ("ax", "ay", "az")
     if len(columns) != 3 or not all(columns):
         raise CLIError(f"--columns needs three names (x,y,z), got {args.columns!r}")
-    rec = read_recording(args.recording, lsb_per_g=lsb, rate_hz=args.rate, columns=columns, segment=args.segment)
+    n = None if args.samples == "all" else _whole(args.samples, "--samples")
+    time_column = None if args.time_column == "none" else args.time_column
+    rec = read_recording(args.recording, lsb_per_g=lsb, rate_hz=args.rate, columns=columns, segment=args.segment,
+                         time_column=time_column)
     if rec.metadata.get("segments") and len(rec.metadata["segments"]) > 1 and args.segment is None:
         print(f"torchtea: note: {Path(rec.path).name} has {len(rec.metadata['segments'])} segments (device resets); "
               f"using the longest, segment {rec.metadata['segment']} (choose with --segment)", file=sys.stderr)
-    n = None if args.samples == "all" else int(args.samples)
-    if n is not None and n < 2:
-        raise CLIError("--samples must be at least 2 or 'all'")
-    overrides = None
-    file_cfg = load_config(args.config) if args.config else None
-    if file_cfg is not None:
-        overrides = file_cfg.to_dict()
-        for f in ("kfx", "kfo", "kfw"):  # per-axis R stays the axis's own unless the file says otherwise
-            overrides[f].pop("R", None)
-    mem = _memory(args.memory)
-    if mem is not None:
-        overrides = dict(overrides or {}, memory=mem.to_dict())
+    overrides, config_source, memory_kind = _identify_overrides(args)
     total = min(n or len(rec.accel_counts), len(rec.accel_counts))
-    chosen = mem or (file_cfg.memory if file_cfg is not None else None)
-    exact = chosen is None or chosen.kind == "exact"
-    if total > LONG_RECORDING and exact:
+    if total > LONG_RECORDING and memory_kind == "exact":
         print(f"torchtea: note: {total} samples with the exact full-history GL sums cost O(N²) "
               "(the whole bundled recording takes about 2.5 minutes on 2 cores); --memory soe costs O(N)",
               file=sys.stderr)
-    step, close = _progress(total - 1, sys.stderr.isatty() and not args.json, "TEA x,y,z")
+    step, close = _progress(total - 1, "TEA x,y,z", bar=not args.json)
     t0 = time.perf_counter()
-    ident = identify(rec, n_samples=n, r_mode=args.r, overrides=overrides, progress=step, compile=args.compile)
+    ident = identify(rec, n_samples=n, r_mode=args.r, overrides=overrides, progress=step, compile=args.compile,
+                     allow_missing=args.allow_missing, partial=True)
     elapsed = time.perf_counter() - t0
     close()
     out_dir = Path(args.out) if args.out else Path(f"identify-{Path(rec.path).stem}")
     summary = save_identification(ident, out_dir, plots=not args.no_plots, r_mode=args.r, seconds=elapsed,
-                                  command="torchtea " + " ".join(sys.argv[1:]) if sys.argv[1:] else "")
+                                  command="torchtea " + " ".join(sys.argv[1:]) if sys.argv[1:] else "",
+                                  config_source=config_source)
     res = ident.result
-    warnings = [f"warning: axis {a} diverged; its estimates are frozen at the last good step"
-                for a, s in summary["axes"].items() if s["diverged"]]
+    warnings = [f"warning: {w}" for w in summary["warnings"]]
     if res.memory_clamped is not None:
         for i, a in enumerate(AXES):
             summary["axes"][a]["memory_clamped_steps"] = int(res.memory_clamped[i])
             if int(res.memory_clamped[i]):
                 warnings.append(f"warning: axis {a}: " + CLAMP_NOTE.format(n=int(res.memory_clamped[i])))
+    if res.interrupted:
+        warnings.append("warning: " + _interrupted_note(res, summary["samples"], f"{out_dir}/"))
     if not _report(out_dir, summary, warnings, args.json):
-        print(f"{Path(rec.path).name}: {summary['samples']} samples at {1 / ident.h:g} Hz, "
-              f"mean removed per axis, TEA with the paper's §5.1 settings (R = {args.r} variance)")
-        print(f"{'axis':>4} {'R [(m/s²)²]':>12} {'α̂ last⅓':>9} {'±sd':>7} {'α̂ final':>9} "
-              f"{'ŵ last⅓':>9} {'±sd':>7} {'ŵ final':>9}")
+        used = "the paper's §5.1 MEMS settings" + (f" changed by {config_source}" if ident.changes else "")
+        print(f"{Path(rec.path).name}: {summary['samples']} samples at {rec.rate_hz:g} Hz (rate from {rec.rate_source}), "
+              f"mean removed per axis, TEA with {used}, R = {'measured variance' if args.r == 'measured' else 'paper values'}")
+        print(f"missing samples: {ident.missing.describe()}")
+        print(f"{'axis':>4} {'R [(m/s²)²]':>12} {'α̂ last⅓':>9} {'sd last⅓':>9} {'α̂ final':>9} "
+              f"{'ŵ last⅓':>9} {'sd last⅓':>9} {'ŵ final':>9} {'NIS last⅓':>9}")
         for a, s in summary["axes"].items():
-            print(f"{a:>4} {s['R']:12.3e} {s['alpha']:9.4f} {s['alpha_std_last_third']:7.4f} {s['alpha_final']:9.4f} "
-                  f"{s['param']:9.4f} {s['param_std_last_third']:7.4f} {s['param_final']:9.4f}"
-                  + ("  DIVERGED" if s["diverged"] else ""))
-        print(f"outputs in {out_dir}/ ({elapsed:.1f} s)")
-    return 0
+            print(f"{a:>4} {s['R']:12.3e} {s['alpha']:9.4f} {s['alpha_std_last_third']:9.4f} {s['alpha_final']:9.4f} "
+                  f"{s['param']:9.4f} {s['param_std_last_third']:9.4f} {s['param_final']:9.4f} "
+                  f"{_num(s['innovation_nis_last_third'], '9.3f')}" + ("  DIVERGED" if s["diverged"] else ""))
+        print("last⅓: over samples {first_sample}–{last_sample}; sd: how much the estimate moves there, not an "
+              "uncertainty; NIS: 1 for a consistent filter".format(**summary["last_third"]))
+        print(f"outputs in {out_dir}/ (report.md; {elapsed:.1f} s)")
+    return 130 if res.interrupted else 0
+
+
+def _whole(text, flag) -> int:
+    try:
+        return int(text)
+    except ValueError:
+        raise CLIError(f"{flag} must be a whole number or 'all', got {text!r}") from None
 
 
 # --------------------------------------------------------------------------- record
@@ -304,11 +406,13 @@ def cmd_record(args) -> int:
         logdir = Path(args.logdir) if args.logdir else Path(args.out).with_name(Path(args.out).stem + "-live")
         live = LiveEstimator(logdir, memory=args.memory or "soe", warmup_s=args.warmup)
         print(f"torchtea record: live estimates in {logdir} (tensorboard --logdir {logdir})", file=sys.stderr)
+    if args.samples is not None and args.samples < 1:
+        raise CLIError("--samples must be at least 1")
     rec = Recorder(args.port, args.out, baud=args.baud, duration=args.duration, reconnect=args.reconnect,
-                   request_header=None if args.port.startswith("loop://") else 1.0, live=live)
+                   request_header=None if args.port.startswith("loop://") else 1.0, live=live, samples=args.samples)
     code = rec.run()
     if live is not None and live.summary is not None:
-        print(json.dumps(live.summary) if args.json else live.describe())
+        print(strictjson.dumps(live.summary) if args.json else live.describe())
     return code
 
 
@@ -393,7 +497,7 @@ def cmd_montecarlo(args) -> int:
                   "estimator": {"preset": preset, **study.estimator.to_dict()}}
     (logdir / "study.toml").write_text(dumps_toml(study_dict))
     write_config(logdir / "estimator.toml", study.estimator, {"preset": preset})
-    step, close = _progress(study.realisations, sys.stderr.isatty() and not args.json, "realisations", "run")
+    step, close = _progress(study.realisations, "montecarlo", "realisation", bar=not args.json)
 
     def progress(done, total):
         step(done, total)
@@ -421,12 +525,24 @@ def cmd_montecarlo(args) -> int:
         warnings.append(f"interrupted: kept {result.finished} of {study.realisations} realisations in {logdir}")
     if summary["diverged"]:
         warnings.append(f"warning: {summary['diverged']} realisation(s) diverged; excluded from the statistics")
+    for name, what in (("nees", "NEES (state error against KFx's P)"), ("nis", "NIS (innovations against KFx's S)")):
+        c = summary.get(name)
+        if c is not None and not c["band_95"][0] <= c["mean"] <= c["band_95"][1]:
+            warnings.append(f"warning: mean {what} is {c['mean']:.3g}, outside its 95 % band "
+                            f"[{c['band_95'][0]:.3g}, {c['band_95'][1]:.3g}] for {summary['realisations'] - summary['diverged']} "
+                            "realisations: the filter is not consistent (1 when its covariance matches its errors)")
     if not _report(logdir, summary, warnings, args.json):
         print(f"{result.finished} realisations, {summary['diverged']} diverged, {elapsed:.1f} s")
         for name in ("order", "param"):
             s = summary[name]
             print(f"{name:>6}: bias {s['bias']:+.4g}  std {s['std']:.4g}  RMSE {s['rmse']:.4g}  "
-                  f"2σ coverage {s['coverage_2sigma']:.3f}")
+                  f"±2σ coverage {_num(s['coverage_2sigma'], '.3f')} (fraction of realisation-steps)")
+        for name in ("nees", "nis"):
+            c = summary.get(name)
+            if c is not None:
+                print(f"{name.upper():>6}: mean {c['mean']:.4g} over steps and realisations (95 % band "
+                      f"[{c['band_95'][0]:.3g}, {c['band_95'][1]:.3g}]; {c['fraction_of_steps_inside_band'] * 100:.0f} % "
+                      "of steps inside)")
         print(f"run directory: {logdir}   (tensorboard --logdir {logdir.parent})")
     return 130 if result.interrupted else 0
 
@@ -473,11 +589,12 @@ def build_parser() -> argparse.ArgumentParser:
 
     e = sub.add_parser("estimate", help="run the TEA on a CSV with column y (and u)")
     e.add_argument("file")
-    e.add_argument("--h", type=_positive_float, required=True, help="sample time [s]")
+    e.add_argument("--h", type=_positive_float,
+                   help="sample time [s] (default: the mean interval of a time column 't', e.g. simulate's output)")
     e.add_argument("--preset", help="named settings (see `torchtea presets`); default paper-example1")
     e.add_argument("--config", help="TOML settings file")
     e.add_argument("--out", help="trajectory CSV (default: FILE.tea.csv next to the input)")
-    e.add_argument("--allow-missing", action="store_true", help="treat empty/NaN y as missing samples")
+    e.add_argument("--allow-missing", action="store_true", help=ALLOW_MISSING_HELP)
     e.add_argument("--memory", help=MEMORY_HELP)
     e.add_argument("--compile", action="store_true", help=COMPILE_HELP)
     e.add_argument("--json", action="store_true", help="print a JSON summary")
@@ -485,7 +602,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     i = sub.add_parser("identify", help="identify the noise model of an accelerometer recording")
     i.add_argument("recording", nargs="?", help="recording CSV (default: the bundled MPU-6050 recording)")
-    i.add_argument("--samples", default="3000", help="use the first N samples (default 3000 = the paper's 30 s), or 'all'")
+    i.add_argument("--samples", default="3000",
+                   help="use the first N samples (default 3000 = the paper's 30 s; at least 100), or 'all'")
     i.add_argument("--r", choices=("measured", "paper"), default="measured",
                    help="R, Rᵒ, Rʷ per axis: the axis's measured variance (default) or the paper's printed values")
     i.add_argument("--config", help="TOML settings applied on top of the paper's MEMS settings")
@@ -494,6 +612,11 @@ def build_parser() -> argparse.ArgumentParser:
     i.add_argument("--columns", help="generic CSV: the three accelerometer columns (default ax,ay,az)")
     i.add_argument("--units", choices=("g", "ms2"), help="generic CSV already in g or m/s² (else counts: --lsb-per-g)")
     i.add_argument("--segment", type=int, help="torchtea recording: which segment (default: the longest)")
+    i.add_argument("--time-column", default="auto",
+                   help="column of time stamps in seconds, checked against the rate (default: the first of "
+                        "t, t_s, time, time_s, sec, seconds, timestamp; 'none' ignores them). A generic CSV "
+                        "without --rate takes the stamps' mean rate")
+    i.add_argument("--allow-missing", action="store_true", help=ALLOW_MISSING_HELP)
     i.add_argument("--out", help="output directory (default identify-<recording name>)")
     i.add_argument("--no-plots", action="store_true")
     i.add_argument("--memory", help=MEMORY_HELP)
@@ -505,6 +628,7 @@ def build_parser() -> argparse.ArgumentParser:
     rc.add_argument("--port", required=True, help="serial device (/dev/ttyACM0, COM3) or pyserial URL")
     rc.add_argument("--baud", type=int, default=115200, help="baud rate (default 115200, as the firmware)")
     rc.add_argument("--duration", type=float, help="stop after S seconds (default: Ctrl-C or the port going away)")
+    rc.add_argument("--samples", type=int, help="stop once this many samples (rows, missing ones included) are recorded")
     rc.add_argument("--reconnect", action="store_true", help="when the port goes away, wait for it to come back")
     rc.add_argument("--out", required=True, help="recording CSV; the sidecar REC.json is written beside it")
     rc.add_argument("--live", action="store_true", help="run the TEA on the three axes while recording (TensorBoard)")

@@ -3,27 +3,58 @@
 Steps (paper §5.1): counts → m/s²; each axis's mean removed; the TEA with the
 paper's MEMS settings on the three axes as one batch (no known input);
 per-axis order α̂ and parameter ŵ, final and averaged over the last third.
+
+Every number of the summary says what it is and over which span (``summary["meaning"]``), and
+:func:`trust_warnings` says where a result should not be trusted: a filter whose innovations are far
+from the variance it predicts, an order stuck at its bound, an estimate that never left its start value,
+an estimate still drifting at the end.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, replace
 
 import numpy as np
 import torch
 
-from .io import Recording
+from .datacheck import Missing, Timing, check_timing, find_missing, missing_error
+from .io import InputError, Recording
 from .model import Structure
 from .presets import get_preset
+from .stats import last_third, mean_nis
 from .tea import TEAConfig, TEAResult, make_params, run_tea, stack_params
 
-__all__ = ["AXES", "Identification", "axis_configs", "identify", "summarise"]
+__all__ = ["AXES", "MIN_SAMPLES", "NIS_TRUST_BAND", "SETTLE_BAND", "DRIFT_BAND", "Identification", "axis_configs", "identify",
+           "summarise", "settle_time", "trust_warnings", "config_changes"]
 
 AXES = ("x", "y", "z")
+
+#: Fewest samples ``identify`` accepts: the last third, over which the estimates are summarised, then has
+#: at least 33 samples.
+MIN_SAMPLES = 100
+
+#: A mean NIS over the last third outside this band means the filter's predicted innovation variance is
+#: off by more than a factor of 2 from what the data show (1 for a consistent filter).
+NIS_TRUST_BAND = (0.5, 2.0)
+
+#: An order estimate has settled once it stays within this distance of its last-third mean.
+SETTLE_BAND = 0.05
+
+#: An estimate is still drifting when the means of the two halves of the last third differ by more than this
+#: (times ``max(1, |ŵ|)`` for the parameter).
+DRIFT_BAND = 0.025
 
 
 @dataclass(frozen=True)
 class Identification:
-    """Result of :func:`identify`. ``y`` is ``(3, N, 1)`` (mean-removed, m/s²); ``result`` has batch ``(3,)``."""
+    """Result of :func:`identify`.
+
+    ``y`` is ``(3, N, 1)`` (mean-removed, m/s², NaN where missing); ``result`` has batch ``(3,)`` and, when
+    the run was stopped early (``result.interrupted``), fewer than ``N`` steps. ``missing`` counts the
+    missing samples of the part used; ``timing`` is the check of the file's time stamps (None without
+    them); ``changes`` lists the settings that differ from the paper's §5.1 MEMS settings (and where the
+    difference came from).
+    """
 
     recording: Recording
     h: float
@@ -31,28 +62,58 @@ class Identification:
     means: np.ndarray
     configs: tuple
     result: TEAResult
+    missing: Missing | None = None
+    timing: Timing | None = None
+    changes: tuple = ()
+
+    @property
+    def steps(self) -> int:
+        """Steps the TEA finished (``N`` unless interrupted)."""
+        return int(self.result.alpha.shape[-2])
 
     @property
     def t(self) -> np.ndarray:
-        return np.arange(self.y.shape[-2]) * self.h
+        return np.arange(self.steps) * self.h
 
     def summary(self) -> dict:
-        return summarise(self.result, self.configs, self.means)
+        return summarise(self.result, self.configs, self.means, y=self.y, h=self.h)
+
+
+def _flat(d: dict, prefix: str = "") -> dict:
+    out = {}
+    for k, v in d.items():
+        if isinstance(v, dict):
+            out.update(_flat(v, f"{prefix}{k}."))
+        else:
+            out[f"{prefix}{k}"] = v
+    return out
+
+
+def config_changes(base: TEAConfig, used: TEAConfig) -> list[str]:
+    """``key: base → used`` for every setting that differs (dotted keys as in TOML)."""
+    a, b = _flat(base.to_dict()), _flat(used.to_dict())
+    return [f"{k}: {a.get(k)!r} → {b.get(k)!r}" for k in sorted(set(a) | set(b)) if a.get(k) != b.get(k)]
 
 
 def axis_configs(y: torch.Tensor, r_mode: str = "measured", overrides: dict | None = None) -> tuple:
-    """The paper's §5.1 settings per axis.
+    """The paper's §5.1 settings per axis, with ``overrides`` on top.
 
     ``r_mode="paper"`` keeps the printed R, Rᵒ, Rʷ (4, 3.9, 11 ·10⁻⁴ (m/s²)²);
     ``"measured"`` sets all three to each axis's sample variance — the paper's
     rule ("adjusted according to noise measurement corresponding to each axis"),
     which its printed values follow for the MPU-9250.
+
+    ``overrides`` is a settings table as in a TOML config (a partial nested dict): a ``preset`` key
+    replaces the MEMS preset as the base of every axis, and every other key overrides that base — an
+    ``R`` given there wins over the measured one.
     """
     if r_mode not in ("measured", "paper"):
         raise ValueError(f"r_mode must be 'measured' or 'paper', got {r_mode!r}")
+    overrides = dict(overrides or {})
+    preset = overrides.pop("preset", None)
     out = []
     for i, axis in enumerate(AXES):
-        cfg = get_preset(f"paper-mems-{axis}")
+        cfg = get_preset(preset or f"paper-mems-{axis}")
         if r_mode == "measured":
             r = float(np.nanvar(y[i, :, 0].cpu().numpy()))
             cfg = replace(cfg, kfx=replace(cfg.kfx, R=r), kfo=replace(cfg.kfo, R=r), kfw=replace(cfg.kfw, R=r))
@@ -63,7 +124,8 @@ def axis_configs(y: torch.Tensor, r_mode: str = "measured", overrides: dict | No
 
 
 def identify(recording: Recording, *, n_samples: int | None = None, r_mode: str = "measured",
-             overrides: dict | None = None, progress=None, compile: bool = False) -> Identification:
+             overrides: dict | None = None, progress=None, compile: bool = False, allow_missing: bool = False,
+             partial: bool = False) -> Identification:
     """Run the TEA on the three accelerometer axes of a recording as one batch.
 
     Parameters
@@ -71,46 +133,171 @@ def identify(recording: Recording, *, n_samples: int | None = None, r_mode: str 
     recording : Recording
     n_samples : int, optional
         Use the first ``n_samples`` samples (the paper used 3000 at 100 Hz); all by default.
+        At least :data:`MIN_SAMPLES`.
     r_mode : {"measured", "paper"}
         See :func:`axis_configs`.
     overrides : dict, optional
         TEA settings applied on top of the presets (as in a TOML config), e.g.
-        ``{"memory": {"kind": "soe"}}`` for long recordings.
+        ``{"memory": {"kind": "soe"}}`` for long recordings; see :func:`axis_configs`.
     compile : bool
         Passed to :func:`torchtea.tea.run_tea`.
+    allow_missing : bool
+        Missing samples (NaN) are an :class:`~torchtea.io.InputError` unless this is set; then the filters
+        predict through them (the policy of :mod:`torchtea.datacheck`).
+    partial : bool
+        On Ctrl-C keep the steps that finished (``result.interrupted``) instead of raising.
     """
     acc = recording.accel_ms2()
     if n_samples is not None:
-        if n_samples < 2:
-            raise ValueError("need at least 2 samples")
         acc = acc[:n_samples]
+    N = acc.shape[0]
+    if N < MIN_SAMPLES:
+        raise InputError(f"{recording.path}: {N} samples; identify needs at least {MIN_SAMPLES} (its estimates are "
+                         "summarised over the last third of the run)")
+    missing = find_missing(acc, AXES)
+    if missing.count and not allow_missing:
+        raise InputError(missing_error(recording.path, missing, per="axis"))
+    empty = [a for a, c in missing.per_column.items() if c >= N - 1]
+    if empty:
+        raise InputError(f"{recording.path}: axis {', '.join(empty)} has no samples in the part used")
+    timing = None
+    if recording.time_s is not None:
+        timing = check_timing(recording.time_s[:N], recording.rate_hz, column=recording.time_column,
+                              rate_source=recording.rate_source)
     means = np.nanmean(acc, axis=0)
     y = torch.as_tensor((acc - means).T.copy(), dtype=torch.float64).unsqueeze(-1)  # (3, N, 1)
     configs = axis_configs(y, r_mode, overrides)
+    base = axis_configs(y, r_mode)
+    changes = tuple(config_changes(base[0], configs[0]))
     params = stack_params([make_params(c, Structure()) for c in configs])
-    result = run_tea(y, h=recording.h, params=params, progress=progress, compile=compile)
-    return Identification(recording, recording.h, y, means, configs, result)
+    result = run_tea(y, h=recording.h, params=params, progress=progress, compile=compile, partial=partial)
+    return Identification(recording, recording.h, y, means, configs, result, missing, timing, changes)
 
 
-def summarise(result: TEAResult, configs, means=None) -> dict:
-    """Per-axis order and parameter: final value and mean/std over the last third."""
+def settle_time(est: np.ndarray, t: np.ndarray, target: float, band: float = SETTLE_BAND) -> float:
+    """First time after which ``|est − target| ≤ band`` holds to the end; NaN unless that covers at
+    least the last third (``target`` is the last-third mean, so less would say nothing)."""
+    outside = np.flatnonzero(np.abs(est - target) > band)
+    first = 0 if outside.size == 0 else outside[-1] + 1
+    if first > len(est) - len(est) // 3:
+        return math.nan
+    return float(t[first])
+
+
+def _meaning(k0: int, N: int, h: float) -> dict:
+    span = f"samples {k0}–{N - 1} ({k0 * h:.2f}–{(N - 1) * h:.2f} s)"
+    return {
+        "alpha": f"mean of the order estimate α̂ over the last third, {span}",
+        "alpha_std_last_third": "standard deviation of α̂ over the last third: how much the estimate still "
+                                "moves, not an uncertainty of the order",
+        "alpha_final": "α̂ at the last sample",
+        "alpha_filter_sd_final": "√Pᵒ at the last sample: KFo's own standard deviation (not a calibrated "
+                                 "interval; see experiments/montecarlo/README.md for its measured coverage)",
+        "param": f"mean of the parameter estimate ŵ over the last third, {span}",
+        "param_std_last_third": "standard deviation of ŵ over the last third (movement, not uncertainty)",
+        "param_final": "ŵ at the last sample",
+        "param_filter_sd_final": "√Pʷ at the last sample: KFw's own standard deviation",
+        "R": "measurement-noise variance R given to KFx (= Rᵒ = Rʷ) [(m/s²)²]",
+        "innovation_nis": "mean normalised innovation squared e²/S of KFx over the whole run (observed samples, "
+                          "k ≥ 1); 1 for a consistent filter",
+        "innovation_nis_last_third": f"the same over the last third, {span}",
+        "alpha_settle_s": f"time from which α̂ stays within ±{SETTLE_BAND} of its last-third mean (null: not "
+                          "within the last third)",
+        "alpha_drift_last_third": "mean of α̂ over the second half of the last third minus that over the first half "
+                                  f"(warned about beyond ±{DRIFT_BAND})",
+        "missing_samples": "samples of this axis that were missing (predicted through, left out of statistics)",
+    }
+
+
+def trust_warnings(axis: str, s: dict, config: TEAConfig) -> list[str]:
+    """Where the summary ``s`` of one series (an entry of :func:`summarise`'s ``axes``) should not be trusted;
+    ``axis`` names it in the messages (e.g. ``"axis x"``)."""
+    out = []
+    lo, hi = NIS_TRUST_BAND
+    nis = s["innovation_nis_last_third"]
+    if math.isfinite(nis) and not lo <= nis <= hi:
+        ratio = nis if nis > 1 else 1 / nis
+        side = "smaller" if nis < 1 else "larger"
+        out.append(f"{axis}: NIS over the last third is {nis:.3g}, outside [{lo:g}, {hi:g}]: the innovations are "
+                   f"{ratio:.3g}× {side} than KFx predicts, so the filter is not consistent with the data — the noise "
+                   "levels (Q, R) do not match this sensor and α̂, ŵ are conditional on them")
+    b_lo, b_hi = config.order_bounds
+    frac = s["alpha_at_bound_fraction"]
+    if frac > 0.1:
+        out.append(f"{axis}: α̂ sits at its bound (order_bounds [{b_lo:g}, {b_hi:g}]) at {frac * 100:.0f} % of the "
+                   "last third: the order is not identified inside the bounds")
+    for name, label, start, sd0 in (("alpha", "α̂", s["alpha_start"], s["alpha_prior_sd"]),
+                                    ("param", "ŵ", s["param_start"], s["param_prior_sd"])):
+        if s[f"{name}_max_move"] < 0.01 * sd0:
+            out.append(f"{axis}: {label} never left its start value {start:g} (it moved at most "
+                       f"{s[f'{name}_max_move']:.2g}, under 1 % of its prior sd {sd0:.3g}): the data did not inform it")
+    for name, label, band in (("alpha", "α̂", DRIFT_BAND), ("param", "ŵ", DRIFT_BAND * max(1.0, abs(s["param"])))):
+        drift = s[f"{name}_drift_last_third"]
+        if abs(drift) > band:
+            out.append(f"{axis}: {label} is still drifting: its mean moved by {drift:+.3g} between the two halves of "
+                       f"the last third (more than {band:.3g}); a longer recording may give another value")
+    return out
+
+
+def summarise(result: TEAResult, configs, means=None, *, y: torch.Tensor | None = None, h: float = 1.0,
+              names=AXES, label: str = "axis {}") -> dict:
+    """Per-series order and parameter (final, and mean/std over the last third), the filter's own sd, NIS
+    (observed samples only), settling, and the trust warnings, for a result of batch ``(B,)``.
+
+    ``y`` ``(B, N, 1)`` marks missing samples (NaN); ``h`` is the sample time; ``names`` the B series' keys
+    and ``label`` how the warnings name them. Returns ``{"axes", "warnings", "meaning", "last_third"}``."""
     axes = {}
+    warnings = []
     N = result.alpha.shape[-2]
-    third = slice(N - N // 3, N)
-    for i, axis in enumerate(AXES[: result.alpha.shape[0]]):
-        a = result.alpha[i, :, 0]
-        w = result.w[i, :, 0]
-        axes[axis] = {
+    third = last_third(N)
+    t = np.arange(N) * h
+    k0 = third.start
+    half = k0 + (N - k0) // 2
+    for i, axis in enumerate(names[: result.alpha.shape[0]]):
+        cfg = configs[i]
+        a = result.alpha[i, :, 0].numpy()
+        w = result.w[i, :, 0].numpy()
+        observed = torch.ones(N, dtype=torch.bool) if y is None else ~torch.isnan(y[i, :N, 0])
+        obs1 = observed.clone()
+        obs1[0] = False  # k = 0 is KFx's update from its prior only
+        nis_all = float(mean_nis(result.innovation[i], result.innovation_cov[i], obs1))
+        obs3 = obs1.clone()
+        obs3[:k0] = False
+        nis_third = float(mean_nis(result.innovation[i], result.innovation_cov[i], obs3))
+        s = {
             "alpha": float(a[third].mean()),
             "param": float(w[third].mean()),
-            "alpha_std_last_third": float(a[third].std()),
-            "param_std_last_third": float(w[third].std()),
+            "alpha_std_last_third": float(a[third].std(ddof=1)),
+            "param_std_last_third": float(w[third].std(ddof=1)),
             "alpha_final": float(a[-1]),
             "param_final": float(w[-1]),
-            "R": float(configs[i].kfx.R),
+            "alpha_filter_sd_final": math.sqrt(max(float(result.P_alpha[i, -1, 0, 0]), 0.0)),
+            "param_filter_sd_final": math.sqrt(max(float(result.P_w[i, -1, 0, 0]), 0.0)),
+            "R": float(cfg.kfx.R),
             "diverged": bool(result.diverged[i]),
-            "innovation_nis": float((result.innovation[i, 1:, 0] ** 2 / result.innovation_cov[i, 1:, 0, 0]).mean()),
+            "innovation_nis": nis_all,
+            "innovation_nis_last_third": nis_third,
+            "missing_samples": int((~observed).sum()),
         }
+        lo, hi = cfg.order_bounds
+        s["alpha_at_bound_fraction"] = float(np.mean((a[third] <= lo + 1e-9) | (a[third] >= hi - 1e-9)))
+        s["alpha_start"], s["param_start"] = float(cfg.kfo.x0), float(cfg.kfw.x0)
+        s["alpha_prior_sd"] = math.sqrt(float(np.max(np.atleast_1d(cfg.kfo.P0))))
+        s["param_prior_sd"] = math.sqrt(float(np.max(np.atleast_1d(cfg.kfw.P0))))
+        s["alpha_max_move"] = float(np.max(np.abs(a - s["alpha_start"])))
+        s["param_max_move"] = float(np.max(np.abs(w - s["param_start"])))
+        s["alpha_settle_s"] = settle_time(a, t, s["alpha"])
+        s["param_settle_band"] = SETTLE_BAND * max(1.0, abs(s["param"]))
+        s["param_settle_s"] = settle_time(w, t, s["param"], band=s["param_settle_band"])
+        s["alpha_drift_last_third"] = float(a[half:].mean() - a[k0:half].mean())
+        s["param_drift_last_third"] = float(w[half:].mean() - w[k0:half].mean())
         if means is not None:
-            axes[axis]["mean_removed_ms2"] = float(means[i])
-    return {"axes": axes}
+            s["mean_removed_ms2"] = float(means[i])
+        if s["diverged"]:
+            warnings.append(f"{label.format(axis)}: the TEA diverged at step {int(result.diverged_at[i])}; its estimates are "
+                            "frozen at the last good step")
+        s["warnings"] = trust_warnings(label.format(axis), s, cfg)
+        warnings += s["warnings"]
+        axes[axis] = s
+    return {"axes": axes, "warnings": warnings, "meaning": _meaning(k0, N, h),
+            "last_third": {"first_sample": k0, "last_sample": N - 1, "t0_s": k0 * h, "t1_s": (N - 1) * h}}

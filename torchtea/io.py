@@ -16,12 +16,15 @@ from typing import Sequence
 import numpy as np
 
 __all__ = ["InputError", "Recording", "bundled_recording", "read_recording", "read_series", "write_columns",
-           "STANDARD_GRAVITY", "BUNDLED"]
+           "STANDARD_GRAVITY", "BUNDLED", "TIME_COLUMNS"]
 
 STANDARD_GRAVITY = 9.80665  # m/s² per g (CGPM 1901)
 
 #: The vendored recordings (MIT, see torchtea/data/LICENSE and PROVENANCE.md).
 BUNDLED = {"main": "example_data_tinit_calc.csv", "second": "imu_static_test.csv"}
+
+#: Column names taken as time stamps in seconds when a reader is asked to find them (``time_column="auto"``).
+TIME_COLUMNS = ("t", "t_s", "time", "time_s", "sec", "seconds", "timestamp")
 
 
 class InputError(ValueError):
@@ -40,6 +43,9 @@ class Recording:
     accel_lsb_per_g : counts per g.
     gyro_counts : ``(N, 3)`` or None.
     metadata : whatever the file's header said.
+    time_s : ``(N,)`` the file's time stamps in seconds (NaN where a sample has none), or None.
+    time_column : the name of the column they came from.
+    rate_source : where ``rate_hz`` came from (``"--rate"``, the file's header, the time stamps' mean).
     """
 
     path: Path
@@ -48,6 +54,9 @@ class Recording:
     accel_lsb_per_g: float
     gyro_counts: np.ndarray | None = None
     metadata: dict = field(default_factory=dict)
+    time_s: np.ndarray | None = None
+    time_column: str | None = None
+    rate_source: str = ""
 
     @property
     def h(self) -> float:
@@ -75,6 +84,15 @@ def _open_lines(path: Path) -> list[str]:
         raise InputError(f"{path}: not a text file") from None
     except OSError as exc:
         raise InputError(f"{path}: cannot read ({exc.strerror})") from None
+
+
+def _delimiter_hint(line: str) -> str:
+    """A hint when a header line looks separated by something other than commas."""
+    for sep, name in ((";", "semicolons"), ("\t", "tabs"), ("|", "'|'")):
+        if line.count(sep) >= 1 and line.count(sep) >= line.count(","):
+            return (f"; the header looks separated by {name}, but torchtea reads comma-separated files "
+                    f"(convert it, e.g. replace each {name[:-1] if name.endswith('s') else name} by a comma)")
+    return ""
 
 
 def _number(text: str, path: Path, line: int, column: str, *, allow_missing: bool) -> float:
@@ -107,7 +125,8 @@ def read_series(path, columns: Sequence[str], optional: Sequence[str] = (), *, a
     header = [h.strip() for h in rows[0]]
     missing = [c for c in columns if c not in header]
     if missing:
-        raise InputError(f"{path}: missing column(s) {', '.join(map(repr, missing))}; the header has {header}")
+        raise InputError(f"{path}: missing column(s) {', '.join(map(repr, missing))}; the header has {header}"
+                         + _delimiter_hint(lines[0]))
     wanted = list(columns) + [c for c in optional if c in header]
     idx = {c: header.index(c) for c in wanted}
     out = {c: [] for c in wanted}
@@ -127,7 +146,8 @@ def read_series(path, columns: Sequence[str], optional: Sequence[str] = (), *, a
 
 
 def read_recording(path=None, *, lsb_per_g: float | None = None, rate_hz: float | None = None,
-                   columns: Sequence[str] = ("ax", "ay", "az"), segment: int | None = None) -> Recording:
+                   columns: Sequence[str] = ("ax", "ay", "az"), segment: int | None = None,
+                   time_column: str | None = "auto") -> Recording:
     """Read an accelerometer recording.
 
     Formats:
@@ -142,11 +162,17 @@ def read_recording(path=None, *, lsb_per_g: float | None = None, rate_hz: float 
     * a generic CSV whose header names the three accelerometer ``columns``
       (``rate_hz`` and ``lsb_per_g`` then required: ``lsb_per_g = 1`` for data in g,
       ``lsb_per_g = 9.80665`` for data already in m/s²).
+
+    Time stamps: ``time_column`` names a column of time stamps in seconds; ``"auto"`` takes the first column
+    named as in :data:`TIME_COLUMNS` (the recorder's ``t_s``, the device clock), ``None`` ignores them. A
+    generic CSV without ``rate_hz`` or an ``Fs`` line takes the stamps' mean rate. The stamps are kept in
+    ``Recording.time_s``; :func:`torchtea.datacheck.check_timing` compares them with the rate. Missing values
+    stay NaN (see :mod:`torchtea.datacheck` for the policy).
     """
     path = bundled_recording() if path is None else Path(path)
     lines = _open_lines(path)
     if lines and lines[0].strip() == RECORDING_MAGIC:
-        return _read_recorder_format(path, lines, segment)
+        return _read_recorder_format(path, lines, segment, rate_hz, time_column)
     if segment is not None:
         raise InputError(f"{path}: not a torchtea recording, it has no segments")
     meta: dict = {}
@@ -156,29 +182,37 @@ def read_recording(path=None, *, lsb_per_g: float | None = None, rate_hz: float 
         if all(c in parts for c in columns):
             start = i
             break
-        if len(parts) == 2:
+        if len(parts) == 2 and _delimiter_hint(line) == "":
             meta[parts[0]] = parts[1]
             continue
-        raise InputError(f"{path}, line {i + 1}: expected a header naming columns {', '.join(columns)}; got {line[:80]!r}")
+        lacking = [c for c in columns if c not in parts]
+        raise InputError(f"{path}, line {i + 1}: the header lacks column(s) {', '.join(map(repr, lacking))} "
+                         f"(it has {', '.join(parts[:12])}{' …' if len(parts) > 12 else ''}); name the three "
+                         "accelerometer columns with --columns X,Y,Z" + _delimiter_hint(line))
     else:
         raise InputError(f"{path}: no header with columns {', '.join(columns)} found")
-    if rate_hz is None:
-        if "Fs" not in meta:
-            raise InputError(f"{path}: no sample rate in the file (an 'Fs,<Hz>' line); give it with --rate")
+    header = [h.strip() for h in lines[start].split(",")]
+    tcol = _time_column(path, header, time_column)
+    rate_source = "--rate" if rate_hz is not None else ""
+    if rate_hz is None and "Fs" in meta:
         try:
             rate_hz = float(meta["Fs"])
         except ValueError:
             raise InputError(f"{path}: sample rate 'Fs,{meta['Fs']}' is not a number") from None
-    if not (rate_hz > 0 and math.isfinite(rate_hz)):
+        rate_source = "the file's Fs line"
+    if rate_hz is not None and not (rate_hz > 0 and math.isfinite(rate_hz)):
         raise InputError(f"{path}: sample rate must be positive, got {rate_hz}")
+    if rate_hz is None and tcol is None:
+        raise InputError(f"{path}: no sample rate in the file (an 'Fs,<Hz>' line or a time column named "
+                         f"{', '.join(TIME_COLUMNS)}); give it with --rate")
     if lsb_per_g is None:
         if "Fs" not in meta:
-            raise InputError(f"{path}: unknown accelerometer scale; give it with --lsb-per-g")
+            raise InputError(f"{path}: unknown accelerometer scale; give it with --lsb-per-g (counts per g), or "
+                             "--units g / --units ms2 for data already in physical units")
         lsb_per_g = 16384.0  # bundled format: MPU-6050 library default ±2 g
-    header = [h.strip() for h in lines[start].split(",")]
     idx = [header.index(c) for c in columns]
     gyro_idx = [header.index(c) for c in ("gx", "gy", "gz")] if all(c in header for c in ("gx", "gy", "gz")) else None
-    acc, gyr = [], []
+    acc, gyr, stamps = [], [], []
     for i in range(start + 1, len(lines)):
         line = lines[i]
         if not line.strip():
@@ -189,18 +223,42 @@ def read_recording(path=None, *, lsb_per_g: float | None = None, rate_hz: float 
         acc.append([_number(parts[j], path, i + 1, header[j], allow_missing=True) for j in idx])
         if gyro_idx:
             gyr.append([_number(parts[j], path, i + 1, header[j], allow_missing=True) for j in gyro_idx])
+        if tcol is not None:
+            stamps.append(_number(parts[header.index(tcol)], path, i + 1, tcol, allow_missing=True))
     if not acc:
         raise InputError(f"{path}: no data rows")
+    t = np.asarray(stamps, dtype=np.float64) if tcol is not None else None
+    if rate_hz is None:
+        from .datacheck import stamp_rate
+
+        rate_hz = stamp_rate(t) if t is not None else math.nan
+        if not math.isfinite(rate_hz):
+            raise InputError(f"{path}: no sample rate in the file: no 'Fs,<Hz>' line, and time column {tcol!r} "
+                             "does not increase over the samples; give it with --rate")
+        rate_source = f"the mean rate of time column {tcol!r}"
     return Recording(path=path, rate_hz=float(rate_hz), accel_counts=np.asarray(acc, dtype=np.float64),
                      accel_lsb_per_g=float(lsb_per_g),
-                     gyro_counts=np.asarray(gyr, dtype=np.float64) if gyro_idx else None, metadata=meta)
+                     gyro_counts=np.asarray(gyr, dtype=np.float64) if gyro_idx else None, metadata=meta,
+                     time_s=t, time_column=tcol, rate_source=rate_source)
+
+
+def _time_column(path: Path, header: list, wanted) -> str | None:
+    """The time column: ``wanted`` by name, the first of :data:`TIME_COLUMNS` in ``header`` for ``"auto"``,
+    none for ``None``."""
+    if wanted is None:
+        return None
+    if wanted == "auto":
+        return next((c for c in header if c.lower() in TIME_COLUMNS), None)
+    if wanted not in header:
+        raise InputError(f"{path}: no time column {wanted!r}; the header has {', '.join(header[:12])}")
+    return wanted
 
 
 RECORDING_MAGIC = "# torchtea-recording 1"
 _RECORDER_COLUMNS = ("segment", "counter", "t_s", "ax", "ay", "az", "gx", "gy", "gz", "temp")
 
 
-def _read_recorder_format(path: Path, lines: list[str], segment: int | None) -> Recording:
+def _read_recorder_format(path: Path, lines: list[str], segment: int | None, rate_hz, time_column) -> Recording:
     headers: dict = {}
     rows: dict = {}
     columns = None
@@ -257,7 +315,13 @@ def _read_recorder_format(path: Path, lines: list[str], segment: int | None) -> 
     gyr = data[:, 5:8] / (math.pi / 180.0) * dps
     meta.update(segment=segment, segments=sizes, first_counter=int(counters[0]),
                 missing_samples=int(np.isnan(data[:, 2]).sum()))
-    return Recording(path=path, rate_hz=rate, accel_counts=acc, accel_lsb_per_g=lsb, gyro_counts=gyr, metadata=meta)
+    tcol = None if time_column is None else "t_s"
+    if time_column not in (None, "auto", "t_s"):
+        raise InputError(f"{path}: a torchtea recording's time column is 't_s' (the device clock), not {time_column!r}")
+    return Recording(path=path, rate_hz=float(rate_hz) if rate_hz is not None else rate, accel_counts=acc,
+                     accel_lsb_per_g=lsb, gyro_counts=gyr, metadata=meta,
+                     time_s=data[:, 1] if tcol else None, time_column=tcol,
+                     rate_source="--rate" if rate_hz is not None else "the device's header (rate_hz)")
 
 
 def write_columns(path, columns: dict) -> Path:

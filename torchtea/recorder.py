@@ -27,6 +27,7 @@ from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
 
+from . import strictjson
 from .io import _RECORDER_COLUMNS as FILE_COLUMNS
 from .io import RECORDING_MAGIC, STANDARD_GRAVITY
 from .protocol import Assembler, Parser, Row
@@ -92,9 +93,7 @@ class RecordingWriter:
     def update(self, **stats) -> None:
         """Rewrite the sidecar atomically with the current statistics."""
         self.info.update(stats, rows=self.rows)
-        tmp = self.sidecar.with_suffix(".json.tmp")
-        tmp.write_text(json.dumps(self.info, indent=2) + "\n")
-        os.replace(tmp, self.sidecar)
+        strictjson.write(self.sidecar, self.info, atomic=True)
 
     def close(self, status: str, **stats) -> None:
         self._sync()
@@ -146,6 +145,9 @@ class Recorder:
     out : path of the recording CSV (its sidecar is ``out`` with suffix ``.json``).
     duration : float, optional
         Stop after this many seconds (wall clock); default: until Ctrl-C or the port goes away.
+    samples : int, optional
+        Stop once this many rows (samples, missing ones included) are recorded; the rows of the last
+        chunk beyond that are not written.
     reconnect : bool
         On a lost port, wait for it to come back instead of finishing.
     request_header : float or None
@@ -160,8 +162,10 @@ class Recorder:
 
     def __init__(self, port: str, out, *, baud: int = 115200, duration: float | None = None, reconnect: bool = False,
                  request_header: float | None = 1.0, live=None, open_port=None, sidecar_every: float = 1.0,
-                 max_gap: int = 60_000, log=None):
+                 max_gap: int = 60_000, log=None, samples: int | None = None):
         self.port, self.baud, self.duration, self.reconnect = port, baud, duration, reconnect
+        self.samples = samples
+        self._beyond = {"good": 0, "missing": 0}
         self.request_header, self.live, self.sidecar_every = request_header, live, sidecar_every
         self.parser, self.assembler = Parser(), Assembler(max_gap=max_gap)
         self.bytes_received = 0
@@ -179,8 +183,9 @@ class Recorder:
 
     def stats(self) -> dict:
         a, p = self.assembler, self.parser
-        return {"good_samples": a.good_samples, "bad_lines": p.bad_lines, "bad_by_reason": dict(sorted(p.bad.items())),
-                "missing_samples": a.missing_samples, "duplicate_samples": a.duplicate,
+        return {"good_samples": a.good_samples - self._beyond["good"], "bad_lines": p.bad_lines,
+                "bad_by_reason": dict(sorted(p.bad.items())),
+                "missing_samples": a.missing_samples - self._beyond["missing"], "duplicate_samples": a.duplicate,
                 "counter_jumps": a.counter_jumps, "samples_before_header": a.before_header,
                 "lines_cut_by_disconnect": self.cut_lines, "segments": a.segment + 1,
                 "headers": [{"segment": s, **h.meta} for s, h in a.headers], "disconnects": self.disconnects,
@@ -264,6 +269,8 @@ class Recorder:
                     chunks, lost = _drain(q, item)  # one write and one fsync for what is there
                     if chunks:
                         self._consume(b"".join(chunks))
+                    if self._enough():
+                        break
                     if lost is not None:
                         gone = lost.reason
                         break
@@ -283,15 +290,23 @@ class Recorder:
             except Exception:  # noqa: BLE001
                 pass
             th.join(timeout=1.0)
-            if gone is None:  # bytes read before the thread stopped are still received
+            if gone is None and not self._enough():  # bytes read before the thread stopped are still received
                 chunks, _ = _drain(q)
                 if chunks:
                     self._consume(b"".join(chunks))
         return gone
 
+    def _enough(self) -> bool:
+        return self.samples is not None and self.writer.rows >= self.samples
+
     def _consume(self, data: bytes) -> None:
         self.bytes_received += len(data)
         rows = self.assembler.add(self.parser.feed(data))
+        if self.samples is not None:
+            keep = max(0, self.samples - self.writer.rows)
+            for r in rows[keep:]:  # past the requested count: not recorded, so not counted either
+                self._beyond["missing" if r.sample is None else "good"] += 1
+            rows = rows[:keep]
         if rows:
             self.writer.write(rows, self.assembler.headers)
             if self.live is not None:

@@ -6,35 +6,23 @@ from pathlib import Path
 
 import numpy as np
 
-from .identify import AXES, Identification
+from .identify import AXES, NIS_TRUST_BAND, SETTLE_BAND, Identification, settle_time
+from .stats import last_third
 
 __all__ = ["settle_time", "axis_statistics", "write_report", "log_identification", "orders_figure",
            "save_identification"]
 
-#: An order estimate has settled once it stays within this distance of its last-third mean.
-SETTLE_BAND = 0.05
-
-
-def settle_time(est: np.ndarray, t: np.ndarray, target: float, band: float = SETTLE_BAND) -> float:
-    """First time after which ``|est − target| ≤ band`` holds to the end; NaN unless that covers at
-    least the last third (``target`` is the last-third mean, so less would say nothing)."""
-    outside = np.flatnonzero(np.abs(est - target) > band)
-    first = 0 if outside.size == 0 else outside[-1] + 1
-    if first > len(est) - len(est) // 3:
-        return math.nan
-    return float(t[first])
-
 
 def axis_statistics(ident: Identification, axes: dict) -> dict:
-    """Per axis: sample variance and standard deviation of the (mean-removed) noise, the KFx
-    innovation and residual variances over the last third, the settling time of α̂ and ŵ towards
-    their last-third means in ``axes`` (``ident.summary()["axes"]``)."""
-    res, t = ident.result, ident.t
-    N = len(t)
-    third = slice(N - N // 3, N)
+    """Per axis: sample variance and standard deviation of the (mean-removed) noise over the part used,
+    the KFx innovation variance (observed samples), its predicted variance and the residual variance over
+    the last third, and the settling times of ``axes`` (``ident.summary()["axes"]``)."""
+    res = ident.result
+    N = ident.steps
+    third = last_third(N)
     out = {}
     for i, axis in enumerate(AXES):
-        y = ident.y[i, :, 0].numpy()
+        y = ident.y[i, :N, 0].numpy()
         x = res.x[i, :, 0].numpy()
         e = res.innovation[i, :, 0].numpy()
         obs = ~np.isnan(y)
@@ -42,11 +30,11 @@ def axis_statistics(ident: Identification, axes: dict) -> dict:
         out[axis] = {
             "noise_var": float(np.nanvar(y)),
             "noise_std": float(np.nanstd(y)),
-            "innovation_var_last_third": float(np.var(e[third][obs[third]])),
-            "predicted_innovation_var_last_third": float(res.innovation_cov[i, third, 0, 0].mean()),
+            "innovation_var_last_third": float(np.mean(e[third][obs[third]] ** 2)),
+            "predicted_innovation_var_last_third": float(res.innovation_cov[i, third, 0, 0].numpy()[obs[third]].mean()),
             "residual_var_last_third": float(np.nanvar((y - x)[third])),
-            "alpha_settle_s": settle_time(res.alpha[i, :, 0].numpy(), t, s["alpha"]),
-            "param_settle_s": settle_time(res.w[i, :, 0].numpy(), t, s["param"], band=SETTLE_BAND * max(1.0, abs(s["param"]))),
+            "alpha_settle_s": s["alpha_settle_s"],
+            "param_settle_s": s["param_settle_s"],
             "missing_samples": int((~obs).sum()),
         }
     return out
@@ -56,16 +44,25 @@ def _fmt(v: float, spec: str = ".4f") -> str:
     return "—" if v is None or (isinstance(v, float) and math.isnan(v)) else format(v, spec)
 
 
-def write_report(path, ident: Identification, summary: dict, figures: list, *, command: str = "") -> Path:
-    """``report.md``: what was measured, the settings, per-axis α̂, ŵ, noise variances, convergence,
-    and the figures (paths relative to the report)."""
+def write_report(path, ident: Identification, summary: dict, figures: list, *, command: str = "",
+                 config_source: str | None = None) -> Path:
+    """``report.md``: what was measured, the settings and what changed in them, the warnings, per-axis α̂,
+    ŵ, noise variances and consistency — each number labelled with what it is and its span — and the
+    figures (paths relative to the report)."""
     path = Path(path)
     rec = ident.recording
     meta = rec.metadata
     n = ident.y.shape[-2]
+    done = ident.steps
     total = len(rec.accel_counts)
     stats = summary["statistics"]
+    span = summary["last_third"]
+    third = (f"last ⅓ = samples {span['first_sample']}–{span['last_sample']} "
+             f"({span['t0_s']:.2f}–{span['t1_s']:.2f} s)")
     lines = [f"# Noise identification: {Path(rec.path).name}", ""]
+    if ident.result.interrupted:
+        lines += [f"**Interrupted (Ctrl-C) after {done} of {n} steps: every number below covers only those steps.**",
+                  ""]
     src = [f"- **Recording**: `{rec.path}`"]
     if "sensor" in meta:
         src.append(f"- **Sensor**: {meta['sensor']}, digital low-pass {meta.get('dlpf_hz', '?')} Hz, "
@@ -73,34 +70,60 @@ def write_report(path, ident: Identification, summary: dict, figures: list, *, c
     if "segment" in meta:
         src.append(f"- **Segment** {meta['segment']} of {len(meta['segments'])} (rows per segment: "
                    + ", ".join(f"{k}: {v}" for k, v in meta["segments"].items()) + ")")
-    src.append(f"- **Samples**: {n} of {total} at {rec.rate_hz:g} Hz ({n / rec.rate_hz:.1f} s)"
-               + ("" if n == total else " — `--samples all` uses the whole recording"))
-    missing = sum(s["missing_samples"] for s in stats.values()) // 3
-    src.append(f"- **Missing samples** in the part used: {missing} (the filters predict through them)")
-    src.append(f"- **Settings**: the paper's §5.1 MEMS settings; R, Rᵒ, Rʷ = "
-               + ("each axis's measured noise variance" if summary.get("r_mode") == "measured" else "the paper's printed values")
-               + f"; GL history `{summary.get('memory', 'exact')}`; each axis's mean removed")
+    src.append(f"- **Samples**: {n} of {total} at {rec.rate_hz:g} Hz (rate from {rec.rate_source or 'the file'}), "
+               f"{(n - 1) / rec.rate_hz:.1f} s" + ("" if n == total else " — `--samples all` uses the whole recording"))
+    tm = ident.timing
+    if tm is not None:
+        src.append(f"- **Time stamps** (column `{tm.column}`): span {tm.span_s:.1f} s, mean rate {tm.stamp_rate_hz:.5g} Hz "
+                   f"({tm.rate_mismatch * 100:+.2f} % from the rate in use); intervals median {tm.interval_median_s * 1e3:.3g} ms, "
+                   f"99th percentile {tm.interval_p99_s * 1e3:.3g} ms; {tm.irregular_fraction * 100:.1f} % outside 0.5–1.5 h"
+                   + (" — see the warnings" if tm.warnings else " — consistent with the rate"))
+    miss = ident.missing
+    src.append("- **Missing samples** in the part used: " + (miss.describe() if miss is not None else "not checked")
+               + ("; the filters predict through them and they are left out of every statistic"
+                  if miss is not None and miss.count else ""))
+    settings = ("- **Settings**: the paper's §5.1 MEMS settings, R = Rᵒ = Rʷ = "
+                + ("each axis's measured noise variance" if summary.get("r_mode") == "measured" else "the paper's printed values")
+                + f"; GL history `{summary.get('memory', 'exact')}`; each axis's mean removed")
+    src.append(settings)
+    if ident.changes:
+        src.append(f"- **Changed from those settings** by {('`' + config_source + '`') if config_source else 'overrides'} "
+                   "(axis x shown; the same keys on every axis): " + "; ".join(f"`{c}`" for c in ident.changes))
     if command:
         src.append(f"- **Command**: `{command}`")
-    lines += src + ["", "## Results", "",
-                    "| axis | α̂ (last ⅓) | ± sd | α̂ final | ŵ (last ⅓) | ± sd | ŵ final | α̂ settled after [s] | diverged |",
-                    "|---|---|---|---|---|---|---|---|---|"]
+    lines += src + [""]
+    warns = summary.get("warnings", [])
+    lines += ["## Warnings", ""]
+    lines += [f"- {w}" for w in warns] if warns else [
+        f"None: every axis has NIS over the last third within [{NIS_TRUST_BAND[0]:g}, {NIS_TRUST_BAND[1]:g}], α̂ off its "
+        "bounds, α̂ and ŵ moved from their start values and no longer drift."]
+    lines += ["", "## Results", "", f"Spans: {third}; final = the last sample.", "",
+              "| axis | α̂ mean, last ⅓ | sd of α̂, last ⅓ ¹ | α̂ final | KFo σ(α̂), final ² | ŵ mean, last ⅓ | "
+              "sd of ŵ, last ⅓ ¹ | ŵ final | KFw σ(ŵ), final ² | α̂ settled after [s] ³ | diverged |",
+              "|---|---|---|---|---|---|---|---|---|---|---|"]
     for a, s in summary["axes"].items():
         st = stats[a]
         lines.append(f"| {a} | {_fmt(s['alpha'])} | {_fmt(s['alpha_std_last_third'])} | {_fmt(s['alpha_final'])} | "
-                     f"{_fmt(s['param'])} | {_fmt(s['param_std_last_third'])} | {_fmt(s['param_final'])} | "
+                     f"{_fmt(s['alpha_filter_sd_final'])} | {_fmt(s['param'])} | {_fmt(s['param_std_last_third'])} | "
+                     f"{_fmt(s['param_final'])} | {_fmt(s['param_filter_sd_final'])} | "
                      f"{_fmt(st['alpha_settle_s'], '.1f')} | {'**yes**' if s['diverged'] else 'no'} |")
-    lines += ["", f"α̂ settled after: the time from which α̂ stays within ±{SETTLE_BAND} of its last-third mean "
-              "(—: not within the last third).", "", "## Noise variances [(m/s²)²]", "",
-              "| axis | mean removed [m/s²] | noise variance (= R) | std [m/s²] | innovation variance, last ⅓ | "
-              "predicted (C P̃ Cᵀ + R) | residual y − x̂ | NIS |", "|---|---|---|---|---|---|---|---|"]
+    lines += ["", "¹ How much the estimate still moves over the last third: not an uncertainty of the order or "
+              "parameter.  ",
+              "² The filter's own standard deviation at the last sample (√Pᵒ, √Pʷ): not a calibrated interval "
+              "(the Monte Carlo studies in `experiments/montecarlo/README.md` measure its coverage).  ",
+              f"³ The time from which α̂ stays within ±{SETTLE_BAND} of its last-third mean (—: not within the last third).",
+              "", "## Noise variances [(m/s²)²] and filter consistency", "",
+              "| axis | mean removed [m/s²] | noise variance, all samples used | std [m/s²] | R given to KFx | "
+              "mean squared innovation, last ⅓ | predicted S = C P̃ Cᵀ + R, last ⅓ | residual y − x̂ variance, last ⅓ | "
+              "NIS, last ⅓ | NIS, whole run |", "|---|---|---|---|---|---|---|---|---|---|"]
     for a, s in summary["axes"].items():
         st = stats[a]
         lines.append(f"| {a} | {_fmt(s.get('mean_removed_ms2', math.nan), '.5f')} | {st['noise_var']:.4e} | "
-                     f"{st['noise_std']:.4e} | {st['innovation_var_last_third']:.4e} | "
+                     f"{st['noise_std']:.4e} | {s['R']:.4e} | {st['innovation_var_last_third']:.4e} | "
                      f"{st['predicted_innovation_var_last_third']:.4e} | {st['residual_var_last_third']:.4e} | "
-                     f"{s['innovation_nis']:.3f} |")
-    lines += ["", "NIS: mean normalised innovation squared (1 for a consistent filter).", ""]
+                     f"{_fmt(s['innovation_nis_last_third'], '.3f')} | {_fmt(s['innovation_nis'], '.3f')} |")
+    lines += ["", "NIS: mean of e²/S over the observed samples (missing samples have no innovation and are left out); "
+              f"1 for a consistent filter; outside [{NIS_TRUST_BAND[0]:g}, {NIS_TRUST_BAND[1]:g}] is warned about.", ""]
     if figures:
         lines += ["## Figures", ""]
         for f in figures:
@@ -142,7 +165,7 @@ def log_identification(logdir, ident: Identification, summary: dict, *, max_poin
     from .tblog import _steps
 
     res = ident.result
-    N = ident.y.shape[-2]
+    N = ident.steps
     logdir = Path(logdir)
     with SummaryWriter(log_dir=str(logdir)) as w:
         for k in _steps(N, max_points):
@@ -151,14 +174,17 @@ def log_identification(logdir, ident: Identification, summary: dict, *, max_poin
                 w.add_scalar(f"param/{a}", float(res.w[i, k, 0]), k)
                 w.add_scalar(f"innovation/{a}", float(res.innovation[i, k, 0]), k)
                 w.add_scalar(f"order_sd/{a}", math.sqrt(max(float(res.P_alpha[i, k, 0, 0]), 0.0)), k)
-        table = ["| axis | α̂ | ŵ | R |", "|---|---|---|---|"]
-        table += [f"| {a} | {s['alpha']:.4f} | {s['param']:.4f} | {s['R']:.3e} |" for a, s in summary["axes"].items()]
+        table = ["| axis | α̂ mean, last ⅓ | ŵ mean, last ⅓ | R | NIS, last ⅓ |", "|---|---|---|---|---|"]
+        table += [f"| {a} | {s['alpha']:.4f} | {s['param']:.4f} | {s['R']:.3e} | {s['innovation_nis_last_third']:.3f} |"
+                  for a, s in summary["axes"].items()]
+        if summary.get("warnings"):
+            table += [""] + [f"- {x}" for x in summary["warnings"]]
         w.add_text("summary", "\n".join(table), 0)
     return logdir
 
 
 def save_identification(ident: Identification, out_dir, *, plots: bool = True, r_mode: str = "measured",
-                        seconds: float | None = None, command: str = "") -> dict:
+                        seconds: float | None = None, command: str = "", config_source: str | None = None) -> dict:
     """Everything ``torchtea identify`` writes, into ``out_dir``: ``trajectories.csv``, ``config_<axis>.toml``,
     the figures (per axis like the paper's Figs. 12–20, and ``orders.png``), TensorBoard logs in ``tb/``,
     ``report.md``. Returns the summary (``summary.json`` is the caller's to write, with its warnings)."""
@@ -168,10 +194,11 @@ def save_identification(ident: Identification, out_dir, *, plots: bool = True, r
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     rec, res, t = ident.recording, ident.result, ident.t
+    N = ident.steps
     summary = ident.summary()
     cols = {"t": t}
     for i, a in enumerate(AXES):
-        cols.update({f"y_{a}": ident.y[i, :, 0], f"x_hat_{a}": res.x[i, :, 0], f"alpha_{a}": res.alpha[i, :, 0],
+        cols.update({f"y_{a}": ident.y[i, :N, 0], f"x_hat_{a}": res.x[i, :, 0], f"alpha_{a}": res.alpha[i, :, 0],
                      f"P_alpha_{a}": res.P_alpha[i, :, 0, 0], f"w_{a}": res.w[i, :, 0], f"P_w_{a}": res.P_w[i, :, 0, 0],
                      f"innovation_{a}": res.innovation[i, :, 0], f"innovation_var_{a}": res.innovation_cov[i, :, 0, 0]})
     write_columns(out_dir / "trajectories.csv", cols)
@@ -183,19 +210,28 @@ def save_identification(ident: Identification, out_dir, *, plots: bool = True, r
 
         for i, a in enumerate(AXES):
             figures.append(str(estimation_figure(
-                out_dir / f"axis_{a}.png", t, y=ident.y[i, :, 0].numpy(), x_hat=res.x[i, :, 0].numpy(),
+                out_dir / f"axis_{a}.png", t, y=ident.y[i, :N, 0].numpy(), x_hat=res.x[i, :, 0].numpy(),
                 alpha_hat=res.alpha[i, :, 0].numpy(), alpha_sd=res.P_alpha[i, :, 0, 0].clamp(min=0).sqrt().numpy(),
                 w_hat=res.w[i, :, 0].numpy(), w_sd=res.P_w[i, :, 0, 0].clamp(min=0).sqrt().numpy(),
                 title=f"{Path(rec.path).name}: {a}-axis noise (cf. paper Figs. {12 + 3 * i}–{14 + 3 * i})",
                 state_label="noise [m/s²]", zoom=(t[-1] - 5.0, t[-1]))))
         figures.append(str(orders_figure(out_dir / "orders.png", ident)))
-    summary.update({"recording": str(rec.path), "samples": int(ident.y.shape[-2]), "h": ident.h, "r_mode": r_mode,
-                    "memory": ident.configs[0].memory.spec(), "out": str(out_dir), "figures": figures,
-                    "statistics": axis_statistics(ident, summary["axes"])})
+    summary.update({"recording": str(rec.path), "samples": int(ident.y.shape[-2]), "steps_done": N,
+                    "interrupted": bool(res.interrupted), "h": ident.h, "rate_hz": rec.rate_hz,
+                    "rate_source": rec.rate_source, "r_mode": r_mode, "memory": ident.configs[0].memory.spec(),
+                    "settings": "the paper's §5.1 MEMS settings" + (f", changed by {config_source}" if ident.changes else ""),
+                    "settings_changed": list(ident.changes),
+                    "missing_samples": ident.missing.count if ident.missing is not None else None,
+                    "missing": ident.missing.to_dict() if ident.missing is not None else None,
+                    "timing": ident.timing.to_dict() if ident.timing is not None else None,
+                    "out": str(out_dir), "figures": figures, "statistics": axis_statistics(ident, summary["axes"])})
+    if ident.timing is not None:
+        summary["warnings"] = list(ident.timing.warnings) + summary["warnings"]
     if seconds is not None:
         summary["seconds"] = round(seconds, 3)
     if "segment" in rec.metadata:
         summary["segment"] = rec.metadata["segment"]
     summary["tensorboard"] = str(log_identification(out_dir / "tb", ident, summary))
-    summary["report"] = str(write_report(out_dir / "report.md", ident, summary, figures, command=command))
+    summary["report"] = str(write_report(out_dir / "report.md", ident, summary, figures, command=command,
+                                         config_source=config_source))
     return summary

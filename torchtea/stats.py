@@ -14,7 +14,8 @@ from typing import Sequence
 import torch
 from torch import Tensor
 
-__all__ = ["QUANTILES", "over_realisations", "convergence_time", "nees", "nis", "chi2_band", "coverage"]
+__all__ = ["QUANTILES", "over_realisations", "convergence_time", "nees", "nis", "chi2_band", "coverage", "last_third",
+           "mean_nis"]
 
 QUANTILES = (0.05, 0.25, 0.5, 0.75, 0.95)
 
@@ -68,6 +69,22 @@ def nees(x_hat: Tensor, x: Tensor, P: Tensor) -> Tensor:
 def nis(innovation: Tensor, cov: Tensor) -> Tensor:
     """Normalised innovation squared ``eᵀ S⁻¹ e`` (zero where the innovation is zero, i.e. missing)."""
     return nees(innovation, torch.zeros_like(innovation), cov)
+
+
+def last_third(n: int) -> slice:
+    """The samples ``n − ⌊n/3⌋ … n − 1``: the span over which torchtea reports settled estimates."""
+    return slice(n - n // 3, n)
+
+
+def mean_nis(innovation: Tensor, cov: Tensor, observed: Tensor) -> Tensor:
+    """Mean NIS over the observed steps only (a missing sample has no innovation, not a zero one).
+
+    innovation ``(…, N, p)``, cov ``(…, N, p, p)``, observed ``(…, N)`` bool → ``(…)``; NaN where no step
+    is observed.
+    """
+    v = nis(innovation, cov)
+    w = observed.to(v.dtype)
+    return (v * w).sum(-1) / w.sum(-1)
 
 
 def chi2_band(dof: int, realisations: int, level: float = 0.95) -> tuple[float, float]:

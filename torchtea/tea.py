@@ -661,6 +661,8 @@ class TEAResult:
         exponential-sum kernel's range (by default one order beyond ``order_bounds``, but not below −0.95,
         where (★) stops holding); there the tail of the memory sum used the clamped order, so the run
         departs from ``exact``. ``None`` otherwise.
+    interrupted : True when :func:`run_tea` was stopped by Ctrl-C with ``partial=True``: the rows hold the
+        steps that finished (``steps`` says which), nothing after them.
     """
 
     x: Tensor
@@ -677,6 +679,7 @@ class TEAResult:
     diverged_at: Tensor
     steps: Tensor | None = None
     memory_clamped: Tensor | None = None
+    interrupted: bool = False
 
 
 _OUTPUT_NAMES = ("x", "P", "alpha", "P_alpha", "Q_alpha", "w", "P_w", "Q_w", "innovation", "innovation_cov")
@@ -763,6 +766,7 @@ def run_tea(
     progress=None,
     record_every: int = 1,
     compile: bool = False,
+    partial: bool = False,
 ) -> TEAResult:
     """Run the TEA over a batch of measurement series.
 
@@ -788,6 +792,9 @@ def run_tea(
         ``soe``/``window`` memory only: run blocks of :data:`COMPILE_BLOCK` steps through
         ``torch.compile`` (worth it for long series: compiling takes ~1 min on a 2-core CPU, then
         steps are several times cheaper). Falls back to eager with a warning if compiling fails.
+    partial : bool
+        On Ctrl-C (``KeyboardInterrupt``), return the steps that finished, with ``interrupted=True``,
+        instead of raising — so a long run that is stopped still leaves its results.
 
     Returns
     -------
@@ -846,25 +853,59 @@ def run_tea(
 
     carry, first = _first_step(model, params, y[..., 0, :], batch)
     record_block(0, _outputs(carry, first), False)
+    completed = 1  # steps whose outputs are stored
+    clamped = torch.zeros(batch, dtype=torch.long, device=device)
+    try:
+        completed, carry, diverged_at, clamped = _loop(
+            model, params, weights, memory, carry, y, inputs, batch, N, n, nb, device, dtype, progress, compile,
+            record_block, clamped)
+    except _Interrupted as stop:
+        if not partial:
+            raise KeyboardInterrupt from None
+        completed, carry, diverged_at, clamped = stop.state
+    rows = (completed - 1) // every + 1
+    if rows < n_out:
+        out = {name: t.narrow(nb, 0, rows) for name, t in out.items()}
+    diverged = (diverged_at >= 0) & (diverged_at < completed)
+    return TEAResult(**out, diverged=diverged, diverged_at=torch.where(diverged, diverged_at, -1),
+                     steps=torch.arange(0, completed, every, device=device),
+                     memory_clamped=clamped if memory.bounded and memory.kernel is not None else None,
+                     interrupted=completed < N)
+
+
+class _Interrupted(Exception):
+    """Ctrl-C inside the loop, carrying the state after the last stored step."""
+
+    def __init__(self, state):
+        super().__init__("interrupted")
+        self.state = state
+
+
+def _loop(model, params, weights, memory, carry, y, inputs, batch, N, n, nb, device, dtype, progress, compile,
+          record_block, clamped):
+    """Steps 1 … N−1 of :func:`run_tea`; returns ``(completed, carry, diverged_at, clamped)``. Ctrl-C becomes
+    :class:`_Interrupted` with the state after the last step whose outputs were stored."""
     diverged_at = torch.where(carry.diverged, 0, torch.full(batch, -1, dtype=torch.long, device=device))
     u_at = (lambda k: None) if inputs is None else (lambda k: inputs[..., k, :])  # noqa: E731
-
-    if not memory.bounded:
-        # the KFx history is kept time-reversed so that each step reads one contiguous slice
-        xh = torch.zeros(batch + (n, N), dtype=dtype, device=device)
-        Ph = torch.zeros(batch + (n, n, N), dtype=dtype, device=device)
-        xh[..., N - 1] = carry.x
-        Ph[..., N - 1] = carry.P
-        for k in range(1, N):
-            carry, o = _tea_step(model, params, weights, memory, carry, y[..., k, :], u_at(k - 1),
-                                 (xh[..., N - k:], Ph[..., N - k:]), k)
-            xh[..., N - 1 - k] = carry.x
-            Ph[..., N - 1 - k] = carry.P
-            record_block(k, _outputs(carry, o), False)
-            diverged_at = torch.where(carry.diverged & (diverged_at < 0), k, diverged_at)
-            if progress is not None:
-                progress(k, N)
-    else:
+    stored = (1, carry, diverged_at, clamped)  # the state after the last step whose outputs are stored
+    try:
+        if not memory.bounded:
+            # the KFx history is kept time-reversed so that each step reads one contiguous slice
+            xh = torch.zeros(batch + (n, N), dtype=dtype, device=device)
+            Ph = torch.zeros(batch + (n, n, N), dtype=dtype, device=device)
+            xh[..., N - 1] = carry.x
+            Ph[..., N - 1] = carry.P
+            for k in range(1, N):
+                carry, o = _tea_step(model, params, weights, memory, carry, y[..., k, :], u_at(k - 1),
+                                     (xh[..., N - k:], Ph[..., N - k:]), k)
+                xh[..., N - 1 - k] = carry.x
+                Ph[..., N - 1 - k] = carry.P
+                record_block(k, _outputs(carry, o), False)
+                diverged_at = torch.where(carry.diverged & (diverged_at < 0), k, diverged_at)
+                stored = (k + 1, carry, diverged_at, clamped)
+                if progress is not None:
+                    progress(k, N)
+            return stored
         hist = memory.push(memory.init(batch, n, dtype, device), carry.x, carry.P, 0)
 
         kernel_low, kernel_high = (-math.inf, math.inf) if memory.kernel is None else memory.kernel.order_range
@@ -891,7 +932,6 @@ def run_tea(
             return carry, hist, diverged_at, clamped, tuple(torch.stack(r, dim=nb) for r in zip(*rows))
 
         compiled = _compiled(advance) if compile else None
-        clamped = torch.zeros(batch, dtype=torch.long, device=device)
         k = 1
         while k < N:
             if compiled is not None and k + COMPILE_BLOCK <= N:
@@ -912,11 +952,12 @@ def run_tea(
                                                                   u_at(k - 1), k, False)
                 record_block(k, row, False)
                 k += 1
+            stored = (k, carry, diverged_at, clamped)
             if progress is not None:
                 progress(k - 1, N)
-    return TEAResult(**out, diverged=carry.diverged, diverged_at=diverged_at,
-                     steps=torch.arange(0, N, every, device=device),
-                     memory_clamped=clamped if memory.bounded and memory.kernel is not None else None)
+        return stored
+    except KeyboardInterrupt:
+        raise _Interrupted(stored) from None
 
 
 def _compiled(fn):

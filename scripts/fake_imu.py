@@ -12,9 +12,12 @@ torchtea.fakeimu). With --link PATH the port is also reachable as a stable symli
 from __future__ import annotations
 
 import argparse
+import fcntl
 import os
 import select
+import struct
 import sys
+import termios
 import time
 
 from torchtea.fakeimu import FakeIMU, open_pty, parse_fault, replay_counts, synthetic_counts
@@ -31,6 +34,11 @@ def main(argv=None) -> int:
     p.add_argument("--counter0", type=int, default=0, help="first counter value (test wrapping with 4294967000)")
     p.add_argument("--t0-us", type=int, default=0, help="first device time [µs]")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--wait-for-host", action="store_true",
+                   help="send nothing until the host asks for the header (H), so that no sample is sent before "
+                        "the host has the port open (tests that must not depend on how fast the host starts)")
+    p.add_argument("--wait-timeout", type=float, default=120.0,
+                   help="give up waiting for the host (to ask, or to read what was sent) after S seconds")
     args = p.parse_args(argv)
 
     faults = tuple(parse_fault(f) for f in args.fault)
@@ -72,12 +80,31 @@ def main(argv=None) -> int:
                 continue
             view = view[n:]
 
-    def asked() -> bool:
-        r, _, _ = select.select([state["master"]], [], [], 0)
+    def asked(timeout: float = 0.0) -> bool:
+        r, _, _ = select.select([state["master"]], [], [], timeout)
         return bool(r) and b"H" in os.read(state["master"], 1024)
 
+    def drained() -> bool:
+        """Wait until the host has read every byte sent: the slave's input queue has stayed empty for 0.2 s.
+        (Linux moves bytes from the master to the slave's queue asynchronously, so an empty queue right after
+        a write does not yet mean "read"; the 0.2 s cover that hand-over inside the kernel, while a host that is
+        slow to read keeps the queue non-empty and is waited for, up to --wait-timeout.)"""
+        end = time.monotonic() + args.wait_timeout
+        empty_since = None
+        while time.monotonic() < end:
+            waiting = struct.unpack("i", fcntl.ioctl(state["slave"], termios.FIONREAD, b"\0\0\0\0"))[0]
+            now = time.monotonic()
+            if waiting:
+                empty_since = None
+            elif empty_since is None:
+                empty_since = now
+            elif now - empty_since >= 0.2:
+                return True
+            time.sleep(0.01)
+        return False
+
     def gone():
-        time.sleep(0.2)  # what was sent reaches the host; a real unplug may also flush the host's buffer
+        drained()  # what was sent reaches the host (a real unplug may lose the host's buffer; this fake does not)
         os.close(state["master"])
         os.close(state["slave"])
         print("DISCONNECTED", flush=True)
@@ -90,12 +117,18 @@ def main(argv=None) -> int:
     expose()
     n = int(rate * args.seconds)
     try:
+        if args.wait_for_host:
+            end = time.monotonic() + args.wait_timeout
+            while not asked(timeout=max(0.0, end - time.monotonic())):
+                if time.monotonic() >= end:
+                    print("TIMEOUT waiting for the host", flush=True)
+                    return 1
         sent = dev.run(write, n, on_request=asked, on_disconnect=gone)
     except KeyboardInterrupt:
         return 0
     print(f"DONE {sent}", flush=True)
     if sent == n:
-        time.sleep(0.5)  # let the host drain the last lines before the pty goes away
+        drained()  # let the host read the last lines before the pty goes away
         os.close(state["master"])
     return 0
 

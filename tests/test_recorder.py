@@ -135,72 +135,84 @@ def _stop(proc):
     proc.wait(timeout=10)
 
 
+@pytest.mark.slow
 def test_end_to_end_pty_record_then_identify(tmp_path):
-    fake, port = _fake("--seconds", "12", "--rate", "100")
+    # the fake waits for the recorder's header request, and the recorder stops after a number of samples:
+    # what is recorded does not depend on how fast either process starts or runs
+    fake, port = _fake("--seconds", "60", "--rate", "100", "--wait-for-host")
     try:
-        rec = _torchtea("record", "--port", port, "--duration", "5", "--out", str(tmp_path / "rec.csv"))
-        out, err = rec.communicate(timeout=60)
+        rec = _torchtea("record", "--port", port, "--samples", "400", "--out", str(tmp_path / "rec.csv"))
+        out, err = rec.communicate(timeout=120)
         assert rec.returncode == 0, err
     finally:
         _stop(fake)
     side = json.loads((tmp_path / "rec.json").read_text())
     assert side["status"] == "finished" and side["bad_lines"] == 0 and side["missing_samples"] == 0
-    assert 350 <= side["good_samples"] <= 520  # 5 s at 100 Hz, minus start-up, plus what was queued
-    assert "rec.csv" in err and f"{side['good_samples']} samples" in err
+    assert side["good_samples"] == side["rows"] == 400
+    r = read_recording(tmp_path / "rec.csv")
+    assert r.metadata["first_counter"] == 0 and len(r.accel_counts) == 400  # from the very first sample on
+    assert "rec.csv" in err and "400 samples" in err
     ident = _torchtea("identify", str(tmp_path / "rec.csv"), "--samples", "all", "--memory", "soe", "--json",
                       "--out", str(tmp_path / "ident"))
     out, err = ident.communicate(timeout=300)
     assert ident.returncode == 0, err
     summary = json.loads(out)
-    assert summary["samples"] == side["good_samples"] and set(summary["axes"]) == {"x", "y", "z"}
+    assert summary["samples"] == 400 and set(summary["axes"]) == {"x", "y", "z"}
     assert all(np.isfinite(a["alpha"]) and not a["diverged"] for a in summary["axes"].values())
+    # the device clock t_s was checked against the header's rate: 10 ms steps exactly
+    assert summary["timing"]["column"] == "t_s" and summary["timing"]["irregular_fraction"] == 0.0
+    assert abs(summary["timing"]["rate_mismatch"]) < 1e-9 and summary["timing"]["warnings"] == []
     assert (tmp_path / "ident" / "report.md").exists()
 
 
+@pytest.mark.slow
 def test_pulled_cable_finishes_the_file_and_exits_nonzero(tmp_path):
-    fake, port = _fake("--seconds", "30", "--fault", "disconnect@400")
+    fake, port = _fake("--seconds", "30", "--fault", "disconnect@400", "--wait-for-host")
     try:
         rec = _torchtea("record", "--port", port, "--out", str(tmp_path / "rec.csv"))
-        out, err = rec.communicate(timeout=60)
+        out, err = rec.communicate(timeout=120)
     finally:
         _stop(fake)
-    assert rec.returncode == EXIT_DISCONNECTED
+    assert rec.returncode == EXIT_DISCONNECTED, err
     assert f"lost {port}" in err
     side = json.loads((tmp_path / "rec.json").read_text())
     assert side["status"].startswith("disconnected") and side["disconnects"] == 1
     r = read_recording(tmp_path / "rec.csv")
-    assert r.metadata["first_counter"] + len(r.accel_counts) - 1 == 399  # everything up to the last sample sent
-    assert side["missing_samples"] == 0 and side["bad_lines"] == 0
+    # everything the device sent, from its first sample up to the last one before the cable went
+    assert r.metadata["first_counter"] == 0 and len(r.accel_counts) == 400
+    assert side["missing_samples"] == 0 and side["bad_lines"] == 0 and side["good_samples"] == 400
 
 
+@pytest.mark.slow
 def test_reconnect_waits_for_the_port_and_carries_on(tmp_path):
     link = str(tmp_path / "imu0")
-    fake, _ = _fake("--seconds", "30", "--link", link, "--fault", "disconnect@300", "--reconnect-after", "1.0")
+    fake, _ = _fake("--seconds", "60", "--link", link, "--fault", "disconnect@300", "--reconnect-after", "1.0",
+                    "--wait-for-host")
     try:
-        rec = _torchtea("record", "--port", link, "--reconnect", "--duration", "6", "--out", str(tmp_path / "rec.csv"))
-        out, err = rec.communicate(timeout=60)
+        rec = _torchtea("record", "--port", link, "--reconnect", "--samples", "450", "--out", str(tmp_path / "rec.csv"))
+        out, err = rec.communicate(timeout=120)
     finally:
         _stop(fake)
     assert rec.returncode == 0, err
     assert "is back" in err
     side = json.loads((tmp_path / "rec.json").read_text())
-    assert side["disconnects"] == 1 and side["status"] == "finished"
+    assert side["disconnects"] == 1 and side["status"] == "finished" and side["segments"] == 1
     r = read_recording(tmp_path / "rec.csv")
-    last = r.metadata["first_counter"] + len(r.accel_counts) - 1
-    assert last > 350 and side["segments"] == 1  # the device paused; the counter ran on across the outage
-    # samples the device sent before the port was reopened are gone (pyserial flushes input on open);
-    # they are NaN rows right at the outage, nowhere else
-    miss = side["missing_samples"]
-    assert miss <= 50 and side["bad_lines"] == 0
     counters = r.metadata["first_counter"] + np.arange(len(r.accel_counts))
+    assert counters[0] == 0 and counters[-1] == 449  # the device paused; the counter ran on across the outage
+    # samples the device sent before the port was reopened are gone (pyserial flushes input on open);
+    # they are NaN rows in one block right at the outage, nowhere else, and counted as missing
+    miss = side["missing_samples"]
+    assert side["bad_lines"] == 0 and side["good_samples"] + miss == 450
     np.testing.assert_array_equal(counters[np.isnan(r.accel_counts[:, 0])], np.arange(300, 300 + miss))
 
 
+@pytest.mark.slow
 def test_recording_survives_the_recorder_being_killed(tmp_path):
     fake, port = _fake("--seconds", "30")
     try:
         rec = _torchtea("record", "--port", port, "--out", str(tmp_path / "rec.csv"))
-        deadline = time.monotonic() + 30
+        deadline = time.monotonic() + 120
         while time.monotonic() < deadline:  # wait until samples are on disk
             time.sleep(0.5)
             p = tmp_path / "rec.csv"
@@ -218,32 +230,70 @@ def test_recording_survives_the_recorder_being_killed(tmp_path):
     assert text.endswith("\n")  # whole lines only
 
 
-def test_live_mode_logs_to_tensorboard_every_second_and_keeps_up(tmp_path):
+@pytest.mark.slow
+def test_live_mode_estimates_every_row_and_logs_to_tensorboard(tmp_path):
+    """The whole chain on a pty. Whether the estimator keeps up with a rate is a property of the machine:
+    measured in experiments/live, not asserted here."""
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
-    fake, port = _fake("--seconds", "20", "--rate", "100")
+    fake, port = _fake("--seconds", "60", "--rate", "100", "--wait-for-host")
     try:
-        rec = _torchtea("record", "--port", port, "--duration", "7", "--out", str(tmp_path / "rec.csv"), "--live",
-                        "--json", "--logdir", str(tmp_path / "tb"))
-        out, err = rec.communicate(timeout=120)
+        rec = _torchtea("record", "--port", port, "--samples", "500", "--out", str(tmp_path / "rec.csv"), "--live",
+                        "--warmup", "1", "--json", "--logdir", str(tmp_path / "tb"))
+        out, err = rec.communicate(timeout=240)
     finally:
         _stop(fake)
     assert rec.returncode == 0, err
     live = json.loads(out.strip().splitlines()[-1])
     side = json.loads((tmp_path / "rec.json").read_text())
-    assert live["steps"] == side["good_samples"] + side["missing_samples"]  # every row estimated
-    assert live["lag_at_close_samples"] <= 50  # kept up with 100 Hz
+    assert side["rows"] == 500 and live["steps"] == 500  # every row estimated
+    assert isinstance(live["lag_at_close_samples"], int) and 0 <= live["lag_at_close_samples"] <= 500
     assert set(live["axes"]) == {"x", "y", "z"} and not any(a["diverged"] for a in live["axes"].values())
     ea = EventAccumulator(str(tmp_path / "tb"), size_guidance={"scalars": 0})
     ea.Reload()
     ev = ea.Scalars("order/x")
     assert ev[-1].step == live["steps"] - 1 and ev[-1].value == pytest.approx(live["axes"]["x"]["alpha"], rel=1e-6)
-    gaps = np.diff([e.wall_time for e in ev])
-    assert len(ev) >= 4 and gaps.max() < 1.6  # at least once a second while samples arrive
     for tag in ("param/z", "innovation/y", "innovation_rms/x", "live/lag_samples"):
         assert tag in ea.Tags()["scalars"]
 
 
+def test_live_estimator_logs_once_per_second_of_its_clock(tmp_path):
+    """The logging cadence, on a clock that advances with the samples (100 Hz): one write per second of data,
+    whatever the machine's speed; then the final estimate at close."""
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    from torchtea.fakeimu import synthetic_counts
+    from torchtea.live import LiveEstimator
+
+    n = 650
+    counts = synthetic_counts(n, rate_hz=100.0, seed=3)
+    ser = serial.serial_for_url("loop://", timeout=0.05)
+    dev = FakeIMU(counts, rate_hz=100.0)
+    holder = []
+    live = LiveEstimator(tmp_path / "tb", warmup_s=0.5, clock=lambda: holder[0].steps * 0.01 if holder else 0.0)
+    holder.append(live)
+
+    def play():
+        dev.run(ser.write, n, realtime=False)
+        while ser.in_waiting:
+            time.sleep(0.01)
+        ser.close()
+
+    th = threading.Thread(target=play)
+    th.start()
+    rec = Recorder("loop://", tmp_path / "rec.csv", open_port=lambda: ser, request_header=None, log=lambda m: None,
+                   live=live, samples=n)
+    rec.run()
+    th.join()
+    assert live.summary["steps"] == n
+    ea = EventAccumulator(str(tmp_path / "tb"), size_guidance={"scalars": 0})
+    ea.Reload()
+    steps = [e.step for e in ea.Scalars("order/x")]
+    # a write each time the clock passes a whole second (every 100 samples), and the last step at close
+    assert steps == [99, 199, 299, 399, 499, 599, n - 1], steps
+
+
+@pytest.mark.slow
 def test_scripts_identify_imu_and_record_imu(tmp_path):
     r = subprocess.run([sys.executable, str(ROOT / "scripts" / "identify_imu.py"), "--seconds", "4", "--out",
                         str(tmp_path / "id")], capture_output=True, text=True, timeout=300)
@@ -255,11 +305,12 @@ def test_scripts_identify_imu_and_record_imu(tmp_path):
     assert r.returncode == 2 and "cannot open /dev/nonexistent-tty" in r.stderr and r.stderr.count("\n") == 1
 
 
+@pytest.mark.slow
 def test_ctrl_c_finishes_the_file_and_the_sidecar(tmp_path):
     fake, port = _fake("--seconds", "30")
     try:
         rec = _torchtea("record", "--port", port, "--out", str(tmp_path / "rec.csv"))
-        deadline = time.monotonic() + 30
+        deadline = time.monotonic() + 120
         while time.monotonic() < deadline:
             time.sleep(0.5)
             p = tmp_path / "rec.csv"

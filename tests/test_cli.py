@@ -94,14 +94,16 @@ def test_estimate_with_config_file(tmp_path, capsys):
 
 def test_estimate_missing_samples(tmp_path, capsys):
     f = tmp_path / "gap.csv"
-    f.write_text("y\n0.1\n\n0.2\nnan\n0.3\n0.1\n")
+    body = "\n".join(f"{0.01 * ((7 * k) % 11 - 5)}" for k in range(120))
+    f.write_text("y\n0.1\n\n0.2\nnan\n" + body + "\n")
     assert run("estimate", f, "--h", 0.01, "--preset", "paper-mems-x", "--json") == 2
     assert "--allow-missing" in capsys.readouterr().err
-    f.write_text("y\n0.1\n\n0.2\nnan\n0.3\n0.1\n\n")
+    f.write_text("y\n0.1\n\n0.2\nnan\n" + body + "\n\n")
     # an interior blank line is an empty sample; the trailing one is not a sample
     assert run("estimate", f, "--h", 0.01, "--preset", "paper-mems-x", "--allow-missing", "--json") == 0
     out = json.loads(capsys.readouterr().out)
-    assert out["samples"] == 6 and not out["diverged"]
+    assert out["samples"] == 124 and out["missing_samples"] == 2 and not out["diverged"]
+    assert out["missing"]["ranges"] == [[1, 1], [3, 3]]
 
 
 @pytest.mark.parametrize("content,needle", [

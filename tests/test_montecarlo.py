@@ -223,12 +223,12 @@ def test_sigint_leaves_a_readable_partial_run(tmp_path):
             pass
     assert done >= 3, "no progress within 120 s"
     proc.send_signal(signal.SIGINT)
-    out, err = proc.communicate(timeout=120)
-    assert proc.returncode == 130, err
-    assert "interrupted: kept" in err
+    out, err = proc.communicate(timeout=300)
+    assert proc.returncode == 130, (proc.returncode, out, err)
+    assert "interrupted: kept" in err, err
     summary = json.loads((logdir / "summary.json").read_text())
-    assert summary["interrupted"] and 0 < summary["realisations"] < 5000
-    assert json.loads(out)["realisations"] == summary["realisations"]
+    assert summary["interrupted"] and 3 <= summary["realisations"] < 5000, (summary, err)
+    assert json.loads(out)["realisations"] == summary["realisations"], (out, err)
     fin = np.genfromtxt(logdir / "final_estimates.csv", delimiter=",", names=True)
     assert len(np.atleast_1d(fin)) == summary["realisations"]
     assert any(p.name.startswith("events.out.tfevents") for p in logdir.iterdir())

@@ -89,10 +89,13 @@ def test_missing_samples_are_one_policy_in_identify_and_estimate(tmp_path, capsy
     assert "3 of 300 samples are missing (sample index 120–121, 200" in err and "--allow-missing" in err
     assert "per axis 'x': 1, 'y': 2)" in err and err.count("\n") == 1
     y = tmp_path / "y.csv"
-    y.write_text("y\n0.1\n\n0.2\nnan\n0.3\n0.1\n")
+    y.write_text("y\n0.1\n\n0.2\nnan\n" + "0.3\n" * 116)
     assert run("estimate", y, "--h", 0.01) == 2
     err = capsys.readouterr().err
-    assert "2 of 6 samples are missing (sample index 1, 3" in err and "--allow-missing" in err
+    assert "2 of 120 samples are missing (sample index 1, 3" in err and "--allow-missing" in err
+    y.write_text("y\n" + "nan\n" * 119 + "0.1\n")  # allowed, but nothing to estimate
+    assert run("estimate", y, "--h", 0.01, "--allow-missing") == 2
+    assert "column 'y' has 1 observed sample(s)" in capsys.readouterr().err
 
 
 def test_allowed_missing_samples_are_stated_and_left_out_of_statistics(tmp_path, capsys):
@@ -121,6 +124,12 @@ def test_too_few_samples_is_an_error_not_a_nan_report(tmp_path, capsys):
     assert "5 samples; identify needs at least 100" in err and not (tmp_path / "id").exists()
     assert run("identify", "--samples", "five", "--out", tmp_path / "id") == 2
     assert "--samples must be a whole number or 'all'" in capsys.readouterr().err
+    assert run("identify", "--samples", -5, "--out", tmp_path / "id") == 2  # not "all but the last 5"
+    assert "--samples must be positive or 'all', got -5" in capsys.readouterr().err
+    y = tmp_path / "y.csv"
+    y.write_text("y\n" + "0.1\n0.2\n" * 2)
+    assert run("estimate", y, "--h", 0.01) == 2
+    assert "4 samples; estimate needs at least 100" in capsys.readouterr().err
 
 
 # --------------------------------------------------------------------------- time stamps
@@ -178,7 +187,28 @@ def test_bursty_host_stamps_of_a_real_recording_are_warned_about(tmp_path, capsy
     # PROVENANCE.md: 123.2 s, 99.38 Hz mean, median spacing 2.09 ms
     assert tm["span_s"] == pytest.approx(123.2, abs=0.05) and tm["stamp_rate_hz"] == pytest.approx(99.38, abs=0.01)
     assert tm["interval_median_s"] == pytest.approx(2.09e-3, abs=0.01e-3)
-    assert "irregular" in cap.err and "+0.63 %" in cap.err  # 100 Hz against 99.37 Hz
+    assert "irregular" in cap.err and "+0.63 %" in cap.err  # 100 Hz against 99.37 Hz: beyond the 0.5 % tolerance
+
+
+def test_time_stamps_in_other_units_or_as_text(tmp_path, capsys):
+    stamps_ms = np.arange(300) * 10.0  # milliseconds
+    f = bundled_csv(tmp_path, 300, time=stamps_ms)
+    assert run("identify", f, "--units", "g", "--no-plots", "--out", tmp_path / "a") == 2  # no --rate: 0.1 Hz?
+    err = capsys.readouterr().err
+    assert "gives a sample rate of 0.1 Hz, implausible for an IMU" in err and "--rate" in err
+    assert run("identify", f, "--units", "g", "--rate", 100, "--json", "--no-plots", "--out", tmp_path / "b") == 0
+    cap = capsys.readouterr()
+    assert "a factor of about 10^3: they look like milliseconds" in cap.err
+    assert not any("% from the stamps" in w for w in strict_loads(cap.out)["warnings"])  # the units, not the rate
+    text = tmp_path / "iso.csv"
+    lines = f.read_text().splitlines()
+    text.write_text("\n".join([lines[0]] + [f"2024-06-29T10:00:{k // 100:02d}.{k % 100:02d}," + ln.partition(",")[2]
+                                            for k, ln in enumerate(lines[1:])]) + "\n")
+    assert run("identify", text, "--units", "g", "--rate", 100, "--json", "--no-plots", "--out", tmp_path / "c") == 0
+    cap = capsys.readouterr()
+    assert "note: column 't' is not in seconds" in cap.err and strict_loads(cap.out)["timing"] is None
+    assert run("identify", text, "--units", "g", "--rate", 100, "--time-column", "t", "--out", tmp_path / "d") == 2
+    assert "time stamps must be seconds (--time-column none ignores them)" in capsys.readouterr().err
 
 
 def test_recorder_file_device_clock_is_checked(tmp_path):
@@ -282,15 +312,26 @@ def test_not_settled_is_warned_about():
 
 
 def test_montecarlo_prints_nees_and_warns_outside_its_band(tmp_path, capsys):
-    assert run("montecarlo", "--preset", "paper-example1", "--n", 300, "--realisations", 8, "--seed", 3,
-               "--logdir", tmp_path / "mc") == 0
+    # an estimator told R = 1e-5 where the truth has r = 1e-3: its innovations are ~100× larger than it predicts
+    study = tmp_path / "s.toml"
+    study.write_text('realisations = 8\nseed = 3\n[truth]\nh = 0.001\nn = 300\norder = "0.35"\nparam = -1.0\n'
+                     'q = 1e-4\nr = 1e-3\ninput_std = 1.0\n[estimator]\npreset = "paper-example1"\n'
+                     '[estimator.kfx]\nR = 1e-5\n')
+    assert run("montecarlo", "--config", study, "--logdir", tmp_path / "mc") == 0
     cap = capsys.readouterr()
     s = strict_loads((tmp_path / "mc" / "summary.json").read_text())
-    lo, hi = s["nees"]["band_95"]
-    assert f"NEES: mean {s['nees']['mean']:.4g}" in cap.out and f"[{lo:.3g}, {hi:.3g}]" in cap.out
-    assert "NIS: mean" in cap.out
-    assert not lo <= s["nees"]["mean"] <= hi  # KFx treats α̂, ŵ as exact: overconfident (issue 15)
-    assert f"mean NEES (state error against KFx's P) is {s['nees']['mean']:.3g}, outside its 95 % band" in cap.err
+    lo, hi = s["nis"]["band_95"]
+    assert s["nis"]["mean"] > 10 * hi and s["nis"]["fraction_of_steps_inside_band"] < 0.8
+    assert f"NIS: mean {s['nis']['mean']:.4g} over steps and realisations" in cap.out
+    assert f"[{lo:.3g}, {hi:.3g}]" in cap.out and "NEES: mean" in cap.out
+    msg = f"NIS (innovations against KFx's S): its mean over realisations lies inside the per-step 95 % band"
+    assert msg in cap.err and any(w.startswith(msg) for w in s["warnings"])  # in summary.json too
+    # the same study with the right R: consistent innovations, no NIS warning
+    study.write_text(study.read_text().replace("R = 1e-5", "R = 1e-3"))
+    assert run("montecarlo", "--config", study, "--logdir", tmp_path / "mc2") == 0
+    cap = capsys.readouterr()
+    s = strict_loads((tmp_path / "mc2" / "summary.json").read_text())
+    assert s["nis"]["fraction_of_steps_inside_band"] >= 0.8 and "NIS (innovations" not in cap.err
 
 
 # --------------------------------------------------------------------------- identify --config
@@ -309,11 +350,16 @@ def test_identify_config_merges_onto_the_mems_settings_and_keeps_its_r(tmp_path,
     assert used["kfx"]["R"] == pytest.approx(out["statistics"]["x"]["noise_var"], rel=1e-12)  # measured, per axis
     assert out["settings_changed"] == ["kfo.delta: 0.5 → 0.3"]
     report = (tmp_path / "a" / "report.md").read_text()
-    assert f"**Changed from those settings** by `--config {cfg}`" in report and "`kfo.delta: 0.5 → 0.3`" in report
-    cfg.write_text("[kfx]\nR = 0.004\n[kfo]\nR = 0.004\n[kfw]\nR = 0.004\n")
+    assert f"**Changed from those settings** by `--config {cfg}`: `kfo.delta: 0.5 → 0.3`" in report
+    # x's own config reused: no change on x, but y and z now run with x's R — and say so
+    rx = used["kfx"]["R"]
+    cfg.write_text(f"[kfx]\nR = {rx!r}\n[kfo]\nR = {rx!r}\n[kfw]\nR = {rx!r}\n")
     assert run("identify", "--samples", 300, "--config", cfg, "--json", "--no-plots", "--out", tmp_path / "b") == 0
     out = strict_loads(capsys.readouterr().out)
-    assert [out["axes"][a]["R"] for a in "xyz"] == [0.004] * 3  # the file's R is kept
+    assert [out["axes"][a]["R"] for a in "xyz"] == [rx] * 3  # the file's R is kept
+    ry = out["statistics"]["y"]["noise_var"]
+    assert f"axis y: kfx.R: {ry!r} → {rx!r}" in out["settings_changed"]
+    assert not any(c.startswith("axis x") for c in out["settings_changed"])
     assert run("identify", "--samples", 300, "--json", "--no-plots", "--out", tmp_path / "c") == 0
     plain = strict_loads(capsys.readouterr().out)
     assert plain["settings_changed"] == [] and "Changed from" not in (tmp_path / "c" / "report.md").read_text()
@@ -375,11 +421,35 @@ def test_identify_stopped_by_ctrl_c_writes_its_partial_results(tmp_path, capsys,
     cap = capsys.readouterr()
     out = strict_loads(cap.out)
     assert out["interrupted"] and out["steps_done"] == 151 and out["samples"] == 400
-    assert "interrupted after 151 of 400 steps" in cap.err
+    assert "interrupted (Ctrl-C) after 151 of 400 steps" in cap.err
+    assert any(w.startswith("interrupted (Ctrl-C) after 151 of 400 steps") for w in out["warnings"])
     d = np.genfromtxt(tmp_path / "id" / "trajectories.csv", delimiter=",", names=True)
     assert len(d) == 151
     assert "Interrupted (Ctrl-C) after 151 of 400 steps" in (tmp_path / "id" / "report.md").read_text()
     assert strict_loads((tmp_path / "id" / "summary.json").read_text())["steps_done"] == 151
+
+
+def test_a_run_stopped_too_early_says_its_checks_did_not_run(tmp_path, capsys, monkeypatch):
+    import torchtea.identify as ident_mod
+
+    real = ident_mod.run_tea
+
+    def stopped_at_once(*a, progress=None, **kw):
+        def p(k, N):
+            if k == 1:
+                raise KeyboardInterrupt
+
+        return real(*a, progress=p, **kw)
+
+    monkeypatch.setattr(ident_mod, "run_tea", stopped_at_once)
+    assert run("identify", "--samples", 300, "--json", "--no-plots", "--out", tmp_path / "id") == 130
+    out = strict_loads(capsys.readouterr().out)
+    assert out["steps_done"] == 2 and out["axes"]["x"]["alpha"] is None
+    assert "only 2 steps: the last-third statistics need at least 100" in out["warnings"][0]
+    assert "axis y: NIS over the last third cannot be computed" in " ".join(out["warnings"])
+    assert out["statistics"]["x"]["alpha_settle_s"] is None  # not "settled after 0.0 s"
+    report = (tmp_path / "id" / "report.md").read_text()
+    assert "None: every axis" not in report and "last ⅓ = no samples (too few steps)" in report
 
 
 # --------------------------------------------------------------------------- errors that help

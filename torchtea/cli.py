@@ -29,8 +29,6 @@ COMPILE_HELP = ("soe/window memory: run the filter through torch.compile (about 
 ALLOW_MISSING_HELP = ("predict through missing samples (empty or NaN values, the recorder's NaN rows) instead of "
                       "stopping; they are left out of every statistic and counted in the output")
 
-CLAMP_NOTE = ("soe memory: at {n} steps a KFo sigma order left the exponential-sum range; "
-              "those steps used the clamped order and differ from --memory exact")
 
 
 def _float_arg(accept, requirement):
@@ -62,6 +60,9 @@ def _count(text):
         raise argparse.ArgumentTypeError(f"must be at least 2, got {v}")
     return v
 
+
+#: A Monte Carlo NEES/NIS whose per-step average lies inside its 95 % band at fewer steps than this is warned about.
+CONSISTENT_STEPS = 0.8
 
 #: Off a terminal, progress is a line on stderr at most this often (and none for runs shorter than that).
 PROGRESS_EVERY_S = 10.0
@@ -99,6 +100,7 @@ def _report(out_dir: Path, summary: dict, warnings, as_json: bool) -> bool:
     """Write ``summary.json`` (strict JSON: null for a missing number), print the warnings on stderr and,
     with ``--json``, the summary on stdout. Returns True when the JSON was printed (the caller then prints
     no table)."""
+    summary["warnings"] = [w.removeprefix("warning: ") for w in warnings]
     strictjson.write(out_dir / "summary.json", summary)
     for w in warnings:
         print(f"torchtea: {w}", file=sys.stderr)
@@ -190,22 +192,29 @@ def cmd_estimate(args) -> int:
 
     from .config import write_config
     from .datacheck import check_timing, stamp_rate
-    from .identify import summarise
-    from .io import read_series, write_columns
+    from .identify import MIN_SAMPLES, summarise
+    from .io import InputError, read_series, write_columns
     from .model import Structure
-    from .tea import make_params, run_tea
+    from .tea import CLAMP_NOTE, make_params, run_tea
 
     cfg, source = _tea_config(args)
     cfg = _with_memory(cfg, args.memory)
-    cols = read_series(args.file, ["y"], ["u", "t"], allow_missing=True)
+    cols = read_series(args.file, ["y"], ["u"], allow_missing=True)
+    N = len(cols["y"])
+    if N < MIN_SAMPLES:
+        raise CLIError(f"{args.file}: {N} samples; estimate needs at least {MIN_SAMPLES} (its estimates are "
+                       "summarised over the last third of the run)")
+    try:
+        cols.update(read_series(args.file, [], ["t"], allow_missing=True))
+    except InputError as exc:  # a time column that is not in seconds is not a reason to stop
+        print(f"torchtea: note: column 't' is not used as time stamps ({exc})", file=sys.stderr)
     missing = _check_missing(args.file, cols["y"], ["y"], args.allow_missing)
+    if missing.count >= N - 1:
+        raise CLIError(f"{args.file}: column 'y' has {N - missing.count} observed sample(s); nothing to estimate")
     y = torch.as_tensor(cols["y"]).unsqueeze(-1)
     u = torch.as_tensor(cols["u"]).unsqueeze(-1) if "u" in cols else None
     if u is not None and torch.isnan(u).any():
         raise CLIError(f"{args.file}: column 'u' has missing values; a known input cannot be missing")
-    N = y.shape[0]
-    if N < 2:
-        raise CLIError(f"{args.file}: need at least 2 samples, found {N}")
     h, h_source = args.h, "--h"
     if h is None:
         rate = stamp_rate(cols["t"]) if "t" in cols else math.nan
@@ -260,10 +269,10 @@ def cmd_estimate(args) -> int:
         "out": str(out),
         "seconds": round(elapsed, 3),
         "last_third": stats["last_third"],
-        "meaning": {"alpha_mean_last_third": stats["meaning"]["alpha"],
-                    "param_mean_last_third": stats["meaning"]["param"],
-                    **{k: v for k, v in stats["meaning"].items() if k not in ("alpha", "param", "R", "alpha_settle_s")}},
     }
+    meaning = dict(stats["meaning"], alpha_mean_last_third=stats["meaning"]["alpha"],
+                   param_mean_last_third=stats["meaning"]["param"])
+    summary["meaning"] = {k: v for k, v in meaning.items() if k in summary}
     warnings = (list(timing.warnings) if timing is not None else []) + stats["warnings"]
     if res.memory_clamped is not None:
         summary["memory_clamped_steps"] = int(res.memory_clamped[0])
@@ -332,12 +341,16 @@ def cmd_identify(args) -> int:
     if len(columns) != 3 or not all(columns):
         raise CLIError(f"--columns needs three names (x,y,z), got {args.columns!r}")
     n = None if args.samples == "all" else _whole(args.samples, "--samples")
+    if n is not None and n < 1:
+        raise CLIError(f"--samples must be positive or 'all', got {n}")
     time_column = None if args.time_column == "none" else args.time_column
     rec = read_recording(args.recording, lsb_per_g=lsb, rate_hz=args.rate, columns=columns, segment=args.segment,
                          time_column=time_column)
     if rec.metadata.get("segments") and len(rec.metadata["segments"]) > 1 and args.segment is None:
         print(f"torchtea: note: {Path(rec.path).name} has {len(rec.metadata['segments'])} segments (device resets); "
               f"using the longest, segment {rec.metadata['segment']} (choose with --segment)", file=sys.stderr)
+    if "time_column_skipped" in rec.metadata:
+        print(f"torchtea: note: {rec.metadata['time_column_skipped']}", file=sys.stderr)
     overrides, config_source, memory_kind = _identify_overrides(args)
     total = min(n or len(rec.accel_counts), len(rec.accel_counts))
     if total > LONG_RECORDING and memory_kind == "exact":
@@ -356,13 +369,6 @@ def cmd_identify(args) -> int:
                                   config_source=config_source)
     res = ident.result
     warnings = [f"warning: {w}" for w in summary["warnings"]]
-    if res.memory_clamped is not None:
-        for i, a in enumerate(AXES):
-            summary["axes"][a]["memory_clamped_steps"] = int(res.memory_clamped[i])
-            if int(res.memory_clamped[i]):
-                warnings.append(f"warning: axis {a}: " + CLAMP_NOTE.format(n=int(res.memory_clamped[i])))
-    if res.interrupted:
-        warnings.append("warning: " + _interrupted_note(res, summary["samples"], f"{out_dir}/"))
     if not _report(out_dir, summary, warnings, args.json):
         used = "the paper's §5.1 MEMS settings" + (f" changed by {config_source}" if ident.changes else "")
         print(f"{Path(rec.path).name}: {summary['samples']} samples at {rec.rate_hz:g} Hz (rate from {rec.rate_source}), "
@@ -395,6 +401,8 @@ def cmd_record(args) -> int:
 
     if args.duration is not None and args.duration <= 0:
         raise CLIError("--duration must be positive")
+    if args.samples is not None and args.samples < 1:
+        raise CLIError("--samples must be at least 1")
     live = None
     if args.live:
         import torch
@@ -406,8 +414,6 @@ def cmd_record(args) -> int:
         logdir = Path(args.logdir) if args.logdir else Path(args.out).with_name(Path(args.out).stem + "-live")
         live = LiveEstimator(logdir, memory=args.memory or "soe", warmup_s=args.warmup)
         print(f"torchtea record: live estimates in {logdir} (tensorboard --logdir {logdir})", file=sys.stderr)
-    if args.samples is not None and args.samples < 1:
-        raise CLIError("--samples must be at least 1")
     rec = Recorder(args.port, args.out, baud=args.baud, duration=args.duration, reconnect=args.reconnect,
                    request_header=None if args.port.startswith("loop://") else 1.0, live=live, samples=args.samples)
     code = rec.run()
@@ -527,10 +533,15 @@ def cmd_montecarlo(args) -> int:
         warnings.append(f"warning: {summary['diverged']} realisation(s) diverged; excluded from the statistics")
     for name, what in (("nees", "NEES (state error against KFx's P)"), ("nis", "NIS (innovations against KFx's S)")):
         c = summary.get(name)
-        if c is not None and not c["band_95"][0] <= c["mean"] <= c["band_95"][1]:
-            warnings.append(f"warning: mean {what} is {c['mean']:.3g}, outside its 95 % band "
-                            f"[{c['band_95'][0]:.3g}, {c['band_95'][1]:.3g}] for {summary['realisations'] - summary['diverged']} "
-                            "realisations: the filter is not consistent (1 when its covariance matches its errors)")
+        if c is None:
+            continue
+        lo, hi = c["band_95"]
+        inside = c["fraction_of_steps_inside_band"]
+        if not lo <= c["mean"] <= hi or inside < CONSISTENT_STEPS:
+            warnings.append(f"warning: {what}: its mean over realisations lies inside the per-step 95 % band "
+                            f"[{lo:.3g}, {hi:.3g}] at {inside * 100:.0f} % of the steps (about 95 % for a consistent "
+                            f"filter; warned below {CONSISTENT_STEPS * 100:.0f} %), and averages {c['mean']:.3g} over "
+                            "all steps (1 when the filter's covariance matches its errors): the filter is not consistent")
     if not _report(logdir, summary, warnings, args.json):
         print(f"{result.finished} realisations, {summary['diverged']} diverged, {elapsed:.1f} s")
         for name in ("order", "param"):
@@ -540,9 +551,9 @@ def cmd_montecarlo(args) -> int:
         for name in ("nees", "nis"):
             c = summary.get(name)
             if c is not None:
-                print(f"{name.upper():>6}: mean {c['mean']:.4g} over steps and realisations (95 % band "
-                      f"[{c['band_95'][0]:.3g}, {c['band_95'][1]:.3g}]; {c['fraction_of_steps_inside_band'] * 100:.0f} % "
-                      "of steps inside)")
+                print(f"{name.upper():>6}: mean {c['mean']:.4g} over steps and realisations (1 if consistent); the "
+                      f"per-step mean over realisations is inside its 95 % band [{c['band_95'][0]:.3g}, "
+                      f"{c['band_95'][1]:.3g}] at {c['fraction_of_steps_inside_band'] * 100:.0f} % of the steps")
         print(f"run directory: {logdir}   (tensorboard --logdir {logdir.parent})")
     return 130 if result.interrupted else 0
 

@@ -29,7 +29,9 @@ MISSING_POLICY = ("missing samples (empty or NaN values, the recorder's NaN rows
                   "statistic")
 
 #: Largest relative difference between the rate in use and the time stamps' mean rate that passes silently.
-RATE_TOLERANCE = 0.002
+#: A device's sample clock is typically good to a few tenths of a per cent (a ceramic resonator ±0.5 %); a
+#: larger difference means the nominal rate is not the real one, or the stamping clock is off.
+RATE_TOLERANCE = 0.005
 #: Largest fraction of stamp intervals outside ``[0.5 h, 1.5 h]`` that passes silently.
 IRREGULAR_TOLERANCE = 0.01
 
@@ -94,6 +96,26 @@ def missing_error(source, missing: Missing, per: str = "column") -> str:
             "every statistic)")
 
 
+def _units_hint(stamp_rate_hz: float, rate_hz: float | None = None) -> str:
+    """A hint when the stamps are probably not in seconds: a stamp rate ~10³, 10⁶ or 10⁹ times off the rate in
+    use, or (rate taken from the stamps) a rate an IMU does not have."""
+    if not math.isfinite(stamp_rate_hz) or stamp_rate_hz <= 0:
+        return ""
+    names = {3: "milliseconds", 6: "microseconds", 9: "nanoseconds"}
+    if rate_hz is not None:
+        decades = math.log10(rate_hz / stamp_rate_hz)
+        p = round(decades)
+        if p in names and abs(decades - p) < 0.3:
+            return (f"the stamps give {stamp_rate_hz:.4g} Hz against {rate_hz:g} Hz in use, a factor of about 10^{p}: "
+                    f"they look like {names[p]}, but torchtea reads time stamps as seconds (--time-column none "
+                    "ignores them)")
+        return ""
+    if not 0.5 <= stamp_rate_hz <= 1e5:
+        return (f"the stamps give a sample rate of {stamp_rate_hz:.4g} Hz, implausible for an IMU: torchtea reads time "
+                "stamps as seconds; if they are in other units give the rate with --rate (and --time-column none)")
+    return ""
+
+
 def stamp_rate(t: np.ndarray) -> float:
     """Mean rate of time stamps: ``(number of stamped samples − 1) / span``; NaN stamps are skipped."""
     t = np.asarray(t, dtype=np.float64)
@@ -148,7 +170,7 @@ def check_timing(t: np.ndarray, rate_hz: float, *, column: str, rate_source: str
     if k.size < 2:
         return Timing(column, rate_hz, rate_source, int(k.size), math.nan, (n - 1) * h, math.nan, math.nan,
                       math.nan, math.nan, math.nan, math.nan, math.nan, 0,
-                      (f"time column {column!r} has fewer than two stamps; the rate cannot be checked",))
+                      (f"time column {column!r} has {k.size} stamp(s); the rate cannot be checked against it",))
     ts = t[k]
     dt = np.diff(ts) / np.diff(k)  # per-sample interval where a stamp is missing in between
     span = float(ts[-1] - ts[0])
@@ -162,11 +184,15 @@ def check_timing(t: np.ndarray, rate_hz: float, *, column: str, rate_source: str
         first = int(k[np.flatnonzero(dt <= 0)[0] + 1])
         warnings.append(f"time column {column!r} stands still or goes backwards at {backwards} place(s) (first at "
                         f"sample {first}): it is not a clock of the samples")
-    if math.isfinite(mismatch) and abs(mismatch) > RATE_TOLERANCE:
+    units = _units_hint(srate) if "time column" in rate_source else _units_hint(srate, rate_hz)
+    if units:
+        warnings.append(f"time column {column!r}: {units}")
+    elif math.isfinite(mismatch) and abs(mismatch) > RATE_TOLERANCE:
         warnings.append(
             f"time column {column!r}: {k.size} stamped samples span {span:.1f} s, a mean rate of {srate:.4g} Hz, "
-            f"but the rate in use is {rate_hz:g} Hz ({rate_source}): the rate is {mismatch * 100:+.2f} % off the "
-            f"stamps, and the series' duration at that rate is {(n - 1) * h:.1f} s"
+            f"but the rate in use is {rate_hz:g} Hz ({rate_source}), {mismatch * 100:+.2f} % from the stamps: either "
+            "the sensor does not sample at its nominal rate or the stamping clock is off; at the rate in use the "
+            f"series lasts {(n - 1) * h:.1f} s"
             + (" (the rate in use is the whole file's mean; this part of it runs at another)"
                if "time column" in rate_source else ""))
     if irregular > IRREGULAR_TOLERANCE:

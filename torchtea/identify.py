@@ -24,8 +24,8 @@ from .presets import get_preset
 from .stats import last_third, mean_nis
 from .tea import TEAConfig, TEAResult, make_params, run_tea, stack_params
 
-__all__ = ["AXES", "MIN_SAMPLES", "NIS_TRUST_BAND", "SETTLE_BAND", "DRIFT_BAND", "Identification", "axis_configs", "identify",
-           "summarise", "settle_time", "trust_warnings", "config_changes"]
+__all__ = ["AXES", "MIN_SAMPLES", "NIS_TRUST_BAND", "SETTLE_BAND", "DRIFT_BAND", "Identification", "axis_configs",
+           "identify", "summarise", "settle_time", "trust_warnings", "config_changes", "axis_changes"]
 
 AXES = ("x", "y", "z")
 
@@ -93,6 +93,14 @@ def config_changes(base: TEAConfig, used: TEAConfig) -> list[str]:
     """``key: base → used`` for every setting that differs (dotted keys as in TOML)."""
     a, b = _flat(base.to_dict()), _flat(used.to_dict())
     return [f"{k}: {a.get(k)!r} → {b.get(k)!r}" for k in sorted(set(a) | set(b)) if a.get(k) != b.get(k)]
+
+
+def axis_changes(base, used, names=AXES) -> list[str]:
+    """:func:`config_changes` of every axis: a change that is the same on every axis once, the others prefixed
+    with their axis (``"axis y: kfx.R: 0.00085 → 0.004"``)."""
+    per = [config_changes(b, u) for b, u in zip(base, used)]
+    common = [c for c in per[0] if all(c in p for p in per[1:])]
+    return common + [f"axis {a}: {c}" for a, p in zip(names, per) for c in p if c not in common]
 
 
 def axis_configs(y: torch.Tensor, r_mode: str = "measured", overrides: dict | None = None) -> tuple:
@@ -167,8 +175,7 @@ def identify(recording: Recording, *, n_samples: int | None = None, r_mode: str 
     means = np.nanmean(acc, axis=0)
     y = torch.as_tensor((acc - means).T.copy(), dtype=torch.float64).unsqueeze(-1)  # (3, N, 1)
     configs = axis_configs(y, r_mode, overrides)
-    base = axis_configs(y, r_mode)
-    changes = tuple(config_changes(base[0], configs[0]))
+    changes = tuple(axis_changes(axis_configs(y, r_mode), configs))
     params = stack_params([make_params(c, Structure()) for c in configs])
     result = run_tea(y, h=recording.h, params=params, progress=progress, compile=compile, partial=partial)
     return Identification(recording, recording.h, y, means, configs, result, missing, timing, changes)
@@ -177,9 +184,11 @@ def identify(recording: Recording, *, n_samples: int | None = None, r_mode: str 
 def settle_time(est: np.ndarray, t: np.ndarray, target: float, band: float = SETTLE_BAND) -> float:
     """First time after which ``|est − target| ≤ band`` holds to the end; NaN unless that covers at
     least the last third (``target`` is the last-third mean, so less would say nothing)."""
+    if not math.isfinite(target):
+        return math.nan
     outside = np.flatnonzero(np.abs(est - target) > band)
     first = 0 if outside.size == 0 else outside[-1] + 1
-    if first > len(est) - len(est) // 3:
+    if first >= len(est) or first > len(est) - len(est) // 3:
         return math.nan
     return float(t[first])
 
@@ -205,7 +214,18 @@ def _meaning(k0: int, N: int, h: float) -> dict:
                           "within the last third)",
         "alpha_drift_last_third": "mean of α̂ over the second half of the last third minus that over the first half "
                                   f"(warned about beyond ±{DRIFT_BAND})",
-        "missing_samples": "samples of this axis that were missing (predicted through, left out of statistics)",
+        "missing_samples": "samples of this series that were missing (predicted through, left out of statistics)",
+        "alpha_at_bound_fraction": "fraction of the last third at which α̂ sits on a bound of order_bounds",
+        "alpha_start": "KFo's initial order α₀", "param_start": "KFw's initial parameter w₀",
+        "alpha_prior_sd": "√P₀ᵒ, KFo's initial standard deviation", "param_prior_sd": "√P₀ʷ, KFw's",
+        "alpha_max_move": "largest |α̂ − α₀| over the run", "param_max_move": "largest |ŵ − w₀| over the run",
+        "param_settle_s": "time from which ŵ stays within ±param_settle_band of its last-third mean (null: not "
+                          "within the last third)",
+        "param_settle_band": f"{SETTLE_BAND} × max(1, |ŵ|)",
+        "param_drift_last_third": "as alpha_drift_last_third, for ŵ (warned about beyond "
+                                  f"±{DRIFT_BAND} × max(1, |ŵ|))",
+        "warnings": "where a number of this series should not be trusted, and why",
+        "diverged": "the TEA flagged the run as diverged (estimates frozen from there)",
     }
 
 
@@ -215,11 +235,14 @@ def trust_warnings(axis: str, s: dict, config: TEAConfig) -> list[str]:
     out = []
     lo, hi = NIS_TRUST_BAND
     nis = s["innovation_nis_last_third"]
-    if math.isfinite(nis) and not lo <= nis <= hi:
+    if not math.isfinite(nis):
+        out.append(f"{axis}: NIS over the last third cannot be computed (no observed sample there): the filter's "
+                   "consistency with the data is unchecked")
+    elif not lo <= nis <= hi:
         ratio = nis if nis > 1 else 1 / nis
         side = "smaller" if nis < 1 else "larger"
-        out.append(f"{axis}: NIS over the last third is {nis:.3g}, outside [{lo:g}, {hi:g}]: the innovations are "
-                   f"{ratio:.3g}× {side} than KFx predicts, so the filter is not consistent with the data — the noise "
+        out.append(f"{axis}: NIS over the last third is {nis:.3g}, outside [{lo:g}, {hi:g}]: the innovations' variance "
+                   f"is {ratio:.3g}× {side} than KFx predicts, so the filter is not consistent with the data — the noise "
                    "levels (Q, R) do not match this sensor and α̂, ŵ are conditional on them")
     b_lo, b_hi = config.order_bounds
     frac = s["alpha_at_bound_fraction"]
@@ -233,10 +256,20 @@ def trust_warnings(axis: str, s: dict, config: TEAConfig) -> list[str]:
                        f"{s[f'{name}_max_move']:.2g}, under 1 % of its prior sd {sd0:.3g}): the data did not inform it")
     for name, label, band in (("alpha", "α̂", DRIFT_BAND), ("param", "ŵ", DRIFT_BAND * max(1.0, abs(s["param"])))):
         drift = s[f"{name}_drift_last_third"]
-        if abs(drift) > band:
+        if not math.isfinite(drift):
+            out.append(f"{axis}: too few steps to tell whether {label} still drifts")
+        elif abs(drift) > band:
             out.append(f"{axis}: {label} is still drifting: its mean moved by {drift:+.3g} between the two halves of "
                        f"the last third (more than {band:.3g}); a longer recording may give another value")
     return out
+
+
+def _mean(x) -> float:
+    return float(np.mean(x)) if np.size(x) else math.nan
+
+
+def _std(x) -> float:
+    return float(np.std(x, ddof=1)) if np.size(x) > 1 else math.nan
 
 
 def summarise(result: TEAResult, configs, means=None, *, y: torch.Tensor | None = None, h: float = 1.0,
@@ -246,9 +279,14 @@ def summarise(result: TEAResult, configs, means=None, *, y: torch.Tensor | None 
 
     ``y`` ``(B, N, 1)`` marks missing samples (NaN); ``h`` is the sample time; ``names`` the B series' keys
     and ``label`` how the warnings name them. Returns ``{"axes", "warnings", "meaning", "last_third"}``."""
+    if result.steps is not None and result.steps.numel() > 1 and int(result.steps[1] - result.steps[0]) != 1:
+        raise ValueError("summarise needs every step of the run (run_tea with record_every=1)")
     axes = {}
     warnings = []
     N = result.alpha.shape[-2]
+    if N < MIN_SAMPLES:
+        warnings.append(f"only {N} steps: the last-third statistics need at least {MIN_SAMPLES} and are not "
+                        "meaningful below that")
     third = last_third(N)
     t = np.arange(N) * h
     k0 = third.start
@@ -265,10 +303,10 @@ def summarise(result: TEAResult, configs, means=None, *, y: torch.Tensor | None 
         obs3[:k0] = False
         nis_third = float(mean_nis(result.innovation[i], result.innovation_cov[i], obs3))
         s = {
-            "alpha": float(a[third].mean()),
-            "param": float(w[third].mean()),
-            "alpha_std_last_third": float(a[third].std(ddof=1)),
-            "param_std_last_third": float(w[third].std(ddof=1)),
+            "alpha": _mean(a[third]),
+            "param": _mean(w[third]),
+            "alpha_std_last_third": _std(a[third]),
+            "param_std_last_third": _std(w[third]),
             "alpha_final": float(a[-1]),
             "param_final": float(w[-1]),
             "alpha_filter_sd_final": math.sqrt(max(float(result.P_alpha[i, -1, 0, 0]), 0.0)),
@@ -280,7 +318,7 @@ def summarise(result: TEAResult, configs, means=None, *, y: torch.Tensor | None 
             "missing_samples": int((~observed).sum()),
         }
         lo, hi = cfg.order_bounds
-        s["alpha_at_bound_fraction"] = float(np.mean((a[third] <= lo + 1e-9) | (a[third] >= hi - 1e-9)))
+        s["alpha_at_bound_fraction"] = _mean((a[third] <= lo + 1e-9) | (a[third] >= hi - 1e-9))
         s["alpha_start"], s["param_start"] = float(cfg.kfo.x0), float(cfg.kfw.x0)
         s["alpha_prior_sd"] = math.sqrt(float(np.max(np.atleast_1d(cfg.kfo.P0))))
         s["param_prior_sd"] = math.sqrt(float(np.max(np.atleast_1d(cfg.kfw.P0))))
@@ -289,8 +327,8 @@ def summarise(result: TEAResult, configs, means=None, *, y: torch.Tensor | None 
         s["alpha_settle_s"] = settle_time(a, t, s["alpha"])
         s["param_settle_band"] = SETTLE_BAND * max(1.0, abs(s["param"]))
         s["param_settle_s"] = settle_time(w, t, s["param"], band=s["param_settle_band"])
-        s["alpha_drift_last_third"] = float(a[half:].mean() - a[k0:half].mean())
-        s["param_drift_last_third"] = float(w[half:].mean() - w[k0:half].mean())
+        s["alpha_drift_last_third"] = _mean(a[half:]) - _mean(a[k0:half])
+        s["param_drift_last_third"] = _mean(w[half:]) - _mean(w[k0:half])
         if means is not None:
             s["mean_removed_ms2"] = float(means[i])
         if s["diverged"]:

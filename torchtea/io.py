@@ -182,7 +182,7 @@ def read_recording(path=None, *, lsb_per_g: float | None = None, rate_hz: float 
         if all(c in parts for c in columns):
             start = i
             break
-        if len(parts) == 2 and _delimiter_hint(line) == "":
+        if len(parts) == 2:
             meta[parts[0]] = parts[1]
             continue
         lacking = [c for c in columns if c not in parts]
@@ -193,6 +193,10 @@ def read_recording(path=None, *, lsb_per_g: float | None = None, rate_hz: float 
         raise InputError(f"{path}: no header with columns {', '.join(columns)} found")
     header = [h.strip() for h in lines[start].split(",")]
     tcol = _time_column(path, header, time_column)
+    if tcol is not None and time_column == "auto" and not _numeric_column(lines, start, header.index(tcol)):
+        meta["time_column_skipped"] = (f"column {tcol!r} is not in seconds (its first value is not a number); "
+                                       "it is not used as time stamps")
+        tcol = None
     rate_source = "--rate" if rate_hz is not None else ""
     if rate_hz is None and "Fs" in meta:
         try:
@@ -224,7 +228,10 @@ def read_recording(path=None, *, lsb_per_g: float | None = None, rate_hz: float 
         if gyro_idx:
             gyr.append([_number(parts[j], path, i + 1, header[j], allow_missing=True) for j in gyro_idx])
         if tcol is not None:
-            stamps.append(_number(parts[header.index(tcol)], path, i + 1, tcol, allow_missing=True))
+            try:
+                stamps.append(_number(parts[header.index(tcol)], path, i + 1, tcol, allow_missing=True))
+            except InputError as exc:
+                raise InputError(f"{exc}; time stamps must be seconds (--time-column none ignores them)") from None
     if not acc:
         raise InputError(f"{path}: no data rows")
     t = np.asarray(stamps, dtype=np.float64) if tcol is not None else None
@@ -234,12 +241,34 @@ def read_recording(path=None, *, lsb_per_g: float | None = None, rate_hz: float 
         rate_hz = stamp_rate(t) if t is not None else math.nan
         if not math.isfinite(rate_hz):
             raise InputError(f"{path}: no sample rate in the file: no 'Fs,<Hz>' line, and time column {tcol!r} "
-                             "does not increase over the samples; give it with --rate")
+                             "has fewer than two stamps or does not increase; give the rate with --rate")
+        if not 0.5 <= rate_hz <= 1e5:
+            raise InputError(f"{path}: time column {tcol!r} gives a sample rate of {rate_hz:.4g} Hz, implausible for an "
+                             "IMU: time stamps are read as seconds; give the rate with --rate (and --time-column none "
+                             "if the stamps are in other units)")
         rate_source = f"the mean rate of time column {tcol!r}"
     return Recording(path=path, rate_hz=float(rate_hz), accel_counts=np.asarray(acc, dtype=np.float64),
                      accel_lsb_per_g=float(lsb_per_g),
                      gyro_counts=np.asarray(gyr, dtype=np.float64) if gyro_idx else None, metadata=meta,
                      time_s=t, time_column=tcol, rate_source=rate_source)
+
+
+def _numeric_column(lines: list, start: int, j: int) -> bool:
+    """Whether column ``j`` of the first data row after line ``start`` holds a number (or is empty)."""
+    for line in lines[start + 1:]:
+        if line.strip():
+            parts = line.split(",")
+            if j >= len(parts):
+                return True  # the row's own error comes later
+            t = parts[j].strip()
+            if t == "" or t.lower() == "nan":
+                continue
+            try:
+                float(t)
+            except ValueError:
+                return False
+            return True
+    return True
 
 
 def _time_column(path: Path, header: list, wanted) -> str | None:

@@ -6,7 +6,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .identify import AXES, NIS_TRUST_BAND, SETTLE_BAND, Identification, settle_time
+from .datacheck import MISSING_POLICY
+from .identify import AXES, NIS_TRUST_BAND, SETTLE_BAND, Identification, _mean, settle_time
 from .stats import last_third
 
 __all__ = ["settle_time", "axis_statistics", "write_report", "log_identification", "orders_figure",
@@ -28,11 +29,11 @@ def axis_statistics(ident: Identification, axes: dict) -> dict:
         obs = ~np.isnan(y)
         s = axes[axis]
         out[axis] = {
-            "noise_var": float(np.nanvar(y)),
+            "noise_var": float(np.nanvar(y)),  # identify() guarantees observed samples on every axis
             "noise_std": float(np.nanstd(y)),
-            "innovation_var_last_third": float(np.mean(e[third][obs[third]] ** 2)),
-            "predicted_innovation_var_last_third": float(res.innovation_cov[i, third, 0, 0].numpy()[obs[third]].mean()),
-            "residual_var_last_third": float(np.nanvar((y - x)[third])),
+            "innovation_var_last_third": _mean(e[third][obs[third]] ** 2),
+            "predicted_innovation_var_last_third": _mean(res.innovation_cov[i, third, 0, 0].numpy()[obs[third]]),
+            "residual_var_last_third": _mean((y - x)[third][obs[third]] ** 2) - _mean((y - x)[third][obs[third]]) ** 2,
             "alpha_settle_s": s["alpha_settle_s"],
             "param_settle_s": s["param_settle_s"],
             "missing_samples": int((~obs).sum()),
@@ -58,7 +59,8 @@ def write_report(path, ident: Identification, summary: dict, figures: list, *, c
     stats = summary["statistics"]
     span = summary["last_third"]
     third = (f"last ⅓ = samples {span['first_sample']}–{span['last_sample']} "
-             f"({span['t0_s']:.2f}–{span['t1_s']:.2f} s)")
+             f"({span['t0_s']:.2f}–{span['t1_s']:.2f} s)" if span["last_sample"] >= span["first_sample"]
+             else "last ⅓ = no samples (too few steps)")
     lines = [f"# Noise identification: {Path(rec.path).name}", ""]
     if ident.result.interrupted:
         lines += [f"**Interrupted (Ctrl-C) after {done} of {n} steps: every number below covers only those steps.**",
@@ -73,7 +75,9 @@ def write_report(path, ident: Identification, summary: dict, figures: list, *, c
     src.append(f"- **Samples**: {n} of {total} at {rec.rate_hz:g} Hz (rate from {rec.rate_source or 'the file'}), "
                f"{(n - 1) / rec.rate_hz:.1f} s" + ("" if n == total else " — `--samples all` uses the whole recording"))
     tm = ident.timing
-    if tm is not None:
+    if tm is not None and tm.stamped < 2:
+        src.append(f"- **Time stamps** (column `{tm.column}`): {tm.stamped} stamp(s), nothing to check the rate against")
+    elif tm is not None:
         src.append(f"- **Time stamps** (column `{tm.column}`): span {tm.span_s:.1f} s, mean rate {tm.stamp_rate_hz:.5g} Hz "
                    f"({tm.rate_mismatch * 100:+.2f} % from the rate in use); intervals median {tm.interval_median_s * 1e3:.3g} ms, "
                    f"99th percentile {tm.interval_p99_s * 1e3:.3g} ms; {tm.irregular_fraction * 100:.1f} % outside 0.5–1.5 h"
@@ -82,13 +86,14 @@ def write_report(path, ident: Identification, summary: dict, figures: list, *, c
     src.append("- **Missing samples** in the part used: " + (miss.describe() if miss is not None else "not checked")
                + ("; the filters predict through them and they are left out of every statistic"
                   if miss is not None and miss.count else ""))
-    settings = ("- **Settings**: the paper's §5.1 MEMS settings, R = Rᵒ = Rʷ = "
+    settings = ("- **Settings**: the paper's §5.1 MEMS settings with R = Rᵒ = Rʷ = "
                 + ("each axis's measured noise variance" if summary.get("r_mode") == "measured" else "the paper's printed values")
-                + f"; GL history `{summary.get('memory', 'exact')}`; each axis's mean removed")
+                + f"; GL history `{summary.get('memory', 'exact')}`; each axis's mean removed"
+                + (" — except where listed below" if ident.changes else ""))
     src.append(settings)
     if ident.changes:
-        src.append(f"- **Changed from those settings** by {('`' + config_source + '`') if config_source else 'overrides'} "
-                   "(axis x shown; the same keys on every axis): " + "; ".join(f"`{c}`" for c in ident.changes))
+        src.append(f"- **Changed from those settings** by {('`' + config_source + '`') if config_source else 'overrides'}: "
+                   + "; ".join(f"`{c}`" for c in ident.changes))
     if command:
         src.append(f"- **Command**: `{command}`")
     lines += src + [""]
@@ -223,10 +228,21 @@ def save_identification(ident: Identification, out_dir, *, plots: bool = True, r
                     "settings_changed": list(ident.changes),
                     "missing_samples": ident.missing.count if ident.missing is not None else None,
                     "missing": ident.missing.to_dict() if ident.missing is not None else None,
+                    "missing_policy": MISSING_POLICY,
                     "timing": ident.timing.to_dict() if ident.timing is not None else None,
                     "out": str(out_dir), "figures": figures, "statistics": axis_statistics(ident, summary["axes"])})
     if ident.timing is not None:
         summary["warnings"] = list(ident.timing.warnings) + summary["warnings"]
+    if res.memory_clamped is not None:
+        from .tea import CLAMP_NOTE
+
+        for i, a in enumerate(AXES):
+            summary["axes"][a]["memory_clamped_steps"] = int(res.memory_clamped[i])
+            if int(res.memory_clamped[i]):
+                summary["warnings"].append(f"axis {a}: " + CLAMP_NOTE.format(n=int(res.memory_clamped[i])))
+    if res.interrupted:
+        summary["warnings"].append(f"interrupted (Ctrl-C) after {N} of {ident.y.shape[-2]} steps: every number covers "
+                                   "only those steps, and the outputs hold those steps only")
     if seconds is not None:
         summary["seconds"] = round(seconds, 3)
     if "segment" in rec.metadata:

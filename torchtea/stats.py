@@ -82,9 +82,8 @@ def mean_nis(innovation: Tensor, cov: Tensor, observed: Tensor) -> Tensor:
     innovation ``(…, N, p)``, cov ``(…, N, p, p)``, observed ``(…, N)`` bool → ``(…)``; NaN where no step
     is observed.
     """
-    v = nis(innovation, cov)
-    w = observed.to(v.dtype)
-    return (v * w).sum(-1) / w.sum(-1)
+    v = torch.where(observed, nis(innovation, cov), 0.0)  # a masked step's S may be anything, even 0
+    return v.sum(-1) / observed.to(v.dtype).sum(-1)
 
 
 def chi2_band(dof: int, realisations: int, level: float = 0.95) -> tuple[float, float]:

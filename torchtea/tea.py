@@ -689,6 +689,10 @@ def _outputs(c: Carry, o: StepOutput):
     return (c.x, c.P, c.alpha, c.Po, c.Qo, c.w, c.Pw, c.Qw, o.innovation, o.innovation_cov)
 
 
+#: The warning for ``TEAResult.memory_clamped`` steps (``{n}``: their count).
+CLAMP_NOTE = ("soe memory: at {n} steps a KFo sigma order left the exponential-sum range; "
+              "those steps used the clamped order and differ from --memory exact")
+
 #: Steps per compiled call of the bounded-memory loop (amortises the call overhead of a compiled graph).
 COMPILE_BLOCK = 8
 

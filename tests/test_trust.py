@@ -404,19 +404,24 @@ def test_run_tea_partial_equals_the_first_steps_of_a_full_run():
         torch.testing.assert_close(getattr(part, name), getattr(full, name)[:, :121], rtol=0, atol=0)
 
 
-def test_identify_stopped_by_ctrl_c_writes_its_partial_results(tmp_path, capsys, monkeypatch):
+def ctrl_c_at_step(monkeypatch, step):
+    """Make identify's TEA see a Ctrl-C when it reaches ``step`` (as a user pressing it would)."""
     import torchtea.identify as ident_mod
 
     real = ident_mod.run_tea
 
     def interrupted_run(*a, progress=None, **kw):
         def p(k, N):
-            if k == 150:
+            if k == step:
                 raise KeyboardInterrupt
 
         return real(*a, progress=p, **kw)
 
     monkeypatch.setattr(ident_mod, "run_tea", interrupted_run)
+
+
+def test_identify_stopped_by_ctrl_c_writes_its_partial_results(tmp_path, capsys, monkeypatch):
+    ctrl_c_at_step(monkeypatch, 150)
     assert run("identify", "--samples", 400, "--json", "--no-plots", "--out", tmp_path / "id") == 130
     cap = capsys.readouterr()
     out = strict_loads(cap.out)
@@ -430,18 +435,7 @@ def test_identify_stopped_by_ctrl_c_writes_its_partial_results(tmp_path, capsys,
 
 
 def test_a_run_stopped_too_early_says_its_checks_did_not_run(tmp_path, capsys, monkeypatch):
-    import torchtea.identify as ident_mod
-
-    real = ident_mod.run_tea
-
-    def stopped_at_once(*a, progress=None, **kw):
-        def p(k, N):
-            if k == 1:
-                raise KeyboardInterrupt
-
-        return real(*a, progress=p, **kw)
-
-    monkeypatch.setattr(ident_mod, "run_tea", stopped_at_once)
+    ctrl_c_at_step(monkeypatch, 1)
     assert run("identify", "--samples", 300, "--json", "--no-plots", "--out", tmp_path / "id") == 130
     out = strict_loads(capsys.readouterr().out)
     assert out["steps_done"] == 2 and out["axes"]["x"]["alpha"] is None

@@ -8,6 +8,8 @@ from torchtea.montecarlo import Study, Truth, draw_realisation, realisation_seed
 from torchtea.presets import get_preset
 from torchtea.stats import over_realisations
 
+from .procs import sigint_as_in_a_terminal
+
 TRUTH = Truth(h=1e-3, n_steps=150, order="0.35", param=-1.0, q=1e-4, r=1e-3, input_std=1.0)
 
 
@@ -212,7 +214,8 @@ def test_sigint_leaves_a_readable_partial_run(tmp_path):
     proc = subprocess.Popen([sys.executable, "-m", "torchtea.cli", "montecarlo", "--preset", "paper-example1",
                              "--n", "100", "--realisations", "5000", "--chunk", "1", "--logdir", str(logdir),
                              "--progress-file", str(progress), "--json"],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=sigint_as_in_a_terminal)
     deadline = time.monotonic() + 120
     done = 0
     while done < 3 and time.monotonic() < deadline and proc.poll() is None:

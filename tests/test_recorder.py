@@ -18,6 +18,8 @@ from torchtea.io import STANDARD_GRAVITY, read_recording
 from torchtea.protocol import U32
 from torchtea.recorder import EXIT_DISCONNECTED, Recorder
 
+from .procs import sigint_as_in_a_terminal
+
 ROOT = Path(__file__).resolve().parents[1]
 N = 200
 COUNTS = np.stack([np.arange(N) % 97 - 48, -np.arange(N) % 89, 4096 + np.arange(N) % 13,
@@ -126,7 +128,7 @@ def _fake(*args):
 
 def _torchtea(*args, **kw):
     return subprocess.Popen([sys.executable, "-m", "torchtea.cli", *args], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True, **kw)
+                            stderr=subprocess.PIPE, text=True, preexec_fn=sigint_as_in_a_terminal, **kw)
 
 
 def _stop(proc):

@@ -1,5 +1,19 @@
-"""Test-wide settings: hypothesis runs derandomised, so every run (and CI) checks the same examples."""
-from hypothesis import settings
+"""Test-wide settings.
+
+* hypothesis runs derandomised, so every run (and CI) checks the same examples;
+* torch (here and in the torchtea processes the tests start) uses one thread: the tests' tensors are small,
+  and two processes that each spin two OpenMP threads on a 2-core machine slow each other down many times
+  over — the suite must also pass, in reasonable time, beside another CPU-heavy job. Speed is measured in
+  experiments/bench, not here.
+"""
+import os
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")  # before torch is imported; inherited by child processes
+
+import torch  # noqa: E402
+from hypothesis import settings  # noqa: E402
+
+torch.set_num_threads(int(os.environ["OMP_NUM_THREADS"]))
 
 settings.register_profile("torchtea", derandomize=True, print_blob=True)
 settings.load_profile("torchtea")

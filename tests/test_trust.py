@@ -246,6 +246,13 @@ def test_nis_far_from_one_is_warned_about_with_labelled_spans(tmp_path, capsys):
     assert msg in cap.err and any(w.startswith(msg) for w in out["warnings"])
     report = (tmp_path / "id" / "report.md").read_text()
     assert msg in report and "## Warnings" in report
+    # an order whose own filter σ is large is called poorly determined, with the numbers; one that is not, is not
+    for a in "xyz":
+        sd = out["axes"][a]["alpha_filter_sd_final"]
+        said = any(w.startswith(f"axis {a}: α̂ is poorly determined: KFo's own σ at the last sample is {sd:.3g}")
+                   for w in out["warnings"])
+        assert said == (sd > 0.1), (a, sd)
+    assert out["axes"]["z"]["alpha_filter_sd_final"] > 0.1 > out["axes"]["x"]["alpha_filter_sd_final"]
     # each number says over which span it is: the last third is samples 400–599
     assert out["last_third"] == {"first_sample": 400, "last_sample": 599, "t0_s": 4.0, "t1_s": 5.99}
     assert "samples 400–599" in out["meaning"]["alpha"] and "not an uncertainty" in out["meaning"]["alpha_std_last_third"]

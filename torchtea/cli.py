@@ -255,7 +255,7 @@ def cmd_estimate(args) -> int:
         "innovation_nis": s["innovation_nis"],
         "innovation_nis_last_third": s["innovation_nis_last_third"],
         "diverged": bool(res.diverged[0]),
-        "diverged_at_step": int(res.diverged_at[0]),
+        "diverged_at_step": int(res.diverged_at[0]) if bool(res.diverged[0]) else None,
         "samples": N,
         "steps_done": done,
         "interrupted": bool(res.interrupted),

@@ -199,7 +199,9 @@ def check_timing(t: np.ndarray, rate_hz: float, *, column: str, rate_source: str
         warnings.append(
             f"time column {column!r}: the stamps are irregular: {irregular * 100:.1f} % of the intervals lie outside "
             f"0.5–1.5 × h = {h * 1e3:.3g} ms (median {med * 1e3:.3g} ms, 99th percentile {p99 * 1e3:.3g} ms, "
-            f"max {float(dt.max()) * 1e3:.3g} ms); the filters assume equal steps of h. Stamps taken on arrival "
-            "at a host come in bursts and are not the sampling instants; gaps in a device clock mean lost samples")
+            f"max {float(dt.max()) * 1e3:.3g} ms); the filters assume equal steps of h = 1/({rate_hz:g} Hz, "
+            f"{rate_source}). Short intervals mean stamps taken on arrival at a host, in bursts, not at the "
+            "sampling instants: then only their long-run mean rate means anything, and --rate with the sensor's "
+            "configured rate is better. Long gaps in a device clock mean lost samples")
     return Timing(column, float(rate_hz), rate_source, int(k.size), span, (n - 1) * h, srate, mismatch, med, p99,
                   float(dt.min()), float(dt.max()), irregular, backwards, tuple(warnings))

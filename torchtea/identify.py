@@ -24,7 +24,7 @@ from .presets import get_preset
 from .stats import last_third, mean_nis
 from .tea import TEAConfig, TEAResult, make_params, run_tea, stack_params
 
-__all__ = ["AXES", "MIN_SAMPLES", "NIS_TRUST_BAND", "SETTLE_BAND", "DRIFT_BAND", "Identification", "axis_configs",
+__all__ = ["AXES", "MIN_SAMPLES", "NIS_TRUST_BAND", "SETTLE_BAND", "DRIFT_BAND", "ALPHA_SD_LIMIT", "Identification", "axis_configs",
            "identify", "summarise", "settle_time", "trust_warnings", "config_changes", "axis_changes"]
 
 AXES = ("x", "y", "z")
@@ -39,6 +39,9 @@ NIS_TRUST_BAND = (0.5, 2.0)
 
 #: An order estimate has settled once it stays within this distance of its last-third mean.
 SETTLE_BAND = 0.05
+
+#: KFo's own σ of the order at the last sample above which the order is called poorly determined.
+ALPHA_SD_LIMIT = 0.1
 
 #: An estimate is still drifting when the means of the two halves of the last third differ by more than this
 #: (times ``max(1, |ŵ|)`` for the parameter).
@@ -225,6 +228,8 @@ def _meaning(k0: int, N: int, h: float) -> dict:
         "param_drift_last_third": "as alpha_drift_last_third, for ŵ (warned about beyond "
                                   f"±{DRIFT_BAND} × max(1, |ŵ|))",
         "warnings": "where a number of this series should not be trusted, and why",
+        "mean_removed_ms2": "the series' mean, removed before estimation [m/s²]",
+        "memory_clamped_steps": "soe memory: steps at which a KFo sigma order left the kernel's range",
         "diverged": "the TEA flagged the run as diverged (estimates frozen from there)",
     }
 
@@ -244,6 +249,10 @@ def trust_warnings(axis: str, s: dict, config: TEAConfig) -> list[str]:
         out.append(f"{axis}: NIS over the last third is {nis:.3g}, outside [{lo:g}, {hi:g}]: the innovations' variance "
                    f"is {ratio:.3g}× {side} than KFx predicts, so the filter is not consistent with the data — the noise "
                    "levels (Q, R) do not match this sensor and α̂, ŵ are conditional on them")
+    sd = s["alpha_filter_sd_final"]
+    if sd > ALPHA_SD_LIMIT:
+        out.append(f"{axis}: α̂ is poorly determined: KFo's own σ at the last sample is {sd:.3g} (α̂ ± 2σ = "
+                   f"{s['alpha_final']:.3g} ± {2 * sd:.2g}), so these data do not pin the order down")
     b_lo, b_hi = config.order_bounds
     frac = s["alpha_at_bound_fraction"]
     if frac > 0.1:
@@ -259,8 +268,9 @@ def trust_warnings(axis: str, s: dict, config: TEAConfig) -> list[str]:
         if not math.isfinite(drift):
             out.append(f"{axis}: too few steps to tell whether {label} still drifts")
         elif abs(drift) > band:
+            limit = f"{band:.3g}" if name == "alpha" else f"{band:.3g} = {DRIFT_BAND} × max(1, |ŵ|)"
             out.append(f"{axis}: {label} is still drifting: its mean moved by {drift:+.3g} between the two halves of "
-                       f"the last third (more than {band:.3g}); a longer recording may give another value")
+                       f"the last third (more than {limit}); a longer recording may give another value")
     return out
 
 

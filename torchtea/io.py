@@ -246,7 +246,7 @@ def read_recording(path=None, *, lsb_per_g: float | None = None, rate_hz: float 
             raise InputError(f"{path}: time column {tcol!r} gives a sample rate of {rate_hz:.4g} Hz, implausible for an "
                              "IMU: time stamps are read as seconds; give the rate with --rate (and --time-column none "
                              "if the stamps are in other units)")
-        rate_source = f"the mean rate of time column {tcol!r}"
+        rate_source = f"the mean rate of time column {tcol!r} over the whole file"
     return Recording(path=path, rate_hz=float(rate_hz), accel_counts=np.asarray(acc, dtype=np.float64),
                      accel_lsb_per_g=float(lsb_per_g),
                      gyro_counts=np.asarray(gyr, dtype=np.float64) if gyro_idx else None, metadata=meta,

@@ -78,8 +78,8 @@ def write_report(path, ident: Identification, summary: dict, figures: list, *, c
     if tm is not None and tm.stamped < 2:
         src.append(f"- **Time stamps** (column `{tm.column}`): {tm.stamped} stamp(s), nothing to check the rate against")
     elif tm is not None:
-        src.append(f"- **Time stamps** (column `{tm.column}`): span {tm.span_s:.1f} s, mean rate {tm.stamp_rate_hz:.5g} Hz "
-                   f"({tm.rate_mismatch * 100:+.2f} % from the rate in use); intervals median {tm.interval_median_s * 1e3:.3g} ms, "
+        src.append(f"- **Time stamps** (column `{tm.column}`) of the samples used: they span {tm.span_s:.1f} s, a mean rate "
+                   f"of {tm.stamp_rate_hz:.5g} Hz (the rate in use is {tm.rate_mismatch * 100:+.2f} % from it); intervals median {tm.interval_median_s * 1e3:.3g} ms, "
                    f"99th percentile {tm.interval_p99_s * 1e3:.3g} ms; {tm.irregular_fraction * 100:.1f} % outside 0.5–1.5 h"
                    + (" — see the warnings" if tm.warnings else " — consistent with the rate"))
     miss = ident.missing
@@ -231,6 +231,14 @@ def save_identification(ident: Identification, out_dir, *, plots: bool = True, r
                     "missing_policy": MISSING_POLICY,
                     "timing": ident.timing.to_dict() if ident.timing is not None else None,
                     "out": str(out_dir), "figures": figures, "statistics": axis_statistics(ident, summary["axes"])})
+    summary["meaning"].update({
+        "statistics": "per axis: noise variance and std over all samples used; over the last third the mean squared "
+                      "innovation, its predicted value S and the residual y − x̂ variance; settling times [s]",
+        "timing": "the file's time stamps against the rate in use (null: the file has no time column)",
+        "rate_source": "where rate_hz came from", "r_mode": "R = each axis's measured variance, or the paper's",
+        "seconds": "wall-clock time of the TEA", "steps_done": "steps the TEA finished (samples unless interrupted)",
+        "settings_changed": "settings that differ from the paper's §5.1 MEMS settings with measured R",
+    })
     if ident.timing is not None:
         summary["warnings"] = list(ident.timing.warnings) + summary["warnings"]
     if res.memory_clamped is not None:

@@ -14,7 +14,7 @@ from dataclasses import replace
 
 import torch
 
-from torchtea.datacheck import check_timing, find_missing, missing_error
+from torchtea.datacheck import check_missing, check_timing
 from torchtea.identify import AXES, Identification, axis_configs
 from torchtea.io import read_recording
 from torchtea.memory import parse_memory
@@ -33,9 +33,7 @@ args = ap.parse_args()
 #    unless allowed; the file's time stamps, if any, are checked against the rate.
 rec = read_recording(args.recording)
 acc = rec.accel_ms2()[: int(args.seconds * rec.rate_hz)]
-missing = find_missing(acc, AXES)
-if missing.count and not args.allow_missing:
-    raise SystemExit(missing_error(rec.path, missing, per="axis"))
+missing = check_missing(rec.path, acc, AXES, allow=args.allow_missing, per="axis")
 timing = None if rec.time_s is None else check_timing(rec.time_s[: len(acc)], rec.rate_hz, column=rec.time_column,
                                                       rate_source=rec.rate_source)
 means = torch.as_tensor(acc).nanmean(0)

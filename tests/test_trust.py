@@ -334,7 +334,7 @@ def test_montecarlo_prints_nees_and_warns_outside_its_band(tmp_path, capsys):
     assert s["nis"]["mean"] > 10 * hi and s["nis"]["fraction_of_steps_inside_band"] < 0.8
     assert f"NIS: mean {s['nis']['mean']:.4g} over steps and realisations" in cap.out
     assert f"[{lo:.3g}, {hi:.3g}]" in cap.out and "NEES: mean" in cap.out
-    msg = f"NIS (innovations against KFx's S): its mean over realisations lies inside the per-step 95 % band"
+    msg = "NIS (innovations against KFx's S): its mean over realisations lies inside the per-step 95 % band"
     assert msg in cap.err and any(w.startswith(msg) for w in s["warnings"])  # in summary.json too
     # the same study with the right R: consistent innovations, no NIS warning
     study.write_text(study.read_text().replace("R = 1e-5", "R = 1e-3"))

@@ -171,44 +171,32 @@ def _tea_config(args):
         raise CLIError(str(exc)) from None
 
 
-def _check_missing(source, values, names, allow: bool):
-    """The missing-sample policy (:mod:`torchtea.datacheck`): an error without ``--allow-missing``."""
-    from .datacheck import find_missing, missing_error
-
-    missing = find_missing(values, names)
-    if missing.count and not allow:
-        raise CLIError(missing_error(source, missing))
-    return missing
-
-
-def _interrupted_note(res, total, where) -> str:
-    return (f"interrupted after {int(res.steps[-1]) + 1} of {total} steps; the partial results are in {where} "
-            "(marked interrupted)")
-
-
 def cmd_estimate(args) -> int:
     import numpy as np
     import torch
 
     from .config import write_config
-    from .datacheck import check_timing, stamp_rate
+    from .datacheck import check_missing, check_timing, stamp_rate
     from .identify import MIN_SAMPLES, summarise
     from .io import InputError, read_series, write_columns
     from .model import Structure
-    from .tea import CLAMP_NOTE, make_params, run_tea
+    from .tea import make_params, run_tea
 
     cfg, source = _tea_config(args)
     cfg = _with_memory(cfg, args.memory)
-    cols = read_series(args.file, ["y"], ["u"], allow_missing=True)
+    try:
+        cols = read_series(args.file, ["y"], ["u", "t"], allow_missing=True)
+    except InputError as exc:
+        if exc.column != "t":
+            raise
+        # a time column that is not in seconds is not a reason to stop: read the file again without it
+        print(f"torchtea: note: column 't' is not used as time stamps ({exc})", file=sys.stderr)
+        cols = read_series(args.file, ["y"], ["u"], allow_missing=True)
     N = len(cols["y"])
     if N < MIN_SAMPLES:
         raise CLIError(f"{args.file}: {N} samples; estimate needs at least {MIN_SAMPLES} (its estimates are "
                        "summarised over the last third of the run)")
-    try:
-        cols.update(read_series(args.file, [], ["t"], allow_missing=True))
-    except InputError as exc:  # a time column that is not in seconds is not a reason to stop
-        print(f"torchtea: note: column 't' is not used as time stamps ({exc})", file=sys.stderr)
-    missing = _check_missing(args.file, cols["y"], ["y"], args.allow_missing)
+    missing = check_missing(args.file, cols["y"], ["y"], allow=args.allow_missing)
     if missing.count >= N - 1:
         raise CLIError(f"{args.file}: column 'y' has {N - missing.count} observed sample(s); nothing to estimate")
     y = torch.as_tensor(cols["y"]).unsqueeze(-1)
@@ -241,7 +229,7 @@ def cmd_estimate(args) -> int:
     })
     write_columns(out, cols_out)
     write_config(out.with_suffix(".toml"), cfg, {"h": h, "source": source})
-    stats = summarise(res, (cfg,), y=y[:done].unsqueeze(0), h=h, names=("y",), label="column 'y'")
+    stats = summarise(res, (cfg,), y=y.unsqueeze(0), h=h, names=("y",), label="column 'y'")
     s = stats["axes"]["y"]
     summary = {
         "alpha_final": s["alpha_final"],
@@ -270,16 +258,12 @@ def cmd_estimate(args) -> int:
         "seconds": round(elapsed, 3),
         "last_third": stats["last_third"],
     }
+    if "memory_clamped_steps" in s:
+        summary["memory_clamped_steps"] = s["memory_clamped_steps"]
     meaning = dict(stats["meaning"], alpha_mean_last_third=stats["meaning"]["alpha"],
                    param_mean_last_third=stats["meaning"]["param"])
     summary["meaning"] = {k: v for k, v in meaning.items() if k in summary}
     warnings = (list(timing.warnings) if timing is not None else []) + stats["warnings"]
-    if res.memory_clamped is not None:
-        summary["memory_clamped_steps"] = int(res.memory_clamped[0])
-        if int(res.memory_clamped[0]):
-            warnings.append(CLAMP_NOTE.format(n=int(res.memory_clamped[0])))
-    if res.interrupted:
-        warnings.append(_interrupted_note(res, N, out))
     summary["warnings"] = warnings
     for w in warnings:
         print(f"torchtea: warning: {w}", file=sys.stderr)
@@ -328,7 +312,7 @@ def _identify_overrides(args):
 
 
 def cmd_identify(args) -> int:
-    from .identify import AXES, identify
+    from .identify import identify
     from .io import STANDARD_GRAVITY, read_recording
     from .report import save_identification
 

@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 __all__ = ["MISSING_POLICY", "RATE_TOLERANCE", "IRREGULAR_TOLERANCE", "Missing", "find_missing",
-           "missing_error", "Timing", "check_timing", "stamp_rate"]
+           "missing_error", "check_missing", "Timing", "check_timing", "stamp_rate"]
 
 MISSING_POLICY = ("missing samples (empty or NaN values, the recorder's NaN rows) stop a run unless --allow-missing; "
                   "with it the filters predict through them without an update and they are left out of every "
@@ -114,6 +114,17 @@ def _units_hint(stamp_rate_hz: float, rate_hz: float | None = None) -> str:
         return (f"the stamps give a sample rate of {stamp_rate_hz:.4g} Hz, implausible for an IMU: torchtea reads time "
                 "stamps as seconds; if they are in other units give the rate with --rate (and --time-column none)")
     return ""
+
+
+def check_missing(source, values: np.ndarray, names, *, allow: bool, per: str = "column") -> Missing:
+    """The missing-sample policy in one place: the :class:`Missing` of ``values`` ``(N, k)``, or an
+    :class:`~torchtea.io.InputError` (:func:`missing_error`) if any is missing and ``allow`` is False."""
+    from .io import InputError
+
+    missing = find_missing(values, names)
+    if missing.count and not allow:
+        raise InputError(missing_error(source, missing, per=per))
+    return missing
 
 
 def stamp_rate(t: np.ndarray) -> float:

@@ -17,12 +17,12 @@ from dataclasses import dataclass, replace
 import numpy as np
 import torch
 
-from .datacheck import Missing, Timing, check_timing, find_missing, missing_error
+from .datacheck import Missing, Timing, check_missing, check_timing
 from .io import InputError, Recording
 from .model import Structure
 from .presets import get_preset
 from .stats import last_third, mean_nis
-from .tea import TEAConfig, TEAResult, make_params, run_tea, stack_params
+from .tea import CLAMP_NOTE, TEAConfig, TEAResult, make_params, run_tea, stack_params
 
 __all__ = ["AXES", "MIN_SAMPLES", "NIS_TRUST_BAND", "SETTLE_BAND", "DRIFT_BAND", "ALPHA_SD_LIMIT", "Identification", "axis_configs",
            "identify", "summarise", "settle_time", "trust_warnings", "config_changes", "axis_changes"]
@@ -165,9 +165,7 @@ def identify(recording: Recording, *, n_samples: int | None = None, r_mode: str 
     if N < MIN_SAMPLES:
         raise InputError(f"{recording.path}: {N} samples; identify needs at least {MIN_SAMPLES} (its estimates are "
                          "summarised over the last third of the run)")
-    missing = find_missing(acc, AXES)
-    if missing.count and not allow_missing:
-        raise InputError(missing_error(recording.path, missing, per="axis"))
+    missing = check_missing(recording.path, acc, AXES, allow=allow_missing, per="axis")
     empty = [a for a, c in missing.per_column.items() if c >= N - 1]
     if empty:
         raise InputError(f"{recording.path}: axis {', '.join(empty)} has no samples in the part used")
@@ -287,8 +285,9 @@ def summarise(result: TEAResult, configs, means=None, *, y: torch.Tensor | None 
     """Per-series order and parameter (final, and mean/std over the last third), the filter's own sd, NIS
     (observed samples only), settling, and the trust warnings, for a result of batch ``(B,)``.
 
-    ``y`` ``(B, N, 1)`` marks missing samples (NaN); ``h`` is the sample time; ``names`` the B series' keys
-    and ``label`` how the warnings name them. Returns ``{"axes", "warnings", "meaning", "last_third"}``."""
+    ``y`` ``(B, N, 1)`` marks missing samples (NaN) — the whole series, also when the run was interrupted
+    before its end; ``h`` is the sample time; ``names`` the B series' keys and ``label`` how the warnings name
+    them. Returns ``{"axes", "warnings", "meaning", "last_third"}``."""
     if result.steps is not None and result.steps.numel() > 1 and int(result.steps[1] - result.steps[0]) != 1:
         raise ValueError("summarise needs every step of the run (run_tea with record_every=1)")
     axes = {}
@@ -345,7 +344,15 @@ def summarise(result: TEAResult, configs, means=None, *, y: torch.Tensor | None 
             warnings.append(f"{label.format(axis)}: the TEA diverged at step {int(result.diverged_at[i])}; its estimates are "
                             "frozen at the last good step")
         s["warnings"] = trust_warnings(label.format(axis), s, cfg)
+        if result.memory_clamped is not None:
+            s["memory_clamped_steps"] = int(result.memory_clamped[i])
+            if s["memory_clamped_steps"]:
+                s["warnings"].append(f"{label.format(axis)}: " + CLAMP_NOTE.format(n=s["memory_clamped_steps"]))
         warnings += s["warnings"]
         axes[axis] = s
+    if result.interrupted:
+        total = N if y is None else y.shape[-2]
+        warnings.append(f"interrupted (Ctrl-C) after {N} of {total} steps: every number covers only those steps, "
+                        "and the outputs hold those steps only")
     return {"axes": axes, "warnings": warnings, "meaning": _meaning(k0, N, h),
             "last_third": {"first_sample": k0, "last_sample": N - 1, "t0_s": k0 * h, "t1_s": (N - 1) * h}}

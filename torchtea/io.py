@@ -28,7 +28,12 @@ TIME_COLUMNS = ("t", "t_s", "time", "time_s", "sec", "seconds", "timestamp")
 
 
 class InputError(ValueError):
-    """Bad user input: an unreadable file, a missing column, a non-numeric value …"""
+    """Bad user input: an unreadable file, a missing column, a non-numeric value …; ``column`` names the
+    column of a bad value (None when the error is not about one column's values)."""
+
+    def __init__(self, message: str, column: str | None = None):
+        super().__init__(message)
+        self.column = column
 
 
 @dataclass(frozen=True)
@@ -101,13 +106,13 @@ def _number(text: str, path: Path, line: int, column: str, *, allow_missing: boo
         if allow_missing:
             return math.nan
         raise InputError(f"{path}, line {line}: column {column!r} is empty or NaN "
-                         "(use --allow-missing to treat such samples as missing)")
+                         "(use --allow-missing to treat such samples as missing)", column)
     try:
         v = float(t)
     except ValueError:
-        raise InputError(f"{path}, line {line}: column {column!r} holds {t!r}, not a number") from None
+        raise InputError(f"{path}, line {line}: column {column!r} holds {t!r}, not a number", column) from None
     if not math.isfinite(v):
-        raise InputError(f"{path}, line {line}: column {column!r} is not finite ({t})")
+        raise InputError(f"{path}, line {line}: column {column!r} is not finite ({t})", column)
     return v
 
 

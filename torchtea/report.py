@@ -241,16 +241,6 @@ def save_identification(ident: Identification, out_dir, *, plots: bool = True, r
     })
     if ident.timing is not None:
         summary["warnings"] = list(ident.timing.warnings) + summary["warnings"]
-    if res.memory_clamped is not None:
-        from .tea import CLAMP_NOTE
-
-        for i, a in enumerate(AXES):
-            summary["axes"][a]["memory_clamped_steps"] = int(res.memory_clamped[i])
-            if int(res.memory_clamped[i]):
-                summary["warnings"].append(f"axis {a}: " + CLAMP_NOTE.format(n=int(res.memory_clamped[i])))
-    if res.interrupted:
-        summary["warnings"].append(f"interrupted (Ctrl-C) after {N} of {ident.y.shape[-2]} steps: every number covers "
-                                   "only those steps, and the outputs hold those steps only")
     if seconds is not None:
         summary["seconds"] = round(seconds, 3)
     if "segment" in rec.metadata:

@@ -857,7 +857,6 @@ def run_tea(
 
     carry, first = _first_step(model, params, y[..., 0, :], batch)
     record_block(0, _outputs(carry, first), False)
-    completed = 1  # steps whose outputs are stored
     clamped = torch.zeros(batch, dtype=torch.long, device=device)
     try:
         completed, carry, diverged_at, clamped = _loop(

@@ -169,9 +169,13 @@ def test_identify_bundled_json_contract(tmp_path, capsys):
     d = np.genfromtxt(tmp_path / "id" / "trajectories.csv", delimiter=",", names=True)
     assert len(d) == 600
     assert out["axes"]["y"]["alpha"] == pytest.approx(d["alpha_y"][400:].mean(), rel=1e-12)
-    # the mean was removed per axis, and R is each axis's measured variance
+    # the mean was removed per axis, and R is the fitted white-noise variance, Q the fitted drive
     assert abs(d["y_z"].mean()) < 1e-12
-    assert out["axes"]["z"]["R"] == pytest.approx(d["y_z"].var(), rel=1e-9)
+    for axis in "xyz":
+        fit = out["fit"][axis]["parameters"]
+        assert out["axes"][axis]["R"] == pytest.approx(fit["white.r"]["value"], rel=1e-12)
+        assert out["fit"][axis]["nis"] == pytest.approx(1.0, abs=0.1)  # the fitted model's own innovations
+    assert out["r_mode"] == "fitted"
     for axis in "xyz":
         png = tmp_path / "id" / f"axis_{axis}.png"
         assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
@@ -181,7 +185,7 @@ def test_identify_report_and_tensorboard(tmp_path, capsys):
     """report.md carries the numbers of summary.json; the TensorBoard events read back to the trajectories."""
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
-    assert run("identify", "--json", "--samples", 450, "--out", tmp_path / "id") == 0
+    assert run("identify", "--r", "measured", "--json", "--samples", 450, "--out", tmp_path / "id") == 0
     out = json.loads(capsys.readouterr().out)
     report = (tmp_path / "id" / "report.md").read_text()
     for axis, a in out["axes"].items():
@@ -223,7 +227,7 @@ def test_identify_generic_csv_columns_and_units(tmp_path, capsys):
 
 def test_identify_batched_equals_per_axis(tmp_path, capsys):
     """The three axes in one batch give what each axis gives alone through `estimate`."""
-    run("identify", "--json", "--samples", 300, "--no-plots", "--out", tmp_path / "id")
+    run("identify", "--r", "measured", "--json", "--samples", 300, "--no-plots", "--out", tmp_path / "id")
     ident = json.loads(capsys.readouterr().out)
     d = np.genfromtxt(tmp_path / "id" / "trajectories.csv", delimiter=",", names=True)
     for axis in "xyz":

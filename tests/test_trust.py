@@ -237,7 +237,7 @@ def test_recorder_file_device_clock_is_checked(tmp_path):
 
 
 def test_nis_far_from_one_is_warned_about_with_labelled_spans(tmp_path, capsys):
-    assert run("identify", "--samples", 600, "--json", "--no-plots", "--out", tmp_path / "id") == 0
+    assert run("identify", "--r", "measured", "--samples", 600, "--json", "--no-plots", "--out", tmp_path / "id") == 0
     cap = capsys.readouterr()
     out = strict_loads(cap.out)
     x = out["axes"]["x"]
@@ -269,7 +269,7 @@ def test_nis_far_from_one_is_warned_about_with_labelled_spans(tmp_path, capsys):
 def test_order_at_bound_and_parameter_that_never_moved_are_warned_about(tmp_path, capsys):
     cfg = tmp_path / "c.toml"
     cfg.write_text("order_bounds = [0.6, 0.7]\n[kfw]\nP0 = 1e-14\nQ0 = 1e-14\n")
-    assert run("identify", "--samples", 300, "--config", cfg, "--json", "--no-plots", "--out", tmp_path / "id") == 0
+    assert run("identify", "--r", "measured", "--samples", 300, "--config", cfg, "--json", "--no-plots", "--out", tmp_path / "id") == 0
     cap = capsys.readouterr()
     out = strict_loads(cap.out)
     x = out["axes"]["x"]
@@ -277,7 +277,7 @@ def test_order_at_bound_and_parameter_that_never_moved_are_warned_about(tmp_path
     assert "axis x: α̂ sits at its bound (order_bounds [0.6, 0.7])" in cap.err
     assert x["param_max_move"] < 1e-9 and "axis x: ŵ never left its start value 0" in cap.err
     # and where they do not apply, they are not said: the default bounds and KFw's own priors
-    assert run("identify", "--samples", 300, "--json", "--no-plots", "--out", tmp_path / "id2") == 0
+    assert run("identify", "--r", "measured", "--samples", 300, "--json", "--no-plots", "--out", tmp_path / "id2") == 0
     cap = capsys.readouterr()
     assert "sits at its bound" not in cap.err and "never left its start value" not in cap.err
     assert all(strict_loads(cap.out)["axes"][a]["param_max_move"] > 1e-3 for a in "xyz")
@@ -352,7 +352,7 @@ def test_identify_config_merges_onto_the_mems_settings_and_keeps_its_r(tmp_path,
 
     cfg = tmp_path / "c.toml"
     cfg.write_text("[kfo]\ndelta = 0.3\n")  # no preset line, no R
-    assert run("identify", "--samples", 300, "--config", cfg, "--json", "--no-plots", "--out", tmp_path / "a") == 0
+    assert run("identify", "--r", "measured", "--samples", 300, "--config", cfg, "--json", "--no-plots", "--out", tmp_path / "a") == 0
     out = strict_loads(capsys.readouterr().out)
     used = tomllib.loads((tmp_path / "a" / "config_x.toml").read_text())
     assert used["kfo"]["delta"] == 0.3
@@ -364,13 +364,13 @@ def test_identify_config_merges_onto_the_mems_settings_and_keeps_its_r(tmp_path,
     # x's own config reused: no change on x, but y and z now run with x's R — and say so
     rx = used["kfx"]["R"]
     cfg.write_text(f"[kfx]\nR = {rx!r}\n[kfo]\nR = {rx!r}\n[kfw]\nR = {rx!r}\n")
-    assert run("identify", "--samples", 300, "--config", cfg, "--json", "--no-plots", "--out", tmp_path / "b") == 0
+    assert run("identify", "--r", "measured", "--samples", 300, "--config", cfg, "--json", "--no-plots", "--out", tmp_path / "b") == 0
     out = strict_loads(capsys.readouterr().out)
     assert [out["axes"][a]["R"] for a in "xyz"] == [rx] * 3  # the file's R is kept
     ry = out["statistics"]["y"]["noise_var"]
     assert f"axis y: kfx.R: {ry!r} → {rx!r}" in out["settings_changed"]
     assert not any(c.startswith("axis x") for c in out["settings_changed"])
-    assert run("identify", "--samples", 300, "--json", "--no-plots", "--out", tmp_path / "c") == 0
+    assert run("identify", "--r", "measured", "--samples", 300, "--json", "--no-plots", "--out", tmp_path / "c") == 0
     plain = strict_loads(capsys.readouterr().out)
     assert plain["settings_changed"] == [] and "Changed from" not in (tmp_path / "c" / "report.md").read_text()
     cfg.write_text("[kfo]\ngain = 1\n")

@@ -305,16 +305,16 @@ def _identify_overrides(args):
     import torch
 
     try:  # check the file once, before any work, so its errors name it
-        cfg = axis_configs(torch.zeros(3, 2, 1, dtype=torch.float64), args.r, overrides)[0]
+        mode = "measured" if args.r == "fitted" else args.r  # the file is checked, not the noise levels
+        cfg = axis_configs(torch.zeros(3, 2, 1, dtype=torch.float64), mode, overrides)[0]
     except (TypeError, ValueError) as exc:
         raise CLIError(f"{args.config or '--memory'}: {exc}") from None
     return overrides, " and ".join(where), cfg.memory.kind
 
 
-def cmd_identify(args) -> int:
-    from .identify import identify
+def _read_accel(args):
+    """The recording named by identify's / fit's reading flags, and the ``--samples`` count (None = all)."""
     from .io import STANDARD_GRAVITY, read_recording
-    from .report import save_identification
 
     lsb = args.lsb_per_g
     if args.units is not None:
@@ -335,6 +335,14 @@ def cmd_identify(args) -> int:
               f"using the longest, segment {rec.metadata['segment']} (choose with --segment)", file=sys.stderr)
     if "time_column_skipped" in rec.metadata:
         print(f"torchtea: note: {rec.metadata['time_column_skipped']}", file=sys.stderr)
+    return rec, n
+
+
+def cmd_identify(args) -> int:
+    from .identify import identify
+    from .report import save_identification
+
+    rec, n = _read_accel(args)
     overrides, config_source, memory_kind = _identify_overrides(args)
     total = min(n or len(rec.accel_counts), len(rec.accel_counts))
     if total > LONG_RECORDING and memory_kind == "exact":
@@ -356,7 +364,15 @@ def cmd_identify(args) -> int:
     if not _report(out_dir, summary, warnings, args.json):
         used = "the paper's §5.1 MEMS settings" + (f" changed by {config_source}" if ident.changes else "")
         print(f"{Path(rec.path).name}: {summary['samples']} samples at {rec.rate_hz:g} Hz (rate from {rec.rate_source}), "
-              f"mean removed per axis, TEA with {used}, R = {'measured variance' if args.r == 'measured' else 'paper values'}")
+              f"mean removed per axis, TEA with {used}, R = " + {"measured": "measured variance",
+                                                                 "fitted": "fitted r̂ and Q = fitted q̂ (fractional+white, exact likelihood)"}.get(args.r, "paper values"))
+        for a, fs in summary.get("fit", {}).items():
+            p_ = fs["parameters"]
+            c = p_["fractional.order"]["ci95"]
+            print(f"fit {a}: α̂ {p_['fractional.order']['value']:.3f} "
+                  + ("(no interval: on a boundary)" if c is None else f"[{c[0]:.3f}, {c[1]:.3f}] 95 % CI")
+                  + f", f̂ {p_['fractional.pole']['value']:.3g}, q̂ {p_['fractional.q']['value']:.3g}, "
+                  f"r̂ {p_['white.r']['value']:.3g} (m/s²)², NIS of the fit {fs['nis']:.3f}")
         print(f"missing samples: {ident.missing.describe()}")
         print(f"{'axis':>4} {'R [(m/s²)²]':>12} {'α̂ last⅓':>9} {'sd last⅓':>9} {'α̂ final':>9} "
               f"{'ŵ last⅓':>9} {'sd last⅓':>9} {'ŵ final':>9} {'NIS last⅓':>9}")
@@ -599,8 +615,9 @@ def build_parser() -> argparse.ArgumentParser:
     i.add_argument("recording", nargs="?", help="recording CSV (default: the bundled MPU-6050 recording)")
     i.add_argument("--samples", default="3000",
                    help="use the first N samples (default 3000 = the paper's 30 s; at least 100), or 'all'")
-    i.add_argument("--r", choices=("measured", "paper"), default="measured",
-                   help="R, Rᵒ, Rʷ per axis: the axis's measured variance (default) or the paper's printed values")
+    i.add_argument("--r", choices=("fitted", "measured", "paper"), default="fitted",
+                   help="R, Rᵒ, Rʷ per axis: fitted by likelihood with Q (default), the axis's measured variance "
+                        "(the paper's rule) or the paper's printed values")
     i.add_argument("--config", help="TOML settings applied on top of the paper's MEMS settings")
     i.add_argument("--rate", type=_positive_float, help="sample rate [Hz] if the file does not say")
     i.add_argument("--lsb-per-g", type=_positive_float, help="accelerometer counts per g (bundled format: 16384)")
@@ -618,6 +635,28 @@ def build_parser() -> argparse.ArgumentParser:
     i.add_argument("--compile", action="store_true", help=COMPILE_HELP)
     i.add_argument("--json", action="store_true", help="print a JSON summary")
     i.set_defaults(func=cmd_identify)
+
+    fp = sub.add_parser("fit", help="fit a noise model by maximum likelihood, with intervals")
+    fp.add_argument("recording", nargs="?", help="recording CSV (default: the bundled MPU-6050 recording)")
+    fp.add_argument("--model", default="fractional+white",
+                    help="components joined by '+': fractional, white, quantisation, random-walk, low-pass, "
+                         "offset, ramp, sinusoid, temperature-bias (default fractional+white)")
+    fp.add_argument("--method", choices=("whittle", "exact"), default="exact",
+                    help="likelihood of the final answer (default exact; Whittle always gives the start)")
+    fp.add_argument("--samples", default="all", help="use the first N samples (default all)")
+    fp.add_argument("--bootstrap", type=int, default=99,
+                    help="replicates of the fractional-presence test (0: do not test; default 99)")
+    fp.add_argument("--seed", type=int, default=0, help="seed of the bootstrap")
+    fp.add_argument("--rate", type=_positive_float, help="sample rate [Hz] if the file does not say")
+    fp.add_argument("--lsb-per-g", type=_positive_float, help="accelerometer counts per g (bundled format: 16384)")
+    fp.add_argument("--columns", help="generic CSV: the three accelerometer columns (default ax,ay,az)")
+    fp.add_argument("--units", choices=("g", "ms2"), help="generic CSV already in g or m/s² (else counts: --lsb-per-g)")
+    fp.add_argument("--segment", type=int, help="torchtea recording: which segment (default: the longest)")
+    fp.add_argument("--time-column", default="auto", help="column of time stamps (auto, a name, or none)")
+    fp.add_argument("--allow-missing", action="store_true", help=ALLOW_MISSING_HELP)
+    fp.add_argument("--out", help="write the JSON document to this file")
+    fp.add_argument("--json", action="store_true", help="print the JSON document")
+    fp.set_defaults(func=cmd_fit)
 
     rc = sub.add_parser("record", help="record a protocol-v1 IMU from a serial port (docs/protocol.md)")
     rc.add_argument("--port", required=True, help="serial device (/dev/ttyACM0, COM3) or pyserial URL")
@@ -657,6 +696,66 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("name", nargs="?")
     r.set_defaults(func=cmd_presets)
     return p
+
+
+# --------------------------------------------------------------------------- fit
+
+
+def cmd_fit(args) -> int:
+    import numpy as np
+
+    from .datacheck import check_missing
+    from .fitting import fit_series
+    from .fitting.presence import fractional_test
+    from .fitting.summary import MEANING, axis_summary, fit_nis
+    from .noise import parse_model
+    from .strictjson import dumps, write
+
+    model = parse_model(args.model)
+    rec, n = _read_accel(args)
+    acc = rec.accel_ms2()[: n or None]
+    names = ("x", "y", "z") if not args.columns else tuple(c.strip() for c in args.columns.split(","))
+    if len(acc) < 100:
+        raise CLIError(f"{rec.path}: only {len(acc)} samples; a fit needs at least 100")
+    missing = check_missing(rec.path, acc, names, allow=args.allow_missing, per="axis")
+    series = [acc[:, i] for i in range(3)]
+    t0 = time.perf_counter()
+    fits = fit_series(model, series, rec.h, method=args.method)
+    tests = [None] * 3
+    if model.has("fractional") and args.bootstrap > 0:
+        if missing.count:
+            print("torchtea: note: the fractional test needs complete series (Whittle): not run", file=sys.stderr)
+        else:
+            tests = fractional_test(model, series, rec.h, n_boot=args.bootstrap, seed=args.seed)
+    axes = {}
+    for name, f, y, test in zip(names, fits, series, tests):
+        axes[name] = axis_summary(f, nis=fit_nis(f, y, rec.h), test=test)
+    doc = {"model": model.spec, "method": args.method, "recording": str(rec.path), "samples": len(acc),
+           "rate_hz": rec.rate_hz, "rate_source": rec.rate_source, "units": "m/s²",
+           "missing_samples": missing.count, "bootstrap": args.bootstrap, "axes": axes, "meaning": MEANING,
+           "seconds": time.perf_counter() - t0,
+           "command": "torchtea " + " ".join(sys.argv[1:]) if sys.argv[1:] else ""}
+    if args.out:
+        write(Path(args.out), doc)
+    if args.json:
+        print(dumps(doc))
+        return 0
+    print(f"{Path(rec.path).name}: {len(acc)} samples at {rec.rate_hz:g} Hz, model {model.spec}, "
+          f"{args.method} likelihood, units m/s²")
+    for name, a in axes.items():
+        print(f"axis {name}: loglik {a['loglik']:.2f}  AIC {a['aic']:.2f}  BIC {a['bic']:.2f}  "
+              f"NIS {_num(a['nis'], '.3f')}  fractional p {_num(a['fractional_p_value'], '.3f')}")
+        for pname, p in a["parameters"].items():
+            ci = "" if p["ci95"] is None else f"[{p['ci95'][0]:.4g}, {p['ci95'][1]:.4g}] ({p['ci95_method']})"
+            se = "" if p["se"] is None else f"± {p['se']:.3g} (se)"
+            print(f"    {pname:22s} {p['value']:12.5g} {se:16s} {ci}")
+        for note in a["notes"]:
+            print(f"    note: {note}")
+    print("se: standard error from the observed information; NIS: mean e²/S of the exact filter, 1 when the "
+          "fitted noise levels match the data; p: bootstrap test of 'no fractional component'")
+    if args.out:
+        print(f"written {args.out}")
+    return 0
 
 
 def main(argv=None) -> int:

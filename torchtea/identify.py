@@ -68,6 +68,7 @@ class Identification:
     missing: Missing | None = None
     timing: Timing | None = None
     changes: tuple = ()
+    fits: tuple = ()
 
     @property
     def steps(self) -> int:
@@ -106,8 +107,16 @@ def axis_changes(base, used, names=AXES) -> list[str]:
     return common + [f"axis {a}: {c}" for a, p in zip(names, per) for c in p if c not in common]
 
 
-def axis_configs(y: torch.Tensor, r_mode: str = "measured", overrides: dict | None = None) -> tuple:
+R_MODES = ("fitted", "measured", "paper")
+
+
+def axis_configs(y: torch.Tensor, r_mode: str = "measured", overrides: dict | None = None, fits=()) -> tuple:
     """The paper's §5.1 settings per axis, with ``overrides`` on top.
+
+    ``r_mode="fitted"`` (the default) takes the noise levels of a maximum-likelihood fit of
+    ``fractional+white`` to the axis (``fits``, :func:`torchtea.fitting.fit_series`): KFx's R = Rᵒ = Rʷ = r̂,
+    KFx's Q = q̂, and the order and parameter filters start at α̂ and f̂ — the TEA then checks whether the
+    order varies in time around a model whose noise levels match the data (NIS near 1).
 
     ``r_mode="paper"`` keeps the printed R, Rᵒ, Rʷ (4, 3.9, 11 ·10⁻⁴ (m/s²)²);
     ``"measured"`` sets all three to each axis's sample variance — the paper's
@@ -118,8 +127,10 @@ def axis_configs(y: torch.Tensor, r_mode: str = "measured", overrides: dict | No
     replaces the MEMS preset as the base of every axis, and every other key overrides that base — an
     ``R`` given there wins over the measured one.
     """
-    if r_mode not in ("measured", "paper"):
-        raise ValueError(f"r_mode must be 'measured' or 'paper', got {r_mode!r}")
+    if r_mode not in R_MODES:
+        raise ValueError(f"r_mode must be one of {R_MODES}, got {r_mode!r}")
+    if r_mode == "fitted" and len(fits) != len(AXES):
+        raise ValueError("r_mode 'fitted' needs one fit per axis")
     overrides = dict(overrides or {})
     preset = overrides.pop("preset", None)
     out = []
@@ -128,13 +139,18 @@ def axis_configs(y: torch.Tensor, r_mode: str = "measured", overrides: dict | No
         if r_mode == "measured":
             r = float(np.nanvar(y[i, :, 0].cpu().numpy()))
             cfg = replace(cfg, kfx=replace(cfg.kfx, R=r), kfo=replace(cfg.kfo, R=r), kfw=replace(cfg.kfw, R=r))
+        elif r_mode == "fitted":
+            v = fits[i].values
+            r, q = v["white.r"], v["fractional.q"]
+            cfg = replace(cfg, kfx=replace(cfg.kfx, R=r, Q0=q), kfo=replace(cfg.kfo, R=r, x0=v["fractional.order"]),
+                          kfw=replace(cfg.kfw, R=r, x0=v["fractional.pole"]))
         if overrides:
             cfg = TEAConfig.from_dict(overrides, cfg)
         out.append(cfg)
     return tuple(out)
 
 
-def identify(recording: Recording, *, n_samples: int | None = None, r_mode: str = "measured",
+def identify(recording: Recording, *, n_samples: int | None = None, r_mode: str = "fitted",
              overrides: dict | None = None, progress=None, compile: bool = False, allow_missing: bool = False,
              partial: bool = False) -> Identification:
     """Run the TEA on the three accelerometer axes of a recording as one batch.
@@ -145,8 +161,9 @@ def identify(recording: Recording, *, n_samples: int | None = None, r_mode: str 
     n_samples : int, optional
         Use the first ``n_samples`` samples (the paper used 3000 at 100 Hz); all by default.
         At least :data:`MIN_SAMPLES`.
-    r_mode : {"measured", "paper"}
-        See :func:`axis_configs`.
+    r_mode : {"fitted", "measured", "paper"}
+        See :func:`axis_configs`. ``"fitted"`` first fits ``fractional+white`` to each axis by the exact
+        likelihood (:func:`torchtea.fitting.fit_series`, kept in ``Identification.fits``).
     overrides : dict, optional
         TEA settings applied on top of the presets (as in a TOML config), e.g.
         ``{"memory": {"kind": "soe"}}`` for long recordings; see :func:`axis_configs`.
@@ -175,11 +192,17 @@ def identify(recording: Recording, *, n_samples: int | None = None, r_mode: str 
                               rate_source=recording.rate_source)
     means = np.nanmean(acc, axis=0)
     y = torch.as_tensor((acc - means).T.copy(), dtype=torch.float64).unsqueeze(-1)  # (3, N, 1)
-    configs = axis_configs(y, r_mode, overrides)
-    changes = tuple(axis_changes(axis_configs(y, r_mode), configs))
+    fits = ()
+    if r_mode == "fitted":
+        from .fitting import fit_series
+
+        fits = tuple(fit_series("fractional+white", [y[i, :, 0].numpy() for i in range(len(AXES))], recording.h,
+                                method="exact"))
+    configs = axis_configs(y, r_mode, overrides, fits)
+    changes = tuple(axis_changes(axis_configs(y, r_mode, None, fits), configs))
     params = stack_params([make_params(c, Structure()) for c in configs])
     result = run_tea(y, h=recording.h, params=params, progress=progress, compile=compile, partial=partial)
-    return Identification(recording, recording.h, y, means, configs, result, missing, timing, changes)
+    return Identification(recording, recording.h, y, means, configs, result, missing, timing, changes, fits)
 
 
 def settle_time(est: np.ndarray, t: np.ndarray, target: float, band: float = SETTLE_BAND) -> float:

@@ -182,21 +182,23 @@ class SOEKernel:
         inject = torch.cat([torch.exp(-(self.exact_lags + 1) * s), one])
         return tuple(t.to(dtype=dtype, device=device) for t in (a, b, decay, inject))
 
+    def weights(self, order: Tensor) -> Tensor:
+        r"""The mode weights :math:`W_1(\alpha) … W_L(\alpha), W_\star(\alpha)`, shape ``(*order.shape, L+1)``:
+        :math:`W_n = -(\sin\pi\alpha/\pi)\,e^{a_n+\alpha b_n}`, and ``W_⋆`` carries ``q/(1−q) = 1/expm1((1+α)η)``.
+        Orders are clamped to the kernel's range (the exponential sum is only checked there)."""
+        a, b, _, _ = self.tensors(order.dtype, order.device)
+        alpha = order.clamp(*self.order_range).unsqueeze(-1)
+        w = torch.exp(a + alpha * b)
+        lump = torch.ones_like(w)
+        lump = torch.cat([lump[..., :-1], 1.0 / torch.expm1((1.0 + alpha) * self.eta)], dim=-1)
+        return w * lump * (torch.sin(math.pi * alpha) * (-1.0 / math.pi))
+
     def tail_sums(self, order: Tensor, modes: Tensor) -> Tensor:
         r""":math:`\sum_n W_n(\alpha) H_n + W_\star(\alpha) R` for ``S`` orders against one set of modes.
 
-        order ``(*B, S, n)``, modes ``(*B, n, L+1)`` → ``(*B, S, n)``. The weights are
-        :math:`W_n(\alpha) = -(\sin\pi\alpha/\pi)\,e^{a_n+\alpha b_n}` (and ``W_⋆`` carries
-        ``q/(1−q) = 1/expm1((1+α)η)`` too); the order-dependent factors are applied after the contraction,
-        so the ``S × L`` block is passed over once. Orders are clamped to the kernel's range (the
-        exponential sum is only checked there).
+        order ``(*B, S, n)``, modes ``(*B, n, L+1)`` → ``(*B, S, n)``, with the weights of :meth:`weights`.
         """
-        a, b, _, _ = self.tensors(order.dtype, order.device)
-        alpha = order.clamp(*self.order_range)
-        E = torch.exp(torch.addcmul(a[:-1], alpha.unsqueeze(-1), b[:-1]))  # (*B, S, n, L)
-        explicit = (E * modes[..., :-1].unsqueeze(-3)).sum(-1)
-        lump = torch.exp(a[-1] + alpha * b[-1]) / torch.expm1((1.0 + alpha) * self.eta) * modes[..., -1].unsqueeze(-2)
-        return (explicit + lump) * (torch.sin(math.pi * alpha) * (-1.0 / math.pi))
+        return (self.weights(order) * modes.unsqueeze(-3)).sum(-1)
 
     def coefficients(self, order: Tensor, lags: Tensor) -> Tensor:
         """The kernel's approximation of ``c_j(order)`` at the given lags (> J₀), shape ``(*order.shape, len(lags))``."""

@@ -1,0 +1,204 @@
+"""Noise models: components, the one assembly, the exact filter, Whittle, fitting and the CLI."""
+import json
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from torchtea.cli import main
+from torchtea.fitting import fit_series
+from torchtea.gl import gl_tail_coefficients
+from torchtea.likelihood import filter_fast, kalman_filter, loglik_fast, periodogram, whittle_loglik
+from torchtea.noise import parse_model, simulate_model
+
+H = 0.01
+FW = {"fractional.order": 0.4, "fractional.pole": -2.0, "fractional.q": 0.02, "white.r": 1e-3}
+
+
+def _gl_operator(alpha, f, h, N):
+    """x = M ω for the GL model with zero history, built from the direct sums (no exponential sum)."""
+    c = gl_tail_coefficients(torch.tensor(alpha, dtype=torch.float64), N)
+    M = torch.zeros(N, N, dtype=torch.float64)
+    hp = h ** alpha
+    for k in range(N - 1):
+        row = hp * f * M[k] - (c[: k + 1].flip(0).unsqueeze(-1) * M[: k + 1]).sum(0)
+        row[k] += hp
+        M[k + 1] = row
+    return M
+
+
+@pytest.mark.parametrize("memory", ["exact", "soe", "soe:1e-4"])
+def test_exact_filter_is_the_dense_gaussian_density(memory):
+    N = 200
+    m = parse_model("fractional+white")
+    y = simulate_model(m, FW, n_steps=N, h=H, generator=torch.Generator().manual_seed(1))[0, 0]
+    M = _gl_operator(0.4, -2.0, H, N)
+    cov = 0.02 * M @ M.T + 1e-3 * torch.eye(N, dtype=torch.float64)
+    ref = torch.distributions.MultivariateNormal(torch.zeros(N, dtype=torch.float64), cov).log_prob(y)
+    ss = m.state_space(FW, H, N, memory)
+    tol = 1e-8 if memory != "soe:1e-4" else 1e-3  # the kernel's coefficient error, not rounding
+    assert float(kalman_filter(ss, y).loglik[0]) == pytest.approx(float(ref), abs=tol)
+    assert float(loglik_fast(ss, y)[0]) == pytest.approx(float(ref), abs=tol)
+
+
+def test_composite_model_against_dense_gaussian_with_missing_samples():
+    """fractional+random-walk+low-pass+white: the filter's ℓ equals the Gaussian density of the observed
+    samples, the covariance built from the GL operator, a cumulative sum and the low-pass recursion."""
+    N = 120
+    spec = "fractional+random-walk+low-pass+white"
+    m = parse_model(spec)
+    v = dict(FW, **{"random-walk.sigma": 0.05, "low-pass.cutoff": 8.0})
+    y = simulate_model(m, v, n_steps=N, h=H, generator=torch.Generator().manual_seed(2))[0, 0].clone()
+    y[[10, 11, 57]] = float("nan")
+    Mx = _gl_operator(0.4, -2.0, H, N) * math.sqrt(0.02)
+    Mb = torch.tril(torch.ones(N, N, dtype=torch.float64), -1) * 0.05 * math.sqrt(H)  # b_k = Σ_{i<k} σ√h ξ_i
+    a = math.exp(-2 * math.pi * 8.0 * H)
+    Lp = torch.zeros(N, N, dtype=torch.float64)  # l_k = a l_{k-1} + (1-a) s_k, l_{-1} = 0
+    for k in range(N):
+        Lp[k, : k + 1] = (1 - a) * a ** torch.arange(k, -1, -1, dtype=torch.float64)
+    A = torch.cat([Lp @ Mx, Lp @ Mb], dim=1)
+    cov = A @ A.T + 1e-3 * torch.eye(N, dtype=torch.float64)
+    ok = ~torch.isnan(y)
+    ref = torch.distributions.MultivariateNormal(torch.zeros(int(ok.sum()), dtype=torch.float64),
+                                                 cov[ok][:, ok]).log_prob(y[ok])
+    ss = m.state_space(v, H, N, "exact")
+    r = kalman_filter(ss, y)
+    assert float(r.loglik[0]) == pytest.approx(float(ref), abs=1e-8)
+    assert r.observed == N - 3 and torch.isnan(r.innovation[0, 10])
+    ll, e, S = filter_fast(ss, y)
+    assert ll[0] == pytest.approx(float(ref), abs=1e-8)
+    np.testing.assert_allclose(e[0][ok.numpy()], r.innovation[0][ok].numpy(), atol=1e-10)
+    np.testing.assert_allclose(S[0], r.variance[0].numpy(), rtol=1e-10)
+
+
+def test_integer_order_model_is_the_textbook_local_level_filter():
+    """random-walk+white is the local-level model: the scalar textbook recursion gives the same ℓ."""
+    N = 500
+    m = parse_model("random-walk+white")
+    v = {"random-walk.sigma": 0.3, "white.r": 0.01}
+    y = simulate_model(m, v, n_steps=N, h=H, generator=torch.Generator().manual_seed(3))[0, 0].numpy()
+    q, r = 0.3 ** 2 * H, 0.01
+    x, P, ll = 0.0, 0.0, 0.0
+    for k in range(N):  # b_0 = 0 known; update, then predict
+        S = P + r
+        e = y[k] - x
+        ll += -0.5 * (math.log(2 * math.pi * S) + e * e / S)
+        K = P / S
+        x, P = x + K * e, (1 - K) * P
+        P = P + q
+    ss = m.state_space(v, H, N)
+    assert float(kalman_filter(ss, y).loglik[0]) == pytest.approx(ll, abs=1e-9)
+    assert float(loglik_fast(ss, y)[0]) == pytest.approx(ll, abs=1e-9)
+
+
+@pytest.mark.parametrize("spec,values", [
+    ("fractional", {"fractional.order": 0.35, "fractional.pole": -3.0, "fractional.q": 0.01}),
+    ("fractional+low-pass+white", {"fractional.order": 0.6, "fractional.pole": -1.0, "fractional.q": 0.01,
+                                   "low-pass.cutoff": 5.0, "white.r": 1e-4}),
+    ("random-walk+white", {"random-walk.sigma": 0.02, "white.r": 1e-4}),
+    ("quantisation", {"quantisation.step": 0.05}),
+])
+def test_simulated_spectrum_matches_the_formula(spec, values):
+    """Averaged periodograms of simulated series against the component spectra, in 12 frequency bands.
+    The periodogram ordinate is S·Exp(1)/… so a band average over n ordinates has relative sd 1/√n; the
+    tolerance is 5 of those (a random walk's leakage is excluded by skipping the lowest band)."""
+    m = parse_model(spec)
+    R, N = 40, 2048
+    y = simulate_model(m, values, n_steps=N, h=H, realisations=R, generator=torch.Generator().manual_seed(4))[0]
+    y = y - y.mean(-1, keepdim=True)
+    if "random-walk" in spec:  # the increments are stationary: compare them with |1 − e^{−iω}|² S
+        y = torch.diff(y, dim=-1)
+    omega, I = periodogram(y)
+    S = m.spectrum(values, omega, H)[0]
+    if "random-walk" in spec:
+        S = S * 4 * torch.sin(omega / 2) ** 2
+    bands = torch.tensor_split(torch.arange(len(omega)), 12)
+    for b in bands[1:]:
+        ratio = float(I[:, b].mean() / S[b].mean())
+        assert abs(ratio - 1) < 5 / math.sqrt(R * len(b)), (spec, int(b[0]), ratio)
+
+
+def test_whittle_and_exact_agree_on_a_long_stationary_series():
+    N = 30000
+    m = parse_model("fractional+white")
+    y = simulate_model(m, FW, n_steps=N, h=H, generator=torch.Generator().manual_seed(5))[0, 0]
+    other = dict(FW, **{"fractional.order": 0.45, "white.r": 1.2e-3})
+    both = {k: torch.tensor([FW[k], other[k]]) for k in FW}
+    ex = loglik_fast(m.state_space(both, H, N, "soe:1e-6"), y)
+    omega, I = periodogram(y - y.mean())
+    wh = whittle_loglik(m.spectrum(both, omega, H), I).numpy()
+    # same scale (within a few nats of 48 000) and the same verdict on the difference
+    assert abs(ex[0] - wh[0]) < 20
+    assert (ex[0] - ex[1]) == pytest.approx(wh[0] - wh[1], rel=0.1)
+
+
+def test_fit_recovers_the_truth_and_the_methods_agree():
+    N = 30000
+    m = parse_model("fractional+white")
+    truth = {"fractional.order": 0.3, "fractional.pole": -2.0, "fractional.q": 0.02, "white.r": 1e-3}
+    y = simulate_model(m, truth, n_steps=N, h=H, generator=torch.Generator().manual_seed(6))[0, 0].numpy() + 9.81
+    fw, = fit_series(m, [y], H, method="whittle")
+    fe, = fit_series(m, [y], H, method="exact", profile=False)
+    for f in (fw, fe):
+        assert f.converged
+        for name in ("fractional.order", "white.r"):  # within 3.5 standard errors (fails with p ≈ 5e-4)
+            assert abs(f.values[name] - truth[name]) < 3.5 * f.se[name], (f.method, name, f.values[name], f.se[name])
+            lo, hi = f.ci95[name]
+            assert lo < f.values[name] < hi
+        assert "removed" in f.notes[0]
+    assert fe.values["fractional.order"] == pytest.approx(fw.values["fractional.order"], abs=0.5 * fw.se["fractional.order"])
+    assert fe.loglik >= fw.loglik_exact - 1e-6  # the exact stage can only improve the exact likelihood
+    assert fw.ci95_method["fractional.order"].startswith("Whittle profile")
+
+
+def test_filter_reads_the_simulators_model():
+    """NIS of the exact filter is 1 on the model's own data, and far from it when r is read wrong."""
+    N = 5000
+    m = parse_model("fractional+random-walk+white")
+    v = dict(FW, **{"random-walk.sigma": 0.01})
+    y = simulate_model(m, v, n_steps=N, h=H, generator=torch.Generator().manual_seed(7))[0, 0]
+    _, e, S = filter_fast(m.state_space(v, H, N), y)
+    nis = float(np.mean(e[0] ** 2 / S[0]))
+    assert abs(nis - 1) < 4 * math.sqrt(2 / N)
+    wrong = dict(v, **{"white.r": 4e-3})
+    _, e, S = filter_fast(m.state_space(wrong, H, N), y)
+    assert float(np.mean(e[0] ** 2 / S[0])) < 0.8
+
+
+def test_mean_components_are_regressed_and_fitted():
+    """Offset, ramp and a vibration line: least squares first, then the exact likelihood; the estimates lie
+    within 3.5 standard errors of the truth (a fractional part is left out: on 4000 samples its order can
+    sit on the boundary, where no standard error means anything)."""
+    N = 4000
+    m = parse_model("random-walk+white+offset+ramp+sinusoid")
+    truth = {"random-walk.sigma": 0.01, "white.r": 1e-3, "offset.value": 9.8, "ramp.slope": 2e-4,
+             "sinusoid.frequency": 7.3, "sinusoid.amplitude": 0.02, "sinusoid.phase": 0.4}
+    y = simulate_model(m, truth, n_steps=N, h=H, generator=torch.Generator().manual_seed(8))[0, 0].numpy()
+    f, = fit_series(m, [y], H, method="exact", profile=False)
+    assert f.converged and not f.notes  # the offset is fitted, not removed
+    for name in ("offset.value", "ramp.slope", "sinusoid.frequency", "sinusoid.amplitude", "white.r"):
+        assert abs(f.values[name] - truth[name]) < 3.5 * f.se[name], (name, f.values[name], f.se[name])
+
+
+def test_bad_model_specs_name_the_problem():
+    with pytest.raises(ValueError, match="unknown component 'pink'"):
+        parse_model("fractional+pink")
+    with pytest.raises(ValueError, match="no stochastic"):
+        parse_model("offset+ramp")
+    with pytest.raises(ValueError, match="bad model spec"):
+        parse_model("fractional++white")
+    assert parse_model("white+white").names == ["white.r", "white2.r"]
+
+
+def test_cli_fit_json(capsys):
+    assert main(["fit", "--samples", "1500", "--bootstrap", "9", "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out, parse_constant=lambda c: pytest.fail(f"non-JSON {c}"))
+    assert doc["model"] == "fractional+white" and set(doc["axes"]) == {"x", "y", "z"}
+    for a in doc["axes"].values():
+        assert set(a["parameters"]) == {"fractional.order", "fractional.pole", "fractional.q", "white.r"}
+        assert abs(a["nis"] - 1) < 0.1  # fitted noise levels: the innovations match
+        assert 0 < a["fractional_p_value"] <= 1 and a["fractional_test"]["n_boot"] == 9
+        assert a["aic"] == pytest.approx(2 * 4 - 2 * a["loglik"])
+    assert main(["fit", "--model", "fractional+chirp"]) == 2
+    assert "unknown component 'chirp'" in capsys.readouterr().err

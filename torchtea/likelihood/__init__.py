@@ -1,0 +1,6 @@
+"""Likelihoods of a :class:`~torchtea.noise.model.NoiseModel`: Whittle (:mod:`.whittle`) and the exact
+Kalman filter on the stacked state (:mod:`.kalman`)."""
+from .kalman import FilterResult, filter_fast, kalman_filter, loglik_fast
+from .whittle import periodogram, whittle_loglik
+
+__all__ = ["FilterResult", "filter_fast", "kalman_filter", "loglik_fast", "periodogram", "whittle_loglik"]

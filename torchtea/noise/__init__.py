@@ -1,0 +1,8 @@
+"""Noise models assembled from physical components (:mod:`.components`) into what every engine reads
+(:mod:`.model`), and their simulation (:mod:`.simulate`)."""
+from .components import COMPONENTS, ORDER_BOUNDS, ParamSpec
+from .model import NoiseModel, StateSpace, parse_model, state_memory
+from .simulate import simulate_model
+
+__all__ = ["COMPONENTS", "ORDER_BOUNDS", "ParamSpec", "NoiseModel", "StateSpace", "parse_model", "state_memory",
+           "simulate_model"]

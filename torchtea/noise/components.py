@@ -1,0 +1,249 @@
+r"""The physical parts of a sensor's noise model, each with named parameters, a spectrum and a state block.
+
+Conventions (ALGORITHMS.md §7): sample time ``h``, ω in rad/sample, two-sided spectra with
+``var = ∫_{−π}^{π} S(ω) dω``. The measurement is the sum of the components; a ``low-pass`` filters the
+sum of the *state* components listed before it, and white / quantisation noise always enters after it
+(the ADC's noise).
+
+Three kinds of component:
+
+* **state** components (``fractional``, ``random-walk``, ``low-pass``) are linear Gaussian state-space
+  blocks — the exact Kalman filter and the simulator stack them (:mod:`torchtea.noise.model`);
+* **measurement** components (``white``, ``quantisation``) add independent white noise of variance ``r``;
+* **mean** components (``offset``, ``ramp``, ``sinusoid``, ``temperature-bias``) are deterministic functions
+  of time and the input channels. The Whittle likelihood removes them by regression first (lines are not
+  spectral densities); the exact filter subtracts them.
+
+Parameters are given in natural units (``fractional.order``, ``white.r`` …) and every parameter has a
+transform to an unconstrained real number for the optimisers (log for a positive value, logit for a bounded
+one). The fractional pole's admissible range depends on the order (stability: ``−2^α < f h^α < 0``), so it
+is stored as the fraction ``ρ = −f h^α / 2^α ∈ (0, 1)`` internally and reported as ``f``.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor
+
+from ..gl import gl_tail_coefficients
+
+__all__ = ["ParamSpec", "Component", "COMPONENTS", "ORDER_BOUNDS"]
+
+#: Orders the ``fractional`` component may take: open interval, the kernel is designed on it.
+ORDER_BOUNDS = (0.0, 1.0)
+
+
+@dataclass(frozen=True)
+class ParamSpec:
+    """One parameter of a component.
+
+    ``kind``: ``"positive"`` (log transform), ``"bounded"`` (logit on ``bounds``), ``"free"`` (identity),
+    ``"fraction"`` (logit on (0, 1): the fractional pole's stability fraction, see the module docstring).
+    ``unit`` is what the value means, written next to it in reports.
+    """
+
+    name: str
+    kind: str
+    unit: str
+    bounds: tuple = (-math.inf, math.inf)
+
+
+def _logit(p: Tensor) -> Tensor:
+    return torch.log(p) - torch.log1p(-p)
+
+
+class Component:
+    """Base class: a named part of the model. Subclasses set ``name``, ``kind`` and ``params``."""
+
+    name: str = ""
+    kind: str = ""  # "state", "measurement", "mean"
+    params: tuple = ()
+    inputs: tuple = ()  # input channels the component reads (e.g. "temperature")
+
+    # ---- spectra (stationary parts) -------------------------------------------------------------
+    def spectrum(self, v: dict, omega: Tensor, h: float) -> Tensor:
+        """Two-sided spectral density at ω (rad/sample) for parameter values ``v`` (each ``(B,)``) → ``(B, W)``."""
+        raise NotImplementedError
+
+    # ---- state blocks ---------------------------------------------------------------------------
+    def n_states(self, memory) -> int:
+        return 0
+
+    def block(self, v: dict, h: float, memory) -> tuple[Tensor, Tensor]:
+        """Transition ``F`` ``(B, n, n)`` and noise loading ``G`` ``(B, n, m)`` of the block (process noise
+        ``G ξ_k``, ξ standard normal, so ``Q = G Gᵀ``); the block's output is its state 0."""
+        raise NotImplementedError
+
+    # ---- means ------------------------------------------------------------------------------------
+    def mean(self, v: dict, t: Tensor, inputs: dict) -> Tensor:
+        """Deterministic contribution ``(B, N)`` at times ``t`` (s, from the first sample)."""
+        raise NotImplementedError
+
+    def measurement_variance(self, v: dict) -> Tensor:
+        raise NotImplementedError
+
+
+class Fractional(Component):
+    r"""The paper's (43)–(45): :math:`x_{k+1} = h^{\alpha}(f x_k + \omega_k) - \sum_{j\ge1} c_j(\alpha) x_{k+1-j}`,
+    ω ~ N(0, q), zero history before ``x_0 = 0``. Spectrum (ALGORITHMS.md §5)
+    :math:`S(\omega) = q h^{2\alpha} / (2\pi |(1-e^{-i\omega})^\alpha - f h^\alpha e^{-i\omega}|^2)`."""
+
+    name = "fractional"
+    kind = "state"
+    params = (ParamSpec("order", "bounded", "α (dimensionless)", ORDER_BOUNDS),
+              ParamSpec("pole", "fraction", "f (1/s^α), stable for −2^α < f h^α < 0"),
+              ParamSpec("q", "positive", "drive variance (units²)"))
+
+    def spectrum(self, v, omega, h):
+        alpha, f, q = v["order"].unsqueeze(-1), v["pole"].unsqueeze(-1), v["q"].unsqueeze(-1)
+        a = f * h ** alpha
+        # |(1 − e^{−iω})^α − a e^{−iω}|²: 1 − e^{−iω} = 2 sin(ω/2) e^{i(π−ω)/2}
+        mag = (2.0 * torch.sin(omega / 2.0)) ** alpha
+        phase = alpha * (math.pi - omega) / 2.0
+        re = mag * torch.cos(phase) - a * torch.cos(omega)
+        im = mag * torch.sin(phase) + a * torch.sin(omega)
+        return q * h ** (2.0 * alpha) / (2.0 * math.pi * (re * re + im * im))
+
+    def n_states(self, memory) -> int:
+        return memory.lags + memory.n_modes
+
+    def block(self, v, h, memory):
+        alpha, f, q = v["order"], v["pole"], v["q"]
+        B = alpha.shape[0]
+        J, M = memory.lags, memory.n_modes
+        n = J + M
+        F = alpha.new_zeros(B, n, n)
+        hp = h ** alpha
+        c = gl_tail_coefficients(alpha, J)  # (B, J): c_1 … c_J
+        F[:, 0, :J] = -c
+        F[:, 0, 0] = F[:, 0, 0] + hp * f
+        if M:
+            F[:, 0, J:] = -memory.kernel.weights(alpha)
+        idx = torch.arange(1, J)
+        F[:, idx, idx - 1] = 1.0
+        if M:
+            _, _, decay, inject = memory.kernel.tensors(alpha.dtype, alpha.device)
+            modes = torch.arange(J, n)
+            F[:, modes, modes] = decay
+            F[:, modes, J - 1] = inject
+        G = alpha.new_zeros(B, n, 1)
+        G[:, 0, 0] = hp * torch.sqrt(q)
+        return F, G
+
+
+class RandomWalk(Component):
+    r"""Bias random walk :math:`b_{k+1} = b_k + \sigma\sqrt{h}\,\xi_k`, ``b_0 = 0`` (σ: rate random walk K, units/√s).
+    Spectrum of its increments' integral: :math:`\sigma^2 h / (2\pi \cdot 4\sin^2(\omega/2))`."""
+
+    name = "random-walk"
+    kind = "state"
+    params = (ParamSpec("sigma", "positive", "K (units/√s)"),)
+
+    def spectrum(self, v, omega, h):
+        s = v["sigma"].unsqueeze(-1)
+        return s * s * h / (2.0 * math.pi * 4.0 * torch.sin(omega / 2.0) ** 2)
+
+    def n_states(self, memory) -> int:
+        return 1
+
+    def block(self, v, h, memory):
+        s = v["sigma"]
+        F = s.new_ones(s.shape[0], 1, 1)
+        G = (s * math.sqrt(h)).reshape(-1, 1, 1)
+        return F, G
+
+
+class LowPass(Component):
+    r"""First-order low-pass :math:`y_k = a y_{k-1} + (1-a) s_k`, :math:`a = e^{-2\pi f_c h}`, of the state
+    components before it (the sensor's digital filter). Multiplies their spectra by
+    :math:`(1-a)^2/(1 - 2a\cos\omega + a^2)`."""
+
+    name = "low-pass"
+    kind = "filter"
+    params = (ParamSpec("cutoff", "positive", "f_c (Hz)"),)
+
+    def gain(self, v, omega, h):
+        a = torch.exp(-2.0 * math.pi * v["cutoff"] * h).unsqueeze(-1)
+        return (1.0 - a) ** 2 / (1.0 - 2.0 * a * torch.cos(omega) + a * a)
+
+    def coefficient(self, v, h):
+        return torch.exp(-2.0 * math.pi * v["cutoff"] * h)
+
+
+class White(Component):
+    """Measurement (ADC) noise ν_k ~ N(0, r): spectrum r/2π."""
+
+    name = "white"
+    kind = "measurement"
+    params = (ParamSpec("r", "positive", "variance (units²)"),)
+
+    def measurement_variance(self, v):
+        return v["r"]
+
+    def spectrum(self, v, omega, h):
+        return (v["r"] / (2.0 * math.pi)).unsqueeze(-1).expand(-1, omega.shape[-1])
+
+
+class Quantisation(Component):
+    """Quantisation of step Δ, modelled as white noise of variance Δ²/12."""
+
+    name = "quantisation"
+    kind = "measurement"
+    params = (ParamSpec("step", "positive", "Δ (units)"),)
+
+    def measurement_variance(self, v):
+        return v["step"] ** 2 / 12.0
+
+    def spectrum(self, v, omega, h):
+        return (self.measurement_variance(v) / (2.0 * math.pi)).unsqueeze(-1).expand(-1, omega.shape[-1])
+
+
+class Offset(Component):
+    name = "offset"
+    kind = "mean"
+    params = (ParamSpec("value", "free", "units"),)
+
+    def mean(self, v, t, inputs):
+        return v["value"].unsqueeze(-1).expand(-1, t.shape[-1])
+
+
+class Ramp(Component):
+    name = "ramp"
+    kind = "mean"
+    params = (ParamSpec("slope", "free", "units/s"),)
+
+    def mean(self, v, t, inputs):
+        return v["slope"].unsqueeze(-1) * t
+
+
+class Sinusoid(Component):
+    """A sin(2π f₀ t + φ): a vibration line. Not a spectral density — removed before the Whittle sum."""
+
+    name = "sinusoid"
+    kind = "mean"
+    params = (ParamSpec("frequency", "positive", "f₀ (Hz)"), ParamSpec("amplitude", "positive", "A (units)"),
+              ParamSpec("phase", "free", "φ (rad)"))
+
+    def mean(self, v, t, inputs):
+        return v["amplitude"].unsqueeze(-1) * torch.sin(2.0 * math.pi * v["frequency"].unsqueeze(-1) * t
+                                                        + v["phase"].unsqueeze(-1))
+
+
+class TemperatureBias(Component):
+    """β (T_k − T_ref) added to the output; T the measured ``temperature`` input (°C), T_ref its mean
+    unless fixed."""
+
+    name = "temperature-bias"
+    kind = "mean"
+    inputs = ("temperature",)
+    params = (ParamSpec("beta", "free", "units/°C"), ParamSpec("t_ref", "free", "T_ref (°C)"))
+
+    def mean(self, v, t, inputs):
+        T = inputs["temperature"]
+        return v["beta"].unsqueeze(-1) * (T - v["t_ref"].unsqueeze(-1))
+
+
+COMPONENTS = {c.name: c for c in (Fractional(), White(), Quantisation(), RandomWalk(), LowPass(), Offset(), Ramp(),
+                                  Sinusoid(), TemperatureBias())}

@@ -1,0 +1,343 @@
+r"""One noise model for every engine: a sum of named components, assembled once into what the engines read.
+
+A model is written as a spec string, ``fractional+white``, ``fractional+white+random-walk+sinusoid`` …
+(:func:`parse_model`). Its parameters are named ``component.parameter`` (``fractional.order``,
+``white.r``); a batch of parameter sets is a dict of ``(B,)`` tensors, or a ``(B, P)`` matrix in
+:attr:`NoiseModel.names` order.
+
+What the engines read:
+
+* :meth:`NoiseModel.spectrum` — the sum of the stationary components' spectra (the Whittle likelihood);
+* :meth:`NoiseModel.mean` — the deterministic part (offset, ramp, sinusoids, temperature terms);
+* :meth:`NoiseModel.state_space` — ``F, Q, C, R`` of the stacked linear Gaussian state (the exact
+  Kalman filter and the simulator); the fractional component's history is its GL window plus the
+  exponential-sum modes of :mod:`torchtea.memory` (``soe``), or the whole past (``exact``, small N only).
+
+Every state starts at zero with zero variance: the GL model's ``x_0 = 0`` and zero history, the random
+walk's ``b_0 = 0`` (an ``offset`` component carries an unknown constant).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import torch
+from torch import Tensor
+
+from ..memory import MemoryConfig, SOEKernel, kernel_for, parse_memory
+from .components import COMPONENTS, ORDER_BOUNDS, Component, LowPass
+
+__all__ = ["NoiseModel", "parse_model", "StateSpace", "StateMemory", "state_memory", "EXACT_MEMORY_LIMIT"]
+
+#: ``exact`` memory puts the whole past in the state (O(N²) per step): only for short series (tests).
+EXACT_MEMORY_LIMIT = 4000
+
+
+@dataclass(frozen=True)
+class StateMemory:
+    """How a fractional state's past is carried: ``lags`` exact lags and, for ``soe``, the kernel's modes."""
+
+    lags: int
+    kernel: SOEKernel | None = None
+
+    @property
+    def n_modes(self) -> int:
+        return 0 if self.kernel is None else self.kernel.n_modes
+
+
+def state_memory(memory, n_steps: int) -> StateMemory:
+    """The state-space form of a memory setting (``"soe"``, ``"soe:1e-8"``, ``"exact"``, ``"window:L"``)
+    for series of ``n_steps`` samples. The single place where memory kinds become states."""
+    cfg = parse_memory(memory)
+    if cfg.kind == "exact":
+        if n_steps > EXACT_MEMORY_LIMIT:
+            raise ValueError(f"exact memory keeps all {n_steps} past samples in the state; use soe for more than "
+                             f"{EXACT_MEMORY_LIMIT} samples")
+        return StateMemory(max(n_steps - 1, 1))
+    if cfg.kind == "window":
+        return StateMemory(cfg.window)
+    lo, hi = cfg.order_range or (ORDER_BOUNDS[0], ORDER_BOUNDS[1] - 1e-3)
+    return StateMemory(cfg.exact_lags, kernel_for(cfg, max(n_steps, cfg.exact_lags + 2), lo, hi))
+
+
+@dataclass(frozen=True)
+class StateSpace:
+    r"""``z_{k+1} = F z_k + ε_k``, ε ~ N(0, Q); ``y_k = μ_k + C z_k + ν_k``, ν ~ N(0, R); ``z_0 = 0``.
+
+    F ``(B, n, n)``; ``ε_k = G ξ_k`` with G ``(B, n, m)`` and ξ standard normal, so ``Q = G Gᵀ``;
+    C ``(B, n)``; R ``(B,)``; ``blocks`` maps each state component to its slice of z (its output is the
+    slice's first state)."""
+
+    F: Tensor
+    G: Tensor
+    C: Tensor
+    R: Tensor
+    blocks: dict = field(default_factory=dict)
+
+    @property
+    def Q(self) -> Tensor:
+        return self.G @ self.G.mT
+
+    @property
+    def n(self) -> int:
+        return self.F.shape[-1]
+
+
+class NoiseModel:
+    """A sum of components (see :func:`parse_model`). ``h`` is the sample time (s)."""
+
+    def __init__(self, components: list[tuple[str, Component]], spec: str):
+        self.components = components
+        self.spec = spec
+        self.names = [f"{label}.{p.name}" for label, comp in components for p in comp.params]
+        self._specs = {f"{label}.{p.name}": p for label, comp in components for p in comp.params}
+
+    def __repr__(self):
+        return f"NoiseModel({self.spec!r})"
+
+    # ------------------------------------------------------------------ structure
+    def has(self, name: str) -> bool:
+        return any(comp.name == name for _, comp in self.components)
+
+    def labels(self, kind: str | None = None) -> list[str]:
+        return [label for label, comp in self.components if kind is None or comp.kind == kind]
+
+    def param_spec(self, name: str):
+        return self._specs[name]
+
+    @property
+    def inputs(self) -> tuple:
+        return tuple(sorted({i for _, c in self.components for i in c.inputs}))
+
+    def without(self, name: str) -> "NoiseModel":
+        """The same model without every component called ``name`` (the null of a presence test)."""
+        kept = [c.name for _, c in self.components if c.name != name]
+        if not kept:
+            raise ValueError(f"the model {self.spec!r} has nothing left without {name!r}")
+        return parse_model("+".join(kept))
+
+    # ------------------------------------------------------------------ parameter sets
+    def as_dict(self, values) -> dict:
+        """A ``(B, P)`` matrix / ``(P,)`` vector / dict of values → dict of ``(B,)`` float64 tensors."""
+        if isinstance(values, dict):
+            missing = [n for n in self.names if n not in values]
+            if missing:
+                raise ValueError(f"model {self.spec!r} needs values for {missing}")
+            out = {n: torch.as_tensor(values[n], dtype=torch.float64) for n in self.names}
+            shape = torch.broadcast_shapes(*(v.shape for v in out.values()))
+            shape = shape if len(shape) else (1,)
+            return {n: v.expand(shape).reshape(-1) for n, v in out.items()}
+        m = torch.as_tensor(values, dtype=torch.float64)
+        m = m.reshape(-1, len(self.names)) if m.ndim < 2 else m
+        return {n: m[:, i] for i, n in enumerate(self.names)}
+
+    def as_matrix(self, values) -> Tensor:
+        v = self.as_dict(values)
+        return torch.stack([v[n] for n in self.names], dim=-1)
+
+    def _by_component(self, v: dict) -> dict:
+        out = {}
+        for label, comp in self.components:
+            out[label] = {p.name: v[f"{label}.{p.name}"] for p in comp.params}
+        return out
+
+    def to_unconstrained(self, values, h: float) -> Tensor:
+        """Values → unconstrained ``(B, P)`` (log for positive, logit for bounded and for the pole's fraction)."""
+        v = self.as_dict(values)
+        cols = []
+        for n in self.names:
+            spec = self._specs[n]
+            x = v[n]
+            if spec.kind == "positive":
+                cols.append(torch.log(x))
+            elif spec.kind == "bounded":
+                lo, hi = spec.bounds
+                p = (x - lo) / (hi - lo)
+                cols.append(torch.log(p) - torch.log1p(-p))
+            elif spec.kind == "fraction":
+                alpha = v[n.rsplit(".", 1)[0] + ".order"]
+                rho = -x * h ** alpha / 2.0 ** alpha
+                cols.append(torch.log(rho) - torch.log1p(-rho))
+            else:
+                cols.append(x)
+        return torch.stack(cols, dim=-1)
+
+    def from_unconstrained(self, u: Tensor, h: float) -> dict:
+        """Inverse of :meth:`to_unconstrained` (differentiable)."""
+        u = u.reshape(-1, len(self.names))
+        v = {}
+        for i, n in enumerate(self.names):
+            spec = self._specs[n]
+            if spec.kind == "positive":
+                v[n] = torch.exp(u[:, i])
+            elif spec.kind == "bounded":
+                lo, hi = spec.bounds
+                v[n] = lo + (hi - lo) * torch.sigmoid(u[:, i])
+            elif spec.kind == "free":
+                v[n] = u[:, i]
+        for i, n in enumerate(self.names):
+            if self._specs[n].kind == "fraction":
+                alpha = v[n.rsplit(".", 1)[0] + ".order"]
+                v[n] = -torch.sigmoid(u[:, i]) * 2.0 ** alpha / h ** alpha
+        return v
+
+    # ------------------------------------------------------------------ what the engines read
+    def spectrum(self, values, omega: Tensor, h: float) -> Tensor:
+        """Two-sided spectral density of the stochastic part at ω (rad/sample), ``(B, W)``."""
+        byc = self._by_component(self.as_dict(values))
+        total = None
+        for label, comp in self.components:
+            if comp.kind == "filter":
+                if total is not None:
+                    total = total * comp.gain(byc[label], omega, h)
+                continue
+            if comp.kind in ("state", "measurement"):
+                s = comp.spectrum(byc[label], omega, h)
+                total = s if total is None else total + s
+        if total is None:
+            raise ValueError(f"model {self.spec!r} has no stochastic component")
+        return total
+
+    def mean(self, values, t: Tensor, inputs: dict | None = None) -> Tensor:
+        """Deterministic part ``(B, N)`` at times ``t`` (s from the first sample)."""
+        v = self.as_dict(values)
+        byc = self._by_component(v)
+        B = next(iter(v.values())).shape[0]
+        t = torch.as_tensor(t, dtype=torch.float64)
+        out = torch.zeros(B, t.shape[-1], dtype=torch.float64)
+        for label, comp in self.components:
+            if comp.kind != "mean":
+                continue
+            for name in comp.inputs:
+                if inputs is None or name not in inputs:
+                    raise ValueError(f"component {label!r} needs the input channel {name!r} "
+                                     f"(e.g. --temperature COLUMN)")
+            out = out + comp.mean(byc[label], t, {k: torch.as_tensor(x, dtype=torch.float64)
+                                                  for k, x in (inputs or {}).items()})
+        return out
+
+    def measurement_variance(self, values) -> Tensor:
+        """Total white measurement variance ``(B,)`` (white r plus quantisation Δ²/12; zero without them)."""
+        v = self.as_dict(values)
+        byc = self._by_component(v)
+        r = torch.zeros(next(iter(v.values())).shape[0], dtype=torch.float64)
+        for label, comp in self.components:
+            if comp.kind == "measurement":
+                r = r + comp.measurement_variance(byc[label])
+        return r
+
+    def state_space(self, values, h: float, n_steps: int, memory="soe") -> StateSpace:
+        """Assemble the stacked state: blocks of the state components on the diagonal, the low-pass (if
+        any) as one more state fed by the sum of the state components before it, white noise in R."""
+        v = self.as_dict(values)
+        byc = self._by_component(v)
+        B = next(iter(v.values())).shape[0]
+        mem = state_memory(memory, n_steps) if isinstance(memory, (str, dict, MemoryConfig)) else memory
+        Fs, Gs, blocks, outs_before, outs_after = [], [], {}, [], []
+        lowpass = None
+        start = 0
+        for label, comp in self.components:
+            if comp.kind == "filter":
+                lowpass = label
+                continue
+            if comp.kind != "state":
+                continue
+            F, G = comp.block(byc[label], h, mem)
+            F, G = F.expand(B, -1, -1), G.expand(B, -1, -1)
+            blocks[label] = slice(start, start + F.shape[-1])
+            (outs_after if lowpass else outs_before).append(start)
+            start += F.shape[-1]
+            Fs.append(F)
+            Gs.append(G)
+        n = start
+        m = sum(G.shape[-1] for G in Gs)
+        F = torch.zeros(B, n, n, dtype=torch.float64)
+        G = torch.zeros(B, n, m, dtype=torch.float64)
+        col = 0
+        for (label, sl), Fb, Gb in zip(blocks.items(), Fs, Gs):
+            F[:, sl, sl] = Fb
+            G[:, sl, col:col + Gb.shape[-1]] = Gb
+            col += Gb.shape[-1]
+        C = torch.zeros(B, n, dtype=torch.float64)
+        if lowpass is not None:
+            if not outs_before:
+                raise ValueError(f"model {self.spec!r}: a low-pass needs state components (fractional, "
+                                 "random-walk) before it")
+            a = LowPass().coefficient(byc[lowpass], h)  # (B,)
+            s = torch.zeros(B, n + 1, dtype=torch.float64)  # selects the sum of the components before it
+            s[:, outs_before] = 1.0
+            # l_{k+1} = a l_k + (1 − a) s·(F z_k + ε_k): one more state, noise correlated with the others
+            T = torch.cat([torch.eye(n, dtype=torch.float64).expand(B, n, n),
+                           ((1.0 - a).unsqueeze(-1) * s[:, :n]).unsqueeze(1)], dim=1)  # (B, n+1, n)
+            F2 = torch.zeros(B, n + 1, n + 1, dtype=torch.float64)
+            F2[:, :, :n] = T @ F
+            F2[:, n, n] = a
+            F, G = F2, T @ G
+            blocks[lowpass] = slice(n, n + 1)
+            C = torch.zeros(B, n + 1, dtype=torch.float64)
+            C[:, n] = 1.0
+            C[:, outs_after] = 1.0
+        else:
+            C[:, outs_before] = 1.0
+        return StateSpace(F, G, C, self.measurement_variance(v).expand(B).clone(), blocks)
+
+    # ------------------------------------------------------------------ starting values
+    def initial_values(self, y: Tensor, h: float, order: float = 0.3) -> dict:
+        """Rough data-based starting values for one series (a fit's start, not an estimate)."""
+        y = torch.as_tensor(y, dtype=torch.float64)
+        var = float(y.var()) if y.numel() > 1 else 1.0
+        var = var if var > 0 else 1.0
+        d = torch.diff(y)
+        white = max(float(d.var()) / 2.0, 1e-6 * var) if d.numel() > 1 else var / 2
+        out = {}
+        n_state = len(self.labels("state"))
+        for label, comp in self.components:
+            for p in comp.params:
+                key = f"{label}.{p.name}"
+                if comp.name == "fractional":
+                    if p.name == "order":
+                        out[key] = order
+                    elif p.name == "pole":
+                        out[key] = -0.5 * 2.0 ** order / h ** order
+                    else:
+                        out[key] = max(var - white, 0.1 * var) / n_state
+                elif comp.name == "white":
+                    out[key] = white / 2.0
+                elif comp.name == "quantisation":
+                    out[key] = math.sqrt(12.0 * white / 2.0)
+                elif comp.name == "random-walk":
+                    out[key] = math.sqrt(max(var, 1e-12) / (len(y) * h)) / 10.0
+                elif comp.name == "low-pass":
+                    out[key] = 0.25 / h
+                elif comp.name == "offset":
+                    out[key] = float(y.mean())
+                elif comp.name == "sinusoid":
+                    out[key] = {"frequency": 0.1 / h, "amplitude": math.sqrt(var) / 10.0, "phase": 0.0}[p.name]
+                elif comp.name == "temperature-bias":
+                    out[key] = 0.0
+                else:
+                    out[key] = 0.0
+        return out
+
+
+def parse_model(spec) -> NoiseModel:
+    """``"fractional+white"`` → :class:`NoiseModel`. Components are joined by ``+``; a component named twice
+    gets labels ``name``, ``name2`` … . Raises ``ValueError`` naming the spec and the choices."""
+    if isinstance(spec, NoiseModel):
+        return spec
+    text = str(spec).strip().lower().replace(" ", "")
+    parts = [p for p in text.split("+")]
+    if not text or any(not p for p in parts):
+        raise ValueError(f"bad model spec {spec!r}: components joined by '+', e.g. fractional+white")
+    comps, seen = [], {}
+    for p in parts:
+        if p not in COMPONENTS:
+            raise ValueError(f"unknown component {p!r} in model {spec!r}; choose from: {', '.join(COMPONENTS)}")
+        seen[p] = seen.get(p, 0) + 1
+        label = p if seen[p] == 1 else f"{p}{seen[p]}"
+        comps.append((label, COMPONENTS[p]))
+    if seen.get("low-pass", 0) > 1:
+        raise ValueError(f"model {spec!r}: at most one low-pass")
+    if not any(c.kind in ("state", "measurement") for _, c in comps):
+        raise ValueError(f"model {spec!r} has no stochastic component (fractional, white, random-walk …)")
+    return NoiseModel(comps, "+".join(parts))

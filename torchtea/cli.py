@@ -702,8 +702,6 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def cmd_fit(args) -> int:
-    import numpy as np
-
     from .datacheck import check_missing
     from .fitting import fit_series
     from .fitting.presence import fractional_test

@@ -123,8 +123,8 @@ def write_report(path, ident: Identification, summary: dict, figures: list, *, c
                          f"{fs['nis']:.3f} |")
         lines += ["", "Intervals: Wald on the logit (order) or log (q, r) scale from the exact observed information; "
                   "'no interval' where that information is not positive definite (an estimate on a boundary). "
-                  "`torchtea fit` adds the profile interval of the order and the test of whether the fractional "
-                  "part is there at all.", ""]
+                  "The Whittle profile interval of the order is in `summary.json` (`fit.<axis>.order_profile`); "
+                  "`torchtea fit` adds the test of whether the fractional part is there at all.", ""]
     warns = summary.get("warnings", [])
     lines += ["## Warnings", ""]
     lines += [f"- {w}" for w in warns] if warns else [

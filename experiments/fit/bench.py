@@ -21,7 +21,7 @@ import torch
 from torchtea.fitting import fit_series
 from torchtea.fitting.presence import fractional_test
 from torchtea.likelihood import kalman_filter, loglik_fast, periodogram, whittle_loglik
-from torchtea.noise import parse_model, simulate_model, state_memory
+from torchtea.noise import parse_model, simulate_model
 
 H = 0.01
 TRUTH = {"fractional.order": 0.3, "fractional.pole": -2.0, "fractional.q": 0.02, "white.r": 1e-3}

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 import torch
@@ -31,7 +32,7 @@ from ..likelihood.whittle import periodogram, whittle_loglik
 from ..noise.model import NoiseModel, parse_model, state_memory
 from .optimize import newton
 
-__all__ = ["Fit", "fit_series", "regress_mean", "whittle_fit", "exact_loglik", "profile_order", "METHODS",
+__all__ = ["Fit", "WhittleFit", "fit_series", "regress_mean", "whittle_fit", "exact_loglik", "profile_order", "METHODS",
            "Z95", "CHI2_95"]
 
 METHODS = ("whittle", "exact")
@@ -168,23 +169,22 @@ def _starts(model: NoiseModel, y: np.ndarray, h: float, omega: Tensor, I: Tensor
     base = model.initial_values(torch.as_tensor(y), h)
     hi = I[omega > omega.max() * 0.75].mean()
     white = float(hi) * 2 * math.pi
+    low = omega < omega.max() * 0.5
     starts = []
     for a in orders:
         for rho in fracs:
             v = dict(base)
             v.update(mean_vals)
-            for name in model.names:
-                if name.endswith("white.r") or name.endswith(".r"):
-                    v[name] = white * 0.5
-                if name.endswith(".step"):
-                    v[name] = math.sqrt(12 * white * 0.5)
             for label, comp in model.components:
-                if comp.name == "fractional":
+                if comp.name == "white":
+                    v[f"{label}.r"] = white * 0.5
+                elif comp.name == "quantisation":
+                    v[f"{label}.step"] = math.sqrt(12 * white * 0.5)
+                elif comp.name == "fractional":
                     v[f"{label}.order"] = a
                     v[f"{label}.pole"] = -rho * 2.0 ** a / h ** a
             v.update(fixed)
             # scale the state drives so that the mean spectrum matches on the lower half
-            low = omega < omega.max() * 0.5
             S = model.spectrum(v, omega, h)[0]
             target = float(I[low].mean())
             now = float(S[low].mean())
@@ -200,58 +200,61 @@ def _starts(model: NoiseModel, y: np.ndarray, h: float, omega: Tensor, I: Tensor
     return starts
 
 
-def _free_mask(model: NoiseModel, fixed: dict, stochastic_only: bool) -> Tensor:
+def _free_mask(model: NoiseModel, fixed, stochastic_only: bool) -> Tensor:
+    """``(P,)`` bool: not among the ``fixed`` names (and, with ``stochastic_only``, of a stochastic component)."""
     return torch.tensor([(n not in fixed) and (not stochastic_only or _stochastic(model, n)) for n in model.names])
 
 
+class WhittleFit(NamedTuple):
+    """Whittle MLEs of ``S`` series: ``values`` ``(S, P)``, ``loglik`` ``(S,)``, unconstrained ``u`` ``(S, P)`` and
+    the Hessian of −ℓ_W there ``(S, P, P)``, the least-squares mean values per series, ``converged`` ``(S,)``,
+    the ``free`` mask ``(P,)``, and the periodograms ``I`` ``(S, W)`` at ``omega`` of the residual series."""
+
+    values: Tensor
+    loglik: Tensor
+    u: Tensor
+    hessian: Tensor
+    means: list
+    converged: Tensor
+    free: Tensor
+    omega: Tensor
+    I: Tensor
+
+
+def _whittle_loss(model: NoiseModel, omega: Tensor, I: Tensor, h: float):
+    """−ℓ_W of each row of ``u`` against the matching row of ``I``."""
+    def loss(u):
+        return -whittle_loglik(model.spectrum(model.from_unconstrained(u, h), omega, h), I)
+    return loss
+
+
 def whittle_fit(model, series: list, h: float, *, inputs: list | None = None, fixed: dict | None = None,
-                orders_fixed: Tensor | None = None, orders=START_ORDERS, fractions=START_FRACTIONS):
-    """Whittle MLEs of several series at once. Returns ``(values (S, P), loglik (S,), u, hessian, mean_vals,
-    converged)``; ``orders_fixed`` ``(S,)`` holds each series' fractional order (profiles)."""
+                orders=START_ORDERS, fractions=START_FRACTIONS) -> WhittleFit:
+    """Whittle MLEs of several series at once (:class:`WhittleFit`): the mean components by least squares,
+    then the stochastic part from every start of the multi-start grid."""
     model = parse_model(model)
     fixed = dict(fixed or {})
-    rows_u, rows_I, owner, mean_list, Is = [], [], [], [], []
+    rows_u, owner, mean_list, Is = [], [], [], []
     omega = None
     for s, y in enumerate(series):
         mean_vals, resid = regress_mean(model, y, h, None if inputs is None else inputs[s])
         mean_list.append(mean_vals)
         omega, I = periodogram(torch.as_tensor(resid))
         Is.append(I)
-        fx = dict(fixed)
-        if orders_fixed is not None:
-            for label, comp in model.components:
-                if comp.name == "fractional":
-                    fx[f"{label}.order"] = float(orders_fixed[s])
-        for v in _starts(model, resid, h, omega, I, mean_vals, fx, orders or START_ORDERS,
-                         fractions or START_FRACTIONS):
+        for v in _starts(model, resid, h, omega, I, mean_vals, fixed, orders, fractions):
             rows_u.append(model.to_unconstrained(v, h)[0])
-            rows_I.append(I)
             owner.append(s)
-    U0 = torch.stack(rows_u)
-    Iall = torch.stack(rows_I)
-    fixed_names = set(fixed)
-    if orders_fixed is not None:
-        fixed_names |= {f"{label}.order" for label, c in model.components if c.name == "fractional"}
-    free = _free_mask(model, {n: 0 for n in fixed_names}, True)
-
-    def loss(u):
-        return -whittle_loglik(model.spectrum(model.from_unconstrained(u, h), omega, h), Iall)
-
+    Is = torch.stack(Is)
+    owner = torch.tensor(owner)
+    free = _free_mask(model, fixed, True)
     # a few iterations from every start, then only each series' best start to convergence
-    res = newton(loss, U0, free, max_iter=8)
-    owner_t = torch.tensor(owner)
-    best = []
-    for s in range(len(series)):
-        idx = (owner_t == s).nonzero().squeeze(-1)
-        losses = torch.where(torch.isfinite(res.loss[idx]), res.loss[idx], torch.full_like(res.loss[idx], math.inf))
-        best.append(int(idx[int(torch.argmin(losses))]))
-    best = torch.tensor(best)
-    Iall = Iall[best]
-    res = newton(loss, res.u[best], free)
-    best = torch.arange(len(series))
-    u = res.u[best]
-    return (model.as_matrix(model.from_unconstrained(u, h)).detach(), -res.loss[best], u, res.hessian[best],
-            mean_list, res.converged[best], free)
+    res = newton(_whittle_loss(model, omega, Is[owner], h), torch.stack(rows_u), free, max_iter=8)
+    finite = torch.where(torch.isfinite(res.loss), res.loss, torch.full_like(res.loss, math.inf))
+    best = torch.stack([(owner == s).nonzero().squeeze(-1)[torch.argmin(finite[owner == s])]
+                        for s in range(len(series))])
+    res = newton(_whittle_loss(model, omega, Is, h), res.u[best], free)
+    return WhittleFit(model.as_matrix(model.from_unconstrained(res.u, h)).detach(), -res.loss, res.u, res.hessian,
+                      mean_list, res.converged, free, omega, Is)
 
 
 # --------------------------------------------------------------------------- exact
@@ -364,34 +367,23 @@ def _intervals(model: NoiseModel, u: Tensor, H: Tensor, free: Tensor, h: float):
     return values, se, ci, how
 
 
-def profile_order(model, series: list, h: float, u_hat: Tensor, loglik_hat: Tensor, *, grid: int = 21,
-                  fixed: dict | None = None) -> list[dict]:
-    """The Whittle profile log-likelihood of the fractional order on a grid over (0, 1) for each series
-    (``u_hat`` ``(S, P)`` the unconstrained MLEs, every grid point started from its series' MLE), and the
-    95 % interval {α : 2 (ℓ̂ − ℓ_p(α)) ≤ χ²₁,₀.₉₅} read off by linear interpolation — a union of pieces
-    when the profile has two modes, reported as its hull with ``pieces``."""
+def profile_order(model, wf: WhittleFit, h: float, *, grid: int = 21, fixed: dict | None = None) -> list[dict]:
+    """The Whittle profile log-likelihood of the fractional order on a grid over (0, 1) for each series of
+    the Whittle fit ``wf`` (its periodograms and MLEs), and the 95 % interval {α : 2 (ℓ̂ − ℓ_p(α)) ≤ χ²₁,₀.₉₅}
+    read off by linear interpolation — a union of pieces when the profile has two modes, reported as its
+    hull with ``pieces``."""
     model = parse_model(model)
     name = next(f"{label}.order" for label, c in model.components if c.name == "fractional")
     io = model.names.index(name)
     alphas = torch.linspace(0.0125, 0.9875, grid, dtype=torch.float64)
-    lo, hi = model.param_spec(name).bounds
-    pa = (alphas - lo) / (hi - lo)
-    ua = torch.log(pa) - torch.log1p(-pa)
-    Is = []
-    omega = None
-    for y in series:
-        _, resid = regress_mean(model, y, h)
-        omega, I = periodogram(torch.as_tensor(resid))
-        Is.append(I)
-    Is = torch.stack(Is)
-    fx = set(fixed or {}) | {name}
-    free = _free_mask(model, {n: 0 for n in fx}, True)
-    S = len(series)
+    ua = model.param_spec(name).bounded_to_unconstrained(alphas)
+    free = _free_mask(model, set(fixed or {}) | {name}, True)
+    S = wf.u.shape[0]
     loss_grid = torch.full((S, grid), math.inf, dtype=torch.float64)
     # continuation: from the grid point next to each series' MLE outwards, each point started from the last
-    k0 = torch.argmin((alphas.unsqueeze(0) - model.from_unconstrained(u_hat, h)[name].unsqueeze(-1)).abs(), dim=-1)
+    k0 = torch.argmin((alphas.unsqueeze(0) - wf.values[:, io].unsqueeze(-1)).abs(), dim=-1)
     for direction in (1, -1):
-        u = u_hat.clone()
+        u = wf.u.clone()
         for step in range(grid):
             k = k0 + direction * (step if direction == 1 else step + 1)
             rows = ((k >= 0) & (k < grid)).nonzero().squeeze(-1)
@@ -400,19 +392,14 @@ def profile_order(model, series: list, h: float, u_hat: Tensor, loglik_hat: Tens
             kk = k[rows]
             u0 = u[rows].clone()
             u0[:, io] = ua[kk]
-            Irows = Is[rows]
-
-            def loss(uu, Irows=Irows):
-                return -whittle_loglik(model.spectrum(model.from_unconstrained(uu, h), omega, h), Irows)
-
-            res = newton(loss, u0, free, max_iter=30, ftol=1e-9, dtol=1e-5)
+            res = newton(_whittle_loss(model, wf.omega, wf.I[rows], h), u0, free, max_iter=30, ftol=1e-9, dtol=1e-5)
             u[rows] = res.u
             loss_grid[rows, kk] = res.loss
     out = []
     a = alphas.numpy()
-    for s in range(len(series)):
+    for s in range(S):
         ll = -loss_grid[s]
-        top = max(float(ll.max()), float(loglik_hat[s]))
+        top = max(float(ll.max()), float(wf.loglik[s]))
         d = (2.0 * (top - ll)).numpy()
         inside = d <= CHI2_95
         pieces = []
@@ -438,6 +425,12 @@ def profile_order(model, series: list, h: float, u_hat: Tensor, loglik_hat: Tens
 
 # --------------------------------------------------------------------------- the whole fit
 
+def centred(model: NoiseModel, y) -> np.ndarray:
+    """The series the exact likelihood sees: its mean removed unless the model has an ``offset`` to fit it."""
+    y = np.asarray(y, dtype=np.float64)
+    return y if model.has("offset") else y - np.nanmean(y)
+
+
 def fit_series(model, series: list, h: float, *, method: str = "exact", inputs: list | None = None,
                fixed: dict | None = None, memory=FIT_MEMORY, profile: bool = True) -> list[Fit]:
     """Fit ``model`` to each series of ``series`` (1-D arrays, NaN = missing; sample time ``h``)."""
@@ -454,38 +447,35 @@ def fit_series(model, series: list, h: float, *, method: str = "exact", inputs: 
         raise ValueError("the Whittle method needs complete series; use --method exact for recordings with "
                          "missing samples")
     filled = [np.where(np.isnan(y), np.nanmean(y), y) for y in series]
-    V, llw, U, HW, mean_list, conv, free_w = whittle_fit(model, filled, h, inputs=inputs, fixed=fixed)
+    wf = whittle_fit(model, filled, h, inputs=inputs, fixed=fixed)
     name = next((f"{label}.order" for label, c in model.components if c.name == "fractional"), None)
     profiles = [None] * len(series)
     if profile and name is not None and name not in fixed:
-        profiles = profile_order(model, filled, h, U, llw, fixed=fixed)
+        profiles = profile_order(model, wf, h, fixed=fixed)
     fits = []
     for s, y in enumerate(series):
         inp = None if inputs is None else inputs[s]
         notes = []
         # fixed mean parameters (temperature reference) join `fixed` for the exact stage
         fx = dict(fixed)
-        for n, x in mean_list[s].items():
+        for n, x in wf.means[s].items():
             if n.endswith(".t_ref"):
                 fx.setdefault(n, x)
-        u = U[s].clone()
+        y_exact = centred(model, y)
         if method == "whittle":
-            free = free_w & torch.tensor([n not in fx for n in model.names])
-            ll, H, ok = float(llw[s]), HW[s], bool(conv[s])
+            free = wf.free & torch.tensor([n not in fx for n in model.names])
+            u, ll, H, ok = wf.u[s], float(wf.loglik[s]), wf.hessian[s], bool(wf.converged[s])
             vals, se, ci, how = _intervals(model, u, H, free, h)
             for n in model.names:
                 if not _stochastic(model, n) and n not in fx:
                     how[n] = "least squares before the Whittle sum: no interval"
-            kfree = [n for n, f in zip(model.names, free.tolist()) if f]
-            y_exact = y if model.has("offset") else y - np.nanmean(y)
             ll_exact = float(exact_loglik(model, vals, y_exact, h, inputs=inp, memory=memory)[0])
         else:
             free = torch.tensor([n not in fx for n in model.names])
-            y_exact = y if model.has("offset") else y - np.nanmean(y)
-            u, ll, H, ok, _ = _exact_refine(model, y_exact, h, u, free, inp, memory)
+            u, ll, H, ok, _ = _exact_refine(model, y_exact, h, wf.u[s].clone(), free, inp, memory)
             vals, se, ci, how = _intervals(model, u, H, free, h)
-            kfree = [n for n, f in zip(model.names, free.tolist()) if f]
             ll_exact = ll
+        kfree = [n for n, f in zip(model.names, free.tolist()) if f]
         if not model.has("offset"):
             notes.append(f"mean {float(np.nanmean(y)):.6g} removed before fitting (the model has no offset)")
         prof = profiles[s]

@@ -61,7 +61,6 @@ def newton(loss_fn, u0: Tensor, free: Tensor | None = None, *, max_iter: int = 6
     mu = torch.full((B,), 1e-3, dtype=u.dtype)
     done = torch.zeros(B, dtype=torch.bool)
     f, g, H = _value_grad_hess(loss_fn, u, free)
-    eye = torch.eye(P, dtype=u.dtype)
     fixed_diag = (~free).to(u.dtype)
     it = 0
     for it in range(1, max_iter + 1):

@@ -18,7 +18,7 @@ import torch
 
 from ..noise.model import parse_model
 from ..noise.simulate import simulate_model
-from .mle import whittle_fit
+from .mle import START_FRACTIONS, START_ORDERS, whittle_fit
 
 __all__ = ["fractional_test", "BOOTSTRAP_ORDERS", "BOOTSTRAP_FRACTIONS"]
 
@@ -28,9 +28,9 @@ BOOTSTRAP_FRACTIONS = (0.5,)
 
 
 def _lr(model, null, series, h, orders, fractions):
-    _, ll_full, *_ = whittle_fit(model, series, h, orders=orders, fractions=fractions)
-    V0, ll_null, *_ = whittle_fit(null, series, h)
-    return (2.0 * (ll_full - ll_null)).clamp(min=0.0).numpy(), V0
+    full = whittle_fit(model, series, h, orders=orders, fractions=fractions)
+    nul = whittle_fit(null, series, h)
+    return (2.0 * (full.loglik - nul.loglik)).clamp(min=0.0).numpy(), nul.values
 
 
 def fractional_test(model, series: list, h: float, *, n_boot: int = 99, seed: int = 0) -> list[dict]:
@@ -41,7 +41,7 @@ def fractional_test(model, series: list, h: float, *, n_boot: int = 99, seed: in
         raise ValueError(f"model {model.spec!r} has no fractional component to test")
     null = model.without("fractional")
     series = [np.asarray(y, dtype=np.float64) - np.mean(y) for y in series]
-    lr, V0 = _lr(model, null, series, h, None, None)
+    lr, V0 = _lr(model, null, series, h, START_ORDERS, START_FRACTIONS)
     gen = torch.Generator().manual_seed(seed)
     white_only = all(c.kind == "measurement" for _, c in null.components)
     out, cache = [], {}

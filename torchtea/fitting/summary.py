@@ -10,7 +10,7 @@ import torch
 
 from ..likelihood.kalman import filter_fast
 from ..noise.model import state_memory
-from .mle import FIT_MEMORY, Fit
+from .mle import FIT_MEMORY, Fit, centred
 
 __all__ = ["fit_nis", "axis_summary", "MEANING"]
 
@@ -32,9 +32,7 @@ MEANING = {
 def fit_nis(fit: Fit, y, h: float, inputs=None, memory=FIT_MEMORY) -> float:
     """Mean normalised innovation square of the exact filter at the fitted values."""
     model = fit.model
-    y = np.asarray(y, dtype=np.float64)
-    if not model.has("offset"):
-        y = y - np.nanmean(y)
+    y = centred(model, y)
     N = len(y)
     ss = model.state_space(fit.values, h, N, state_memory(memory, N))
     mean = model.mean(fit.values, torch.arange(N, dtype=torch.float64) * h, inputs)

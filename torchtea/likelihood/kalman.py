@@ -35,7 +35,7 @@ class FilterResult:
     """Innovations ``e`` and their variances ``S`` ``(B, N)`` (NaN / predicted variance where missing),
     the one-step predictions of the measurement ``prediction`` ``(B, N)``, ``loglik`` ``(B,)``,
     ``observed`` (number of terms in ℓ); with ``keep_states``, filtered means ``(B, N, n)`` and, with
-    ``smooth``, smoothed means and the smoothed measurement-free signal ``C z`` ``(B, N)``."""
+    ``smooth``, also the smoothed means ``(B, N, n)``."""
 
     innovation: Tensor
     variance: Tensor
@@ -222,7 +222,7 @@ def _csr(F: np.ndarray):
 
 def _fast(ss: StateSpace, y, mean, keep: bool):
     F = ss.F.detach().cpu().numpy()
-    B, n = F.shape[0], F.shape[-1]
+    B = F.shape[0]
     yt = _as_series(y, B).detach().cpu()
     ya = np.ascontiguousarray(yt.numpy(), dtype=np.float64)
     N = ya.shape[-1]

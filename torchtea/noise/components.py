@@ -29,7 +29,7 @@ from torch import Tensor
 
 from ..gl import gl_tail_coefficients
 
-__all__ = ["ParamSpec", "Component", "COMPONENTS", "ORDER_BOUNDS"]
+__all__ = ["ParamSpec", "Component", "COMPONENTS", "ORDER_BOUNDS", "logit"]
 
 #: Orders the ``fractional`` component may take: open interval, the kernel is designed on it.
 ORDER_BOUNDS = (0.0, 1.0)
@@ -49,8 +49,13 @@ class ParamSpec:
     unit: str
     bounds: tuple = (-math.inf, math.inf)
 
+    def bounded_to_unconstrained(self, x: Tensor) -> Tensor:
+        """``logit((x − low)/(high − low))``: a ``bounded`` value on the optimisers' scale."""
+        lo, hi = self.bounds
+        return logit((x - lo) / (hi - lo))
 
-def _logit(p: Tensor) -> Tensor:
+
+def logit(p: Tensor) -> Tensor:
     return torch.log(p) - torch.log1p(-p)
 
 
@@ -165,7 +170,7 @@ class LowPass(Component):
     params = (ParamSpec("cutoff", "positive", "f_c (Hz)"),)
 
     def gain(self, v, omega, h):
-        a = torch.exp(-2.0 * math.pi * v["cutoff"] * h).unsqueeze(-1)
+        a = self.coefficient(v, h).unsqueeze(-1)
         return (1.0 - a) ** 2 / (1.0 - 2.0 * a * torch.cos(omega) + a * a)
 
     def coefficient(self, v, h):

@@ -25,7 +25,7 @@ import torch
 from torch import Tensor
 
 from ..memory import MemoryConfig, SOEKernel, kernel_for, parse_memory
-from .components import COMPONENTS, ORDER_BOUNDS, Component, LowPass
+from .components import COMPONENTS, ORDER_BOUNDS, Component, LowPass, logit
 
 __all__ = ["NoiseModel", "parse_model", "StateSpace", "StateMemory", "state_memory", "EXACT_MEMORY_LIMIT"]
 
@@ -105,10 +105,6 @@ class NoiseModel:
     def param_spec(self, name: str):
         return self._specs[name]
 
-    @property
-    def inputs(self) -> tuple:
-        return tuple(sorted({i for _, c in self.components for i in c.inputs}))
-
     def without(self, name: str) -> "NoiseModel":
         """The same model without every component called ``name`` (the null of a presence test)."""
         kept = [c.name for _, c in self.components if c.name != name]
@@ -151,13 +147,10 @@ class NoiseModel:
             if spec.kind == "positive":
                 cols.append(torch.log(x))
             elif spec.kind == "bounded":
-                lo, hi = spec.bounds
-                p = (x - lo) / (hi - lo)
-                cols.append(torch.log(p) - torch.log1p(-p))
+                cols.append(spec.bounded_to_unconstrained(x))
             elif spec.kind == "fraction":
                 alpha = v[n.rsplit(".", 1)[0] + ".order"]
-                rho = -x * h ** alpha / 2.0 ** alpha
-                cols.append(torch.log(rho) - torch.log1p(-rho))
+                cols.append(logit(-x * h ** alpha / 2.0 ** alpha))
             else:
                 cols.append(x)
         return torch.stack(cols, dim=-1)

@@ -8,9 +8,8 @@ simulator and the filter cannot disagree about the model; the deterministic part
 from __future__ import annotations
 
 import torch
-from torch import Tensor
 
-from .model import NoiseModel, parse_model
+from .model import parse_model
 
 __all__ = ["simulate_model"]
 

@@ -23,6 +23,7 @@ from .model import Structure
 from .presets import get_preset
 from .stats import last_third, mean_nis
 from .tea import CLAMP_NOTE, TEAConfig, TEAResult, make_params, run_tea, stack_params
+from .noise.tea import tea_config
 
 __all__ = ["AXES", "MIN_SAMPLES", "NIS_TRUST_BAND", "SETTLE_BAND", "DRIFT_BAND", "ALPHA_SD_LIMIT", "Identification", "axis_configs",
            "identify", "summarise", "settle_time", "trust_warnings", "config_changes", "axis_changes"]
@@ -140,10 +141,7 @@ def axis_configs(y: torch.Tensor, r_mode: str = "measured", overrides: dict | No
             r = float(np.nanvar(y[i, :, 0].cpu().numpy()))
             cfg = replace(cfg, kfx=replace(cfg.kfx, R=r), kfo=replace(cfg.kfo, R=r), kfw=replace(cfg.kfw, R=r))
         elif r_mode == "fitted":
-            v = fits[i].values
-            r, q = v["white.r"], v["fractional.q"]
-            cfg = replace(cfg, kfx=replace(cfg.kfx, R=r, Q0=q), kfo=replace(cfg.kfo, R=r, x0=v["fractional.order"]),
-                          kfw=replace(cfg.kfw, R=r, x0=v["fractional.pole"]))
+            cfg = tea_config(fits[i].model, fits[i].values, cfg)
         if overrides:
             cfg = TEAConfig.from_dict(overrides, cfg)
         out.append(cfg)

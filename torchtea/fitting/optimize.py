@@ -82,7 +82,7 @@ def newton(loss_fn, u0: Tensor, free: Tensor | None = None, *, max_iter: int = 6
         ok = torch.isfinite(f_new) & (f_new <= f) & ~done
         small = ok & ((f - f_new).abs() <= ftol * (1.0 + f.abs()))
         u = torch.where(ok.unsqueeze(-1), u + step, u)
-        mu = torch.where(ok, mu / 4.0, mu * 8.0).clamp(1e-12, 1e12)
+        mu = torch.where(done, mu, torch.where(ok, mu / 4.0, mu * 8.0).clamp(1e-12, 1e12))  # a finished row keeps its μ
         f2, g2, H2 = _value_grad_hess(loss_fn, u, free)
         f = torch.where(ok, f2, f)
         g = torch.where(ok.unsqueeze(-1), g2, g)

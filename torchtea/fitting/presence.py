@@ -33,9 +33,12 @@ def _lr(model, null, series, h, orders, fractions):
     return (2.0 * (full.loglik - nul.loglik)).clamp(min=0.0).numpy(), nul.values
 
 
-def fractional_test(model, series: list, h: float, *, n_boot: int = 99, seed: int = 0) -> list[dict]:
-    """Per series: ``{"lr", "p_value", "n_boot", "null", "shared"}``. Series must be complete (the
-    Whittle likelihood); their means are removed as in the fit."""
+def fractional_test(model, series: list, h: float, *, n_boot: int = 99, seed: int = 0,
+                    null_cache: dict | None = None) -> list[dict]:
+    """Per series: ``{"lr", "p_value", "n_boot", "null", "shared", "null_lr_quantile95"}``. Series must be
+    complete (the Whittle likelihood); their means are removed as in the fit. ``null_cache``: a dict that
+    keeps the white-null bootstrap distributions (keyed by model, N, h and ``n_boot``) for later calls — pass
+    the same dict to test more series of the same length without simulating the null again."""
     model = parse_model(model)
     if not model.has("fractional"):
         raise ValueError(f"model {model.spec!r} has no fractional component to test")
@@ -44,10 +47,11 @@ def fractional_test(model, series: list, h: float, *, n_boot: int = 99, seed: in
     lr, V0 = _lr(model, null, series, h, START_ORDERS, START_FRACTIONS)
     gen = torch.Generator().manual_seed(seed)
     white_only = all(c.kind == "measurement" for _, c in null.components)
-    out, cache = [], {}
+    out = []
+    cache = {} if null_cache is None else null_cache
     for s, y in enumerate(series):
         N = len(y)
-        key = N if white_only else None
+        key = (model.spec, N, h, n_boot) if white_only else None
         if key is not None and key in cache:
             boot = cache[key]
         else:

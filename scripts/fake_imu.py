@@ -6,7 +6,7 @@
 
 Sources: ``synth`` (fractional noise, default) or ``replay`` / ``replay:PATH`` (the bundled recording or
 another). Faults (repeatable): --fault drop@500:20 --fault corrupt@100 --fault reset@2000 … (see
-torchtea.fakeimu). With --link PATH the port is also reachable as a stable symlink; after a
+torchtea.sensors.fakeimu). With --link PATH the port is also reachable as a stable symlink; after a
 ``disconnect`` fault and --reconnect-after S, a new pty appears behind the same link.
 """
 from __future__ import annotations
@@ -20,7 +20,7 @@ import sys
 import termios
 import time
 
-from torchtea.fakeimu import FakeIMU, open_pty, parse_fault, replay_counts, synthetic_counts
+from torchtea.sensors.fakeimu import FakeIMU, open_pty, parse_fault, replay_counts, synthetic_counts
 
 
 def main(argv=None) -> int:

@@ -14,13 +14,13 @@ from dataclasses import replace
 
 import torch
 
-from torchtea.datacheck import check_missing, check_timing
-from torchtea.identify import AXES, Identification, axis_configs
-from torchtea.io import read_recording
-from torchtea.memory import parse_memory
-from torchtea.model import Structure
-from torchtea.report import save_identification
-from torchtea.tea import make_params, run_tea, stack_params
+from torchtea.sensors.datacheck import check_missing, check_timing
+from torchtea.reports.identify import AXES, Identification, axis_configs
+from torchtea.sensors.io import read_recording
+from torchtea.core.memory import parse_memory
+from torchtea.engines.structure import Structure
+from torchtea.reports.report import save_identification
+from torchtea.engines.tea import make_params, run_tea, stack_params
 
 ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
 ap.add_argument("recording", nargs="?", help="default: the bundled MPU-6050 recording")

@@ -10,8 +10,8 @@ import pytest
 import torch
 
 from torchtea.cli import main
-from torchtea.gl import difference
-from torchtea.io import bundled_recording
+from torchtea.core.gl import difference
+from torchtea.sensors.io import bundled_recording
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "data" / "mpu6050_arduino_100hz"
 
@@ -159,8 +159,8 @@ def test_identify_bundled_json_contract(tmp_path, capsys):
     out = json.loads(capsys.readouterr().out)
     assert set(out["axes"]) == {"x", "y", "z"}
     # the CLI's numbers are the library's: identify() on the same recording and settings
-    from torchtea.identify import identify
-    from torchtea.io import read_recording
+    from torchtea.reports.identify import identify
+    from torchtea.sensors.io import read_recording
 
     lib = identify(read_recording(), n_samples=600).summary()
     for axis in "xyz":
@@ -206,7 +206,7 @@ def test_identify_report_and_tensorboard(tmp_path, capsys):
 
 
 def test_identify_generic_csv_columns_and_units(tmp_path, capsys):
-    from torchtea.io import read_recording
+    from torchtea.sensors.io import read_recording
 
     rec = read_recording()
     g = rec.accel_counts[:400] / 16384.0
@@ -279,7 +279,7 @@ def test_presets_command(capsys):
 def test_bundled_recordings_read_completely():
     """Every data row is read: 4 `key,value` lines and the column header precede the samples. (PROVENANCE.md's
     `genfromtxt(..., skip_header=6)` skips the first sample: 44,929 rows there, 44,930 in the file.)"""
-    from torchtea.io import read_recording
+    from torchtea.sensors.io import read_recording
 
     main_rec = read_recording(bundled_recording("main"))
     assert main_rec.accel_counts.shape == (44930, 3) and main_rec.rate_hz == 100.0
@@ -358,7 +358,7 @@ def test_memory_option_on_estimate_identify_simulate(tmp_path, capsys, monkeypat
 @pytest.mark.slow
 def test_compiled_bounded_loop_equals_eager(monkeypatch):
     """torch.compile of blocks of steps gives the eager numbers (blocks of 2 here to keep compiling short)."""
-    import torchtea.tea as tea
+    import torchtea.engines.tea as tea
     from torchtea import SCENARIOS, MemoryConfig, Structure, gaussian_input, get_preset, make_params, run_tea, simulate
     from dataclasses import replace
 

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from torchtea.protocol import Assembler, Header, Parser, Sample, format_line
+from torchtea.sensors.protocol import Assembler, Header, Parser, Sample, format_line
 
 HOST = Path(__file__).parent / "firmware_host"
 pytestmark = pytest.mark.skipif(shutil.which("g++") is None, reason="needs g++ to build the sketch for the host")

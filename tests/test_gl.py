@@ -7,7 +7,7 @@ import pytest
 import torch
 from scipy.special import binom
 
-from torchtea.gl import difference, gl_coefficients, history_sum
+from torchtea.core.gl import difference, gl_coefficients, history_sum
 
 ORDERS = torch.tensor([-0.9, -0.4, 0.0, 0.02, 0.35, 0.5, 0.98, 1.0, 1.5, 2.3], dtype=torch.float64)
 

@@ -4,9 +4,9 @@ import math
 import pytest
 import torch
 
-from torchtea.montecarlo import Study, Truth, draw_realisation, realisation_seed, run_study, summarise
-from torchtea.presets import get_preset
-from torchtea.stats import over_realisations
+from torchtea.studies.montecarlo import Study, Truth, draw_realisation, realisation_seed, run_study, summarise
+from torchtea.engines.presets import get_preset
+from torchtea.core.stats import over_realisations
 
 from .procs import sigint_as_in_a_terminal
 
@@ -72,7 +72,7 @@ def test_interrupt_keeps_finished_chunks():
 def test_tensorboard_event_files_read_back(tmp_path):
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
-    from torchtea.tblog import log_study
+    from torchtea.studies.tblog import log_study
 
     study = Study(TRUTH, get_preset("paper-example1"), realisations=5, seed=3)
     res = run_study(study)
@@ -148,7 +148,7 @@ def test_tensorboard_server_serves_a_scalar_series(tmp_path):
     import time
     import urllib.request
 
-    from torchtea.tblog import log_study
+    from torchtea.studies.tblog import log_study
 
     res = run_study(Study(TRUTH, get_preset("paper-example1"), realisations=3, seed=1))
     log_study(tmp_path / "run", res, summarise(res), {"realisations": 3}, max_points=20)
@@ -186,7 +186,7 @@ def test_tensorboard_server_serves_a_scalar_series(tmp_path):
 def test_fan_figures_in_tensorboard(tmp_path):
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
-    from torchtea.tblog import log_study
+    from torchtea.studies.tblog import log_study
 
     res = run_study(Study(TRUTH, get_preset("paper-example1"), realisations=3, seed=1))
     log_study(tmp_path / "run", res, summarise(res), {"realisations": 3}, max_points=20)

@@ -13,10 +13,10 @@ import numpy as np
 import pytest
 import serial
 
-from torchtea.fakeimu import FakeIMU, parse_fault
-from torchtea.io import STANDARD_GRAVITY, read_recording
-from torchtea.protocol import U32
-from torchtea.recorder import EXIT_DISCONNECTED, Recorder
+from torchtea.sensors.fakeimu import FakeIMU, parse_fault
+from torchtea.sensors.io import STANDARD_GRAVITY, read_recording
+from torchtea.sensors.protocol import U32
+from torchtea.sensors.recorder import EXIT_DISCONNECTED, Recorder
 
 from .procs import sigint_as_in_a_terminal
 
@@ -264,8 +264,8 @@ def test_live_estimator_logs_once_per_second_of_its_clock(tmp_path):
     whatever the machine's speed; then the final estimate at close."""
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
-    from torchtea.fakeimu import synthetic_counts
-    from torchtea.live import LiveEstimator
+    from torchtea.sensors.fakeimu import synthetic_counts
+    from torchtea.sensors.live import LiveEstimator
 
     n = 650
     counts = synthetic_counts(n, rate_hz=100.0, seed=3)

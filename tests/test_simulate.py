@@ -5,10 +5,10 @@ import numpy as np
 import pytest
 import torch
 
-from torchtea.gl import difference
-from torchtea.model import (ConstantOrder, FunctionOrder, InputOrder, LinearOrder, ParabolicOrder, Structure,
+from torchtea.core.gl import difference
+from torchtea.engines.structure import (ConstantOrder, FunctionOrder, InputOrder, LinearOrder, ParabolicOrder, Structure,
                             parse_order_spec)
-from torchtea.simulate import gaussian_input, simulate
+from torchtea.engines.simulate import gaussian_input, simulate
 
 
 @pytest.mark.parametrize("order", [ConstantOrder(0.4), LinearOrder(0.2, 0.5), ParabolicOrder(0.2, 0.3),

@@ -6,7 +6,7 @@ import pytest
 import torch
 from scipy.stats import chi2
 
-from torchtea.stats import chi2_band, convergence_time, coverage, nees, nis, over_realisations
+from torchtea.core.stats import chi2_band, convergence_time, coverage, nees, nis, over_realisations
 
 
 def _data(seed=0, R=7, N=11, q=2):

@@ -5,11 +5,11 @@ import numpy as np
 import pytest
 import torch
 
-from torchtea.model import ConstantOrder, LinearOrder, Structure
-from torchtea.presets import SCENARIOS, get_preset
-from torchtea.simulate import gaussian_input, simulate
-from torchtea.tea import (TEAConfig, _ExactMemory, _replica, _Model, _sigma_points, make_params, run_tea, stack_params,
-                          ut_weights)
+from torchtea.engines.structure import ConstantOrder, LinearOrder, Structure
+from torchtea.engines.presets import SCENARIOS, get_preset
+from torchtea.engines.simulate import gaussian_input, simulate
+from torchtea.engines.tea import _ExactMemory, _replica, _Model, _sigma_points, make_params, run_tea, stack_params, ut_weights
+from torchtea.engines.settings import TEAConfig
 
 from .reference_tea import settings_from_config, tea_reference
 
@@ -104,7 +104,7 @@ def test_sigma_points_batched_equal_one_at_a_time():
         one_w = _replica(model, _ExactMemory(), (xh, None), sig_o[..., :1, :], w, sig_w[..., i : i + 1, :], x_prev, u_prev)
         torch.testing.assert_close(Y[..., 3 + i, :], one_w[..., 1, :], rtol=0, atol=1e-14)
     # and each equals the model formula written out, (17) and (42)
-    from torchtea.gl import gl_coefficients
+    from torchtea.core.gl import gl_coefficients
     for i in range(3):
         a_i = sig_o[..., i, 0]
         c = gl_coefficients(a_i, k)[..., 1:]
@@ -202,7 +202,7 @@ def test_vector_state_with_fixed_integer_order_runs_and_matches_scalar_when_deco
     sim, u = _data((), n=100, seed=9)
     cfg = get_preset("paper-example1")
     st = Structure(
-        A=__import__("torchtea.model", fromlist=["ParametricMatrix"]).ParametricMatrix(
+        A=__import__("torchtea.engines.structure", fromlist=["ParametricMatrix"]).ParametricMatrix(
             torch.zeros(2, 2, dtype=torch.float64), torch.tensor([[[1.0, 0.0], [0.0, 0.0]]], dtype=torch.float64)),
         B=torch.tensor([[1.0], [0.0]], dtype=torch.float64),
         C=torch.eye(2, dtype=torch.float64),

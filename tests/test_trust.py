@@ -10,9 +10,9 @@ import pytest
 import torch
 
 from torchtea.cli import main
-from torchtea.datacheck import check_timing, find_missing
-from torchtea.io import read_recording
-from torchtea.strictjson import dumps, strict
+from torchtea.sensors.datacheck import check_timing, find_missing
+from torchtea.sensors.io import read_recording
+from torchtea.reports.strictjson import dumps, strict
 
 SHARED_TEMP = Path(__file__).resolve().parents[2] / "shared" / "data" / "mpu6050_sensor_fusion_temperature"
 
@@ -215,7 +215,7 @@ def test_time_stamps_in_other_units_or_as_text(tmp_path, capsys):
 
 
 def test_recorder_file_device_clock_is_checked(tmp_path):
-    from torchtea.identify import identify
+    from torchtea.reports.identify import identify
 
     rows = ["# torchtea-recording 1", "# units", "segment,counter,t_s,ax,ay,az,gx,gy,gz,temp",
             '# segment 0: {"rate_hz": "100", "accel_lsb_per_g": "4096", "gyro_lsb_per_dps": "131"}']
@@ -299,9 +299,9 @@ def test_consistent_filter_on_its_own_model_gives_no_warning(tmp_path, capsys):
 
 
 def test_not_settled_is_warned_about():
-    from torchtea.identify import summarise
-    from torchtea.presets import get_preset
-    from torchtea.tea import TEAResult
+    from torchtea.reports.identify import summarise
+    from torchtea.engines.presets import get_preset
+    from torchtea.engines.tea import TEAResult
 
     N = 300
     drift = torch.linspace(0.2, 0.8, N, dtype=torch.float64)  # α̂ still climbing at the end
@@ -392,9 +392,9 @@ def test_progress_lines_when_stderr_is_not_a_terminal(tmp_path, capsys, monkeypa
 
 
 def test_run_tea_partial_equals_the_first_steps_of_a_full_run():
-    from torchtea.model import Structure
-    from torchtea.presets import get_preset
-    from torchtea.tea import make_params, run_tea
+    from torchtea.engines.structure import Structure
+    from torchtea.engines.presets import get_preset
+    from torchtea.engines.tea import make_params, run_tea
 
     y = torch.as_tensor(read_recording().accel_counts[:250].T.copy() / 16384.0).unsqueeze(-1)
     y = y - y.mean(-2, keepdim=True)
@@ -416,7 +416,7 @@ def test_run_tea_partial_equals_the_first_steps_of_a_full_run():
 
 def ctrl_c_at_step(monkeypatch, step):
     """Make identify's TEA see a Ctrl-C when it reaches ``step`` (as a user pressing it would)."""
-    import torchtea.identify as ident_mod
+    import torchtea.reports.identify as ident_mod
 
     real = ident_mod.run_tea
 

@@ -9,18 +9,18 @@ Batch convention (used everywhere)
   time at dimension ``-2`` for vectors (``(*B, N, n)``) and ``-3`` for matrices
   (``(*B, N, n, n)``).
 * Sigma points sit between batch and event: ``(*B, S, n)``.
-* GL series functions (:mod:`torchtea.gl`) take time as the last dimension.
+* GL series functions (:mod:`torchtea.core.gl`) take time as the last dimension.
 * float64 by default; dtype and device follow the inputs; randomness comes
   from an explicit :class:`torch.Generator`.
 """
-from .gl import difference, gl_coefficients, history_sum
-from .memory import MemoryConfig, parse_memory
-from .model import (ConstantOrder, FunctionOrder, InputOrder, LinearOrder, OrderSchedule, ParabolicOrder,
+from .core.gl import difference, gl_coefficients, history_sum
+from .core.memory import MemoryConfig, parse_memory
+from .engines.structure import (ConstantOrder, FunctionOrder, InputOrder, LinearOrder, OrderSchedule, ParabolicOrder,
                     ParametricMatrix, Structure, parse_order_spec)
-from .presets import PRESETS, SCENARIOS, get_preset
-from .simulate import Simulation, gaussian_input, simulate
-from .tea import (StateFilterConfig, TEAConfig, TEAParams, TEAResult, UnscentedConfig, make_params, run_tea,
-                  stack_params)
+from .engines.presets import PRESETS, SCENARIOS, get_preset
+from .engines.simulate import Simulation, gaussian_input, simulate
+from .engines.tea import TEAParams, TEAResult, make_params, run_tea, stack_params
+from .engines.settings import StateFilterConfig, TEAConfig, UnscentedConfig
 
 __version__ = "0.1.0"
 

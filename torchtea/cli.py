@@ -7,7 +7,7 @@ import sys
 import time
 from pathlib import Path
 
-from . import strictjson
+from .reports import strictjson
 
 __all__ = ["main"]
 
@@ -114,7 +114,7 @@ def _report(out_dir: Path, summary: dict, warnings, as_json: bool) -> bool:
 
 def _memory(spec):
     """Parse --memory SPEC (None keeps the config's)."""
-    from .memory import parse_memory
+    from .core.memory import parse_memory
 
     if spec is None:
         return None
@@ -134,9 +134,9 @@ def _with_memory(cfg, spec):
 def cmd_simulate(args) -> int:
     import torch
 
-    from .io import write_columns
-    from .model import parse_order_spec
-    from .simulate import simulate_noise_model
+    from .sensors.io import write_columns
+    from .engines.structure import parse_order_spec
+    from .engines.simulate import simulate_noise_model
 
     try:
         order = parse_order_spec(args.order)
@@ -157,8 +157,8 @@ def cmd_simulate(args) -> int:
 
 
 def _tea_config(args):
-    from .config import load_config
-    from .presets import get_preset
+    from .engines.config import load_config
+    from .engines.presets import get_preset
 
     if args.config and args.preset:
         raise CLIError("give either --preset or --config, not both")
@@ -175,12 +175,12 @@ def cmd_estimate(args) -> int:
     import numpy as np
     import torch
 
-    from .config import write_config
-    from .datacheck import check_missing, check_timing, stamp_rate
-    from .identify import MIN_SAMPLES, summarise
-    from .io import InputError, read_series, write_columns
-    from .model import Structure
-    from .tea import make_params, run_tea
+    from .engines.config import write_config
+    from .sensors.datacheck import check_missing, check_timing, stamp_rate
+    from .reports.identify import MIN_SAMPLES, summarise
+    from .sensors.io import InputError, read_series, write_columns
+    from .engines.structure import Structure
+    from .engines.tea import make_params, run_tea
 
     cfg, source = _tea_config(args)
     cfg = _with_memory(cfg, args.memory)
@@ -289,8 +289,8 @@ def _num(v, spec: str) -> str:
 def _identify_overrides(args):
     """The settings table of ``--config`` (partial, merged onto each axis's MEMS preset) and ``--memory``;
     returns ``(overrides or None, where they came from or None, the memory kind they give)``."""
-    from .config import read_toml
-    from .identify import axis_configs
+    from .engines.config import read_toml
+    from .reports.identify import axis_configs
 
     overrides, where = {}, []
     if args.config:
@@ -314,7 +314,7 @@ def _identify_overrides(args):
 
 def _read_accel(args):
     """The recording named by identify's / fit's reading flags, and the ``--samples`` count (None = all)."""
-    from .io import STANDARD_GRAVITY, read_recording
+    from .sensors.io import STANDARD_GRAVITY, read_recording
 
     lsb = args.lsb_per_g
     if args.units is not None:
@@ -329,7 +329,7 @@ def _read_accel(args):
         raise CLIError(f"--samples must be positive or 'all', got {n}")
     time_column = None if args.time_column == "none" else args.time_column
     rec = read_recording(args.recording, lsb_per_g=lsb, rate_hz=args.rate, columns=columns, segment=args.segment,
-                         time_column=time_column)
+                         time_column=time_column, temperature_column=getattr(args, "temperature", None))
     if rec.metadata.get("segments") and len(rec.metadata["segments"]) > 1 and args.segment is None:
         print(f"torchtea: note: {Path(rec.path).name} has {len(rec.metadata['segments'])} segments (device resets); "
               f"using the longest, segment {rec.metadata['segment']} (choose with --segment)", file=sys.stderr)
@@ -339,8 +339,8 @@ def _read_accel(args):
 
 
 def cmd_identify(args) -> int:
-    from .identify import identify
-    from .report import save_identification
+    from .reports.identify import identify
+    from .reports.report import save_identification
 
     rec, n = _read_accel(args)
     overrides, config_source, memory_kind = _identify_overrides(args)
@@ -397,7 +397,7 @@ def _whole(text, flag) -> int:
 
 
 def cmd_record(args) -> int:
-    from .recorder import Recorder
+    from .sensors.recorder import Recorder
 
     if args.duration is not None and args.duration <= 0:
         raise CLIError("--duration must be positive")
@@ -407,7 +407,7 @@ def cmd_record(args) -> int:
     if args.live:
         import torch
 
-        from .live import LiveEstimator
+        from .sensors.live import LiveEstimator
 
         torch.set_num_threads(1)  # one step of 3 axes is too small to share; leave a core to the reader
 
@@ -426,83 +426,29 @@ def cmd_record(args) -> int:
 
 
 def _study_from_args(args):
-    """A Study from an optional STUDY.toml, then the command-line flags on top."""
-    from dataclasses import replace
-
-    from .config import read_toml
-    from .io import InputError
-    from .montecarlo import Study, Truth
-    from .presets import SCENARIOS, get_preset
-    from .tea import TEAConfig
+    """A Study from an optional STUDY.toml, then the command-line flags on top (:func:`build_study`)."""
+    from .engines.config import read_toml
+    from .studies.montecarlo import build_study
 
     data = read_toml(args.config, "study") if args.config else {}
-    unknown = set(data) - {"realisations", "seed", "chunk", "truth", "estimator"}
-    if unknown:
-        raise InputError(f"{args.config}: unknown study settings {sorted(unknown)}")
-    est = dict(data.get("estimator", {}))
-    preset = args.preset or est.pop("preset", None) or "paper-example1"
-    est.pop("preset", None)
+    memory = _memory(args.memory)
+    flags = {k: getattr(args, k) for k in ("realisations", "seed", "chunk", "preset", "n", "h", "order", "param", "q",
+                                            "r", "input_std")}
     try:
-        estimator = TEAConfig.from_dict(est, get_preset(preset))
+        return build_study(data, flags, memory=memory, source=args.config or "study")
     except ValueError as exc:
-        raise CLIError(f"{args.config or 'estimator'}: {exc}") from None
-    estimator = _with_memory(estimator, args.memory)
-    truth = dict(data.get("truth", {}))
-    if "n" in truth:
-        truth["n_steps"] = truth.pop("n")
-    sc = SCENARIOS.get(preset)
-    base = {}
-    if sc is not None:
-        base = dict(h=sc.h, n_steps=sc.n_steps, order=sc.order.spec(), param=sc.param, q=sc.q, r=sc.r,
-                    input_std=sc.input_std)
-    base.update(truth)
-    for flag, key in (("n", "n_steps"), ("h", "h"), ("order", "order"), ("param", "param"), ("q", "q"), ("r", "r"),
-                      ("input_std", "input_std")):
-        v = getattr(args, flag)
-        if v is not None:
-            base[key] = v
-    missing = [k for k in ("h", "n_steps", "order", "param", "q", "r") if k not in base]
-    if missing:
-        raise CLIError(f"the truth needs {', '.join(missing)} (flags --n --h --order --param --q --r, a [truth] table, "
-                       "or a paper-example preset)")
-    try:
-        tr = Truth(**base)
-        tr.schedule()
-    except (TypeError, ValueError) as exc:
-        raise CLIError(f"bad truth: {exc}") from None
-    study = Study(tr, estimator, realisations=int(data.get("realisations", 100)), seed=int(data.get("seed", 0)),
-                  chunk=data.get("chunk"))
-    if args.realisations is not None:
-        study = replace(study, realisations=args.realisations)
-    if args.seed is not None:
-        study = replace(study, seed=args.seed)
-    if args.chunk is not None:
-        study = replace(study, chunk=args.chunk)
-    if study.realisations < 1:
-        raise CLIError("--realisations must be at least 1")
-    return study, preset
+        raise CLIError(str(exc)) from None
 
 
 def cmd_montecarlo(args) -> int:
     import datetime
 
-    import numpy as np
-
-    from .config import dumps_toml, write_config
-    from .io import write_columns
-    from .montecarlo import run_study, summarise
-    from .tblog import log_study
+    from .studies.montecarlo import run_study, save_study, summarise
 
     study, preset = _study_from_args(args)
-    tr = study.truth
     logdir = Path(args.logdir) if args.logdir else Path("runs") / datetime.datetime.now().strftime("mc-%Y%m%d-%H%M%S")
     logdir.mkdir(parents=True, exist_ok=True)
-    study_dict = {"realisations": study.realisations, "seed": study.seed,
-                  **({"chunk": study.chunk} if study.chunk else {}),
-                  "truth": {k: v for k, v in vars(tr).items() if v is not None},
-                  "estimator": {"preset": preset, **study.estimator.to_dict()}}
-    (logdir / "study.toml").write_text(dumps_toml(study_dict))
-    write_config(logdir / "estimator.toml", study.estimator, {"preset": preset})
+    save_study(logdir, study, preset)
     step, close = _progress(study.realisations, "montecarlo", "realisation", bar=not args.json)
 
     def progress(done, total):
@@ -518,14 +464,7 @@ def cmd_montecarlo(args) -> int:
         raise CLIError("interrupted before any realisation finished; nothing to summarise")
     summary = summarise(result)
     summary.update({"logdir": str(logdir), "seconds": round(elapsed, 2), "preset": preset})
-    idx = np.arange(result.finished)
-    write_columns(logdir / "final_estimates.csv", {
-        "realisation": idx, "diverged": result.diverged.numpy().astype(float),
-        "alpha_true": result.alpha_true[:, -1], "alpha_final": result.alpha[:, -1], "P_alpha_final": result.P_alpha[:, -1],
-        "param_true": np.full(result.finished, tr.param), "param_final": result.w[:, -1], "P_param_final": result.P_w[:, -1]})
-    hp = {"realisations": result.finished, "seed": study.seed, "preset": preset, "order": tr.order, "param": tr.param,
-          "q": tr.q, "r": tr.r, "h": tr.h, "n": tr.n_steps, "input_std": tr.input_std if tr.input_std is not None else 0.0}
-    log_study(logdir, result, summary, hp)
+    save_study(logdir, study, preset, result, summary)
     warnings = []
     if result.interrupted:
         warnings.append(f"interrupted: kept {result.finished} of {study.realisations} realisations in {logdir}")
@@ -562,8 +501,8 @@ def cmd_montecarlo(args) -> int:
 
 
 def cmd_presets(args) -> int:
-    from .config import dumps_toml
-    from .presets import PRESET_H, PRESETS, get_preset
+    from .engines.config import dumps_toml
+    from .engines.presets import PRESET_H, PRESETS, get_preset
 
     if args.name is None:
         for name in PRESETS:
@@ -653,6 +592,8 @@ def build_parser() -> argparse.ArgumentParser:
     fp.add_argument("--units", choices=("g", "ms2"), help="generic CSV already in g or m/s² (else counts: --lsb-per-g)")
     fp.add_argument("--segment", type=int, help="torchtea recording: which segment (default: the longest)")
     fp.add_argument("--time-column", default="auto", help="column of time stamps (auto, a name, or none)")
+    fp.add_argument("--temperature", metavar="COL",
+                    help="temperature column (°C) for a temperature-bias component (a torchtea recording: temp)")
     fp.add_argument("--allow-missing", action="store_true", help=ALLOW_MISSING_HELP)
     fp.add_argument("--out", help="write the JSON document to this file")
     fp.add_argument("--json", action="store_true", help="print the JSON document")
@@ -702,12 +643,14 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def cmd_fit(args) -> int:
-    from .datacheck import check_missing
+    import numpy as np
+
+    from .sensors.datacheck import check_missing
     from .fitting import fit_series
     from .fitting.presence import fractional_test
     from .fitting.summary import MEANING, axis_summary, fit_nis
     from .noise import parse_model
-    from .strictjson import dumps, write
+    from .reports.strictjson import dumps, write
 
     model = parse_model(args.model)
     rec, n = _read_accel(args)
@@ -717,17 +660,39 @@ def cmd_fit(args) -> int:
         raise CLIError(f"{rec.path}: only {len(acc)} samples; a fit needs at least 100")
     missing = check_missing(rec.path, acc, names, allow=args.allow_missing, per="axis")
     series = [acc[:, i] for i in range(3)]
+    inputs = None
+    needs = sorted({name for _, c in model.components for name in getattr(c, "inputs", ())})
+    if needs and args.temperature is None:
+        raise CLIError(f"model {model.spec!r} needs the input channel(s) {', '.join(needs)}: give --temperature COL")
+    if args.temperature is not None:
+        T = rec.temperature[: n or None]
+        bad = int(np.sum(~np.isfinite(T)))
+        if bad:
+            raise CLIError(f"{rec.path}: temperature column {rec.temperature_column!r} has {bad} missing value(s) in "
+                           "the part used; the temperature input cannot be missing")
+        if not needs:
+            print(f"torchtea: note: model {model.spec!r} has no temperature component; --temperature is not used "
+                  "(add temperature-bias)", file=sys.stderr)
+        else:
+            inputs = [{"temperature": T}] * 3
     t0 = time.perf_counter()
-    fits = fit_series(model, series, rec.h, method=args.method)
+    fits = fit_series(model, series, rec.h, method=args.method, inputs=inputs)
     tests = [None] * 3
     if model.has("fractional") and args.bootstrap > 0:
         if missing.count:
             print("torchtea: note: the fractional test needs complete series (Whittle): not run", file=sys.stderr)
         else:
-            tests = fractional_test(model, series, rec.h, n_boot=args.bootstrap, seed=args.seed)
+            tested, test_series = model, series
+            if inputs is not None:  # the test's Whittle fits take no inputs: test what the fitted bias leaves
+                import torch
+
+                tested = parse_model("+".join(c.name for _, c in model.components if not c.inputs))
+                t = torch.arange(len(acc), dtype=torch.float64) * rec.h
+                test_series = [y - model.mean(f.values, t, inp).numpy()[0] for y, f, inp in zip(series, fits, inputs)]
+            tests = fractional_test(tested, test_series, rec.h, n_boot=args.bootstrap, seed=args.seed)
     axes = {}
     for name, f, y, test in zip(names, fits, series, tests):
-        axes[name] = axis_summary(f, nis=fit_nis(f, y, rec.h), test=test)
+        axes[name] = axis_summary(f, nis=fit_nis(f, y, rec.h, inputs=None if inputs is None else inputs[0]), test=test)
     doc = {"model": model.spec, "method": args.method, "recording": str(rec.path), "samples": len(acc),
            "rate_hz": rec.rate_hz, "rate_source": rec.rate_source, "units": "m/s²",
            "missing_samples": missing.count, "bootstrap": args.bootstrap, "axes": axes, "meaning": MEANING,
@@ -744,7 +709,8 @@ def cmd_fit(args) -> int:
         print(f"axis {name}: loglik {a['loglik']:.2f}  AIC {a['aic']:.2f}  BIC {a['bic']:.2f}  "
               f"NIS {_num(a['nis'], '.3f')}  fractional p {_num(a['fractional_p_value'], '.3f')}")
         for pname, p in a["parameters"].items():
-            ci = "" if p["ci95"] is None else f"[{p['ci95'][0]:.4g}, {p['ci95'][1]:.4g}] ({p['ci95_method']})"
+            ci = (f"[{p['ci95'][0]:.4g}, {p['ci95'][1]:.4g}] ({p['ci95_method']})" if p["ci95"] is not None
+                  else "" if p["ci95_method"] in ("fixed", None) else f"({p['ci95_method']})")
             se = "" if p["se"] is None else f"± {p['se']:.3g} (se)"
             print(f"    {pname:22s} {p['value']:12.5g} {se:16s} {ci}")
         for note in a["notes"]:
@@ -757,7 +723,7 @@ def cmd_fit(args) -> int:
 
 
 def main(argv=None) -> int:
-    from .io import InputError
+    from .sensors.io import InputError
 
     parser = build_parser()
     args = parser.parse_args(argv)

@@ -13,7 +13,7 @@ Cases (issue 4):
    each (plot ``step_time.png``).
 4. Accuracy: max |α̂_soe − α̂_exact|, |x̂_soe − x̂_exact| on the same data (case 1's batches and
    paper Example 1), and how much the TEA itself amplifies a 1e−12 change of the data on the MEMS setting.
-Also: glibc's allocator defaults against ``torchtea.perf.tune_allocator`` (fresh processes).
+Also: glibc's allocator defaults against ``torchtea.studies.perf.tune_allocator`` (fresh processes).
 
 Prints a table and writes ``experiments/bench/results.json``.
 """
@@ -34,7 +34,7 @@ import torch
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parents[1]))
 from experiments.common import machine, write_json  # noqa: E402
-from torchtea.perf import tune_allocator  # noqa: E402
+from torchtea.studies.perf import tune_allocator  # noqa: E402
 from tests.reference_tea import settings_from_config, tea_reference  # noqa: E402
 from torchtea import (SCENARIOS, ConstantOrder, MemoryConfig, Structure, gaussian_input, get_preset,  # noqa: E402
                       make_params, run_tea, simulate)

@@ -42,12 +42,12 @@ import torch
 
 from torchtea.fitting import fit_series
 from torchtea.fitting.presence import fractional_test
-from torchtea.model import Structure
+from torchtea.engines.structure import Structure
 from torchtea.noise import parse_model, simulate_model
 from torchtea.noise.tea import tea_config
-from torchtea.presets import get_preset
-from torchtea.stats import last_third
-from torchtea.tea import make_params, run_tea
+from torchtea.engines.presets import get_preset
+from torchtea.core.stats import last_third
+from torchtea.engines.tea import make_params, run_tea
 
 HERE = Path(__file__).resolve().parent
 H, N, R_WHITE, RHO = 0.01, 30_000, 1e-3, 0.4

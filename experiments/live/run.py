@@ -31,9 +31,9 @@ ROOT = HERE.parents[1]
 
 def offline(n: int = 3000) -> dict:
     """The estimator alone: n samples queued at once, time to drain them."""
-    from torchtea.fakeimu import FakeIMU, synthetic_counts
-    from torchtea.live import LiveEstimator
-    from torchtea.protocol import Assembler, Parser
+    from torchtea.sensors.fakeimu import FakeIMU, synthetic_counts
+    from torchtea.sensors.live import LiveEstimator
+    from torchtea.sensors.protocol import Assembler, Parser
 
     dev = FakeIMU(synthetic_counts(n))
     p, a = Parser(), Assembler()

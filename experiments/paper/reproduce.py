@@ -27,7 +27,7 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 from experiments.common import machine, simulate_seeds, write_json  # noqa: E402
 from torchtea import SCENARIOS, Structure, TEAConfig, get_preset, make_params, run_tea  # noqa: E402
-from torchtea.plots import estimation_figure, fan_figure  # noqa: E402
+from torchtea.reports.plots import estimation_figure, fan_figure  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 
@@ -122,8 +122,8 @@ def run_examples(examples, seeds, fig_dir: Path) -> dict:
 
 
 def run_mems(fig_dir: Path) -> dict:
-    from torchtea.identify import identify
-    from torchtea.io import read_recording
+    from torchtea.reports.identify import identify
+    from torchtea.sensors.io import read_recording
 
     rec = read_recording()
     out = {}

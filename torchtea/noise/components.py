@@ -27,7 +27,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from ..gl import gl_tail_coefficients
+from ..core.gl import gl_tail_coefficients
 
 __all__ = ["ParamSpec", "Component", "COMPONENTS", "ORDER_BOUNDS", "logit"]
 

@@ -11,7 +11,7 @@ What the engines read:
 * :meth:`NoiseModel.mean` — the deterministic part (offset, ramp, sinusoids, temperature terms);
 * :meth:`NoiseModel.state_space` — ``F, Q, C, R`` of the stacked linear Gaussian state (the exact
   Kalman filter and the simulator); the fractional component's history is its GL window plus the
-  exponential-sum modes of :mod:`torchtea.memory` (``soe``), or the whole past (``exact``, small N only).
+  exponential-sum modes of :mod:`torchtea.core.memory` (``soe``), or the whole past (``exact``, small N only).
 
 Every state starts at zero with zero variance: the GL model's ``x_0 = 0`` and zero history, the random
 walk's ``b_0 = 0`` (an ``offset`` component carries an unknown constant).
@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 import torch
 from torch import Tensor
 
-from ..memory import MemoryConfig, SOEKernel, kernel_for, parse_memory
+from ..core.memory import MemoryConfig, SOEKernel, kernel_for, parse_memory
 from .components import COMPONENTS, ORDER_BOUNDS, Component, LowPass, logit
 
 __all__ = ["NoiseModel", "parse_model", "StateSpace", "StateMemory", "state_memory", "EXACT_MEMORY_LIMIT"]

@@ -1,6 +1,6 @@
 r"""The TEA's settings read from a :class:`~torchtea.noise.model.NoiseModel` and its parameter values.
 
-The TEA (:mod:`torchtea.tea`) runs the paper's scalar model, which in noise-model terms is
+The TEA (:mod:`torchtea.engines.tea`) runs the paper's scalar model, which in noise-model terms is
 ``fractional`` (+ measurement noise): KFx's state is the fractional component's state with
 :math:`x_{k+1} = h^{\alpha}(f x_k + \omega_k) - \sum c_j x_{k+1-j}`, ω ~ N(0, q) — the TEA's
 ``noise_scaling = "scaled"`` adds :math:`h^\alpha Q_0 h^\alpha`, the same :math:`G = h^\alpha\sqrt q` as
@@ -15,8 +15,8 @@ from __future__ import annotations
 
 from dataclasses import replace
 
-from ..presets import get_preset
-from ..tea import TEAConfig
+from ..engines.presets import get_preset
+from ..engines.settings import TEAConfig
 from .model import NoiseModel, parse_model
 
 __all__ = ["tea_config"]

@@ -6,9 +6,9 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from .gl import gl_tail_coefficients
-from .memory import BoundedHistory, kernel_for, parse_memory
-from .model import OrderSchedule, Structure
+from ..core.gl import gl_tail_coefficients
+from ..core.memory import BoundedHistory, kernel_for, parse_memory
+from .structure import OrderSchedule, Structure
 
 __all__ = ["Simulation", "simulate", "gaussian_input", "simulate_noise_model"]
 
@@ -100,7 +100,7 @@ def simulate(
         Cholesky factors of Q and R) — for Monte Carlo studies whose realisation i
         must not depend on how the batch is chunked.
     memory : str or MemoryConfig
-        How the GL sums see the past (:mod:`torchtea.memory`): ``"exact"`` (default, O(k) per step),
+        How the GL sums see the past (:mod:`torchtea.core.memory`): ``"exact"`` (default, O(k) per step),
         ``"soe"``/``"soe:TOL"`` (exponential sums over the orders simulated, O(1) per step — for long
         series) or ``"window:L"``.
 

@@ -1,7 +1,7 @@
 """Recording an IMU that speaks protocol v1 (``docs/protocol.md``) from a serial port.
 
 A reader thread moves bytes from pyserial into a queue; the recording thread parses them
-(:mod:`torchtea.protocol`, pure), writes rows (flush + fsync per chunk) and keeps a sidecar JSON
+(:mod:`torchtea.sensors.protocol`, pure), writes rows (flush + fsync per chunk) and keeps a sidecar JSON
 up to date. Nothing malformed stops it; a vanished port finishes the file (or, with
 ``reconnect``, waits for the port to come back).
 
@@ -27,8 +27,8 @@ from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
 
-from . import strictjson
-from .io import _RECORDER_COLUMNS as FILE_COLUMNS
+from ..reports import strictjson
+from .io import RECORDER_COLUMNS as FILE_COLUMNS
 from .io import RECORDING_MAGIC, STANDARD_GRAVITY
 from .protocol import Assembler, Parser, Row
 
@@ -66,7 +66,7 @@ class RecordingWriter:
         self._sync()
 
     def write(self, rows: list[Row], headers: list) -> None:
-        """Write rows (from :class:`~torchtea.protocol.Assembler`); ``headers`` is its ``headers`` list."""
+        """Write rows (from :class:`~torchtea.sensors.protocol.Assembler`); ``headers`` is its ``headers`` list."""
         out = []
         for r in rows:
             if r.segment != self._segment_written:

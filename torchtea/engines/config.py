@@ -9,9 +9,9 @@ try:  # Python ≥ 3.11
 except ModuleNotFoundError:  # pragma: no cover
     import tomli as tomllib
 
-from .io import InputError
+from ..sensors.io import InputError
 from .presets import get_preset
-from .tea import TEAConfig
+from .settings import TEAConfig
 
 __all__ = ["read_toml", "load_config", "dumps_toml", "write_config"]
 

@@ -17,15 +17,16 @@ from dataclasses import dataclass, replace
 import numpy as np
 import torch
 
-from .datacheck import Missing, Timing, check_missing, check_timing
-from .io import InputError, Recording
-from .model import Structure
-from .presets import get_preset
-from .stats import last_third, mean_nis
-from .tea import CLAMP_NOTE, TEAConfig, TEAResult, make_params, run_tea, stack_params
-from .noise.tea import tea_config
+from ..sensors.datacheck import Missing, Timing, check_missing, check_timing
+from ..sensors.io import InputError, Recording
+from ..engines.structure import Structure
+from ..engines.presets import get_preset
+from ..core.stats import last_third, mean_nis
+from ..engines.tea import CLAMP_NOTE, TEAResult, make_params, run_tea, stack_params
+from ..engines.settings import TEAConfig
+from ..noise.tea import tea_config
 
-__all__ = ["AXES", "MIN_SAMPLES", "NIS_TRUST_BAND", "SETTLE_BAND", "DRIFT_BAND", "ALPHA_SD_LIMIT", "Identification", "axis_configs",
+__all__ = ["AXES", "mean_or_nan", "sd_or_nan", "MIN_SAMPLES", "NIS_TRUST_BAND", "SETTLE_BAND", "DRIFT_BAND", "ALPHA_SD_LIMIT", "Identification", "axis_configs",
            "identify", "summarise", "settle_time", "trust_warnings", "config_changes", "axis_changes"]
 
 AXES = ("x", "y", "z")
@@ -166,10 +167,10 @@ def identify(recording: Recording, *, n_samples: int | None = None, r_mode: str 
         TEA settings applied on top of the presets (as in a TOML config), e.g.
         ``{"memory": {"kind": "soe"}}`` for long recordings; see :func:`axis_configs`.
     compile : bool
-        Passed to :func:`torchtea.tea.run_tea`.
+        Passed to :func:`torchtea.engines.tea.run_tea`.
     allow_missing : bool
-        Missing samples (NaN) are an :class:`~torchtea.io.InputError` unless this is set; then the filters
-        predict through them (the policy of :mod:`torchtea.datacheck`).
+        Missing samples (NaN) are an :class:`~torchtea.sensors.io.InputError` unless this is set; then the filters
+        predict through them (the policy of :mod:`torchtea.sensors.datacheck`).
     partial : bool
         On Ctrl-C keep the steps that finished (``result.interrupted``) instead of raising.
     """
@@ -192,7 +193,7 @@ def identify(recording: Recording, *, n_samples: int | None = None, r_mode: str 
     y = torch.as_tensor((acc - means).T.copy(), dtype=torch.float64).unsqueeze(-1)  # (3, N, 1)
     fits = ()
     if r_mode == "fitted":
-        from .fitting import fit_series
+        from ..fitting import fit_series
 
         fits = tuple(fit_series("fractional+white", [y[i, :, 0].numpy() for i in range(len(AXES))], recording.h,
                                 method="exact"))
@@ -293,11 +294,13 @@ def trust_warnings(axis: str, s: dict, config: TEAConfig) -> list[str]:
     return out
 
 
-def _mean(x) -> float:
+def mean_or_nan(x) -> float:
+    """Mean of the entries; NaN when there are none."""
     return float(np.mean(x)) if np.size(x) else math.nan
 
 
-def _std(x) -> float:
+def sd_or_nan(x) -> float:
+    """Sample standard deviation; NaN with fewer than two entries."""
     return float(np.std(x, ddof=1)) if np.size(x) > 1 else math.nan
 
 
@@ -333,10 +336,10 @@ def summarise(result: TEAResult, configs, means=None, *, y: torch.Tensor | None 
         obs3[:k0] = False
         nis_third = float(mean_nis(result.innovation[i], result.innovation_cov[i], obs3))
         s = {
-            "alpha": _mean(a[third]),
-            "param": _mean(w[third]),
-            "alpha_std_last_third": _std(a[third]),
-            "param_std_last_third": _std(w[third]),
+            "alpha": mean_or_nan(a[third]),
+            "param": mean_or_nan(w[third]),
+            "alpha_std_last_third": sd_or_nan(a[third]),
+            "param_std_last_third": sd_or_nan(w[third]),
             "alpha_final": float(a[-1]),
             "param_final": float(w[-1]),
             "alpha_filter_sd_final": math.sqrt(max(float(result.P_alpha[i, -1, 0, 0]), 0.0)),
@@ -348,7 +351,7 @@ def summarise(result: TEAResult, configs, means=None, *, y: torch.Tensor | None 
             "missing_samples": int((~observed).sum()),
         }
         lo, hi = cfg.order_bounds
-        s["alpha_at_bound_fraction"] = _mean((a[third] <= lo + 1e-9) | (a[third] >= hi - 1e-9))
+        s["alpha_at_bound_fraction"] = mean_or_nan((a[third] <= lo + 1e-9) | (a[third] >= hi - 1e-9))
         s["alpha_start"], s["param_start"] = float(cfg.kfo.x0), float(cfg.kfw.x0)
         s["alpha_prior_sd"] = math.sqrt(float(np.max(np.atleast_1d(cfg.kfo.P0))))
         s["param_prior_sd"] = math.sqrt(float(np.max(np.atleast_1d(cfg.kfw.P0))))
@@ -357,8 +360,8 @@ def summarise(result: TEAResult, configs, means=None, *, y: torch.Tensor | None 
         s["alpha_settle_s"] = settle_time(a, t, s["alpha"])
         s["param_settle_band"] = SETTLE_BAND * max(1.0, abs(s["param"]))
         s["param_settle_s"] = settle_time(w, t, s["param"], band=s["param_settle_band"])
-        s["alpha_drift_last_third"] = _mean(a[half:]) - _mean(a[k0:half])
-        s["param_drift_last_third"] = _mean(w[half:]) - _mean(w[k0:half])
+        s["alpha_drift_last_third"] = mean_or_nan(a[half:]) - mean_or_nan(a[k0:half])
+        s["param_drift_last_third"] = mean_or_nan(w[half:]) - mean_or_nan(w[k0:half])
         if means is not None:
             s["mean_removed_ms2"] = float(means[i])
         if s["diverged"]:

@@ -6,7 +6,7 @@ from pathlib import Path
 import numpy as np
 
 
-def _plt():
+def pyplot():
     import matplotlib
 
     matplotlib.use("Agg")
@@ -15,7 +15,7 @@ def _plt():
     return plt
 
 
-def _save(plt, fig, path) -> Path:
+def save_figure(plt, fig, path) -> Path:
     fig.tight_layout()
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -31,7 +31,7 @@ def estimation_figure(path, t, *, y=None, x_true=None, x_hat=None, alpha_true=No
 
     ``zoom`` = (t0, t1) limits the state panel (a dense noise trace is unreadable over the whole run).
     """
-    plt = _plt()
+    plt = pyplot()
     fig, ax = plt.subplots(3, 1, figsize=(9, 8), sharex=False)
     sel = slice(None) if zoom is None else (t >= zoom[0]) & (t <= zoom[1])
     if y is not None:
@@ -54,7 +54,7 @@ def estimation_figure(path, t, *, y=None, x_true=None, x_hat=None, alpha_true=No
         panel.legend(loc="upper right", fontsize=8)
     ax[2].set_xlabel("time [s]")
     ax[0].set_title(title)
-    return _save(plt, fig, path)
+    return save_figure(plt, fig, path)
 
 
 def fan_figure(path, t, truth, runs, *, ylabel, title=""):
@@ -62,7 +62,7 @@ def fan_figure(path, t, truth, runs, *, ylabel, title=""):
 
     Saves to ``path`` and returns it; with ``path=None`` returns the open matplotlib figure instead
     (e.g. for TensorBoard's ``add_figure``, which closes it)."""
-    plt = _plt()
+    plt = pyplot()
     q = np.nanquantile(runs, [0.05, 0.25, 0.5, 0.75, 0.95], axis=0)
     fig, ax = plt.subplots(figsize=(9, 3.5))
     ax.fill_between(t, q[0], q[4], color="C0", alpha=0.2, lw=0, label="5–95 %")
@@ -77,4 +77,4 @@ def fan_figure(path, t, truth, runs, *, ylabel, title=""):
     if path is None:
         fig.tight_layout()
         return fig
-    return _save(plt, fig, path)
+    return save_figure(plt, fig, path)

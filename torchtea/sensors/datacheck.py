@@ -118,7 +118,7 @@ def _units_hint(stamp_rate_hz: float, rate_hz: float | None = None) -> str:
 
 def check_missing(source, values: np.ndarray, names, *, allow: bool, per: str = "column") -> Missing:
     """The missing-sample policy in one place: the :class:`Missing` of ``values`` ``(N, k)``, or an
-    :class:`~torchtea.io.InputError` (:func:`missing_error`) if any is missing and ``allow`` is False."""
+    :class:`~torchtea.sensors.io.InputError` (:func:`missing_error`) if any is missing and ``allow`` is False."""
     from .io import InputError
 
     missing = find_missing(values, names)

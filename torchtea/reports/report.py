@@ -6,9 +6,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .datacheck import MISSING_POLICY
-from .identify import AXES, NIS_TRUST_BAND, SETTLE_BAND, Identification, _mean, settle_time
-from .stats import last_third
+from ..sensors.datacheck import MISSING_POLICY
+from .identify import AXES, NIS_TRUST_BAND, SETTLE_BAND, Identification, mean_or_nan, settle_time
+from ..core.stats import last_third
 
 __all__ = ["settle_time", "axis_statistics", "write_report", "log_identification", "orders_figure",
            "save_identification"]
@@ -31,9 +31,9 @@ def axis_statistics(ident: Identification, axes: dict) -> dict:
         out[axis] = {
             "noise_var": float(np.nanvar(y)),  # identify() guarantees observed samples on every axis
             "noise_std": float(np.nanstd(y)),
-            "innovation_var_last_third": _mean(e[third][obs[third]] ** 2),
-            "predicted_innovation_var_last_third": _mean(res.innovation_cov[i, third, 0, 0].numpy()[obs[third]]),
-            "residual_var_last_third": _mean((y - x)[third][obs[third]] ** 2) - _mean((y - x)[third][obs[third]]) ** 2,
+            "innovation_var_last_third": mean_or_nan(e[third][obs[third]] ** 2),
+            "predicted_innovation_var_last_third": mean_or_nan(res.innovation_cov[i, third, 0, 0].numpy()[obs[third]]),
+            "residual_var_last_third": mean_or_nan((y - x)[third][obs[third]] ** 2) - mean_or_nan((y - x)[third][obs[third]]) ** 2,
             "alpha_settle_s": s["alpha_settle_s"],
             "param_settle_s": s["param_settle_s"],
             "missing_samples": int((~obs).sum()),
@@ -170,9 +170,9 @@ def write_report(path, ident: Identification, summary: dict, figures: list, *, c
 
 def orders_figure(path, ident: Identification) -> Path:
     """α̂ of the three axes on one plot with ±2σ (the filter's) — convergence at a glance."""
-    from .plots import _plt, _save
+    from .plots import pyplot, save_figure
 
-    plt = _plt()
+    plt = pyplot()
     t = ident.t
     res = ident.result
     fig, ax = plt.subplots(2, 1, figsize=(9, 6), sharex=True)
@@ -187,7 +187,7 @@ def orders_figure(path, ident: Identification) -> Path:
     ax[1].set_xlabel("time [s]")
     ax[0].legend(loc="upper right", fontsize=8)
     ax[0].set_title(f"{Path(ident.recording.path).name}: estimates of the three axes (±2σ of the filters)")
-    return _save(plt, fig, path)
+    return save_figure(plt, fig, path)
 
 
 def log_identification(logdir, ident: Identification, summary: dict, *, max_points: int = 2000) -> Path:
@@ -195,13 +195,13 @@ def log_identification(logdir, ident: Identification, summary: dict, *, max_poin
     ≤ ``max_points``) and the report's tables as text."""
     from torch.utils.tensorboard import SummaryWriter
 
-    from .tblog import _steps
+    from ..studies.tblog import decimated_steps
 
     res = ident.result
     N = ident.steps
     logdir = Path(logdir)
     with SummaryWriter(log_dir=str(logdir)) as w:
-        for k in _steps(N, max_points):
+        for k in decimated_steps(N, max_points):
             for i, a in enumerate(AXES):
                 w.add_scalar(f"order/{a}", float(res.alpha[i, k, 0]), k)
                 w.add_scalar(f"param/{a}", float(res.w[i, k, 0]), k)
@@ -221,8 +221,8 @@ def save_identification(ident: Identification, out_dir, *, plots: bool = True, r
     """Everything ``torchtea identify`` writes, into ``out_dir``: ``trajectories.csv``, ``config_<axis>.toml``,
     the figures (per axis like the paper's Figs. 12–20, and ``orders.png``), TensorBoard logs in ``tb/``,
     ``report.md``. Returns the summary (``summary.json`` is the caller's to write, with its warnings)."""
-    from .config import write_config
-    from .io import write_columns
+    from ..engines.config import write_config
+    from ..sensors.io import write_columns
 
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -260,7 +260,7 @@ def save_identification(ident: Identification, out_dir, *, plots: bool = True, r
                     "timing": ident.timing.to_dict() if ident.timing is not None else None,
                     "out": str(out_dir), "figures": figures, "statistics": axis_statistics(ident, summary["axes"])})
     if ident.fits:
-        from .fitting.summary import axis_summary, fit_nis
+        from ..fitting.summary import axis_summary, fit_nis
 
         summary["fit"] = {a: axis_summary(f, nis=fit_nis(f, ident.y[i, :, 0].numpy(), ident.h))
                           for i, (a, f) in enumerate(zip(AXES, ident.fits))}

@@ -66,8 +66,8 @@ def synthetic_counts(n: int, *, rate_hz: float = 100.0, lsb_per_g: float = 4096.
     import torch
 
     from .io import STANDARD_GRAVITY
-    from .model import ConstantOrder, Structure
-    from .simulate import simulate
+    from ..engines.structure import ConstantOrder, Structure
+    from ..engines.simulate import simulate
 
     g = torch.Generator().manual_seed(seed)
     sim = simulate(Structure(), n_steps=n, h=1.0 / rate_hz, order=ConstantOrder(order), parameters=[param],

@@ -3,7 +3,7 @@
 The recorder hands every chunk of rows to :meth:`LiveEstimator.put` (never blocks); a worker thread
 converts them to m/s², spends the first ``warmup_s`` seconds of each segment measuring each axis's
 mean and variance (the mean is removed and the variance sets R, Rᵒ, Rʷ, as ``identify`` does), then
-steps a :class:`~torchtea.tea.TEAStream` per sample and writes TensorBoard scalars at least once per
+steps a :class:`~torchtea.engines.tea.TEAStream` per sample and writes TensorBoard scalars at least once per
 ``log_every_s``: ``order/<axis>``, ``param/<axis>``, ``innovation/<axis>`` (latest),
 ``innovation_rms/<axis>`` (since the last write), ``live/lag_samples`` (samples waiting) and
 ``live/steps_per_s``. A new segment (device reset) restarts the estimate.
@@ -20,11 +20,11 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from .identify import AXES, axis_configs
-from .memory import parse_memory
-from .model import Structure
+from ..reports.identify import AXES, axis_configs
+from ..core.memory import parse_memory
+from ..engines.structure import Structure
 from .recorder import physical_row
-from .tea import TEAStream, make_params, stack_params
+from ..engines.tea import TEAStream, make_params, stack_params
 
 __all__ = ["LiveEstimator"]
 

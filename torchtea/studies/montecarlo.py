@@ -6,18 +6,27 @@ Realisation ``i`` of a study with seed ``s`` draws its input and noises from its
 from __future__ import annotations
 
 import math
+from pathlib import Path
 from dataclasses import dataclass, field
 
 import numpy as np
 import torch
 from torch import Tensor
 
-from .model import OrderSchedule, Structure, parse_order_spec
-from .simulate import simulate
-from .stats import chi2_band, convergence_time, coverage, nees, nis, over_realisations
-from .tea import TEAConfig, make_params, run_tea
+from ..engines.structure import OrderSchedule, Structure, parse_order_spec
+from ..engines.simulate import simulate
+from ..core.stats import chi2_band, convergence_time, coverage, nees, nis, over_realisations
+from ..engines.tea import make_params, run_tea
+from ..engines.settings import TEAConfig
 
-__all__ = ["Truth", "Study", "StudyResult", "realisation_seed", "draw_realisation", "run_study", "auto_chunk"]
+__all__ = ["Truth", "Study", "StudyResult", "realisation_seed", "draw_realisation", "run_study", "auto_chunk",
+           "build_study", "save_study", "STUDY_KEYS"]
+
+#: The top-level keys of a study's TOML table.
+STUDY_KEYS = ("realisations", "seed", "chunk", "truth", "estimator")
+#: Command-line flags that set the truth, and the Truth field each sets.
+TRUTH_FLAGS = {"n": "n_steps", "h": "h", "order": "order", "param": "param", "q": "q", "r": "r",
+               "input_std": "input_std"}
 
 
 @dataclass(frozen=True)
@@ -170,3 +179,88 @@ def summarise(result: StudyResult) -> dict:
             out[name] = {"mean": float(avg.mean()), "band_95": [lo, hi],
                          "fraction_of_steps_inside_band": float(((avg >= lo) & (avg <= hi)).double().mean())}
     return out
+
+
+def build_study(data: dict, flags: dict | None = None, *, memory=None, source: str = "study") -> tuple[Study, str]:
+    """A :class:`Study` from a study table ``data`` (as parsed from STUDY.toml: ``realisations``, ``seed``,
+    ``chunk``, ``[truth]``, ``[estimator]`` with an optional ``preset``), with ``flags`` on top (``preset``,
+    ``realisations``, ``seed``, ``chunk`` and the truth's ``n h order param q r input_std``; None = not given)
+    and ``memory`` (a :class:`~torchtea.core.memory.MemoryConfig`) replacing the estimator's. Returns the study
+    and the name of the estimator's preset. A bad setting raises ``ValueError`` naming ``source``."""
+    from dataclasses import replace
+
+    from ..engines.presets import SCENARIOS, get_preset
+
+    flags = {k: v for k, v in (flags or {}).items() if v is not None}
+    unknown = set(data) - set(STUDY_KEYS)
+    if unknown:
+        raise ValueError(f"{source}: unknown study settings {sorted(unknown)}")
+    est = dict(data.get("estimator", {}))
+    preset = flags.get("preset") or est.pop("preset", None) or "paper-example1"
+    est.pop("preset", None)
+    try:
+        estimator = TEAConfig.from_dict(est, get_preset(preset))
+    except ValueError as exc:
+        raise ValueError(f"{source}: {exc}") from None
+    if memory is not None:
+        estimator = replace(estimator, memory=memory)
+    truth = dict(data.get("truth", {}))
+    if "n" in truth:
+        truth["n_steps"] = truth.pop("n")
+    sc = SCENARIOS.get(preset)
+    base = {}
+    if sc is not None:
+        base = dict(h=sc.h, n_steps=sc.n_steps, order=sc.order.spec(), param=sc.param, q=sc.q, r=sc.r,
+                    input_std=sc.input_std)
+    base.update(truth)
+    base.update({key: flags[flag] for flag, key in TRUTH_FLAGS.items() if flag in flags})
+    missing = [k for k in ("h", "n_steps", "order", "param", "q", "r") if k not in base]
+    if missing:
+        raise ValueError(f"the truth needs {', '.join(missing)} (flags --n --h --order --param --q --r, a [truth] "
+                         "table, or a paper-example preset)")
+    try:
+        tr = Truth(**base)
+        tr.schedule()
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"bad truth: {exc}") from None
+    study = Study(tr, estimator, realisations=int(flags.get("realisations", data.get("realisations", 100))),
+                  seed=int(flags.get("seed", data.get("seed", 0))), chunk=flags.get("chunk", data.get("chunk")))
+    if study.realisations < 1:
+        raise ValueError("--realisations must be at least 1")
+    return study, preset
+
+
+def save_study(logdir, study: Study, preset: str, result: StudyResult | None = None,
+               summary: dict | None = None) -> Path:
+    """The one writer of a study's run directory. Without ``result``: ``study.toml`` (the study, reloadable by
+    ``torchtea montecarlo --config``) and ``estimator.toml``, before the run, so an interrupted run still says
+    what it was. With ``result`` and ``summary``: ``final_estimates.csv`` (one row per finished realisation)
+    and the TensorBoard event files (:func:`~torchtea.studies.tblog.log_study`)."""
+    from ..engines.config import dumps_toml, write_config
+    from ..sensors.io import write_columns
+    from .tblog import log_study
+
+    logdir = Path(logdir)
+    logdir.mkdir(parents=True, exist_ok=True)
+    tr = study.truth
+    if result is None:
+        study_dict = {"realisations": study.realisations, "seed": study.seed,
+                      **({"chunk": study.chunk} if study.chunk else {}),
+                      "truth": {k: v for k, v in vars(tr).items() if v is not None},
+                      "estimator": {"preset": preset, **study.estimator.to_dict()}}
+        (logdir / "study.toml").write_text(dumps_toml(study_dict))
+        write_config(logdir / "estimator.toml", study.estimator, {"preset": preset})
+        return logdir
+    if summary is None:
+        raise ValueError("save_study: a result needs its summary")
+    idx = np.arange(result.finished)
+    write_columns(logdir / "final_estimates.csv", {
+        "realisation": idx, "diverged": result.diverged.numpy().astype(float),
+        "alpha_true": result.alpha_true[:, -1], "alpha_final": result.alpha[:, -1],
+        "P_alpha_final": result.P_alpha[:, -1], "param_true": np.full(result.finished, tr.param),
+        "param_final": result.w[:, -1], "P_param_final": result.P_w[:, -1]})
+    hp = {"realisations": result.finished, "seed": study.seed, "preset": preset, "order": tr.order,
+          "param": tr.param, "q": tr.q, "r": tr.r, "h": tr.h, "n": tr.n_steps,
+          "input_std": tr.input_std if tr.input_std is not None else 0.0}
+    log_study(logdir, result, summary, hp)
+    return logdir

@@ -6,12 +6,12 @@ from pathlib import Path
 
 import torch
 
-from .stats import QUANTILES, over_realisations
+from ..core.stats import QUANTILES, over_realisations
 
-__all__ = ["log_study"]
+__all__ = ["log_study", "decimated_steps"]
 
 
-def _steps(N: int, max_points: int):
+def decimated_steps(N: int, max_points: int):
     stride = max(1, math.ceil(N / max_points))
     return list(range(0, N, stride))
 
@@ -27,12 +27,12 @@ def log_study(logdir, result, summary: dict, hparams: dict, *, max_points: int =
     from torch.utils.tensorboard import SummaryWriter
     from torch.utils.tensorboard.summary import hparams as hparams_summary
 
-    from .plots import fan_figure
+    from ..reports.plots import fan_figure
 
     logdir = Path(logdir)
     keep = ~result.diverged
     N = result.t.shape[0]
-    steps = _steps(N, max_points)
+    steps = decimated_steps(N, max_points)
     with SummaryWriter(log_dir=str(logdir)) as w:
         truth_w = torch.full_like(result.w, result.study.truth.param)
         for name, est, truth in (("order", result.alpha, result.alpha_true), ("param", result.w, truth_w)):

@@ -15,7 +15,7 @@ from typing import Sequence
 
 import numpy as np
 
-__all__ = ["InputError", "Recording", "bundled_recording", "read_recording", "read_series", "write_columns",
+__all__ = ["RECORDER_COLUMNS", "InputError", "Recording", "bundled_recording", "read_recording", "read_series", "write_columns",
            "STANDARD_GRAVITY", "BUNDLED", "TIME_COLUMNS"]
 
 STANDARD_GRAVITY = 9.80665  # m/s² per g (CGPM 1901)
@@ -51,6 +51,8 @@ class Recording:
     time_s : ``(N,)`` the file's time stamps in seconds (NaN where a sample has none), or None.
     time_column : the name of the column they came from.
     rate_source : where ``rate_hz`` came from (``"--rate"``, the file's header, the time stamps' mean).
+    temperature : ``(N,)`` the sensor's temperature channel (°C; NaN where missing), or None.
+    temperature_column : the column it came from.
     """
 
     path: Path
@@ -62,6 +64,8 @@ class Recording:
     time_s: np.ndarray | None = None
     time_column: str | None = None
     rate_source: str = ""
+    temperature: np.ndarray | None = None
+    temperature_column: str | None = None
 
     @property
     def h(self) -> float:
@@ -152,7 +156,7 @@ def read_series(path, columns: Sequence[str], optional: Sequence[str] = (), *, a
 
 def read_recording(path=None, *, lsb_per_g: float | None = None, rate_hz: float | None = None,
                    columns: Sequence[str] = ("ax", "ay", "az"), segment: int | None = None,
-                   time_column: str | None = "auto") -> Recording:
+                   time_column: str | None = "auto", temperature_column: str | None = None) -> Recording:
     """Read an accelerometer recording.
 
     Formats:
@@ -171,12 +175,17 @@ def read_recording(path=None, *, lsb_per_g: float | None = None, rate_hz: float 
     Time stamps: ``time_column`` names a column of time stamps in seconds; ``"auto"`` takes the first column
     named as in :data:`TIME_COLUMNS` (the recorder's ``t_s``, the device clock), ``None`` ignores them. A
     generic CSV without ``rate_hz`` or an ``Fs`` line takes the stamps' mean rate. The stamps are kept in
-    ``Recording.time_s``; :func:`torchtea.datacheck.check_timing` compares them with the rate. Missing values
-    stay NaN (see :mod:`torchtea.datacheck` for the policy).
+    ``Recording.time_s``; :func:`torchtea.sensors.datacheck.check_timing` compares them with the rate. Missing values
+    stay NaN (see :mod:`torchtea.sensors.datacheck` for the policy).
+
+    Temperature: a torchtea recording always carries its ``temp`` column (``Recording.temperature``); a
+    generic CSV's ``temperature_column`` names one (°C).
     """
     path = bundled_recording() if path is None else Path(path)
     lines = _open_lines(path)
     if lines and lines[0].strip() == RECORDING_MAGIC:
+        if temperature_column not in (None, "temp"):
+            raise InputError(f"{path}: a torchtea recording's temperature column is 'temp', not {temperature_column!r}")
         return _read_recorder_format(path, lines, segment, rate_hz, time_column)
     if segment is not None:
         raise InputError(f"{path}: not a torchtea recording, it has no segments")
@@ -220,6 +229,11 @@ def read_recording(path=None, *, lsb_per_g: float | None = None, rate_hz: float 
                              "--units g / --units ms2 for data already in physical units")
         lsb_per_g = 16384.0  # bundled format: MPU-6050 library default ±2 g
     idx = [header.index(c) for c in columns]
+    if temperature_column is not None and temperature_column not in header:
+        raise InputError(f"{path}: no temperature column {temperature_column!r} (the header has "
+                         f"{', '.join(header[:12])}{' …' if len(header) > 12 else ''})")
+    temp_idx = None if temperature_column is None else header.index(temperature_column)
+    temps = []
     gyro_idx = [header.index(c) for c in ("gx", "gy", "gz")] if all(c in header for c in ("gx", "gy", "gz")) else None
     acc, gyr, stamps = [], [], []
     for i in range(start + 1, len(lines)):
@@ -232,6 +246,8 @@ def read_recording(path=None, *, lsb_per_g: float | None = None, rate_hz: float 
         acc.append([_number(parts[j], path, i + 1, header[j], allow_missing=True) for j in idx])
         if gyro_idx:
             gyr.append([_number(parts[j], path, i + 1, header[j], allow_missing=True) for j in gyro_idx])
+        if temp_idx is not None:
+            temps.append(_number(parts[temp_idx], path, i + 1, temperature_column, allow_missing=True))
         if tcol is not None:
             try:
                 stamps.append(_number(parts[header.index(tcol)], path, i + 1, tcol, allow_missing=True))
@@ -255,7 +271,9 @@ def read_recording(path=None, *, lsb_per_g: float | None = None, rate_hz: float 
     return Recording(path=path, rate_hz=float(rate_hz), accel_counts=np.asarray(acc, dtype=np.float64),
                      accel_lsb_per_g=float(lsb_per_g),
                      gyro_counts=np.asarray(gyr, dtype=np.float64) if gyro_idx else None, metadata=meta,
-                     time_s=t, time_column=tcol, rate_source=rate_source)
+                     time_s=t, time_column=tcol, rate_source=rate_source,
+                     temperature=np.asarray(temps, dtype=np.float64) if temp_idx is not None else None,
+                     temperature_column=temperature_column)
 
 
 def _numeric_column(lines: list, start: int, j: int) -> bool:
@@ -289,7 +307,7 @@ def _time_column(path: Path, header: list, wanted) -> str | None:
 
 
 RECORDING_MAGIC = "# torchtea-recording 1"
-_RECORDER_COLUMNS = ("segment", "counter", "t_s", "ax", "ay", "az", "gx", "gy", "gz", "temp")
+RECORDER_COLUMNS = ("segment", "counter", "t_s", "ax", "ay", "az", "gx", "gy", "gz", "temp")
 
 
 def _read_recorder_format(path: Path, lines: list[str], segment: int | None, rate_hz, time_column) -> Recording:
@@ -310,8 +328,8 @@ def _read_recorder_format(path: Path, lines: list[str], segment: int | None, rat
         parts = line.split(",")
         if columns is None:
             columns = tuple(p.strip() for p in parts)
-            if columns != _RECORDER_COLUMNS:
-                raise InputError(f"{path}, line {i}: expected columns {','.join(_RECORDER_COLUMNS)}, got {line[:80]!r}")
+            if columns != RECORDER_COLUMNS:
+                raise InputError(f"{path}, line {i}: expected columns {','.join(RECORDER_COLUMNS)}, got {line[:80]!r}")
             continue
         if len(parts) != len(columns):
             raise InputError(f"{path}, line {i}: {len(parts)} fields, the header has {len(columns)}")
@@ -355,7 +373,8 @@ def _read_recorder_format(path: Path, lines: list[str], segment: int | None, rat
     return Recording(path=path, rate_hz=float(rate_hz) if rate_hz is not None else rate, accel_counts=acc,
                      accel_lsb_per_g=lsb, gyro_counts=gyr, metadata=meta,
                      time_s=data[:, 1] if tcol else None, time_column=tcol,
-                     rate_source="--rate" if rate_hz is not None else "the device's header (rate_hz)")
+                     rate_source="--rate" if rate_hz is not None else "the device's header (rate_hz)",
+                     temperature=data[:, RECORDER_COLUMNS.index("temp") - 1], temperature_column="temp")
 
 
 def write_columns(path, columns: dict) -> Path:

@@ -3,7 +3,7 @@
 Each preset holds the TEA settings exactly as printed in the paper (§4.1 for
 Examples 1–3, §5.1 for the MEMS axes) and, for the simulated examples, the
 scenario that generated the data. The choices for the paper's open points are
-the defaults of :class:`~torchtea.tea.TEAConfig` (see its docstring and
+the defaults of :class:`~torchtea.engines.tea.TEAConfig` (see its docstring and
 ``experiments/paper/README.md``).
 """
 from __future__ import annotations
@@ -11,8 +11,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from .model import ConstantOrder, LinearOrder, OrderSchedule, ParabolicOrder
-from .tea import StateFilterConfig, TEAConfig, UnscentedConfig
+from .structure import ConstantOrder, LinearOrder, OrderSchedule, ParabolicOrder
+from .settings import StateFilterConfig, TEAConfig, UnscentedConfig
 
 __all__ = ["Scenario", "PRESETS", "SCENARIOS", "get_preset", "PRESET_H"]
 

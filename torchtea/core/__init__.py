@@ -1,0 +1,3 @@
+"""The numerical core every engine shares: Grünwald–Letnikov coefficients and differences (:mod:`.gl`), the
+history-sum memories — exact, exponential-sum, window — and their one dispatch (:mod:`.memory`), and the
+statistics of estimates and innovations (:mod:`.stats`)."""

@@ -1,0 +1,159 @@
+"""The TEA's settings: KFx (:class:`StateFilterConfig`), KFo and KFw (:class:`UnscentedConfig`) and the whole
+algorithm (:class:`TEAConfig`) as frozen dataclasses, kept out of the filter module (:mod:`.tea`) so that
+presets, TOML files and the noise-model adapter build them without importing the filter."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field, fields, replace
+from typing import Any
+
+from ..core.memory import MemoryConfig, parse_memory
+
+__all__ = ["StateFilterConfig", "UnscentedConfig", "TEAConfig", "NOISE_SCALINGS"]
+
+
+# --------------------------------------------------------------------------- configuration
+
+
+@dataclass(frozen=True)
+class StateFilterConfig:
+    """KFx settings, paper (29)–(36).
+
+    Attributes
+    ----------
+    x0 : initial state estimate ``x₀``.
+    P0 : initial covariance ``P₀``.
+    Q0 : process-noise covariance ``Q`` of ω (the paper's ``Q₀``; constant).
+    R : measurement-noise covariance ``R`` of ν.
+
+    A number means that value times the identity; a list of numbers a diagonal;
+    a nested list a full matrix.
+    """
+
+    x0: Any = 0.0
+    P0: Any = 0.01
+    Q0: Any = 1e-4
+    R: Any = 1e-3
+
+
+@dataclass(frozen=True)
+class UnscentedConfig:
+    """KFo or KFw settings, paper (12)–(28) and (37)–(42).
+
+    Attributes
+    ----------
+    x0 : initial estimate (``α₀`` for KFo, ``w₀`` for KFw).
+    P0 : initial covariance ``P₀ᵒ`` / ``P₀ʷ``.
+    Q0 : initial random-walk covariance ``Q₀ᵒ`` / ``Q₀ʷ`` (adapted by (25)).
+    R : the filter's measurement covariance ``Rᵒ`` / ``Rʷ``.
+    ut_alpha : 𝔄, spread of the sigma points.
+    ut_beta : 𝔅, prior knowledge of the distribution (2 for Gaussian).
+    kappa : κ; ``None`` means ``3 − L``.
+    delta : δ, Robbins–Monro forgetting factor of (25); 0 keeps ``Q`` fixed.
+    Q_max : upper bound on the adapted ``Q`` (its largest diagonal entry): ``"Q0"`` (default) caps it
+        at the initial ``Q₀``, a number caps it there, ``"none"`` adapts exactly as (25). The cap is
+        the guard against (25) feeding on itself (open point 4): ``Q`` may shrink as the filter
+        settles but never grow past what the user declared plausible.
+    """
+
+    x0: Any = 0.0
+    P0: Any = 0.01
+    Q0: Any = 0.1
+    R: Any = 1e-3
+    ut_alpha: float = 1.0
+    ut_beta: float = 2.0
+    kappa: float | None = None
+    delta: float = 0.5
+    Q_max: float | str = "Q0"
+
+    def __post_init__(self):
+        if isinstance(self.Q_max, str):
+            if self.Q_max not in ("Q0", "none"):
+                raise ValueError(f"Q_max must be a number, 'Q0' or 'none', got {self.Q_max!r}")
+        elif not (float(self.Q_max) > 0):
+            raise ValueError(f"Q_max must be positive, got {self.Q_max}")
+
+
+NOISE_SCALINGS = ("scaled", "unscaled")
+
+
+@dataclass(frozen=True)
+class TEAConfig:
+    """Settings of the whole Triple Estimation Algorithm.
+
+    Attributes
+    ----------
+    kfx, kfo, kfw : the three filters' settings.
+    sigma_sum_start : 0 or 1 — first sigma point in the covariance sums (20)–(21).
+        The paper prints ``i = 1``; the standard unscented transform uses ``i = 0``
+        (open point 1). Default 0.
+    noise_scaling : "scaled" or "unscaled" — whether KFx adds ``h^α Q h^α`` (the
+        process noise as it enters the model (10)) or ``Q`` as printed in (31)
+        (open point 2). Default "scaled".
+    order_bounds : (low, high) — every order estimate is projected onto this
+        interval after each update (open point 3). Sigma points are not clipped.
+    divergence_limit : a realisation whose estimates or covariances leave
+        ``[−limit, limit]`` or become non-finite is flagged and frozen.
+    memory : how the GL history sums of all three filters are evaluated
+        (:class:`torchtea.core.memory.MemoryConfig`: ``exact``, ``soe`` or ``window``).
+    """
+
+    kfx: StateFilterConfig = field(default_factory=StateFilterConfig)
+    kfo: UnscentedConfig = field(default_factory=lambda: UnscentedConfig(x0=1.0))
+    kfw: UnscentedConfig = field(default_factory=UnscentedConfig)
+    sigma_sum_start: int = 0
+    noise_scaling: str = "scaled"
+    order_bounds: tuple = (0.0, 2.5)
+    divergence_limit: float = 1e8
+    memory: MemoryConfig = field(default_factory=MemoryConfig)
+
+    def __post_init__(self):
+        if self.sigma_sum_start not in (0, 1):
+            raise ValueError("sigma_sum_start must be 0 or 1")
+        if self.noise_scaling not in NOISE_SCALINGS:
+            raise ValueError(f"noise_scaling must be one of {NOISE_SCALINGS}")
+        lo, hi = self.order_bounds
+        if not lo < hi:
+            raise ValueError("order_bounds must be (low, high) with low < high")
+        for f in (self.kfo, self.kfw):
+            if not 0.0 <= f.delta <= 1.0:
+                raise ValueError("delta must lie in [0, 1]")
+
+    def to_dict(self) -> dict:
+        """Plain nested dict (TOML-friendly; ``None`` entries dropped)."""
+
+        def conv(obj):
+            out = {}
+            for f in fields(obj):
+                v = getattr(obj, f.name)
+                if v is None:
+                    continue
+                out[f.name] = conv(v) if hasattr(v, "__dataclass_fields__") else (list(v) if isinstance(v, tuple) else v)
+            return out
+
+        return conv(self)
+
+    @classmethod
+    def from_dict(cls, data: dict, base: "TEAConfig | None" = None) -> "TEAConfig":
+        """Build from a nested dict (e.g. parsed TOML), overriding ``base`` (default settings)."""
+        base = base or cls()
+        known = {f.name for f in fields(cls)}
+        unknown = set(data) - known
+        if unknown:
+            raise ValueError(f"unknown TEA settings: {sorted(unknown)}")
+        kw = {}
+        for name, value in data.items():
+            current = getattr(base, name)
+            if name == "memory":
+                kw[name] = parse_memory(value if isinstance(value, (str, MemoryConfig)) else {**current.to_dict(), **value})
+                continue
+            if hasattr(current, "__dataclass_fields__"):
+                if not isinstance(value, dict):
+                    raise ValueError(f"[{name}] must be a table")
+                sub = {f.name for f in fields(current)}
+                bad = set(value) - sub
+                if bad:
+                    raise ValueError(f"unknown settings in [{name}]: {sorted(bad)}")
+                kw[name] = replace(current, **value)
+            else:
+                kw[name] = tuple(value) if isinstance(value, list) else value
+        return replace(base, **kw)

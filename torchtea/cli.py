@@ -579,7 +579,7 @@ def build_parser() -> argparse.ArgumentParser:
     fp.add_argument("recording", nargs="?", help="recording CSV (default: the bundled MPU-6050 recording)")
     fp.add_argument("--model", default="fractional+white",
                     help="components joined by '+': fractional, white, quantisation, random-walk, low-pass, "
-                         "offset, ramp, sinusoid, temperature-bias (default fractional+white)")
+                         "offset, ramp, sinusoid, temperature-bias, temperature-order (default fractional+white)")
     fp.add_argument("--method", choices=("whittle", "exact"), default="exact",
                     help="likelihood of the final answer (default exact; Whittle always gives the start)")
     fp.add_argument("--samples", default="all", help="use the first N samples (default all)")
@@ -593,7 +593,7 @@ def build_parser() -> argparse.ArgumentParser:
     fp.add_argument("--segment", type=int, help="torchtea recording: which segment (default: the longest)")
     fp.add_argument("--time-column", default="auto", help="column of time stamps (auto, a name, or none)")
     fp.add_argument("--temperature", metavar="COL",
-                    help="temperature column (°C) for a temperature-bias component (a torchtea recording: temp)")
+                    help="temperature column (°C) for temperature-bias / temperature-order (a torchtea recording: temp)")
     fp.add_argument("--allow-missing", action="store_true", help=ALLOW_MISSING_HELP)
     fp.add_argument("--out", help="write the JSON document to this file")
     fp.add_argument("--json", action="store_true", help="print the JSON document")
@@ -683,7 +683,8 @@ def cmd_fit(args) -> int:
             print("torchtea: note: the fractional test needs complete series (Whittle): not run", file=sys.stderr)
         else:
             tested, test_series = model, series
-            if inputs is not None:  # the test's Whittle fits take no inputs: test what the fitted bias leaves
+            if inputs is not None:  # the test's Whittle fits take no inputs: test what the fitted means leave,
+                # with the order constant (a temperature-driven order is not part of the test)
                 import torch
 
                 tested = parse_model("+".join(c.name for _, c in model.components if not c.inputs))

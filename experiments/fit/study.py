@@ -11,14 +11,16 @@ q + r — the null of the fractional test. Every series is simulated by :func:`t
 
 Per realisation:
 
-- **Whittle** MLE (``fit_series(method="whittle")``): the order's 95 % interval from the Whittle profile,
-  the others Wald on the log scale (the pole: plain Wald).
+- **Whittle** MLE (``fit_series(method="whittle")``): Wald 95 % intervals (the order's on the logit scale,
+  q and r on the log scale, the pole plain); the order's Whittle-profile interval — what ``fit --method
+  whittle`` reports — on the first ``--profile-realisations`` (it costs several times the fit).
 - **Exact** MLE (``method="exact"``, the Whittle fit as start): Wald intervals from the finite-difference
   observed information; on the first :data:`EXACT_REALISATIONS` realisations of each setting (none at α = 0).
 - **TEA** as the paper runs it — the MEMS preset (KFo from α₀ = 1, KFw from f₀ = 0, adaptive Q), soe memory —
   but with the *true* q and r (the most favourable noise levels it could be given); α̂ is the mean over the
   last third of the run, as ``identify`` reports it. The TEA gives no interval.
-- **Fractional test** (:func:`torchtea.fitting.presence.fractional_test`): Whittle LR against white noise,
+- **Fractional test** (:func:`torchtea.fitting.presence.fractional_test`, the full model's Whittle
+  log-likelihood taken from the Whittle fits): Whittle LR against white noise,
   p-value from one parametric bootstrap of ``--boot`` white series fitted exactly as the data, shared by
   every realisation and setting (the null distribution depends on N only).
 
@@ -53,7 +55,8 @@ HERE = Path(__file__).resolve().parent
 H, N, R_WHITE, RHO = 0.01, 30_000, 1e-3, 0.4
 ORDERS = (0.0, 0.1, 0.3, 0.5)
 #: Realisations of the exact MLE per setting (this 2-core machine: ≈ 9 s per series at α > 0, ≈ 40 s at
-#: α = 0, where the order and pole are not identified and the refinement wanders a flat ridge).
+#: α = 0, where the order and pole are not identified and the refinement wanders a flat ridge). They run in
+#: chunks, a chunk per setting in turn, saved as they finish: an interrupted run resumes where it stopped.
 EXACT_REALISATIONS = {0.0: 0, 0.1: 200, 0.3: 200, 0.5: 200}
 MODEL = parse_model("fractional+white")
 PARAMS = MODEL.names
@@ -70,19 +73,42 @@ def series(alpha: float, n_real: int) -> np.ndarray:
     return y.numpy()
 
 
-def run_fits(ys, method: str, chunk: int, path: Path) -> list:
-    """Fit each series; saves after every ``chunk`` series so an interrupted run resumes."""
+def _row(f, dt):
+    return {"values": f.values, "ci95": f.ci95, "ci95_method": f.ci95_method, "converged": f.converged,
+            "loglik": f.loglik, "seconds": dt}
+
+
+def run_whittle(ys, n_profile: int) -> list:
+    """Whittle fits of every series (Wald intervals; the order's on the logit scale), and the profile
+    interval of the order — what ``fit --method whittle`` reports — on the first ``n_profile``."""
+    t = time.perf_counter()
+    fits = fit_series(MODEL, list(ys), H, method="whittle", profile=False)
+    dt = (time.perf_counter() - t) / len(fits)
+    rows = [_row(f, dt) for f in fits]
+    if n_profile:
+        t = time.perf_counter()
+        prof = fit_series(MODEL, list(ys[:n_profile]), H, method="whittle", profile=True)
+        dtp = (time.perf_counter() - t) / n_profile
+        for r, f in zip(rows, prof):
+            r["ci95_profile"] = f.ci95["fractional.order"]
+            r["seconds_with_profile"] = dtp
+    return rows
+
+
+def run_exact_round(ys, path: Path, chunk: int, target: int) -> bool:
+    """``chunk`` more exact fits (saved to the partial file); True once ``target`` are done."""
     part = path.with_suffix(".partial.json")
     rows = json.loads(part.read_text()) if part.exists() else []
-    for start in range(len(rows), len(ys), chunk):
-        t = time.perf_counter()
-        fits = fit_series(MODEL, list(ys[start:start + chunk]), H, method=method, profile=(method == "whittle"))
-        dt = (time.perf_counter() - t) / len(fits)
-        rows += [{"values": f.values, "ci95": f.ci95, "ci95_method": f.ci95_method, "converged": f.converged,
-                  "seconds": dt} for f in fits]
-        part.write_text(json.dumps(rows))
-        print(f"  {method}: {len(rows)}/{len(ys)} ({dt:.1f} s per series)", flush=True)
-    return rows
+    start = len(rows)
+    if start >= target:
+        return True
+    t = time.perf_counter()
+    fits = fit_series(MODEL, list(ys[start:min(start + chunk, target)]), H, method="exact", profile=False)
+    dt = (time.perf_counter() - t) / len(fits)
+    rows += [_row(f, dt) for f in fits]
+    part.write_text(json.dumps(rows))
+    print(f"  exact {path.stem}: {len(rows)}/{target} ({dt:.1f} s per series)", flush=True)
+    return len(rows) >= target
 
 
 def run_tea_rows(ys, alpha: float) -> list:
@@ -102,9 +128,9 @@ def run_tea_rows(ys, alpha: float) -> list:
 NULL_CACHE: dict = {}
 
 
-def run_test(ys, n_boot: int, alpha: float) -> list:
+def run_test(ys, n_boot: int, full_loglik) -> list:
     t = time.perf_counter()
-    out = fractional_test(MODEL, list(ys), H, n_boot=n_boot, seed=0, null_cache=NULL_CACHE)
+    out = fractional_test(MODEL, list(ys), H, n_boot=n_boot, seed=0, null_cache=NULL_CACHE, full_loglik=full_loglik)
     dt = (time.perf_counter() - t) / len(ys)
     return [dict(o, seconds=dt) for o in out]
 
@@ -132,6 +158,12 @@ def summarise(alpha: float, rows: dict) -> dict:
                     cov[p] = {"coverage": c, "se": math.sqrt(c * (1 - c) / len(hit)),
                               "no_interval": int(sum(x["ci95"][p] is None for x in r))}
                 s["coverage95"] = cov
+                prof = [x for x in r if x.get("ci95_profile")]
+                if prof:
+                    hit = [x["ci95_profile"][0] <= alpha <= x["ci95_profile"][1] for x in prof]
+                    c = float(np.mean(hit))
+                    s["order_profile_coverage95"] = {"coverage": c, "se": math.sqrt(c * (1 - c) / len(hit)),
+                                                     "n": len(hit)}
         else:
             s["diverged"] = int(sum(x["diverged"] for x in r))
         out[method] = s
@@ -162,6 +194,11 @@ def tables(summary: dict) -> str:
                 c = s[m]["coverage95"]
                 lines.append(f"| {key} | {m} | " + " | ".join(
                     f"{100 * c[p]['coverage']:.1f} % (± {100 * c[p]['se']:.1f})" for p in PARAMS) + " |")
+    lines += ["", "| α | Whittle profile interval of the order: coverage (± se) | realisations |", "|---|---|---|"]
+    for key, s in summary.items():
+        p = s.get("whittle", {}).get("order_profile_coverage95")
+        if p:
+            lines.append(f"| {key} | {100 * p['coverage']:.1f} % (± {100 * p['se']:.1f}) | {p['n']} |")
     lines += ["", "| α | rejections at 5 % (± se) | bootstrap replicates | null LR 95 % quantile |", "|---|---|---|---|"]
     for key, s in summary.items():
         if "test" in s:
@@ -181,6 +218,8 @@ def main():
     ap.add_argument("--exact-realisations", type=int, default=None,
                     help="realisations of the exact MLE per setting (default: EXACT_REALISATIONS)")
     ap.add_argument("--dir", default=str(HERE / "study"))
+    ap.add_argument("--profile-realisations", type=int, default=50,
+                    help="realisations per setting whose Whittle fit also gets the order's profile interval")
     ap.add_argument("--force", action="store_true")
     ap.add_argument("--tables", action="store_true", help="only summarise what is saved")
     args = ap.parse_args()
@@ -196,32 +235,35 @@ def main():
         return cache[alpha]
 
     if not args.tables:
-        # the cheap methods on every setting first, the exact MLE last (and on its own share of realisations)
-        for method in methods:
+        # the cheap methods on every setting first
+        for method in [m for m in methods if m != "exact"]:
             for alpha in orders:
                 path = d / f"a{alpha:g}_{method}.json"
                 if path.exists() and not args.force:
                     continue
-                if args.force:
-                    path.with_suffix(".partial.json").unlink(missing_ok=True)
                 ys = data(alpha)
                 print(f"α = {alpha:g}, {method} …", flush=True)
                 if method == "whittle":
-                    rows = run_fits(ys, method, len(ys), path)
-                elif method == "exact":
-                    n_ex = EXACT_REALISATIONS.get(alpha, args.realisations) if args.exact_realisations is None \
-                        else args.exact_realisations
-                    if n_ex == 0:
-                        continue
-                    rows = run_fits(ys[:n_ex], method, args.chunk, path)
+                    rows = run_whittle(ys, args.profile_realisations)
                 elif method == "tea":
                     rows = run_tea_rows(ys, alpha)
                 elif method == "test":
-                    rows = run_test(ys, args.boot, alpha)
+                    wpath = d / f"a{alpha:g}_whittle.json"
+                    full = [r["loglik"] for r in json.loads(wpath.read_text())] if wpath.exists() else None
+                    rows = run_test(ys, args.boot, full)
                 else:
                     raise SystemExit(f"unknown method {method!r}")
                 path.write_text(json.dumps(rows))
-                path.with_suffix(".partial.json").unlink(missing_ok=True)
+        # then the exact MLE, a chunk per setting in turn, so every setting grows together
+        if "exact" in methods:
+            targets = {a: min(args.realisations, EXACT_REALISATIONS.get(a, args.realisations)
+                              if args.exact_realisations is None else args.exact_realisations) for a in orders}
+            pending = [a for a in orders if targets[a] > 0]
+            while pending:
+                for alpha in list(pending):
+                    path = d / f"a{alpha:g}_exact.json"
+                    if run_exact_round(data(alpha), path, args.chunk, targets[alpha]):
+                        pending.remove(alpha)
     summary = {}
     for alpha in sorted(orders):
         rows = {}

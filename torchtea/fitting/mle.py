@@ -123,6 +123,11 @@ def regress_mean(model: NoiseModel, y, h: float, inputs: dict | None = None) -> 
             vals[f"{label}.t_ref"] = tref
             cols.append(T - tref)
             names.append(f"{label}.beta")
+        elif comp.name == "temperature-order":  # not a mean: only its reference, and γ = 0 to start from
+            if not inputs or "temperature" not in inputs:
+                raise ValueError(f"component {label!r} needs the input channel 'temperature' (--temperature COLUMN)")
+            vals[f"{label}.t_ref"] = float(np.nanmean(np.asarray(inputs["temperature"], dtype=np.float64)))
+            vals[f"{label}.gamma"] = 0.0
     if cols:
         X = np.stack(cols, 1)[ok]
         X = X - X.mean(0)
@@ -265,7 +270,7 @@ def exact_loglik(model, values, y, h: float, *, inputs: dict | None = None, memo
     y = torch.as_tensor(np.asarray(y, dtype=np.float64))
     N = y.shape[-1]
     v = model.as_dict(values)
-    ss = model.state_space(v, h, N, state_memory(memory, N))
+    ss = model.state_space(v, h, N, state_memory(memory, N), inputs=inputs)
     t = torch.arange(N, dtype=torch.float64) * h
     mean = model.mean(v, t, inputs)
     return loglik_fast(ss, y, mean)
@@ -486,8 +491,16 @@ def fit_series(model, series: list, h: float, *, method: str = "exact", inputs: 
     unknown = set(fixed) - set(model.names)
     if unknown:
         raise ValueError(f"fixed parameters {sorted(unknown)} are not in model {model.spec!r} ({model.names})")
+    for label, comp in model.components:
+        if comp.name == "fractional" and f"{label}.pole" in fixed and f"{label}.order" not in fixed:
+            raise ValueError(f"{label}.pole cannot be fixed while {label}.order is free: the pole is fitted as a "
+                             "fraction of its stability limit −2^α/h^α, which moves with the order; fix the order "
+                             "too, or leave the pole free")
     series = [np.asarray(y, dtype=np.float64) for y in series]
     gaps = [bool(np.isnan(y).any()) for y in series]
+    if method == "whittle" and model.has("temperature-order"):
+        raise ValueError("temperature-order makes the model non-stationary: its γ is fitted by the exact likelihood "
+                         "only (--method exact)")
     if method == "whittle" and any(gaps):
         raise ValueError("the Whittle method needs complete series; use --method exact for recordings with "
                          "missing samples")

@@ -27,24 +27,28 @@ BOOTSTRAP_ORDERS = (0.2, 0.6)
 BOOTSTRAP_FRACTIONS = (0.5,)
 
 
-def _lr(model, null, series, h, orders, fractions):
-    full = whittle_fit(model, series, h, orders=orders, fractions=fractions)
+def _lr(model, null, series, h, orders, fractions, full_loglik=None):
+    full = (torch.as_tensor(np.asarray(full_loglik, dtype=np.float64)) if full_loglik is not None
+            else whittle_fit(model, series, h, orders=orders, fractions=fractions).loglik)
     nul = whittle_fit(null, series, h)
-    return (2.0 * (full.loglik - nul.loglik)).clamp(min=0.0).numpy(), nul.values
+    return (2.0 * (full - nul.loglik)).clamp(min=0.0).numpy(), nul.values
 
 
 def fractional_test(model, series: list, h: float, *, n_boot: int = 99, seed: int = 0,
-                    null_cache: dict | None = None) -> list[dict]:
+                    null_cache: dict | None = None, full_loglik=None) -> list[dict]:
     """Per series: ``{"lr", "p_value", "n_boot", "null", "shared", "null_lr_quantile95"}``. Series must be
     complete (the Whittle likelihood); their means are removed as in the fit. ``null_cache``: a dict that
     keeps the white-null bootstrap distributions (keyed by model, N, h and ``n_boot``) for later calls — pass
-    the same dict to test more series of the same length without simulating the null again."""
+    the same dict to test more series of the same length without simulating the null again.
+    ``full_loglik``: the maximised Whittle log-likelihoods of ``model`` on these series, if already at hand
+    (``Fit.loglik`` of ``fit_series(method="whittle")``, which uses the same multi-start), so the data are not
+    fitted twice."""
     model = parse_model(model)
     if not model.has("fractional"):
         raise ValueError(f"model {model.spec!r} has no fractional component to test")
     null = model.without("fractional")
     series = [np.asarray(y, dtype=np.float64) - np.mean(y) for y in series]
-    lr, V0 = _lr(model, null, series, h, START_ORDERS, START_FRACTIONS)
+    lr, V0 = _lr(model, null, series, h, START_ORDERS, START_FRACTIONS, full_loglik)
     gen = torch.Generator().manual_seed(seed)
     white_only = all(c.kind == "measurement" for _, c in null.components)
     out = []

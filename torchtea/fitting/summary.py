@@ -34,7 +34,7 @@ def fit_nis(fit: Fit, y, h: float, inputs=None, memory=FIT_MEMORY) -> float:
     model = fit.model
     y = centred(model, y)
     N = len(y)
-    ss = model.state_space(fit.values, h, N, state_memory(memory, N))
+    ss = model.state_space(fit.values, h, N, state_memory(memory, N), inputs=inputs)
     mean = model.mean(fit.values, torch.arange(N, dtype=torch.float64) * h, inputs)
     _, e, S = filter_fast(ss, y, mean)
     ok = ~np.isnan(e[0])

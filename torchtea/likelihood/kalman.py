@@ -62,6 +62,8 @@ def kalman_filter(ss: StateSpace, y, mean=None, *, keep_states: bool = False, sm
     """Run the exact filter on ``y`` ``(B, N)`` (or ``(N,)``), ``mean`` the deterministic part ``(B, N)``."""
     F, Q, C, R = ss.F, ss.Q, ss.C, ss.R
     B, n = F.shape[0], F.shape[-1]
+    if smooth and ss.varying is not None:
+        raise NotImplementedError("the smoother with a time-varying order (temperature-order) is not implemented")
     y = _as_series(y, B)
     N = y.shape[-1]
     mu = torch.zeros_like(y) if mean is None else _as_series(mean, B).to(y)
@@ -95,6 +97,15 @@ def kalman_filter(ss: StateSpace, y, mean=None, *, keep_states: bool = False, sm
         if keep_states or smooth:
             zs.append(z)
             Ps.append(P)
+        if ss.varying is not None:  # a time-varying order: row i of F and Q[i, i] of this step
+            i, rows, g = ss.varying
+            Fk = F.clone()
+            Fk[:, i] = rows[:, k]
+            Qk = Q.clone()
+            Qk[:, i, i] = g[:, k] ** 2
+            z = (z.unsqueeze(-2) @ Fk.mT).squeeze(-2)
+            P = Fk @ P @ Fk.mT + Qk
+            continue
         z = (z.unsqueeze(-2) @ Ft).squeeze(-2)
         P = F @ P @ Ft + Q
     filtered = torch.stack(zs, dim=1) if (keep_states or smooth) else None
@@ -135,7 +146,7 @@ def _build(numba):
     njit, prange = numba.njit, numba.prange
 
     @njit(cache=True, fastmath=False)
-    def one(indptr, indices, fval, Q, C, cidx, R, y, mu, e_out, s_out, keep):
+    def one(indptr, indices, fval, Q, C, cidx, R, y, mu, e_out, s_out, keep, tv_i, tv_F, tv_q):
         n = Q.shape[0]
         N = y.shape[0]
         z = np.zeros(n)
@@ -174,16 +185,28 @@ def _build(numba):
             if k + 1 == N:
                 break
             # predict: z = F z, P = F P Fᵀ + Q, with F in CSR form
+            # row tv_i (a time-varying order) is tv_F[k] (dense) instead of its CSR row, and Q[tv_i, tv_i] tv_q[k]
             znew = np.zeros(n)
             for i in range(n):
                 acc = 0.0
-                for t in range(indptr[i], indptr[i + 1]):
-                    acc += fval[t] * z[indices[t]]
+                if i == tv_i:
+                    for r in range(n):
+                        acc += tv_F[k, r] * z[r]
+                else:
+                    for t in range(indptr[i], indptr[i + 1]):
+                        acc += fval[t] * z[indices[t]]
                 znew[i] = acc
             z = znew
             for i in range(n):  # M = F P
                 for j in range(n):
                     M[i, j] = 0.0
+                if i == tv_i:
+                    for r in range(n):
+                        f = tv_F[k, r]
+                        if f != 0.0:
+                            for j in range(n):
+                                M[i, j] += f * P[r, j]
+                    continue
                 for t in range(indptr[i], indptr[i + 1]):
                     f = fval[t]
                     r = indices[t]
@@ -192,18 +215,25 @@ def _build(numba):
             for i in range(n):  # P = M Fᵀ + Q (symmetric: upper triangle, mirrored)
                 for j in range(i, n):
                     acc = Q[i, j]
-                    for t in range(indptr[j], indptr[j + 1]):
-                        acc += M[i, indices[t]] * fval[t]
+                    if j == tv_i:
+                        if i == tv_i:
+                            acc = tv_q[k]
+                        for r in range(n):
+                            acc += M[i, r] * tv_F[k, r]
+                    else:
+                        for t in range(indptr[j], indptr[j + 1]):
+                            acc += M[i, indices[t]] * fval[t]
                     P[i, j] = acc
                     P[j, i] = acc
         return ll
 
     @njit(parallel=True, cache=True)
-    def batch(indptr, indices, fvals, Qs, Cs, cidx, Rs, ys, mus, e_out, s_out, keep):
+    def batch(indptr, indices, fvals, Qs, Cs, cidx, Rs, ys, mus, e_out, s_out, keep, tv_i, tv_Fs, tv_qs):
         B = fvals.shape[0]
         out = np.zeros(B)
         for b in prange(B):
-            out[b] = one(indptr, indices, fvals[b], Qs[b], Cs[b], cidx, Rs[b], ys[b], mus[b], e_out[b], s_out[b], keep)
+            out[b] = one(indptr, indices, fvals[b], Qs[b], Cs[b], cidx, Rs[b], ys[b], mus[b], e_out[b], s_out[b], keep,
+                         tv_i, tv_Fs[b], tv_qs[b])
         return out
 
     return batch
@@ -233,9 +263,15 @@ def _fast(ss: StateSpace, y, mean, keep: bool):
     indptr, indices, fvals = _csr(F)
     e_out = np.zeros((B, N) if keep else (B, 1))
     s_out = np.zeros_like(e_out)
+    if ss.varying is None:
+        tv_i, tv_F, tv_q = -1, np.zeros((B, 1, F.shape[-1])), np.zeros((B, 1))
+    else:
+        tv_i = int(ss.varying[0])
+        tv_F = np.ascontiguousarray(ss.varying[1].detach().cpu().numpy(), dtype=np.float64)
+        tv_q = np.ascontiguousarray(ss.varying[2].detach().cpu().numpy() ** 2, dtype=np.float64)
     ll = _compiled()(indptr, indices, fvals, np.ascontiguousarray(ss.Q.detach().cpu().numpy()),
                      np.ascontiguousarray(C), cidx, np.ascontiguousarray(ss.R.detach().cpu().numpy()),
-                     ya, mu, e_out, s_out, keep)
+                     ya, mu, e_out, s_out, keep, tv_i, tv_F, tv_q)
     return ll, e_out, s_out
 
 

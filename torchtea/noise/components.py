@@ -63,7 +63,7 @@ class Component:
     """Base class: a named part of the model. Subclasses set ``name``, ``kind`` and ``params``."""
 
     name: str = ""
-    kind: str = ""  # "state", "measurement", "mean"
+    kind: str = ""  # "state", "measurement", "filter", "mean", "modifier" (changes another component)
     params: tuple = ()
     inputs: tuple = ()  # input channels the component reads (e.g. "temperature")
 
@@ -114,18 +114,24 @@ class Fractional(Component):
     def n_states(self, memory) -> int:
         return memory.lags + memory.n_modes
 
+    def first_row(self, alpha: Tensor, f: Tensor, q: Tensor, h: float, memory) -> tuple[Tensor, Tensor]:
+        """The block's first row of F, ``(*S, J + M)``, and its noise loading ``h^α √q`` ``(*S,)`` for orders
+        ``alpha`` ``(*S,)`` (the only part of the block that depends on the order, so a time-varying order
+        changes this row alone); ``f``, ``q`` broadcast against ``alpha``."""
+        J, M = memory.lags, memory.n_modes
+        hp = h ** alpha
+        c = gl_tail_coefficients(alpha.reshape(-1), J).reshape(*alpha.shape, J)  # c_1 … c_J
+        row = torch.cat([-c, -memory.kernel.weights(alpha)], dim=-1) if M else -c
+        row[..., 0] = row[..., 0] + hp * f
+        return row, hp * torch.sqrt(q)
+
     def block(self, v, h, memory):
         alpha, f, q = v["order"], v["pole"], v["q"]
         B = alpha.shape[0]
         J, M = memory.lags, memory.n_modes
         n = J + M
         F = alpha.new_zeros(B, n, n)
-        hp = h ** alpha
-        c = gl_tail_coefficients(alpha, J)  # (B, J): c_1 … c_J
-        F[:, 0, :J] = -c
-        F[:, 0, 0] = F[:, 0, 0] + hp * f
-        if M:
-            F[:, 0, J:] = -memory.kernel.weights(alpha)
+        F[:, 0], g = self.first_row(alpha, f, q, h, memory)
         idx = torch.arange(1, J)
         F[:, idx, idx - 1] = 1.0
         if M:
@@ -134,7 +140,7 @@ class Fractional(Component):
             F[:, modes, modes] = decay
             F[:, modes, J - 1] = inject
         G = alpha.new_zeros(B, n, 1)
-        G[:, 0, 0] = hp * torch.sqrt(q)
+        G[:, 0, 0] = g
         return F, G
 
 
@@ -250,5 +256,24 @@ class TemperatureBias(Component):
         return v["beta"].unsqueeze(-1) * (T - v["t_ref"].unsqueeze(-1))
 
 
+class TemperatureOrder(Component):
+    r"""The fractional component's order driven by temperature: :math:`lpha_k = lpha_0 + \gamma (T_k - T_\mathrm{ref})`,
+    α₀ the fractional component's ``order`` (its value at T_ref, the mean temperature unless fixed), T the
+    measured ``temperature`` input (°C). The GL difference is the paper's A-type (10): step k+1 uses
+    :math:`h^{lpha_{k+1}}` and :math:`c_j(lpha_{k+1})` for the whole history; α_k is clipped to
+    [10⁻⁶, 1 − 10⁻⁶]. The model is then not stationary: its spectrum (for the Whittle start) is that at
+    T_ref (γ = 0), and γ is fitted by the exact likelihood only."""
+
+    name = "temperature-order"
+    kind = "modifier"
+    inputs = ("temperature",)
+    params = (ParamSpec("gamma", "free", "1/°C"), ParamSpec("t_ref", "free", "T_ref (°C)"))
+
+    def orders(self, v: dict, alpha0: Tensor, T: Tensor) -> Tensor:
+        """``(B, N)`` orders α_k for ``(B,)`` α₀ and the temperature ``(N,)``."""
+        a = alpha0.unsqueeze(-1) + v["gamma"].unsqueeze(-1) * (T - v["t_ref"].unsqueeze(-1))
+        return a.clamp(1e-6, 1.0 - 1e-6)
+
+
 COMPONENTS = {c.name: c for c in (Fractional(), White(), Quantisation(), RandomWalk(), LowPass(), Offset(), Ramp(),
-                                  Sinusoid(), TemperatureBias())}
+                                  Sinusoid(), TemperatureBias(), TemperatureOrder())}

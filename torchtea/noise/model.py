@@ -73,6 +73,10 @@ class StateSpace:
     C: Tensor
     R: Tensor
     blocks: dict = field(default_factory=dict)
+    #: A time-varying order (``temperature-order``): ``(i, rows (B, N, n), loading (B, N))`` — step k → k+1
+    #: uses ``rows[:, k]`` as row ``i`` of F and ``loading[:, k]`` as G's entry in row ``i`` (whose noise column
+    #: no other row shares), so ``Q_k[i, i] = loading² `` and every other entry of F and Q is constant.
+    varying: tuple | None = None
 
     @property
     def Q(self) -> Tensor:
@@ -219,9 +223,11 @@ class NoiseModel:
                 r = r + comp.measurement_variance(byc[label])
         return r
 
-    def state_space(self, values, h: float, n_steps: int, memory="soe") -> StateSpace:
+    def state_space(self, values, h: float, n_steps: int, memory="soe", inputs: dict | None = None) -> StateSpace:
         """Assemble the stacked state: blocks of the state components on the diagonal, the low-pass (if
-        any) as one more state fed by the sum of the state components before it, white noise in R."""
+        any) as one more state fed by the sum of the state components before it, white noise in R; with a
+        ``temperature-order`` component the fractional block's first row per step (``StateSpace.varying``,
+        from ``inputs["temperature"]``)."""
         v = self.as_dict(values)
         byc = self._by_component(v)
         B = next(iter(v.values())).shape[0]
@@ -272,7 +278,32 @@ class NoiseModel:
             C[:, outs_after] = 1.0
         else:
             C[:, outs_before] = 1.0
-        return StateSpace(F, G, C, self.measurement_variance(v).expand(B).clone(), blocks)
+        varying = self._varying_order(byc, blocks, lowpass, h, n_steps, mem, inputs, B, F.shape[-1])
+        return StateSpace(F, G, C, self.measurement_variance(v).expand(B).clone(), blocks, varying)
+
+    def _varying_order(self, byc, blocks, lowpass, h, n_steps, mem, inputs, B, n):
+        mods = [label for label, c in self.components if c.name == "temperature-order"]
+        if not mods:
+            return None
+        fracs = [label for label, c in self.components if c.name == "fractional"]
+        if len(mods) > 1 or len(fracs) != 1 or lowpass is not None:
+            raise ValueError(f"model {self.spec!r}: temperature-order drives the order of one fractional component "
+                             "and cannot be combined with a low-pass")
+        if inputs is None or "temperature" not in inputs:
+            raise ValueError(f"component {mods[0]!r} needs the input channel 'temperature' (e.g. --temperature COLUMN)")
+        T = torch.as_tensor(inputs["temperature"], dtype=torch.float64).reshape(-1)
+        if T.shape[0] < n_steps or not bool(torch.isfinite(T[:n_steps]).all()):
+            raise ValueError(f"the temperature input must have {n_steps} finite values, got {T.shape[0]} "
+                             f"({int((~torch.isfinite(T)).sum())} not finite)")
+        frac = byc[fracs[0]]
+        alpha = COMPONENTS["temperature-order"].orders(byc[mods[0]], frac["order"], T[:n_steps])  # (B, N): α_k
+        a_next = torch.cat([alpha[:, 1:], alpha[:, -1:]], dim=1)  # step k → k+1 uses α_{k+1}
+        row, g = COMPONENTS["fractional"].first_row(a_next, frac["pole"].unsqueeze(-1), frac["q"].unsqueeze(-1), h,
+                                                    mem)
+        sl = blocks[fracs[0]]
+        rows = row.new_zeros(B, n_steps, n)
+        rows[..., sl] = row
+        return sl.start, rows, g
 
     # ------------------------------------------------------------------ starting values
     def initial_values(self, y: Tensor, h: float, order: float = 0.3) -> dict:

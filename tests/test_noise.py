@@ -237,10 +237,11 @@ def test_tea_reads_the_simulators_model():
         tea_config("fractional+random-walk+white", dict(FW, **{"random-walk.sigma": 0.01}))
 
 
-def test_forward_difference_information_matches_the_central_one():
-    """The fit's observed information by forward differences (its fast path) against the four-point central
-    formula, on the exact likelihood of a simulated series at its MLE: within 2 % entry-wise (relative to
-    the diagonal), so the standard errors agree to about 1 %."""
+def test_observed_information_is_converged_in_its_step():
+    """The exact fit's standard errors (central differences of the exact ℓ at the MLE, step d = 10⁻³ in the
+    unconstrained coordinates) equal those with half the step to 1 %. Compared as standard errors, not
+    Hessian entries: order and pole trade along a ridge, so H is ill-conditioned and small entry errors
+    move H⁻¹ a lot (a forward formula with entries good to 0.3 % moved them by up to 14 %)."""
     from torchtea.fitting.mle import _fd_hessian, exact_loglik
 
     m = parse_model("fractional+white")
@@ -251,10 +252,9 @@ def test_forward_difference_information_matches_the_central_one():
     def batch(points):
         return -exact_loglik(m, m.from_unconstrained(torch.as_tensor(points), H), y - y.mean(), H)
 
-    Hf, Hc = _fd_hessian(batch, u), _fd_hessian(batch, u, central=True)
-    scale = np.sqrt(np.outer(np.diag(Hc), np.diag(Hc)))
-    assert np.all(np.linalg.eigvalsh(Hc) > 0)
-    assert np.max(np.abs(Hf - Hc) / scale) < 0.02
+    se = [np.sqrt(np.diag(np.linalg.inv(_fd_hessian(batch, u, d)))) for d in (1e-3, 5e-4)]
+    assert np.all(np.isfinite(se[0]))
+    assert np.max(np.abs(se[0] / se[1] - 1)) < 0.01, se
 
 
 def test_cli_fit_with_a_temperature_column(tmp_path, capsys):
@@ -338,3 +338,22 @@ def test_temperature_driven_order_is_simulated_and_fitted():
         fit_series(m, [y.numpy()], H, inputs=[inputs], fixed={"fractional.pole": -2.0})
     with pytest.raises(ValueError, match="exact likelihood only"):
         fit_series(m, [y.numpy()], H, method="whittle", inputs=[inputs])
+
+
+def test_time_varying_row_draws_its_own_noise_in_every_parameter_set():
+    """With a random walk before the fractional part and a batch whose first set has q = 0, the second set's
+    fractional drive is its own draw, not the random walk's (it once took the column from set 0)."""
+    m = parse_model("random-walk+fractional+white+temperature-order")
+    N = 400
+    inputs = {"temperature": _temperature(N)}
+    v = dict(TO, **{"random-walk.sigma": 0.01})
+    v["fractional.q"] = [0.0, 0.02]
+    ss = m.state_space(v, H, N, "soe", inputs=inputs)
+    _, z = simulate_model(m, v, n_steps=N, h=H, inputs=inputs, return_states=True,
+                          generator=torch.Generator().manual_seed(9))
+    i, rows, g, _ = ss.varying
+    z1 = z[1, 0]  # (N, n) of the second set
+    drive = (z1[1:, i] - (rows[1, :-1] * z1[:-1]).sum(-1)) / g[1, :-1]
+    rw_steps = torch.diff(z1[:, 0])
+    corr = float(torch.corrcoef(torch.stack([drive, rw_steps]))[0, 1])
+    assert abs(corr) < 4 / math.sqrt(N), corr  # independent draws: |corr| ~ 1/√N

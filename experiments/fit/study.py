@@ -19,8 +19,7 @@ Per realisation:
 - **TEA** as the paper runs it — the MEMS preset (KFo from α₀ = 1, KFw from f₀ = 0, adaptive Q), soe memory —
   but with the *true* q and r (the most favourable noise levels it could be given); α̂ is the mean over the
   last third of the run, as ``identify`` reports it. The TEA gives no interval.
-- **Fractional test** (:func:`torchtea.fitting.presence.fractional_test`, the full model's Whittle
-  log-likelihood taken from the Whittle fits): Whittle LR against white noise,
+- **Fractional test** (:func:`torchtea.fitting.presence.fractional_test`): Whittle LR against white noise,
   p-value from one parametric bootstrap of ``--boot`` white series fitted exactly as the data, shared by
   every realisation and setting (the null distribution depends on N only).
 
@@ -28,7 +27,9 @@ Coverage is the share of realisations whose interval holds the truth, with its b
 is not defined at α = 0 (the truth is on the boundary and the pole is not identified).
 
 Results are saved per setting and method under ``experiments/fit/study/`` as they finish (a rerun skips
-what is there; ``--force`` redoes it), and summarised in ``experiments/fit/study.json``.
+what is there and resumes the exact fits; ``--force`` redoes everything), and summarised in
+``experiments/fit/study.json``. "At a bound": the order estimate within 10⁻³ of 0 or 1 (the TEA's order
+bounds are (0, 2.5), so not counted for it).
 """
 from __future__ import annotations
 
@@ -96,9 +97,14 @@ def run_whittle(ys, n_profile: int) -> list:
 
 
 def run_exact_round(ys, path: Path, chunk: int, target: int) -> bool:
-    """``chunk`` more exact fits (saved to the partial file); True once ``target`` are done."""
+    """``chunk`` more exact fits of the series in order (saved to the partial file with the number of
+    realisations they were simulated with: the series depend on it); True once ``target`` are done."""
     part = path.with_suffix(".partial.json")
-    rows = json.loads(part.read_text()) if part.exists() else []
+    saved = json.loads(part.read_text()) if part.exists() else {"realisations": len(ys), "rows": []}
+    if saved["realisations"] != len(ys):
+        raise SystemExit(f"{part} holds fits of series simulated as {saved['realisations']} realisations, not "
+                         f"{len(ys)}: run with --realisations {saved['realisations']} or --force")
+    rows = saved["rows"]
     start = len(rows)
     if start >= target:
         return True
@@ -106,7 +112,7 @@ def run_exact_round(ys, path: Path, chunk: int, target: int) -> bool:
     fits = fit_series(MODEL, list(ys[start:min(start + chunk, target)]), H, method="exact", profile=False)
     dt = (time.perf_counter() - t) / len(fits)
     rows += [_row(f, dt) for f in fits]
-    part.write_text(json.dumps(rows))
+    part.write_text(json.dumps(saved))
     print(f"  exact {path.stem}: {len(rows)}/{target} ({dt:.1f} s per series)", flush=True)
     return len(rows) >= target
 
@@ -128,9 +134,9 @@ def run_tea_rows(ys, alpha: float) -> list:
 NULL_CACHE: dict = {}
 
 
-def run_test(ys, n_boot: int, full_loglik) -> list:
+def run_test(ys, n_boot: int) -> list:
     t = time.perf_counter()
-    out = fractional_test(MODEL, list(ys), H, n_boot=n_boot, seed=0, null_cache=NULL_CACHE, full_loglik=full_loglik)
+    out = fractional_test(MODEL, list(ys), H, n_boot=n_boot, seed=0, null_cache=NULL_CACHE)
     dt = (time.perf_counter() - t) / len(ys)
     return [dict(o, seconds=dt) for o in out]
 
@@ -146,7 +152,7 @@ def summarise(alpha: float, rows: dict) -> dict:
         s = {"n": len(a), "order_mean": float(a.mean()), "order_bias": float(a.mean() - alpha),
              "order_sd": float(a.std(ddof=1)), "order_rmse": float(np.sqrt(np.mean((a - alpha) ** 2))),
              "order_bias_se": float(a.std(ddof=1) / math.sqrt(len(a))),
-             "order_at_bound": int(np.sum((a < 1e-3) | (a > 1 - 1e-3))),
+             "order_at_bound": (int(np.sum((a < 1e-3) | (a > 1 - 1e-3))) if method != "tea" else None),
              "seconds_per_series": float(np.mean([x["seconds"] for x in r]))}
         if method != "tea":
             s["not_converged"] = int(sum(not x["converged"] for x in r))
@@ -185,7 +191,8 @@ def tables(summary: dict) -> str:
             if m in s:
                 x = s[m]
                 lines.append(f"| {key} | {m} | {x['order_mean']:.3f} | {x['order_bias']:+.3f} (± {x['order_bias_se']:.3f}) "
-                             f"| {x['order_sd']:.3f} | {x['order_rmse']:.3f} | {x['order_at_bound']}/{x['n']} "
+                             f"| {x['order_sd']:.3f} | {x['order_rmse']:.3f} "
+                             f"| {'—' if x['order_at_bound'] is None else x['order_at_bound']}/{x['n']} "
                              f"| {x['seconds_per_series']:.2f} |")
     lines += ["", "| α | method | " + " | ".join(PARAMS) + " |", "|---|---|" + "---|" * len(PARAMS)]
     for key, s in summary.items():
@@ -217,7 +224,8 @@ def main():
     ap.add_argument("--chunk", type=int, default=20)
     ap.add_argument("--exact-realisations", type=int, default=None,
                     help="realisations of the exact MLE per setting (default: EXACT_REALISATIONS)")
-    ap.add_argument("--dir", default=str(HERE / "study"))
+    ap.add_argument("--dir", default=str(HERE / "study"), help="per-setting results (default experiments/fit/study/)")
+    ap.add_argument("--out", default=str(HERE / "study.json"), help="the summary (default experiments/fit/study.json)")
     ap.add_argument("--profile-realisations", type=int, default=50,
                     help="realisations per setting whose Whittle fit also gets the order's profile interval")
     ap.add_argument("--force", action="store_true")
@@ -248,9 +256,7 @@ def main():
                 elif method == "tea":
                     rows = run_tea_rows(ys, alpha)
                 elif method == "test":
-                    wpath = d / f"a{alpha:g}_whittle.json"
-                    full = [r["loglik"] for r in json.loads(wpath.read_text())] if wpath.exists() else None
-                    rows = run_test(ys, args.boot, full)
+                    rows = run_test(ys, args.boot)
                 else:
                     raise SystemExit(f"unknown method {method!r}")
                 path.write_text(json.dumps(rows))
@@ -258,6 +264,9 @@ def main():
         if "exact" in methods:
             targets = {a: min(args.realisations, EXACT_REALISATIONS.get(a, args.realisations)
                               if args.exact_realisations is None else args.exact_realisations) for a in orders}
+            if args.force:
+                for a in orders:
+                    (d / f"a{a:g}_exact.partial.json").unlink(missing_ok=True)
             pending = [a for a in orders if targets[a] > 0]
             while pending:
                 for alpha in list(pending):
@@ -268,16 +277,17 @@ def main():
     for alpha in sorted(orders):
         rows = {}
         for m in ("whittle", "exact", "tea", "test"):
-            for f in (d / f"a{alpha:g}_{m}.json", d / f"a{alpha:g}_{m}.partial.json"):  # finished, else so far
-                if f.exists():
-                    rows[m] = json.loads(f.read_text())
-                    break
+            f = d / (f"a{alpha:g}_{m}.partial.json" if m == "exact" else f"a{alpha:g}_{m}.json")
+            if f.exists():
+                rows[m] = json.loads(f.read_text())
+                if m == "exact":
+                    rows[m] = rows[m]["rows"]
         if rows:
             summary[f"{alpha:g}"] = summarise(alpha, rows)
     doc = {"settings": {"h": H, "n": N, "model": MODEL.spec, "pole_fraction": RHO, "r": R_WHITE,
                         "q": "r / h^(2α)", "realisations": args.realisations, "bootstrap": args.boot},
            "command": "python experiments/fit/study.py", "results": summary}
-    (HERE / "study.json").write_text(json.dumps(doc, indent=1))
+    Path(args.out).write_text(json.dumps(doc, indent=1))
     print(tables(summary))
 
 

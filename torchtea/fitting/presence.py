@@ -18,37 +18,37 @@ import torch
 
 from ..noise.model import parse_model
 from ..noise.simulate import simulate_model
-from .mle import START_FRACTIONS, START_ORDERS, whittle_fit
+from .mle import whittle_fit
 
 __all__ = ["fractional_test", "BOOTSTRAP_ORDERS", "BOOTSTRAP_FRACTIONS"]
 
-#: Multi-start of the bootstrap fits (fewer starts than the data's fit, for speed).
+#: Multi-start of the test's fits of the full model, for the data and every replicate alike (fewer starts
+#: than an estimate's fit, for speed; the same for both, so the p-value calibrates the procedure as run).
 BOOTSTRAP_ORDERS = (0.2, 0.6)
 BOOTSTRAP_FRACTIONS = (0.5,)
 
 
-def _lr(model, null, series, h, orders, fractions, full_loglik=None):
-    full = (torch.as_tensor(np.asarray(full_loglik, dtype=np.float64)) if full_loglik is not None
-            else whittle_fit(model, series, h, orders=orders, fractions=fractions).loglik)
+def _lr(model, null, series, h):
+    """LR of each series, the full model fitted from the :data:`BOOTSTRAP_ORDERS` × :data:`BOOTSTRAP_FRACTIONS`
+    starts — the same for the data and every replicate, so the statistic is one procedure: under the null
+    the order and pole are not identified, and more starts would give a stochastically larger maximum."""
+    full = whittle_fit(model, series, h, orders=BOOTSTRAP_ORDERS, fractions=BOOTSTRAP_FRACTIONS)
     nul = whittle_fit(null, series, h)
-    return (2.0 * (full - nul.loglik)).clamp(min=0.0).numpy(), nul.values
+    return (2.0 * (full.loglik - nul.loglik)).clamp(min=0.0).numpy(), nul.values
 
 
 def fractional_test(model, series: list, h: float, *, n_boot: int = 99, seed: int = 0,
-                    null_cache: dict | None = None, full_loglik=None) -> list[dict]:
+                    null_cache: dict | None = None) -> list[dict]:
     """Per series: ``{"lr", "p_value", "n_boot", "null", "shared", "null_lr_quantile95"}``. Series must be
     complete (the Whittle likelihood); their means are removed as in the fit. ``null_cache``: a dict that
     keeps the white-null bootstrap distributions (keyed by model, N, h and ``n_boot``) for later calls — pass
-    the same dict to test more series of the same length without simulating the null again.
-    ``full_loglik``: the maximised Whittle log-likelihoods of ``model`` on these series, if already at hand
-    (``Fit.loglik`` of ``fit_series(method="whittle")``, which uses the same multi-start), so the data are not
-    fitted twice."""
+    the same dict to test more series of the same length without simulating the null again."""
     model = parse_model(model)
     if not model.has("fractional"):
         raise ValueError(f"model {model.spec!r} has no fractional component to test")
     null = model.without("fractional")
     series = [np.asarray(y, dtype=np.float64) - np.mean(y) for y in series]
-    lr, V0 = _lr(model, null, series, h, START_ORDERS, START_FRACTIONS, full_loglik)
+    lr, V0 = _lr(model, null, series, h)
     gen = torch.Generator().manual_seed(seed)
     white_only = all(c.kind == "measurement" for _, c in null.components)
     out = []
@@ -61,7 +61,7 @@ def fractional_test(model, series: list, h: float, *, n_boot: int = 99, seed: in
         else:
             sims = simulate_model(null, V0[s:s + 1], n_steps=N, h=h, realisations=n_boot, generator=gen)[0]
             sims = [sims[b].numpy() - float(sims[b].mean()) for b in range(n_boot)]
-            boot, _ = _lr(model, null, sims, h, BOOTSTRAP_ORDERS, BOOTSTRAP_FRACTIONS)
+            boot, _ = _lr(model, null, sims, h)
             if key is not None:
                 cache[key] = boot
         p = (1.0 + float(np.sum(boot >= lr[s]))) / (n_boot + 1.0)

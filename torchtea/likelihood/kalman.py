@@ -98,7 +98,7 @@ def kalman_filter(ss: StateSpace, y, mean=None, *, keep_states: bool = False, sm
             zs.append(z)
             Ps.append(P)
         if ss.varying is not None:  # a time-varying order: row i of F and Q[i, i] of this step
-            i, rows, g = ss.varying
+            i, rows, g, _ = ss.varying
             Fk = F.clone()
             Fk[:, i] = rows[:, k]
             Qk = Q.clone()

@@ -257,11 +257,12 @@ class TemperatureBias(Component):
 
 
 class TemperatureOrder(Component):
-    r"""The fractional component's order driven by temperature: :math:`lpha_k = lpha_0 + \gamma (T_k - T_\mathrm{ref})`,
+    r"""The fractional component's order driven by temperature: :math:`\alpha_k = \alpha_0 + \gamma (T_k - T_\mathrm{ref})`,
     α₀ the fractional component's ``order`` (its value at T_ref, the mean temperature unless fixed), T the
     measured ``temperature`` input (°C). The GL difference is the paper's A-type (10): step k+1 uses
-    :math:`h^{lpha_{k+1}}` and :math:`c_j(lpha_{k+1})` for the whole history; α_k is clipped to
-    [10⁻⁶, 1 − 10⁻⁶]. The model is then not stationary: its spectrum (for the Whittle start) is that at
+    :math:`h^{\alpha_{k+1}}` and :math:`c_j(\alpha_{k+1})` for the whole history; α_k is clipped to
+    [10⁻⁶, 0.999] (the exponential-sum kernel's range). The pole is fitted as a fraction of its stability
+    limit at α₀, so the model is stable at α₀ but need not be at every α_k. The model is not stationary: its spectrum (for the Whittle start) is that at
     T_ref (γ = 0), and γ is fitted by the exact likelihood only."""
 
     name = "temperature-order"
@@ -272,7 +273,7 @@ class TemperatureOrder(Component):
     def orders(self, v: dict, alpha0: Tensor, T: Tensor) -> Tensor:
         """``(B, N)`` orders α_k for ``(B,)`` α₀ and the temperature ``(N,)``."""
         a = alpha0.unsqueeze(-1) + v["gamma"].unsqueeze(-1) * (T - v["t_ref"].unsqueeze(-1))
-        return a.clamp(1e-6, 1.0 - 1e-6)
+        return a.clamp(1e-6, 0.999)  # the exponential-sum kernel's range: the lags and the tail see one order
 
 
 COMPONENTS = {c.name: c for c in (Fractional(), White(), Quantisation(), RandomWalk(), LowPass(), Offset(), Ramp(),

@@ -73,9 +73,10 @@ class StateSpace:
     C: Tensor
     R: Tensor
     blocks: dict = field(default_factory=dict)
-    #: A time-varying order (``temperature-order``): ``(i, rows (B, N, n), loading (B, N))`` — step k → k+1
-    #: uses ``rows[:, k]`` as row ``i`` of F and ``loading[:, k]`` as G's entry in row ``i`` (whose noise column
-    #: no other row shares), so ``Q_k[i, i] = loading² `` and every other entry of F and Q is constant.
+    #: A time-varying order (``temperature-order``): ``(i, rows (B, N, n), loading (B, N), column)`` — step
+    #: k → k+1 uses ``rows[:, k]`` as row ``i`` of F and ``loading[:, k]`` as G's entry in row ``i`` and noise
+    #: ``column`` (which no other row shares), so ``Q_k[i, i] = loading²`` and every other entry of F and Q is
+    #: constant.
     varying: tuple | None = None
 
     @property
@@ -253,9 +254,11 @@ class NoiseModel:
         F = torch.zeros(B, n, n, dtype=torch.float64)
         G = torch.zeros(B, n, m, dtype=torch.float64)
         col = 0
+        noise_cols = {}
         for (label, sl), Fb, Gb in zip(blocks.items(), Fs, Gs):
             F[:, sl, sl] = Fb
             G[:, sl, col:col + Gb.shape[-1]] = Gb
+            noise_cols[label] = col
             col += Gb.shape[-1]
         C = torch.zeros(B, n, dtype=torch.float64)
         if lowpass is not None:
@@ -278,10 +281,10 @@ class NoiseModel:
             C[:, outs_after] = 1.0
         else:
             C[:, outs_before] = 1.0
-        varying = self._varying_order(byc, blocks, lowpass, h, n_steps, mem, inputs, B, F.shape[-1])
+        varying = self._varying_order(byc, blocks, noise_cols, lowpass, h, n_steps, mem, inputs, B, F.shape[-1])
         return StateSpace(F, G, C, self.measurement_variance(v).expand(B).clone(), blocks, varying)
 
-    def _varying_order(self, byc, blocks, lowpass, h, n_steps, mem, inputs, B, n):
+    def _varying_order(self, byc, blocks, noise_cols, lowpass, h, n_steps, mem, inputs, B, n):
         mods = [label for label, c in self.components if c.name == "temperature-order"]
         if not mods:
             return None
@@ -303,7 +306,7 @@ class NoiseModel:
         sl = blocks[fracs[0]]
         rows = row.new_zeros(B, n_steps, n)
         rows[..., sl] = row
-        return sl.start, rows, g
+        return sl.start, rows, g, noise_cols[fracs[0]]
 
     # ------------------------------------------------------------------ starting values
     def initial_values(self, y: Tensor, h: float, order: float = 0.3) -> dict:

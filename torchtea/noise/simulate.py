@@ -38,8 +38,6 @@ def simulate_model(model, values, *, n_steps: int, h: float, realisations: int =
     out = torch.empty(B, R_, n_steps, dtype=torch.float64)
     states = torch.empty(B, R_, n_steps, n, dtype=torch.float64) if return_states else None
     Ft = ss.F.mT.unsqueeze(1)  # (B, 1, n, n)
-    if ss.varying is not None:  # the noise column that drives row i (no other row shares it)
-        col = int(ss.G[0, ss.varying[0]].abs().argmax())
     C = ss.C.unsqueeze(1)  # (B, 1, n)
     for k in range(n_steps):
         out[:, :, k] = (z * C).sum(-1)
@@ -48,7 +46,7 @@ def simulate_model(model, values, *, n_steps: int, h: float, realisations: int =
         if k + 1 < n_steps:
             z_next = (z.unsqueeze(-2) @ Ft).squeeze(-2) + noise[:, :, k]
             if ss.varying is not None:  # a time-varying order: row i of F and its noise loading at this step
-                i, rows, g = ss.varying
+                i, rows, g, col = ss.varying
                 z_next[..., i] = (z * rows[:, k].unsqueeze(1)).sum(-1) + g[:, k].unsqueeze(1) * xi[:, :, k, col]
             z = z_next
     t = torch.arange(n_steps, dtype=torch.float64) * h

@@ -280,7 +280,7 @@ def test_cli_fit_with_a_temperature_column(tmp_path, capsys):
     assert "give --temperature COL" in capsys.readouterr().err
     path.write_text(path.read_text().replace(f",{T[10]:.6f}\n", ",\n", 1))
     assert main(base + ["--model", "fractional+white+temperature-bias", "--temperature", "degC"]) == 2
-    assert "'degC' has 1 missing value" in capsys.readouterr().err
+    assert "'degC' has 1 missing value(s) where the acceleration is observed" in capsys.readouterr().err
 
 
 TO = dict(FW, **{"temperature-order.gamma": 0.05, "temperature-order.t_ref": 25.0})
@@ -295,7 +295,7 @@ def _temperature(N, seed=2):
 @pytest.mark.parametrize("memory", ["exact", "soe"])
 def test_temperature_driven_order_is_the_dense_gaussian_density(memory):
     """α_k = α₀ + γ (T_k − T_ref): both filters against the dense density of the GL model built from the
-    direct sums with the per-sample orders; and the simulator's series have NIS 1 under that model only."""
+    direct sums with the per-sample orders (which differs from the constant-order density on these data)."""
     N = 150
     m = parse_model("fractional+white+temperature-order")
     T = _temperature(N)

@@ -664,17 +664,21 @@ def cmd_fit(args) -> int:
     needs = sorted({name for _, c in model.components for name in getattr(c, "inputs", ())})
     if needs and args.temperature is None:
         raise CLIError(f"model {model.spec!r} needs the input channel(s) {', '.join(needs)}: give --temperature COL")
-    if args.temperature is not None:
-        T = rec.temperature[: n or None]
-        bad = int(np.sum(~np.isfinite(T)))
+    if args.temperature is not None and not needs:
+        print(f"torchtea: note: model {model.spec!r} has no temperature component; --temperature is not used "
+              "(add temperature-bias or temperature-order)", file=sys.stderr)
+    elif args.temperature is not None:
+        T = rec.temperature[: n or None].copy()
+        seen = np.isfinite(T)
+        observed = np.isfinite(acc).all(axis=1)
+        bad = int(np.sum(observed & ~seen))
         if bad:
-            raise CLIError(f"{rec.path}: temperature column {rec.temperature_column!r} has {bad} missing value(s) in "
-                           "the part used; the temperature input cannot be missing")
-        if not needs:
-            print(f"torchtea: note: model {model.spec!r} has no temperature component; --temperature is not used "
-                  "(add temperature-bias)", file=sys.stderr)
-        else:
-            inputs = [{"temperature": T}] * 3
+            raise CLIError(f"{rec.path}: temperature column {rec.temperature_column!r} has {bad} missing value(s) "
+                           "where the acceleration is observed; the temperature input cannot be missing there")
+        if not seen.all():  # under missing samples only (the recorder's NaN rows): interpolated, never used in ℓ
+            k = np.arange(len(T))
+            T[~seen] = np.interp(k[~seen], k[seen], T[seen])
+        inputs = [{"temperature": T}] * 3
     t0 = time.perf_counter()
     fits = fit_series(model, series, rec.h, method=args.method, inputs=inputs)
     tests = [None] * 3

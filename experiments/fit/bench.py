@@ -3,9 +3,11 @@
     python experiments/fit/bench.py            # prints a table, writes experiments/fit/bench.json
 
 Rows: Whittle log-likelihood of 10⁶ samples (target ≤ 1 s); exact log-likelihood of 10⁶ samples by the
-compiled filter (target ≤ 60 s) against the torch reference filter on 10⁴ samples scaled up; a whole
-``fit`` of 3 axes × 30 000 samples, exact method, without and with the 99-replicate fractional test
-(target ≤ 30 s). Each timing is the best of ``--repeat`` runs after one warm-up (numba compile excluded).
+compiled filter (target ≤ 60 s), and the torch reference filter on 10⁴ samples (scaled ×100 in its label);
+a whole ``fit`` of 3 axes × 30 000 samples, exact method (target ≤ 30 s) and Whittle method, both with the
+order's profile; the 99-replicate fractional test of those 3 axes. Each timing is the best of
+``--repeat`` runs after one warm-up (numba compile excluded); the single-run rows (exact 10⁶, reference,
+test) are one timed run after the warm-up.
 """
 from __future__ import annotations
 

@@ -1,5 +1,5 @@
 """Noise models assembled from physical components (:mod:`.components`) into what every engine reads
-(:mod:`.model`), and their simulation (:mod:`.simulate`)."""
+(:mod:`.model`), their simulation (:mod:`.simulate`) and the TEA's settings read from a model (:mod:`.tea`)."""
 from .components import COMPONENTS, ORDER_BOUNDS, ParamSpec
 from .model import NoiseModel, StateSpace, parse_model, state_memory
 from .simulate import simulate_model

@@ -9,7 +9,8 @@ plus ``quantisation`` Δ²/12). KFo starts at the model's order, KFw at its pole
 
 Mean components (offset, ramp, sinusoid, temperature-bias) are not states of the TEA: remove them from the
 series first (:func:`torchtea.fitting.mle.regress_mean`). Models with other state components (random walk,
-low-pass, a second fractional part) have no TEA counterpart here and are refused by name.
+low-pass, a second fractional part) or a temperature-driven order (the TEA estimates a time-varying order
+itself) have no TEA counterpart here and are refused by name.
 """
 from __future__ import annotations
 
@@ -28,7 +29,8 @@ def tea_config(model, values, base: TEAConfig | None = None) -> TEAConfig:
     holds one parameter set (a dict of numbers, as in ``Fit.values``)."""
     model: NoiseModel = parse_model(model)
     frac = [label for label, c in model.components if c.name == "fractional"]
-    other = [label for label, c in model.components if c.kind in ("state", "filter") and c.name != "fractional"]
+    other = [label for label, c in model.components
+             if c.kind in ("state", "filter", "modifier") and c.name != "fractional"]
     if len(frac) != 1 or other:
         raise ValueError(f"the TEA runs one fractional state plus measurement noise; model {model.spec!r} has "
                          f"{len(frac)} fractional component(s)" + (f" and {other}" if other else ""))

@@ -115,7 +115,8 @@ R_MODES = ("fitted", "measured", "paper")
 def axis_configs(y: torch.Tensor, r_mode: str = "measured", overrides: dict | None = None, fits=()) -> tuple:
     """The paper's §5.1 settings per axis, with ``overrides`` on top.
 
-    ``r_mode="fitted"`` (the default) takes the noise levels of a maximum-likelihood fit of
+    ``r_mode="fitted"`` (:func:`identify`'s default; this function's is ``"measured"``, which the live mode
+    and the scripts use) takes the noise levels of a maximum-likelihood fit of
     ``fractional+white`` to the axis (``fits``, :func:`torchtea.fitting.fit_series`): KFx's R = Rᵒ = Rʷ = r̂,
     KFx's Q = q̂, and the order and parameter filters start at α̂ and f̂ — the TEA then checks whether the
     order varies in time around a model whose noise levels match the data (NIS near 1).

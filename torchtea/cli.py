@@ -583,6 +583,9 @@ def build_parser() -> argparse.ArgumentParser:
     fp.add_argument("--method", choices=("whittle", "exact"), default="exact",
                     help="likelihood of the final answer (default exact; Whittle always gives the start)")
     fp.add_argument("--samples", default="all", help="use the first N samples (default all)")
+    fp.add_argument("--profile", action="store_true",
+                    help="also the order's Whittle profile-likelihood interval with --method exact (always with "
+                         "--method whittle, where it is the order's interval)")
     fp.add_argument("--bootstrap", type=int, default=99,
                     help="replicates of the fractional-presence test (0: do not test; default 99)")
     fp.add_argument("--seed", type=int, default=0, help="seed of the bootstrap")
@@ -680,7 +683,8 @@ def cmd_fit(args) -> int:
             T[~seen] = np.interp(k[~seen], k[seen], T[seen])
         inputs = [{"temperature": T}] * 3
     t0 = time.perf_counter()
-    fits = fit_series(model, series, rec.h, method=args.method, inputs=inputs)
+    fits = fit_series(model, series, rec.h, method=args.method, inputs=inputs,
+                      profile=True if args.profile else None)
     tests = [None] * 3
     if model.has("fractional") and args.bootstrap > 0:
         if missing.count:

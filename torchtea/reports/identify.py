@@ -197,7 +197,7 @@ def identify(recording: Recording, *, n_samples: int | None = None, r_mode: str 
         from ..fitting import fit_series
 
         fits = tuple(fit_series("fractional+white", [y[i, :, 0].numpy() for i in range(len(AXES))], recording.h,
-                                method="exact"))
+                                method="exact", profile=True))
     configs = axis_configs(y, r_mode, overrides, fits)
     changes = tuple(axis_changes(axis_configs(y, r_mode, None, fits), configs))
     params = stack_params([make_params(c, Structure()) for c in configs])

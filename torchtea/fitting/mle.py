@@ -228,9 +228,9 @@ class WhittleFit(NamedTuple):
 
 
 def _whittle_loss(model: NoiseModel, omega: Tensor, I: Tensor, h: float):
-    """−ℓ_W of each row of ``u`` against the matching row of ``I``."""
-    def loss(u):
-        return -whittle_loglik(model.spectrum(model.from_unconstrained(u, h), omega, h), I)
+    """−ℓ_W of problems ``rows`` (rows of ``I``) at parameters ``u`` (one row each), for :func:`newton`."""
+    def loss(u, rows):
+        return -whittle_loglik(model.spectrum(model.from_unconstrained(u, h), omega, h), I[rows])
     return loss
 
 

@@ -22,9 +22,9 @@ class NewtonResult:
     iterations: int
 
 
-def _value_grad_hess(loss_fn, u: Tensor, free: Tensor):
+def _value_grad_hess(loss_fn, u: Tensor, free: Tensor, rows: Tensor):
     u = u.detach().requires_grad_(True)
-    f = loss_fn(u)
+    f = loss_fn(u, rows)
     g, = torch.autograd.grad(f.sum(), u, create_graph=True)
     P = u.shape[-1]
     H = u.new_zeros(u.shape[0], P, P)
@@ -47,7 +47,9 @@ def _value_grad_hess(loss_fn, u: Tensor, free: Tensor):
 
 def newton(loss_fn, u0: Tensor, free: Tensor | None = None, *, max_iter: int = 60, gtol: float = 1e-5,
            ftol: float = 1e-10, dtol: float = 1e-6) -> NewtonResult:
-    """Minimise ``loss_fn(u) → (B,)`` (row b depends on ``u[b]`` only) from ``u0`` ``(B, P)``.
+    """Minimise ``loss_fn(u, rows) → (len(rows),)`` from ``u0`` ``(B, P)``: the losses of problems ``rows``
+    (indices into the batch) at their parameters ``u`` ``(len(rows), P)`` — row b's loss depends on its
+    own parameters only, so each iteration evaluates only the problems not yet finished.
 
     Each iteration takes the Newton step on the Hessian with its eigenvalues made positive (|λ| + μ),
     μ a Levenberg damping that shrinks after an accepted step and grows after a rejected one. A row
@@ -60,7 +62,7 @@ def newton(loss_fn, u0: Tensor, free: Tensor | None = None, *, max_iter: int = 6
     free = torch.ones(P, dtype=torch.bool) if free is None else free.to(torch.bool)
     mu = torch.full((B,), 1e-3, dtype=u.dtype)
     done = torch.zeros(B, dtype=torch.bool)
-    f, g, H = _value_grad_hess(loss_fn, u, free)
+    f, g, H = _value_grad_hess(loss_fn, u, free, torch.arange(B))
     fixed_diag = (~free).to(u.dtype)
     it = 0
     for it in range(1, max_iter + 1):
@@ -77,16 +79,18 @@ def newton(loss_fn, u0: Tensor, free: Tensor | None = None, *, max_iter: int = 6
         big = step.abs().amax(-1, keepdim=True).clamp(min=1e-300)
         step = torch.where(big > 3.0, step * 3.0 / big, step)
         step = torch.where(done.unsqueeze(-1), torch.zeros_like(step), step)
+        active = (~done).nonzero().squeeze(-1)
+        f_new = f.clone()
         with torch.no_grad():
-            f_new = loss_fn(u + step)
+            f_new[active] = loss_fn((u + step)[active], active)
         ok = torch.isfinite(f_new) & (f_new <= f) & ~done
         small = ok & ((f - f_new).abs() <= ftol * (1.0 + f.abs()))
         u = torch.where(ok.unsqueeze(-1), u + step, u)
         mu = torch.where(done, mu, torch.where(ok, mu / 4.0, mu * 8.0).clamp(1e-12, 1e12))  # a finished row keeps its μ
-        f2, g2, H2 = _value_grad_hess(loss_fn, u, free)
-        f = torch.where(ok, f2, f)
-        g = torch.where(ok.unsqueeze(-1), g2, g)
-        H = torch.where(ok.unsqueeze(-1).unsqueeze(-1), H2, H)
+        moved = ok.nonzero().squeeze(-1)
+        if moved.numel():
+            f2, g2, H2 = _value_grad_hess(loss_fn, u[moved], free, moved)
+            f[moved], g[moved], H[moved] = f2, g2, H2
         done = done | small | (g.abs().amax(-1) < gtol) | (mu >= 1e12)
         if bool(done.all()):
             break

@@ -81,15 +81,18 @@ def _progress(total, desc, unit="step", *, bar=True):
             tq.update(done - tq.n)
 
         return step, tq.close
-    t0 = time.monotonic()
-    last = [t0]
+    start = []  # (time, done) of the first report: the clock starts with the work, not with the command
 
     def line(done, _total):
         now = time.monotonic()
-        if now - last[0] < PROGRESS_EVERY_S or done <= 0:
+        if not start:
+            start.extend([now, done, now])
             return
-        last[0] = now
-        left = (now - t0) * (total - done) / done
+        t0, d0, last = start
+        if now - last < PROGRESS_EVERY_S or done <= d0:
+            return
+        start[2] = now
+        left = (now - t0) * (total - done) / (done - d0)
         print(f"torchtea {desc}: {done}/{total} {unit}s ({100 * done / total:.0f} %), {now - t0:.0f} s elapsed, "
               f"about {left:.0f} s left", file=sys.stderr, flush=True)
 

@@ -667,7 +667,7 @@ def cmd_fit(args) -> int:
     missing = check_missing(rec.path, acc, names, allow=args.allow_missing, per="axis")
     series = [acc[:, i] for i in range(3)]
     inputs = None
-    needs = sorted({name for _, c in model.components for name in getattr(c, "inputs", ())})
+    needs = sorted({name for _, c in model.components for name in c.inputs})
     if needs and args.temperature is None:
         raise CLIError(f"model {model.spec!r} needs the input channel(s) {', '.join(needs)}: give --temperature COL")
     if args.temperature is not None and not needs:

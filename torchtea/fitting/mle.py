@@ -112,21 +112,18 @@ def regress_mean(model: NoiseModel, y, h: float, inputs: dict | None = None) -> 
     resid = y.copy()
     resid[ok] -= resid[ok].mean()
     cols, names = [], []
+    model.check_inputs(inputs)
     for label, comp in model.components:
         if comp.name == "ramp":
             cols.append(t - t[ok].mean())
             names.append(f"{label}.slope")
         elif comp.name == "temperature-bias":
-            if not inputs or "temperature" not in inputs:
-                raise ValueError(f"component {label!r} needs the input channel 'temperature' (--temperature COLUMN)")
             T = np.asarray(inputs["temperature"], dtype=np.float64)
             tref = float(np.nanmean(T))
             vals[f"{label}.t_ref"] = tref
             cols.append(T - tref)
             names.append(f"{label}.beta")
         elif comp.name == "temperature-order":  # not a mean: only its reference, and γ = 0 to start from
-            if not inputs or "temperature" not in inputs:
-                raise ValueError(f"component {label!r} needs the input channel 'temperature' (--temperature COLUMN)")
             vals[f"{label}.t_ref"] = float(np.nanmean(np.asarray(inputs["temperature"], dtype=np.float64)))
             vals[f"{label}.gamma"] = 0.0
     if cols:
@@ -310,7 +307,7 @@ def _exact_refine(model, y, h, u0: Tensor, free: Tensor, inputs, memory, metric:
     ok, iterations = False, 0
     M = None
     if metric is not None:
-        M = metric[np.ix_(idx, idx)].numpy() if isinstance(metric, Tensor) else metric[np.ix_(idx, idx)]
+        M = metric[np.ix_(idx, idx)].numpy()
         if not (np.all(np.isfinite(M)) and np.all(np.linalg.eigvalsh(M) > 0)):
             M = None
     if M is not None:
@@ -539,10 +536,9 @@ def fit_series(model, series: list, h: float, *, method: str = "exact", inputs: 
         if not model.has("offset"):
             notes.append(f"mean {float(np.nanmean(y)):.6g} removed before fitting (the model has no offset)")
         prof = profiles[s]
-        if prof is not None:
-            if method == "whittle":
-                ci[name] = prof["ci95"]
-                how[name] = "Whittle profile likelihood" + (" (two pieces, hull)" if len(prof["pieces"]) > 1 else "")
+        if prof is not None and method == "whittle":
+            ci[name] = prof["ci95"]
+            how[name] = "Whittle profile likelihood" + (" (two pieces, hull)" if len(prof["pieces"]) > 1 else "")
         fits.append(Fit(model, method, vals, se, ci, how, ll, ll_exact, int(np.sum(~np.isnan(y))), kfree, ok,
                         prof, notes))
     return fits

@@ -97,17 +97,15 @@ def kalman_filter(ss: StateSpace, y, mean=None, *, keep_states: bool = False, sm
         if keep_states or smooth:
             zs.append(z)
             Ps.append(P)
+        Fk, Ftk, Qk = F, Ft, Q
         if ss.varying is not None:  # a time-varying order: row i of F and Q[i, i] of this step
             i, rows, g, _ = ss.varying
-            Fk = F.clone()
+            Fk, Qk = F.clone(), Q.clone()
             Fk[:, i] = rows[:, k]
-            Qk = Q.clone()
             Qk[:, i, i] = g[:, k] ** 2
-            z = (z.unsqueeze(-2) @ Fk.mT).squeeze(-2)
-            P = Fk @ P @ Fk.mT + Qk
-            continue
-        z = (z.unsqueeze(-2) @ Ft).squeeze(-2)
-        P = F @ P @ Ft + Q
+            Ftk = Fk.mT
+        z = (z.unsqueeze(-2) @ Ftk).squeeze(-2)
+        P = Fk @ P @ Ftk + Qk
     filtered = torch.stack(zs, dim=1) if (keep_states or smooth) else None
     smoothed = None
     if smooth:

@@ -196,8 +196,19 @@ class NoiseModel:
             raise ValueError(f"model {self.spec!r} has no stochastic component")
         return total
 
+    def check_inputs(self, inputs: dict | None, kinds=("mean", "modifier")) -> None:
+        """Raise ``ValueError`` naming the first component of ``kinds`` whose input channel (e.g. the
+        temperature) is not in ``inputs``."""
+        for label, comp in self.components:
+            if comp.kind in kinds:
+                for name in comp.inputs:
+                    if inputs is None or name not in inputs:
+                        raise ValueError(f"component {label!r} needs the input channel {name!r} "
+                                         f"(e.g. --temperature COLUMN)")
+
     def mean(self, values, t: Tensor, inputs: dict | None = None) -> Tensor:
         """Deterministic part ``(B, N)`` at times ``t`` (s from the first sample)."""
+        self.check_inputs(inputs, ("mean",))
         v = self.as_dict(values)
         byc = self._by_component(v)
         B = next(iter(v.values())).shape[0]
@@ -206,10 +217,6 @@ class NoiseModel:
         for label, comp in self.components:
             if comp.kind != "mean":
                 continue
-            for name in comp.inputs:
-                if inputs is None or name not in inputs:
-                    raise ValueError(f"component {label!r} needs the input channel {name!r} "
-                                     f"(e.g. --temperature COLUMN)")
             out = out + comp.mean(byc[label], t, {k: torch.as_tensor(x, dtype=torch.float64)
                                                   for k, x in (inputs or {}).items()})
         return out
@@ -292,8 +299,7 @@ class NoiseModel:
         if len(mods) > 1 or len(fracs) != 1 or lowpass is not None:
             raise ValueError(f"model {self.spec!r}: temperature-order drives the order of one fractional component "
                              "and cannot be combined with a low-pass")
-        if inputs is None or "temperature" not in inputs:
-            raise ValueError(f"component {mods[0]!r} needs the input channel 'temperature' (e.g. --temperature COLUMN)")
+        self.check_inputs(inputs, ("modifier",))
         T = torch.as_tensor(inputs["temperature"], dtype=torch.float64).reshape(-1)
         if T.shape[0] < n_steps or not bool(torch.isfinite(T[:n_steps]).all()):
             raise ValueError(f"the temperature input must have {n_steps} finite values, got {T.shape[0]} "

@@ -51,7 +51,7 @@ def test_composite_model_against_dense_gaussian_with_missing_samples():
     N = 120
     spec = "fractional+random-walk+low-pass+white"
     m = parse_model(spec)
-    v = dict(FW, **{"random-walk.sigma": 0.05, "low-pass.cutoff": 8.0})
+    v = dict(FW, **{"random-walk.sigma": 0.05, "low-pass.cutoff_hz": 8.0})
     y = simulate_model(m, v, n_steps=N, h=H, generator=torch.Generator().manual_seed(2))[0, 0].clone()
     y[[10, 11, 57]] = float("nan")
     Mx = _gl_operator(0.4, -2.0, H, N) * math.sqrt(0.02)
@@ -98,7 +98,7 @@ def test_integer_order_model_is_the_textbook_local_level_filter():
 @pytest.mark.parametrize("spec,values", [
     ("fractional", {"fractional.order": 0.35, "fractional.pole": -3.0, "fractional.q": 0.01}),
     ("fractional+low-pass+white", {"fractional.order": 0.6, "fractional.pole": -1.0, "fractional.q": 0.01,
-                                   "low-pass.cutoff": 5.0, "white.r": 1e-4}),
+                                   "low-pass.cutoff_hz": 5.0, "white.r": 1e-4}),
     ("random-walk+white", {"random-walk.sigma": 0.02, "white.r": 1e-4}),
     ("quantisation", {"quantisation.step": 0.05}),
 ])
@@ -177,11 +177,11 @@ def test_mean_components_are_regressed_and_fitted():
     N = 4000
     m = parse_model("random-walk+white+offset+ramp+sinusoid")
     truth = {"random-walk.sigma": 0.01, "white.r": 1e-3, "offset.value": 9.8, "ramp.slope": 2e-4,
-             "sinusoid.frequency": 7.3, "sinusoid.amplitude": 0.02, "sinusoid.phase": 0.4}
+             "sinusoid.frequency_hz": 7.3, "sinusoid.amplitude": 0.02, "sinusoid.phase": 0.4}
     y = simulate_model(m, truth, n_steps=N, h=H, generator=torch.Generator().manual_seed(8))[0, 0].numpy()
     f, = fit_series(m, [y], H, method="exact", profile=False)
     assert f.converged and not f.notes  # the offset is fitted, not removed
-    for name in ("offset.value", "ramp.slope", "sinusoid.frequency", "sinusoid.amplitude", "white.r"):
+    for name in ("offset.value", "ramp.slope", "sinusoid.frequency_hz", "sinusoid.amplitude", "white.r"):
         assert abs(f.values[name] - truth[name]) < 3.5 * f.se[name], (name, f.values[name], f.se[name])
 
 
@@ -276,7 +276,7 @@ def test_cli_fit_with_a_temperature_column(tmp_path, capsys):
     assert main(base + ["--model", "fractional+white+temperature-bias", "--temperature", "degC", "--json"]) == 0
     doc = json.loads(capsys.readouterr().out)
     for a in doc["axes"].values():
-        b = a["parameters"]["temperature-bias.beta"]
+        b = a["parameters"]["temperature-bias.bias_per_degC"]
         assert abs(b["value"] - beta) < 4 * b["se"], b
     assert main(base + ["--model", "fractional+white+temperature-bias"]) == 2
     assert "give --temperature COL" in capsys.readouterr().err
@@ -285,7 +285,7 @@ def test_cli_fit_with_a_temperature_column(tmp_path, capsys):
     assert "'degC' has 1 missing value(s) where the acceleration is observed" in capsys.readouterr().err
 
 
-TO = dict(FW, **{"temperature-order.gamma": 0.05, "temperature-order.t_ref": 25.0})
+TO = dict(FW, **{"temperature-order.order_per_degC": 0.05, "temperature-order.t_ref": 25.0})
 
 
 def _temperature(N, seed=2):
@@ -332,9 +332,9 @@ def test_temperature_driven_order_is_simulated_and_fitted():
     # what this test is about
     fixed = {"fractional.order": 0.4, "fractional.pole": -2.0, "fractional.q": 0.02, "temperature-order.t_ref": 25.0}
     f, = fit_series(m, [y.numpy()], H, method="exact", inputs=[inputs], fixed=fixed, profile=False)
-    assert f.converged and f.free == ["white.r", "temperature-order.gamma"]
+    assert f.converged and f.free == ["white.r", "temperature-order.order_per_degC"]
     assert f.values["fractional.pole"] == pytest.approx(-2.0)
-    for name, truth in (("temperature-order.gamma", 0.05), ("white.r", 1e-3)):
+    for name, truth in (("temperature-order.order_per_degC", 0.05), ("white.r", 1e-3)):
         assert abs(f.values[name] - truth) < 4 * f.se[name], (name, f.values[name], f.se[name])
     with pytest.raises(ValueError, match="pole cannot be fixed while"):
         fit_series(m, [y.numpy()], H, inputs=[inputs], fixed={"fractional.pole": -2.0})

@@ -33,7 +33,7 @@ from ..likelihood.whittle import periodogram, whittle_loglik
 from ..noise.model import NoiseModel, parse_model, state_memory
 from .optimize import newton
 
-__all__ = ["Fit", "WhittleFit", "fit_series", "regress_mean", "whittle_fit", "exact_loglik", "profile_order", "METHODS",
+__all__ = ["Fit", "WhittleFit", "fit_series", "refine_exact", "regress_mean", "whittle_fit", "exact_loglik", "profile_order", "METHODS",
            "Z95", "CHI2_95"]
 
 METHODS = ("whittle", "exact")
@@ -69,6 +69,10 @@ class Fit:
     converged: bool
     profile: dict | None = None
     notes: list = field(default_factory=list)
+    #: The estimate on the optimisers' unconstrained scale ``(P,)`` and the Hessian of −ℓ there ``(P, P)``
+    #: (zero rows for fixed parameters; None when not computed).
+    u: Tensor | None = None
+    hessian: Tensor | None = None
 
     @property
     def k(self) -> int:
@@ -85,7 +89,7 @@ class Fit:
 
 # --------------------------------------------------------------------------- deterministic part
 
-def _refine_frequency(y: np.ndarray, f0: float, h: float) -> float:
+def refine_frequency(y: np.ndarray, f0: float, h: float) -> float:
     from scipy.optimize import minimize_scalar
     k = np.arange(len(y))
     df = 1.0 / (len(y) * h)
@@ -122,10 +126,10 @@ def regress_mean(model: NoiseModel, y, h: float, inputs: dict | None = None) -> 
             tref = float(np.nanmean(T))
             vals[f"{label}.t_ref"] = tref
             cols.append(T - tref)
-            names.append(f"{label}.beta")
+            names.append(f"{label}.bias_per_degC")
         elif comp.name == "temperature-order":  # not a mean: only its reference, and γ = 0 to start from
             vals[f"{label}.t_ref"] = float(np.nanmean(np.asarray(inputs["temperature"], dtype=np.float64)))
-            vals[f"{label}.gamma"] = 0.0
+            vals[f"{label}.order_per_degC"] = 0.0
     if cols:
         X = np.stack(cols, 1)[ok]
         X = X - X.mean(0)
@@ -139,12 +143,12 @@ def regress_mean(model: NoiseModel, y, h: float, inputs: dict | None = None) -> 
         spec = np.abs(np.fft.rfft(r)) ** 2
         spec[:3] = 0.0  # not the trend
         j = int(np.argmax(spec))
-        f0 = _refine_frequency(r, j / (N * h), h)
+        f0 = refine_frequency(r, j / (N * h), h)
         w = 2 * np.pi * f0 * t
         X = np.stack([np.sin(w), np.cos(w)], 1)
         coef, *_ = np.linalg.lstsq(X[ok], resid[ok], rcond=None)
         resid[ok] -= X[ok] @ coef
-        vals[f"{label}.frequency"] = f0
+        vals[f"{label}.frequency_hz"] = f0
         vals[f"{label}.amplitude"] = float(math.hypot(*coef))
         vals[f"{label}.phase"] = float(math.atan2(coef[1], coef[0]))
     # the offset: the mean of what is left plus what was removed
@@ -232,9 +236,11 @@ def _whittle_loss(model: NoiseModel, omega: Tensor, I: Tensor, h: float):
 
 
 def whittle_fit(model, series: list, h: float, *, inputs: list | None = None, fixed: dict | None = None,
-                orders=START_ORDERS, fractions=START_FRACTIONS) -> WhittleFit:
+                orders=START_ORDERS, fractions=START_FRACTIONS, starts: list | None = None,
+                grid: bool = True) -> WhittleFit:
     """Whittle MLEs of several series at once (:class:`WhittleFit`): the mean components by least squares,
-    then the stochastic part from every start of the multi-start grid."""
+    then the stochastic part from every start of the multi-start grid (``grid``) and of ``starts`` (per
+    series a list of dicts of values of the stochastic parameters)."""
     model = parse_model(model)
     fixed = dict(fixed or {})
     rows_u, owner, mean_list, Is = [], [], [], []
@@ -244,7 +250,11 @@ def whittle_fit(model, series: list, h: float, *, inputs: list | None = None, fi
         mean_list.append(mean_vals)
         omega, I = periodogram(torch.as_tensor(resid))
         Is.append(I)
-        for v in _starts(model, resid, h, omega, I, mean_vals, fixed, orders, fractions):
+        points = _starts(model, resid, h, omega, I, mean_vals, fixed, orders, fractions) if grid else []
+        points += [{**v, **mean_vals, **fixed} for v in (starts[s] if starts is not None else [])]
+        if not points:
+            raise ValueError("whittle_fit: no starting values (grid=False and no starts)")
+        for v in points:
             rows_u.append(model.to_unconstrained(v, h)[0])
             owner.append(s)
     Is = torch.stack(Is)
@@ -275,17 +285,18 @@ def exact_loglik(model, values, y, h: float, *, inputs: dict | None = None, memo
 
 
 def _exact_refine(model, y, h, u0: Tensor, free: Tensor, inputs, memory, metric: Tensor | None = None,
-                  max_iter: int = 30):
+                  max_iter: int = 30, hessian: bool = True):
     """Maximise the exact likelihood over the ``free`` unconstrained coordinates from ``u0``.
 
     With a positive-definite ``metric`` (the Whittle fit's Hessian of −ℓ, which approximates the exact one
     on a long series) the steps are quasi-Newton steps on it, with central-difference gradients of the
-    exact −ℓ and a backtracking line search: from the Whittle optimum two or three steps reach the exact
-    one. The Whittle Hessian has no rows for mean or modifier parameters (offset, ramp, sinusoid,
-    temperature terms), so for models with them, or when the steps stall, L-BFGS-B does the work.
-    ``converged``: the quasi-Newton decrement on the metric fell below 10⁻⁶ nats, else L-BFGS-B's success.
-    Returns ``(u, ℓ, Hessian of −ℓ, converged, iterations)``;
-    the Hessian by central differences (:func:`_fd_hessian`)."""
+    exact −ℓ, a backtracking line search and BFGS updates of the metric: from the Whittle optimum two or
+    three steps reach the exact one when the model fits, a few more when it does not. Free coordinates the metric does not cover (a zero or non-finite diagonal: mean and modifier
+    parameters — offset, ramp, sinusoid, temperature terms — which the Whittle fit does not see) get their
+    own curvature by central differences along that coordinate, with no cross terms. When the steps stall,
+    L-BFGS-B does the work. ``converged``: the quasi-Newton decrement on the metric fell below 10⁻⁶ nats,
+    else L-BFGS-B's success. Returns ``(u, ℓ, Hessian of −ℓ, converged, iterations)``; the Hessian by
+    central differences (:func:`_fd_hessian`), or None with ``hessian=False``."""
     idx = free.nonzero().squeeze(-1).numpy()
     p = len(idx)
     base = u0.clone()
@@ -307,7 +318,22 @@ def _exact_refine(model, y, h, u0: Tensor, free: Tensor, inputs, memory, metric:
     ok, iterations = False, 0
     M = None
     if metric is not None:
-        M = metric[np.ix_(idx, idx)].numpy()
+        M = metric[np.ix_(idx, idx)].numpy().copy()
+        missing = np.nonzero(~np.isfinite(np.diag(M)) | (np.diag(M) <= 0))[0]
+        if len(missing):  # the Hessian block of the uncovered coordinates by differences; no cross terms
+            M[missing, :] = 0.0
+            M[:, missing] = 0.0
+
+            def sub(points):
+                full = np.repeat(x[None], len(points), 0)
+                full[:, missing] = points
+                return batch(full)
+
+            Hm = _fd_hessian(sub, x[missing])
+            if np.all(np.isfinite(Hm)) and np.all(np.linalg.eigvalsh(Hm) > 0):
+                M[np.ix_(missing, missing)] = Hm
+            else:
+                M[missing, missing] = np.where(np.isfinite(np.diag(Hm)) & (np.diag(Hm) > 0), np.diag(Hm), 1.0)
         if not (np.all(np.isfinite(M)) and np.all(np.linalg.eigvalsh(M) > 0)):
             M = None
     if M is not None:
@@ -326,6 +352,13 @@ def _exact_refine(model, y, h, u0: Tensor, free: Tensor, inputs, memory, metric:
                 t /= 4.0
             else:
                 break  # no decrease along the quasi-Newton direction: hand over to L-BFGS-B
+            # BFGS update of the metric with the step taken and the change of gradient: the Whittle Hessian
+            # is only a start (on a misspecified model it can be far from the exact one along the ridge)
+            s_, y_ = t * step, gn - g
+            sy = float(s_ @ y_)
+            if sy > 1e-12 * float(np.linalg.norm(s_) * np.linalg.norm(y_)):
+                Ms = M @ s_
+                M = M - np.outer(Ms, Ms) / float(s_ @ Ms) + np.outer(y_, y_) / sy
             x, f, g = x + t * step, fn, gn
     if not ok:
         from scipy.optimize import minimize
@@ -333,6 +366,8 @@ def _exact_refine(model, y, h, u0: Tensor, free: Tensor, inputs, memory, metric:
         x, f, ok, iterations = res.x, float(res.fun), bool(res.success), iterations + int(res.nit)
     u = base.clone()
     u[idx] = torch.as_tensor(x)
+    if not hessian:
+        return u, -float(f), None, ok, iterations
     H = _fd_hessian(batch, x)
     Hfull = torch.zeros(len(u), len(u), dtype=torch.float64)
     Hfull[np.ix_(idx, idx)] = torch.as_tensor(H)
@@ -475,8 +510,12 @@ def centred(model: NoiseModel, y) -> np.ndarray:
 
 
 def fit_series(model, series: list, h: float, *, method: str = "exact", inputs: list | None = None,
-               fixed: dict | None = None, memory=FIT_MEMORY, profile: bool | None = None) -> list[Fit]:
+               fixed: dict | None = None, memory=FIT_MEMORY, profile: bool | None = None,
+               whittle: WhittleFit | None = None) -> list[Fit]:
     """Fit ``model`` to each series of ``series`` (1-D arrays, NaN = missing; sample time ``h``).
+
+    ``whittle``: a :func:`whittle_fit` of the same model, series and ``fixed`` to start from (instead of
+    fitting it here).
 
     ``profile``: compute the order's Whittle profile likelihood (``Fit.profile``; it is the order's reported
     interval for ``method="whittle"``, beside the Wald one otherwise). Default: for the Whittle method only —
@@ -504,7 +543,7 @@ def fit_series(model, series: list, h: float, *, method: str = "exact", inputs: 
         raise ValueError("the Whittle method needs complete series; use --method exact for recordings with "
                          "missing samples")
     filled = [np.where(np.isnan(y), np.nanmean(y), y) for y in series]
-    wf = whittle_fit(model, filled, h, inputs=inputs, fixed=fixed)
+    wf = whittle_fit(model, filled, h, inputs=inputs, fixed=fixed) if whittle is None else whittle
     name = next((f"{label}.order" for label, c in model.components if c.name == "fractional"), None)
     profiles = [None] * len(series)
     if profile and name is not None and name not in fixed:
@@ -540,5 +579,28 @@ def fit_series(model, series: list, h: float, *, method: str = "exact", inputs: 
             ci[name] = prof["ci95"]
             how[name] = "Whittle profile likelihood" + (" (two pieces, hull)" if len(prof["pieces"]) > 1 else "")
         fits.append(Fit(model, method, vals, se, ci, how, ll, ll_exact, int(np.sum(~np.isnan(y))), kfree, ok,
-                        prof, notes))
+                        prof, notes, u, H))
     return fits
+
+
+def refine_exact(model, y, h: float, start: dict, *, inputs: dict | None = None, fixed=(), metric: Tensor | None = None,
+                 memory=FIT_MEMORY, intervals: bool = True) -> Fit:
+    """The exact stage of :func:`fit_series` on its own: the exact MLE of one series from ``start`` (values of
+    every parameter of ``model``; the names in ``fixed`` stay there), quasi-Newton steps on ``metric`` (a Hessian
+    of −ℓ on the unconstrained scale, e.g. a smaller model's; uncovered coordinates get their own curvature).
+    Used to fit a model extended by one component from the smaller model's estimate. With ``intervals=False``
+    the finite-difference Hessian (1 + 2k² likelihood evaluations) and the intervals are skipped."""
+    model = parse_model(model)
+    y = np.asarray(y, dtype=np.float64)
+    u0 = model.to_unconstrained(start, h)[0]
+    free = torch.tensor([n not in fixed for n in model.names])
+    u, ll, H, ok, _ = _exact_refine(model, centred(model, y), h, u0, free, inputs, memory, metric,
+                                    hessian=intervals)
+    if H is None:
+        vals = {n: float(x) for n, x in zip(model.names, model.as_matrix(model.from_unconstrained(u, h))[0])}
+        how = {n: "fixed" if n in fixed else "not computed (intervals=False)" for n in model.names}
+        se, ci = {n: None for n in model.names}, {n: None for n in model.names}
+    else:
+        vals, se, ci, how = _intervals(model, u, H, free, h)
+    kfree = [n for n, f in zip(model.names, free.tolist()) if f]
+    return Fit(model, "exact", vals, se, ci, how, ll, ll, int(np.sum(~np.isnan(y))), kfree, ok, None, [], u, H)

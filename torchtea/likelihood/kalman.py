@@ -143,7 +143,9 @@ def _compiled():
 def _build(numba):
     njit, prange = numba.njit, numba.prange
 
-    @njit(cache=True, fastmath=False)
+    # error_model="numpy": a zero innovation variance (white noise → 0 with a zero-variance start) gives an
+    # infinite or NaN log-likelihood, which the optimisers reject, instead of raising ZeroDivisionError
+    @njit(cache=True, fastmath=False, error_model="numpy")
     def one(indptr, indices, fval, Q, C, cidx, R, y, mu, e_out, s_out, keep, tv_i, tv_F, tv_q):
         n = Q.shape[0]
         N = y.shape[0]
@@ -225,7 +227,7 @@ def _build(numba):
                     P[j, i] = acc
         return ll
 
-    @njit(parallel=True, cache=True)
+    @njit(parallel=True, cache=True, error_model="numpy")
     def batch(indptr, indices, fvals, Qs, Cs, cidx, Rs, ys, mus, e_out, s_out, keep, tv_i, tv_Fs, tv_qs):
         B = fvals.shape[0]
         out = np.zeros(B)

@@ -173,14 +173,14 @@ class LowPass(Component):
 
     name = "low-pass"
     kind = "filter"
-    params = (ParamSpec("cutoff", "positive", "f_c (Hz)"),)
+    params = (ParamSpec("cutoff_hz", "positive", "f_c (Hz)"),)
 
     def gain(self, v, omega, h):
         a = self.coefficient(v, h).unsqueeze(-1)
         return (1.0 - a) ** 2 / (1.0 - 2.0 * a * torch.cos(omega) + a * a)
 
     def coefficient(self, v, h):
-        return torch.exp(-2.0 * math.pi * v["cutoff"] * h)
+        return torch.exp(-2.0 * math.pi * v["cutoff_hz"] * h)
 
 
 class White(Component):
@@ -221,12 +221,15 @@ class Offset(Component):
 
 
 class Ramp(Component):
+    """slope · (t − t̄): a linear drift through zero at the middle of the record (t̄ the mean time), so that it
+    does not move the series' mean (which ``offset``, or the centring of a model without one, carries)."""
+
     name = "ramp"
     kind = "mean"
     params = (ParamSpec("slope", "free", "units/s"),)
 
     def mean(self, v, t, inputs):
-        return v["slope"].unsqueeze(-1) * t
+        return v["slope"].unsqueeze(-1) * (t - t.mean())
 
 
 class Sinusoid(Component):
@@ -234,11 +237,11 @@ class Sinusoid(Component):
 
     name = "sinusoid"
     kind = "mean"
-    params = (ParamSpec("frequency", "positive", "f₀ (Hz)"), ParamSpec("amplitude", "positive", "A (units)"),
+    params = (ParamSpec("frequency_hz", "positive", "f₀ (Hz)"), ParamSpec("amplitude", "positive", "A (units)"),
               ParamSpec("phase", "free", "φ (rad)"))
 
     def mean(self, v, t, inputs):
-        return v["amplitude"].unsqueeze(-1) * torch.sin(2.0 * math.pi * v["frequency"].unsqueeze(-1) * t
+        return v["amplitude"].unsqueeze(-1) * torch.sin(2.0 * math.pi * v["frequency_hz"].unsqueeze(-1) * t
                                                         + v["phase"].unsqueeze(-1))
 
 
@@ -249,11 +252,11 @@ class TemperatureBias(Component):
     name = "temperature-bias"
     kind = "mean"
     inputs = ("temperature",)
-    params = (ParamSpec("beta", "free", "units/°C"), ParamSpec("t_ref", "free", "T_ref (°C)"))
+    params = (ParamSpec("bias_per_degC", "free", "units/°C"), ParamSpec("t_ref", "free", "T_ref (°C)"))
 
     def mean(self, v, t, inputs):
         T = inputs["temperature"]
-        return v["beta"].unsqueeze(-1) * (T - v["t_ref"].unsqueeze(-1))
+        return v["bias_per_degC"].unsqueeze(-1) * (T - v["t_ref"].unsqueeze(-1))
 
 
 class TemperatureOrder(Component):
@@ -268,11 +271,11 @@ class TemperatureOrder(Component):
     name = "temperature-order"
     kind = "modifier"
     inputs = ("temperature",)
-    params = (ParamSpec("gamma", "free", "1/°C"), ParamSpec("t_ref", "free", "T_ref (°C)"))
+    params = (ParamSpec("order_per_degC", "free", "1/°C"), ParamSpec("t_ref", "free", "T_ref (°C)"))
 
     def orders(self, v: dict, alpha0: Tensor, T: Tensor) -> Tensor:
         """``(B, N)`` orders α_k for ``(B,)`` α₀ and the temperature ``(N,)``."""
-        a = alpha0.unsqueeze(-1) + v["gamma"].unsqueeze(-1) * (T - v["t_ref"].unsqueeze(-1))
+        a = alpha0.unsqueeze(-1) + v["order_per_degC"].unsqueeze(-1) * (T - v["t_ref"].unsqueeze(-1))
         return a.clamp(1e-6, 0.999)  # the exponential-sum kernel's range: the lags and the tail see one order
 
 

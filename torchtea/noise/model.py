@@ -345,7 +345,7 @@ class NoiseModel:
                 elif comp.name == "offset":
                     out[key] = float(y.mean())
                 elif comp.name == "sinusoid":
-                    out[key] = {"frequency": 0.1 / h, "amplitude": math.sqrt(var) / 10.0, "phase": 0.0}[p.name]
+                    out[key] = {"frequency_hz": 0.1 / h, "amplitude": math.sqrt(var) / 10.0, "phase": 0.0}[p.name]
                 elif comp.name == "temperature-bias":
                     out[key] = 0.0
                 else:

@@ -137,6 +137,12 @@ def _with_memory(cfg, spec):
 def cmd_simulate(args) -> int:
     import torch
 
+    if args.model is not None:
+        return _simulate_model(args)
+    absent = [f"--{n}" for n in ("order", "param", "q", "r") if getattr(args, n) is None]
+    if absent:
+        raise CLIError(f"simulate needs {', '.join(absent)} (the paper's model), or --model SPEC")
+
     from .sensors.io import write_columns
     from .engines.structure import parse_order_spec
     from .engines.simulate import simulate_noise_model
@@ -153,6 +159,134 @@ def cmd_simulate(args) -> int:
         print(f"torchtea: warning: the simulated state is not finite (unstable settings?); written to {out}",
               file=sys.stderr)
     print(f"wrote {args.n} samples to {out}", file=sys.stderr)
+    return 0
+
+
+def _simulate_model(args) -> int:
+    import json
+
+    import torch
+
+    from .noise import default_values, parse_model, simulate_model, temperature_profile
+    from .sensors.io import write_columns
+
+    model = parse_model(args.model)
+    try:
+        t0, warm, tau, wander = (float(x) for x in args.temperature_profile.split(","))
+    except ValueError:
+        raise CLIError(f"--temperature-profile needs four numbers T0,WARMUP,TAU_S,WANDER, got "
+                       f"{args.temperature_profile!r}") from None
+    gen = torch.Generator().manual_seed(args.seed)
+    T = temperature_profile(args.n, args.h, start=t0, warmup=warm, tau_s=tau, wander=wander, generator=gen)
+    values = default_values(model, args.h, T)
+    for item in args.set:
+        name, sep, text = item.partition("=")
+        if not sep or name not in values:
+            raise CLIError(f"--set {item!r}: expected NAME=VALUE with NAME one of {', '.join(values)}")
+        values[name] = _finite_float(text)
+    y = simulate_model(model, values, n_steps=args.n, h=args.h, inputs={"temperature": T}, generator=gen,
+                       memory=_memory(args.memory) or "soe")[0, 0]
+    t = torch.arange(args.n, dtype=torch.float64) * args.h
+    out = write_columns(args.out, {"t": t, "y": y, "temp": T})
+    truth = Path(str(out) + ".truth.json")
+    truth.write_text(json.dumps({"model": model.spec, "values": values, "h": args.h, "n": args.n, "seed": args.seed,
+                                 "temperature_profile": args.temperature_profile}, indent=1))
+    print(f"wrote {args.n} samples of {model.spec} to {out} (values in {truth.name})", file=sys.stderr)
+    return 0
+
+
+# --------------------------------------------------------------------------- check
+
+
+def _read_check_input(args):
+    """(name → series, h, temperature or None, description) for ``check``."""
+    import numpy as np
+
+    from .sensors.datacheck import check_missing
+    from .sensors.io import read_series
+
+    if args.column is not None:
+        if args.recording is None:
+            raise CLIError("--column needs a RECORDING (a CSV with that column)")
+        optional = ["t"] + ([args.temperature] if args.temperature else [])
+        cols = read_series(args.recording, [args.column], optional, allow_missing=True)
+        y = cols[args.column]
+        if args.rate is not None:
+            h = 1.0 / args.rate
+        elif "t" in cols and len(cols["t"]) > 1:
+            h = float(np.nanmedian(np.diff(cols["t"])))
+        else:
+            raise CLIError(f"{args.recording}: give --rate (no 't' column to take it from)")
+        n = None if args.samples == "all" else _whole(args.samples, "--samples")
+        series = {args.column: y[:n]}
+        T = cols.get(args.temperature) if args.temperature else None
+        if args.temperature and T is None:
+            raise CLIError(f"{args.recording}: no temperature column {args.temperature!r}")
+        check_missing(args.recording, y[:n, None], (args.column,), allow=args.allow_missing, per="axis")
+        return series, h, None if T is None else T[:n], {"recording": str(args.recording), "rate_hz": 1.0 / h,
+                                                         "samples": len(series[args.column]), "units": "as in the file"}
+    rec, n = _read_accel(args)
+    acc = rec.accel_ms2()[: n or None]
+    names = ("x", "y", "z") if not args.columns else tuple(c.strip() for c in args.columns.split(","))
+    check_missing(rec.path, acc, names, allow=args.allow_missing, per="axis")
+    axes = names if args.axes is None else tuple(a.strip() for a in args.axes.split(","))
+    bad = [a for a in axes if a not in names]
+    if bad:
+        raise CLIError(f"--axes {args.axes!r}: not among the axes {', '.join(names)}")
+    series = {a: acc[:, names.index(a)] for a in axes}
+    T = None
+    if args.temperature is not None:
+        T = rec.temperature[: n or None].copy()
+        seen = np.isfinite(T)
+        if not seen.any():
+            raise CLIError(f"{rec.path}: the temperature column has no values")
+        k = np.arange(len(T))
+        T[~seen] = np.interp(k[~seen], k[seen], T[seen])
+    return series, rec.h, T, {"recording": str(rec.path), "rate_hz": rec.rate_hz, "samples": len(acc),
+                              "units": "m/s²"}
+
+
+def cmd_check(args) -> int:
+    from .checking import check
+    from .checking.report import write_report
+    from .reports.strictjson import dumps
+
+    series, h, T, meta = _read_check_input(args)
+    inputs = None if T is None else {"temperature": T}
+    results = {}
+    t0 = time.perf_counter()
+    for name, y in series.items():
+        if len(y) < 1000:
+            raise CLIError(f"{meta['recording']}: only {len(y)} samples; check needs at least 1000")
+        print(f"torchtea: checking axis {name} ({len(y)} samples, model {args.model}) …", file=sys.stderr)
+        r = check(y, h, model=args.model, inputs=inputs, level=args.level, screen_level=args.screen_level,
+                  intervals=not args.no_intervals)
+        for effect in args.add:
+            r = r.add(effect, intervals=not args.no_intervals)
+        results[name] = r
+    name = Path(meta["recording"]).stem
+    out = Path(args.out or f"check-{name}")
+    meta.update(command="torchtea " + " ".join(sys.argv[1:]), seconds=time.perf_counter() - t0)
+    doc = write_report(out, results, meta, plots=not args.no_plots)
+    if args.json:
+        print(dumps(doc))
+        return 0
+    for a, r in results.items():
+        head = f"axis {a}: {r.model.spec}: {'adequate' if r.adequate else 'NOT adequate'}"
+        if r.before is not None:
+            b = r.before
+            head += (f" (before, {b.model.spec}: nll/sample {b.metrics['nll_per_sample']:.5f}, failed "
+                     f"{', '.join(b.failed) or 'none'}; now {r.metrics['nll_per_sample']:.5f})")
+        print(head)
+        for d in r.diagnostics:
+            mark = "   " if d.passed is None else (" ok" if d.passed else "BAD")
+            print(f"  {mark} {d.name:12s} {d.summary}")
+        for s in r.suggestions:
+            pars = ", ".join(f"{k} {v:.4g}" for k, v in s.parameters.items())
+            print(f"  suggest {s.effect}: gain {s.gain:.1f} (ΔBIC), {pars}; repairs {', '.join(s.repairs) or '—'}")
+        if not r.suggestions:
+            print("  no suggestion: no effect of the library passes its screen")
+    print(f"report: {out / 'report.md'}; JSON: {out / 'check.json'}")
     return 0
 
 
@@ -522,18 +656,38 @@ def cmd_presets(args) -> int:
 # --------------------------------------------------------------------------- main
 
 
+def _recording_flags(parser, temperature_help: str) -> None:
+    """The flags that say how to read an accelerometer recording (``fit``, ``check``; see :func:`_read_accel`)."""
+    parser.add_argument("--rate", type=_positive_float, help="sample rate [Hz] if the file does not say")
+    parser.add_argument("--lsb-per-g", type=_positive_float, help="accelerometer counts per g (bundled format: 16384)")
+    parser.add_argument("--columns", help="generic CSV: the three accelerometer columns (default ax,ay,az)")
+    parser.add_argument("--units", choices=("g", "ms2"),
+                        help="generic CSV already in g or m/s² (else counts: --lsb-per-g)")
+    parser.add_argument("--segment", type=int, help="torchtea recording: which segment (default: the longest)")
+    parser.add_argument("--time-column", default="auto", help="column of time stamps (auto, a name, or none)")
+    parser.add_argument("--temperature", metavar="COL", help=temperature_help)
+    parser.add_argument("--allow-missing", action="store_true", help=ALLOW_MISSING_HELP)
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="torchtea", description=__doc__)
     p.add_argument("--debug", action="store_true", help="show tracebacks")
     sub = p.add_subparsers(dest="command", required=True)
 
-    s = sub.add_parser("simulate", help="simulate the fractional noise model (43)–(45) to CSV")
+    s = sub.add_parser("simulate", help="simulate the fractional noise model (43)–(45), or any --model, to CSV")
     s.add_argument("--n", type=_count, required=True, help="number of samples")
     s.add_argument("--h", type=_positive_float, required=True, help="sample time [s]")
-    s.add_argument("--order", required=True, help="SPEC: a number, linear:A0,SLOPE or parabolic:A0,C")
-    s.add_argument("--param", type=_finite_float, required=True, help="the parameter f (A = f)")
-    s.add_argument("--q", type=_nonneg_float, required=True, help="variance of the process noise ω")
-    s.add_argument("--r", type=_nonneg_float, required=True, help="variance of the measurement noise ν")
+    s.add_argument("--order", help="SPEC: a number, linear:A0,SLOPE or parabolic:A0,C (the paper's model)")
+    s.add_argument("--param", type=_finite_float, help="the parameter f (A = f) (the paper's model)")
+    s.add_argument("--q", type=_nonneg_float, help="variance of the process noise ω (the paper's model)")
+    s.add_argument("--r", type=_nonneg_float, help="variance of the measurement noise ν (the paper's model)")
+    s.add_argument("--model", help="a noise model SPEC (e.g. fractional+white+sinusoid): writes t, y and temp; "
+                                   "parameters MEMS-like unless --set")
+    s.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
+                   help="--model: a parameter value, e.g. sinusoid.frequency_hz=3.37 (repeatable)")
+    s.add_argument("--temperature-profile", default="25,3,60,0.2", metavar="T0,WARMUP,TAU_S,WANDER",
+                   help="--model: the temperature written to 'temp' and read by temperature components: start "
+                        "°C, warm-up °C, its time constant s, slow wander sd °C (default 25,3,60,0.2)")
     s.add_argument("--input-std", type=_nonneg_float, help="known input u ~ N(0, S²) (zero when absent)")
     s.add_argument("--seed", type=int, default=0)
     s.add_argument("--memory", help=MEMORY_HELP)
@@ -592,18 +746,30 @@ def build_parser() -> argparse.ArgumentParser:
     fp.add_argument("--bootstrap", type=int, default=99,
                     help="replicates of the fractional-presence test (0: do not test; default 99)")
     fp.add_argument("--seed", type=int, default=0, help="seed of the bootstrap")
-    fp.add_argument("--rate", type=_positive_float, help="sample rate [Hz] if the file does not say")
-    fp.add_argument("--lsb-per-g", type=_positive_float, help="accelerometer counts per g (bundled format: 16384)")
-    fp.add_argument("--columns", help="generic CSV: the three accelerometer columns (default ax,ay,az)")
-    fp.add_argument("--units", choices=("g", "ms2"), help="generic CSV already in g or m/s² (else counts: --lsb-per-g)")
-    fp.add_argument("--segment", type=int, help="torchtea recording: which segment (default: the longest)")
-    fp.add_argument("--time-column", default="auto", help="column of time stamps (auto, a name, or none)")
-    fp.add_argument("--temperature", metavar="COL",
-                    help="temperature column (°C) for temperature-bias / temperature-order (a torchtea recording: temp)")
-    fp.add_argument("--allow-missing", action="store_true", help=ALLOW_MISSING_HELP)
+    _recording_flags(fp, "temperature column (°C) for temperature-bias / temperature-order (a torchtea "
+                         "recording: temp)")
     fp.add_argument("--out", help="write the JSON document to this file")
     fp.add_argument("--json", action="store_true", help="print the JSON document")
     fp.set_defaults(func=cmd_fit)
+
+    ck = sub.add_parser("check", help="test a noise model against a recording and rank the effects it is missing")
+    ck.add_argument("recording", nargs="?", help="recording CSV (default: the bundled MPU-6050 recording)")
+    ck.add_argument("--model", default="fractional+white", help="noise model SPEC (default fractional+white)")
+    ck.add_argument("--add", action="append", default=[], metavar="EFFECT",
+                    help="add an effect and check again, before/after (repeatable)")
+    ck.add_argument("--axes", help="which axes (default all), e.g. z or x,z")
+    ck.add_argument("--column", help="generic CSV: check this one column (rate from --rate or a 't' column)")
+    ck.add_argument("--samples", default="all", help="use the first N samples (default all)")
+    ck.add_argument("--level", type=float, default=0.01, help="level of each diagnostic (default 0.01)")
+    ck.add_argument("--screen-level", type=float, default=0.05,
+                    help="family level of the effect screens (default 0.05: on data from the model, at most "
+                         "5 %% of checks suggest anything)")
+    ck.add_argument("--no-intervals", action="store_true", help="skip the finite-difference intervals (faster)")
+    _recording_flags(ck, "temperature column (°C): enables the temperature diagnostic and the temperature effects")
+    ck.add_argument("--out", help="output directory (default check-<recording name>)")
+    ck.add_argument("--no-plots", action="store_true")
+    ck.add_argument("--json", action="store_true", help="print the JSON document")
+    ck.set_defaults(func=cmd_check)
 
     rc = sub.add_parser("record", help="record a protocol-v1 IMU from a serial port (docs/protocol.md)")
     rc.add_argument("--port", required=True, help="serial device (/dev/ttyACM0, COM3) or pyserial URL")

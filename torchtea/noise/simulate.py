@@ -7,11 +7,13 @@ simulator and the filter cannot disagree about the model; the deterministic part
 """
 from __future__ import annotations
 
+import math
+
 import torch
 
 from .model import parse_model
 
-__all__ = ["simulate_model"]
+__all__ = ["simulate_model", "temperature_profile", "default_values"]
 
 
 def simulate_model(model, values, *, n_steps: int, h: float, realisations: int = 1, memory="soe",
@@ -52,3 +54,46 @@ def simulate_model(model, values, *, n_steps: int, h: float, realisations: int =
     t = torch.arange(n_steps, dtype=torch.float64) * h
     y = out + torch.sqrt(ss.R).reshape(B, 1, 1) * nu + model.mean(v, t, inputs).unsqueeze(1)
     return (y, states) if return_states else y
+
+
+def temperature_profile(n_steps: int, h: float, *, start: float = 25.0, warmup: float = 3.0, tau_s: float = 60.0,
+                        wander: float = 0.2, wander_tau_s: float = 100.0,
+                        generator: torch.Generator | None = None) -> torch.Tensor:
+    """A sensor's temperature (°C) after power-on: ``start`` plus an exponential warm-up of ``warmup`` °C with
+    time constant ``tau_s``, plus a slow wander — an Ornstein–Uhlenbeck process of standard deviation ``wander``
+    °C and time constant ``wander_tau_s`` (started in its stationary law)."""
+    t = torch.arange(n_steps, dtype=torch.float64) * h
+    T = start + warmup * (1.0 - torch.exp(-t / tau_s))
+    if wander > 0:
+        a = math.exp(-h / wander_tau_s)
+        xi = torch.randn(n_steps, generator=generator, dtype=torch.float64) * wander * math.sqrt(1 - a * a)
+        from scipy.signal import lfilter
+
+        w0 = float(torch.randn(1, generator=generator, dtype=torch.float64)[0]) * wander
+        xi[0] = w0
+        T = T + torch.as_tensor(lfilter([1.0], [1.0, -a], xi.numpy()))  # w_k = a w_{k−1} + ξ_k
+    return T
+
+
+def default_values(model, h: float, temperature=None) -> dict:
+    """MEMS-like values of every parameter of ``model`` (units m/s², h the sample time): the fractional part
+    of the Monte Carlo studies (order 0.3, pole at 40 % of its stability limit, drive q = r / h^{2α}), white
+    r = 10⁻³, and effects of moderate strength — a starting point for ``torchtea simulate --model``, each
+    value replaced by ``--set``."""
+    model = parse_model(model)
+    out = {}
+    t_ref = 25.0 if temperature is None else float(torch.as_tensor(temperature, dtype=torch.float64).mean())
+    for label, comp in model.components:
+        for p in comp.params:
+            key = f"{label}.{p.name}"
+            if comp.name == "fractional":
+                a = 0.3
+                out[key] = {"order": a, "pole": -0.4 * 2 ** a / h ** a, "q": 1e-3 / h ** (2 * a)}[p.name]
+            else:
+                out[key] = {("white", "r"): 1e-3, ("quantisation", "step"): 0.01, ("random-walk", "sigma"): 2e-3,
+                            ("low-pass", "cutoff_hz"): 5.0, ("offset", "value"): 0.0, ("ramp", "slope"): 1e-4,
+                            ("sinusoid", "frequency_hz"): 3.37, ("sinusoid", "amplitude"): 0.01,
+                            ("sinusoid", "phase"): 0.0, ("temperature-bias", "bias_per_degC"): 0.02,
+                            ("temperature-bias", "t_ref"): t_ref, ("temperature-order", "order_per_degC"): 0.03,
+                            ("temperature-order", "t_ref"): t_ref}[(comp.name, p.name)]
+    return out

@@ -1,0 +1,164 @@
+"""Model checking (issue 12): Allan deviation of a model, whitened regressors, the diagnostics' false-alarm
+rates at the true model, and ``check`` end to end on data with a hidden effect."""
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from torchtea.checking import allan, check, extend
+from torchtea.checking.diagnostics import (LEVEL, change, gls_statistic, innovations, lines, ljung_box, nis_windows,
+                                           run_diagnostics, spectrum_bands, temperature_view, whiten)
+from torchtea.cli import main
+from torchtea.fitting.mle import exact_loglik
+from torchtea.noise import default_values, parse_model, simulate_model, temperature_profile
+
+H = 0.01
+
+
+def test_model_avar_closed_forms():
+    """White r/m and random walk σ²h(2m²+1)/(6m) (ALGORITHMS.md §7) from the spectral integral."""
+    m = allan.octave_clusters(30000)
+    w = allan.model_avar(parse_model("white"), {"white.r": 2.0}, H, m)[0]
+    np.testing.assert_allclose(w, 2.0 / m, rtol=1e-9)
+    s = 0.3
+    rw = allan.model_avar(parse_model("random-walk"), {"random-walk.sigma": s}, H, m)[0]
+    np.testing.assert_allclose(rw, s * s * H * (2 * m ** 2 + 1) / (6 * m), rtol=1e-9)
+
+
+def test_model_avar_matches_simulation_and_allantools():
+    """The model's AVAR against the mean of allantools' overlapping AVAR over simulated series."""
+    model = parse_model("fractional+white")
+    v = default_values(model, H)
+    y = simulate_model(model, v, n_steps=4000, h=H, realisations=200, generator=torch.Generator().manual_seed(5))[0]
+    m = np.array([1, 4, 16, 64])
+    est = np.mean([allan.data_adev(s.numpy(), H, m) ** 2 for s in y], axis=0)
+    sd = np.std([allan.data_adev(s.numpy(), H, m) ** 2 for s in y], axis=0) / math.sqrt(200)
+    ref = allan.model_avar(model, v, H, m)[0]
+    # within 4 standard errors of the simulation mean (the transient from the zero start is a small bias at
+    # large m, inside this tolerance at N = 4000)
+    assert np.all(np.abs(est - ref) < 4 * sd + 1e-3 * ref), (est, ref, sd)
+
+
+def test_deterministic_avar_of_a_sinusoid():
+    """(A²/2)·2 sin⁴(mω₀/2)/(m² sin²(ω₀/2)) (ALGORITHMS.md §7) for the sample AVAR of a long sinusoid."""
+    A, f0 = 0.5, 3.37
+    t = np.arange(200_000) * H
+    m = np.array([1, 3, 10, 30])
+    w0 = 2 * math.pi * f0 * H
+    ref = (A * A / 2) * 2 * np.sin(m * w0 / 2) ** 4 / (m ** 2 * np.sin(w0 / 2) ** 2)
+    np.testing.assert_allclose(allan.deterministic_avar(A * np.sin(2 * math.pi * f0 * t), m), ref, rtol=2e-3)
+
+
+def test_whitened_regressor_gives_the_exact_likelihood_ratio():
+    """Least squares of the innovations on the whitened regressor = the exact log-likelihood maximised over a
+    temperature-bias coefficient at fixed noise parameters (the filter is linear in the data)."""
+    model = parse_model("fractional+white")
+    v = default_values(model, H)
+    n = 3000
+    y = simulate_model(model, v, n_steps=n, h=H, generator=torch.Generator().manual_seed(2))[0, 0].numpy()
+    T = temperature_profile(n, H, generator=torch.Generator().manual_seed(3)).numpy()
+    y = y + 0.05 * (T - T.mean())
+    inn = innovations(model, v, y, H)
+    lr, beta = gls_statistic(inn.z, whiten(inn, T - T.mean()))
+    alt = extend(model, "temperature-bias")
+    vals = dict(v, **{"temperature-bias.bias_per_degC": [0.0, float(beta[0]), float(beta[0]) + 1e-3],
+                      "temperature-bias.t_ref": float(T.mean())})
+    ll = exact_loglik(alt, {k: np.broadcast_to(x, (3,)).copy() for k, x in vals.items()}, y - y.mean(), H,
+                      inputs={"temperature": T})
+    assert abs(lr - 2 * (ll[1] - ll[0])) < 1e-6 * max(1.0, lr)
+    assert ll[1] > ll[2]  # β̂ maximises
+
+
+def _false_alarms(n_series=300, n=4000):
+    """Each diagnostic's rejections over ``n_series`` series from the model, filtered at the true values."""
+    model = parse_model("fractional+white")
+    v = default_values(model, H)
+    ys = simulate_model(model, v, n_steps=n, h=H, realisations=n_series, generator=torch.Generator().manual_seed(11))[0]
+    T = temperature_profile(n, H, generator=torch.Generator().manual_seed(12)).numpy()
+    counts = {}
+    for y in ys.numpy():
+        inn = innovations(model, v, y, H)
+        for d in run_diagnostics(model, v, inn, H, temperature=T):
+            counts[d.name] = counts.get(d.name, 0) + (d.passed is False)
+    return counts
+
+
+@pytest.mark.slow
+def test_diagnostics_false_alarm_rates_at_the_true_model():
+    """At the true model every diagnostic rejects at most at its level (1 %) — Bonferroni inside a diagnostic
+    makes most of them conservative — within 3 binomial standard errors over 300 series."""
+    n_series = 300
+    counts = _false_alarms(n_series)
+    bound = LEVEL + 3 * math.sqrt(LEVEL * (1 - LEVEL) / n_series)
+    for name, c in counts.items():
+        assert c / n_series <= bound, (name, c, counts)
+
+
+def test_each_diagnostic_fails_on_its_own_defect():
+    """White noise N(0,1) passes; each defect is caught by the diagnostic made for it."""
+    rng = np.random.default_rng(0)
+    n = 20000
+    z = rng.standard_normal(n)
+    assert nis_windows(z, H).passed and change(z, H).passed and ljung_box(z).passed
+    assert spectrum_bands(z, H).passed and lines(z, H).passed
+    z2 = z.copy()
+    z2[5000:6000] *= 1.5  # a burst: windowed NIS, with its time range
+    d = nis_windows(z2, H)
+    assert not d.passed and any(a <= 55.0 and b >= 51.0 for a, b in d.ranges) and d.directions[0] == "high"
+    assert not change(z + np.linspace(0, 0.1, n), H).passed  # a drift of the mean
+    ar = np.convolve(z, [1.0, 0.3])[:n]  # correlated innovations
+    assert not ljung_box(ar).passed
+    tone = z + 0.1 * np.sin(2 * math.pi * 7.0 * np.arange(n) * H)
+    dl = lines(tone, H)
+    assert not dl.passed and any(a <= 7.0 <= b for a, b in dl.ranges)
+    smooth = np.convolve(z, np.ones(3) / math.sqrt(3))[:n]  # too much power at low frequencies
+    ds = spectrum_bands(smooth, H)
+    assert not ds.passed and "low" in ds.directions and "high" in ds.directions
+
+
+def test_temperature_view_finds_a_temperature_term():
+    model = parse_model("fractional+white")
+    v = default_values(model, H)
+    n = 6000
+    y = simulate_model(model, v, n_steps=n, h=H, generator=torch.Generator().manual_seed(4))[0, 0].numpy()
+    T = temperature_profile(n, H, generator=torch.Generator().manual_seed(5)).numpy()
+    assert temperature_view(innovations(model, v, y, H), T, H).passed
+    d = temperature_view(innovations(model, v, y + 0.1 * (T - T.mean()), H), T, H)
+    assert not d.passed and abs(d.detail["bias_per_degC_gls"] - 0.1) < 0.03
+
+
+def test_extend_places_the_low_pass_after_the_states():
+    assert extend(parse_model("fractional+white"), "low-pass").spec == "fractional+low-pass+white"
+    assert extend(parse_model("fractional+white"), "sinusoid").spec == "fractional+white+sinusoid"
+    with pytest.raises(ValueError, match="already has"):
+        extend(parse_model("fractional+white+ramp"), "ramp")
+
+
+@pytest.mark.slow
+def test_check_finds_a_hidden_sinusoid_and_nothing_on_clean_data(tmp_path):
+    """End to end through the CLI: ``simulate --model`` writes data with a hidden 3.37 Hz line; ``check``
+    ranks ``sinusoid`` first with the right frequency, and after ``--add sinusoid`` the model is adequate.
+    Clean data from the base model get no suggestion."""
+    n = "12000"
+    for name, spec in (("sin", "fractional+white+sinusoid"), ("clean", "fractional+white")):
+        assert main(["simulate", "--model", spec, "--n", n, "--h", str(H), "--seed", "7", "--out",
+                     str(tmp_path / f"{name}.csv")]) == 0
+    assert main(["check", str(tmp_path / "sin.csv"), "--column", "y", "--temperature", "temp", "--no-plots",
+                 "--out", str(tmp_path / "c1")]) == 0
+    doc = json.loads((tmp_path / "c1" / "check.json").read_text())
+    assert doc["adequate"] is False and "lines" in doc["base"]["failed"]
+    top = doc["suggestions"][0]
+    assert top["effect"] == "sinusoid" and abs(top["parameters"]["frequency_hz"] - 3.37) < 0.01
+    assert top["after"]["nll_per_sample"] < doc["base"]["nll_per_sample"] and "lines" in top["repairs"]
+    assert main(["check", str(tmp_path / "sin.csv"), "--column", "y", "--add", "sinusoid", "--out",
+                 str(tmp_path / "c2")]) == 0
+    doc2 = json.loads((tmp_path / "c2" / "check.json").read_text())
+    assert doc2["model"] == "fractional+white+sinusoid" and doc2["adequate"] is True
+    assert doc2["before"]["failed"] and (tmp_path / "c2" / "spectrum_y.png").exists()
+    assert "before" in (tmp_path / "c2" / "report.md").read_text()
+    r = check(np.loadtxt(tmp_path / "clean.csv", delimiter=",", skiprows=1)[:, 1], H, intervals=False)
+    assert r.suggestions == [] and r.adequate

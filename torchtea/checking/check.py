@@ -1,0 +1,415 @@
+r"""``check``: fit a noise model, test it against the measurements, and rank the effects it is missing.
+
+1. **Fit** the model by exact maximum likelihood (:func:`~torchtea.fitting.fit_series`).
+2. **Diagnose** it (:mod:`.diagnostics`): the standardised innovations in time, lag and frequency, the Allan
+   deviation against the model's band, the innovations against the temperature. ``adequate`` when every
+   diagnostic that ran passed at its level.
+3. **Screen** every effect of the library that the model lacks, each with a test whose null distribution is
+   known, so its p-value is calibrated (:data:`SCREENS`):
+
+   - linear mean terms (``ramp``, ``temperature-bias``): the exact likelihood-ratio at the fitted noise
+     parameters, by least squares of the innovations on the *whitened* regressor (χ²₁; mean and noise
+     parameters are orthogonal in a Gaussian model, so holding the latter is asymptotically exact);
+   - ``sinusoid``: the ``lines`` diagnostic — the largest innovation periodogram ordinate against its
+     neighbours, over all frequencies;
+   - stochastic components (``random-walk``, ``low-pass``, ``quantisation``): the Whittle likelihood-ratio of
+     the model with and without the component (the null value is on the boundary: ½χ²₀ + ½χ²₁);
+   - ``temperature-order``: the exact likelihood-ratio over its slope alone, the other parameters held
+     at the fit (χ²₁; holding them makes the test conservative).
+
+   An effect passes when its p-value is below ``screen_level`` / (number screened) — Bonferroni, so on data
+   from the model the chance of any suggestion is at most ``screen_level``.
+4. **Refit** each passing effect by exact maximum likelihood, started from the model's estimate, and score it
+   by the fall of BIC (``gain`` = BIC before − BIC after, in units of −2 log-likelihood); re-run the
+   diagnostics, and say which ones it repairs. Suggestions are sorted by gain.
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+from scipy import stats
+
+from ..fitting.mle import Fit, centred, exact_loglik, refine_exact, refine_frequency, whittle_fit
+from ..noise.components import COMPONENTS
+from ..noise.model import NoiseModel, parse_model
+from .diagnostics import LEVEL, Diagnostic, Innovations, gls_statistic, innovations, metrics, run_diagnostics, whiten
+
+__all__ = ["check", "CheckResult", "Suggestion", "CANDIDATES", "extend", "SCREENS", "effect_parameters"]
+
+#: The effects screened, in this order (each a component of :mod:`torchtea.noise.components`).
+CANDIDATES = ("random-walk", "sinusoid", "temperature-bias", "temperature-order", "low-pass", "ramp", "quantisation")
+SCREENS = {"random-walk": "Whittle LR, ½χ²₀+½χ²₁", "low-pass": "Whittle LR, ½χ²₀+½χ²₁",
+           "quantisation": "Whittle LR, ½χ²₀+½χ²₁", "ramp": "exact LR (whitened regressor), χ²₁",
+           "temperature-bias": "exact LR (whitened regressor), χ²₁",
+           "sinusoid": "largest innovation periodogram line (F(2,200), max over frequencies)",
+           "temperature-order": "exact LR over the slope, others held (χ²₁, conservative)"}
+
+
+def extend(model: NoiseModel, effect: str) -> NoiseModel:
+    """``model`` with one more component: a ``low-pass`` right after the last state component (it filters the
+    state components before it, not the ADC's white noise), anything else at the end."""
+    model = parse_model(model)
+    if effect not in COMPONENTS:
+        raise ValueError(f"unknown effect {effect!r}; choose from: {', '.join(CANDIDATES)}")
+    names = [c.name for _, c in model.components]
+    if effect in names and effect != "sinusoid":
+        raise ValueError(f"model {model.spec!r} already has {effect!r}")
+    if effect == "low-pass":
+        last = max((i for i, (_, c) in enumerate(model.components) if c.kind == "state"), default=None)
+        if last is None:
+            raise ValueError(f"a low-pass filters state components (fractional, random-walk); {model.spec!r} has none")
+        names.insert(last + 1, effect)
+    elif effect == "temperature-order" and not model.has("fractional"):
+        raise ValueError(f"temperature-order drives a fractional component's order; {model.spec!r} has none")
+    else:
+        names.append(effect)
+    return parse_model("+".join(names))
+
+
+def _new_label(base: NoiseModel, alt: NoiseModel) -> str:
+    old = {label for label, _ in base.components}
+    return next(label for label, _ in alt.components if label not in old)
+
+
+def effect_parameters(fit: Fit, label: str) -> dict:
+    """The values of one component's parameters, named without the label (``frequency_hz``, ``sigma`` …)."""
+    return {n.split(".", 1)[1]: fit.values[n] for n in fit.model.names if n.split(".", 1)[0] == label}
+
+
+@dataclass
+class Suggestion:
+    effect: str
+    gain: float
+    p_value: float
+    screen: str
+    fit: Fit
+    diagnostics: list
+    metrics: dict
+    repairs: list
+    label: str
+
+    @property
+    def parameters(self) -> dict:
+        return effect_parameters(self.fit, self.label)
+
+    def as_dict(self) -> dict:
+        ci = {n.split(".", 1)[1]: self.fit.ci95[n] for n in self.fit.model.names
+              if n.split(".", 1)[0] == self.label}
+        return {"effect": self.effect, "gain": self.gain, "p_value": self.p_value, "screen": self.screen,
+                "model": self.fit.model.spec, "parameters": self.parameters, "ci95": ci,
+                "after": dict(self.metrics, failed=[d.name for d in self.diagnostics if d.passed is False]),
+                "repairs": self.repairs}
+
+
+@dataclass
+class CheckResult:
+    """What :func:`check` found. ``diagnostics``: list of :class:`~.diagnostics.Diagnostic`; ``screens``: one dict
+    per effect screened (its statistic, p-value, whether it passed); ``suggestions``: :class:`Suggestion` s, best
+    first; ``before``: the result this one was built from by :meth:`add`."""
+
+    y: np.ndarray
+    h: float
+    inputs: dict | None
+    fit: Fit
+    innovations: Innovations
+    diagnostics: list
+    metrics: dict
+    screens: list
+    suggestions: list
+    level: float
+    screen_level: float
+    seconds: float
+    notes: list = field(default_factory=list)
+    before: "CheckResult | None" = None
+    #: Seconds per stage (fit, diagnostics, screen, refits, intervals) and exact-likelihood evaluations.
+    timings: dict = field(default_factory=dict)
+
+    @property
+    def model(self) -> NoiseModel:
+        return self.fit.model
+
+    @property
+    def failed(self) -> list[str]:
+        return [d.name for d in self.diagnostics if d.passed is False]
+
+    @property
+    def adequate(self) -> bool:
+        return not self.failed
+
+    @property
+    def failing_ranges_s(self) -> list:
+        out = []
+        for d in self.diagnostics:
+            if d.name == "nis":
+                out += d.ranges
+        return out
+
+    def diagnostic(self, name: str) -> Diagnostic:
+        return next(d for d in self.diagnostics if d.name == name)
+
+    def add(self, effect: str, **kw) -> "CheckResult":
+        """Check the model with ``effect`` added (reusing the suggestion's fit when there is one)."""
+        alt = extend(self.model, effect)
+        start = next((s.fit for s in self.suggestions if s.fit.model.spec == alt.spec), None)
+        res = check(self.y, self.h, model=alt, inputs=self.inputs, level=self.level,
+                    screen_level=self.screen_level, fit=start, **kw)
+        res.before = self
+        return res
+
+    def as_dict(self) -> dict:
+        return {"model": self.model.spec, "adequate": self.adequate,
+                "base": dict(self.metrics, failed=self.failed, failing_ranges_s=self.failing_ranges_s,
+                             parameters=self.fit.values, loglik=self.fit.loglik_exact, bic=_bic(self.fit)),
+                "diagnostics": [d.as_dict() for d in self.diagnostics],
+                "screens": self.screens,
+                "suggestions": [s.as_dict() for s in self.suggestions],
+                "level": self.level, "screen_level": self.screen_level, "seconds": self.seconds,
+                "notes": self.notes}
+
+
+def _bic(fit: Fit) -> float:
+    return fit.k * math.log(fit.n) - 2.0 * fit.loglik_exact
+
+
+def _assess(model, values, y, h, inputs, level):
+    inn = innovations(model, values, y, h, inputs)
+    T = None if inputs is None else inputs.get("temperature")
+    diags = run_diagnostics(model, values, inn, h, temperature=T, level=level)
+    return inn, diags, metrics(inn, diags)
+
+
+def _screen(model: NoiseModel, fit: Fit, wf, inn: Innovations, diags, y, h, inputs, candidates) -> list[dict]:
+    """Screening statistic, p-value and a starting point for each candidate effect."""
+    N = len(y)
+    t = np.arange(N) * h
+    T = None if inputs is None else inputs.get("temperature")
+    out = []
+    stochastic = []
+    for effect in candidates:
+        row = {"effect": effect, "test": SCREENS[effect], "statistic": None, "p_value": None, "log10_p": None,
+               "start": None, "note": ""}
+        try:
+            alt = extend(model, effect)
+        except ValueError as exc:
+            row["note"] = f"not screened: {exc}"
+            out.append(row)
+            continue
+        label = _new_label(model, alt)
+        if effect in ("temperature-bias", "temperature-order") and T is None:
+            row["note"] = "not screened: needs the temperature channel"
+            out.append(row)
+            continue
+        if effect == "quantisation" and model.has("white"):
+            row["note"] = "not screened: quantisation noise is white, indistinguishable from the white component"
+            out.append(row)
+            continue
+        base = dict(fit.values)
+        if effect in ("ramp", "temperature-bias"):
+            x = t - t.mean() if effect == "ramp" else np.asarray(T, dtype=np.float64) - float(np.mean(T))
+            w = whiten(inn, x)
+            lr, beta = gls_statistic(inn.z, w)
+            logp = stats.chi2.logsf(lr, 1)
+            start = dict(base)
+            if effect == "ramp":
+                start[f"{label}.slope"] = float(beta[0])
+            else:
+                start[f"{label}.bias_per_degC"] = float(beta[0])
+                start[f"{label}.t_ref"] = float(np.mean(T))
+            row.update(statistic=lr, start=start)
+        elif effect == "sinusoid":
+            ln = next(d for d in diags if d.name == "lines")
+            r = inn.y - inn.mean
+            f0 = refine_frequency(np.where(inn.observed, r, 0.0), ln.detail["peak_hz"], h)
+            w = whiten(inn, np.stack([np.sin(2 * np.pi * f0 * t), np.cos(2 * np.pi * f0 * t)]))
+            lr, beta = gls_statistic(inn.z, w)
+            logp = ln.detail["log_p"]
+            start = dict(base)
+            start.update({f"{label}.frequency_hz": f0, f"{label}.amplitude": float(math.hypot(*beta)),
+                          f"{label}.phase": float(math.atan2(beta[1], beta[0]))})
+            row.update(statistic=lr, start=start)
+        elif effect == "temperature-order":
+            lr, g = _scan_order_slope(model, alt, label, fit, inn, y, h, inputs)
+            logp = stats.chi2.logsf(lr, 1)
+            start = dict(base)
+            start.update({f"{label}.order_per_degC": g, f"{label}.t_ref": float(np.mean(T))})
+            row.update(statistic=lr, start=start)
+        else:
+            stochastic.append((row, alt))
+            out.append(row)
+            continue
+        row.update(p_value=float(math.exp(logp)), log10_p=float(logp / math.log(10)))
+        out.append(row)
+    if stochastic and np.isnan(y).any():
+        for row, _ in stochastic:
+            row["note"] = "not screened: the Whittle likelihood-ratio needs a complete series (missing samples)"
+    elif stochastic:
+        _whittle_screens(model, wf, stochastic, y, h, inputs)
+    return out
+
+
+def _alt_starts(model, alt, label, base_values: dict, h: float, n: int) -> list[dict]:
+    """Starts of an extended model's Whittle fit: the model's Whittle estimate plus the new component at a
+    few strengths (a random walk whose spectrum at the lowest frequency is 0.1× / 1× the total, a low-pass at
+    0.4× / 0.1× the Nyquist frequency, a quantisation step of the white level)."""
+    comp = dict(alt.components)[label]
+    omega1 = torch.tensor([2 * math.pi / n], dtype=torch.float64)
+    level = float(model.spectrum(base_values, omega1, h)[0, 0])
+    out = []
+    if comp.name == "random-walk":
+        for share in (0.1, 1.0):  # S_rw(ω₁) = σ²h/(2π·4 sin²(ω₁/2))
+            out.append({f"{label}.sigma": math.sqrt(share * level * 2 * math.pi * 4 * math.sin(omega1 / 2) ** 2 / h)})
+    elif comp.name == "low-pass":
+        out = [{f"{label}.cutoff_hz": c / (2 * h)} for c in (0.4, 0.1)]
+    elif comp.name == "quantisation":
+        r = float(model.measurement_variance(base_values)[0]) or level * 2 * math.pi
+        out = [{f"{label}.step": math.sqrt(12 * r)}]
+    return [{**base_values, **o} for o in out]
+
+
+def _whittle_screens(model, base, rows_alts, y, h, inputs):
+    """Whittle LR of each stochastic candidate against the model (its Whittle fit ``base``), on the same
+    periodogram."""
+    yy = centred(model, y)
+    inp = None if inputs is None else [inputs]
+    base_values = dict(zip(model.names, base.values[0].tolist()))
+    for row, alt in rows_alts:
+        label = _new_label(model, alt)
+        # the grid as well: a model that lacks a random walk may have bent its fractional order to ≈ 1 to
+        # mimic it, and the extended model's optimum is then far from the model's
+        wf = whittle_fit(alt, [yy], h, inputs=inp, starts=[_alt_starts(model, alt, label, base_values, h, len(y))],
+                         fractions=(0.5,))
+        lr = max(0.0, 2.0 * float(wf.loglik[0] - base.loglik[0]))
+        logp = math.log(0.5) + stats.chi2.logsf(lr, 1) if lr > 0 else 0.0
+        vals = dict(zip(alt.names, wf.values[0].tolist()))
+        vals.update(wf.means[0])
+        row.update(statistic=lr, p_value=float(math.exp(logp)), log10_p=float(logp / math.log(10)),
+                   start=vals, metric=wf.hessian[0])
+
+
+def _scan_order_slope(model, alt, label, fit, inn, y, h, inputs, grid: int = 5) -> tuple[float, float]:
+    """2·max Δℓ over the temperature-order slope γ with the other parameters at the fit (a grid over the
+    slopes that keep the order inside (0, 1), refined by a parabola) and the best γ."""
+    T = np.asarray(inputs["temperature"], dtype=np.float64)
+    frac = next(lb for lb, c in model.components if c.name == "fractional")
+    a0 = fit.values[f"{frac}.order"]
+    span = max(float(np.max(np.abs(T - T.mean()))), 1e-9)
+    g_max = 0.9 * min(a0, 1 - a0) / span
+    yc = centred(model, y)
+
+    def ll(gs):
+        vals = {n: [fit.values[n]] * len(gs) for n in model.names}
+        vals[f"{label}.order_per_degC"] = list(gs)
+        vals[f"{label}.t_ref"] = [float(T.mean())] * len(gs)
+        return exact_loglik(alt, vals, yc, h, inputs={"temperature": T})
+
+    gs = np.linspace(-g_max, g_max, grid)
+    ls = ll(gs)
+    k = int(np.argmax(ls))
+    best_g, best_l = gs[k], ls[k]
+    if 0 < k < grid - 1:  # parabola through the three points around the maximum
+        d = gs[1] - gs[0]
+        den = ls[k - 1] - 2 * ls[k] + ls[k + 1]
+        if den < 0:
+            g = gs[k] + 0.5 * d * (ls[k - 1] - ls[k + 1]) / den
+            lg = ll([g])[0]
+            if lg > best_l:
+                best_g, best_l = g, lg
+    return max(0.0, 2.0 * float(best_l - inn.loglik)), float(best_g)
+
+
+def check(y, h: float, model="fractional+white", inputs: dict | None = None, *, level: float = LEVEL,
+          screen_level: float = 0.05, candidates=CANDIDATES, fit: Fit | None = None, intervals: bool = True) -> CheckResult:
+    """Fit ``model`` to the series ``y`` (NaN = missing, sample time ``h``), run the diagnostics and rank the
+    missing effects (module docstring). ``inputs``: ``{"temperature": (N,)}`` (°C) when there is a temperature
+    channel. ``fit``: an existing exact fit of ``model`` to ``y`` to use. ``intervals``: compute the intervals of
+    the model's parameters and of the best suggestion's (a finite-difference Hessian each, 1 + 2k² likelihood
+    evaluations for k parameters); the other suggestions' parameters come without."""
+    t0 = time.perf_counter()
+    model = parse_model(model)
+    y = np.asarray(y, dtype=np.float64)
+    notes = []
+    inp_list = None if inputs is None else [inputs]
+    clock = _Clock()
+    filled = np.where(np.isnan(y), np.nanmean(y), y)
+    wf = whittle_fit(model, [filled], h, inputs=inp_list)
+    if fit is None or fit.model.spec != model.spec:
+        start = dict(zip(model.names, wf.values[0].tolist()))
+        start.update(wf.means[0])
+        fit = refine_exact(model, y, h, start, inputs=inputs, fixed=[n for n in model.names if n.endswith(".t_ref")],
+                           metric=wf.hessian[0], intervals=intervals)
+    if not fit.converged:
+        notes.append("the exact fit did not report convergence: diagnostics are at the last iterate")
+    clock("fit")
+    inn, diags, mets = _assess(model, fit.values, y, h, inputs, level)
+    clock("diagnostics")
+    screens = _screen(model, fit, wf, inn, diags, y, h, inputs, [c for c in candidates if c in CANDIDATES])
+    clock("screen")
+    screened = [r for r in screens if r["p_value"] is not None]
+    threshold = screen_level / max(1, len(screened))
+    suggestions = []
+    failed_before = {d.name for d in diags if d.passed is False}
+    for row in screened:
+        row["passed"] = bool(row["p_value"] < threshold)
+        row["threshold"] = threshold
+        if not row["passed"]:
+            continue
+        alt = extend(model, row["effect"])
+        label = _new_label(model, alt)
+        # the temperature reference is fixed (the mean temperature); a sinusoid's frequency too, at the
+        # refined periodogram peak (asymptotically efficient in coloured noise, Hannan 1973) — it still counts
+        # as an estimated parameter in BIC
+        fixed = [n for n in alt.names if n.endswith(".t_ref") or n == f"{label}.frequency_hz"]
+        metric = row.pop("metric", None)
+        start = row["start"]
+        if metric is None:  # a mean or modifier effect: the noise parameters from the extended model's Whittle
+            # fit (what the effect distorted in the model's fit is undone there), the effect's from the screen
+            # (from the grid too: a mean the model lacked can have pushed its fit to the other mode of the
+            # order–pole ridge, and the extended model's optimum is then on the first)
+            wfa = whittle_fit(alt, [filled], h, inputs=inp_list, starts=[[dict(zip(model.names, wf.values[0].tolist()))]],
+                              fractions=(0.5,))
+            noise = {n: x for n, x in zip(alt.names, wfa.values[0].tolist()) if n in model.names}
+            start, metric = {**start, **noise}, wfa.hessian[0]
+        f2 = refine_exact(alt, y, h, start, inputs=inputs, fixed=fixed, metric=metric, intervals=False)
+        if row["effect"] == "sinusoid":
+            f2.free.append(f"{label}.frequency_hz")
+            f2.ci95_method[f"{label}.frequency_hz"] = "refined periodogram peak (held in the exact refit): no interval"
+        gain = _bic(fit) - _bic(f2)
+        if gain <= 0:
+            row["note"] = (f"passed the screen but the exact refit does not lower BIC (gain {gain:.1f}): "
+                           "not suggested")
+            continue
+        _, d2, m2 = _assess(alt, f2.values, y, h, inputs, level)
+        repairs = sorted(failed_before & {d.name for d in d2 if d.passed})
+        suggestions.append(Suggestion(row["effect"], float(gain), row["p_value"], row["test"], f2, d2, m2, repairs,
+                                      label))
+    for row in screens:
+        row.pop("metric", None)
+        row.pop("start", None)
+    clock("refits")
+    suggestions.sort(key=lambda s: -s.gain)
+    if intervals and suggestions:  # the best suggestion's intervals (a finite-difference Hessian: 1 + 2k² fits)
+        top = suggestions[0]
+        f = top.fit
+        fixed = [n for n in f.model.names if n not in f.free or n.endswith(".frequency_hz")]
+        top.fit = refine_exact(f.model, y, h, f.values, inputs=inputs, fixed=fixed, metric=f.hessian, intervals=True)
+        if top.effect == "sinusoid":
+            top.fit.free.append(f"{top.label}.frequency_hz")
+            top.fit.ci95_method[f"{top.label}.frequency_hz"] = f.ci95_method[f"{top.label}.frequency_hz"]
+    clock("intervals")
+    return CheckResult(y, h, inputs, fit, inn, diags, mets, screens, suggestions, level, screen_level,
+                       time.perf_counter() - t0, notes, timings=clock.laps)
+
+
+class _Clock:
+    def __init__(self):
+        self.t = time.perf_counter()
+        self.laps = {}
+
+    def __call__(self, name):
+        now = time.perf_counter()
+        self.laps[name] = self.laps.get(name, 0.0) + now - self.t
+        self.t = now

@@ -1,0 +1,398 @@
+r"""Diagnostics of a fitted noise model against the measurements: where, and how, the model fails.
+
+Every diagnostic is a test of the hypothesis "the data came from the fitted model", with a stated level
+(default 1 %); inside a diagnostic, multiple comparisons (windows, bands, τ values, frequencies) are
+Bonferroni-corrected, so its p-value is for the whole diagnostic. Their false-alarm rates on data drawn
+from fitted models are measured in ``experiments/check/`` and in the tests.
+
+They read the **standardised innovations** :math:`z_k = e_k/\sqrt{S_k}` of the exact Kalman filter at the
+fitted values — independent standard normal when the model is right — and, for the Allan view, the data
+themselves against the model's Allan deviation:
+
+========== ============== =====================================================================================
+name       domain         statistic (null distribution)
+========== ============== =====================================================================================
+nis        time           Σ z² in each of W windows (χ²_n per window, two-sided): the failing time ranges
+change     time           CUSUM of z and of z² − 1 (sup of a Brownian bridge, Kolmogorov): a drift or a step
+ljung-box  lag            Ljung–Box Q on the first L lags of z (χ²_L)
+spectrum   frequency      band means of 2π·periodogram(z) in log-spaced bands (Gamma(m)/m, two-sided): the
+                          bands where the model's spectrum is too low (ratio > 1) or too high (< 1)
+lines      frequency      each ordinate of 2π·periodogram(z) against the mean of its 100 neighbours (F(2, 200)),
+                          the largest over all frequencies: narrow-band lines (vibration)
+allan      Allan          the data's overlapping AVAR at octave τ against the model's (χ²_edf, Greenhall's EDF):
+                          the τ ranges outside the band
+temperature inputs        score test of a temperature-proportional term (z against the whitened temperature,
+                          χ²₁) and correlation of z² with the temperature (normal): needs the channel
+========== ============== =====================================================================================
+
+Metrics (descriptive, not tests): ``nll_per_sample`` (−ℓ/N of the exact filter, nats), ``psd_misfit``
+(mean |log₁₀| of the innovation band power: 0 when the model's spectrum has the data's shape and level —
+under the model about 0.01–0.03 at N = 30 000 from the bands' own scatter), ``adev_misfit`` (mean |log₁₀(ADEV
+data / ADEV model)| over the octave τ grid).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+from scipy import stats
+
+from ..fitting.mle import FIT_MEMORY, centred
+from ..likelihood.kalman import filter_fast
+from ..noise.model import StateSpace, parse_model, state_memory
+from . import allan
+
+__all__ = ["Diagnostic", "Innovations", "innovations", "whiten", "run_diagnostics", "metrics", "DIAGNOSTICS",
+           "LEVEL"]
+
+#: Default level of each diagnostic.
+LEVEL = 0.01
+DIAGNOSTICS = ("nis", "change", "ljung-box", "spectrum", "lines", "allan", "temperature")
+
+
+@dataclass
+class Diagnostic:
+    """One test. ``p_value`` is for the whole diagnostic (Bonferroni inside); ``passed`` is ``p ≥ level``, or
+    None when it was not run (``summary`` says why). ``ranges`` are where it fails, in ``unit`` (s, Hz or τ in s),
+    each with its direction in ``directions`` ("high": the data exceed the model there, "low": below)."""
+
+    name: str
+    domain: str
+    statistic: float | None
+    p_value: float | None
+    level: float
+    summary: str
+    unit: str = ""
+    ranges: list = field(default_factory=list)
+    directions: list = field(default_factory=list)
+    detail: dict = field(default_factory=dict)
+
+    @property
+    def passed(self) -> bool | None:
+        return None if self.p_value is None else bool(self.p_value >= self.level)
+
+    def as_dict(self) -> dict:
+        return {"name": self.name, "domain": self.domain, "statistic": self.statistic, "p_value": self.p_value,
+                "level": self.level, "passed": self.passed, "summary": self.summary, "unit": self.unit,
+                "ranges": self.ranges, "directions": self.directions}
+
+
+@dataclass
+class Innovations:
+    """The exact filter at the fitted values: standardised innovations ``z`` (NaN where missing), the state
+    space (to whiten regressors with the same gains), the fitted mean, and the exact log-likelihood."""
+
+    z: np.ndarray
+    ss: StateSpace
+    mean: np.ndarray
+    loglik: float
+    observed: np.ndarray
+    y: np.ndarray  # the series the filter saw (centred unless the model has an offset)
+
+
+def innovations(model, values: dict, y, h: float, inputs: dict | None = None, memory=FIT_MEMORY) -> Innovations:
+    model = parse_model(model)
+    y = centred(model, y)
+    N = len(y)
+    ss = model.state_space(values, h, N, state_memory(memory, N), inputs=inputs)
+    mean = model.mean(values, torch.arange(N, dtype=torch.float64) * h, inputs)
+    ll, e, S = filter_fast(ss, y, mean)
+    z = e[0] / np.sqrt(S[0])
+    return Innovations(z, ss, mean.numpy()[0], float(ll[0]), ~np.isnan(y), y)
+
+
+def whiten(inn: Innovations, columns: np.ndarray) -> np.ndarray:
+    """Standardised innovations ``(m, N)`` of regressor columns ``(m, N)`` through the same filter (the gains do
+    not depend on the data): ``z(y − Xβ) = z(y) − Σ β_i w_i``, so GLS of ``y`` on ``X`` is least squares of ``z``
+    on ``w`` — an exact likelihood-ratio for linear mean terms at the fitted noise parameters."""
+    X = np.atleast_2d(np.asarray(columns, dtype=np.float64)).copy()
+    X[:, ~inn.observed] = np.nan
+    m = X.shape[0]
+    ss = inn.ss
+    rep = StateSpace(ss.F.expand(m, -1, -1), ss.G.expand(m, -1, -1), ss.C.expand(m, -1), ss.R.expand(m), ss.blocks,
+                     None if ss.varying is None else
+                     (ss.varying[0], ss.varying[1].expand(m, -1, -1), ss.varying[2].expand(m, -1), ss.varying[3]))
+    _, e, S = filter_fast(rep, X)
+    return e / np.sqrt(S)
+
+
+def gls_statistic(z: np.ndarray, w: np.ndarray) -> tuple[float, np.ndarray]:
+    """2Δℓ of adding the linear terms whose whitened regressors are ``w`` ``(m, N)`` (least squares of z on w)
+    and their coefficients."""
+    ok = np.isfinite(z) & np.isfinite(w).all(0)
+    W = w[:, ok].T
+    beta, *_ = np.linalg.lstsq(W, z[ok], rcond=None)
+    fitted = W @ beta
+    return float(2.0 * z[ok] @ fitted - fitted @ fitted), beta
+
+
+def _merge(intervals: list[tuple[float, float, str]]) -> tuple[list, list]:
+    """Merge touching intervals of the same direction."""
+    out, dirs = [], []
+    for lo, hi, d in sorted(intervals):
+        if out and dirs[-1] == d and lo <= out[-1][1] * (1 + 1e-9) + 1e-12:
+            out[-1][1] = max(out[-1][1], hi)
+        else:
+            out.append([float(lo), float(hi)])
+            dirs.append(d)
+    return out, dirs
+
+
+def _two_sided(cdf: np.ndarray, sf: np.ndarray) -> np.ndarray:
+    return np.minimum(1.0, 2.0 * np.minimum(cdf, sf))
+
+
+# --------------------------------------------------------------------------- time
+
+def nis_windows(z: np.ndarray, h: float, level: float = LEVEL, windows: int | None = None) -> Diagnostic:
+    N = len(z)
+    W = windows or int(min(30, max(1, N // 1000)))
+    edges = np.linspace(0, N, W + 1).astype(int)
+    p, nis, bad = [], [], []
+    for w in range(W):
+        zz = z[edges[w]:edges[w + 1]]
+        zz = zz[np.isfinite(zz)]
+        n = len(zz)
+        s = float(zz @ zz)
+        nis.append(s / n if n else math.nan)
+        p.append(float(_two_sided(stats.chi2.cdf(s, n), stats.chi2.sf(s, n))) if n else 1.0)
+    p = np.array(p)
+    thr = level / W
+    for w in np.nonzero(p < thr)[0]:
+        bad.append((edges[w] * h, edges[w + 1] * h, "high" if nis[w] > 1 else "low"))
+    ranges, dirs = _merge(bad)
+    pmin = float(min(1.0, W * p.min()))
+    zf = z[np.isfinite(z)]
+    total = float(zf @ zf / len(zf))
+    summary = (f"NIS {total:.3f} overall; {len(bad)} of {W} windows outside their 99 % band" if bad else
+               f"NIS {total:.3f} overall; all {W} windows inside their band")
+    return Diagnostic("nis", "time", total, pmin, level, summary, "s", ranges, dirs,
+                      {"window_edges_s": (edges * h).tolist(), "window_nis": nis, "window_p": p.tolist()})
+
+
+def change(z: np.ndarray, h: float, level: float = LEVEL) -> Diagnostic:
+    k = np.nonzero(np.isfinite(z))[0]
+    zz = z[k]
+    n = len(zz)
+    stats_, where = [], []
+    for x in (zz, zz * zz):
+        c = np.cumsum(x - x.mean()) / (x.std() * math.sqrt(n))
+        j = int(np.argmax(np.abs(c)))
+        stats_.append(float(abs(c[j])))
+        where.append(float(k[j] * h))
+    p = np.array([stats.kstwobign.sf(s) for s in stats_])
+    pmin = float(min(1.0, 2 * p.min()))
+    which = int(np.argmin(p))
+    kind = ("a drift of the innovations' mean", "a change of their variance")[which]
+    summary = (f"{kind} around t = {where[which]:.1f} s (CUSUM {stats_[which]:.2f})" if pmin < level else
+               f"no drift or step (CUSUM of z {stats_[0]:.2f}, of z² {stats_[1]:.2f})")
+    return Diagnostic("change", "time", max(stats_), pmin, level, summary, "s",
+                      [[where[which], where[which]]] if pmin < level else [], [kind] if pmin < level else [],
+                      {"cusum_mean": stats_[0], "cusum_variance": stats_[1], "change_at_s": where})
+
+
+# --------------------------------------------------------------------------- lag
+
+def acf(x: np.ndarray, lags: int) -> np.ndarray:
+    x = np.where(np.isfinite(x), x, 0.0)
+    x = x - x.mean()
+    n = len(x)
+    f = np.fft.rfft(x, 2 * n)
+    r = np.fft.irfft(f * np.conj(f))[: lags + 1]
+    return r[1:] / r[0]
+
+
+def ljung_box(z: np.ndarray, level: float = LEVEL, lags: int = 20) -> Diagnostic:
+    n = int(np.isfinite(z).sum())
+    r = acf(z, lags)
+    Q = float(n * (n + 2) * np.sum(r * r / (n - np.arange(1, lags + 1))))
+    p = float(stats.chi2.sf(Q, lags))
+    bound = stats.norm.isf(level / (2 * lags)) / math.sqrt(n)
+    big = np.nonzero(np.abs(r) > bound)[0] + 1
+    summary = (f"innovations correlated (Q = {Q:.1f} on {lags} lags" +
+               (f"; lags {', '.join(map(str, big[:6]))} beyond ±{bound:.3f})" if len(big) else ")")
+               if p < level else f"innovations uncorrelated (Q = {Q:.1f} on {lags} lags)")
+    return Diagnostic("ljung-box", "lag", Q, p, level, summary, "lag", [[int(b), int(b)] for b in big], [],
+                      {"acf": r.tolist(), "band": float(bound)})
+
+
+# --------------------------------------------------------------------------- frequency
+
+def _innovation_periodogram(z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    x = np.where(np.isfinite(z), z, 0.0)
+    N = len(x)
+    n_obs = int(np.isfinite(z).sum())
+    d = np.fft.rfft(x)
+    j = np.arange(1, (N - 1) // 2 + 1)
+    return j, np.abs(d[j]) ** 2 / n_obs  # 2π·I: Exp(1) per ordinate under the model
+
+
+def spectrum_bands(z: np.ndarray, h: float, level: float = LEVEL, bands: int = 24,
+                   min_ordinates: int = 8) -> Diagnostic:
+    j, u = _innovation_periodogram(z)
+    N = len(z)
+    edges = np.unique(np.rint(np.geomspace(1, j[-1] + 1, bands + 1)).astype(int))
+    merged = [edges[0]]
+    for e in edges[1:]:
+        if e - merged[-1] >= min_ordinates or e == edges[-1]:
+            merged.append(e)
+    if len(merged) > 2 and merged[-1] - merged[-2] < min_ordinates:
+        merged.pop(-2)
+    lo_hz, hi_hz, ratio, p, m = [], [], [], [], []
+    for a, b in zip(merged[:-1], merged[1:]):
+        sel = (j >= a) & (j < b)
+        mm = int(sel.sum())
+        if mm == 0:
+            continue
+        r = float(u[sel].mean())
+        ratio.append(r)
+        m.append(mm)
+        lo_hz.append((a - 0.5) / (N * h))
+        hi_hz.append((b - 0.5) / (N * h))
+        p.append(float(_two_sided(stats.gamma.cdf(mm * r, mm), stats.gamma.sf(mm * r, mm))))
+    p = np.array(p)
+    B = len(p)
+    bad = [(lo_hz[i], hi_hz[i], "high" if ratio[i] > 1 else "low") for i in np.nonzero(p < level / B)[0]]
+    ranges, dirs = _merge(bad)
+    pmin = float(min(1.0, B * p.min()))
+    misfit = float(np.mean(np.abs(np.log10(ratio))))
+    if bad:
+        words = [f"{lo:.3g}–{hi:.3g} Hz ({'data above the model' if d == 'high' else 'model above the data'})"
+                 for (lo, hi), d in zip(ranges, dirs)]
+        summary = "spectrum misfit in " + "; ".join(words)
+    else:
+        summary = f"spectrum inside its band in all {B} bands"
+    return Diagnostic("spectrum", "frequency", misfit, pmin, level, summary, "Hz", ranges, dirs,
+                      {"band_lo_hz": lo_hz, "band_hi_hz": hi_hz, "ratio": ratio, "ordinates": m, "p": p.tolist()})
+
+
+def lines(z: np.ndarray, h: float, level: float = LEVEL, neighbours: int = 50, guard: int = 2) -> Diagnostic:
+    """Each ordinate against the mean of ``neighbours`` ordinates on each side (skipping ``guard`` next to it):
+    u_j / ū ~ F(2, 2K) for independent exponentials, so broad misfit (a wrong slope) does not count as a line."""
+    j, u = _innovation_periodogram(z)
+    N = len(z)
+    M = len(u)
+    c = np.concatenate([[0.0], np.cumsum(u)])
+    idx = np.arange(M)
+
+    def seg(lo, hi):  # sum and count of u[lo:hi], clipped to the array
+        lo, hi = np.clip(lo, 0, M), np.clip(hi, 0, M)
+        return c[hi] - c[lo], hi - lo
+
+    s1, n1 = seg(idx - guard - neighbours, idx - guard)
+    s2, n2 = seg(idx + guard + 1, idx + guard + 1 + neighbours)
+    K = n1 + n2
+    ratio = u / ((s1 + s2) / K)
+    logp = stats.f.logsf(ratio, 2, 2 * K)
+    i = int(np.argmin(logp))
+    # P(min over M of p_j ≤ p) = 1 − (1 − p)^M, computed in logs
+    p_any = float(-np.expm1(M * np.log1p(-math.exp(logp[i]))))
+    log_p_any = float(logp[i] + math.log(M)) if logp[i] < -30 else math.log(max(p_any, 1e-300))
+    thr = math.log(level / M)
+    hits = np.nonzero(logp < thr)[0]
+    f_hz = j / (N * h)
+    ranges = [[float(f_hz[k] - 1 / (N * h)), float(f_hz[k] + 1 / (N * h))] for k in hits]
+    ranges, dirs = _merge([(a, b, "high") for a, b in ranges])
+    summary = (f"narrow-band line(s) at {', '.join(f'{(a + b) / 2:.4g} Hz' for a, b in ranges[:5])}"
+               if len(hits) else f"no narrow-band line (largest at {f_hz[i]:.4g} Hz, {ratio[i]:.1f}× its neighbours)")
+    return Diagnostic("lines", "frequency", float(ratio[i]), p_any, level, summary, "Hz", ranges, dirs,
+                      {"peak_hz": float(f_hz[i]), "peak_ratio": float(ratio[i]), "log_p": log_p_any})
+
+
+# --------------------------------------------------------------------------- Allan
+
+def allan_view(model, values: dict, inn: Innovations, h: float, level: float = LEVEL) -> Diagnostic:
+    y = inn.y
+    if not inn.observed.all():
+        return Diagnostic("allan", "Allan", None, None, level, "not run: the overlapping ADEV needs a complete "
+                          "series (this one has missing samples)", "s")
+    m = allan.octave_clusters(len(y))
+    stoch = allan.model_avar(model, values, h, m)[0]
+    det = allan.deterministic_avar(inn.mean - inn.mean.mean(), m)
+    av_model = stoch + det
+    ad = allan.data_adev(y, h, m)
+    alpha = allan.power_law_alpha(av_model, m)
+    edf = allan.allan_edf(alpha, m, len(y))
+    x = edf * ad ** 2 / av_model
+    p = _two_sided(stats.chi2.cdf(x, edf), stats.chi2.sf(x, edf))
+    T = len(m)
+    q_lo = stats.chi2.ppf(level / (2 * T), edf) / edf
+    q_hi = stats.chi2.isf(level / (2 * T), edf) / edf
+    tau = m * h
+    bad = []
+    for i in np.nonzero(p < level / T)[0]:
+        lo = tau[i] / math.sqrt(2) if i == 0 else math.sqrt(tau[i - 1] * tau[i])
+        hi = tau[i] * math.sqrt(2) if i == T - 1 else math.sqrt(tau[i] * tau[i + 1])
+        bad.append((lo, hi, "high" if ad[i] ** 2 > av_model[i] else "low"))
+    ranges, dirs = _merge(bad)
+    misfit = float(np.mean(np.abs(np.log10(ad / np.sqrt(av_model)))))
+    if bad:
+        summary = "ADEV outside the model's band at τ " + "; ".join(
+            f"{a:.3g}–{b:.3g} s ({'data above' if d == 'high' else 'data below'})" for (a, b), d in zip(ranges, dirs))
+    else:
+        summary = f"ADEV inside the model's band at all {T} octave τ"
+    return Diagnostic("allan", "Allan", misfit, float(min(1.0, T * p.min())), level, summary, "s", ranges, dirs,
+                      {"tau_s": tau.tolist(), "adev": ad.tolist(), "adev_model": np.sqrt(av_model).tolist(),
+                       "adev_model_stochastic": np.sqrt(stoch).tolist(), "edf": edf.tolist(),
+                       "band_lo": (np.sqrt(av_model * q_lo)).tolist(), "band_hi": (np.sqrt(av_model * q_hi)).tolist(),
+                       "p": p.tolist()})
+
+
+# --------------------------------------------------------------------------- inputs
+
+def temperature_view(inn: Innovations, T, h: float, level: float = LEVEL, max_lag_s: float = 10.0) -> Diagnostic:
+    if T is None:
+        return Diagnostic("temperature", "inputs", None, None, level, "not run: no temperature channel "
+                          "(--temperature COL)")
+    T = np.asarray(T, dtype=np.float64)
+    z = inn.z
+    ok = np.isfinite(z)
+    w = whiten(inn, T - T[inn.observed].mean())[0]
+    score, beta = gls_statistic(z, w[None])
+    p_bias = float(stats.chi2.sf(score, 1))
+    Tc = T[ok] - T[ok].mean()
+    zz = z[ok] ** 2 - 1.0
+    n = int(ok.sum())
+    r_var = float(np.corrcoef(zz, Tc)[0, 1]) if Tc.std() > 0 else 0.0
+    z_var = r_var * math.sqrt(n)
+    p_var = float(2 * stats.norm.sf(abs(z_var)))
+    p = float(min(1.0, 2 * min(p_bias, p_var)))
+    # cross-correlations at lags (for the figure): z with the whitened temperature, z² with the temperature
+    L = int(min(max_lag_s / h, len(z) // 10))
+    lags = np.arange(-L, L + 1)
+    step = max(1, L // 100)
+    lags = lags[::step]
+    wz = np.where(ok, z, 0.0)
+    ww = np.where(np.isfinite(w), w, 0.0)
+    xc = [float(np.dot(wz[max(0, -k):len(wz) - max(0, k)], ww[max(0, k):len(ww) - max(0, -k)]) /
+                math.sqrt(np.dot(wz, wz) * np.dot(ww, ww))) for k in lags]
+    parts = []
+    if p_bias < level / 2:
+        parts.append(f"the innovations follow the (whitened) temperature (score {score:.1f}, ≈ {beta[0]:.3g} units/°C)")
+    if p_var < level / 2:
+        parts.append(f"their variance moves with the temperature (r = {r_var:+.3f})")
+    summary = "; ".join(parts) if parts else "no temperature dependence of the innovations or their variance"
+    return Diagnostic("temperature", "inputs", float(max(score, z_var * z_var)), p, level, summary, "",
+                      [], [], {"score_bias": score, "p_bias": p_bias, "bias_per_degC_gls": float(beta[0]),
+                               "r_variance": r_var, "p_variance": p_var, "lags_s": (lags * h).tolist(),
+                               "xcorr_whitened": xc})
+
+
+# --------------------------------------------------------------------------- all of them
+
+def run_diagnostics(model, values: dict, inn: Innovations, h: float, temperature=None,
+                    level: float = LEVEL) -> list[Diagnostic]:
+    z = inn.z
+    return [nis_windows(z, h, level), change(z, h, level), ljung_box(z, level), spectrum_bands(z, h, level),
+            lines(z, h, level), allan_view(model, values, inn, h, level), temperature_view(inn, temperature, h, level)]
+
+
+def metrics(inn: Innovations, diags: list[Diagnostic]) -> dict:
+    d = {x.name: x for x in diags}
+    return {"nll_per_sample": -inn.loglik / int(inn.observed.sum()),
+            "psd_misfit": d["spectrum"].statistic,
+            "adev_misfit": d["allan"].statistic,
+            "nis": d["nis"].statistic}
+

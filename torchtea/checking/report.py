@@ -1,0 +1,223 @@
+"""The ``check`` report: ``report.md``, ``check.json`` and the figures, per axis.
+
+Figures (matplotlib, Agg): the data's spectrum (log-band averages of the periodogram) against the model's,
+with the 99 % band of the band averages and each component's own curve; the overlapping Allan deviation with
+its band against the model and its components; the standardised innovations over time with the failing
+windows shaded; their autocorrelation; the innovations against the temperature. When there is a
+suggestion, the model with it is overlaid (dashed).
+"""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import torch
+from scipy import stats
+
+from ..noise.model import parse_model
+from ..likelihood.whittle import periodogram
+from ..reports.plots import pyplot, save_figure
+from ..reports.strictjson import write
+from . import allan
+from .check import CheckResult
+
+__all__ = ["write_report", "axis_document", "figures"]
+
+
+def axis_document(res: CheckResult) -> dict:
+    d = res.as_dict()
+    if res.before is not None:
+        d["before"] = {"model": res.before.model.spec, **res.before.metrics, "failed": res.before.failed,
+                       "bic": res.before.as_dict()["base"]["bic"]}
+    return d
+
+
+def _component_models(res: CheckResult):
+    """(label, one-component model, its values) for each stochastic component of the fitted model."""
+    out = []
+    for label, comp in res.model.components:
+        if comp.kind in ("state", "measurement"):
+            m = parse_model(comp.name)
+            vals = {f"{comp.name}.{p.name}": res.fit.values[f"{label}.{p.name}"] for p in comp.params}
+            out.append((label, m, vals))
+    return out
+
+
+def _band_average(I: np.ndarray, omega: np.ndarray, bins: int = 60):
+    edges = np.unique(np.rint(np.geomspace(1, len(I) + 1, bins + 1)).astype(int)) - 1
+    f, avg, m = [], [], []
+    for a, b in zip(edges[:-1], edges[1:]):
+        if b > a:
+            f.append(float(np.exp(np.mean(np.log(omega[a:b])))))
+            avg.append(float(I[a:b].mean()))
+            m.append(b - a)
+    return np.array(f), np.array(avg), np.array(m)
+
+
+def figures(res: CheckResult, out: Path, tag: str) -> list[Path]:
+    plt = pyplot()
+    h = res.h
+    paths = []
+    alt = res.suggestions[0] if res.suggestions else None
+    y = res.innovations.y
+    resid = np.where(res.innovations.observed, y - res.innovations.mean, 0.0)
+    # --- spectrum (one-sided PSD in units²/Hz: 2·2π·h·S(ω))
+    omega, I = periodogram(torch.as_tensor(resid))
+    omega, I = omega.numpy(), I.numpy()
+    w, avg, m = _band_average(I, omega)
+    to_hz, to_psd = 1.0 / (2 * math.pi * h), 4 * math.pi * h
+    fig, ax = plt.subplots(figsize=(8, 5))
+    model_w = res.model.spectrum(res.fit.values, torch.as_tensor(w), h)[0].numpy()
+    lo, hi = stats.gamma.ppf(0.005, m) / m, stats.gamma.ppf(0.995, m) / m
+    ax.fill_between(w * to_hz, model_w * lo * to_psd, model_w * hi * to_psd, color="C0", alpha=0.2,
+                    label="99 % band of the band averages")
+    ax.loglog(w * to_hz, avg * to_psd, "k.", ms=4, label="data (band-averaged periodogram)")
+    ax.loglog(w * to_hz, model_w * to_psd, "C0", lw=2, label=f"model {res.model.spec}")
+    for i, (label, cm, vals) in enumerate(_component_models(res)):
+        ax.loglog(w * to_hz, cm.spectrum(vals, torch.as_tensor(w), h)[0].numpy() * to_psd, lw=1, ls=":",
+                  color=f"C{i + 2}", label=f"  {label}")
+    if alt is not None:
+        s2 = alt.fit.model.spectrum(alt.fit.values, torch.as_tensor(w), h)[0].numpy()
+        ax.loglog(w * to_hz, s2 * to_psd, "C1--", lw=1.5, label=f"with {alt.effect}")
+    for (a, b), d in zip(res.diagnostic("spectrum").ranges, res.diagnostic("spectrum").directions):
+        ax.axvspan(a, b, color="red", alpha=0.08)
+    ax.set_xlabel("frequency (Hz)")
+    ax.set_ylabel("one-sided PSD (units²/Hz)")
+    ax.set_title(f"{tag}: spectrum (shaded: bands where the innovations fail)")
+    ax.legend(fontsize=7)
+    paths.append(save_figure(plt, fig, out / f"spectrum_{tag}.png"))
+    # --- Allan
+    da = res.diagnostic("allan")
+    if da.p_value is not None:
+        d = da.detail
+        tau = np.array(d["tau_s"])
+        fig, ax = plt.subplots(figsize=(8, 5))
+        ax.fill_between(tau, d["band_lo"], d["band_hi"], color="C0", alpha=0.2, label="model's band (Bonferroni)")
+        ax.loglog(tau, d["adev"], "ko", ms=4, label="data (overlapping ADEV)")
+        ax.loglog(tau, d["adev_model"], "C0", lw=2, label=f"model {res.model.spec}")
+        mm = np.rint(tau / h).astype(int)
+        for i, (label, cm, vals) in enumerate(_component_models(res)):
+            ax.loglog(tau, np.sqrt(allan.model_avar(cm, vals, h, mm)[0]), lw=1, ls=":", color=f"C{i + 2}",
+                      label=f"  {label}")
+        if alt is not None:
+            det = allan.deterministic_avar(alt.fit.model.mean(alt.fit.values, torch.arange(len(y)) * h,
+                                                              res.inputs).numpy()[0], mm)
+            ax.loglog(tau, np.sqrt(allan.model_avar(alt.fit.model, alt.fit.values, h, mm)[0] + det), "C1--",
+                      label=f"with {alt.effect}")
+        ax.set_xlabel("τ (s)")
+        ax.set_ylabel("Allan deviation (units)")
+        ax.set_title(f"{tag}: Allan deviation")
+        ax.legend(fontsize=7)
+        paths.append(save_figure(plt, fig, out / f"allan_{tag}.png"))
+    # --- innovations over time
+    z = res.innovations.z
+    t = np.arange(len(z)) * h
+    step = max(1, len(z) // 20000)
+    fig, ax = plt.subplots(2, 1, figsize=(9, 6), sharex=True)
+    ax[0].plot(t[::step], z[::step], lw=0.3, color="0.3")
+    dn = res.diagnostic("nis")
+    for a, b in dn.ranges:
+        for x in ax:
+            x.axvspan(a, b, color="red", alpha=0.15)
+    ax[0].set_ylabel("standardised innovation")
+    e = np.array(dn.detail["window_edges_s"])
+    ax[1].step(e[:-1], dn.detail["window_nis"], where="post", color="C0")
+    ax[1].axhline(1.0, color="k", lw=0.8)
+    ax[1].set_ylabel("NIS per window")
+    ax[1].set_xlabel("t (s)")
+    ax[0].set_title(f"{tag}: innovations (shaded: windows outside their band)")
+    paths.append(save_figure(plt, fig, out / f"innovations_{tag}.png"))
+    # --- ACF
+    dl = res.diagnostic("ljung-box")
+    r = np.array(dl.detail["acf"])
+    fig, ax = plt.subplots(figsize=(7, 4))
+    ax.bar(np.arange(1, len(r) + 1), r, color="C0")
+    ax.axhline(dl.detail["band"], color="k", ls="--", lw=0.8)
+    ax.axhline(-dl.detail["band"], color="k", ls="--", lw=0.8)
+    ax.set_xlabel("lag")
+    ax.set_ylabel("autocorrelation of the innovations")
+    ax.set_title(f"{tag}: {dl.summary}", fontsize=8)
+    paths.append(save_figure(plt, fig, out / f"acf_{tag}.png"))
+    # --- temperature
+    dt = res.diagnostic("temperature")
+    if dt.p_value is not None:
+        T = np.asarray(res.inputs["temperature"], dtype=np.float64)
+        fig, ax = plt.subplots(1, 2, figsize=(10, 4))
+        ax[0].plot(T[::step], z[::step], ",", color="0.3")
+        ax[0].set_xlabel("temperature (°C)")
+        ax[0].set_ylabel("standardised innovation")
+        ax[1].plot(dt.detail["lags_s"], dt.detail["xcorr_whitened"], color="C0")
+        n = int(res.innovations.observed.sum())
+        ax[1].axhline(2.576 / math.sqrt(n), color="k", ls="--", lw=0.8)
+        ax[1].axhline(-2.576 / math.sqrt(n), color="k", ls="--", lw=0.8)
+        ax[1].set_xlabel("lag (s)")
+        ax[1].set_ylabel("corr(innovation, whitened temperature)")
+        fig.suptitle(f"{tag}: {dt.summary}", fontsize=8)
+        paths.append(save_figure(plt, fig, out / f"temperature_{tag}.png"))
+    return paths
+
+
+def _fmt(x, f=".4g"):
+    return "—" if x is None or (isinstance(x, float) and not math.isfinite(x)) else format(x, f)
+
+
+def write_report(out: Path, results: dict, meta: dict, plots: bool = True) -> dict:
+    """``check.json`` and ``report.md`` (and the figures) for ``results`` {axis: CheckResult}; returns the JSON
+    document."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    doc = dict(meta)
+    doc["axes"] = {a: axis_document(r) for a, r in results.items()}
+    if len(results) == 1:
+        doc.update(next(iter(doc["axes"].values())))
+    lines = [f"# torchtea check: {meta.get('recording', '')}", "",
+             f"{meta.get('samples', '')} samples at {meta.get('rate_hz', 0):g} Hz. Each diagnostic is a test at level "
+             f"{next(iter(results.values())).level:g} of 'the data came from the fitted model' (Bonferroni inside "
+             "it); an effect is suggested when its screening p-value is below "
+             f"{next(iter(results.values())).screen_level:g} / (effects screened) and its exact refit lowers BIC. "
+             "`gain` = BIC before − BIC after.", ""]
+    for a, r in results.items():
+        lines += [f"## axis {a}: model `{r.model.spec}` — {'adequate' if r.adequate else 'NOT adequate'}", ""]
+        if r.before is not None:
+            b = r.before
+            lines += ["| | model | nll/sample | psd misfit | adev misfit | failed |", "|---|---|---|---|---|---|",
+                      f"| before | `{b.model.spec}` | {b.metrics['nll_per_sample']:.5f} | {_fmt(b.metrics['psd_misfit'], '.4f')} "
+                      f"| {_fmt(b.metrics['adev_misfit'], '.4f')} | {', '.join(b.failed) or 'none'} |",
+                      f"| after | `{r.model.spec}` | {r.metrics['nll_per_sample']:.5f} | {_fmt(r.metrics['psd_misfit'], '.4f')} "
+                      f"| {_fmt(r.metrics['adev_misfit'], '.4f')} | {', '.join(r.failed) or 'none'} |", ""]
+        lines += ["| parameter | value | 95 % interval |", "|---|---|---|"]
+        for n, v in r.fit.values.items():
+            ci = r.fit.ci95.get(n)
+            lines.append(f"| {n} | {v:.5g} | {'—' if ci is None else f'[{ci[0]:.4g}, {ci[1]:.4g}]'} |")
+        lines += ["", "| diagnostic | domain | p-value | result |", "|---|---|---|---|"]
+        for d in r.diagnostics:
+            res_ = "not run" if d.passed is None else ("pass" if d.passed else "**FAIL**")
+            lines.append(f"| {d.name} | {d.domain} | {_fmt(d.p_value, '.3g')} | {res_}: {d.summary} |")
+        lines += ["", "Metrics: " + ", ".join(f"{k} {_fmt(v, '.5g')}" for k, v in r.metrics.items()), ""]
+        if r.suggestions:
+            lines += ["| suggestion | gain (ΔBIC) | screening p | parameters | failed after | repairs |",
+                      "|---|---|---|---|---|---|"]
+            for s in r.suggestions:
+                pars = ", ".join(f"{k} {v:.4g}" for k, v in s.parameters.items())
+                lines.append(f"| {s.effect} | {s.gain:.1f} | {s.p_value:.2g} | {pars} | "
+                             f"{', '.join(d.name for d in s.diagnostics if d.passed is False) or 'none'} | "
+                             f"{', '.join(s.repairs) or '—'} |")
+            lines.append("")
+            lines.append(f"Add the best with `--add {r.suggestions[0].effect}`.")
+        else:
+            lines.append("No effect of the library passes its screen: "
+                         + ("nothing is missing that torchtea can add." if r.adequate else
+                            "the model fails, but no candidate explains it (see the diagnostics)."))
+        lines += ["", "Screens: " + "; ".join(
+            f"{s['effect']} {('p ' + _fmt(s['p_value'], '.2g')) if s['p_value'] is not None else s['note']}"
+            for s in r.screens), ""]
+        for note in r.notes:
+            lines.append(f"Note: {note}")
+        if plots:
+            for p in figures(r, out, a):
+                lines.append(f"![{p.stem}]({p.name})")
+        lines.append("")
+    (out / "report.md").write_text("\n".join(lines))
+    write(out / "check.json", doc)
+    return doc

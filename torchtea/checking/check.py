@@ -331,6 +331,12 @@ def check(y, h: float, model="fractional+white", inputs: dict | None = None, *, 
     t0 = time.perf_counter()
     model = parse_model(model)
     y = np.asarray(y, dtype=np.float64)
+    if inputs is not None:  # numpy float64 whatever came in (lists, tensors)
+        inputs = {k: np.asarray(torch.as_tensor(v, dtype=torch.float64).cpu(), dtype=np.float64).reshape(-1)
+                  for k, v in inputs.items()}
+        for k, v in inputs.items():
+            if len(v) != len(y):
+                raise ValueError(f"input channel {k!r} has {len(v)} values, the series {len(y)}")
     notes = []
     inp_list = None if inputs is None else [inputs]
     clock = _Clock()

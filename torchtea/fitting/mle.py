@@ -344,8 +344,11 @@ def _exact_refine(model, y, h, u0: Tensor, free: Tensor, inputs, memory, metric:
             if decrement < 1e-6:  # the exact −ℓ still to gain (on this metric) is below a micro-nat
                 ok = True
                 break
-            t = 1.0
-            while t >= 1.0 / 64:
+            # a step longer than 1 in the unconstrained coordinates (a factor e in a variance) means the metric
+            # is far off along some direction (a misspecified model's Whittle optimum far from the exact one):
+            # shorten it and let the BFGS updates learn the curvature
+            t = min(1.0, 1.0 / float(np.max(np.abs(step))))
+            while t >= 1.0 / 256:
                 fn, gn = fun(x + t * step)
                 if fn <= f + 1e-4 * t * float(g @ step):
                     break

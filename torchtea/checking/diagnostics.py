@@ -166,7 +166,8 @@ def nis_windows(z: np.ndarray, h: float, level: float = LEVEL, windows: int | No
     pmin = float(min(1.0, W * p.min()))
     zf = z[np.isfinite(z)]
     total = float(zf @ zf / len(zf))
-    summary = (f"NIS {total:.3f} overall; {len(bad)} of {W} windows outside their 99 % band" if bad else
+    summary = (f"NIS {total:.3f} overall; {len(bad)} of {W} windows outside their band (level {level:g}/{W} each)"
+               if bad else
                f"NIS {total:.3f} overall; all {W} windows inside their band")
     return Diagnostic("nis", "time", total, pmin, level, summary, "s", ranges, dirs,
                       {"window_edges_s": (edges * h).tolist(), "window_nis": nis, "window_p": p.tolist()})

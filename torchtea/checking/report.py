@@ -22,7 +22,20 @@ from ..reports.strictjson import write
 from . import allan
 from .check import CheckResult
 
-__all__ = ["write_report", "axis_document", "figures"]
+__all__ = ["write_report", "axis_document", "figures", "MEANING"]
+
+MEANING = {
+    "adequate": "every diagnostic that ran passed at its level (a test of 'the data came from the fitted model')",
+    "nll_per_sample": "−(exact log-likelihood)/(observed samples) at the fit, nats",
+    "psd_misfit": "mean |log10| of the innovations' band power over log-spaced bands (0 = the model's spectrum matches; 0.01–0.04 "
+                  "is the bands' own scatter at 30 000 samples)",
+    "adev_misfit": "mean |log10(ADEV data / ADEV model)| over octave τ",
+    "failing_ranges_s": "time ranges [t0, t1] (s from the first sample) whose windowed NIS is outside its band",
+    "gain": "BIC of the model − BIC with the effect (exact likelihood; > 0 = the effect is worth its parameters)",
+    "p_value": "the screen's p-value for the effect (its test is named in 'screen'); suggested when below "
+               "screen_level / (effects screened) and gain > 0",
+    "repairs": "diagnostics that failed before and pass with the effect",
+}
 
 
 def axis_document(res: CheckResult) -> dict:
@@ -168,6 +181,7 @@ def write_report(out: Path, results: dict, meta: dict, plots: bool = True) -> di
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     doc = dict(meta)
+    doc["meaning"] = MEANING
     doc["axes"] = {a: axis_document(r) for a, r in results.items()}
     if len(results) == 1:
         doc.update(next(iter(doc["axes"].values())))

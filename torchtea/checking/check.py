@@ -33,7 +33,7 @@ import numpy as np
 import torch
 from scipy import stats
 
-from ..fitting.mle import Fit, centred, exact_loglik, refine_exact, refine_frequency, whittle_fit
+from ..fitting.mle import Fit, centred, exact_loglik, fit_series, refine_exact, refine_frequency, whittle_fit
 from ..noise.components import COMPONENTS
 from ..noise.model import NoiseModel, parse_model
 from .diagnostics import LEVEL, Diagnostic, Innovations, gls_statistic, innovations, metrics, run_diagnostics, whiten
@@ -209,9 +209,11 @@ def _screen(model: NoiseModel, fit: Fit, wf, inn: Innovations, diags, y, h, inpu
             continue
         base = dict(fit.values)
         if effect in ("ramp", "temperature-bias"):
-            x = t - t.mean() if effect == "ramp" else np.asarray(T, dtype=np.float64) - float(np.mean(T))
-            w = whiten(inn, x)
-            lr, beta = gls_statistic(inn.z, w)
+            if effect == "ramp":
+                lr, beta = gls_statistic(inn.z, whiten(inn, t - t.mean()))
+            else:  # the temperature diagnostic's score test is this likelihood ratio
+                dt = next(d for d in diags if d.name == "temperature").detail
+                lr, beta = dt["score_bias"], [dt["bias_per_degC_gls"]]
             logp = stats.chi2.logsf(lr, 1)
             start = dict(base)
             if effect == "ramp":
@@ -343,10 +345,8 @@ def check(y, h: float, model="fractional+white", inputs: dict | None = None, *, 
     filled = np.where(np.isnan(y), np.nanmean(y), y)
     wf = whittle_fit(model, [filled], h, inputs=inp_list)
     if fit is None or fit.model.spec != model.spec:
-        start = dict(zip(model.names, wf.values[0].tolist()))
-        start.update(wf.means[0])
-        fit = refine_exact(model, y, h, start, inputs=inputs, fixed=[n for n in model.names if n.endswith(".t_ref")],
-                           metric=wf.hessian[0], intervals=intervals)
+        fit = fit_series(model, [y], h, method="exact", inputs=inp_list, profile=False, whittle=wf,
+                         intervals=intervals)[0]
     if not fit.converged:
         notes.append("the exact fit did not report convergence: diagnostics are at the last iterate")
     clock("fit")

@@ -291,9 +291,11 @@ def _exact_refine(model, y, h, u0: Tensor, free: Tensor, inputs, memory, metric:
     With a positive-definite ``metric`` (the Whittle fit's Hessian of −ℓ, which approximates the exact one
     on a long series) the steps are quasi-Newton steps on it, with central-difference gradients of the
     exact −ℓ, a backtracking line search and BFGS updates of the metric: from the Whittle optimum two or
-    three steps reach the exact one when the model fits, a few more when it does not. Free coordinates the metric does not cover (a zero or non-finite diagonal: mean and modifier
-    parameters — offset, ramp, sinusoid, temperature terms — which the Whittle fit does not see) get their
-    own curvature by central differences along that coordinate, with no cross terms. When the steps stall,
+    three steps reach the exact one when the model fits, a few more when it does not (steps are capped at 1
+    in the unconstrained coordinates). Free coordinates the metric does not cover (a zero or non-finite
+    diagonal: mean and modifier parameters — offset, ramp, sinusoid, temperature terms — which the Whittle
+    fit does not see) get their own block of the Hessian by central differences (:func:`_fd_hessian`), with
+    no cross terms to the others (mean and noise parameters are orthogonal in a Gaussian model). When the steps stall,
     L-BFGS-B does the work. ``converged``: the quasi-Newton decrement on the metric fell below 10⁻⁶ nats,
     else L-BFGS-B's success. Returns ``(u, ℓ, Hessian of −ℓ, converged, iterations)``; the Hessian by
     central differences (:func:`_fd_hessian`), or None with ``hessian=False``."""
@@ -446,6 +448,15 @@ def _intervals(model: NoiseModel, u: Tensor, H: Tensor, free: Tensor, h: float):
     return values, se, ci, how
 
 
+def _estimates(model: NoiseModel, u: Tensor, H: Tensor | None, free: Tensor, h: float):
+    """:func:`_intervals`, or, without a Hessian (``H`` None), the values alone."""
+    if H is not None:
+        return _intervals(model, u, H, free, h)
+    vals = {n: float(x) for n, x in zip(model.names, model.as_matrix(model.from_unconstrained(u, h))[0])}
+    how = {n: "not computed (intervals=False)" if f else "fixed" for n, f in zip(model.names, free.tolist())}
+    return vals, {n: None for n in model.names}, {n: None for n in model.names}, how
+
+
 def profile_order(model, wf: WhittleFit, h: float, *, grid: int = 21, fixed: dict | None = None) -> list[dict]:
     """The Whittle profile log-likelihood of the fractional order on a grid over (0, 1) for each series of
     the Whittle fit ``wf`` (its periodograms and MLEs), and the 95 % interval {α : 2 (ℓ̂ − ℓ_p(α)) ≤ χ²₁,₀.₉₅}
@@ -514,11 +525,12 @@ def centred(model: NoiseModel, y) -> np.ndarray:
 
 def fit_series(model, series: list, h: float, *, method: str = "exact", inputs: list | None = None,
                fixed: dict | None = None, memory=FIT_MEMORY, profile: bool | None = None,
-               whittle: WhittleFit | None = None) -> list[Fit]:
+               whittle: WhittleFit | None = None, intervals: bool = True) -> list[Fit]:
     """Fit ``model`` to each series of ``series`` (1-D arrays, NaN = missing; sample time ``h``).
 
     ``whittle``: a :func:`whittle_fit` of the same model, series and ``fixed`` to start from (instead of
-    fitting it here).
+    fitting it here). ``intervals=False``: the exact method skips its finite-difference Hessian (1 + 2k²
+    likelihood evaluations) and reports no standard errors or intervals.
 
     ``profile``: compute the order's Whittle profile likelihood (``Fit.profile``; it is the order's reported
     interval for ``method="whittle"``, beside the Wald one otherwise). Default: for the Whittle method only —
@@ -571,8 +583,9 @@ def fit_series(model, series: list, h: float, *, method: str = "exact", inputs: 
             ll_exact = float(exact_loglik(model, vals, y_exact, h, inputs=inp, memory=memory)[0])
         else:
             free = torch.tensor([n not in fx for n in model.names])
-            u, ll, H, ok, _ = _exact_refine(model, y_exact, h, wf.u[s].clone(), free, inp, memory, wf.hessian[s])
-            vals, se, ci, how = _intervals(model, u, H, free, h)
+            u, ll, H, ok, _ = _exact_refine(model, y_exact, h, wf.u[s].clone(), free, inp, memory, wf.hessian[s],
+                                            hessian=intervals)
+            vals, se, ci, how = _estimates(model, u, H, free, h)
             ll_exact = ll
         kfree = [n for n, f in zip(model.names, free.tolist()) if f]
         if not model.has("offset"):
@@ -599,11 +612,6 @@ def refine_exact(model, y, h: float, start: dict, *, inputs: dict | None = None,
     free = torch.tensor([n not in fixed for n in model.names])
     u, ll, H, ok, _ = _exact_refine(model, centred(model, y), h, u0, free, inputs, memory, metric,
                                     hessian=intervals)
-    if H is None:
-        vals = {n: float(x) for n, x in zip(model.names, model.as_matrix(model.from_unconstrained(u, h))[0])}
-        how = {n: "fixed" if n in fixed else "not computed (intervals=False)" for n in model.names}
-        se, ci = {n: None for n in model.names}, {n: None for n in model.names}
-    else:
-        vals, se, ci, how = _intervals(model, u, H, free, h)
+    vals, se, ci, how = _estimates(model, u, H, free, h)
     kfree = [n for n, f in zip(model.names, free.tolist()) if f]
     return Fit(model, "exact", vals, se, ci, how, ll, ll, int(np.sum(~np.isnan(y))), kfree, ok, None, [], u, H)

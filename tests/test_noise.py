@@ -192,6 +192,8 @@ def test_bad_model_specs_name_the_problem():
         parse_model("offset+ramp")
     with pytest.raises(ValueError, match="bad model spec"):
         parse_model("fractional++white")
+    with pytest.raises(ValueError, match="not measurement noise; put white/quantisation after it"):
+        parse_model("fractional+white+low-pass")  # the spectrum would filter the white noise, the state space not
     assert parse_model("white+white").names == ["white.r", "white2.r"]
 
 

@@ -371,6 +371,12 @@ def parse_model(spec) -> NoiseModel:
         comps.append((label, COMPONENTS[p]))
     if seen.get("low-pass", 0) > 1:
         raise ValueError(f"model {spec!r}: at most one low-pass")
+    kinds = [c.kind for _, c in comps]
+    if "filter" in kinds and "measurement" in kinds[:kinds.index("filter")]:
+        # the spectrum would filter it and the state space would not: refuse rather than disagree
+        raise ValueError(f"model {spec!r}: a low-pass filters the state components (fractional, random-walk) "
+                         "before it, not measurement noise; put white/quantisation after it, e.g. "
+                         "fractional+low-pass+white")
     if not any(c.kind in ("state", "measurement") for _, c in comps):
         raise ValueError(f"model {spec!r} has no stochastic component (fractional, white, random-walk …)")
     return NoiseModel(comps, "+".join(parts))

@@ -304,13 +304,34 @@ def lines(z: np.ndarray, h: float, level: float = LEVEL, neighbours: int = 50, g
 
 # --------------------------------------------------------------------------- Allan
 
-def allan_view(model, values: dict, inn: Innovations, h: float, level: float = LEVEL) -> Diagnostic:
+def _stochastic_avar(model, values: dict, h: float, m, temperature=None, n_orders: int = 32) -> np.ndarray:
+    """The model's AVAR at cluster sizes ``m``. A temperature-driven order makes the model non-stationary: its
+    AVAR is then the average of the stationary AVARs at ``n_orders`` quantiles of the orders α_k the temperature
+    gave (locally stationary — exact for τ short against the time the order takes to change)."""
+    mod = next((lb for lb, c in model.components if c.name == "temperature-order"), None)
+    if mod is None or temperature is None:
+        return allan.model_avar(model, values, h, m)[0]
+    frac = next(lb for lb, c in model.components if c.name == "fractional")
+    comp = dict(model.components)[mod]
+    v = {k: torch.tensor([float(values[k])], dtype=torch.float64) for k in (f"{mod}.order_per_degC", f"{mod}.t_ref")}
+    v = {k.split(".", 1)[1]: x for k, x in v.items()}
+    a = comp.orders(v, torch.tensor([float(values[f"{frac}.order"])], dtype=torch.float64),
+                    torch.as_tensor(np.asarray(temperature, dtype=np.float64)))[0].numpy()
+    qs = np.quantile(a, (np.arange(n_orders) + 0.5) / n_orders)
+    batch = {k: [float(x)] * n_orders for k, x in values.items()}
+    batch[f"{frac}.order"] = qs.tolist()
+    batch[f"{mod}.order_per_degC"] = [0.0] * n_orders
+    return allan.model_avar(model, batch, h, m).mean(axis=0)
+
+
+def allan_view(model, values: dict, inn: Innovations, h: float, level: float = LEVEL,
+               temperature=None) -> Diagnostic:
     y = inn.y
     if not inn.observed.all():
         return Diagnostic("allan", "Allan", None, None, level, "not run: the overlapping ADEV needs a complete "
                           "series (this one has missing samples)", "s")
     m = allan.octave_clusters(len(y))
-    stoch = allan.model_avar(model, values, h, m)[0]
+    stoch = _stochastic_avar(model, values, h, m, temperature)
     det = allan.deterministic_avar(inn.mean - inn.mean.mean(), m)
     av_model = stoch + det
     ad = allan.data_adev(y, h, m)
@@ -387,7 +408,7 @@ def run_diagnostics(model, values: dict, inn: Innovations, h: float, temperature
                     level: float = LEVEL) -> list[Diagnostic]:
     z = inn.z
     return [nis_windows(z, h, level), change(z, h, level), ljung_box(z, level), spectrum_bands(z, h, level),
-            lines(z, h, level), allan_view(model, values, inn, h, level), temperature_view(inn, temperature, h, level)]
+            lines(z, h, level), allan_view(model, values, inn, h, level, temperature), temperature_view(inn, temperature, h, level)]
 
 
 def metrics(inn: Innovations, diags: list[Diagnostic]) -> dict:

@@ -21,67 +21,90 @@ import time
 from pathlib import Path
 
 import numpy as np
-import torch
 
 from torchtea.checking import check
-from torchtea.noise import default_values, parse_model, simulate_model, temperature_profile
+from torchtea.checking.hidden import BASE_MODEL, HIDDEN_STRENGTH, hidden_case
 
 HERE = Path(__file__).resolve().parent
 H, N = 0.01, 30_000
-BASE = "fractional+white"
-#: The hidden effects and their strengths (parameters not named here are default_values').
-STRENGTH = {
-    "none": {},
-    "random-walk": {"random-walk.sigma": 3e-3},
-    "sinusoid": {"sinusoid.frequency_hz": 3.37, "sinusoid.amplitude": 4e-3},
-    "temperature-bias": {"temperature-bias.bias_per_degC": 0.01},
-    "temperature-order": {"temperature-order.order_per_degC": 0.04},
-    "low-pass": {"low-pass.cutoff_hz": 8.0},
-}
+BASE = BASE_MODEL
+STRENGTH = HIDDEN_STRENGTH
 SEEDS = {"none": 100}
 DEFAULT_SEEDS = 50
 
 
 def case(effect: str, seed: int):
-    spec = BASE if effect == "none" else ("fractional+low-pass+white" if effect == "low-pass" else f"{BASE}+{effect}")
-    model = parse_model(spec)
-    gen = torch.Generator().manual_seed(10_000 * (list(STRENGTH).index(effect) + 1) + seed)
-    T = temperature_profile(N, H, generator=gen)
-    values = default_values(model, H, T)
-    values.update(STRENGTH[effect])
-    y = simulate_model(model, values, n_steps=N, h=H, inputs={"temperature": T}, generator=gen)[0, 0].numpy()
-    return y, T.numpy(), values
+    return hidden_case(effect, seed, N, H)
 
 
 def run_case(effect: str, seed: int) -> dict:
     y, T, truth = case(effect, seed)
     t0 = time.perf_counter()
     r = check(y, H, model=BASE, inputs={"temperature": T}, intervals=False)
-    out = {"effect": effect, "seed": seed, "truth": truth, "adequate": r.adequate, "failed": r.failed,
+    out = {"effect": effect, "seed": seed, "strength": STRENGTH[effect], "truth": truth, "adequate": r.adequate, "failed": r.failed,
            "metrics": r.metrics, "screens": r.screens, "timings": r.timings, "seconds": time.perf_counter() - t0,
            "suggestions": [s.as_dict() for s in r.suggestions]}
     out["top"] = r.suggestions[0].effect if r.suggestions else None
     return out
 
 
+def _iqr(x) -> str:
+    q = np.percentile(x, [25, 50, 75])
+    return f"{q[1]:.4g} [{q[0]:.4g}, {q[2]:.4g}]"
+
+
 def tables(d: Path) -> str:
     rows = [json.loads(p.read_text()) for p in sorted(d.glob("*.json"))]
     if not rows:
         return "nothing saved yet"
+    stale = [r for r in rows if r.get("strength", STRENGTH[r["effect"]]) != STRENGTH[r["effect"]]]
+    rows = [r for r in rows if r not in stale]
     effects = [e for e in STRENGTH if any(r["effect"] == e for r in rows)]
     tops = sorted({str(r["top"]) for r in rows} | set(effects[1:]) | {"None"})
-    lines = ["| hidden effect | seeds | " + " | ".join(f"top: {t}" for t in tops) + " | right first | adequate after |",
-             "|---|---|" + "---|" * len(tops) + "---|---|"]
+    out = ["**Confusion matrix** (hidden effect → top suggestion; `None`: no suggestion) and, for the cases with a "
+           "suggestion, how often the model with the top suggestion added passes every diagnostic.", "",
+           "| hidden effect | strength | seeds | " + " | ".join(f"→ {t}" for t in tops) +
+           " | right first | inadequate before | adequate after adding the top |",
+           "|---|---|---|" + "---|" * len(tops) + "---|---|---|"]
     for e in effects:
         rs = [r for r in rows if r["effect"] == e]
         counts = [sum(str(r["top"]) == t for r in rs) for t in tops]
         right = sum(r["top"] == (None if e == "none" else e) for r in rs)
         after = [not r["suggestions"][0]["after"]["failed"] for r in rs if r["suggestions"]]
-        lines.append(f"| {e} | {len(rs)} | " + " | ".join(map(str, counts)) +
-                     f" | {right}/{len(rs)} | {sum(after)}/{len(after)} |")
+        strength = ", ".join(f"{k.split('.', 1)[1]} {v:g}" for k, v in STRENGTH[e].items()) or "—"
+        out.append(f"| {e} | {strength} | {len(rs)} | " + " | ".join(map(str, counts)) +
+                   f" | {right}/{len(rs)} ({100 * right / len(rs):.0f} %) | {sum(not r['adequate'] for r in rs)}/{len(rs)}"
+                   f" | {sum(after)}/{len(after)} |")
+    out += ["", "**Error metrics before → after adding the top suggestion** (median over the seeds whose top "
+            "suggestion is the hidden effect; nll/sample: the exact −ℓ per sample; misfits: mean |log₁₀| ratio of data to model in the PSD bands / at the Allan τ):", "",
+            "| hidden effect | n | nll/sample before → after | PSD misfit before → after | ADEV misfit before → after "
+            "| failed diagnostics before → after (total over the seeds) |", "|---|---|---|---|---|---|"]
+    for e in effects[1:] if effects and effects[0] == "none" else effects:
+        rs = [r for r in rows if r["effect"] == e and r["top"] == e]
+        if not rs:
+            continue
+        cells = []
+        for key in ("nll_per_sample", "psd_misfit", "adev_misfit"):
+            b = np.median([r["metrics"][key] for r in rs])
+            a = np.median([r["suggestions"][0]["after"][key] for r in rs])
+            cells.append(f"{b:.4g} → {a:.4g}")
+        fb = sum(len(r["failed"]) for r in rs)
+        fa = sum(len(r["suggestions"][0]["after"]["failed"]) for r in rs)
+        out.append(f"| {e} | {len(rs)} | " + " | ".join(cells) + f" | {fb} → {fa} |")
+    out += ["", "**The effect's fitted parameters against the truth** (seeds whose top suggestion is the hidden "
+            "effect; median [quartiles]):", "", "| hidden effect | parameter | truth | fitted |", "|---|---|---|---|"]
+    for e in effects:
+        rs = [r for r in rows if r["effect"] == e and r["top"] == e]
+        for name, true in STRENGTH.get(e, {}).items():
+            p = name.split(".", 1)[1]
+            fitted = [r["suggestions"][0]["parameters"][p] for r in rs if p in r["suggestions"][0]["parameters"]]
+            if fitted:
+                out.append(f"| {e} | {p} | {true:g} | {_iqr(fitted)} |")
     secs = [r["seconds"] for r in rows]
-    lines += ["", f"seconds per check: median {np.median(secs):.1f}, max {np.max(secs):.1f} ({len(secs)} checks)"]
-    return "\n".join(lines)
+    out += ["", f"seconds per check: median {np.median(secs):.1f}, max {np.max(secs):.1f} ({len(secs)} checks)"]
+    if stale:
+        out.append(f"({len(stale)} saved cases at an earlier strength left out)")
+    return "\n".join(out)
 
 
 def main():

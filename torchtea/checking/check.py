@@ -36,7 +36,7 @@ from scipy import stats
 from ..fitting.mle import Fit, centred, exact_loglik, fit_series, refine_exact, refine_frequency, whittle_fit
 from ..noise.components import COMPONENTS
 from ..noise.model import NoiseModel, parse_model
-from .diagnostics import LEVEL, Diagnostic, Innovations, gls_statistic, innovations, metrics, run_diagnostics, whiten
+from .diagnostics import LEVEL, Diagnostic, Innovations, innovations, linear_lr, metrics, run_diagnostics
 
 __all__ = ["check", "CheckResult", "Suggestion", "CANDIDATES", "extend", "SCREENS", "effect_parameters"]
 
@@ -210,7 +210,7 @@ def _screen(model: NoiseModel, fit: Fit, wf, inn: Innovations, diags, y, h, inpu
         base = dict(fit.values)
         if effect in ("ramp", "temperature-bias"):
             if effect == "ramp":
-                lr, beta = gls_statistic(inn.z, whiten(inn, t - t.mean()))
+                lr, beta = linear_lr(inn, t - t.mean())
             else:  # the temperature diagnostic's score test is this likelihood ratio
                 dt = next(d for d in diags if d.name == "temperature").detail
                 lr, beta = dt["score_bias"], [dt["bias_per_degC_gls"]]
@@ -226,8 +226,7 @@ def _screen(model: NoiseModel, fit: Fit, wf, inn: Innovations, diags, y, h, inpu
             ln = next(d for d in diags if d.name == "lines")
             r = inn.y - inn.mean
             f0 = refine_frequency(np.where(inn.observed, r, 0.0), ln.detail["peak_hz"], h)
-            w = whiten(inn, np.stack([np.sin(2 * np.pi * f0 * t), np.cos(2 * np.pi * f0 * t)]))
-            lr, beta = gls_statistic(inn.z, w)
+            lr, beta = linear_lr(inn, np.stack([np.sin(2 * np.pi * f0 * t), np.cos(2 * np.pi * f0 * t)]))
             logp = ln.detail["log_p"]
             start = dict(base)
             start.update({f"{label}.frequency_hz": f0, f"{label}.amplitude": float(math.hypot(*beta)),

@@ -118,14 +118,35 @@ def whiten(inn: Innovations, columns: np.ndarray) -> np.ndarray:
     return e / np.sqrt(S)
 
 
-def gls_statistic(z: np.ndarray, w: np.ndarray) -> tuple[float, np.ndarray]:
-    """2Δℓ of adding the linear terms whose whitened regressors are ``w`` ``(m, N)`` (least squares of z on w)
-    and their coefficients."""
-    ok = np.isfinite(z) & np.isfinite(w).all(0)
-    W = w[:, ok].T
-    beta, *_ = np.linalg.lstsq(W, z[ok], rcond=None)
-    fitted = W @ beta
-    return float(2.0 * z[ok] @ fitted - fitted @ fitted), beta
+def gls_statistic(z: np.ndarray, w: np.ndarray, nuisance: np.ndarray | None = None) -> tuple[float, np.ndarray]:
+    """2Δℓ of adding the linear terms whose whitened regressors are ``w`` ``(m, N)`` (least squares of z on w),
+    and their coefficients. With ``nuisance`` ``(k, N)`` (whitened regressors free under both hypotheses, e.g. the
+    constant): the fall of the residual sum of squares from z on ``nuisance`` to z on both; the coefficients are
+    ``w``'s in the joint fit."""
+    nu = np.zeros((0, z.shape[-1])) if nuisance is None else np.atleast_2d(nuisance)
+    ok = np.isfinite(z) & np.isfinite(w).all(0) & np.isfinite(nu).all(0)
+
+    def explained(X):
+        if X.shape[1] == 0:
+            return 0.0, np.zeros(0)
+        b, *_ = np.linalg.lstsq(X, z[ok], rcond=None)
+        f = X @ b
+        return float(2.0 * z[ok] @ f - f @ f), b
+
+    full, b = explained(np.concatenate([w[:, ok], nu[:, ok]]).T)
+    base, _ = explained(nu[:, ok].T)
+    return full - base, b[:w.shape[0]]
+
+
+def linear_lr(inn: Innovations, columns: np.ndarray) -> tuple[float, np.ndarray]:
+    """Exact likelihood-ratio statistic (at the filter's noise parameters) of adding linear mean terms with
+    regressors ``columns`` ``(m, N)``, the level free under both hypotheses (the whitened constant as nuisance),
+    and their GLS coefficients. The level matters where the model's own mean, the sample mean, is not its GLS
+    estimate — a random walk, an order near 1 — and a slow regressor (a warm-up) would otherwise pick up the
+    filter's start-up from the wrong level."""
+    X = np.atleast_2d(np.asarray(columns, dtype=np.float64))
+    w = whiten(inn, np.concatenate([X, np.ones((1, X.shape[1]))]))
+    return gls_statistic(inn.z, w[:-1], w[-1:])
 
 
 def _merge(intervals: list[tuple[float, float, str]]) -> tuple[list, list]:
@@ -371,8 +392,8 @@ def temperature_view(inn: Innovations, T, h: float, level: float = LEVEL, max_la
     T = np.asarray(T, dtype=np.float64)
     z = inn.z
     ok = np.isfinite(z)
-    w = whiten(inn, T - T[inn.observed].mean())[0]
-    score, beta = gls_statistic(z, w[None])
+    score, beta = linear_lr(inn, T - T[inn.observed].mean())
+    w = whiten(inn, T - T[inn.observed].mean())[0]  # for the cross-correlation figure
     p_bias = float(stats.chi2.sf(score, 1))
     Tc = T[ok] - T[ok].mean()
     zz = z[ok] ** 2 - 1.0

@@ -224,9 +224,11 @@ def test_check_finds_a_hidden_sinusoid_and_nothing_on_clean_data(tmp_path):
 #: One seeded case per hidden effect of ``experiments/check/hidden.py`` (the same generator, strengths and
 #: seeds; there the right effect is first in the share of seeds its README reports): the top suggestion is
 #: the hidden effect, adding it lowers the exact −ℓ and every diagnostic passes; clean data get no suggestion.
-#: |fitted − true| allowed: 4× the spread (sd) of the fitted value over the study's seeds (README there).
-HIDDEN_TOLERANCE = {"frequency_hz": 0.01, "amplitude": 1.5e-3}
-HIDDEN_CASES = [("none", 0), ("random-walk", 0), ("sinusoid", 0), ("temperature-bias", 0), ("temperature-order", 1)]
+#: |fitted − true| allowed: about 4× the sd of the fitted value over the study's seeds (its README). The random
+#: walk's σ̂ is biased up there (+40 %, the filter's zero-variance start after centring): its tolerance covers that.
+HIDDEN_TOLERANCE = {"frequency_hz": 0.0015, "amplitude": 0.002, "sigma": 0.0016, "bias_per_degC": 0.0015,
+                    "order_per_degC": 0.01}
+HIDDEN_CASES = [("none", 0), ("random-walk", 0), ("sinusoid", 0), ("temperature-bias", 0), ("temperature-order", 0)]
 
 
 @pytest.mark.slow

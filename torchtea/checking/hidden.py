@@ -21,7 +21,7 @@ BASE_MODEL = "fractional+white"
 HIDDEN_STRENGTH = {
     "none": {},
     "random-walk": {"random-walk.sigma": 8e-4},
-    "sinusoid": {"sinusoid.frequency_hz": 3.37, "sinusoid.amplitude": 3e-3},
+    "sinusoid": {"sinusoid.frequency_hz": 3.37, "sinusoid.amplitude": 4e-3},
     "temperature-bias": {"temperature-bias.bias_per_degC": 0.003},
     "temperature-order": {"temperature-order.order_per_degC": 0.025},
     "low-pass": {"low-pass.cutoff_hz": 8.0},

@@ -144,9 +144,14 @@ def linear_lr(inn: Innovations, columns: np.ndarray) -> tuple[float, np.ndarray]
     and their GLS coefficients. The level matters where the model's own mean, the sample mean, is not its GLS
     estimate — a random walk, an order near 1 — and a slow regressor (a warm-up) would otherwise pick up the
     filter's start-up from the wrong level."""
-    X = np.atleast_2d(np.asarray(columns, dtype=np.float64))
-    w = whiten(inn, np.concatenate([X, np.ones((1, X.shape[1]))]))
+    w = _whiten_with_level(inn, columns)
     return gls_statistic(inn.z, w[:-1], w[-1:])
+
+
+def _whiten_with_level(inn: Innovations, columns: np.ndarray) -> np.ndarray:
+    """The whitened regressors ``columns`` ``(m, N)`` and, as the last row, the whitened constant (one filter pass)."""
+    X = np.atleast_2d(np.asarray(columns, dtype=np.float64))
+    return whiten(inn, np.concatenate([X, np.ones((1, X.shape[1]))]))
 
 
 def _merge(intervals: list[tuple[float, float, str]]) -> tuple[list, list]:
@@ -334,8 +339,7 @@ def _stochastic_avar(model, values: dict, h: float, m, temperature=None, n_order
         return allan.model_avar(model, values, h, m)[0]
     frac = next(lb for lb, c in model.components if c.name == "fractional")
     comp = dict(model.components)[mod]
-    v = {k: torch.tensor([float(values[k])], dtype=torch.float64) for k in (f"{mod}.order_per_degC", f"{mod}.t_ref")}
-    v = {k.split(".", 1)[1]: x for k, x in v.items()}
+    v = {p: torch.tensor([float(values[f"{mod}.{p}"])], dtype=torch.float64) for p in ("order_per_degC", "t_ref")}
     a = comp.orders(v, torch.tensor([float(values[f"{frac}.order"])], dtype=torch.float64),
                     torch.as_tensor(np.asarray(temperature, dtype=np.float64)))[0].numpy()
     qs = np.quantile(a, (np.arange(n_orders) + 0.5) / n_orders)
@@ -392,8 +396,9 @@ def temperature_view(inn: Innovations, T, h: float, level: float = LEVEL, max_la
     T = np.asarray(T, dtype=np.float64)
     z = inn.z
     ok = np.isfinite(z)
-    score, beta = linear_lr(inn, T - T[inn.observed].mean())
-    w = whiten(inn, T - T[inn.observed].mean())[0]  # for the cross-correlation figure
+    wl = _whiten_with_level(inn, T - T[inn.observed].mean())  # = linear_lr, keeping w for the figure
+    score, beta = gls_statistic(z, wl[:1], wl[1:])
+    w = wl[0]
     p_bias = float(stats.chi2.sf(score, 1))
     Tc = T[ok] - T[ok].mean()
     zz = z[ok] ** 2 - 1.0

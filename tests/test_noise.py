@@ -75,6 +75,79 @@ def test_composite_model_against_dense_gaussian_with_missing_samples():
     np.testing.assert_allclose(S[0], r.variance[0].numpy(), rtol=1e-10)
 
 
+def test_low_pass_of_white_noise_against_dense_gaussian():
+    """fractional+white+low-pass+white: the first white noise is filtered with the fractional part (a sensor's
+    digital filter), the second is not; the filter starts from rest before the first sample."""
+    N = 100
+    m = parse_model("fractional+white+low-pass+white")
+    v = dict(FW, **{"white.r": 2e-3, "low-pass.cutoff_hz": 6.0, "white2.r": 1e-4})
+    y = simulate_model(m, v, n_steps=N, h=H, generator=torch.Generator().manual_seed(5))[0, 0]
+    Mx = _gl_operator(0.4, -2.0, H, N) * math.sqrt(0.02)
+    a = math.exp(-2 * math.pi * 6.0 * H)
+    Lp = torch.zeros(N, N, dtype=torch.float64)
+    for k in range(N):
+        Lp[k, : k + 1] = (1 - a) * a ** torch.arange(k, -1, -1, dtype=torch.float64)
+    A = torch.cat([Lp @ Mx, Lp * math.sqrt(2e-3)], dim=1)
+    cov = A @ A.T + 1e-4 * torch.eye(N, dtype=torch.float64)
+    ref = torch.distributions.MultivariateNormal(torch.zeros(N, dtype=torch.float64), cov).log_prob(y)
+    ss = m.state_space(v, H, N, "exact")
+    assert float(ss.R[0]) == pytest.approx(1e-4)  # only the white noise after the filter is in R
+    assert float(kalman_filter(ss, y).loglik[0]) == pytest.approx(float(ref), abs=1e-8)
+    assert float(loglik_fast(ss, y)[0]) == pytest.approx(float(ref), abs=1e-8)
+    # nothing after the filter: R = 0, the first sample's variance comes from the filter's start
+    m0 = parse_model("fractional+white+low-pass")
+    v0 = {k: x for k, x in v.items() if k != "white2.r"}
+    cov0 = A @ A.T
+    y0 = simulate_model(m0, v0, n_steps=N, h=H, generator=torch.Generator().manual_seed(6))[0, 0]
+    ref0 = torch.distributions.MultivariateNormal(torch.zeros(N, dtype=torch.float64), cov0).log_prob(y0)
+    ss0 = m0.state_space(v0, H, N, "exact")
+    assert float(ss0.R[0]) == 0.0
+    assert float(loglik_fast(ss0, y0)[0]) == pytest.approx(float(ref0), abs=1e-7)
+
+
+@pytest.mark.parametrize("spec", ["random-walk+white", "fractional+white", "fractional+white+low-pass"])
+def test_profiled_level_is_the_gls_level(spec):
+    """``level=True``: ℓ maximised over a constant added to y — the dense Gaussian density at the GLS level
+    ĉ = 1ᵀΣ⁻¹y / 1ᵀΣ⁻¹1 — and the innovations of y − ĉ, from both filters."""
+    N = 150
+    m = parse_model(spec)
+    v = {"random-walk+white": {"random-walk.sigma": 0.3, "white.r": 0.01}, "fractional+white": FW,
+         "fractional+white+low-pass": dict(FW, **{"low-pass.cutoff_hz": 6.0})}[spec]
+    y = simulate_model(m, v, n_steps=N, h=H, generator=torch.Generator().manual_seed(7))[0, 0] + 1.7
+    ss = m.state_space(v, H, N, "exact")
+    Sigma = _covariance(ss, N)
+    one = torch.ones(N, dtype=torch.float64)
+    Si = torch.linalg.inv(Sigma)
+    c = float(one @ Si @ y / (one @ Si @ one))
+    ref = torch.distributions.MultivariateNormal(torch.zeros(N, dtype=torch.float64), Sigma).log_prob(y - c)
+    r = kalman_filter(ss, y, level=True)
+    assert float(r.loglik[0]) == pytest.approx(float(ref), abs=1e-7)
+    ll, e, S = filter_fast(ss, y, level=True)
+    assert ll[0] == pytest.approx(float(ref), abs=1e-7)
+    np.testing.assert_allclose(e[0], kalman_filter(ss, y - c).innovation[0].numpy(), atol=1e-9)
+    np.testing.assert_allclose(r.innovation[0].numpy(), e[0], atol=1e-10)
+    assert float(loglik_fast(ss, y)[0]) < ll[0]  # without the level the density is lower (y is offset by 1.7)
+
+
+def _covariance(ss, N):
+    """Covariance of y_0..y_{N−1} of a time-invariant state space with z_0 = g0 ξ, by propagating P and the
+    cross-covariances Cov(z_k, z_j) = F^{k−j} P_j."""
+    F, Q, C, R = ss.F[0], ss.Q[0], ss.C[0], float(ss.R[0])
+    g0 = ss.initial[0]
+    P = torch.outer(g0, g0)
+    Ps = []
+    for _ in range(N):
+        Ps.append(P)
+        P = F @ P @ F.T + Q
+    Sigma = torch.zeros(N, N, dtype=torch.float64)
+    for j in range(N):
+        X = Ps[j]  # Cov(z_k, z_j) for k = j, j+1, …
+        for k in range(j, N):
+            Sigma[k, j] = Sigma[j, k] = C @ X @ C
+            X = F @ X
+    return Sigma + R * torch.eye(N, dtype=torch.float64)
+
+
 def test_integer_order_model_is_the_textbook_local_level_filter():
     """random-walk+white is the local-level model: the scalar textbook recursion gives the same ℓ."""
     N = 500
@@ -99,6 +172,8 @@ def test_integer_order_model_is_the_textbook_local_level_filter():
     ("fractional", {"fractional.order": 0.35, "fractional.pole": -3.0, "fractional.q": 0.01}),
     ("fractional+low-pass+white", {"fractional.order": 0.6, "fractional.pole": -1.0, "fractional.q": 0.01,
                                    "low-pass.cutoff_hz": 5.0, "white.r": 1e-4}),
+    ("fractional+white+low-pass", {"fractional.order": 0.6, "fractional.pole": -1.0, "fractional.q": 0.01,
+                                   "white.r": 1e-3, "low-pass.cutoff_hz": 5.0}),
     ("random-walk+white", {"random-walk.sigma": 0.02, "white.r": 1e-4}),
     ("quantisation", {"quantisation.step": 0.05}),
 ])
@@ -192,8 +267,8 @@ def test_bad_model_specs_name_the_problem():
         parse_model("offset+ramp")
     with pytest.raises(ValueError, match="bad model spec"):
         parse_model("fractional++white")
-    with pytest.raises(ValueError, match="not measurement noise; put white/quantisation after it"):
-        parse_model("fractional+white+low-pass")  # the spectrum would filter the white noise, the state space not
+    with pytest.raises(ValueError, match="at most one low-pass"):
+        parse_model("fractional+low-pass+white+low-pass")
     assert parse_model("white+white").names == ["white.r", "white2.r"]
 
 

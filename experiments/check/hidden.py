@@ -4,6 +4,7 @@ clean data?
     python experiments/check/hidden.py                      # all cases (resumes: one JSON per case)
     python experiments/check/hidden.py --effects sinusoid --seeds 5
     python experiments/check/hidden.py --tables             # only the tables from what is saved
+    python experiments/check/hidden.py --shard 0/2 & python experiments/check/hidden.py --shard 1/2   # two processes
 
 Data: MEMS-like base noise — ``fractional+white`` with :func:`torchtea.noise.default_values` (order 0.3, pole
 at 40 % of its stability limit, drive q = r/h^{2α}, white r = 10⁻³ (m/s²)²), h = 0.01 s, 30 000 samples — and a
@@ -43,7 +44,7 @@ def run_case(effect: str, seed: int) -> dict:
     r = check(y, H, model=BASE, inputs={"temperature": T}, intervals=False)
     out = {"effect": effect, "seed": seed, "strength": STRENGTH[effect], "truth": truth, "adequate": r.adequate, "failed": r.failed,
            "metrics": r.metrics, "screens": r.screens, "timings": r.timings, "seconds": time.perf_counter() - t0,
-           "suggestions": [s.as_dict() for s in r.suggestions]}
+           "suggestions": [s.as_dict() for s in r.suggestions], "notes": r.notes}
     out["top"] = r.suggestions[0].effect if r.suggestions else None
     return out
 
@@ -101,6 +102,9 @@ def tables(d: Path) -> str:
             if fitted:
                 out.append(f"| {e} | {p} | {true:g} | {_iqr(fitted)} |")
     secs = [r["seconds"] for r in rows]
+    restarts = sum(any("local maximum" in n for n in r.get("notes", [])) for r in rows)
+    out += ["", f"checks whose first fit of the model was a local maximum (run again from a candidate's better "
+                f"point): {restarts}/{len(rows)}"]
     out += ["", f"seconds per check: median {np.median(secs):.1f}, max {np.max(secs):.1f} ({len(secs)} checks)"]
     if stale:
         out.append(f"({len(stale)} saved cases at an earlier strength left out)")
@@ -113,13 +117,17 @@ def main():
     ap.add_argument("--seeds", type=int, help="seeds per effect (default 50, 100 for none)")
     ap.add_argument("--dir", default=str(HERE / "hidden"))
     ap.add_argument("--tables", action="store_true")
+    ap.add_argument("--shard", default="0/1", help="i/k: run only the cases whose seed is i modulo k")
     args = ap.parse_args()
     d = Path(args.dir)
     d.mkdir(parents=True, exist_ok=True)
     if not args.tables:
         effects = args.effects.split(",")
         n = {e: args.seeds or SEEDS.get(e, DEFAULT_SEEDS) for e in effects}
+        i, k = (int(x) for x in args.shard.split("/"))
         for seed in range(max(n.values())):  # every effect grows together
+            if seed % k != i:
+                continue
             for e in effects:
                 path = d / f"{e}_{seed:03d}.json"
                 if seed >= n[e] or path.exists():

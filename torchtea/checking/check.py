@@ -50,8 +50,8 @@ SCREENS = {"random-walk": "Whittle LR, ½χ²₀+½χ²₁", "low-pass": "Whittl
 
 
 def extend(model: NoiseModel, effect: str) -> NoiseModel:
-    """``model`` with one more component: a ``low-pass`` right after the last state component (it filters the
-    state components before it, not the ADC's white noise), anything else at the end."""
+    """``model`` with one more component: a ``low-pass`` right after the last stochastic component (a sensor's
+    digital filter filters its whole signal, white noise included), anything else at the end."""
     model = parse_model(model)
     if effect not in COMPONENTS:
         raise ValueError(f"unknown effect {effect!r}; choose from: {', '.join(CANDIDATES)}")
@@ -59,9 +59,9 @@ def extend(model: NoiseModel, effect: str) -> NoiseModel:
     if effect in names and effect != "sinusoid":
         raise ValueError(f"model {model.spec!r} already has {effect!r}")
     if effect == "low-pass":
-        last = max((i for i, (_, c) in enumerate(model.components) if c.kind == "state"), default=None)
+        last = max((i for i, (_, c) in enumerate(model.components) if c.kind in ("state", "measurement")), default=None)
         if last is None:
-            raise ValueError(f"a low-pass filters state components (fractional, random-walk); {model.spec!r} has none")
+            raise ValueError(f"a low-pass filters stochastic components; {model.spec!r} has none")
         names.insert(last + 1, effect)
     elif effect == "temperature-order" and not model.has("fractional"):
         raise ValueError(f"temperature-order drives a fractional component's order; {model.spec!r} has none")
@@ -279,10 +279,13 @@ def _whittle_screens(model, base, rows_alts, y, h, inputs):
     base_values = dict(zip(model.names, base.values[0].tolist()))
     for row, alt in rows_alts:
         label = _new_label(model, alt)
-        # the grid as well: a model that lacks a random walk may have bent its fractional order to ≈ 1 to
-        # mimic it, and the extended model's optimum is then far from the model's
-        wf = whittle_fit(alt, [yy], h, inputs=inp, starts=[_alt_starts(model, alt, label, base_values, h, len(y))],
-                         fractions=(0.5,))
+        # the grid as well: a model that lacks a random walk (or a low-pass) may have bent its fractional order to
+        # ≈ 1 to mimic it, and the extended model's optimum is then far from the model's. Both searches are run to
+        # convergence and the better kept: after a few iterations the bent start can look better and is not
+        wf = max((whittle_fit(alt, [yy], h, inputs=inp, fractions=(0.5,)),
+                  whittle_fit(alt, [yy], h, inputs=inp, grid=False,
+                              starts=[_alt_starts(model, alt, label, base_values, h, len(y))])),
+                 key=lambda w: float(w.loglik[0]) if bool(torch.isfinite(w.loglik[0])) else -math.inf)
         lr = max(0.0, 2.0 * float(wf.loglik[0] - base.loglik[0]))
         logp = math.log(0.5) + stats.chi2.logsf(lr, 1) if lr > 0 else 0.0
         vals = dict(zip(alt.names, wf.values[0].tolist()))
@@ -339,12 +342,19 @@ def _scan_order_slope(model, alt, label, fit, inn, y, h, inputs) -> tuple[float,
 
 
 def check(y, h: float, model="fractional+white", inputs: dict | None = None, *, level: float = LEVEL,
-          screen_level: float = 0.05, candidates=CANDIDATES, fit: Fit | None = None, intervals: bool = True) -> CheckResult:
+          screen_level: float = 0.05, candidates=CANDIDATES, fit: Fit | None = None, intervals: bool = True,
+          _restarts: int = 1) -> CheckResult:
     """Fit ``model`` to the series ``y`` (NaN = missing, sample time ``h``), run the diagnostics and rank the
     missing effects (module docstring). ``inputs``: ``{"temperature": (N,)}`` (°C) when there is a temperature
     channel. ``fit``: an existing exact fit of ``model`` to ``y`` to use. ``intervals``: compute the intervals of
     the model's parameters and of the best suggestion's (a finite-difference Hessian each, 1 + 2k² likelihood
-    evaluations for k parameters); the other suggestions' parameters come without."""
+    evaluations for k parameters); the other suggestions' parameters come without.
+
+    The model's exact likelihood can have several maxima (a fractional order bent to ≈ 1 mimics a random walk
+    or a low-pass). When a candidate's refit, with its new component taken away, is a better point of the
+    model's own likelihood, the model's fit was a local maximum: it is refined from there and the check run
+    again (``_restarts`` times at most), so that no gain is a mere escape from the model's local maximum; the
+    notes say so."""
     t0 = time.perf_counter()
     model = parse_model(model)
     y = np.asarray(y, dtype=np.float64)
@@ -372,6 +382,7 @@ def check(y, h: float, model="fractional+white", inputs: dict | None = None, *, 
     screened = [r for r in screens if r["p_value"] is not None]
     threshold = screen_level / max(1, len(screened))
     suggestions = []
+    refits = []
     failed_before = {d.name for d in diags if d.passed is False}
     for row in screened:
         row["passed"] = bool(row["p_value"] < threshold)
@@ -395,6 +406,7 @@ def check(y, h: float, model="fractional+white", inputs: dict | None = None, *, 
             noise = {n: x for n, x in zip(alt.names, wfa.values[0].tolist()) if n in model.names}
             start, metric = {**start, **noise}, wfa.hessian[0]
         f2 = refine_exact(alt, y, h, start, inputs=inputs, fixed=fixed, metric=metric, intervals=False)
+        refits.append(f2)
         if row["effect"] == "sinusoid":
             f2.free.append(f"{label}.frequency_hz")
             f2.ci95_method[f"{label}.frequency_hz"] = "refined periodogram peak (held in the exact refit): no interval"
@@ -411,6 +423,16 @@ def check(y, h: float, model="fractional+white", inputs: dict | None = None, *, 
         row.pop("metric", None)
         row.pop("start", None)
     clock("refits")
+    if refits and _restarts > 0:
+        better = _better_model_fit(model, fit, refits, y, h, inputs, intervals)
+        if better is not None:
+            res = check(y, h, model=model, inputs=inputs, level=level, screen_level=screen_level,
+                        candidates=candidates, fit=better, intervals=intervals, _restarts=_restarts - 1)
+            res.notes.insert(0, f"the first exact fit of {model.spec} was a local maximum (ℓ {fit.loglik:.2f}); a "
+                                f"candidate's refit without its new component was a better point (ℓ "
+                                f"{better.loglik:.2f} after refining), and the check was run from there")
+            res.seconds = time.perf_counter() - t0
+            return res
     suggestions.sort(key=lambda s: -s.gain)
     if intervals and suggestions:  # the best suggestion's intervals (a finite-difference Hessian: 1 + 2k² fits)
         top = suggestions[0]
@@ -423,6 +445,21 @@ def check(y, h: float, model="fractional+white", inputs: dict | None = None, *, 
     clock("intervals")
     return CheckResult(y, h, inputs, fit, inn, diags, mets, screens, suggestions, level, screen_level,
                        time.perf_counter() - t0, notes, timings=clock.laps)
+
+
+def _better_model_fit(model, fit: Fit, refits: list, y, h, inputs, intervals: bool) -> Fit | None:
+    """The model refined from the best of the refits' values of its own parameters, if that beats ``fit`` by
+    more than 0.5 nats (else None)."""
+    points = [{n: f.values[n] for n in model.names} for f in refits]
+    vals = {n: [p[n] for p in points] for n in model.names}
+    ll = exact_loglik(model, vals, centred(model, y), h, inputs=inputs)
+    ll = np.where(np.isfinite(ll), ll, -np.inf)
+    best = int(np.argmax(ll))
+    if not ll[best] > fit.loglik + 0.5:
+        return None
+    fixed = [n for n in model.names if n not in fit.free]
+    new = refine_exact(model, y, h, points[best], inputs=inputs, fixed=fixed, metric=fit.hessian, intervals=intervals)
+    return new if new.loglik > fit.loglik + 0.5 else None
 
 
 class _Clock:

@@ -18,7 +18,8 @@ ljung-box  lag            Ljung–Box Q on the first L lags of z (χ²_L)
 spectrum   frequency      band means of 2π·periodogram(z) in log-spaced bands (Gamma(m)/m, two-sided): the
                           bands where the model's spectrum is too low (ratio > 1) or too high (< 1)
 lines      frequency      each ordinate of 2π·periodogram(z) against the mean of its 100 neighbours (F(2, 200)),
-                          the largest over all frequencies: narrow-band lines (vibration)
+                          the largest over the frequencies with 50 neighbours on each side (≥ 53 cycles per
+                          record): narrow-band lines (vibration)
 allan      Allan          the data's overlapping AVAR at octave τ against the model's (χ²_edf, Greenhall's EDF):
                           the τ ranges outside the band
 temperature inputs        score test of a temperature-proportional term (z against the whitened temperature,
@@ -39,7 +40,7 @@ import numpy as np
 import torch
 from scipy import stats
 
-from ..fitting.mle import FIT_MEMORY, centred
+from ..fitting.mle import FIT_MEMORY, centred, profiles_level
 from ..likelihood.kalman import filter_fast
 from ..noise.model import StateSpace, parse_model, state_memory
 from . import allan
@@ -98,7 +99,7 @@ def innovations(model, values: dict, y, h: float, inputs: dict | None = None, me
     N = len(y)
     ss = model.state_space(values, h, N, state_memory(memory, N), inputs=inputs)
     mean = model.mean(values, torch.arange(N, dtype=torch.float64) * h, inputs)
-    ll, e, S = filter_fast(ss, y, mean)
+    ll, e, S = filter_fast(ss, y, mean, level=profiles_level(model))
     z = e[0] / np.sqrt(S[0])
     return Innovations(z, ss, mean.numpy()[0], float(ll[0]), ~np.isnan(y), y)
 
@@ -113,7 +114,8 @@ def whiten(inn: Innovations, columns: np.ndarray) -> np.ndarray:
     ss = inn.ss
     rep = StateSpace(ss.F.expand(m, -1, -1), ss.G.expand(m, -1, -1), ss.C.expand(m, -1), ss.R.expand(m), ss.blocks,
                      None if ss.varying is None else
-                     (ss.varying[0], ss.varying[1].expand(m, -1, -1), ss.varying[2].expand(m, -1), ss.varying[3]))
+                     (ss.varying[0], ss.varying[1].expand(m, -1, -1), ss.varying[2].expand(m, -1), ss.varying[3]),
+                     None if ss.g0 is None else ss.g0.expand(m, -1))
     _, e, S = filter_fast(rep, X)
     return e / np.sqrt(S)
 
@@ -297,21 +299,27 @@ def spectrum_bands(z: np.ndarray, h: float, level: float = LEVEL, bands: int = 2
 
 def lines(z: np.ndarray, h: float, level: float = LEVEL, neighbours: int = 50, guard: int = 2) -> Diagnostic:
     """Each ordinate against the mean of ``neighbours`` ordinates on each side (skipping ``guard`` next to it):
-    u_j / ū ~ F(2, 2K) for independent exponentials, so broad misfit (a wrong slope) does not count as a line."""
+    u_j / ū ~ F(2, 2K) for independent exponentials, so broad misfit (a wrong slope) does not count as a line.
+    Only ordinates with their full ``neighbours`` on both sides are tested (from ``guard + neighbours + 1``
+    cycles per record up): at the lowest frequencies a drift the model lacks (random walk, ramp) stands out
+    against neighbours on one side only, and a "line" of a cycle or two per record cannot be told from drift."""
     j, u = _innovation_periodogram(z)
     N = len(z)
-    M = len(u)
     c = np.concatenate([[0.0], np.cumsum(u)])
-    idx = np.arange(M)
+    idx = np.arange(guard + neighbours, len(u) - guard - neighbours)
+    if len(idx) == 0:
+        raise ValueError(f"the lines diagnostic needs more than {4 * (guard + neighbours)} samples, got {N}")
+    M = len(idx)
+    Mu = len(u)
 
     def seg(lo, hi):  # sum and count of u[lo:hi], clipped to the array
-        lo, hi = np.clip(lo, 0, M), np.clip(hi, 0, M)
+        lo, hi = np.clip(lo, 0, Mu), np.clip(hi, 0, Mu)
         return c[hi] - c[lo], hi - lo
 
     s1, n1 = seg(idx - guard - neighbours, idx - guard)
     s2, n2 = seg(idx + guard + 1, idx + guard + 1 + neighbours)
     K = n1 + n2
-    ratio = u / ((s1 + s2) / K)
+    ratio = u[idx] / ((s1 + s2) / K)
     logp = stats.f.logsf(ratio, 2, 2 * K)
     i = int(np.argmin(logp))
     # P(min over M of p_j ≤ p) = 1 − (1 − p)^M, computed in logs
@@ -319,7 +327,7 @@ def lines(z: np.ndarray, h: float, level: float = LEVEL, neighbours: int = 50, g
     log_p_any = float(logp[i] + math.log(M)) if logp[i] < -30 else math.log(max(p_any, 1e-300))
     thr = math.log(level / M)
     hits = np.nonzero(logp < thr)[0]
-    f_hz = j / (N * h)
+    f_hz = j[idx] / (N * h)
     ranges = [[float(f_hz[k] - 1 / (N * h)), float(f_hz[k] + 1 / (N * h))] for k in hits]
     ranges, dirs = _merge([(a, b, "high") for a, b in ranges])
     summary = (f"narrow-band line(s) at {', '.join(f'{(a + b) / 2:.4g} Hz' for a, b in ranges[:5])}"

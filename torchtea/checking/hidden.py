@@ -29,13 +29,13 @@ HIDDEN_STRENGTH = {
 
 
 def hidden_model(effect: str) -> str:
-    """The spec that generates data with ``effect`` (a low-pass filters the fractional state, not the white
-    noise of the converter)."""
+    """The spec that generates data with ``effect`` (a low-pass filters the whole signal, white noise included,
+    as a sensor's digital filter does)."""
     if effect not in HIDDEN_STRENGTH:
         raise ValueError(f"unknown hidden effect {effect!r}; choose from: {', '.join(HIDDEN_STRENGTH)}")
     if effect == "none":
         return BASE_MODEL
-    return "fractional+low-pass+white" if effect == "low-pass" else f"{BASE_MODEL}+{effect}"
+    return f"{BASE_MODEL}+{effect}"
 
 
 def hidden_case(effect: str, seed: int, n: int = 30_000, h: float = 0.01, strength: dict | None = None):

@@ -10,7 +10,7 @@ import torch
 
 from ..likelihood.kalman import filter_fast
 from ..noise.model import state_memory
-from .mle import FIT_MEMORY, Fit, centred
+from .mle import FIT_MEMORY, Fit, centred, profiles_level
 
 __all__ = ["fit_nis", "axis_summary", "MEANING"]
 
@@ -36,7 +36,7 @@ def fit_nis(fit: Fit, y, h: float, inputs=None, memory=FIT_MEMORY) -> float:
     N = len(y)
     ss = model.state_space(fit.values, h, N, state_memory(memory, N), inputs=inputs)
     mean = model.mean(fit.values, torch.arange(N, dtype=torch.float64) * h, inputs)
-    _, e, S = filter_fast(ss, y, mean)
+    _, e, S = filter_fast(ss, y, mean, level=profiles_level(model))
     ok = ~np.isnan(e[0])
     return float(np.mean(e[0][ok] ** 2 / S[0][ok]))
 

@@ -58,18 +58,31 @@ def _as_series(y, B: int) -> Tensor:
     return y.expand(B, -1) if y.shape[0] == 1 and B > 1 else y
 
 
-def kalman_filter(ss: StateSpace, y, mean=None, *, keep_states: bool = False, smooth: bool = False) -> FilterResult:
-    """Run the exact filter on ``y`` ``(B, N)`` (or ``(N,)``), ``mean`` the deterministic part ``(B, N)``."""
+def kalman_filter(ss: StateSpace, y, mean=None, *, keep_states: bool = False, smooth: bool = False,
+                  level: bool = False) -> FilterResult:
+    """Run the exact filter on ``y`` ``(B, N)`` (or ``(N,)``), ``mean`` the deterministic part ``(B, N)``.
+
+    ``level=True``: ``y`` has an unknown constant level c besides ``mean``. The filter is linear in the data and its
+    gains do not depend on them, so the innovations of ``y − c`` are ``e − c w`` with ``w`` the innovations of the
+    constant 1 through the same filter, and ℓ is quadratic in c: ``ℓ(c) = ℓ(0) + c Σ e w/S − ½ c² Σ w²/S``. The
+    returned log-likelihood is its maximum ``ℓ(0) + ½ (Σ e w/S)² / Σ w²/S`` (the level profiled out; the
+    generalised-least-squares level ``ĉ = Σ e w/S / Σ w²/S``) and the innovations are ``e − ĉ w``. Unlike removing
+    the sample mean this is exact for any model, a random walk's included (whose path need not start at the
+    series' mean)."""
     F, Q, C, R = ss.F, ss.Q, ss.C, ss.R
     B, n = F.shape[0], F.shape[-1]
-    if smooth and ss.varying is not None:
-        raise NotImplementedError("the smoother with a time-varying order (temperature-order) is not implemented")
+    if smooth and (ss.varying is not None or level):
+        raise NotImplementedError("the smoother with a time-varying order (temperature-order) or a profiled level "
+                                  "is not implemented")
     y = _as_series(y, B)
     N = y.shape[-1]
     mu = torch.zeros_like(y) if mean is None else _as_series(mean, B).to(y)
     z = y.new_zeros(B, n)
-    P = y.new_zeros(B, n, n)
-    es, Ss, preds, zs, Ps, zps, Pps = [], [], [], [], [], [], []
+    w = y.new_zeros(B, n)
+    g0 = ss.initial.to(y)
+    P = g0.unsqueeze(-1) * g0.unsqueeze(-2)
+    es, Ss, preds, zs, Ps, zps, Pps, ws = [], [], [], [], [], [], [], []
+    sww, sew = y.new_zeros(B), y.new_zeros(B)
     ll = y.new_zeros(B)
     observed = 0
     Ft = F.mT
@@ -91,6 +104,14 @@ def kalman_filter(ss: StateSpace, y, mean=None, *, keep_states: bool = False, sm
             P = P - okf.unsqueeze(-1) * (K.unsqueeze(-1) * Pc.unsqueeze(-2))
             P = 0.5 * (P + P.mT)
             ll = ll - 0.5 * torch.where(ok, torch.log(2.0 * math.pi * S) + e0 * e0 / S, torch.zeros_like(S))
+            if level:
+                ew = torch.where(ok, 1.0 - (C * w).sum(-1), torch.zeros_like(e0))
+                ws.append(ew)
+                sww = sww + ew * ew / S
+                sew = sew + e0 * ew / S
+                w = w + okf * K * ew.unsqueeze(-1)
+        elif level:
+            ws.append(1.0 - (C * w).sum(-1))
         es.append(e)
         Ss.append(S)
         preds.append(pred)
@@ -105,6 +126,8 @@ def kalman_filter(ss: StateSpace, y, mean=None, *, keep_states: bool = False, sm
             Qk[:, i, i] = g[:, k] ** 2
             Ftk = Fk.mT
         z = (z.unsqueeze(-2) @ Ftk).squeeze(-2)
+        if level:
+            w = (w.unsqueeze(-2) @ Ftk).squeeze(-2)
         P = Fk @ P @ Ftk + Qk
     filtered = torch.stack(zs, dim=1) if (keep_states or smooth) else None
     smoothed = None
@@ -120,8 +143,14 @@ def kalman_filter(ss: StateSpace, y, mean=None, *, keep_states: bool = False, sm
             Psm = Ps[k] + J @ (Psm - Pp) @ J.mT
             out.append(zsm)
         smoothed = torch.stack(out[::-1], dim=1)
-    return FilterResult(torch.stack(es, 1), torch.stack(Ss, 1), torch.stack(preds, 1), ll, observed,
-                        filtered, smoothed)
+    e_all, pred_all = torch.stack(es, 1), torch.stack(preds, 1)
+    if level:
+        beta = torch.where(sww > 0, sew / torch.where(sww > 0, sww, torch.ones_like(sww)), torch.zeros_like(sww))
+        W = torch.stack(ws, 1)
+        e_all = e_all - beta.unsqueeze(-1) * W
+        pred_all = pred_all + beta.unsqueeze(-1) * W
+        ll = ll + torch.where(sww > 0, 0.5 * sew * beta, torch.zeros_like(ll))
+    return FilterResult(e_all, torch.stack(Ss, 1), pred_all, ll, observed, filtered, smoothed)
 
 
 # --------------------------------------------------------------------------- the compiled fast path
@@ -146,14 +175,20 @@ def _build(numba):
     # error_model="numpy": a zero innovation variance (white noise → 0 with a zero-variance start) gives an
     # infinite or NaN log-likelihood, which the optimisers reject, instead of raising ZeroDivisionError
     @njit(cache=True, fastmath=False, error_model="numpy")
-    def one(indptr, indices, fval, Q, C, cidx, R, y, mu, e_out, s_out, keep, tv_i, tv_F, tv_q):
+    def one(indptr, indices, fval, Q, C, cidx, R, y, mu, e_out, s_out, w_out, keep, tv_i, tv_F, tv_q, g0, lvl):
         n = Q.shape[0]
         N = y.shape[0]
         z = np.zeros(n)
+        w = np.zeros(n)  # the filter's state for the constant regressor (level profiling)
         P = np.zeros((n, n))
+        for i in range(n):
+            for j in range(n):
+                P[i, j] = g0[i] * g0[j]
         M = np.zeros((n, n))
         Pc = np.zeros(n)
         ll = 0.0
+        sww = 0.0
+        sew = 0.0
         nc = cidx.shape[0]
         for k in range(N):
             # update with y_k (C has few non-zeros: cidx)
@@ -168,14 +203,27 @@ def _build(numba):
                 S += C[cidx[t]] * Pc[cidx[t]]
                 pred += C[cidx[t]] * z[cidx[t]]
             e = y[k] - pred
+            ew = 0.0
+            if lvl:
+                ew = 1.0
+                for t in range(nc):
+                    ew -= C[cidx[t]] * w[cidx[t]]
             if keep:
                 e_out[k] = e
                 s_out[k] = S
+                if lvl:
+                    w_out[k] = ew
             if not np.isnan(e):
                 ll -= 0.5 * (math.log(2.0 * math.pi * S) + e * e / S)
                 g = e / S
                 for i in range(n):
                     z[i] += Pc[i] * g
+                if lvl:
+                    sww += ew * ew / S
+                    sew += e * ew / S
+                    g = ew / S
+                    for i in range(n):
+                        w[i] += Pc[i] * g
                 for i in range(n):
                     a = Pc[i] / S
                     for j in range(i, n):
@@ -187,16 +235,22 @@ def _build(numba):
             # predict: z = F z, P = F P Fᵀ + Q, with F in CSR form
             # row tv_i (a time-varying order) is tv_F[k] (dense) instead of its CSR row, and Q[tv_i, tv_i] tv_q[k]
             znew = np.zeros(n)
+            wnew = np.zeros(n)
             for i in range(n):
                 acc = 0.0
+                accw = 0.0
                 if i == tv_i:
                     for r in range(n):
                         acc += tv_F[k, r] * z[r]
+                        accw += tv_F[k, r] * w[r]
                 else:
                     for t in range(indptr[i], indptr[i + 1]):
                         acc += fval[t] * z[indices[t]]
+                        accw += fval[t] * w[indices[t]]
                 znew[i] = acc
+                wnew[i] = accw
             z = znew
+            w = wnew
             for i in range(n):  # M = F P
                 for j in range(n):
                     M[i, j] = 0.0
@@ -225,15 +279,22 @@ def _build(numba):
                             acc += M[i, indices[t]] * fval[t]
                     P[i, j] = acc
                     P[j, i] = acc
+        if lvl and sww > 0.0:
+            ll += 0.5 * sew * sew / sww
+            if keep:
+                beta = sew / sww
+                for k in range(N):
+                    e_out[k] -= beta * w_out[k]
         return ll
 
     @njit(parallel=True, cache=True, error_model="numpy")
-    def batch(indptr, indices, fvals, Qs, Cs, cidx, Rs, ys, mus, e_out, s_out, keep, tv_i, tv_Fs, tv_qs):
+    def batch(indptr, indices, fvals, Qs, Cs, cidx, Rs, ys, mus, e_out, s_out, w_out, keep, tv_i, tv_Fs, tv_qs, g0s,
+              lvl):
         B = fvals.shape[0]
         out = np.zeros(B)
         for b in prange(B):
-            out[b] = one(indptr, indices, fvals[b], Qs[b], Cs[b], cidx, Rs[b], ys[b], mus[b], e_out[b], s_out[b], keep,
-                         tv_i, tv_Fs[b], tv_qs[b])
+            out[b] = one(indptr, indices, fvals[b], Qs[b], Cs[b], cidx, Rs[b], ys[b], mus[b], e_out[b], s_out[b],
+                         w_out[b], keep, tv_i, tv_Fs[b], tv_qs[b], g0s[b], lvl)
         return out
 
     return batch
@@ -250,7 +311,7 @@ def _csr(F: np.ndarray):
     return indptr, cols.astype(np.int64), np.ascontiguousarray(F[:, rows, cols])
 
 
-def _fast(ss: StateSpace, y, mean, keep: bool):
+def _fast(ss: StateSpace, y, mean, keep: bool, level: bool = False):
     F = ss.F.detach().cpu().numpy()
     B = F.shape[0]
     yt = _as_series(y, B).detach().cpu()
@@ -263,24 +324,28 @@ def _fast(ss: StateSpace, y, mean, keep: bool):
     indptr, indices, fvals = _csr(F)
     e_out = np.zeros((B, N) if keep else (B, 1))
     s_out = np.zeros_like(e_out)
+    w_out = np.zeros((B, N) if (keep and level) else (B, 1))
     if ss.varying is None:
         tv_i, tv_F, tv_q = -1, np.zeros((B, 1, F.shape[-1])), np.zeros((B, 1))
     else:
         tv_i = int(ss.varying[0])
         tv_F = np.ascontiguousarray(ss.varying[1].detach().cpu().numpy(), dtype=np.float64)
         tv_q = np.ascontiguousarray(ss.varying[2].detach().cpu().numpy() ** 2, dtype=np.float64)
+    g0 = np.ascontiguousarray(ss.initial.detach().cpu().numpy(), dtype=np.float64)
     ll = _compiled()(indptr, indices, fvals, np.ascontiguousarray(ss.Q.detach().cpu().numpy()),
                      np.ascontiguousarray(C), cidx, np.ascontiguousarray(ss.R.detach().cpu().numpy()),
-                     ya, mu, e_out, s_out, keep, tv_i, tv_F, tv_q)
+                     ya, mu, e_out, s_out, w_out, keep, tv_i, tv_F, tv_q, g0, bool(level))
     return ll, e_out, s_out
 
 
-def loglik_fast(ss: StateSpace, y, mean=None) -> np.ndarray:
+def loglik_fast(ss: StateSpace, y, mean=None, *, level: bool = False) -> np.ndarray:
     """The exact log-likelihood ``(B,)`` as :func:`kalman_filter` computes it, compiled (CPU, float64,
-    the parameter sets spread over the CPU's cores; no gradients)."""
-    return _fast(ss, y, mean, False)[0]
+    the parameter sets spread over the CPU's cores; no gradients). ``level=True``: profiled over an unknown
+    constant added to ``y`` (see :func:`kalman_filter`)."""
+    return _fast(ss, y, mean, False, level)[0]
 
 
-def filter_fast(ss: StateSpace, y, mean=None):
-    """``(loglik (B,), innovations (B, N), variances (B, N))`` from the compiled filter."""
-    return _fast(ss, y, mean, True)
+def filter_fast(ss: StateSpace, y, mean=None, *, level: bool = False):
+    """``(loglik (B,), innovations (B, N), variances (B, N))`` from the compiled filter (``level``: as in
+    :func:`loglik_fast`; the innovations are then those of ``y`` minus the estimated constant)."""
+    return _fast(ss, y, mean, True, level)

@@ -2,8 +2,10 @@ r"""The physical parts of a sensor's noise model, each with named parameters, a 
 
 Conventions (ALGORITHMS.md §7): sample time ``h``, ω in rad/sample, two-sided spectra with
 ``var = ∫_{−π}^{π} S(ω) dω``. The measurement is the sum of the components; a ``low-pass`` filters the
-sum of the *state* components listed before it, and white / quantisation noise always enters after it
-(the ADC's noise).
+sum of the stochastic components listed before it — state and white alike, as a sensor's digital filter
+filters its whole signal — and white / quantisation noise listed after it enters unfiltered (e.g. the
+output's rounding): ``fractional+white+low-pass`` filters everything, ``fractional+low-pass+white`` only the
+fractional part.
 
 Three kinds of component:
 
@@ -167,9 +169,9 @@ class RandomWalk(Component):
 
 
 class LowPass(Component):
-    r"""First-order low-pass :math:`y_k = a y_{k-1} + (1-a) s_k`, :math:`a = e^{-2\pi f_c h}`, of the state
-    components before it (the sensor's digital filter). Multiplies their spectra by
-    :math:`(1-a)^2/(1 - 2a\cos\omega + a^2)`."""
+    r"""First-order low-pass :math:`l_k = a l_{k-1} + (1-a) s_k`, :math:`a = e^{-2\pi f_c h}`, of the stochastic
+    components before it, :math:`s_k` their sum (the sensor's digital filter), started from rest before the first
+    sample. Multiplies their spectra by :math:`(1-a)^2/(1 - 2a\cos\omega + a^2)`."""
 
     name = "low-pass"
     kind = "filter"

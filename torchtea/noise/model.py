@@ -14,7 +14,8 @@ What the engines read:
   exponential-sum modes of :mod:`torchtea.core.memory` (``soe``), or the whole past (``exact``, small N only).
 
 Every state starts at zero with zero variance: the GL model's ``x_0 = 0`` and zero history, the random
-walk's ``b_0 = 0`` (an ``offset`` component carries an unknown constant).
+walk's ``b_0 = 0`` (an ``offset`` component, or the exact likelihood's profiled level, carries an unknown
+constant); a low-pass that filters white noise starts at its first filtered sample (``StateSpace.g0``).
 """
 from __future__ import annotations
 
@@ -78,6 +79,14 @@ class StateSpace:
     #: ``column`` (which no other row shares), so ``Q_k[i, i] = loading²`` and every other entry of F and Q is
     #: constant.
     varying: tuple | None = None
+    #: The initial state's loading ``(B, n)``: ``z_0 = g0 ξ`` with ξ standard normal (``P_0 = g0 g0ᵀ``); None is
+    #: zero (every state starts at zero). A low-pass that filters white noise starts at its first input sample.
+    g0: Tensor | None = None
+
+    @property
+    def initial(self) -> Tensor:
+        """``g0`` ``(B, n)`` (zeros when every state starts at zero)."""
+        return self.F.new_zeros(self.F.shape[0], self.F.shape[-1]) if self.g0 is None else self.g0
 
     @property
     def Q(self) -> Tensor:
@@ -243,9 +252,18 @@ class NoiseModel:
         Fs, Gs, blocks, outs_before, outs_after = [], [], {}, [], []
         lowpass = None
         start = 0
+        r_before = torch.zeros(B, dtype=torch.float64)  # white noise the low-pass filters
+        r_after = torch.zeros(B, dtype=torch.float64)  # white noise in R
         for label, comp in self.components:
             if comp.kind == "filter":
                 lowpass = label
+                continue
+            if comp.kind == "measurement":
+                r = comp.measurement_variance(byc[label]).expand(B)
+                if lowpass is None:
+                    r_before = r_before + r
+                else:
+                    r_after = r_after + r
                 continue
             if comp.kind != "state":
                 continue
@@ -268,20 +286,27 @@ class NoiseModel:
             noise_cols[label] = col
             col += Gb.shape[-1]
         C = torch.zeros(B, n, dtype=torch.float64)
+        g0 = None
         if lowpass is not None:
-            if not outs_before:
-                raise ValueError(f"model {self.spec!r}: a low-pass needs state components (fractional, "
-                                 "random-walk) before it")
+            if not outs_before and not bool((r_before > 0).any()):
+                raise ValueError(f"model {self.spec!r}: a low-pass needs components before it to filter")
             a = LowPass().coefficient(byc[lowpass], h)  # (B,)
             s = torch.zeros(B, n + 1, dtype=torch.float64)  # selects the sum of the components before it
             s[:, outs_before] = 1.0
-            # l_{k+1} = a l_k + (1 − a) s·(F z_k + ε_k): one more state, noise correlated with the others
+            # l_{k+1} = a l_k + (1 − a) (s·(F z_k + ε_k) + ν_{k+1}): one more state, its noise correlated with the
+            # others' and, with white noise before the filter, one more noise column ν of variance r_before
             T = torch.cat([torch.eye(n, dtype=torch.float64).expand(B, n, n),
                            ((1.0 - a).unsqueeze(-1) * s[:, :n]).unsqueeze(1)], dim=1)  # (B, n+1, n)
             F2 = torch.zeros(B, n + 1, n + 1, dtype=torch.float64)
             F2[:, :, :n] = T @ F
             F2[:, n, n] = a
             F, G = F2, T @ G
+            if bool((r_before > 0).any()):
+                nu = torch.zeros(B, n + 1, 1, dtype=torch.float64)
+                nu[:, n, 0] = (1.0 - a) * torch.sqrt(r_before)
+                G = torch.cat([G, nu], dim=-1)
+                # the filter starts from rest before the first sample: l_0 = (1 − a) ν_0 (the states start at 0)
+                g0 = nu[..., 0].clone()
             blocks[lowpass] = slice(n, n + 1)
             C = torch.zeros(B, n + 1, dtype=torch.float64)
             C[:, n] = 1.0
@@ -289,7 +314,7 @@ class NoiseModel:
         else:
             C[:, outs_before] = 1.0
         varying = self._varying_order(byc, blocks, noise_cols, lowpass, h, n_steps, mem, inputs, B, F.shape[-1])
-        return StateSpace(F, G, C, self.measurement_variance(v).expand(B).clone(), blocks, varying)
+        return StateSpace(F, G, C, (r_before + r_after if lowpass is None else r_after).clone(), blocks, varying, g0)
 
     def _varying_order(self, byc, blocks, noise_cols, lowpass, h, n_steps, mem, inputs, B, n):
         mods = [label for label, c in self.components if c.name == "temperature-order"]
@@ -371,12 +396,6 @@ def parse_model(spec) -> NoiseModel:
         comps.append((label, COMPONENTS[p]))
     if seen.get("low-pass", 0) > 1:
         raise ValueError(f"model {spec!r}: at most one low-pass")
-    kinds = [c.kind for _, c in comps]
-    if "filter" in kinds and "measurement" in kinds[:kinds.index("filter")]:
-        # the spectrum would filter it and the state space would not: refuse rather than disagree
-        raise ValueError(f"model {spec!r}: a low-pass filters the state components (fractional, random-walk) "
-                         "before it, not measurement noise; put white/quantisation after it, e.g. "
-                         "fractional+low-pass+white")
     if not any(c.kind in ("state", "measurement") for _, c in comps):
         raise ValueError(f"model {spec!r} has no stochastic component (fractional, white, random-walk …)")
     return NoiseModel(comps, "+".join(parts))

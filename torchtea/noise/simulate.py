@@ -23,8 +23,8 @@ def simulate_model(model, values, *, n_steps: int, h: float, realisations: int =
 
     Returns ``y`` of shape ``(B, realisations, N)`` (and the stacked states ``(B, realisations, N, n)``
     with ``return_states``). ``inputs``: channels the mean components read (``{"temperature": (N,)}``).
-    Draw order: the state noise of every step, then the measurement noise — fixed, so a seed gives
-    the same series whatever the batch.
+    Draw order: the state noise of every step, then the measurement noise, then (only for a state that does not
+    start at zero) the initial state — fixed, so a seed gives the same series whatever the batch.
     """
     model = parse_model(model)
     if n_steps < 1:
@@ -37,6 +37,8 @@ def simulate_model(model, values, *, n_steps: int, h: float, realisations: int =
     nu = torch.randn(B, R_, n_steps, generator=generator, dtype=torch.float64)
     noise = xi @ ss.G.unsqueeze(1).mT  # (B, R, N, n)
     z = torch.zeros(B, R_, n, dtype=torch.float64)
+    if ss.g0 is not None:  # a state that does not start at zero (a low-pass of white noise): drawn last
+        z = ss.g0.unsqueeze(1) * torch.randn(B, R_, 1, generator=generator, dtype=torch.float64)
     out = torch.empty(B, R_, n_steps, dtype=torch.float64)
     states = torch.empty(B, R_, n_steps, n, dtype=torch.float64) if return_states else None
     Ft = ss.F.mT.unsqueeze(1)  # (B, 1, n, n)

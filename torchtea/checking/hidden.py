@@ -24,7 +24,7 @@ HIDDEN_STRENGTH = {
     "sinusoid": {"sinusoid.frequency_hz": 3.37, "sinusoid.amplitude": 4e-3},
     "temperature-bias": {"temperature-bias.bias_per_degC": 0.003},
     "temperature-order": {"temperature-order.order_per_degC": 0.025},
-    "low-pass": {"low-pass.cutoff_hz": 8.0},
+    "low-pass": {"low-pass.cutoff_hz": 20.0},
 }
 
 

@@ -106,9 +106,10 @@ def test_low_pass_of_white_noise_against_dense_gaussian():
 
 
 @pytest.mark.parametrize("spec", ["random-walk+white", "fractional+white", "fractional+white+low-pass"])
-def test_profiled_level_is_the_gls_level(spec):
-    """``level=True``: ℓ maximised over a constant added to y — the dense Gaussian density at the GLS level
-    ĉ = 1ᵀΣ⁻¹y / 1ᵀΣ⁻¹1 — and the innovations of y − ĉ, from both filters."""
+def test_unknown_level_is_integrated_out(spec):
+    """``level=True``: the density integrated over a constant added to y (flat prior) — the dense Gaussian
+    density at the GLS level ĉ = 1ᵀΣ⁻¹y / 1ᵀΣ⁻¹1 times √(2π / 1ᵀΣ⁻¹1) — and the innovations of y − ĉ, from both
+    filters."""
     N = 150
     m = parse_model(spec)
     v = {"random-walk+white": {"random-walk.sigma": 0.3, "white.r": 0.01}, "fractional+white": FW,
@@ -120,6 +121,7 @@ def test_profiled_level_is_the_gls_level(spec):
     Si = torch.linalg.inv(Sigma)
     c = float(one @ Si @ y / (one @ Si @ one))
     ref = torch.distributions.MultivariateNormal(torch.zeros(N, dtype=torch.float64), Sigma).log_prob(y - c)
+    ref = ref + 0.5 * math.log(2 * math.pi / float(one @ Si @ one))
     r = kalman_filter(ss, y, level=True)
     assert float(r.loglik[0]) == pytest.approx(float(ref), abs=1e-7)
     ll, e, S = filter_fast(ss, y, level=True)
@@ -127,6 +129,23 @@ def test_profiled_level_is_the_gls_level(spec):
     np.testing.assert_allclose(e[0], kalman_filter(ss, y - c).innovation[0].numpy(), atol=1e-9)
     np.testing.assert_allclose(r.innovation[0].numpy(), e[0], atol=1e-10)
     assert float(loglik_fast(ss, y)[0]) < ll[0]  # without the level the density is lower (y is offset by 1.7)
+
+
+def test_unknown_level_is_bounded_when_the_first_sample_can_be_exact():
+    """fractional+white+low-pass with white r → 0: the first sample's variance (1 − a)² r → 0. The maximised ℓ
+    would grow without bound (the level pins y₀); the integrated one stays finite and the two filters agree."""
+    N = 300
+    m = parse_model("fractional+white+low-pass")
+    v = dict(FW, **{"low-pass.cutoff_hz": 400.0})
+    y = simulate_model(m, v, n_steps=N, h=H, generator=torch.Generator().manual_seed(8))[0, 0]
+    lls = []
+    for r in (1e-3, 1e-12, 1e-30):
+        vv = dict(v, **{"white.r": r})
+        ss = m.state_space(vv, H, N, "soe")
+        ll = float(loglik_fast(ss, y, level=True)[0])
+        assert ll == pytest.approx(float(kalman_filter(ss, y, level=True).loglik[0]), rel=1e-9)
+        lls.append(ll)
+    assert lls[1] == pytest.approx(lls[2], abs=1e-3)  # r → 0 converges (the first sample's terms cancel)
 
 
 def _covariance(ss, N):

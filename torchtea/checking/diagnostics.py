@@ -40,7 +40,7 @@ import numpy as np
 import torch
 from scipy import stats
 
-from ..fitting.mle import FIT_MEMORY, centred, profiles_level
+from ..fitting.mle import FIT_MEMORY, centred, unknown_level
 from ..likelihood.kalman import filter_fast
 from ..noise.model import StateSpace, parse_model, state_memory
 from . import allan
@@ -99,7 +99,7 @@ def innovations(model, values: dict, y, h: float, inputs: dict | None = None, me
     N = len(y)
     ss = model.state_space(values, h, N, state_memory(memory, N), inputs=inputs)
     mean = model.mean(values, torch.arange(N, dtype=torch.float64) * h, inputs)
-    ll, e, S = filter_fast(ss, y, mean, level=profiles_level(model))
+    ll, e, S = filter_fast(ss, y, mean, level=unknown_level(model))
     z = e[0] / np.sqrt(S[0])
     return Innovations(z, ss, mean.numpy()[0], float(ll[0]), ~np.isnan(y), y)
 

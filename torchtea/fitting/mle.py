@@ -281,7 +281,7 @@ def exact_loglik(model, values, y, h: float, *, inputs: dict | None = None, memo
     ss = model.state_space(v, h, N, state_memory(memory, N), inputs=inputs)
     t = torch.arange(N, dtype=torch.float64) * h
     mean = model.mean(v, t, inputs)
-    return loglik_fast(ss, y, mean, level=profiles_level(model))
+    return loglik_fast(ss, y, mean, level=unknown_level(model))
 
 
 def _exact_refine(model, y, h, u0: Tensor, free: Tensor, inputs, memory, metric: Tensor | None = None,
@@ -519,16 +519,17 @@ def profile_order(model, wf: WhittleFit, h: float, *, grid: int = 21, fixed: dic
 
 def centred(model: NoiseModel, y) -> np.ndarray:
     """The series the exact likelihood sees: its mean removed unless the model has an ``offset`` to fit it (the
-    likelihood is then profiled over the level, :func:`profiles_level`, so removing the mean only keeps the
-    numbers small)."""
+    likelihood then integrates the level out, :func:`unknown_level`, so removing the mean only keeps the numbers
+    small)."""
     y = np.asarray(y, dtype=np.float64)
     return y if model.has("offset") else y - np.nanmean(y)
 
 
-def profiles_level(model: NoiseModel) -> bool:
-    """Whether the exact likelihood of ``model`` is profiled over an unknown constant level (``level=True`` of
-    :func:`~torchtea.likelihood.kalman.kalman_filter`): always, unless the model has an ``offset`` that fits it
-    as a parameter. A random walk's path then need not start at the series' mean."""
+def unknown_level(model: NoiseModel) -> bool:
+    """Whether the exact likelihood of ``model`` treats the level as an unknown constant and integrates it out
+    (``level=True`` of :func:`~torchtea.likelihood.kalman.kalman_filter`, the diffuse likelihood): always, unless
+    the model has an ``offset`` that fits it as a parameter. A random walk's path then need not start at the
+    series' mean."""
     return not model.has("offset")
 
 
@@ -598,7 +599,8 @@ def fit_series(model, series: list, h: float, *, method: str = "exact", inputs: 
             ll_exact = ll
         kfree = [n for n, f in zip(model.names, free.tolist()) if f]
         if not model.has("offset"):
-            notes.append(f"mean {float(np.nanmean(y)):.6g} removed before fitting (the model has no offset)")
+            notes.append(f"mean {float(np.nanmean(y)):.6g} removed before fitting; the model has no offset, so the "
+                         "exact likelihood integrates the unknown level out")
         prof = profiles[s]
         if prof is not None and method == "whittle":
             ci[name] = prof["ci95"]

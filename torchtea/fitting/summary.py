@@ -10,7 +10,7 @@ import torch
 
 from ..likelihood.kalman import filter_fast
 from ..noise.model import state_memory
-from .mle import FIT_MEMORY, Fit, centred, profiles_level
+from .mle import FIT_MEMORY, Fit, centred, unknown_level
 
 __all__ = ["fit_nis", "axis_summary", "MEANING"]
 
@@ -19,7 +19,8 @@ MEANING = {
     "se": "standard error from the observed information (delta method); null for a fixed or least-squares value",
     "ci95": "95 % interval; how it was made is in ci95_method",
     "loglik": "maximised log-likelihood of the fitting method (nats)",
-    "loglik_exact": "exact log-likelihood (Kalman filter on the stacked state) at the estimate",
+    "loglik_exact": "exact log-likelihood (Kalman filter on the stacked state) at the estimate; without an offset "
+                    "component the unknown level is integrated out (flat prior, the diffuse likelihood)",
     "aic": "2k − 2·loglik, k = number of free parameters",
     "bic": "k·ln N − 2·loglik",
     "fractional_p_value": "parametric-bootstrap p-value of the likelihood-ratio test 'no fractional component' "
@@ -36,7 +37,7 @@ def fit_nis(fit: Fit, y, h: float, inputs=None, memory=FIT_MEMORY) -> float:
     N = len(y)
     ss = model.state_space(fit.values, h, N, state_memory(memory, N), inputs=inputs)
     mean = model.mean(fit.values, torch.arange(N, dtype=torch.float64) * h, inputs)
-    _, e, S = filter_fast(ss, y, mean, level=profiles_level(model))
+    _, e, S = filter_fast(ss, y, mean, level=unknown_level(model))
     ok = ~np.isnan(e[0])
     return float(np.mean(e[0][ok] ** 2 / S[0][ok]))
 

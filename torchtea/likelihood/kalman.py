@@ -64,15 +64,18 @@ def kalman_filter(ss: StateSpace, y, mean=None, *, keep_states: bool = False, sm
 
     ``level=True``: ``y`` has an unknown constant level c besides ``mean``. The filter is linear in the data and its
     gains do not depend on them, so the innovations of ``y − c`` are ``e − c w`` with ``w`` the innovations of the
-    constant 1 through the same filter, and ℓ is quadratic in c: ``ℓ(c) = ℓ(0) + c Σ e w/S − ½ c² Σ w²/S``. The
-    returned log-likelihood is its maximum ``ℓ(0) + ½ (Σ e w/S)² / Σ w²/S`` (the level profiled out; the
-    generalised-least-squares level ``ĉ = Σ e w/S / Σ w²/S``) and the innovations are ``e − ĉ w``. Unlike removing
-    the sample mean this is exact for any model, a random walk's included (whose path need not start at the
-    series' mean)."""
+    constant 1 through the same filter, and ℓ is quadratic in c: ``ℓ(c) = ℓ(0) + c Σ e w/S − ½ c² Σ w²/S``, at
+    its maximum at the generalised-least-squares level ``ĉ = Σ e w/S / Σ w²/S``. The returned log-likelihood is
+    the density integrated over c (a flat prior: the *diffuse* likelihood),
+    ``ℓ(ĉ) + ½ log(2π / Σ w²/S)``, and the innovations are ``e − ĉ w``. Unlike removing the sample mean this is
+    exact for any model, a random walk's included (whose path need not start at the series' mean). Integrated
+    rather than maximised: where the first sample's variance can go to 0 (a low-pass with nothing after it, its
+    white noise → 0) the maximised ℓ grows without bound as the level pins that sample, the integrated one does
+    not. The quadratic term is accumulated by recursive least squares, so a tiny S does not cancel digits."""
     F, Q, C, R = ss.F, ss.Q, ss.C, ss.R
     B, n = F.shape[0], F.shape[-1]
     if smooth and (ss.varying is not None or level):
-        raise NotImplementedError("the smoother with a time-varying order (temperature-order) or a profiled level "
+        raise NotImplementedError("the smoother with a time-varying order (temperature-order) or an unknown level "
                                   "is not implemented")
     y = _as_series(y, B)
     N = y.shape[-1]
@@ -82,7 +85,7 @@ def kalman_filter(ss: StateSpace, y, mean=None, *, keep_states: bool = False, sm
     g0 = ss.initial.to(y)
     P = g0.unsqueeze(-1) * g0.unsqueeze(-2)
     es, Ss, preds, zs, Ps, zps, Pps, ws = [], [], [], [], [], [], [], []
-    sww, sew = y.new_zeros(B), y.new_zeros(B)
+    sww, beta, rss = y.new_zeros(B), y.new_zeros(B), y.new_zeros(B)
     ll = y.new_zeros(B)
     observed = 0
     Ft = F.mT
@@ -103,13 +106,23 @@ def kalman_filter(ss: StateSpace, y, mean=None, *, keep_states: bool = False, sm
             z = z + okf * K * e0.unsqueeze(-1)
             P = P - okf.unsqueeze(-1) * (K.unsqueeze(-1) * Pc.unsqueeze(-2))
             P = 0.5 * (P + P.mT)
-            ll = ll - 0.5 * torch.where(ok, torch.log(2.0 * math.pi * S) + e0 * e0 / S, torch.zeros_like(S))
             if level:
+                ll = ll - 0.5 * torch.where(ok, torch.log(2.0 * math.pi * S), torch.zeros_like(S))
                 ew = torch.where(ok, 1.0 - (C * w).sum(-1), torch.zeros_like(e0))
                 ws.append(ew)
-                sww = sww + ew * ew / S
-                sew = sew + e0 * ew / S
+                # recursive weighted least squares of e on w, as the compiled filter does
+                started = sww > 0
+                d = e0 - beta * ew
+                safe = torch.where(started, sww, torch.ones_like(sww))
+                rss = rss + torch.where(started, d * d / (S + ew * ew / safe),
+                                        torch.where(ew != 0, torch.zeros_like(S), e0 * e0 / S))
+                sww_new = sww + ew * ew / S
+                beta = torch.where(started, beta + (ew / S) * d / torch.where(started, sww_new, torch.ones_like(sww)),
+                                   torch.where(ew != 0, e0 / torch.where(ew != 0, ew, torch.ones_like(ew)), beta))
+                sww = sww_new
                 w = w + okf * K * ew.unsqueeze(-1)
+            else:
+                ll = ll - 0.5 * torch.where(ok, torch.log(2.0 * math.pi * S) + e0 * e0 / S, torch.zeros_like(S))
         elif level:
             ws.append(1.0 - (C * w).sum(-1))
         es.append(e)
@@ -145,11 +158,11 @@ def kalman_filter(ss: StateSpace, y, mean=None, *, keep_states: bool = False, sm
         smoothed = torch.stack(out[::-1], dim=1)
     e_all, pred_all = torch.stack(es, 1), torch.stack(preds, 1)
     if level:
-        beta = torch.where(sww > 0, sew / torch.where(sww > 0, sww, torch.ones_like(sww)), torch.zeros_like(sww))
         W = torch.stack(ws, 1)
         e_all = e_all - beta.unsqueeze(-1) * W
         pred_all = pred_all + beta.unsqueeze(-1) * W
-        ll = ll + torch.where(sww > 0, 0.5 * sew * beta, torch.zeros_like(ll))
+        ll = ll - 0.5 * rss + torch.where(sww > 0, 0.5 * torch.log(2.0 * math.pi / torch.where(sww > 0, sww, torch.ones_like(sww))),
+                                          torch.zeros_like(ll))
     return FilterResult(e_all, torch.stack(Ss, 1), pred_all, ll, observed, filtered, smoothed)
 
 
@@ -187,8 +200,9 @@ def _build(numba):
         M = np.zeros((n, n))
         Pc = np.zeros(n)
         ll = 0.0
-        sww = 0.0
-        sew = 0.0
+        sww = 0.0  # Σ w²/S
+        beta = 0.0  # the GLS level so far
+        rss = 0.0  # Σ (e − β w)²/S at the current β, updated recursively (no cancellation when some S is tiny)
         nc = cidx.shape[0]
         for k in range(N):
             # update with y_k (C has few non-zeros: cidx)
@@ -214,16 +228,26 @@ def _build(numba):
                 if lvl:
                     w_out[k] = ew
             if not np.isnan(e):
-                ll -= 0.5 * (math.log(2.0 * math.pi * S) + e * e / S)
-                g = e / S
-                for i in range(n):
-                    z[i] += Pc[i] * g
-                if lvl:
-                    sww += ew * ew / S
-                    sew += e * ew / S
+                if lvl:  # recursive weighted least squares of e on w (a constant's innovations)
+                    ll -= 0.5 * math.log(2.0 * math.pi * S)
+                    if sww > 0.0:
+                        d = e - beta * ew
+                        rss += d * d / (S + ew * ew / sww)
+                        sww += ew * ew / S
+                        beta += (ew / S) * d / sww
+                    elif ew != 0.0:
+                        sww = ew * ew / S
+                        beta = e / ew
+                    else:
+                        rss += e * e / S
                     g = ew / S
                     for i in range(n):
                         w[i] += Pc[i] * g
+                else:
+                    ll -= 0.5 * (math.log(2.0 * math.pi * S) + e * e / S)
+                g = e / S
+                for i in range(n):
+                    z[i] += Pc[i] * g
                 for i in range(n):
                     a = Pc[i] / S
                     for j in range(i, n):
@@ -279,10 +303,11 @@ def _build(numba):
                             acc += M[i, indices[t]] * fval[t]
                     P[i, j] = acc
                     P[j, i] = acc
-        if lvl and sww > 0.0:
-            ll += 0.5 * sew * sew / sww
+        if lvl:
+            ll -= 0.5 * rss
+            if sww > 0.0:
+                ll += 0.5 * math.log(2.0 * math.pi / sww)
             if keep:
-                beta = sew / sww
                 for k in range(N):
                     e_out[k] -= beta * w_out[k]
         return ll
@@ -340,7 +365,7 @@ def _fast(ss: StateSpace, y, mean, keep: bool, level: bool = False):
 
 def loglik_fast(ss: StateSpace, y, mean=None, *, level: bool = False) -> np.ndarray:
     """The exact log-likelihood ``(B,)`` as :func:`kalman_filter` computes it, compiled (CPU, float64,
-    the parameter sets spread over the CPU's cores; no gradients). ``level=True``: profiled over an unknown
+    the parameter sets spread over the CPU's cores; no gradients). ``level=True``: integrated over an unknown
     constant added to ``y`` (see :func:`kalman_filter`)."""
     return _fast(ss, y, mean, False, level)[0]
 

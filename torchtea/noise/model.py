@@ -14,7 +14,7 @@ What the engines read:
   exponential-sum modes of :mod:`torchtea.core.memory` (``soe``), or the whole past (``exact``, small N only).
 
 Every state starts at zero with zero variance: the GL model's ``x_0 = 0`` and zero history, the random
-walk's ``b_0 = 0`` (an ``offset`` component, or the exact likelihood's profiled level, carries an unknown
+walk's ``b_0 = 0`` (an ``offset`` component, or the exact likelihood's integrated level, carries an unknown
 constant); a low-pass that filters white noise starts at its first filtered sample (``StateSpace.g0``).
 """
 from __future__ import annotations

@@ -40,9 +40,9 @@ import numpy as np
 import torch
 from scipy import stats
 
-from ..fitting.mle import FIT_MEMORY, centred, unknown_level
+from ..fitting.mle import FIT_MEMORY, exact_pass
 from ..likelihood.kalman import filter_fast
-from ..noise.model import StateSpace, parse_model, state_memory
+from ..noise.model import StateSpace
 from . import allan
 
 __all__ = ["Diagnostic", "Innovations", "innovations", "whiten", "run_diagnostics", "metrics", "DIAGNOSTICS",
@@ -94,14 +94,8 @@ class Innovations:
 
 
 def innovations(model, values: dict, y, h: float, inputs: dict | None = None, memory=FIT_MEMORY) -> Innovations:
-    model = parse_model(model)
-    y = centred(model, y)
-    N = len(y)
-    ss = model.state_space(values, h, N, state_memory(memory, N), inputs=inputs)
-    mean = model.mean(values, torch.arange(N, dtype=torch.float64) * h, inputs)
-    ll, e, S = filter_fast(ss, y, mean, level=unknown_level(model))
-    z = e[0] / np.sqrt(S[0])
-    return Innovations(z, ss, mean.numpy()[0], float(ll[0]), ~np.isnan(y), y)
+    p = exact_pass(model, values, y, h, inputs=inputs, memory=memory)
+    return Innovations(p.innovation / np.sqrt(p.variance), p.ss, p.mean.numpy()[0], p.loglik, ~np.isnan(p.y), p.y)
 
 
 def whiten(inn: Innovations, columns: np.ndarray) -> np.ndarray:
@@ -110,13 +104,7 @@ def whiten(inn: Innovations, columns: np.ndarray) -> np.ndarray:
     on ``w`` — an exact likelihood-ratio for linear mean terms at the fitted noise parameters."""
     X = np.atleast_2d(np.asarray(columns, dtype=np.float64)).copy()
     X[:, ~inn.observed] = np.nan
-    m = X.shape[0]
-    ss = inn.ss
-    rep = StateSpace(ss.F.expand(m, -1, -1), ss.G.expand(m, -1, -1), ss.C.expand(m, -1), ss.R.expand(m), ss.blocks,
-                     None if ss.varying is None else
-                     (ss.varying[0], ss.varying[1].expand(m, -1, -1), ss.varying[2].expand(m, -1), ss.varying[3]),
-                     None if ss.g0 is None else ss.g0.expand(m, -1))
-    _, e, S = filter_fast(rep, X)
+    _, e, S = filter_fast(inn.ss.expand(X.shape[0]), X)
     return e / np.sqrt(S)
 
 

@@ -28,9 +28,9 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from ..likelihood.kalman import loglik_fast
+from ..likelihood.kalman import filter_fast, loglik_fast
 from ..likelihood.whittle import periodogram, whittle_loglik
-from ..noise.model import NoiseModel, parse_model, state_memory
+from ..noise.model import NoiseModel, StateSpace, parse_model, state_memory
 from .optimize import newton
 
 __all__ = ["Fit", "WhittleFit", "fit_series", "refine_exact", "regress_mean", "whittle_fit", "exact_loglik", "profile_order", "METHODS",
@@ -531,6 +531,29 @@ def unknown_level(model: NoiseModel) -> bool:
     the model has an ``offset`` that fits it as a parameter. A random walk's path then need not start at the
     series' mean."""
     return not model.has("offset")
+
+
+class ExactPass(NamedTuple):
+    """One pass of the exact filter at one parameter set, as the exact likelihood sees the series."""
+
+    y: np.ndarray  # the series the filter saw (:func:`centred`)
+    ss: StateSpace
+    mean: Tensor  # the deterministic part (1, N)
+    loglik: float
+    innovation: np.ndarray  # (N,), of y minus the integrated level where :func:`unknown_level`
+    variance: np.ndarray  # (N,)
+
+
+def exact_pass(model, values: dict, y, h: float, *, inputs: dict | None = None, memory=FIT_MEMORY) -> ExactPass:
+    """The compiled exact filter at ``values`` on :func:`centred` ``y``, the level integrated out where
+    :func:`unknown_level` — the innovations the diagnostics and the NIS read."""
+    model = parse_model(model)
+    y = centred(model, y)
+    N = len(y)
+    ss = model.state_space(values, h, N, state_memory(memory, N), inputs=inputs)
+    mean = model.mean(values, torch.arange(N, dtype=torch.float64) * h, inputs)
+    ll, e, S = filter_fast(ss, y, mean, level=unknown_level(model))
+    return ExactPass(y, ss, mean, float(ll[0]), e[0], S[0])
 
 
 def fit_series(model, series: list, h: float, *, method: str = "exact", inputs: list | None = None,

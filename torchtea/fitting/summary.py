@@ -6,11 +6,8 @@ a Wald interval for a profile one, or the Whittle log-likelihood for the exact o
 from __future__ import annotations
 
 import numpy as np
-import torch
 
-from ..likelihood.kalman import filter_fast
-from ..noise.model import state_memory
-from .mle import FIT_MEMORY, Fit, centred, unknown_level
+from .mle import FIT_MEMORY, Fit, exact_pass
 
 __all__ = ["fit_nis", "axis_summary", "MEANING"]
 
@@ -32,14 +29,9 @@ MEANING = {
 
 def fit_nis(fit: Fit, y, h: float, inputs=None, memory=FIT_MEMORY) -> float:
     """Mean normalised innovation square of the exact filter at the fitted values."""
-    model = fit.model
-    y = centred(model, y)
-    N = len(y)
-    ss = model.state_space(fit.values, h, N, state_memory(memory, N), inputs=inputs)
-    mean = model.mean(fit.values, torch.arange(N, dtype=torch.float64) * h, inputs)
-    _, e, S = filter_fast(ss, y, mean, level=unknown_level(model))
-    ok = ~np.isnan(e[0])
-    return float(np.mean(e[0][ok] ** 2 / S[0][ok]))
+    p = exact_pass(fit.model, fit.values, y, h, inputs=inputs, memory=memory)
+    ok = ~np.isnan(p.innovation)
+    return float(np.mean(p.innovation[ok] ** 2 / p.variance[ok]))
 
 
 def axis_summary(fit: Fit, *, nis: float | None = None, test: dict | None = None) -> dict:

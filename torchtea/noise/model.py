@@ -88,6 +88,17 @@ class StateSpace:
         """``g0`` ``(B, n)`` (zeros when every state starts at zero)."""
         return self.F.new_zeros(self.F.shape[0], self.F.shape[-1]) if self.g0 is None else self.g0
 
+    def expand(self, m: int) -> "StateSpace":
+        """The one parameter set of a batch of one repeated ``m`` times (views, no copies): to filter ``m``
+        series, e.g. regressors, with the same gains."""
+        if self.F.shape[0] != 1:
+            raise ValueError(f"expand needs a state space of one parameter set, got {self.F.shape[0]}")
+        v = self.varying
+        return StateSpace(self.F.expand(m, -1, -1), self.G.expand(m, -1, -1), self.C.expand(m, -1), self.R.expand(m),
+                          self.blocks,
+                          None if v is None else (v[0], v[1].expand(m, -1, -1), v[2].expand(m, -1), v[3]),
+                          None if self.g0 is None else self.g0.expand(m, -1))
+
     @property
     def Q(self) -> Tensor:
         return self.G @ self.G.mT

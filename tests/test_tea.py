@@ -1,11 +1,12 @@
-"""TEA: batched PyTorch against the scalar NumPy reference, sigma batching, guards, Example 1."""
+"""TEA: batched PyTorch and the compiled scalar engine against the scalar NumPy reference, sigma batching, guards,
+Example 1."""
 import math
 
 import numpy as np
 import pytest
 import torch
 
-from torchtea.engines.structure import ConstantOrder, LinearOrder, Structure
+from torchtea.engines.structure import ConstantOrder, Structure
 from torchtea.engines.presets import SCENARIOS, get_preset
 from torchtea.engines.simulate import gaussian_input, simulate
 from torchtea.engines.tea import _ExactMemory, _replica, _Model, _sigma_points, make_params, run_tea, stack_params, ut_weights
@@ -39,15 +40,16 @@ VARIANTS = {
 }
 
 
+@pytest.mark.parametrize("engine", ["torch", "numba"])
 @pytest.mark.parametrize("batch_shape", [(), (5,), (2, 4)])
 @pytest.mark.parametrize("variant", list(VARIANTS))
-def test_batched_matches_scalar_reference(batch_shape, variant):
+def test_batched_matches_scalar_reference(batch_shape, variant, engine):
     cfg = TEAConfig.from_dict(VARIANTS[variant], get_preset("paper-example1"))
     base_seed = 101 if variant == "as-printed" else 7 * len(variant)
     sim, u = _data(batch_shape, seed=base_seed + len(batch_shape))
     y = sim.y.clone()
     y[..., 50:53, :] = float("nan")  # a gap: predict without update
-    res = run_tea(y, h=1e-3, params=make_params(cfg, Structure()), inputs=u)
+    res = run_tea(y, h=1e-3, params=make_params(cfg, Structure()), inputs=u, engine=engine)
     assert res.x.shape == batch_shape + (240, 1)
     assert res.P.shape == batch_shape + (240, 1, 1)
     assert res.alpha.shape == batch_shape + (240, 1)

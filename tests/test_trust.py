@@ -387,27 +387,32 @@ def test_progress_lines_when_stderr_is_not_a_terminal(tmp_path, capsys, monkeypa
     monkeypatch.setattr(cli, "PROGRESS_EVERY_S", 0.0)
     assert run("identify", "--samples", 200, "--no-plots", "--out", tmp_path / "id") == 0
     lines = [ln for ln in capsys.readouterr().err.splitlines() if ln.startswith("torchtea TEA x,y,z: ")]
-    assert len(lines) >= 100 and lines[-1].startswith("torchtea TEA x,y,z: 199/199 steps (100 %)")
+    # the compiled engine reports once per block of steps (fast.BLOCK), the torch engine once per step
+    assert len(lines) >= 1 and lines[-1].startswith("torchtea TEA x,y,z: 199/199 steps (100 %)")
     assert "s elapsed, about 0 s left" in lines[-1]
 
 
-def test_run_tea_partial_equals_the_first_steps_of_a_full_run():
+@pytest.mark.parametrize("engine", ["torch", "numba"])
+def test_run_tea_partial_equals_the_first_steps_of_a_full_run(engine, monkeypatch):
+    import torchtea.engines.fast as fast
     from torchtea.engines.structure import Structure
     from torchtea.engines.presets import get_preset
     from torchtea.engines.tea import make_params, run_tea
 
+    monkeypatch.setattr(fast, "BLOCK", 8)  # the compiled engine reports after steps 8, 16, …, 120, …
+
     y = torch.as_tensor(read_recording().accel_counts[:250].T.copy() / 16384.0).unsqueeze(-1)
     y = y - y.mean(-2, keepdim=True)
     params = make_params(get_preset("paper-mems-x"), Structure())
-    full = run_tea(y, h=0.01, params=params)
+    full = run_tea(y, h=0.01, params=params, engine=engine)
 
     def stop_at(k, N):
         if k == 120:
             raise KeyboardInterrupt
 
     with pytest.raises(KeyboardInterrupt):
-        run_tea(y, h=0.01, params=params, progress=stop_at)
-    part = run_tea(y, h=0.01, params=params, progress=stop_at, partial=True)
+        run_tea(y, h=0.01, params=params, progress=stop_at, engine=engine)
+    part = run_tea(y, h=0.01, params=params, progress=stop_at, partial=True, engine=engine)
     assert part.interrupted and not full.interrupted
     assert part.alpha.shape == (3, 121, 1) and part.steps.tolist() == list(range(121))
     for name in ("x", "P", "alpha", "P_alpha", "w", "innovation", "innovation_cov"):
@@ -415,8 +420,12 @@ def test_run_tea_partial_equals_the_first_steps_of_a_full_run():
 
 
 def ctrl_c_at_step(monkeypatch, step):
-    """Make identify's TEA see a Ctrl-C when it reaches ``step`` (as a user pressing it would)."""
+    """Make identify's TEA see a Ctrl-C when it reaches ``step`` (as a user pressing it would); the compiled
+    engine runs blocks of one step so that the Ctrl-C lands there."""
+    import torchtea.engines.fast as fast
     import torchtea.reports.identify as ident_mod
+
+    monkeypatch.setattr(fast, "BLOCK", 1)
 
     real = ident_mod.run_tea
 

@@ -579,11 +579,12 @@ class TEAStream:
     samples of a series gives exactly what :func:`run_tea` gives on the whole series.
 
     ``step(y_k)`` with ``y_k`` of shape ``(*batch, p)`` (NaN = missing) returns ``(Carry, StepOutput)``
-    at the sample's time; ``k`` counts the samples taken.
+    at the sample's time; ``k`` counts the samples taken. ``engine``: as in :func:`run_tea` (the compiled
+    scalar engine by default where it applies).
     """
 
     def __init__(self, *, h: float, params: TEAParams, batch=(), structure: Structure | None = None,
-                 horizon: int = 10**6, dtype=torch.float64, device=None):
+                 horizon: int = 10**6, dtype=torch.float64, device=None, engine: str = "auto"):
         self.structure = structure or Structure.scalar_noise()
         cfg = params.config
         if cfg.memory.kind == "exact":
@@ -596,16 +597,52 @@ class TEAStream:
         self.k = 0
         self.carry: Carry | None = None
         self._hist = None
+        from .fast import fast_path_reason
+
+        #: the compiled scalar engine (:mod:`.fast`) where it applies; ``engine`` as in :func:`run_tea`
+        if engine not in ("auto", "torch", "numba"):
+            raise ValueError(f"engine must be 'auto', 'torch' or 'numba', got {engine!r}")
+        reason = "engine='torch'" if engine == "torch" else fast_path_reason(self.structure, dtype, device)
+        if engine == "numba" and reason is not None:
+            raise ValueError(f"engine='numba' cannot run this problem: {reason}")
+        self._fast = reason is None
+        self._engine = None
 
     def step(self, y_k: Tensor, u_prev: Tensor | None = None) -> tuple[Carry, StepOutput]:
         y_k = torch.as_tensor(y_k, dtype=self.dtype, device=self.device).expand(self.batch + (self.structure.n_outputs,))
         if self.k == 0:
             self.carry, out = _first_step(self.model, self.params, y_k, self.batch)
             self._hist = self.memory.init(self.batch, self.structure.n_states, self.dtype, self.device)
+        elif self._fast:
+            return self._fast_step(y_k, u_prev)
         else:
             self.carry, out = _tea_step(self.model, self.params, self.weights, self.memory, self.carry, y_k, u_prev,
                                         self._hist, self.k)
-        self._hist = self.memory.push(self._hist, self.carry.x, self.carry.P, self.k)
+        if self._fast and self.k == 0:
+            from .fast import FastTEA
+
+            self._engine = FastTEA(h=float(self.model.h), params=self.params, batch=self.batch, memory=self.memory,
+                                   horizon=1, carry=self.carry, has_u=self.structure.n_inputs > 0)
+        else:
+            self._hist = self.memory.push(self._hist, self.carry.x, self.carry.P, self.k)
+        self.k += 1
+        return self.carry, out
+
+    def _fast_step(self, y_k: Tensor, u_prev: Tensor | None):
+        import numpy as np
+
+        eng, B, k = self._engine, self._engine.B, self.k
+        y = np.zeros((B, 2))
+        y[:, 1] = y_k.reshape(B).numpy()
+        u = None
+        if u_prev is not None:
+            u = np.zeros((B, 2))
+            u[:, 0] = torch.as_tensor(u_prev, dtype=self.dtype).expand(self.batch + (1,)).reshape(B).numpy()
+        outs = [np.empty((B, 1)) for _ in range(10)]
+        eng.advance(k, k + 1, y, u, outs, yoff=k - 1, ooff=k)
+        self.carry = eng.carry()
+        t = lambda a: torch.from_numpy(a[:, 0]).reshape(self.batch)  # noqa: E731
+        out = StepOutput(t(outs[8]).unsqueeze(-1), t(outs[9]).unsqueeze(-1).unsqueeze(-1))
         self.k += 1
         return self.carry, out
 
@@ -621,6 +658,7 @@ def run_tea(
     record_every: int = 1,
     compile: bool = False,
     partial: bool = False,
+    engine: str = "auto",
 ) -> TEAResult:
     """Run the TEA over a batch of measurement series.
 
@@ -649,6 +687,10 @@ def run_tea(
     partial : bool
         On Ctrl-C (``KeyboardInterrupt``), return the steps that finished, with ``interrupted=True``,
         instead of raising — so a long run that is stopped still leaves its results.
+    engine : str
+        ``"auto"`` (default): the compiled scalar engine (:mod:`.fast`, numba, the same recursion) where it
+        applies — float64 on the CPU, the scalar structure, no ``compile`` — else the batched torch engine;
+        ``"torch"``: always the torch engine; ``"numba"``: the compiled engine or a ``ValueError`` saying why not.
 
     Returns
     -------
@@ -706,6 +748,17 @@ def run_tea(
             out[name].narrow(nb, i0, rows.shape[0]).copy_(t.index_select(nb, rows))
 
     carry, first = _first_step(model, params, y[..., 0, :], batch)
+    if engine not in ("auto", "torch", "numba"):
+        raise ValueError(f"engine must be 'auto', 'torch' or 'numba', got {engine!r}")
+    if engine != "torch":
+        from .fast import fast_path_reason, run_tea_fast
+
+        reason = fast_path_reason(structure, y.dtype, y.device, compile)
+        if reason is None:
+            return run_tea_fast(y, h=h, params=params, inputs=inputs, progress=progress, record_every=every,
+                                partial=partial, batch=batch, memory=memory, first=(carry, first))
+        if engine == "numba":
+            raise ValueError(f"engine='numba' cannot run this problem: {reason}")
     record_block(0, _outputs(carry, first), False)
     clamped = torch.zeros(batch, dtype=torch.long, device=device)
     try:

@@ -1,0 +1,272 @@
+"""The compiled kernel of :mod:`.fast` (numba), imported on first use. Its functions live at module level so
+that numba's on-disk cache can reload them: a closure's cache key pickles the closure's cells, which for other
+compiled functions differ from process to process."""
+import math
+
+import numpy as np
+from numba import njit, prange
+
+pi = math.pi
+
+
+@njit(cache=True, inline="always")
+def rgn(a):  # 1/Γ(−a) by reflection (memory._recip_gamma_neg)
+    return -math.sin(pi * a) * math.exp(math.lgamma(1.0 + a)) / pi
+
+
+@njit(cache=True, inline="always")
+def tail(order, modes, ka, kb, eta, klo, khi):
+    """Σ_n W_n(order) modes_n (SOEKernel.tail_sums) for one order."""
+    al = min(max(order, klo), khi)
+    M = modes.shape[0]
+    s = 0.0
+    for n in range(M - 1):
+        s += math.exp(ka[n] + al * kb[n]) * modes[n]
+    s += math.exp(ka[M - 1] + al * kb[M - 1]) * (1.0 / math.expm1((1.0 + al) * eta)) * modes[M - 1]
+    return s * (math.sin(pi * al) * (-1.0 / pi))
+
+
+@njit(cache=True, inline="always")
+def tails3(al, ro, modes, ka, kb, eta, klo, khi, out):
+    """``tail`` at the three KFo sigma orders ``al, al + ro, al − ro`` into ``out``. When none is clamped,
+    exp(a + (al ± ro) b) = exp(a + al b) · exp(±ro b): two exponentials per mode instead of three."""
+    M = modes.shape[0]
+    big = 0.0
+    for n in range(M - 1):
+        big = max(big, abs(kb[n]))
+    if al - ro < klo or al + ro > khi or ro * big > 300.0:
+        out[0] = tail(al, modes, ka, kb, eta, klo, khi)
+        out[1] = tail(al + ro, modes, ka, kb, eta, klo, khi)
+        out[2] = tail(al - ro, modes, ka, kb, eta, klo, khi)
+        return
+    s0 = 0.0
+    s1 = 0.0
+    s2 = 0.0
+    for n in range(M - 1):
+        e0 = math.exp(ka[n] + al * kb[n]) * modes[n]
+        d = math.exp(ro * kb[n])
+        s0 += e0
+        s1 += e0 * d
+        s2 += e0 / d
+    for i in range(3):
+        o = al if i == 0 else (al + ro if i == 1 else al - ro)
+        last = math.exp(ka[M - 1] + o * kb[M - 1]) * (1.0 / math.expm1((1.0 + o) * eta)) * modes[M - 1]
+        sm = s0 if i == 0 else (s1 if i == 1 else s2)
+        out[i] = (sm + last) * (math.sin(pi * o) * (-1.0 / pi))
+
+
+@njit(cache=True, inline="always")
+def exact_sums3(so, xh, k, la, lb, out):
+    """Σ_{j=1..k} c_j(σ) x_{k−j} for the three sigma orders in one pass over the history (chronological);
+    the recursion factor (1 − 1/j) + σ(−1/j) from the tables ``la``, ``lb`` (gl._lag_constants)."""
+    c0 = c1 = c2 = 1.0
+    s0 = s1 = s2 = 0.0
+    o0, o1, o2 = so[0], so[1], so[2]
+    for j in range(1, k + 1):
+        xv = xh[k - j]
+        c0 *= la[j] + o0 * lb[j]
+        c1 *= la[j] + o1 * lb[j]
+        c2 *= la[j] + o2 * lb[j]
+        s0 += c0 * xv
+        s1 += c1 * xv
+        s2 += c2 * xv
+    out[0], out[1], out[2] = s0, s1, s2
+
+
+@njit(cache=True, inline="always")
+def window_sum(order, win, J):
+    """Σ_{j=1..J} c_j(order) win_{j−1} (window newest first)."""
+    c = 1.0
+    s = 0.0
+    for j in range(1, J + 1):
+        c *= (1.0 - 1.0 / j) + order * (-1.0 / j)
+        s += c * win[j - 1]
+    return s
+
+
+@njit(cache=True, inline="always")
+def psd(v):
+    return v if v > 0.0 else 0.0
+
+
+@njit(cache=True, parallel=True, error_model="numpy")
+def advance(k0, k1, yoff, ooff, every, y, u, has_u,
+            h, Q, R, Ro, Rw, qmax_o, qmax_w, scaled, start, lo, hi, limit, delta_o, delta_w,
+            wm_o, wc_o, scale_o, wm_w, wc_w, scale_w,
+            kind, xl, pl, H, ka, kb, decay, inject, eta, klo, khi, count_lo, count_hi, la, lb,
+            X, P, AL, PO, QO, W, PW, QW, DIV, DAT, CLAMP,
+            xh, Ph, win, modes, Pwin, Phead,
+            o_x, o_P, o_a, o_Po, o_Qo, o_w, o_Pw, o_Qw, o_e, o_S):
+    nB = y.shape[0]
+    M = modes.shape[1]
+    for b in prange(nB):
+        x, Pk, al, Po, Qo, w, Pw, Qw = X[b], P[b], AL[b], PO[b], QO[b], W[b], PW[b], QW[b]
+        div = DIV[b]
+        dat = DAT[b]
+        clamp = CLAMP[b]
+        so = np.empty(3)
+        sw = np.empty(3)
+        Y = np.empty(6)
+        t3 = np.empty(3)
+        for k in range(k0, k1):
+            yk = y[b, k - yoff]
+            obs = not math.isnan(yk)
+            yv = yk if obs else 0.0
+            up = u[b, k - 1 - yoff] if has_u else 0.0
+            # the soe clamp count (tea._loop): extreme KFo sigma orders, before the step
+            spread = math.sqrt(psd(scale_o * (Po + Qo)))
+            if (al - spread) < count_lo or (al + spread) > count_hi:
+                clamp += 1
+            # KFo and KFw sigma points (15)/(40)
+            Pot = Po + Qo
+            Pwt = Pw + Qw
+            ro = math.sqrt(psd(scale_o * Pot))
+            rw = math.sqrt(psd(scale_w * Pwt))
+            so[0], so[1], so[2] = al, al + ro, al - ro
+            sw[0], sw[1], sw[2] = w, w + rw, w - rw
+            # replica (16)–(18), (41)–(42): KFw's order is KFo's centre point
+            if kind == 1:
+                tails3(al, ro, modes[b], ka, kb, eta, klo, khi, t3)
+            elif kind == 0:
+                exact_sums3(so, xh[b], k, la, lb, t3)
+            for i in range(3):
+                if kind == 0:
+                    ms = t3[i]
+                else:
+                    ms = window_sum(so[i], win[b], xl)
+                    if kind == 1:
+                        ms += t3[i]
+                Y[i] = h ** so[i] * (w * x + up) - ms
+                if i == 0:
+                    for jw in range(3):
+                        Y[3 + jw] = h ** so[0] * (sw[jw] * x + up) - ms
+            # KFo update (19)–(24), adaptation (25)
+            ypo = wm_o[0] * Y[0] + wm_o[1] * Y[1] + wm_o[2] * Y[2]
+            Pyy = 0.0
+            Pxy = 0.0
+            for i in range(start, 3):
+                dy = Y[i] - ypo
+                wd = dy * wc_o[i]
+                Pyy += wd * dy
+                Pxy += (so[i] - al) * wd
+            Pyy += Ro[b]
+            K = Pxy / Pyy if obs else 0.0
+            e = yv - ypo if obs else 0.0
+            al_n = al + K * e
+            Po_n = psd(Pot - K * Pyy * K)
+            al_n = min(max(al_n, lo), hi)
+            Qo_n = Qo
+            if delta_o != 0.0:
+                Ke = K * e
+                Qn = (1.0 - delta_o) * Qo + delta_o * (Ke * Ke)
+                top = max(Qn, 2.2250738585072014e-308)
+                Qn = Qn * min(qmax_o[b] / top, 1.0)
+                Qo_n = Qn if obs else Qo
+            # KFw
+            ypw = wm_w[0] * Y[3] + wm_w[1] * Y[4] + wm_w[2] * Y[5]
+            Pyy = 0.0
+            Pxy = 0.0
+            for i in range(start, 3):
+                dy = Y[3 + i] - ypw
+                wd = dy * wc_w[i]
+                Pyy += wd * dy
+                Pxy += (sw[i] - w) * wd
+            Pyy += Rw[b]
+            K = Pxy / Pyy if obs else 0.0
+            e = yv - ypw if obs else 0.0
+            w_n = w + K * e
+            Pw_n = psd(Pwt - K * Pyy * K)
+            Qw_n = Qw
+            if delta_w != 0.0:
+                Ke = K * e
+                Qn = (1.0 - delta_w) * Qw + delta_w * (Ke * Ke)
+                top = max(Qn, 2.2250738585072014e-308)
+                Qn = Qn * min(qmax_w[b] / top, 1.0)
+                Qw_n = Qn if obs else Qw
+            # KFx (29)–(35) with α̂_k and ŵ_{k−1}
+            a = al_n
+            mean = 0.0
+            cov = 0.0
+            if kind == 0:
+                c = 1.0
+                for j in range(1, k + 1):
+                    c *= la[j] + a * lb[j]
+                    mean += c * xh[b, k - j]
+                    if j >= 2:
+                        cov += c * c * Ph[b, k - j]
+            else:
+                c = 1.0
+                sumsq = 0.0
+                for j in range(1, pl + 1):
+                    c *= (1.0 - 1.0 / j) + a * (-1.0 / j)
+                    if j <= xl:
+                        mean += c * win[b, j - 1]
+                    if j >= 2:
+                        cov += c * c * Pwin[b, j - 1]
+                    sumsq += c * c
+                if kind == 1:
+                    mean += tail(a, modes[b], ka, kb, eta, klo, khi)
+                    ac = max(a, max(-0.49, klo))
+                    kk = k - H
+                    if kk > pl:
+                        total = math.exp(math.lgamma(1.0 + 2.0 * ac) - 2.0 * math.lgamma(1.0 + ac))
+                        p1 = 1.0 + 2.0 * ac
+                        KK = kk + 0.5
+                        g = 0.5 * (ac * (1.0 + ac) + ac * (1.0 + ac))
+                        r = rgn(ac)
+                        beyond = r * r * (KK ** (-p1) / p1 + g * KK ** (-p1 - 1.0) / (p1 + 1.0))
+                        cov += (total - (1.0 + sumsq) - beyond) * Pwin[b, pl - 1]
+                    j0 = max(k - H + 1, pl + 1)  # the head's lags k − i beyond the window: j0 … k
+                    if H > 0 and j0 <= k:
+                        # c_j(ac) at the smallest lag by log-gamma, then c_{j+1} = c_j (j − ac)/(j + 1)
+                        ch = rgn(ac) * math.exp(math.lgamma(j0 - ac) - math.lgamma(j0 + 1.0))
+                        for j in range(j0, k + 1):
+                            cov += ch * ch * Phead[b, k - j]
+                            ch *= (j - ac) / (j + 1.0)
+            hp = h ** a
+            x_pred = hp * (w * x + up) - mean
+            F = hp * w + a
+            Qx = Q[b] * (hp * hp) if scaled else Q[b]
+            P_pred = F * Pk * F + Qx + cov
+            S = P_pred + R[b]
+            Kx = P_pred / S if obs else 0.0
+            e = yv - x_pred if obs else 0.0
+            x_n = x_pred + Kx * e
+            P_n = psd(P_pred - Kx * S * Kx)
+            # the guard: non-finite or beyond the limit → flagged and frozen
+            bad = False
+            for v in (x_n, P_n, al_n, Po_n, Qo_n, w_n, Pw_n, Qw_n):
+                if not (abs(v) <= limit):
+                    bad = True
+            if div or bad:
+                if not div:
+                    dat = k
+                div = True
+            else:
+                x, Pk, al, Po, Qo, w, Pw, Qw = x_n, P_n, al_n, Po_n, Qo_n, w_n, Pw_n, Qw_n
+            # the history
+            if kind == 0:
+                xh[b, k] = x
+                Ph[b, k] = Pk
+            else:
+                if M > 0:
+                    dropped = win[b, xl - 1]
+                    for n in range(M):
+                        modes[b, n] = modes[b, n] * decay[n] + inject[n] * dropped
+                for j in range(xl - 1, 0, -1):
+                    win[b, j] = win[b, j - 1]
+                win[b, 0] = x
+                for j in range(pl - 1, 0, -1):
+                    Pwin[b, j] = Pwin[b, j - 1]
+                Pwin[b, 0] = Pk
+                if k < H:
+                    Phead[b, k] += Pk
+            if k % every == 0:
+                row = k // every - ooff
+                o_x[b, row], o_P[b, row], o_a[b, row], o_Po[b, row] = x, Pk, al, Po
+                o_Qo[b, row], o_w[b, row], o_Pw[b, row], o_Qw[b, row] = Qo, w, Pw, Qw
+                o_e[b, row], o_S[b, row] = e, S
+        X[b], P[b], AL[b], PO[b], QO[b], W[b], PW[b], QW[b] = x, Pk, al, Po, Qo, w, Pw, Qw
+        DIV[b] = div
+        DAT[b] = dat
+        CLAMP[b] = clamp

@@ -35,6 +35,24 @@ def test_chunked_equals_unchunked():
     assert s1["param"]["bias"] == pytest.approx(s2["param"]["bias"], rel=1e-9, abs=1e-12)
 
 
+def test_truth_simulated_with_soe_by_default_agrees_with_exact():
+    """Truths are simulated with exponential sums (O(N)); the exact full-history truth of the same draws differs
+    by no more than the kernel's coefficient bound allows (relative 1e-8 of the memory sum), and a study file
+    says which was used."""
+    from dataclasses import replace
+
+    from torchtea.studies.montecarlo import build_study
+
+    assert TRUTH.memory == "soe"
+    soe = run_study(Study(TRUTH, get_preset("paper-example1"), realisations=3, seed=5))
+    exact = run_study(Study(replace(TRUTH, memory="exact"), get_preset("paper-example1"), realisations=3, seed=5))
+    assert 0 < float((soe.alpha - exact.alpha).abs().max()) < 1e-6  # estimates on truths that differ by ~1e-9
+    study, _ = build_study({"truth": {"memory": "exact"}}, {"preset": "paper-example1"})
+    assert study.truth.memory == "exact"
+    with pytest.raises(ValueError, match="bad memory spec"):
+        build_study({"truth": {"memory": "fast"}}, {"preset": "paper-example1"})
+
+
 def test_summary_matches_direct_statistics():
     study = Study(TRUTH, get_preset("paper-example1"), realisations=6, seed=2)
     res = run_study(study)

@@ -304,11 +304,15 @@ class BoundedHistory(NamedTuple):
         dropped = self.window[..., -1:]
         return BoundedHistory(window, torch.addcmul(self.modes * decay, inject, dropped))
 
-    def sum(self, coeffs: Tensor, orders: Tensor | None = None, kernel: "SOEKernel | None" = None) -> Tensor:
+    def sum(self, coeffs: Tensor, orders: Tensor | None = None, kernel: "SOEKernel | None" = None,
+            weights: Tensor | None = None) -> Tensor:
         r""":math:`\sum_j c_j x_{k+1-j}` for ``S`` orders: coeffs ``(*B, S, n, J)`` (lags 1…J) and, with a
-        kernel, the exponential-sum part for ``orders`` ``(*B, S, n)`` → ``(*B, S, n)``."""
+        kernel, the exponential-sum part for ``orders`` ``(*B, S, n)`` → ``(*B, S, n)``; or with the mode
+        weights ``kernel.weights(orders)`` given (``(*B, S, n, L+1)``, e.g. computed once for a constant order)."""
         out = (coeffs * self.window.unsqueeze(-3)).sum(-1)
-        if kernel is not None:
+        if weights is not None:
+            out = out + (weights * self.modes.unsqueeze(-3)).sum(-1)
+        elif kernel is not None:
             out = out + kernel.tail_sums(orders, self.modes)
         return out
 

@@ -174,12 +174,15 @@ def simulate(
         else:
             kernel, decay, inject, lags, modes = None, None, None, mem.window, 0
         past = BoundedHistory.zeros(batch, n, lags, modes, dtype=dtype, device=device).push(x[..., 0, :], decay, inject)
+        weights = None
         if constant:
             coeff = gl_tail_coefficients(alpha[..., 0, :], lags).unsqueeze(-3)  # (*B, 1, n, J)
+            if kernel is not None:  # the exponential sum's mode weights, once (issue 13)
+                weights = kernel.weights(alpha[..., 0, :].unsqueeze(-2))
         for k in range(n_steps - 1):
             a = alpha[..., k + 1, :]
             c = coeff if constant else gl_tail_coefficients(a, lags).unsqueeze(-3)
-            memory_sum = past.sum(c, a.unsqueeze(-2), kernel)[..., 0, :]
+            memory_sum = past.sum(c, a.unsqueeze(-2), kernel, weights)[..., 0, :]
             x[..., k + 1, :] = hpow[..., k + 1, :] * drive(k) - memory_sum
             past = past.push(x[..., k + 1, :], decay, inject)
     y = x @ C.mT + nu

@@ -13,6 +13,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from ..core.memory import parse_memory
 from ..engines.structure import OrderSchedule, Structure, parse_order_spec
 from ..engines.simulate import simulate
 from ..core.stats import chi2_band, convergence_time, coverage, nees, nis, over_realisations
@@ -31,7 +32,11 @@ TRUTH_FLAGS = {"n": "n_steps", "h": "h", "order": "order", "param": "param", "q"
 
 @dataclass(frozen=True)
 class Truth:
-    """The simulated truth: the paper's scalar noise model (43)–(45) with a known Gaussian input or none."""
+    """The simulated truth: the paper's scalar noise model (43)–(45) with a known Gaussian input or none.
+
+    ``memory``: how the truth's GL sums are computed — ``"soe"`` (default: exponential sums, O(1) per step, every
+    coefficient to relative 1e-8; :mod:`torchtea.core.memory`) or ``"exact"`` (the full history, O(N²) per
+    realisation, what studies used before issue 13)."""
 
     h: float
     n_steps: int
@@ -40,6 +45,7 @@ class Truth:
     q: float
     r: float
     input_std: float | None = None
+    memory: str = "soe"
 
     def schedule(self) -> OrderSchedule:
         return parse_order_spec(self.order)
@@ -123,7 +129,8 @@ def run_study(study: Study, *, progress=None) -> StudyResult:
             z_w = torch.stack([d[1] for d in draws])
             z_v = torch.stack([d[2] for d in draws])
             sim = simulate(Structure(), n_steps=N, h=tr.h, order=schedule, parameters=[tr.param],
-                           process_noise=tr.q, measurement_noise=tr.r, inputs=u, standard_draws=(z_w, z_v))
+                           process_noise=tr.q, measurement_noise=tr.r, inputs=u, standard_draws=(z_w, z_v),
+                           memory=tr.memory)
             res = run_tea(sim.y, h=tr.h, params=params, inputs=u)
             parts["alpha_true"].append(sim.alpha[..., 0])
             parts["alpha"].append(res.alpha[..., 0])
@@ -221,6 +228,7 @@ def build_study(data: dict, flags: dict | None = None, *, memory=None, source: s
     try:
         tr = Truth(**base)
         tr.schedule()
+        parse_memory(tr.memory)
     except (TypeError, ValueError) as exc:
         raise ValueError(f"bad truth: {exc}") from None
     study = Study(tr, estimator, realisations=int(flags.get("realisations", data.get("realisations", 100))),
@@ -261,6 +269,6 @@ def save_study(logdir, study: Study, preset: str, result: StudyResult | None = N
         "param_final": result.w[:, -1], "P_param_final": result.P_w[:, -1]})
     hp = {"realisations": result.finished, "seed": study.seed, "preset": preset, "order": tr.order,
           "param": tr.param, "q": tr.q, "r": tr.r, "h": tr.h, "n": tr.n_steps,
-          "input_std": tr.input_std if tr.input_std is not None else 0.0}
+          "input_std": tr.input_std if tr.input_std is not None else 0.0, "truth_memory": tr.memory}
     log_study(logdir, result, summary, hp)
     return logdir

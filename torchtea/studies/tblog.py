@@ -38,13 +38,12 @@ def log_study(logdir, result, summary: dict, hparams: dict, *, max_points: int =
         for name, est, truth in (("order", result.alpha, result.alpha_true), ("param", result.w, truth_w)):
             # statistics only at the logged steps
             st = over_realisations(est[:, steps].unsqueeze(-1), truth[:, steps].unsqueeze(-1), keep)
-            for i, k in enumerate(steps):
-                w.add_scalar(f"{name}/truth", float(truth[0, k]), k)
-                if st["count"]:
-                    w.add_scalar(f"{name}/mean", float(st["mean"][i, 0]), k)
-                    w.add_scalar(f"{name}/rmse", float(st["rmse"][i, 0]), k)
-                    for q, v in zip(QUANTILES, st["quantiles"][:, i, 0]):
-                        w.add_scalar(f"{name}/q{int(round(q * 100)):02d}", float(v), k)
+            cols = {f"{name}/truth": truth[0, steps]}
+            if st["count"]:
+                cols[f"{name}/mean"], cols[f"{name}/rmse"] = st["mean"][:, 0], st["rmse"][:, 0]
+                for q, v in zip(QUANTILES, st["quantiles"][:, :, 0]):
+                    cols[f"{name}/q{int(round(q * 100)):02d}"] = v
+            _scalars(w, cols, steps)
             if st["count"]:
                 w.add_histogram(f"final/{name}", est[keep, -1], 0)
                 label = "order α̂" if name == "order" else "parameter ŵ"
@@ -55,11 +54,9 @@ def log_study(logdir, result, summary: dict, hparams: dict, *, max_points: int =
             nees_avg = result.nees[keep].mean(0)
             nis_avg = result.nis[keep].mean(0)
             lo, hi = summary["nees"]["band_95"]
-            for k in steps[1:] if len(steps) > 1 else steps:
-                w.add_scalar("consistency/nees", float(nees_avg[k]), k)
-                w.add_scalar("consistency/nis", float(nis_avg[k]), k)
-                w.add_scalar("consistency/band_lo", lo, k)
-                w.add_scalar("consistency/band_hi", hi, k)
+            at = steps[1:] if len(steps) > 1 else steps
+            _scalars(w, {"consistency/nees": nees_avg[at], "consistency/nis": nis_avg[at],
+                         "consistency/band_lo": [lo] * len(at), "consistency/band_hi": [hi] * len(at)}, at)
         w.add_text("summary", _markdown(summary), 0)
         metrics = {"metric/order_rmse": summary["order"]["rmse"], "metric/order_bias": summary["order"]["bias"],
                    "metric/param_rmse": summary["param"]["rmse"], "metric/param_bias": summary["param"]["bias"],
@@ -70,6 +67,17 @@ def log_study(logdir, result, summary: dict, hparams: dict, *, max_points: int =
         for k, v in metrics.items():
             w.add_scalar(k, v, 0)
     return logdir
+
+
+def _scalars(w, cols: dict, steps) -> None:
+    """Scalar series ``{tag: values at steps}`` as one event per step holding every tag (what ``add_scalar`` writes,
+    one value per tag, without an event and a Python call per value)."""
+    from tensorboard.compat.proto.summary_pb2 import Summary
+
+    cols = {tag: [float(v) for v in vals] for tag, vals in cols.items()}
+    for i, k in enumerate(steps):
+        w.file_writer.add_summary(Summary(value=[Summary.Value(tag=tag, simple_value=vals[i])
+                                                 for tag, vals in cols.items()]), int(k))
 
 
 def _markdown(summary: dict) -> str:

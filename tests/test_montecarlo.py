@@ -253,3 +253,30 @@ def test_sigint_leaves_a_readable_partial_run(tmp_path):
     fin = np.genfromtxt(logdir / "final_estimates.csv", delimiter=",", names=True)
     assert len(np.atleast_1d(fin)) == summary["realisations"]
     assert any(p.name.startswith("events.out.tfevents") for p in logdir.iterdir())
+
+
+def test_device_option_runs_on_cpu_and_names_a_missing_accelerator(tmp_path, capsys):
+    from torchtea.cli import main
+
+    study = Study(TRUTH, get_preset("paper-example1"), realisations=3, seed=9)
+    a, b = run_study(study), run_study(study, device="cpu")
+    assert torch.equal(a.alpha, b.alpha) and torch.equal(a.nees, b.nees)
+    assert main(["montecarlo", "--preset", "paper-example1", "--n", "60", "--realisations", "2", "--device", "cpu",
+                 "--logdir", str(tmp_path / "mc"), "--json"]) == 0
+    capsys.readouterr()
+    if not torch.cuda.is_available():
+        assert main(["montecarlo", "--preset", "paper-example1", "--n", "60", "--realisations", "2", "--device", "cuda",
+                     "--logdir", str(tmp_path / "mc2")]) == 2
+        assert "--device cuda: no CUDA device is available" in capsys.readouterr().err
+    assert main(["montecarlo", "--preset", "paper-example1", "--n", "60", "--realisations", "2", "--device", "tpu",
+                 "--logdir", str(tmp_path / "mc3")]) == 2
+    assert "--device 'tpu'" in capsys.readouterr().err
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device on this machine")
+def test_study_on_cuda_equals_cpu():
+    """The torch engine on the GPU against the compiled engine on the CPU: the same study to float64 rounding."""
+    study = Study(TRUTH, get_preset("paper-example1"), realisations=8, seed=3)
+    cpu, gpu = run_study(study), run_study(study, device="cuda")
+    for name in ("alpha_true", "alpha", "P_alpha", "w", "P_w", "nees", "nis"):
+        torch.testing.assert_close(getattr(gpu, name), getattr(cpu, name), rtol=1e-9, atol=1e-11)

@@ -115,6 +115,29 @@ def _report(out_dir: Path, summary: dict, warnings, as_json: bool) -> bool:
 # --------------------------------------------------------------------------- simulate
 
 
+DEVICE_HELP = ("torch device of the computation: cpu (default; the TEA of the scalar model is then the compiled "
+               "engine), cuda, cuda:N or mps (the batched torch engine, float64)")
+
+
+def _device(spec):
+    """Parse --device NAME into a torch.device that this machine has (one clear error naming it otherwise)."""
+    import torch
+
+    try:
+        dev = torch.device(spec or "cpu")
+    except RuntimeError as exc:
+        raise CLIError(f"--device {spec!r}: {exc}") from None
+    if dev.type == "cuda" and not torch.cuda.is_available():
+        raise CLIError(f"--device {spec}: no CUDA device is available to this torch {torch.__version__}")
+    if dev.type == "cuda" and (dev.index or 0) >= torch.cuda.device_count():
+        raise CLIError(f"--device {spec}: this machine has {torch.cuda.device_count()} CUDA device(s)")
+    if dev.type == "mps" and not torch.backends.mps.is_available():
+        raise CLIError(f"--device {spec}: the MPS backend is not available here")
+    if dev.type not in ("cpu", "cuda", "mps"):
+        raise CLIError(f"--device {spec}: use cpu, cuda, cuda:N or mps")
+    return dev
+
+
 def _memory(spec):
     """Parse --memory SPEC (None keeps the config's)."""
     from .core.memory import parse_memory
@@ -349,8 +372,10 @@ def cmd_estimate(args) -> int:
     timing = check_timing(cols["t"], 1.0 / h, column="t", rate_source=h_source) if "t" in cols else None
     step, close = _progress(N - 1, "TEA", bar=not args.json)
     t0 = time.perf_counter()
-    res = run_tea(y.unsqueeze(0), h=h, params=make_params(cfg, Structure()), inputs=None if u is None else u.unsqueeze(0),
-                  progress=step, compile=args.compile, partial=True)
+    dev = _device(args.device)
+    res = run_tea(y.unsqueeze(0).to(dev), h=h, params=make_params(cfg, Structure()),
+                  inputs=None if u is None else u.unsqueeze(0).to(dev), progress=step, compile=args.compile, partial=True)
+    res = type(res)(**{f: (v.cpu() if isinstance(v, torch.Tensor) else v) for f, v in vars(res).items()})
     elapsed = time.perf_counter() - t0
     close()
     done = int(res.alpha.shape[-2])
@@ -594,7 +619,7 @@ def cmd_montecarlo(args) -> int:
             Path(args.progress_file).write_text(f"{done} {total}\n")
 
     t0 = time.perf_counter()
-    result = run_study(study, progress=progress)
+    result = run_study(study, progress=progress, device=_device(args.device))
     elapsed = time.perf_counter() - t0
     close()
     if result.finished == 0:
@@ -704,6 +729,7 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--allow-missing", action="store_true", help=ALLOW_MISSING_HELP)
     e.add_argument("--memory", help=MEMORY_HELP)
     e.add_argument("--compile", action="store_true", help=COMPILE_HELP)
+    e.add_argument("--device", help=DEVICE_HELP)
     e.add_argument("--json", action="store_true", help="print a JSON summary")
     e.set_defaults(func=cmd_estimate)
 
@@ -801,6 +827,7 @@ def build_parser() -> argparse.ArgumentParser:
     mc.add_argument("--r", type=_nonneg_float)
     mc.add_argument("--input-std", type=_nonneg_float)
     mc.add_argument("--memory", help="estimator's " + MEMORY_HELP)
+    mc.add_argument("--device", help=DEVICE_HELP)
     mc.add_argument("--progress-file", help="rewrite 'done total' in this file after each chunk (headless runs)")
     mc.add_argument("--json", action="store_true")
     mc.set_defaults(func=cmd_montecarlo)

@@ -803,7 +803,7 @@ def _loop(model, params, weights, memory, carry, y, inputs, batch, N, n, nb, dev
             Ph[..., N - 1] = carry.P
             for k in range(1, N):
                 carry, o = _tea_step(model, params, weights, memory, carry, y[..., k, :], u_at(k - 1),
-                                     (xh[..., N - k:], Ph[..., N - k:]), k)
+                                     (xh[..., N - k:], Ph[..., N - k:]), k, device.type != "cpu")
                 xh[..., N - 1 - k] = carry.x
                 Ph[..., N - 1 - k] = carry.P
                 record_block(k, _outputs(carry, o), False)
@@ -854,8 +854,9 @@ def _loop(model, params, weights, memory, carry, y, inputs, batch, N, n, nb, dev
                 record_block(k, rows, True)
                 k += COMPILE_BLOCK
             else:
+                # off the CPU the guard is branch-free: no host-device synchronisation per step
                 carry, hist, diverged_at, clamped, row = one_step(carry, hist, diverged_at, clamped, y[..., k, :],
-                                                                  u_at(k - 1), k, False)
+                                                                  u_at(k - 1), k, device.type != "cpu")
                 record_block(k, row, False)
                 k += 1
             stored = (k, carry, diverged_at, clamped)

@@ -108,16 +108,19 @@ class StudyResult:
     interrupted: bool = False
 
 
-def run_study(study: Study, *, progress=None) -> StudyResult:
+def run_study(study: Study, *, progress=None, device=None) -> StudyResult:
     """Run a study chunk by chunk; Ctrl-C between or during chunks keeps the finished chunks.
 
-    ``progress(done, total)`` is called after each chunk.
+    ``progress(done, total)`` is called after each chunk. ``device``: where the truths are simulated and the TEA
+    runs (default the CPU, where the TEA is the compiled engine); each realisation's draws come from its own CPU
+    generator whatever the device, and the results come back to the CPU.
     """
+    device = torch.device(device or "cpu")
     tr = study.truth
     R, N = study.realisations, tr.n_steps
     chunk = study.chunk or auto_chunk(N)
     schedule = tr.schedule()
-    params = make_params(study.estimator, Structure())
+    params = make_params(study.estimator, Structure(), device=device)
     parts: dict = {k: [] for k in ("alpha_true", "alpha", "P_alpha", "w", "P_w", "nees", "nis", "diverged")}
     done = 0
     interrupted = False
@@ -125,21 +128,21 @@ def run_study(study: Study, *, progress=None) -> StudyResult:
         while done < R:
             idx = range(done, min(R, done + chunk))
             draws = [draw_realisation(tr, study.seed, i) for i in idx]
-            u = None if tr.input_std is None else torch.stack([d[0] for d in draws])
-            z_w = torch.stack([d[1] for d in draws])
-            z_v = torch.stack([d[2] for d in draws])
+            u = None if tr.input_std is None else torch.stack([d[0] for d in draws]).to(device)
+            z_w = torch.stack([d[1] for d in draws]).to(device)
+            z_v = torch.stack([d[2] for d in draws]).to(device)
             sim = simulate(Structure(), n_steps=N, h=tr.h, order=schedule, parameters=[tr.param],
                            process_noise=tr.q, measurement_noise=tr.r, inputs=u, standard_draws=(z_w, z_v),
-                           memory=tr.memory)
+                           memory=tr.memory, device=device)
             res = run_tea(sim.y, h=tr.h, params=params, inputs=u)
-            parts["alpha_true"].append(sim.alpha[..., 0])
-            parts["alpha"].append(res.alpha[..., 0])
-            parts["P_alpha"].append(res.P_alpha[..., 0, 0])
-            parts["w"].append(res.w[..., 0])
-            parts["P_w"].append(res.P_w[..., 0, 0])
-            parts["nees"].append(nees(res.x, sim.x, res.P))
-            parts["nis"].append(nis(res.innovation, res.innovation_cov))
-            parts["diverged"].append(res.diverged)
+            parts["alpha_true"].append(sim.alpha[..., 0].cpu())
+            parts["alpha"].append(res.alpha[..., 0].cpu())
+            parts["P_alpha"].append(res.P_alpha[..., 0, 0].cpu())
+            parts["w"].append(res.w[..., 0].cpu())
+            parts["P_w"].append(res.P_w[..., 0, 0].cpu())
+            parts["nees"].append(nees(res.x, sim.x, res.P).cpu())
+            parts["nis"].append(nis(res.innovation, res.innovation_cov).cpu())
+            parts["diverged"].append(res.diverged.cpu())
             done = idx.stop
             if progress is not None:
                 progress(done, R)

@@ -112,3 +112,46 @@ def test_engine_choice_and_errors():
         run_tea(y, h=0.01, params=make_params(get_preset("paper-mems-x"), two), structure=two, engine="numba")
     # auto = numba here: the same numbers as asking for it
     _same(run_tea(y, h=0.01, params=params), run_tea(y, h=0.01, params=params, engine="numba"), rtol=0, atol=0)
+
+
+def test_interrupted_run_counts_only_finished_steps_as_clamped(monkeypatch):
+    """A Ctrl-C drops the block it interrupts, and that block's soe clamp count with it: both engines report the
+    same count for the same finished steps."""
+    import torchtea.engines.fast as fast
+
+    monkeypatch.setattr(fast, "BLOCK", 50)
+    y, _ = _mems((2,), 400, seed=11)
+    cfg = get_preset("paper-mems-x")
+    cfg = replace(cfg, memory=replace(parse_memory("soe"), order_range=(0.3, 0.6)))  # sigma orders leave it often
+
+    def stop(k, N):
+        if k == 150:
+            raise KeyboardInterrupt
+
+    runs = {e: run_tea(y, h=0.01, params=make_params(cfg, Structure()), engine=e, progress=stop, partial=True)
+            for e in ("torch", "numba")}
+    assert runs["numba"].alpha.shape[-2] == runs["torch"].alpha.shape[-2] == 151
+    assert int(runs["torch"].memory_clamped.min()) > 0
+    assert torch.equal(runs["torch"].memory_clamped, runs["numba"].memory_clamped)
+
+
+def test_block_size_shrinks_where_a_block_would_be_slow():
+    from torchtea.engines.fast import BLOCK, block_steps
+
+    class Eng:
+        kind = 0
+
+    assert block_steps(Eng, 10, 1) == BLOCK
+    assert 1 <= block_steps(Eng, 100_000, 1000) < BLOCK  # exact memory late in a long, wide run
+    Eng.kind = 1
+    assert block_steps(Eng, 100_000, 1000) == BLOCK and block_steps(Eng, 5, 10**6) == 1
+
+
+def test_data_with_gradients_take_the_torch_engine():
+    y, _ = _mems((1,), 40, seed=12)
+    plain = run_tea(y, h=0.01, params=make_params(get_preset("paper-mems-x"), Structure()))
+    y = y.clone().requires_grad_()
+    res = run_tea(y, h=0.01, params=make_params(get_preset("paper-mems-x"), Structure()))  # not .numpy() of it
+    torch.testing.assert_close(res.alpha.detach(), plain.alpha, rtol=1e-10, atol=1e-12)
+    with pytest.raises(ValueError, match="gradients"):
+        run_tea(y, h=0.01, params=make_params(get_preset("paper-mems-x"), Structure()), engine="numba")

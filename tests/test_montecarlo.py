@@ -271,6 +271,13 @@ def test_device_option_runs_on_cpu_and_names_a_missing_accelerator(tmp_path, cap
     assert main(["montecarlo", "--preset", "paper-example1", "--n", "60", "--realisations", "2", "--device", "tpu",
                  "--logdir", str(tmp_path / "mc3")]) == 2
     assert "--device 'tpu'" in capsys.readouterr().err
+    assert not (tmp_path / "mc3").exists()  # checked before anything is written
+    assert main(["montecarlo", "--preset", "paper-example1", "--n", "60", "--realisations", "2", "--device", "mps",
+                 "--logdir", str(tmp_path / "mc4")]) == 2
+    assert "float64, which the MPS backend does not have" in capsys.readouterr().err
+    with pytest.raises(ValueError, match="SPEC string"):
+        __import__("torchtea.studies.montecarlo", fromlist=["build_study"]).build_study(
+            {"truth": {"memory": {"kind": "soe"}}}, {"preset": "paper-example1"})
 
 
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device on this machine")

@@ -344,8 +344,11 @@ def cov_tail_mass(a: Tensor, b: Tensor, coeff_a: Tensor, coeff_b: Tensor, k) -> 
     total = torch.exp(torch.lgamma(1.0 + a + b) - torch.lgamma(1.0 + a) - torch.lgamma(1.0 + b))
     head = 1.0 + (coeff_a * coeff_b).sum(-1)
     p1 = 1.0 + a + b
-    K = torch.as_tensor(k, dtype=a.dtype, device=a.device) + 0.5
+    # a Python k stays a Python number: no tensor made from it per step (off the CPU, a host-device copy)
+    K = k + 0.5 if isinstance(k, int) else torch.as_tensor(k, dtype=a.dtype, device=a.device) + 0.5
     g = 0.5 * (a * (1.0 + a) + b * (1.0 + b))
     beyond = _recip_gamma_neg(a) * _recip_gamma_neg(b) * (K ** (-p1) / p1 + g * K ** (-p1 - 1.0) / (p1 + 1.0))
     mass = total - head - beyond
+    if isinstance(k, int):
+        return mass if k > J else torch.zeros_like(mass)
     return torch.where(torch.as_tensor(k, device=a.device) > J, mass, torch.zeros_like(mass))

@@ -86,7 +86,7 @@ def window_sum(order, win, J):
 
 @njit(cache=True, inline="always")
 def psd(v):
-    return v if v > 0.0 else 0.0
+    return 0.0 if v < 0.0 else v  # NaN stays NaN (as torch's clamp), so the guard sees it
 
 
 @njit(cache=True, parallel=True, error_model="numpy")

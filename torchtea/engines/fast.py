@@ -28,7 +28,7 @@ BLOCK = 256
 _KERNEL = None
 
 
-def fast_path_reason(structure, dtype, device, compile: bool = False) -> str | None:
+def fast_path_reason(structure, dtype, device, compile: bool = False, requires_grad: bool = False) -> str | None:
     """``None`` when the compiled engine can run this problem, else why not (one phrase)."""
     if compile:
         return "compile=True asks for the torch.compile engine"
@@ -36,15 +36,15 @@ def fast_path_reason(structure, dtype, device, compile: bool = False) -> str | N
         return f"the data are on {device}, the compiled engine runs on the CPU"
     if dtype != torch.float64:
         return f"the data are {dtype}, the compiled engine is float64"
-    if structure.n_states != 1 or structure.n_outputs != 1 or structure.n_params != 1 or structure.n_inputs != 1:
-        return "the structure is not scalar (one state, output, parameter and input)"
+    if structure.n_states != 1 or structure.n_outputs != 1 or structure.n_params != 1 or structure.n_inputs > 1:
+        return "the structure is not scalar (one state, output and parameter, at most one input)"
     A = structure.A
     if float(A.base.reshape(-1)[0]) != 0.0 or float(A.basis.reshape(-1)[0]) != 1.0:
         return "A(w) is not w"
-    if float(structure.B.reshape(-1)[0]) != 1.0 or float(structure.C.reshape(-1)[0]) != 1.0:
+    if (structure.n_inputs and float(structure.B.reshape(-1)[0]) != 1.0) or float(structure.C.reshape(-1)[0]) != 1.0:
         return "B or C is not 1"
-    if not structure.estimated[0]:
-        return "the order is not estimated"
+    if requires_grad:
+        return "the data or parameters require gradients (numpy arrays cannot carry them)"
     return None
 
 
@@ -143,6 +143,14 @@ class FastTEA:
         return Carry(v(x), m(P), v(al), m(Po), m(Qo), v(w), m(Pw), m(Qw), t(self.div))
 
 
+def block_steps(eng: "FastTEA", k: int, B: int) -> int:
+    """Steps of the next compiled call: :data:`BLOCK`, fewer where a block would take more than about half a
+    second (progress and Ctrl-C act between calls) — ``exact`` memory costs ~4·k·B multiply-adds per step,
+    bounded memory ~0.5 µs per realisation and step."""
+    per_step = 4e-9 * k * B if eng.kind == 0 else 5e-7 * B
+    return max(1, min(BLOCK, int(0.5 / max(per_step, 1e-12))))
+
+
 def run_tea_fast(y, *, h: float, params, inputs=None, progress=None, record_every: int = 1, partial: bool = False,
                  batch=None, memory=None, first=None):
     """:func:`~.tea.run_tea` for the scalar structure on the CPU (module docstring). Called by ``run_tea``,
@@ -161,14 +169,16 @@ def run_tea_fast(y, *, h: float, params, inputs=None, progress=None, record_ever
     for o, v in zip(outs, [*eng.state, out0.innovation.reshape(B).numpy(), out0.innovation_cov.reshape(B).numpy()]):
         o[:, 0] = v
     completed = 1
+    clamp = eng.clamp.copy()  # the clamp count of the finished blocks (a Ctrl-C drops the block it interrupts)
     try:
         if progress is not None:
             progress(0, N)  # the work starts (a progress clock starts with it)
         k = 1
         while k < N:
-            k1 = min(N, k + BLOCK)
+            k1 = min(N, k + block_steps(eng, k, B))
             eng.advance(k, k1, yv, uv, outs, every=every)
             k = completed = k1
+            clamp = eng.clamp.copy()
             if progress is not None:
                 progress(k - 1, N)
     except KeyboardInterrupt:
@@ -184,5 +194,5 @@ def run_tea_fast(y, *, h: float, params, inputs=None, progress=None, record_ever
                      diverged=torch.from_numpy(diverged).reshape(batch),
                      diverged_at=torch.from_numpy(np.where(diverged, eng.dat, -1)).reshape(batch),
                      steps=torch.arange(0, completed, every),
-                     memory_clamped=torch.from_numpy(eng.clamp.copy()).reshape(batch) if eng.kind == 1 else None,
+                     memory_clamped=torch.from_numpy(clamp).reshape(batch) if eng.kind == 1 else None,
                      interrupted=completed < N)

@@ -726,6 +726,20 @@ def run_tea(
     if inputs is not None:
         inputs = inputs.expand(batch + (N, structure.n_inputs))
 
+    carry, first = _first_step(model, params, y[..., 0, :], batch)
+    if engine not in ("auto", "torch", "numba"):
+        raise ValueError(f"engine must be 'auto', 'torch' or 'numba', got {engine!r}")
+    if engine != "torch":
+        from .fast import fast_path_reason, run_tea_fast
+
+        grad = y.requires_grad or (inputs is not None and inputs.requires_grad) or any(
+            t.requires_grad for t in params[:-1])
+        reason = fast_path_reason(structure, y.dtype, y.device, compile, grad)
+        if reason is None:
+            return run_tea_fast(y, h=h, params=params, inputs=inputs, progress=progress, record_every=every,
+                                partial=partial, batch=batch, memory=memory, first=(carry, first))
+        if engine == "numba":
+            raise ValueError(f"engine='numba' cannot run this problem: {reason}")
     # per-step outputs, preallocated (rows k = 0, every, 2·every, …)
     n_out = (N - 1) // every + 1
     events = ((n,), (n, n), (L,), (L, L), (L, L), (m,), (m, m), (m, m), (p,), (p, p))
@@ -747,18 +761,6 @@ def run_tea(
         for name, t in zip(_OUTPUT_NAMES, tensors):
             out[name].narrow(nb, i0, rows.shape[0]).copy_(t.index_select(nb, rows))
 
-    carry, first = _first_step(model, params, y[..., 0, :], batch)
-    if engine not in ("auto", "torch", "numba"):
-        raise ValueError(f"engine must be 'auto', 'torch' or 'numba', got {engine!r}")
-    if engine != "torch":
-        from .fast import fast_path_reason, run_tea_fast
-
-        reason = fast_path_reason(structure, y.dtype, y.device, compile)
-        if reason is None:
-            return run_tea_fast(y, h=h, params=params, inputs=inputs, progress=progress, record_every=every,
-                                partial=partial, batch=batch, memory=memory, first=(carry, first))
-        if engine == "numba":
-            raise ValueError(f"engine='numba' cannot run this problem: {reason}")
     record_block(0, _outputs(carry, first), False)
     clamped = torch.zeros(batch, dtype=torch.long, device=device)
     try:

@@ -231,6 +231,8 @@ def build_study(data: dict, flags: dict | None = None, *, memory=None, source: s
     try:
         tr = Truth(**base)
         tr.schedule()
+        if not isinstance(tr.memory, str):
+            raise ValueError(f"memory must be a SPEC string such as 'soe' or 'exact', got {tr.memory!r}")
         parse_memory(tr.memory)
     except (TypeError, ValueError) as exc:
         raise ValueError(f"bad truth: {exc}") from None

@@ -1,6 +1,6 @@
 """False alarms of ``check`` on data drawn from a model fitted to real data (issue 12): a parametric bootstrap.
 
-    python experiments/check/false_alarm.py                 # 100 series per bundled axis (resumes)
+    python experiments/check/false_alarm.py                 # 100 series per bundled axis, z first (resumes)
     python experiments/check/false_alarm.py --series 20 --axes z
     python experiments/check/false_alarm.py --tables
 
@@ -100,7 +100,7 @@ def tables(d: Path) -> str:
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--axes", default=AXES)
+    ap.add_argument("--axes", default="zyx", help="bundled axes, in the order run")
     ap.add_argument("--series", type=int, default=100)
     ap.add_argument("--samples", type=int, default=3000)
     ap.add_argument("--dir", default=str(HERE / "false_alarm"))

@@ -27,14 +27,12 @@ def tail(order, modes, ka, kb, eta, klo, khi):
 
 
 @njit(cache=True, inline="always")
-def tails3(al, ro, modes, ka, kb, eta, klo, khi, out):
+def tails3(al, ro, modes, ka, kb, kbig, eta, klo, khi, out):
     """``tail`` at the three KFo sigma orders ``al, al + ro, al − ro`` into ``out``. When none is clamped,
-    exp(a + (al ± ro) b) = exp(a + al b) · exp(±ro b): two exponentials per mode instead of three."""
+    exp(a + (al ± ro) b) = exp(a + al b) · exp(±ro b): two exponentials per mode instead of three (``kbig``:
+    max |b| of the explicit modes, which bounds the factor)."""
     M = modes.shape[0]
-    big = 0.0
-    for n in range(M - 1):
-        big = max(big, abs(kb[n]))
-    if al - ro < klo or al + ro > khi or ro * big > 300.0:
+    if al - ro < klo or al + ro > khi or ro * kbig > 300.0:
         out[0] = tail(al, modes, ka, kb, eta, klo, khi)
         out[1] = tail(al + ro, modes, ka, kb, eta, klo, khi)
         out[2] = tail(al - ro, modes, ka, kb, eta, klo, khi)
@@ -89,11 +87,40 @@ def psd(v):
     return 0.0 if v < 0.0 else v  # NaN stays NaN (as torch's clamp), so the guard sees it
 
 
+@njit(cache=True, inline="always")
+def ut_update(Y, off, pts, mean, Pt, wm, wc, start, R, obs, yv):
+    """Unscented update (19)–(24) of one scalar filter (tea._ut_update): sigma points ``pts``, their predicted
+    outputs ``Y[off:off+3]``; returns (mean, covariance, gain, innovation)."""
+    yp = wm[0] * Y[off] + wm[1] * Y[off + 1] + wm[2] * Y[off + 2]
+    Pyy = 0.0
+    Pxy = 0.0
+    for i in range(start, 3):
+        dy = Y[off + i] - yp
+        wd = dy * wc[i]
+        Pyy += wd * dy
+        Pxy += (pts[i] - mean) * wd
+    Pyy += R
+    K = Pxy / Pyy if obs else 0.0
+    e = yv - yp if obs else 0.0
+    return mean + K * e, psd(Pt - K * Pyy * K), K, e
+
+
+@njit(cache=True, inline="always")
+def adapt_q(Q, K, e, delta, qmax, obs):
+    """Robbins–Monro adaptation (25) with its cap (tea._adapt_q), scalar."""
+    if delta == 0.0:
+        return Q
+    Ke = K * e
+    Qn = (1.0 - delta) * Q + delta * (Ke * Ke)
+    Qn = Qn * min(qmax / max(Qn, 2.2250738585072014e-308), 1.0)
+    return Qn if obs else Q
+
+
 @njit(cache=True, parallel=True, error_model="numpy")
 def advance(k0, k1, yoff, ooff, every, y, u, has_u,
             h, Q, R, Ro, Rw, qmax_o, qmax_w, scaled, start, lo, hi, limit, delta_o, delta_w,
             wm_o, wc_o, scale_o, wm_w, wc_w, scale_w,
-            kind, xl, pl, H, ka, kb, decay, inject, eta, klo, khi, count_lo, count_hi, la, lb,
+            kind, xl, pl, H, ka, kb, kbig, decay, inject, eta, klo, khi, count_lo, count_hi, la, lb,
             X, P, AL, PO, QO, W, PW, QW, DIV, DAT, CLAMP,
             xh, Ph, win, modes, Pwin, Phead,
             o_x, o_P, o_a, o_Po, o_Qo, o_w, o_Pw, o_Qw, o_e, o_S):
@@ -126,7 +153,7 @@ def advance(k0, k1, yoff, ooff, every, y, u, has_u,
             sw[0], sw[1], sw[2] = w, w + rw, w - rw
             # replica (16)–(18), (41)–(42): KFw's order is KFo's centre point
             if kind == 1:
-                tails3(al, ro, modes[b], ka, kb, eta, klo, khi, t3)
+                tails3(al, ro, modes[b], ka, kb, kbig, eta, klo, khi, t3)
             elif kind == 0:
                 exact_sums3(so, xh[b], k, la, lb, t3)
             for i in range(3):
@@ -136,53 +163,17 @@ def advance(k0, k1, yoff, ooff, every, y, u, has_u,
                     ms = window_sum(so[i], win[b], xl)
                     if kind == 1:
                         ms += t3[i]
-                Y[i] = h ** so[i] * (w * x + up) - ms
+                hp = h ** so[i]
+                Y[i] = hp * (w * x + up) - ms
                 if i == 0:
                     for jw in range(3):
-                        Y[3 + jw] = h ** so[0] * (sw[jw] * x + up) - ms
-            # KFo update (19)–(24), adaptation (25)
-            ypo = wm_o[0] * Y[0] + wm_o[1] * Y[1] + wm_o[2] * Y[2]
-            Pyy = 0.0
-            Pxy = 0.0
-            for i in range(start, 3):
-                dy = Y[i] - ypo
-                wd = dy * wc_o[i]
-                Pyy += wd * dy
-                Pxy += (so[i] - al) * wd
-            Pyy += Ro[b]
-            K = Pxy / Pyy if obs else 0.0
-            e = yv - ypo if obs else 0.0
-            al_n = al + K * e
-            Po_n = psd(Pot - K * Pyy * K)
+                        Y[3 + jw] = hp * (sw[jw] * x + up) - ms
+            # KFo update (19)–(24) with the order projected, adaptation (25); then KFw the same
+            al_n, Po_n, K, e = ut_update(Y, 0, so, al, Pot, wm_o, wc_o, start, Ro[b], obs, yv)
             al_n = min(max(al_n, lo), hi)
-            Qo_n = Qo
-            if delta_o != 0.0:
-                Ke = K * e
-                Qn = (1.0 - delta_o) * Qo + delta_o * (Ke * Ke)
-                top = max(Qn, 2.2250738585072014e-308)
-                Qn = Qn * min(qmax_o[b] / top, 1.0)
-                Qo_n = Qn if obs else Qo
-            # KFw
-            ypw = wm_w[0] * Y[3] + wm_w[1] * Y[4] + wm_w[2] * Y[5]
-            Pyy = 0.0
-            Pxy = 0.0
-            for i in range(start, 3):
-                dy = Y[3 + i] - ypw
-                wd = dy * wc_w[i]
-                Pyy += wd * dy
-                Pxy += (sw[i] - w) * wd
-            Pyy += Rw[b]
-            K = Pxy / Pyy if obs else 0.0
-            e = yv - ypw if obs else 0.0
-            w_n = w + K * e
-            Pw_n = psd(Pwt - K * Pyy * K)
-            Qw_n = Qw
-            if delta_w != 0.0:
-                Ke = K * e
-                Qn = (1.0 - delta_w) * Qw + delta_w * (Ke * Ke)
-                top = max(Qn, 2.2250738585072014e-308)
-                Qn = Qn * min(qmax_w[b] / top, 1.0)
-                Qw_n = Qn if obs else Qw
+            Qo_n = adapt_q(Qo, K, e, delta_o, qmax_o[b], obs)
+            w_n, Pw_n, K, e = ut_update(Y, 3, sw, w, Pwt, wm_w, wc_w, start, Rw[b], obs, yv)
+            Qw_n = adapt_q(Qw, K, e, delta_w, qmax_w[b], obs)
             # KFx (29)–(35) with α̂_k and ŵ_{k−1}
             a = al_n
             mean = 0.0

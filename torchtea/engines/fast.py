@@ -109,7 +109,7 @@ class FastTEA:
         self.settings = (float(h), Q, R, Ro, Rw, qmax_o, qmax_w, cfg.noise_scaling == "scaled", int(cfg.sigma_sum_start),
                          lo, hi, float(cfg.divergence_limit), float(cfg.kfo.delta), float(cfg.kfw.delta),
                          wm_o, wc_o, sc_o, wm_w, wc_w, sc_w,
-                         kind, xl, pl, H, ka, kb, decay, inject, eta, klo, khi,
+                         kind, xl, pl, H, ka, kb, float(np.abs(kb[:-1]).max(initial=0.0)), decay, inject, eta, klo, khi,
                          klo if kind == 1 else -math.inf, khi if kind == 1 else math.inf, *_lag_tables(horizon if kind == 0 else 1))
         # the carry after step 0 (tea._first_step) and its history
         self.state = [np.array(t.reshape(B, -1)[:, 0].numpy(), dtype=np.float64) for t in carry[:-1]]

@@ -201,18 +201,32 @@ def test_tensorboard_server_serves_a_scalar_series(tmp_path):
     assert proc.returncode is not None
 
 
-def test_fan_figures_in_tensorboard(tmp_path):
+def test_fan_charts_in_tensorboard(tmp_path):
+    """The margin charts of CUSTOM SCALARS name logged tags (always written); the matplotlib fan figures are
+    PNG images when asked for, and absent otherwise."""
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+    from tensorboard.plugins.custom_scalar import layout_pb2, metadata
 
     from torchtea.studies.tblog import log_study
 
     res = run_study(Study(TRUTH, get_preset("paper-example1"), realisations=3, seed=1))
-    log_study(tmp_path / "run", res, summarise(res), {"realisations": 3}, max_points=20)
-    ea = EventAccumulator(str(tmp_path / "run"), size_guidance={"images": 0})
+    log_study(tmp_path / "run", res, summarise(res), {"realisations": 3}, max_points=20, figures=True)
+    log_study(tmp_path / "plain", res, summarise(res), {"realisations": 3}, max_points=20)
+    ea = EventAccumulator(str(tmp_path / "run"), size_guidance={"images": 0, "tensors": 0})
     ea.Reload()
     assert {"figures/order_fan", "figures/param_fan"} <= set(ea.Tags()["images"])
     img = ea.Images("figures/order_fan")[0]
     assert img.encoded_image_string[:8] == b"\x89PNG\r\n\x1a\n" and img.width > 100
+    plain = EventAccumulator(str(tmp_path / "plain"), size_guidance={"images": 0, "tensors": 0})
+    plain.Reload()
+    assert not plain.Tags()["images"]
+    layout = layout_pb2.Layout()
+    layout.ParseFromString(plain.Tensors(metadata.CONFIG_SUMMARY_TAG)[0].tensor_proto.string_val[0])
+    margins = [c.margin for cat in layout.category for c in cat.chart if c.HasField("margin")]
+    assert [(m.series[0].value, m.series[0].lower, m.series[0].upper) for m in margins][:2] == [
+        ("order/q50", "order/q05", "order/q95"), ("order/q50", "order/q25", "order/q75")]
+    logged = set(plain.Tags()["scalars"])
+    assert all({s.value, s.lower, s.upper} <= logged for m in margins for s in m.series)
 
 
 @pytest.mark.slow

@@ -110,7 +110,7 @@ class FastTEA:
                          lo, hi, float(cfg.divergence_limit), float(cfg.kfo.delta), float(cfg.kfw.delta),
                          wm_o, wc_o, sc_o, wm_w, wc_w, sc_w,
                          kind, xl, pl, H, ka, kb, float(np.abs(kb[:-1]).max(initial=0.0)), decay, inject, eta, klo, khi,
-                         klo if kind == 1 else -math.inf, khi if kind == 1 else math.inf, *_lag_tables(horizon if kind == 0 else 1))
+                         klo if kind == 1 else -math.inf, khi if kind == 1 else math.inf, *_lag_tables(horizon if kind == 0 else max(xl, pl)))
         # the carry after step 0 (tea._first_step) and its history
         self.state = [np.array(t.reshape(B, -1)[:, 0].numpy(), dtype=np.float64) for t in carry[:-1]]
         self.div = np.array(carry.diverged.reshape(B).numpy(), dtype=np.bool_)

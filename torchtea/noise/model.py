@@ -25,6 +25,7 @@ from dataclasses import dataclass, field
 import torch
 from torch import Tensor
 
+from ..core.gl import broadcast_shapes
 from ..core.memory import MemoryConfig, SOEKernel, kernel_for, parse_memory
 from .components import COMPONENTS, ORDER_BOUNDS, Component, LowPass, logit
 
@@ -145,7 +146,7 @@ class NoiseModel:
             if missing:
                 raise ValueError(f"model {self.spec!r} needs values for {missing}")
             out = {n: torch.as_tensor(values[n], dtype=torch.float64) for n in self.names}
-            shape = torch.broadcast_shapes(*(v.shape for v in out.values()))
+            shape = broadcast_shapes(*(v.shape for v in out.values()))
             shape = shape if len(shape) else (1,)
             return {n: v.expand(shape).reshape(-1) for n, v in out.items()}
         m = torch.as_tensor(values, dtype=torch.float64)

@@ -63,7 +63,10 @@ def fan_figure(path, t, truth, runs, *, ylabel, title=""):
     Saves to ``path`` and returns it; with ``path=None`` returns the open matplotlib figure instead
     (e.g. for TensorBoard's ``add_figure``, which closes it)."""
     plt = pyplot()
-    q = np.nanquantile(runs, [0.05, 0.25, 0.5, 0.75, 0.95], axis=0)
+    import torch  # numpy's nanquantile loops over the columns in Python (3000 calls for 3000 steps); torch's is one sort
+
+    q = torch.nanquantile(torch.as_tensor(np.asarray(runs, dtype=np.float64)),
+                          torch.tensor([0.05, 0.25, 0.5, 0.75, 0.95], dtype=torch.float64), dim=0).numpy()
     fig, ax = plt.subplots(figsize=(9, 3.5))
     ax.fill_between(t, q[0], q[4], color="C0", alpha=0.2, lw=0, label="5–95 %")
     ax.fill_between(t, q[1], q[3], color="C0", alpha=0.4, lw=0, label="25–75 %")

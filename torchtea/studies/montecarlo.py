@@ -80,12 +80,19 @@ def draw_realisation(truth: Truth, seed: int, index: int, dtype=torch.float64):
     return u, z_w, z_v
 
 
-def auto_chunk(n_steps: int, budget_bytes: float = 2e9) -> int:
+def auto_chunk(n_steps: int, budget_bytes: float | None = None, device=None) -> int:
     """Realisations per batch so that one chunk's tensors stay within ``budget_bytes``.
 
     Per realisation and step the TEA keeps ~16 float64 values (outputs and histories) and builds ~6 lag
     coefficients per step transiently; the study keeps ~8 trajectories: ~30·N·8 bytes of N-length data.
+    Default budget: on the CPU 256 MB — the chunks' memory is reused, where fresh pages cost their first touch
+    (12 µs per 4 kB page in this project's sandboxed machines: a 1000 × 3000 study in one chunk spent ~1 s
+    there); on a GPU half its memory, since there the step's cost hardly grows with the batch.
     """
+    if budget_bytes is None:
+        dev = torch.device(device or "cpu")
+        budget_bytes = (0.5 * torch.cuda.get_device_properties(dev).total_memory if dev.type == "cuda"
+                        else 2.56e8)
     per = 30 * n_steps * 8 + 6 * n_steps * 8
     return max(1, int(budget_bytes // per))
 
@@ -118,10 +125,13 @@ def run_study(study: Study, *, progress=None, device=None) -> StudyResult:
     device = torch.device(device or "cpu")
     tr = study.truth
     R, N = study.realisations, tr.n_steps
-    chunk = study.chunk or auto_chunk(N)
+    chunk = study.chunk or auto_chunk(N, device=device)
     schedule = tr.schedule()
     params = make_params(study.estimator, Structure(), device=device)
-    parts: dict = {k: [] for k in ("alpha_true", "alpha", "P_alpha", "w", "P_w", "nees", "nis", "diverged")}
+    # the trajectories, allocated once and filled chunk by chunk: a chunk's TEA outputs are freed (and their
+    # memory reused) as soon as its rows are copied, and no final concatenation copies everything again
+    traj = {k: torch.empty(R, N, dtype=torch.float64) for k in ("alpha_true", "alpha", "P_alpha", "w", "P_w", "nees", "nis")}
+    diverged = torch.zeros(R, dtype=torch.bool)
     done = 0
     interrupted = False
     try:
@@ -135,24 +145,20 @@ def run_study(study: Study, *, progress=None, device=None) -> StudyResult:
                            process_noise=tr.q, measurement_noise=tr.r, inputs=u, standard_draws=(z_w, z_v),
                            memory=tr.memory, device=device)
             res = run_tea(sim.y, h=tr.h, params=params, inputs=u)
-            parts["alpha_true"].append(sim.alpha[..., 0].cpu())
-            parts["alpha"].append(res.alpha[..., 0].cpu())
-            parts["P_alpha"].append(res.P_alpha[..., 0, 0].cpu())
-            parts["w"].append(res.w[..., 0].cpu())
-            parts["P_w"].append(res.P_w[..., 0, 0].cpu())
-            parts["nees"].append(nees(res.x, sim.x, res.P).cpu())
-            parts["nis"].append(nis(res.innovation, res.innovation_cov).cpu())
-            parts["diverged"].append(res.diverged.cpu())
+            rows = slice(idx.start, idx.stop)
+            for name, value in (("alpha_true", sim.alpha[..., 0]), ("alpha", res.alpha[..., 0]),
+                                ("P_alpha", res.P_alpha[..., 0, 0]), ("w", res.w[..., 0]), ("P_w", res.P_w[..., 0, 0]),
+                                ("nees", nees(res.x, sim.x, res.P)), ("nis", nis(res.innovation, res.innovation_cov))):
+                traj[name][rows] = value  # copied to the CPU
+            diverged[rows] = res.diverged
+            del sim, res
             done = idx.stop
             if progress is not None:
                 progress(done, R)
     except KeyboardInterrupt:
         interrupted = True
-    if done == 0:
-        empty = torch.empty(0, N, dtype=torch.float64)
-        cat = {k: (torch.empty(0, dtype=torch.bool) if k == "diverged" else empty) for k in parts}
-    else:
-        cat = {k: torch.cat(v) for k, v in parts.items()}
+    cat = {k: v[:done] for k, v in traj.items()}
+    cat["diverged"] = diverged[:done]
     t = torch.arange(N, dtype=torch.float64) * tr.h
     return StudyResult(study=study, t=t, finished=done, interrupted=interrupted, **cat)
 
@@ -166,12 +172,14 @@ def summarise(result: StudyResult) -> dict:
            "diverged": int(result.diverged.sum()),
            "diverged_fraction": float(result.diverged.double().mean()) if result.finished else math.nan,
            "excluded_from_statistics": "diverged realisations"}
-    truth_w = torch.full_like(result.w, tr.param)
+    truth_w = torch.tensor(tr.param, dtype=result.w.dtype).expand_as(result.w)
+    # the kept realisations: views when none diverged (a boolean index would copy every trajectory)
+    kept_rows = (lambda t: t) if bool(keep.all()) else (lambda t: t[keep])  # noqa: E731
     for name, est, truth, var, tol in (("order", result.alpha, result.alpha_true, result.P_alpha, st.order_tolerance),
                                        ("param", result.w, truth_w, result.P_w, st.param_tolerance)):
         final = over_realisations(est[:, -1:, None], truth[:, -1:, None], keep)
-        ct = convergence_time(est[keep].unsqueeze(-1), truth[keep].unsqueeze(-1), tol, tr.h)[:, 0]
-        cov = coverage(est[keep], truth[keep], var[keep])
+        ct = convergence_time(kept_rows(est).unsqueeze(-1), kept_rows(truth).unsqueeze(-1), tol, tr.h)[:, 0]
+        cov = coverage(kept_rows(est), kept_rows(truth), kept_rows(var))
         entry = {k: float(final[k][0, 0]) for k in ("mean", "bias", "std", "rmse")}
         entry["quantiles"] = {f"{int(q * 100)}%": float(v) for q, v in zip((0.05, 0.25, 0.5, 0.75, 0.95),
                                                                            final["quantiles"][:, 0, 0])}
@@ -184,7 +192,7 @@ def summarise(result: StudyResult) -> dict:
         out[name] = entry
     if kept:
         lo, hi = chi2_band(1, kept)
-        for name, series in (("nees", result.nees[keep]), ("nis", result.nis[keep])):
+        for name, series in (("nees", kept_rows(result.nees)), ("nis", kept_rows(result.nis))):
             avg = series[:, 1:].mean(0)
             out[name] = {"mean": float(avg.mean()), "band_95": [lo, hi],
                          "fraction_of_steps_inside_band": float(((avg >= lo) & (avg <= hi)).double().mean())}
@@ -244,11 +252,12 @@ def build_study(data: dict, flags: dict | None = None, *, memory=None, source: s
 
 
 def save_study(logdir, study: Study, preset: str, result: StudyResult | None = None,
-               summary: dict | None = None) -> Path:
+               summary: dict | None = None, *, figures: bool = False) -> Path:
     """The one writer of a study's run directory. Without ``result``: ``study.toml`` (the study, reloadable by
     ``torchtea montecarlo --config``) and ``estimator.toml``, before the run, so an interrupted run still says
     what it was. With ``result`` and ``summary``: ``final_estimates.csv`` (one row per finished realisation)
-    and the TensorBoard event files (:func:`~torchtea.studies.tblog.log_study`)."""
+    and the TensorBoard event files (:func:`~torchtea.studies.tblog.log_study`; ``figures``: with the matplotlib
+    fan charts)."""
     from ..engines.config import dumps_toml, write_config
     from ..sensors.io import write_columns
     from .tblog import log_study
@@ -275,5 +284,5 @@ def save_study(logdir, study: Study, preset: str, result: StudyResult | None = N
     hp = {"realisations": result.finished, "seed": study.seed, "preset": preset, "order": tr.order,
           "param": tr.param, "q": tr.q, "r": tr.r, "h": tr.h, "n": tr.n_steps,
           "input_std": tr.input_std if tr.input_std is not None else 0.0, "truth_memory": tr.memory}
-    log_study(logdir, result, summary, hp)
+    log_study(logdir, result, summary, hp, figures=figures)
     return logdir

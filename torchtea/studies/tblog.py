@@ -16,25 +16,27 @@ def decimated_steps(N: int, max_points: int):
     return list(range(0, N, stride))
 
 
-def log_study(logdir, result, summary: dict, hparams: dict, *, max_points: int = 1000) -> Path:
+def log_study(logdir, result, summary: dict, hparams: dict, *, max_points: int = 1000, figures: bool = False) -> Path:
     """Write one run directory of event files for a study.
 
     Scalars (x axis: sample index k, decimated to ≤ ``max_points``): ``order/{truth,mean,q05…q95,rmse}``,
-    ``param/{…}``, ``consistency/{nees,nis,band_lo,band_hi}``; histograms ``final/order``, ``final/param``;
-    figures ``figures/{order,param}_fan`` (quantile fan charts); text ``summary``; hparams (study settings → final metrics, tags ``metric/…``) so that several studies
-    can be compared side by side in TensorBoard's HParams view.
+    ``param/{…}``, ``consistency/{nees,nis,band_lo,band_hi}``; the fan charts as TensorBoard's own margin charts
+    (CUSTOM SCALARS tab: the median with the 5–95 % and 25–75 % bands, truth against mean, NEES/NIS in their
+    band); histograms ``final/order``, ``final/param``; text ``summary``; hparams (study settings → final
+    metrics, tags ``metric/…``) so that several studies can be compared side by side in the HParams view.
+    ``figures``: also the matplotlib fan charts as images ``figures/{order,param}_fan`` (≈1.5 s: pyplot's
+    import and two renderings).
     """
     from torch.utils.tensorboard import SummaryWriter
     from torch.utils.tensorboard.summary import hparams as hparams_summary
-
-    from ..reports.plots import fan_figure
 
     logdir = Path(logdir)
     keep = ~result.diverged
     N = result.t.shape[0]
     steps = decimated_steps(N, max_points)
     with SummaryWriter(log_dir=str(logdir)) as w:
-        truth_w = torch.full_like(result.w, result.study.truth.param)
+        truth_w = torch.tensor(result.study.truth.param, dtype=result.w.dtype).expand_as(result.w)
+        series = []  # (columns, steps), written together at the end: one event per step
         for name, est, truth in (("order", result.alpha, result.alpha_true), ("param", result.w, truth_w)):
             # statistics only at the logged steps
             st = over_realisations(est[:, steps].unsqueeze(-1), truth[:, steps].unsqueeze(-1), keep)
@@ -43,9 +45,12 @@ def log_study(logdir, result, summary: dict, hparams: dict, *, max_points: int =
                 cols[f"{name}/mean"], cols[f"{name}/rmse"] = st["mean"][:, 0], st["rmse"][:, 0]
                 for q, v in zip(QUANTILES, st["quantiles"][:, :, 0]):
                     cols[f"{name}/q{int(round(q * 100)):02d}"] = v
-            _scalars(w, cols, steps)
+            series.append((cols, steps))
             if st["count"]:
                 w.add_histogram(f"final/{name}", est[keep, -1], 0)
+            if st["count"] and figures:
+                from ..reports.plots import fan_figure
+
                 label = "order α̂" if name == "order" else "parameter ŵ"
                 w.add_figure(f"figures/{name}_fan", fan_figure(
                     None, result.t.numpy(), truth[0].numpy(), est[keep].numpy(), ylabel=label,
@@ -55,8 +60,10 @@ def log_study(logdir, result, summary: dict, hparams: dict, *, max_points: int =
             nis_avg = result.nis[keep].mean(0)
             lo, hi = summary["nees"]["band_95"]
             at = steps[1:] if len(steps) > 1 else steps
-            _scalars(w, {"consistency/nees": nees_avg[at], "consistency/nis": nis_avg[at],
-                         "consistency/band_lo": [lo] * len(at), "consistency/band_hi": [hi] * len(at)}, at)
+            series.append(({"consistency/nees": nees_avg[at], "consistency/nis": nis_avg[at],
+                            "consistency/band_lo": [lo] * len(at), "consistency/band_hi": [hi] * len(at)}, at))
+        _scalars(w, series)
+        w.add_custom_scalars(fan_layout())
         w.add_text("summary", _markdown(summary), 0)
         metrics = {"metric/order_rmse": summary["order"]["rmse"], "metric/order_bias": summary["order"]["bias"],
                    "metric/param_rmse": summary["param"]["rmse"], "metric/param_bias": summary["param"]["bias"],
@@ -69,15 +76,30 @@ def log_study(logdir, result, summary: dict, hparams: dict, *, max_points: int =
     return logdir
 
 
-def _scalars(w, cols: dict, steps) -> None:
-    """Scalar series ``{tag: values at steps}`` as one event per step holding every tag (what ``add_scalar`` writes,
-    one value per tag, without an event and a Python call per value)."""
+def fan_layout() -> dict:
+    """The CUSTOM SCALARS layout of a study: margin charts (a line within a band) over the logged quantiles."""
+    layout = {}
+    for name in ("order", "param"):
+        layout[name] = {f"{name}: median, 5–95 % of realisations": ["Margin", [f"{name}/q50", f"{name}/q05", f"{name}/q95"]],
+                        f"{name}: median, 25–75 %": ["Margin", [f"{name}/q50", f"{name}/q25", f"{name}/q75"]],
+                        f"{name}: truth and mean": ["Multiline", [f"{name}/truth", f"{name}/mean"]]}
+    layout["consistency"] = {"NEES and NIS (means over realisations) and the 95 % band": [
+        "Multiline", ["consistency/nees", "consistency/nis", "consistency/band_lo", "consistency/band_hi"]]}
+    return layout
+
+
+def _scalars(w, series) -> None:
+    """Scalar series ``[({tag: values at steps}, steps), …]`` as one event per step holding every tag logged at that
+    step (what ``add_scalar`` writes, one value per tag, without an event and a Python call per value)."""
     from tensorboard.compat.proto.summary_pb2 import Summary
 
-    cols = {tag: [float(v) for v in vals] for tag, vals in cols.items()}
-    for i, k in enumerate(steps):
-        w.file_writer.add_summary(Summary(value=[Summary.Value(tag=tag, simple_value=vals[i])
-                                                 for tag, vals in cols.items()]), int(k))
+    at: dict = {}
+    for cols, steps in series:
+        for tag, vals in cols.items():
+            for k, v in zip(steps, vals):
+                at.setdefault(int(k), []).append(Summary.Value(tag=tag, simple_value=float(v)))
+    for k in sorted(at):
+        w.file_writer.add_summary(Summary(value=at[k]), k)
 
 
 def _markdown(summary: dict) -> str:

@@ -101,7 +101,7 @@ def main():
                         "realisations_differing_1e-6": int(((out.alpha.cpu() - ref.alpha).abs().amax(dim=(1, 2)) > 1e-6).sum())})
         rows.append(row)
         print(row, flush=True)
-        del sim, out
+        sim = out = None  # free the device memory before the next size
         if dev.type == "cuda":
             torch.cuda.empty_cache()
     res["tea"] = rows

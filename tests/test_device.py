@@ -121,3 +121,39 @@ def test_vectorised_exp_against_libm():
     tiny, ib1 = np.empty(2), np.empty(2, np.int64)
     vexp(np.array([-745.0, -1e4]), tiny, ib1, ib1.view(np.float64), 2)
     assert np.all((tiny > 0) & (tiny <= math.exp(-708.0) * 1.0000001))  # e^−708 at most: no sum here can tell it from 0
+
+
+def test_cli_device_options(tmp_path, capsys):
+    """simulate and identify take --device: cpu gives the default's numbers, a missing accelerator or a --model
+    simulation off the CPU is one clear error naming the option, before anything is written."""
+    from torchtea.cli import main
+
+    flags = ["simulate", "--n", "200", "--h", "0.01", "--order", "0.4", "--param", "-4", "--q", "0.01", "--r", "4e-4",
+             "--seed", "3", "--memory", "soe"]
+    assert main(flags + ["--out", str(tmp_path / "a.csv")]) == 0
+    assert main(flags + ["--device", "cpu", "--out", str(tmp_path / "b.csv")]) == 0
+    assert (tmp_path / "a.csv").read_text() == (tmp_path / "b.csv").read_text()
+    capsys.readouterr()
+    assert main(["simulate", "--model", "fractional+white", "--n", "100", "--h", "0.01", "--device", "cuda",
+                 "--out", str(tmp_path / "c.csv")]) == 2
+    assert "--model simulations run on the CPU" in capsys.readouterr().err and not (tmp_path / "c.csv").exists()
+    if not torch.cuda.is_available():
+        assert main(flags + ["--device", "cuda", "--out", str(tmp_path / "d.csv")]) == 2
+        assert "--device cuda: no CUDA device" in capsys.readouterr().err and not (tmp_path / "d.csv").exists()
+        assert main(["identify", "--samples", "200", "--r", "measured", "--no-plots", "--device", "cuda",
+                     "--out", str(tmp_path / "id")]) == 2
+        assert "--device cuda: no CUDA device" in capsys.readouterr().err and not (tmp_path / "id").exists()
+
+
+@pytest.mark.parametrize("device", DEVICES)
+def test_identify_on_the_device(device):
+    """identify's TEA on the device gives the CPU's estimates (the report reads them back on the CPU)."""
+    from torchtea.reports.identify import identify
+    from torchtea.sensors.io import read_recording
+
+    rec = read_recording()  # the bundled recording
+    cpu = identify(rec, n_samples=400, r_mode="measured")
+    dev = identify(rec, n_samples=400, r_mode="measured", device=device)
+    assert dev.result.alpha.device.type == "cpu"
+    torch.testing.assert_close(dev.result.alpha, cpu.result.alpha, rtol=1e-9, atol=1e-11)
+    torch.testing.assert_close(dev.result.w, cpu.result.w, rtol=1e-9, atol=1e-11)

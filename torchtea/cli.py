@@ -161,6 +161,9 @@ def cmd_simulate(args) -> int:
     import torch
 
     if args.model is not None:
+        if args.device not in (None, "cpu"):
+            raise CLIError(f"--device {args.device}: --model simulations run on the CPU (the noise-model "
+                           "components are simulated by numpy); the paper's model runs on any device")
         return _simulate_model(args)
     absent = [f"--{n}" for n in ("order", "param", "q", "r") if getattr(args, n) is None]
     if absent:
@@ -174,8 +177,14 @@ def cmd_simulate(args) -> int:
         order = parse_order_spec(args.order)
     except ValueError as exc:
         raise CLIError(str(exc)) from None
+    dev = _device(args.device)  # before any work
     sim = simulate_noise_model(n_steps=args.n, h=args.h, order=order, param=args.param, q=args.q, r=args.r,
-                               input_std=args.input_std, seed=args.seed, memory=_memory(args.memory) or "exact")
+                               input_std=args.input_std, seed=args.seed, memory=_memory(args.memory) or "exact",
+                               device=dev)
+    if dev.type != "cpu":
+        from dataclasses import fields, replace
+
+        sim = replace(sim, **{f.name: getattr(sim, f.name).cpu() for f in fields(sim)})
     out = write_columns(args.out, {"t": sim.t, "u": sim.u[:, 0], "x": sim.x[:, 0], "y": sim.y[:, 0],
                                    "alpha": sim.alpha[:, 0]})
     if not bool(torch.isfinite(sim.x).all()):
@@ -505,6 +514,7 @@ def cmd_identify(args) -> int:
     from .reports.identify import identify
     from .reports.report import save_identification
 
+    dev = _device(args.device)  # before any work
     rec, n = _read_accel(args)
     overrides, config_source, memory_kind = _identify_overrides(args)
     total = min(n or len(rec.accel_counts), len(rec.accel_counts))
@@ -515,7 +525,7 @@ def cmd_identify(args) -> int:
     step, close = _progress(total - 1, "TEA x,y,z", bar=not args.json)
     t0 = time.perf_counter()
     ident = identify(rec, n_samples=n, r_mode=args.r, overrides=overrides, progress=step, compile=args.compile,
-                     allow_missing=args.allow_missing, partial=True)
+                     allow_missing=args.allow_missing, partial=True, device=dev)
     elapsed = time.perf_counter() - t0
     close()
     out_dir = Path(args.out) if args.out else Path(f"identify-{Path(rec.path).stem}")
@@ -718,6 +728,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--input-std", type=_nonneg_float, help="known input u ~ N(0, S²) (zero when absent)")
     s.add_argument("--seed", type=int, default=0)
     s.add_argument("--memory", help=MEMORY_HELP)
+    s.add_argument("--device", help="torch device of the paper model's recursion: cpu (default), cuda or cuda:N "
+                                    "(the same seeded draws; --model runs on the CPU)")
     s.add_argument("--out", required=True, help="output CSV (t,u,x,y,alpha)")
     s.set_defaults(func=cmd_simulate)
 
@@ -757,6 +769,8 @@ def build_parser() -> argparse.ArgumentParser:
     i.add_argument("--no-plots", action="store_true")
     i.add_argument("--memory", help=MEMORY_HELP)
     i.add_argument("--compile", action="store_true", help=COMPILE_HELP)
+    i.add_argument("--device", help=DEVICE_HELP + "; the --r fitted noise-level fit runs on the CPU whatever the "
+                                                  "device (its exact Kalman filter is compiled for the CPU)")
     i.add_argument("--json", action="store_true", help="print a JSON summary")
     i.set_defaults(func=cmd_identify)
 

@@ -224,13 +224,20 @@ def _simulate_compiled(x, hpow, w, u, omega, alpha, constant, coeff, weights, ke
 
 
 def simulate_noise_model(*, n_steps: int, h: float, order: OrderSchedule, param: float, q: float, r: float,
-                         input_std: float | None = None, seed: int = 0, memory="exact") -> Simulation:
+                         input_std: float | None = None, seed: int = 0, memory="exact", device=None) -> Simulation:
     """One realisation of the paper's scalar noise model (43)–(45) from one seed.
 
     The known input ``u ~ N(0, input_std²)`` is drawn first (none when ``input_std`` is None), then ω, then ν,
-    all from ``torch.Generator().manual_seed(seed)`` — exactly what ``torchtea simulate --seed`` writes.
+    all from ``torch.Generator().manual_seed(seed)`` — exactly what ``torchtea simulate --seed`` writes. On another
+    ``device`` the draws are the same (made on the CPU) and the recursion runs there; the result stays there.
     """
     g = torch.Generator().manual_seed(seed)
     u = None if input_std is None else gaussian_input((), n_steps, 1, input_std, generator=g)
+    if device is not None and torch.device(device).type != "cpu":
+        # the same draws, from the CPU generator in simulate's order (ω, then ν); the recursion on the device
+        draws = tuple(torch.randn(n_steps, 1, generator=g, dtype=torch.float64).to(device) for _ in range(2))
+        return simulate(Structure(), n_steps=n_steps, h=h, order=order, parameters=[param], process_noise=q,
+                        measurement_noise=r, inputs=None if u is None else u.to(device), standard_draws=draws,
+                        memory=memory, device=device)
     return simulate(Structure(), n_steps=n_steps, h=h, order=order, parameters=[param], process_noise=q,
                     measurement_noise=r, inputs=u, generator=g, memory=memory)

@@ -536,6 +536,13 @@ class TEAResult:
     memory_clamped: Tensor | None = None
     interrupted: bool = False
 
+    def to(self, device) -> "TEAResult":
+        """The same result with every tensor on ``device`` (e.g. back to the CPU for a report)."""
+        from dataclasses import fields
+
+        return replace(self, **{f.name: getattr(self, f.name).to(device) for f in fields(self)
+                                if isinstance(getattr(self, f.name), Tensor)})
+
 
 _OUTPUT_NAMES = ("x", "P", "alpha", "P_alpha", "Q_alpha", "w", "P_w", "Q_w", "innovation", "innovation_cov")
 

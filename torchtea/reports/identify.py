@@ -152,7 +152,7 @@ def axis_configs(y: torch.Tensor, r_mode: str = "measured", overrides: dict | No
 
 def identify(recording: Recording, *, n_samples: int | None = None, r_mode: str = "fitted",
              overrides: dict | None = None, progress=None, compile: bool = False, allow_missing: bool = False,
-             partial: bool = False) -> Identification:
+             partial: bool = False, device=None) -> Identification:
     """Run the TEA on the three accelerometer axes of a recording as one batch.
 
     Parameters
@@ -174,6 +174,10 @@ def identify(recording: Recording, *, n_samples: int | None = None, r_mode: str 
         predict through them (the policy of :mod:`torchtea.sensors.datacheck`).
     partial : bool
         On Ctrl-C keep the steps that finished (``result.interrupted``) instead of raising.
+    device : torch device, optional
+        Where the TEA runs (default the CPU, where the scalar model takes the compiled engine; elsewhere the torch
+        engine). The noise-level fit of ``r_mode="fitted"`` runs on the CPU whatever the device (its exact
+        Kalman filter is compiled for the CPU); the result comes back to the CPU.
     """
     acc = recording.accel_ms2()
     if n_samples is not None:
@@ -201,7 +205,8 @@ def identify(recording: Recording, *, n_samples: int | None = None, r_mode: str 
     configs = axis_configs(y, r_mode, overrides, fits)
     changes = tuple(axis_changes(axis_configs(y, r_mode, None, fits), configs))
     params = stack_params([make_params(c, Structure()) for c in configs])
-    result = run_tea(y, h=recording.h, params=params, progress=progress, compile=compile, partial=partial)
+    result = run_tea(y.to(device or "cpu"), h=recording.h, params=params, progress=progress, compile=compile,
+                     partial=partial).to("cpu")
     return Identification(recording, recording.h, y, means, configs, result, missing, timing, changes, fits)
 
 

@@ -385,7 +385,7 @@ def cmd_estimate(args) -> int:
     t0 = time.perf_counter()
     res = run_tea(y.unsqueeze(0).to(dev), h=h, params=make_params(cfg, Structure()),
                   inputs=None if u is None else u.unsqueeze(0).to(dev), progress=step, compile=args.compile, partial=True)
-    res = type(res)(**{f: (v.cpu() if isinstance(v, torch.Tensor) else v) for f, v in vars(res).items()})
+    res = res.to("cpu")
     elapsed = time.perf_counter() - t0
     close()
     done = int(res.alpha.shape[-2])

@@ -34,7 +34,6 @@ def broadcast_shapes(*shapes) -> torch.Size:
     return torch.Size(np.broadcast_shapes(*(tuple(int(d) for d in s) for s in shapes)))
 
 
-
 def _lag_constants(n: int, dtype, device):
     """``(1 − 1/j, −1/j)`` for ``j = 1 … n``, cached per dtype and device (sliced from the longest built)."""
     key = (dtype, str(device))

@@ -20,7 +20,7 @@ import math
 import numpy as np
 import torch
 
-__all__ = ["fast_path_reason", "run_tea_fast", "BLOCK"]
+__all__ = ["fast_path_reason", "use_compiled", "run_tea_fast", "BLOCK"]
 
 #: Steps per compiled call (progress and Ctrl-C are handled between calls).
 BLOCK = 256
@@ -46,6 +46,19 @@ def fast_path_reason(structure, dtype, device, compile: bool = False, requires_g
     if requires_grad:
         return "the data or parameters require gradients (numpy arrays cannot carry them)"
     return None
+
+
+def use_compiled(engine: str, structure, dtype, device, compile: bool = False, requires_grad: bool = False) -> bool:
+    """Whether ``engine`` (``"auto"``, ``"torch"`` or ``"numba"``, as in :func:`~.tea.run_tea`) means the compiled
+    engine for this problem; ``"numba"`` where it cannot run is a ``ValueError`` saying why."""
+    if engine not in ("auto", "torch", "numba"):
+        raise ValueError(f"engine must be 'auto', 'torch' or 'numba', got {engine!r}")
+    if engine == "torch":
+        return False
+    reason = fast_path_reason(structure, dtype, device, compile, requires_grad)
+    if engine == "numba" and reason is not None:
+        raise ValueError(f"engine='numba' cannot run this problem: {reason}")
+    return reason is None
 
 
 def _kernel():

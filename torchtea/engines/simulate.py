@@ -183,16 +183,15 @@ def simulate(
         grad = any(t.requires_grad for t in (w, alpha, omega, u, x))
         if lags >= 1 and fast_path_reason(structure, dtype, x.device, False, grad) is None:
             _simulate_compiled(x, hpow, w.expand(batch + (1,)), u, omega, alpha, constant, coeff, weights, kernel, lags)
-            y = x @ C.mT + nu
-            t = torch.arange(n_steps, dtype=dtype, device=device) * h
-            return Simulation(t=t, u=u, x=x, y=y, alpha=alpha, process_noise=omega, measurement_noise=nu)
-        past = BoundedHistory.zeros(batch, n, lags, modes, dtype=dtype, device=device).push(x[..., 0, :], decay, inject)
-        for k in range(n_steps - 1):
-            a = alpha[..., k + 1, :]
-            c = coeff if constant else gl_tail_coefficients(a, lags).unsqueeze(-3)
-            memory_sum = past.sum(c, a.unsqueeze(-2), kernel, weights)[..., 0, :]
-            x[..., k + 1, :] = hpow[..., k + 1, :] * drive(k) - memory_sum
-            past = past.push(x[..., k + 1, :], decay, inject)
+        else:
+            past = BoundedHistory.zeros(batch, n, lags, modes, dtype=dtype, device=device).push(x[..., 0, :], decay,
+                                                                                                 inject)
+            for k in range(n_steps - 1):
+                a = alpha[..., k + 1, :]
+                c = coeff if constant else gl_tail_coefficients(a, lags).unsqueeze(-3)
+                memory_sum = past.sum(c, a.unsqueeze(-2), kernel, weights)[..., 0, :]
+                x[..., k + 1, :] = hpow[..., k + 1, :] * drive(k) - memory_sum
+                past = past.push(x[..., k + 1, :], decay, inject)
     y = x @ C.mT + nu
     t = torch.arange(n_steps, dtype=dtype, device=device) * h
     return Simulation(t=t, u=u, x=x, y=y, alpha=alpha, process_noise=omega, measurement_noise=nu)

@@ -609,15 +609,10 @@ class TEAStream:
         self.k = 0
         self.carry: Carry | None = None
         self._hist = None
-        from .fast import fast_path_reason
+        from .fast import use_compiled
 
         #: the compiled scalar engine (:mod:`.fast`) where it applies; ``engine`` as in :func:`run_tea`
-        if engine not in ("auto", "torch", "numba"):
-            raise ValueError(f"engine must be 'auto', 'torch' or 'numba', got {engine!r}")
-        reason = "engine='torch'" if engine == "torch" else fast_path_reason(self.structure, dtype, device)
-        if engine == "numba" and reason is not None:
-            raise ValueError(f"engine='numba' cannot run this problem: {reason}")
-        self._fast = reason is None
+        self._fast = use_compiled(engine, self.structure, dtype, device)
         self._engine = None
 
     def step(self, y_k: Tensor, u_prev: Tensor | None = None) -> tuple[Carry, StepOutput]:
@@ -739,19 +734,12 @@ def run_tea(
         inputs = inputs.expand(batch + (N, structure.n_inputs))
 
     carry, first = _first_step(model, params, y[..., 0, :], batch)
-    if engine not in ("auto", "torch", "numba"):
-        raise ValueError(f"engine must be 'auto', 'torch' or 'numba', got {engine!r}")
-    if engine != "torch":
-        from .fast import fast_path_reason, run_tea_fast
+    from .fast import run_tea_fast, use_compiled
 
-        grad = y.requires_grad or (inputs is not None and inputs.requires_grad) or any(
-            t.requires_grad for t in params[:-1])
-        reason = fast_path_reason(structure, y.dtype, y.device, compile, grad)
-        if reason is None:
-            return run_tea_fast(y, h=h, params=params, inputs=inputs, progress=progress, record_every=every,
-                                partial=partial, batch=batch, memory=memory, first=(carry, first))
-        if engine == "numba":
-            raise ValueError(f"engine='numba' cannot run this problem: {reason}")
+    grad = y.requires_grad or (inputs is not None and inputs.requires_grad) or any(t.requires_grad for t in params[:-1])
+    if use_compiled(engine, structure, y.dtype, y.device, compile, grad):
+        return run_tea_fast(y, h=h, params=params, inputs=inputs, progress=progress, record_every=every,
+                            partial=partial, batch=batch, memory=memory, first=(carry, first))
     # per-step outputs, preallocated (rows k = 0, every, 2·every, …)
     n_out = (N - 1) // every + 1
     events = ((n,), (n, n), (L,), (L, L), (L, L), (m,), (m, m), (m, m), (p,), (p, p))

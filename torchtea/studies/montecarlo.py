@@ -114,6 +114,11 @@ class StudyResult:
     finished: int
     interrupted: bool = False
 
+    @property
+    def w_true(self) -> Tensor:
+        """The true parameter as a trajectory of ``w``'s shape (a broadcast view, no copy)."""
+        return torch.tensor(self.study.truth.param, dtype=self.w.dtype).expand_as(self.w)
+
 
 def run_study(study: Study, *, progress=None, device=None) -> StudyResult:
     """Run a study chunk by chunk; Ctrl-C between or during chunks keeps the finished chunks.
@@ -172,11 +177,10 @@ def summarise(result: StudyResult) -> dict:
            "diverged": int(result.diverged.sum()),
            "diverged_fraction": float(result.diverged.double().mean()) if result.finished else math.nan,
            "excluded_from_statistics": "diverged realisations"}
-    truth_w = torch.tensor(tr.param, dtype=result.w.dtype).expand_as(result.w)
     # the kept realisations: views when none diverged (a boolean index would copy every trajectory)
     kept_rows = (lambda t: t) if bool(keep.all()) else (lambda t: t[keep])  # noqa: E731
     for name, est, truth, var, tol in (("order", result.alpha, result.alpha_true, result.P_alpha, st.order_tolerance),
-                                       ("param", result.w, truth_w, result.P_w, st.param_tolerance)):
+                                       ("param", result.w, result.w_true, result.P_w, st.param_tolerance)):
         final = over_realisations(est[:, -1:, None], truth[:, -1:, None], keep)
         ct = convergence_time(kept_rows(est).unsqueeze(-1), kept_rows(truth).unsqueeze(-1), tol, tr.h)[:, 0]
         cov = coverage(kept_rows(est), kept_rows(truth), kept_rows(var))

@@ -4,8 +4,6 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-import torch
-
 from ..core.stats import QUANTILES, over_realisations
 
 __all__ = ["log_study", "decimated_steps"]
@@ -35,9 +33,8 @@ def log_study(logdir, result, summary: dict, hparams: dict, *, max_points: int =
     N = result.t.shape[0]
     steps = decimated_steps(N, max_points)
     with SummaryWriter(log_dir=str(logdir)) as w:
-        truth_w = torch.tensor(result.study.truth.param, dtype=result.w.dtype).expand_as(result.w)
         series = []  # (columns, steps), written together at the end: one event per step
-        for name, est, truth in (("order", result.alpha, result.alpha_true), ("param", result.w, truth_w)):
+        for name, est, truth in (("order", result.alpha, result.alpha_true), ("param", result.w, result.w_true)):
             # statistics only at the logged steps
             st = over_realisations(est[:, steps].unsqueeze(-1), truth[:, steps].unsqueeze(-1), keep)
             cols = {f"{name}/truth": truth[0, steps]}

@@ -24,12 +24,14 @@ def test_realisation_seeds_distinct_and_stable():
 
 def test_chunked_equals_unchunked():
     study = Study(TRUTH, get_preset("paper-example1"), realisations=7, seed=11, chunk=None)
-    whole = run_study(study)
-    parts = run_study(Study(TRUTH, get_preset("paper-example1"), realisations=7, seed=11, chunk=3))
+    whole = run_study(study, trajectories=True)
+    parts = run_study(Study(TRUTH, get_preset("paper-example1"), realisations=7, seed=11, chunk=3), trajectories=True)
     assert whole.finished == parts.finished == 7
     for name in ("alpha_true", "alpha", "P_alpha", "w", "P_w", "nees", "nis"):
-        torch.testing.assert_close(getattr(parts, name), getattr(whole, name), rtol=1e-9, atol=1e-12)
-    assert torch.equal(parts.diverged, whole.diverged)
+        torch.testing.assert_close(parts.trajectories[name], whole.trajectories[name], rtol=1e-9, atol=1e-12)
+    assert torch.equal(parts.diverged, whole.diverged) and torch.equal(parts.index, torch.arange(7))
+    torch.testing.assert_close(parts.logged["alpha"], whole.logged["alpha"], rtol=0, atol=0)
+    torch.testing.assert_close(parts.nees_sum, whole.nees_sum, rtol=1e-12, atol=0)
     s1, s2 = summarise(whole), summarise(parts)
     assert s1["order"]["rmse"] == pytest.approx(s2["order"]["rmse"], rel=1e-9)
     assert s1["param"]["bias"] == pytest.approx(s2["param"]["bias"], rel=1e-9, abs=1e-12)
@@ -44,9 +46,10 @@ def test_truth_simulated_with_soe_by_default_agrees_with_exact():
     from torchtea.studies.montecarlo import build_study
 
     assert TRUTH.memory == "soe"
-    soe = run_study(Study(TRUTH, get_preset("paper-example1"), realisations=3, seed=5))
-    exact = run_study(Study(replace(TRUTH, memory="exact"), get_preset("paper-example1"), realisations=3, seed=5))
-    assert 0 < float((soe.alpha - exact.alpha).abs().max()) < 1e-6  # estimates on truths that differ by ~1e-9
+    soe = run_study(Study(TRUTH, get_preset("paper-example1"), realisations=3, seed=5), trajectories=True)
+    exact = run_study(Study(replace(TRUTH, memory="exact"), get_preset("paper-example1"), realisations=3, seed=5),
+                      trajectories=True)
+    assert 0 < float((soe.trajectories["alpha"] - exact.trajectories["alpha"]).abs().max()) < 1e-6  # estimates on truths that differ by ~1e-9
     study, _ = build_study({"truth": {"memory": "exact"}}, {"preset": "paper-example1"})
     assert study.truth.memory == "exact"
     with pytest.raises(ValueError, match="bad memory spec"):
@@ -55,18 +58,25 @@ def test_truth_simulated_with_soe_by_default_agrees_with_exact():
 
 def test_summary_matches_direct_statistics():
     study = Study(TRUTH, get_preset("paper-example1"), realisations=6, seed=2)
-    res = run_study(study)
-    s = summarise(res)
-    keep = ~res.diverged
-    direct = over_realisations(res.alpha[:, -1:, None], res.alpha_true[:, -1:, None], keep)
+    full = run_study(study, trajectories=True)
+    res = full.trajectories
+    s = summarise(full)
+    keep = ~full.diverged
+    direct = over_realisations(res["alpha"][:, -1:, None], res["alpha_true"][:, -1:, None], keep)
     assert s["order"]["bias"] == pytest.approx(float(direct["bias"][0, 0]))
-    assert s["order"]["std"] == pytest.approx(float(res.alpha[keep, -1].std()))
-    assert s["param"]["bias"] == pytest.approx(float((res.w[keep, -1] + 1.0).mean()))
+    assert s["order"]["std"] == pytest.approx(float(res["alpha"][keep, -1].std()))
+    assert s["param"]["bias"] == pytest.approx(float((res["w"][keep, -1] + 1.0).mean()))
     assert s["realisations"] == 6
     # ±2σ coverage: the fraction of (realisation, step) pairs whose truth lies within α̂ ± 2√Pᵒ, counted here
-    inside = (res.alpha[keep] - res.alpha_true[keep]).abs() <= 2 * res.P_alpha[keep].clamp(min=0).sqrt()
+    inside = (res["alpha"][keep] - res["alpha_true"][keep]).abs() <= 2 * res["P_alpha"][keep].clamp(min=0).sqrt()
     assert s["order"]["coverage_2sigma"] == pytest.approx(inside.double().mean().item(), rel=1e-12)
-    assert s["nees"]["mean"] == pytest.approx(res.nees[keep][:, 1:].mean().item(), rel=1e-12)
+    assert s["nees"]["mean"] == pytest.approx(res["nees"][keep][:, 1:].mean().item(), rel=1e-12)
+    # the convergence times: the last step outside the tolerance, found here by a loop
+    err = (res["alpha"] - res["alpha_true"]).abs()
+    for r in range(6):
+        outside = [k for k in range(TRUTH.n_steps) if not err[r, k] < 0.05]
+        expect = math.nan if outside and outside[-1] == TRUTH.n_steps - 1 else (outside[-1] + 1 if outside else 0) * TRUTH.h
+        assert full.converged_at["order"][r].item() == pytest.approx(expect, nan_ok=True)
     assert s["nees"]["band_95"][0] < 1.0 < s["nees"]["band_95"][1]
 
 
@@ -80,9 +90,10 @@ def test_interrupt_keeps_finished_chunks():
 
     study = Study(TRUTH, get_preset("paper-example1"), realisations=10, seed=5, chunk=2)
     res = run_study(study, progress=progress)
-    assert res.interrupted and res.finished == 4 and res.alpha.shape == (4, 150)
+    assert res.interrupted and res.finished == 4 and res.logged["alpha"].shape[0] == 4
     full = run_study(Study(TRUTH, get_preset("paper-example1"), realisations=4, seed=5, chunk=2))
-    torch.testing.assert_close(res.alpha, full.alpha, rtol=0, atol=0)
+    torch.testing.assert_close(res.final["alpha"], full.final["alpha"], rtol=0, atol=0)
+    torch.testing.assert_close(res.logged["w"], full.logged["w"], rtol=0, atol=0)
     s = summarise(res)
     assert s["interrupted"] and s["realisations"] == 4 and s["requested"] == 10
 
@@ -92,11 +103,10 @@ def test_tensorboard_event_files_read_back(tmp_path):
 
     from torchtea.studies.tblog import log_study
 
-    study = Study(TRUTH, get_preset("paper-example1"), realisations=5, seed=3)
-    res = run_study(study)
+    study = Study(TRUTH, get_preset("paper-example1"), realisations=5, seed=3, log_points=50)
+    res = run_study(study, trajectories=True)
     summary = summarise(res)
-    log_study(tmp_path / "run", res, summary, {"realisations": 5, "order": "0.35", "preset": "paper-example1"},
-              max_points=50)
+    log_study(tmp_path / "run", res, summary, {"realisations": 5, "order": "0.35", "preset": "paper-example1"})
     ea = EventAccumulator(str(tmp_path / "run"), size_guidance={"scalars": 0, "histograms": 0, "tensors": 0})
     ea.Reload()
     tags = ea.Tags()
@@ -108,7 +118,9 @@ def test_tensorboard_event_files_read_back(tmp_path):
     assert len(mean) == 50 and [e.step for e in mean[:3]] == [0, 3, 6]
     k = mean[-1].step
     keep = ~res.diverged
-    assert mean[-1].value == pytest.approx(float(res.alpha[keep, k].mean()), rel=1e-6)
+    assert mean[-1].value == pytest.approx(float(res.trajectories["alpha"][keep, k].mean()), rel=1e-6)
+    nees = ea.Scalars("consistency/nees")
+    assert nees[-1].step == k and nees[-1].value == pytest.approx(float(res.trajectories["nees"][keep, k].mean()), rel=1e-6)
     assert ea.Scalars("order/truth")[0].value == pytest.approx(0.35)
     assert ea.Scalars("metric/order_rmse")[0].value == pytest.approx(summary["order"]["rmse"], rel=1e-6)
     assert any("summary" in t for t in tags["tensors"])
@@ -168,8 +180,8 @@ def test_tensorboard_server_serves_a_scalar_series(tmp_path):
 
     from torchtea.studies.tblog import log_study
 
-    res = run_study(Study(TRUTH, get_preset("paper-example1"), realisations=3, seed=1))
-    log_study(tmp_path / "run", res, summarise(res), {"realisations": 3}, max_points=20)
+    res = run_study(Study(TRUTH, get_preset("paper-example1"), realisations=3, seed=1, log_points=20))
+    log_study(tmp_path / "run", res, summarise(res), {"realisations": 3})
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
@@ -209,9 +221,9 @@ def test_fan_charts_in_tensorboard(tmp_path):
 
     from torchtea.studies.tblog import log_study
 
-    res = run_study(Study(TRUTH, get_preset("paper-example1"), realisations=3, seed=1))
-    log_study(tmp_path / "run", res, summarise(res), {"realisations": 3}, max_points=20, figures=True)
-    log_study(tmp_path / "plain", res, summarise(res), {"realisations": 3}, max_points=20)
+    res = run_study(Study(TRUTH, get_preset("paper-example1"), realisations=3, seed=1, log_points=20))
+    log_study(tmp_path / "run", res, summarise(res), {"realisations": 3}, figures=True)
+    log_study(tmp_path / "plain", res, summarise(res), {"realisations": 3})
     ea = EventAccumulator(str(tmp_path / "run"), size_guidance={"images": 0, "tensors": 0})
     ea.Reload()
     assert {"figures/order_fan", "figures/param_fan"} <= set(ea.Tags()["images"])
@@ -274,7 +286,7 @@ def test_device_option_runs_on_cpu_and_names_a_missing_accelerator(tmp_path, cap
 
     study = Study(TRUTH, get_preset("paper-example1"), realisations=3, seed=9)
     a, b = run_study(study), run_study(study, device="cpu")
-    assert torch.equal(a.alpha, b.alpha) and torch.equal(a.nees, b.nees)
+    assert torch.equal(a.final["alpha"], b.final["alpha"]) and torch.equal(a.nees_sum, b.nees_sum)
     assert main(["montecarlo", "--preset", "paper-example1", "--n", "60", "--realisations", "2", "--device", "cpu",
                  "--logdir", str(tmp_path / "mc"), "--json"]) == 0
     capsys.readouterr()
@@ -298,6 +310,6 @@ def test_device_option_runs_on_cpu_and_names_a_missing_accelerator(tmp_path, cap
 def test_study_on_cuda_equals_cpu():
     """The torch engine on the GPU against the compiled engine on the CPU: the same study to float64 rounding."""
     study = Study(TRUTH, get_preset("paper-example1"), realisations=8, seed=3)
-    cpu, gpu = run_study(study), run_study(study, device="cuda")
+    cpu, gpu = run_study(study, trajectories=True), run_study(study, device="cuda", trajectories=True)
     for name in ("alpha_true", "alpha", "P_alpha", "w", "P_w", "nees", "nis"):
-        torch.testing.assert_close(getattr(gpu, name), getattr(cpu, name), rtol=1e-9, atol=1e-11)
+        torch.testing.assert_close(gpu.trajectories[name], cpu.trajectories[name], rtol=1e-9, atol=1e-11)

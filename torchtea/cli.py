@@ -119,22 +119,31 @@ DEVICE_HELP = ("torch device of the computation: cpu (default; the TEA of the sc
                "engine), cuda or cuda:N (the batched torch engine, float64)")
 
 
-def _device(spec):
-    """Parse --device NAME into a torch.device that this machine has (one clear error naming it otherwise)."""
+def _device_name(spec):
+    """Parse --device NAME into a torch.device of a kind torchtea runs on (cpu, cuda, cuda:N), whether or not this
+    machine has it (a cluster's workers may)."""
     import torch
 
     try:
         dev = torch.device(spec or "cpu")
     except RuntimeError as exc:
         raise CLIError(f"--device {spec!r}: {exc}") from None
-    if dev.type == "cuda" and not torch.cuda.is_available():
-        raise CLIError(f"--device {spec}: no CUDA device is available to this torch {torch.__version__}")
-    if dev.type == "cuda" and (dev.index or 0) >= torch.cuda.device_count():
-        raise CLIError(f"--device {spec}: this machine has {torch.cuda.device_count()} CUDA device(s)")
     if dev.type == "mps":
         raise CLIError(f"--device {spec}: torchtea computes in float64, which the MPS backend does not have")
     if dev.type not in ("cpu", "cuda"):
         raise CLIError(f"--device {spec}: use cpu, cuda or cuda:N")
+    return dev
+
+
+def _device(spec):
+    """Parse --device NAME into a torch.device that this machine has (one clear error naming it otherwise)."""
+    import torch
+
+    dev = _device_name(spec)
+    if dev.type == "cuda" and not torch.cuda.is_available():
+        raise CLIError(f"--device {spec}: no CUDA device is available to this torch {torch.__version__}")
+    if dev.type == "cuda" and (dev.index or 0) >= torch.cuda.device_count():
+        raise CLIError(f"--device {spec}: this machine has {torch.cuda.device_count()} CUDA device(s)")
     return dev
 
 
@@ -598,50 +607,66 @@ def cmd_record(args) -> int:
 # --------------------------------------------------------------------------- montecarlo
 
 
-def _study_from_args(args):
-    """A Study from an optional STUDY.toml, then the command-line flags on top (:func:`build_study`)."""
+def _studies_from_args(args):
+    """The studies of a run (:class:`~torchtea.studies.sweep.SubStudy`) from an optional STUDY.toml, then the
+    command-line flags on top (:func:`build_study`); a study file with a ``[sweep]`` table gives one per
+    combination (:func:`~torchtea.studies.sweep.build_sweep`), a plain one a single study named None."""
     from .engines.config import read_toml
     from .studies.montecarlo import build_study
+    from .studies.sweep import SubStudy, build_sweep
 
     data = read_toml(args.config, "study") if args.config else {}
     memory = _memory(args.memory)
-    flags = {k: getattr(args, k) for k in ("realisations", "seed", "chunk", "preset", "n", "h", "order", "param", "q",
-                                            "r", "input_std")}
+    flags = {k: getattr(args, k) for k in ("realisations", "seed", "chunk", "log_points", "preset", "n", "h", "order",
+                                            "param", "q", "r", "input_std")}
     try:
-        return build_study(data, flags, memory=memory, source=args.config or "study")
+        if "sweep" in data:
+            return build_sweep(data, flags, memory=memory, source=args.config)
+        study, preset = build_study(data, flags, memory=memory, source=args.config or "study")
+        return [SubStudy(None, {}, study, preset)]
     except ValueError as exc:
         raise CLIError(str(exc)) from None
 
 
-def cmd_montecarlo(args) -> int:
-    import datetime
+def _cluster(args):
+    """``(client, close)`` for --scheduler ADDRESS or --workers N; ``(None, no-op)`` for a run in this process."""
+    if args.scheduler:
+        from distributed import Client
 
-    from .studies.montecarlo import run_study, save_study, summarise
+        try:
+            client = Client(args.scheduler, timeout=args.connect_timeout)
+        except (OSError, TimeoutError) as exc:
+            raise CLIError(f"--scheduler {args.scheduler}: cannot connect ({exc})") from None
+        if not client.nthreads():
+            client.close()
+            raise CLIError(f"--scheduler {args.scheduler}: the scheduler has no workers")
+        return client, client.close
+    if args.workers:
+        import signal
 
-    device = _device(args.device)  # before anything is written
-    study, preset = _study_from_args(args)
-    logdir = Path(args.logdir) if args.logdir else Path("runs") / datetime.datetime.now().strftime("mc-%Y%m%d-%H%M%S")
-    logdir.mkdir(parents=True, exist_ok=True)
-    save_study(logdir, study, preset)
-    step, close = _progress(study.realisations, "montecarlo", "realisation", bar=not args.json)
+        from .studies.cluster import local_cluster
 
-    def progress(done, total):
-        step(done, total)
-        if args.progress_file:
-            Path(args.progress_file).write_text(f"{done} {total}\n")
+        # the worker processes start with SIGINT ignored: Ctrl-C in a terminal reaches the whole process group,
+        # and this process, not the workers, decides what to keep (a worker that the nanny restarts after a fault
+        # has the default handling again)
+        previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+        try:
+            cluster, client = local_cluster(args.workers, threads_per_worker=args.threads_per_worker)
+        finally:
+            signal.signal(signal.SIGINT, previous)
 
-    t0 = time.perf_counter()
-    result = run_study(study, progress=progress, device=device)
-    elapsed = time.perf_counter() - t0
-    close()
-    if result.finished == 0:
-        raise CLIError("interrupted before any realisation finished; nothing to summarise")
-    summary = summarise(result)
-    summary.update({"logdir": str(logdir), "seconds": round(elapsed, 2), "preset": preset})
-    save_study(logdir, study, preset, result, summary, figures=args.figures)
+        def close():
+            client.close()
+            cluster.close()
+
+        return client, close
+    return None, lambda: None
+
+
+def _study_warnings(summary: dict, result, logdir) -> list[str]:
     warnings = []
     if result.interrupted:
-        warnings.append(f"interrupted: kept {result.finished} of {study.realisations} realisations in {logdir}")
+        warnings.append(f"interrupted: kept {result.finished} of {result.study.realisations} realisations in {logdir}")
     if summary["diverged"]:
         warnings.append(f"warning: {summary['diverged']} realisation(s) diverged; excluded from the statistics")
     for name, what in (("nees", "NEES (state error against KFx's P)"), ("nis", "NIS (innovations against KFx's S)")):
@@ -655,20 +680,127 @@ def cmd_montecarlo(args) -> int:
                             f"[{lo:.3g}, {hi:.3g}] at {inside * 100:.0f} % of the steps (about 95 % for a consistent "
                             f"filter; warned below {CONSISTENT_STEPS * 100:.0f} %), and averages {c['mean']:.3g} over "
                             "all steps (1 when the filter's covariance matches its errors): the filter is not consistent")
-    if not _report(logdir, summary, warnings, args.json):
-        print(f"{result.finished} realisations, {summary['diverged']} diverged, {elapsed:.1f} s")
-        for name in ("order", "param"):
-            s = summary[name]
-            print(f"{name:>6}: bias {s['bias']:+.4g}  std {s['std']:.4g}  RMSE {s['rmse']:.4g}  "
-                  f"±2σ coverage {_num(s['coverage_2sigma'], '.3f')} (fraction of realisation-steps)")
-        for name in ("nees", "nis"):
-            c = summary.get(name)
-            if c is not None:
-                print(f"{name.upper():>6}: mean {c['mean']:.4g} over steps and realisations (1 if consistent); the "
-                      f"per-step mean over realisations is inside its 95 % band [{c['band_95'][0]:.3g}, "
-                      f"{c['band_95'][1]:.3g}] at {c['fraction_of_steps_inside_band'] * 100:.0f} % of the steps")
-        print(f"run directory: {logdir}   (tensorboard --logdir {logdir.parent})")
-    return 130 if result.interrupted else 0
+    return warnings
+
+
+def _print_study(result, summary, elapsed) -> None:
+    print(f"{result.finished} realisations, {summary['diverged']} diverged, {elapsed:.1f} s")
+    for name in ("order", "param"):
+        s = summary[name]
+        print(f"{name:>6}: bias {s['bias']:+.4g}  std {s['std']:.4g}  RMSE {s['rmse']:.4g}  "
+              f"±2σ coverage {_num(s['coverage_2sigma'], '.3f')} (fraction of realisation-steps)")
+    for name in ("nees", "nis"):
+        c = summary.get(name)
+        if c is not None:
+            print(f"{name.upper():>6}: mean {c['mean']:.4g} over steps and realisations (1 if consistent); the "
+                  f"per-step mean over realisations is inside its 95 % band [{c['band_95'][0]:.3g}, "
+                  f"{c['band_95'][1]:.3g}] at {c['fraction_of_steps_inside_band'] * 100:.0f} % of the steps")
+
+
+def cmd_montecarlo(args) -> int:
+    import datetime
+
+    from .studies.montecarlo import run_study, save_study, summarise
+
+    if args.workers is not None and args.scheduler:
+        raise CLIError("--workers and --scheduler: give one (a local cluster, or the address of a running one)")
+    sharded = bool(args.workers or args.scheduler)
+    if args.shard is not None and not sharded:
+        raise CLIError("--shard sets the realisations per Dask task: it needs --workers or --scheduler")
+    if args.threads_per_worker is not None and not args.workers:
+        raise CLIError("--threads-per-worker applies to the local cluster of --workers")
+    # with --scheduler the workers' devices are theirs: only the name is checked here
+    device = _device(args.device) if not args.scheduler else _device_name(args.device)
+    studies = _studies_from_args(args)
+    sweep = studies[0].name is not None
+    logdir = Path(args.logdir) if args.logdir else Path("runs") / datetime.datetime.now().strftime("mc-%Y%m%d-%H%M%S")
+    logdir.mkdir(parents=True, exist_ok=True)
+    dirs = [logdir / s.name if sweep else logdir for s in studies]
+    for d, s in zip(dirs, studies):
+        save_study(d, s.study, s.preset)  # before the run: an interrupted run still says what it was
+    if sweep:
+        (logdir / "sweep.toml").write_text(Path(args.config).read_text())
+    client, close = _cluster(args)
+    failure = None
+    t0 = time.perf_counter()
+    try:
+        if client is not None:
+            from .studies.cluster import StudyFailed, plan_shards, run_studies
+
+            nthreads = sum(client.nthreads().values())
+            total = sum(len(plan_shards(s.study, args.shard, nthreads)) for s in studies)
+            step, close_bar = _progress(total, "montecarlo", "shard", bar=not args.json)
+            try:
+                results = run_studies([s.study for s in studies], client, shard=args.shard,
+                                      device=None if args.device is None else str(device),
+                                      progress=_progress_to_file(step, args.progress_file, "shard"))
+            except StudyFailed as exc:
+                results, failure = exc.partial, str(exc)
+            close_bar()
+        else:
+            results = []
+            for s in studies:
+                step, close_bar = _progress(s.study.realisations, "montecarlo", "realisation", bar=not args.json)
+                results.append(run_study(s.study, progress=_progress_to_file(step, args.progress_file, "realisation"),
+                                         device=device))
+                close_bar()
+                if results[-1].interrupted:
+                    break
+    finally:
+        close()
+    elapsed = time.perf_counter() - t0
+    if not any(r.finished for r in results):
+        if failure:
+            raise CLIError(failure)
+        raise CLIError("interrupted before any realisation finished; nothing to summarise")
+    rows = []
+    for d, s, result in zip(dirs, studies, results):
+        if not result.finished:
+            continue
+        summary = summarise(result)
+        summary.update({"logdir": str(d), "seconds": round(elapsed, 2), "preset": s.preset})
+        if sweep:
+            summary["sweep"] = {"name": s.name, "values": s.values}
+        save_study(d, s.study, s.preset, result, summary, figures=args.figures, hparams=s.hparams())
+        warnings = _study_warnings(summary, result, d)
+        if sweep:
+            strictjson.write(d / "summary.json", {**summary, "warnings": [w.removeprefix("warning: ") for w in warnings]})
+            for w in warnings:
+                print(f"torchtea: [{s.name}] {w}", file=sys.stderr)
+            rows.append(summary)
+        elif not _report(d, summary, warnings, args.json):
+            _print_study(result, summary, elapsed)
+            print(f"run directory: {d}   (tensorboard --logdir {d.parent})")
+    if sweep:
+        not_run = [s.name for s, r in zip(studies, results + [None] * len(studies)) if r is None or not r.finished]
+        table = {"logdir": str(logdir), "seconds": round(elapsed, 2), "studies": rows, "not_run": not_run}
+        strictjson.write(logdir / "sweep.json", table)
+        if args.json:
+            print(strictjson.dumps(table))
+        else:
+            print(f"{len(rows)} sub-studies in {elapsed:.1f} s" + (f"; not run: {', '.join(not_run)}" if not_run else ""))
+            print(f"{'sub-study':<40} {'R':>6} {'order bias':>11} {'order RMSE':>11} {'param bias':>11} "
+                  f"{'param RMSE':>11} {'NEES':>9}")
+            for s in rows:
+                print(f"{s['sweep']['name']:<40} {s['realisations']:>6} {s['order']['bias']:>+11.4g} "
+                      f"{s['order']['rmse']:>11.4g} {s['param']['bias']:>+11.4g} {s['param']['rmse']:>11.4g} "
+                      f"{_num(s.get('nees', {}).get('mean', math.nan), '9.4g')}")
+            print(f"run directories: {logdir}/<sub-study>   (tensorboard --logdir {logdir}: the HParams tab "
+                  "compares them)")
+    if failure:
+        print(f"torchtea: error: {failure}; the finished shards are kept in {logdir}", file=sys.stderr)
+        return 1
+    return 130 if any(r.interrupted for r in results) else 0
+
+
+def _progress_to_file(step, path, unit):
+    """The progress callback: the bar or line ``step``, and ``done total UNITs`` rewritten in ``path``."""
+    def progress(done, total):
+        step(done, total)
+        if path:
+            Path(path).write_text(f"{done} {total} {unit}s\n")
+
+    return progress
 
 
 # --------------------------------------------------------------------------- presets
@@ -829,10 +961,21 @@ def build_parser() -> argparse.ArgumentParser:
     rc.set_defaults(func=cmd_record)
 
     mc = sub.add_parser("montecarlo", help="Monte Carlo study of the TEA, logged to TensorBoard")
-    mc.add_argument("--config", help="STUDY.toml: realisations, seed, chunk, [truth], [estimator]")
+    mc.add_argument("--config", help="STUDY.toml: realisations, seed, chunk, log_points, [truth], [estimator], and "
+                                     "[sweep] (lists of truth and estimator values: one sub-study per combination)")
     mc.add_argument("--realisations", type=int)
     mc.add_argument("--seed", type=int)
     mc.add_argument("--chunk", type=int, help="realisations per batch (default: sized to memory)")
+    mc.add_argument("--log-points", type=int, help="steps logged to TensorBoard and the fan charts (default ≤ 1000, "
+                                                   "fewer above 10⁵ realisations)")
+    mc.add_argument("--workers", type=int, help="run the study as shards on a local Dask cluster of N processes")
+    mc.add_argument("--threads-per-worker", type=int,
+                    help="--workers: torch/numba threads of each process (default: the cores shared out)")
+    mc.add_argument("--scheduler", help="run the study as shards on the Dask cluster of this scheduler "
+                                        "(e.g. tcp://host:8786); --device then names each worker's device")
+    mc.add_argument("--connect-timeout", type=float, default=30.0, help="--scheduler: seconds to wait (default 30)")
+    mc.add_argument("--shard", type=int, help="realisations per Dask task (default: ~4 per worker thread, at most "
+                                              "one memory chunk)")
     mc.add_argument("--logdir", help="run directory (default runs/mc-<time>)")
     mc.add_argument("--preset", help="estimator settings (default paper-example1); a paper example also sets the truth")
     mc.add_argument("--n", type=_count)
@@ -847,7 +990,8 @@ def build_parser() -> argparse.ArgumentParser:
     mc.add_argument("--figures", action="store_true",
                     help="also the matplotlib fan charts as TensorBoard images (the margin charts in CUSTOM SCALARS "
                          "are always written; the images add ~1.5 s)")
-    mc.add_argument("--progress-file", help="rewrite 'done total' in this file after each chunk (headless runs)")
+    mc.add_argument("--progress-file", help="rewrite 'done total unit' in this file after each chunk or shard "
+                                            "(headless runs)")
     mc.add_argument("--json", action="store_true")
     mc.set_defaults(func=cmd_montecarlo)
 

@@ -20,11 +20,11 @@ from ..core.stats import chi2_band, convergence_time, coverage, nees, nis, over_
 from ..engines.tea import make_params, run_tea
 from ..engines.settings import TEAConfig
 
-__all__ = ["Truth", "Study", "StudyResult", "realisation_seed", "draw_realisation", "run_study", "auto_chunk",
-           "build_study", "save_study", "STUDY_KEYS"]
+__all__ = ["Truth", "Study", "StudyResult", "realisation_seed", "draw_realisation", "run_study", "run_range",
+           "auto_chunk", "logged_steps", "summarise", "build_study", "save_study", "STUDY_KEYS"]
 
 #: The top-level keys of a study's TOML table.
-STUDY_KEYS = ("realisations", "seed", "chunk", "truth", "estimator")
+STUDY_KEYS = ("realisations", "seed", "chunk", "log_points", "truth", "estimator", "sweep")
 #: Command-line flags that set the truth, and the Truth field each sets.
 TRUTH_FLAGS = {"n": "n_steps", "h": "h", "order": "order", "param": "param", "q": "q", "r": "r",
                "input_std": "input_std"}
@@ -62,6 +62,7 @@ class Study:
     chunk: int | None = None  # realisations per batch; None = automatic
     order_tolerance: float = 0.05
     param_tolerance: float = 0.2
+    log_points: int | None = None  # steps kept for TensorBoard and fan charts; None = automatic (logged_steps)
 
 
 def realisation_seed(seed: int, index: int) -> int:
@@ -97,52 +98,162 @@ def auto_chunk(n_steps: int, budget_bytes: float | None = None, device=None) -> 
     return max(1, int(budget_bytes // per))
 
 
+def logged_steps(study: Study) -> list[int]:
+    """The sample indices at which a study keeps every realisation's α̂ and ŵ for its TensorBoard series and fan
+    charts: ``study.log_points`` evenly strided steps, or by default at most 1000, fewer for very large studies
+    so that the two kept ``(R, P)`` float64 arrays stay within :data:`LOGGED_BYTES` (10⁶ realisations keep 67
+    steps)."""
+    from .tblog import decimated_steps
+
+    points = study.log_points or max(10, min(1000, int(LOGGED_BYTES // (16 * study.realisations))))
+    return decimated_steps(study.truth.n_steps, points)
+
+
+#: Memory budget of the logged trajectories of a whole study (bytes), see :func:`logged_steps`.
+LOGGED_BYTES = 2 ** 30
+#: The per-realisation trajectories that ``run_study(..., trajectories=True)`` keeps.
+TRAJECTORIES = ("alpha_true", "alpha", "P_alpha", "w", "P_w", "nees", "nis")
+#: The per-realisation final values (the last sample) every result keeps.
+FINALS = ("alpha_true", "alpha", "P_alpha", "w", "P_w")
+
+
 @dataclass
 class StudyResult:
-    """Per-realisation trajectories of the finished realisations (time at dim 1)."""
+    """What a study keeps of its finished realisations: per realisation the final estimates, convergence times and
+    ±2σ coverage counts; per step the NEES and NIS sums over the realisations that did not diverge; α̂ and ŵ of
+    every realisation at the logged steps; and, when asked for, the full trajectories.
+
+    It is the same whether the study ran in one process or as shards on a cluster (:meth:`concat` joins the
+    parts of disjoint sets of realisations), so the summary, ``final_estimates.csv`` and the TensorBoard run are
+    computed from it alone. Rows are in ascending realisation order; ``index`` names them (an interrupted
+    sharded run may have finished a set that is not a prefix).
+    """
 
     study: Study
-    t: Tensor  # (N,)
-    alpha_true: Tensor  # (R, N)
-    alpha: Tensor  # (R, N)
-    P_alpha: Tensor  # (R, N)
-    w: Tensor  # (R, N)
-    P_w: Tensor  # (R, N)
-    nees: Tensor  # (R, N)
-    nis: Tensor  # (R, N)
-    diverged: Tensor  # (R,)
-    finished: int
+    t: Tensor  # (N,) time of each sample
+    index: Tensor  # (R,) int64 realisation numbers
+    diverged: Tensor  # (R,) bool
+    final: dict  # FINALS → (R,) values at the last sample
+    converged_at: dict  # "order", "param" → (R,) convergence time [s], NaN where it never settles
+    covered: dict  # "order", "param" → (R,) int64 number of steps whose truth lies within estimate ± 2σ
+    nees_sum: Tensor  # (N,) Σ NEES over the realisations that did not diverge
+    nis_sum: Tensor  # (N,) Σ NIS over the same
+    steps: Tensor  # (P,) int64 logged sample indices
+    logged: dict  # "alpha", "w" → (R, P) estimates at the logged steps; "alpha_true" → (P,)
     interrupted: bool = False
+    trajectories: dict | None = None  # TRAJECTORIES → (R, N), only with run_study(..., trajectories=True)
 
     @property
-    def w_true(self) -> Tensor:
-        """The true parameter as a trajectory of ``w``'s shape (a broadcast view, no copy)."""
-        return torch.tensor(self.study.truth.param, dtype=self.w.dtype).expand_as(self.w)
+    def finished(self) -> int:
+        return int(self.index.shape[0])
+
+    @property
+    def kept(self) -> int:
+        """Realisations in the statistics: the finished ones that did not diverge."""
+        return int((~self.diverged).sum())
+
+    @classmethod
+    def empty(cls, study: Study, *, trajectories: bool = False, interrupted: bool = True) -> "StudyResult":
+        """A result with no finished realisation (of the study's shapes)."""
+        N = study.truth.n_steps
+        steps = torch.tensor(logged_steps(study))
+        f64 = lambda *shape: torch.empty(shape, dtype=torch.float64)  # noqa: E731
+        count = lambda: torch.empty(0, dtype=torch.int64)  # noqa: E731
+        return cls(study=study, t=torch.arange(N, dtype=torch.float64) * study.truth.h, index=count(),
+                   diverged=torch.empty(0, dtype=torch.bool), final={k: f64(0) for k in FINALS},
+                   converged_at={"order": f64(0), "param": f64(0)}, covered={"order": count(), "param": count()},
+                   nees_sum=torch.zeros(N, dtype=torch.float64), nis_sum=torch.zeros(N, dtype=torch.float64),
+                   steps=steps, logged={"alpha": f64(0, len(steps)), "w": f64(0, len(steps)),
+                                        "alpha_true": torch.full((len(steps),), math.nan, dtype=torch.float64)},
+                   interrupted=interrupted, trajectories={k: f64(0, N) for k in TRAJECTORIES} if trajectories else None)
+
+    @classmethod
+    def concat(cls, parts, *, interrupted: bool = False) -> "StudyResult":
+        """One result from parts holding disjoint realisations of the same study (in any order)."""
+        parts = sorted(parts, key=lambda p: int(p.index[0]) if p.finished else -1)
+        parts = [p for p in parts if p.finished] or parts[:1]
+        first = parts[0]
+        index = torch.cat([p.index for p in parts])
+        if index.numel() != torch.unique(index).numel():
+            raise ValueError("StudyResult.concat: parts share realisations")
+        cat = lambda get: torch.cat([get(p) for p in parts])  # noqa: E731
+        trajectories = None
+        if all(p.trajectories is not None for p in parts):
+            trajectories = {k: cat(lambda p: p.trajectories[k]) for k in TRAJECTORIES}
+        return cls(study=first.study, t=first.t, index=index, diverged=cat(lambda p: p.diverged),
+                   final={k: cat(lambda p: p.final[k]) for k in FINALS},
+                   converged_at={k: cat(lambda p: p.converged_at[k]) for k in ("order", "param")},
+                   covered={k: cat(lambda p: p.covered[k]) for k in ("order", "param")},
+                   nees_sum=_sum(p.nees_sum for p in parts), nis_sum=_sum(p.nis_sum for p in parts),
+                   steps=first.steps, logged={"alpha": cat(lambda p: p.logged["alpha"]),
+                                              "w": cat(lambda p: p.logged["w"]),
+                                              "alpha_true": first.logged["alpha_true"]},
+                   interrupted=interrupted or any(p.interrupted for p in parts), trajectories=trajectories)
 
 
-def run_study(study: Study, *, progress=None, device=None) -> StudyResult:
-    """Run a study chunk by chunk; Ctrl-C between or during chunks keeps the finished chunks.
+def _sum(tensors):
+    out = None
+    for t in tensors:
+        out = t.clone() if out is None else out.add_(t)
+    return out
 
-    ``progress(done, total)`` is called after each chunk. ``device``: where the truths are simulated and the TEA
-    runs (default the CPU, where the TEA is the compiled engine); each realisation's draws come from its own CPU
-    generator whatever the device, and the results come back to the CPU.
+
+def _digest(study: Study, rows: range, sim, res, steps: list[int], trajectories: bool) -> StudyResult:
+    """What a :class:`StudyResult` keeps of one batch of realisations ``rows`` (computed where the batch ran)."""
+    cpu = lambda t: t.to("cpu", torch.float64)  # noqa: E731
+    tr = study.truth
+    alpha_true, alpha, P_alpha = cpu(sim.alpha[..., 0]), cpu(res.alpha[..., 0]), cpu(res.P_alpha[..., 0, 0])
+    w, P_w = cpu(res.w[..., 0]), cpu(res.P_w[..., 0, 0])
+    e_nees, e_nis = cpu(nees(res.x, sim.x, res.P)), cpu(nis(res.innovation, res.innovation_cov))
+    diverged = res.diverged.to("cpu")
+    keep = ~diverged
+    w_true = torch.tensor(tr.param, dtype=torch.float64)
+    converged_at, covered = {}, {}
+    for name, est, truth, var, tol in (("order", alpha, alpha_true, P_alpha, study.order_tolerance),
+                                       ("param", w, w_true.expand_as(w), P_w, study.param_tolerance)):
+        converged_at[name] = convergence_time(est.unsqueeze(-1), truth.unsqueeze(-1), tol, tr.h)[:, 0]
+        covered[name] = coverage(est, truth, var).sum(1)
+    zero = torch.zeros((), dtype=torch.float64)
+    idx = torch.tensor(steps)
+    full = {"alpha_true": alpha_true, "alpha": alpha, "P_alpha": P_alpha, "w": w, "P_w": P_w, "nees": e_nees,
+            "nis": e_nis}
+    return StudyResult(
+        study=study, t=torch.arange(tr.n_steps, dtype=torch.float64) * tr.h,
+        index=torch.arange(rows.start, rows.stop), diverged=diverged,
+        final={k: full[k][:, -1].clone() for k in FINALS}, converged_at=converged_at, covered=covered,
+        nees_sum=torch.where(keep[:, None], e_nees, zero).sum(0), nis_sum=torch.where(keep[:, None], e_nis, zero).sum(0),
+        steps=idx, logged={"alpha": alpha[:, idx], "w": w[:, idx], "alpha_true": alpha_true[0, idx]},
+        trajectories=full if trajectories else None)
+
+
+def run_range(study: Study, start: int, stop: int, *, device=None, progress=None, trajectories: bool = False,
+              threads: int | None = None) -> StudyResult:
+    """Realisations ``start … stop − 1`` of a study, chunk by chunk: one shard of a sharded study, or all of it.
+
+    ``progress(done, total)`` (realisations of this range) is called after each chunk; Ctrl-C between or during
+    chunks returns the finished chunks, marked ``interrupted``. ``threads``: torch's and numba's thread count for
+    this call (a Dask worker process runs one shard per thread). Nothing here depends on ``start``/``stop``
+    beyond which realisations are drawn, so any split of a study gives the same realisations.
     """
+    if threads is not None:
+        import numba
+
+        torch.set_num_threads(threads)
+        numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
     device = torch.device(device or "cpu")
     tr = study.truth
-    R, N = study.realisations, tr.n_steps
+    N = tr.n_steps
     chunk = study.chunk or auto_chunk(N, device=device)
     schedule = tr.schedule()
+    steps = logged_steps(study)
     params = make_params(study.estimator, Structure(), device=device)
-    # the trajectories, allocated once and filled chunk by chunk: a chunk's TEA outputs are freed (and their
-    # memory reused) as soon as its rows are copied, and no final concatenation copies everything again
-    traj = {k: torch.empty(R, N, dtype=torch.float64) for k in ("alpha_true", "alpha", "P_alpha", "w", "P_w", "nees", "nis")}
-    diverged = torch.zeros(R, dtype=torch.bool)
-    done = 0
+    parts = []
+    done = start
     interrupted = False
     try:
-        while done < R:
-            idx = range(done, min(R, done + chunk))
-            draws = [draw_realisation(tr, study.seed, i) for i in idx]
+        while done < stop:
+            rows = range(done, min(stop, done + chunk))
+            draws = [draw_realisation(tr, study.seed, i) for i in rows]
             u = None if tr.input_std is None else torch.stack([d[0] for d in draws]).to(device)
             z_w = torch.stack([d[1] for d in draws]).to(device)
             z_v = torch.stack([d[2] for d in draws]).to(device)
@@ -150,40 +261,55 @@ def run_study(study: Study, *, progress=None, device=None) -> StudyResult:
                            process_noise=tr.q, measurement_noise=tr.r, inputs=u, standard_draws=(z_w, z_v),
                            memory=tr.memory, device=device)
             res = run_tea(sim.y, h=tr.h, params=params, inputs=u)
-            rows = slice(idx.start, idx.stop)
-            for name, value in (("alpha_true", sim.alpha[..., 0]), ("alpha", res.alpha[..., 0]),
-                                ("P_alpha", res.P_alpha[..., 0, 0]), ("w", res.w[..., 0]), ("P_w", res.P_w[..., 0, 0]),
-                                ("nees", nees(res.x, sim.x, res.P)), ("nis", nis(res.innovation, res.innovation_cov))):
-                traj[name][rows] = value  # copied to the CPU
-            diverged[rows] = res.diverged
+            parts.append(_digest(study, rows, sim, res, steps, trajectories))
             del sim, res
-            done = idx.stop
+            done = rows.stop
             if progress is not None:
-                progress(done, R)
+                progress(done - start, stop - start)
     except KeyboardInterrupt:
         interrupted = True
-    cat = {k: v[:done] for k, v in traj.items()}
-    cat["diverged"] = diverged[:done]
-    t = torch.arange(N, dtype=torch.float64) * tr.h
-    return StudyResult(study=study, t=t, finished=done, interrupted=interrupted, **cat)
+    if not parts:  # interrupted before the first chunk finished
+        return StudyResult.empty(study, trajectories=trajectories, interrupted=interrupted)
+    return StudyResult.concat(parts, interrupted=interrupted)
+
+
+def run_study(study: Study, *, progress=None, device=None, client=None, shard: int | None = None,
+              trajectories: bool = False) -> StudyResult:
+    """Run a study; Ctrl-C keeps the finished chunks (or shards).
+
+    Without ``client``, in this process chunk by chunk (:func:`run_range`); ``progress(done, total)`` counts
+    realisations. With a Dask ``client`` (``distributed.Client``), as shards of ``shard`` realisations on its
+    workers (:func:`torchtea.studies.cluster.run_studies`); ``progress(done, total)`` counts shards. ``device``:
+    where the truths are simulated and the TEA runs (default the CPU, where the TEA is the compiled engine; on a
+    cluster, each worker's device of that name); each realisation's draws come from its own CPU generator
+    whatever the device, and the results come back to the CPU. ``trajectories``: also keep every realisation's
+    full trajectories (``R × N`` × 7 float64 values; not with a client).
+    """
+    if client is not None:
+        if trajectories:
+            raise ValueError("run_study: full trajectories are not sent back from a cluster; run without client")
+        from .cluster import run_studies
+
+        return run_studies([study], client, shard=shard, device=device, progress=progress)[0]
+    return run_range(study, 0, study.realisations, device=device, progress=progress, trajectories=trajectories)
 
 
 def summarise(result: StudyResult) -> dict:
     """Final and over-time statistics of a study (diverged realisations excluded and counted)."""
     st, tr = result.study, result.study.truth
     keep = ~result.diverged
-    kept = int(keep.sum())
+    kept = result.kept
+    N = tr.n_steps
     out = {"realisations": result.finished, "requested": st.realisations, "interrupted": result.interrupted,
            "diverged": int(result.diverged.sum()),
            "diverged_fraction": float(result.diverged.double().mean()) if result.finished else math.nan,
            "excluded_from_statistics": "diverged realisations"}
-    # the kept realisations: views when none diverged (a boolean index would copy every trajectory)
-    kept_rows = (lambda t: t) if bool(keep.all()) else (lambda t: t[keep])  # noqa: E731
-    for name, est, truth, var, tol in (("order", result.alpha, result.alpha_true, result.P_alpha, st.order_tolerance),
-                                       ("param", result.w, result.w_true, result.P_w, st.param_tolerance)):
-        final = over_realisations(est[:, -1:, None], truth[:, -1:, None], keep)
-        ct = convergence_time(kept_rows(est).unsqueeze(-1), kept_rows(truth).unsqueeze(-1), tol, tr.h)[:, 0]
-        cov = coverage(kept_rows(est), kept_rows(truth), kept_rows(var))
+    w_true = torch.tensor(tr.param, dtype=torch.float64)
+    for name, est, truth, tol in (
+            ("order", result.final["alpha"], result.final["alpha_true"], st.order_tolerance),
+            ("param", result.final["w"], w_true.expand_as(result.final["w"]), st.param_tolerance)):
+        final = over_realisations(est[:, None, None], truth[:, None, None], keep)
+        ct = result.converged_at[name][keep]
         entry = {k: float(final[k][0, 0]) for k in ("mean", "bias", "std", "rmse")}
         entry["quantiles"] = {f"{int(q * 100)}%": float(v) for q, v in zip((0.05, 0.25, 0.5, 0.75, 0.95),
                                                                            final["quantiles"][:, 0, 0])}
@@ -192,12 +318,13 @@ def summarise(result: StudyResult) -> dict:
         entry["convergence_time_quantiles"] = (
             {f"{int(q * 100)}%": float(v) for q, v in zip((0.05, 0.5, 0.95), torch.nanquantile(
                 ct, torch.tensor([0.05, 0.5, 0.95], dtype=ct.dtype)))} if kept and not torch.isnan(ct).all() else {})
-        entry["coverage_2sigma"] = float(cov.double().mean()) if kept else math.nan
+        # the fraction of (realisation, step) pairs inside ±2σ: a sum of integers, the same however it was split
+        entry["coverage_2sigma"] = int(result.covered[name][keep].sum()) / (kept * N) if kept else math.nan
         out[name] = entry
     if kept:
         lo, hi = chi2_band(1, kept)
-        for name, series in (("nees", kept_rows(result.nees)), ("nis", kept_rows(result.nis))):
-            avg = series[:, 1:].mean(0)
+        for name, total in (("nees", result.nees_sum), ("nis", result.nis_sum)):
+            avg = total[1:] / kept
             out[name] = {"mean": float(avg.mean()), "band_95": [lo, hi],
                          "fraction_of_steps_inside_band": float(((avg >= lo) & (avg <= hi)).double().mean())}
     return out
@@ -217,6 +344,8 @@ def build_study(data: dict, flags: dict | None = None, *, memory=None, source: s
     unknown = set(data) - set(STUDY_KEYS)
     if unknown:
         raise ValueError(f"{source}: unknown study settings {sorted(unknown)}")
+    if "sweep" in data:
+        raise ValueError(f"{source}: a [sweep] table makes several studies (torchtea.studies.sweep.build_sweep)")
     est = dict(data.get("estimator", {}))
     preset = flags.get("preset") or est.pop("preset", None) or "paper-example1"
     est.pop("preset", None)
@@ -249,19 +378,22 @@ def build_study(data: dict, flags: dict | None = None, *, memory=None, source: s
     except (TypeError, ValueError) as exc:
         raise ValueError(f"bad truth: {exc}") from None
     study = Study(tr, estimator, realisations=int(flags.get("realisations", data.get("realisations", 100))),
-                  seed=int(flags.get("seed", data.get("seed", 0))), chunk=flags.get("chunk", data.get("chunk")))
+                  seed=int(flags.get("seed", data.get("seed", 0))), chunk=flags.get("chunk", data.get("chunk")),
+                  log_points=flags.get("log_points", data.get("log_points")))
     if study.realisations < 1:
         raise ValueError("--realisations must be at least 1")
+    if study.log_points is not None and study.log_points < 1:
+        raise ValueError(f"{source}: log_points must be at least 1")
     return study, preset
 
 
 def save_study(logdir, study: Study, preset: str, result: StudyResult | None = None,
-               summary: dict | None = None, *, figures: bool = False) -> Path:
+               summary: dict | None = None, *, figures: bool = False, hparams: dict | None = None) -> Path:
     """The one writer of a study's run directory. Without ``result``: ``study.toml`` (the study, reloadable by
     ``torchtea montecarlo --config``) and ``estimator.toml``, before the run, so an interrupted run still says
     what it was. With ``result`` and ``summary``: ``final_estimates.csv`` (one row per finished realisation)
     and the TensorBoard event files (:func:`~torchtea.studies.tblog.log_study`; ``figures``: with the matplotlib
-    fan charts)."""
+    fan charts; ``hparams``: more hyperparameters for the HParams view, e.g. a sweep's settings)."""
     from ..engines.config import dumps_toml, write_config
     from ..sensors.io import write_columns
     from .tblog import log_study
@@ -272,6 +404,7 @@ def save_study(logdir, study: Study, preset: str, result: StudyResult | None = N
     if result is None:
         study_dict = {"realisations": study.realisations, "seed": study.seed,
                       **({"chunk": study.chunk} if study.chunk else {}),
+                      **({"log_points": study.log_points} if study.log_points else {}),
                       "truth": {k: v for k, v in vars(tr).items() if v is not None},
                       "estimator": {"preset": preset, **study.estimator.to_dict()}}
         (logdir / "study.toml").write_text(dumps_toml(study_dict))
@@ -279,14 +412,14 @@ def save_study(logdir, study: Study, preset: str, result: StudyResult | None = N
         return logdir
     if summary is None:
         raise ValueError("save_study: a result needs its summary")
-    idx = np.arange(result.finished)
+    f = result.final
     write_columns(logdir / "final_estimates.csv", {
-        "realisation": idx, "diverged": result.diverged.numpy().astype(float),
-        "alpha_true": result.alpha_true[:, -1], "alpha_final": result.alpha[:, -1],
-        "P_alpha_final": result.P_alpha[:, -1], "param_true": np.full(result.finished, tr.param),
-        "param_final": result.w[:, -1], "P_param_final": result.P_w[:, -1]})
+        "realisation": result.index.numpy(), "diverged": result.diverged.numpy().astype(float),
+        "alpha_true": f["alpha_true"], "alpha_final": f["alpha"], "P_alpha_final": f["P_alpha"],
+        "param_true": np.full(result.finished, tr.param), "param_final": f["w"], "P_param_final": f["P_w"]})
     hp = {"realisations": result.finished, "seed": study.seed, "preset": preset, "order": tr.order,
           "param": tr.param, "q": tr.q, "r": tr.r, "h": tr.h, "n": tr.n_steps,
-          "input_std": tr.input_std if tr.input_std is not None else 0.0, "truth_memory": tr.memory}
+          "input_std": tr.input_std if tr.input_std is not None else 0.0, "truth_memory": tr.memory,
+          **(hparams or {})}
     log_study(logdir, result, summary, hp, figures=figures)
     return logdir

@@ -14,50 +14,53 @@ def decimated_steps(N: int, max_points: int):
     return list(range(0, N, stride))
 
 
-def log_study(logdir, result, summary: dict, hparams: dict, *, max_points: int = 1000, figures: bool = False) -> Path:
-    """Write one run directory of event files for a study.
+def log_study(logdir, result, summary: dict, hparams: dict, *, figures: bool = False) -> Path:
+    """Write one run directory of event files for a study (a :class:`~torchtea.studies.montecarlo.StudyResult`).
 
-    Scalars (x axis: sample index k, decimated to ≤ ``max_points``): ``order/{truth,mean,q05…q95,rmse}``,
-    ``param/{…}``, ``consistency/{nees,nis,band_lo,band_hi}``; the fan charts as TensorBoard's own margin charts
-    (CUSTOM SCALARS tab: the median with the 5–95 % and 25–75 % bands, truth against mean, NEES/NIS in their
-    band); histograms ``final/order``, ``final/param``; text ``summary``; hparams (study settings → final
-    metrics, tags ``metric/…``) so that several studies can be compared side by side in the HParams view.
-    ``figures``: also the matplotlib fan charts as images ``figures/{order,param}_fan`` (≈1.5 s: pyplot's
-    import and two renderings).
+    Scalars at the study's logged steps (x axis: sample index k; ≤ 1000 evenly strided steps,
+    :func:`~torchtea.studies.montecarlo.logged_steps`): ``order/{truth,mean,q05…q95,rmse}``, ``param/{…}``,
+    ``consistency/{nees,nis,band_lo,band_hi}``; the fan charts as TensorBoard's own margin charts (CUSTOM SCALARS
+    tab: the median with the 5–95 % and 25–75 % bands, truth against mean, NEES/NIS in their band); histograms
+    ``final/order``, ``final/param``; text ``summary``; hparams (study settings → final metrics, tags
+    ``metric/…``) so that several studies can be compared side by side in the HParams view.
+    ``figures``: also the matplotlib fan charts (at the logged steps) as images ``figures/{order,param}_fan``
+    (≈1.5 s: pyplot's import and two renderings).
     """
+    import torch
     from torch.utils.tensorboard import SummaryWriter
     from torch.utils.tensorboard.summary import hparams as hparams_summary
 
     logdir = Path(logdir)
     keep = ~result.diverged
-    N = result.t.shape[0]
-    steps = decimated_steps(N, max_points)
+    steps = result.steps.tolist()
+    t = result.t[result.steps]
+    truths = {"order": result.logged["alpha_true"],
+              "param": torch.full((len(steps),), result.study.truth.param, dtype=torch.float64)}
     with SummaryWriter(log_dir=str(logdir)) as w:
         series = []  # (columns, steps), written together at the end: one event per step
-        for name, est, truth in (("order", result.alpha, result.alpha_true), ("param", result.w, result.w_true)):
-            # statistics only at the logged steps
-            st = over_realisations(est[:, steps].unsqueeze(-1), truth[:, steps].unsqueeze(-1), keep)
-            cols = {f"{name}/truth": truth[0, steps]}
+        for name, key, fkey in (("order", "alpha", "alpha"), ("param", "w", "w")):
+            est, truth = result.logged[key], truths[name]
+            st = over_realisations(est.unsqueeze(-1), truth.view(1, -1, 1), keep)
+            cols = {f"{name}/truth": truth}
             if st["count"]:
                 cols[f"{name}/mean"], cols[f"{name}/rmse"] = st["mean"][:, 0], st["rmse"][:, 0]
                 for q, v in zip(QUANTILES, st["quantiles"][:, :, 0]):
                     cols[f"{name}/q{int(round(q * 100)):02d}"] = v
             series.append((cols, steps))
             if st["count"]:
-                w.add_histogram(f"final/{name}", est[keep, -1], 0)
+                w.add_histogram(f"final/{name}", result.final[fkey][keep], 0)
             if st["count"] and figures:
                 from ..reports.plots import fan_figure
 
                 label = "order α̂" if name == "order" else "parameter ŵ"
                 w.add_figure(f"figures/{name}_fan", fan_figure(
-                    None, result.t.numpy(), truth[0].numpy(), est[keep].numpy(), ylabel=label,
+                    None, t.numpy(), truth.numpy(), est[keep].numpy(), ylabel=label,
                     title=f"{label} over {st['count']} realisations"), 0)
         if "nees" in summary:
-            nees_avg = result.nees[keep].mean(0)
-            nis_avg = result.nis[keep].mean(0)
-            lo, hi = summary["nees"]["band_95"]
+            kept = result.kept
             at = steps[1:] if len(steps) > 1 else steps
-            series.append(({"consistency/nees": nees_avg[at], "consistency/nis": nis_avg[at],
+            lo, hi = summary["nees"]["band_95"]
+            series.append(({"consistency/nees": result.nees_sum[at] / kept, "consistency/nis": result.nis_sum[at] / kept,
                             "consistency/band_lo": [lo] * len(at), "consistency/band_hi": [hi] * len(at)}, at))
         _scalars(w, series)
         w.add_custom_scalars(fan_layout())

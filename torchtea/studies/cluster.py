@@ -139,7 +139,7 @@ def local_cluster(workers: int, *, threads_per_worker: int | None = None, quiet:
     if quiet:
         for name in ("distributed", "distributed.nanny", "distributed.scheduler", "distributed.worker"):
             logging.getLogger(name).setLevel(logging.ERROR)
-    env = dict(dask.config.get("distributed.nanny.pre-spawn-environ"))
+    env = dict(dask.config.get("distributed.nanny.pre-spawn-environ", default={}))
     env.update(OMP_NUM_THREADS=threads, MKL_NUM_THREADS=threads, OPENBLAS_NUM_THREADS=threads)
     with dask.config.set({"distributed.nanny.pre-spawn-environ": env}):
         cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=":0")

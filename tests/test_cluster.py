@@ -59,21 +59,42 @@ def assert_same_summary(a, b, path=""):
         assert a == b, path
 
 
-def test_sharded_equals_single_process(cluster):
-    """23 realisations as shards of 5 on two worker processes against one process in chunks of 4."""
+@pytest.mark.parametrize("divergence_limit", [1e8, 1.5], ids=["none-diverge", "some-diverge"])
+def test_sharded_equals_single_process(cluster, divergence_limit):
+    """23 realisations as shards of 5 on two worker processes against one process in chunks of 4 — also with a
+    divergence limit at which some realisations diverge (they are left out of the statistics in both)."""
+    from dataclasses import replace
+
+    from distributed import get_task_stream
+
     from torchtea.studies.cluster import plan_shards
 
-    study = Study(TRUTH, get_preset("paper-example1"), realisations=23, seed=11, chunk=4)
+    study = Study(TRUTH, replace(get_preset("paper-example1"), divergence_limit=divergence_limit), realisations=23,
+                  seed=11, chunk=4)
     single = run_study(study)
     shards = []
-    sharded = run_study(study, client=cluster, shard=5, progress=lambda done, total: shards.append((done, total)))
+    with get_task_stream(cluster) as ts:
+        sharded = run_study(study, client=cluster, shard=5, progress=lambda done, total: shards.append((done, total)))
     assert [r.stop - r.start for r in plan_shards(study, 5, 2)] == [5, 5, 5, 5, 3]
     assert shards == [(i, 5) for i in range(1, 6)]
     assert sharded.finished == 23 and not sharded.interrupted
     assert_same_result(sharded, single)
     assert_same_summary(summarise(sharded), summarise(single))
-    # both workers took part
-    assert len(cluster.nthreads()) == 2
+    assert (int(single.diverged.sum()) > 0) == (divergence_limit < 2)
+    # the five shards ran on both worker processes
+    assert len({t["worker"] for t in ts.data}) == 2 and len(ts.data) == 5
+
+
+def test_equal_studies_together_do_not_share_tasks(cluster):
+    """The same study twice in one call (and again in a second call): separate tasks, complete equal results."""
+    from torchtea.studies.cluster import run_studies
+
+    study = Study(TRUTH, get_preset("paper-example1"), realisations=9, seed=2)
+    a, b = run_studies([study, study], cluster, shard=4)
+    (c,) = run_studies([study], cluster, shard=4)
+    for r in (a, b, c):
+        assert r.finished == 9 and not r.interrupted
+        assert_same_result(r, a)
 
 
 def test_default_shards_and_full_trajectories_refused(cluster):
@@ -90,17 +111,64 @@ def test_default_shards_and_full_trajectories_refused(cluster):
 
 
 def test_a_failing_shard_keeps_what_finished(cluster):
-    """A shard that raises (here: --device cuda on workers without CUDA) stops the study with one error naming
-    the shard; the finished shards (none here) come back as a partial result."""
-    from torchtea.studies.cluster import StudyFailed
+    """A shard that raises stops the run with one error naming the study and its realisations, with the
+    worker's traceback; the finished shards come back: the study that completed is whole and not interrupted,
+    the failing one holds its finished shards (equal to the one-process run there) and is interrupted."""
+    from torchtea.studies.cluster import StudyFailed, run_studies
+
+    def inject(seed):  # runs in each worker process: shards of studies with this seed fail after a second
+        import time
+
+        import torchtea.studies.cluster as c
+
+        original = getattr(c.run_range, "original", c.run_range)
+
+        def failing(study, start, stop, **kw):
+            if study.seed == seed and start >= 4:
+                time.sleep(1.0)
+                raise RuntimeError(f"injected fault in realisations {start}-{stop}")
+            return original(study, start, stop, **kw)
+
+        failing.original = original
+        c.run_range = failing
+
+    def restore():
+        import torchtea.studies.cluster as c
+
+        c.run_range = getattr(c.run_range, "original", c.run_range)
+
+    good = Study(TRUTH, get_preset("paper-example1"), realisations=8, seed=1)
+    bad = Study(TRUTH, get_preset("paper-example1"), realisations=12, seed=77)
+    cluster.run(inject, 77)
+    try:
+        with pytest.raises(StudyFailed) as info:
+            run_studies([good, bad], cluster, shard=4, names=["good", "bad"])
+    finally:
+        cluster.run(restore)
+    message = str(info.value)
+    assert "a shard failed on the cluster (bad, realisations " in message and "injected fault" in message, message
+    assert "worker traceback" in message and "failing" in message, message
+    done_good, done_bad = info.value.partial
+    assert done_good.finished == 8 and not done_good.interrupted
+    assert_same_result(done_good, run_study(good))
+    assert done_bad.interrupted and 4 <= done_bad.finished < 12
+    assert done_bad.index[:4].tolist() == [0, 1, 2, 3]
+    single = run_study(Study(TRUTH, get_preset("paper-example1"), realisations=4, seed=77))
+    torch.testing.assert_close(done_bad.final["alpha"][:4], single.final["alpha"], rtol=1e-12, atol=0)
+
+
+def test_cuda_on_workers_without_it_is_one_error(cluster, tmp_path, capsys):
+    """`--device cuda` on workers without CUDA: every shard fails; one error naming the study, exit 2, nothing
+    summarised."""
+    from torchtea.cli import main
 
     if torch.cuda.is_available():
         pytest.skip("the workers have CUDA")
-    study = Study(TRUTH, get_preset("paper-example1"), realisations=6, seed=1)
-    with pytest.raises(StudyFailed, match=r"shard torchtea-shard-\w+-\d+-\d+ failed on the cluster") as info:
-        run_study(study, client=cluster, shard=3, device="cuda")
-    (partial,) = info.value.partial
-    assert partial.interrupted and partial.finished == 0
+    code = main(["montecarlo", "--preset", "paper-example1", "--n", "60", "--realisations", "4", "--scheduler",
+                 cluster.scheduler.address, "--device", "cuda", "--logdir", str(tmp_path / "mc")])
+    err = capsys.readouterr().err
+    assert code == 2 and "a shard failed on the cluster (the study, realisations 0–" in err, err
+    assert not (tmp_path / "mc" / "summary.json").exists()
 
 
 def test_cli_on_a_scheduler_writes_the_single_process_run(cluster, tmp_path, capsys):
@@ -223,6 +291,23 @@ def test_cli_cluster_option_errors(tmp_path, capsys):
     assert main(base + ["--scheduler", "tcp://127.0.0.1:9", "--connect-timeout", "1", "--logdir",
                         str(tmp_path / "x")]) == 2
     assert "--scheduler tcp://127.0.0.1:9: cannot connect" in capsys.readouterr().err
+    for flag in ("--workers", "--shard", "--threads-per-worker"):
+        extra = ["--workers", "1"] if flag == "--threads-per-worker" else []
+        assert main(base + extra + [flag, "0", "--logdir", str(tmp_path / "y")]) == 2
+        assert f"{flag} must be at least 1, got 0" in capsys.readouterr().err
+    assert not (tmp_path / "y").exists()  # refused before anything is written
+
+
+def test_scheduler_without_workers_waits_then_says_so(tmp_path, capsys):
+    from distributed import LocalCluster
+
+    from torchtea.cli import main
+
+    with LocalCluster(n_workers=0, processes=False, dashboard_address=":0") as empty:
+        code = main(["montecarlo", "--preset", "paper-example1", "--n", "60", "--realisations", "2", "--scheduler",
+                     empty.scheduler_address, "--connect-timeout", "1", "--logdir", str(tmp_path / "z")])
+    assert code == 2
+    assert "no worker joined within 1 s (--connect-timeout)" in capsys.readouterr().err
 
 
 def test_worker_killed_mid_run_gives_the_complete_identical_result():

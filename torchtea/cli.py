@@ -637,9 +637,12 @@ def _cluster(args):
             client = Client(args.scheduler, timeout=args.connect_timeout)
         except (OSError, TimeoutError) as exc:
             raise CLIError(f"--scheduler {args.scheduler}: cannot connect ({exc})") from None
-        if not client.nthreads():
+        try:  # workers may still be starting (a batch system's jobs, say)
+            client.wait_for_workers(1, timeout=args.connect_timeout)
+        except TimeoutError:
             client.close()
-            raise CLIError(f"--scheduler {args.scheduler}: the scheduler has no workers")
+            raise CLIError(f"--scheduler {args.scheduler}: no worker joined within {args.connect_timeout:g} s "
+                           "(--connect-timeout)") from None
         return client, client.close
     if args.workers:
         import signal
@@ -704,6 +707,10 @@ def cmd_montecarlo(args) -> int:
 
     if args.workers is not None and args.scheduler:
         raise CLIError("--workers and --scheduler: give one (a local cluster, or the address of a running one)")
+    for flag, value in (("--workers", args.workers), ("--shard", args.shard),
+                        ("--threads-per-worker", args.threads_per_worker)):
+        if value is not None and value < 1:
+            raise CLIError(f"{flag} must be at least 1, got {value}")
     sharded = bool(args.workers or args.scheduler)
     if args.shard is not None and not sharded:
         raise CLIError("--shard sets the realisations per Dask task: it needs --workers or --scheduler")
@@ -722,18 +729,20 @@ def cmd_montecarlo(args) -> int:
         (logdir / "sweep.toml").write_text(Path(args.config).read_text())
     client, close = _cluster(args)
     failure = None
+    seconds = []  # per study, where they run one after another
     t0 = time.perf_counter()
     try:
         if client is not None:
             from .studies.cluster import StudyFailed, plan_shards, run_studies
 
             nthreads = sum(client.nthreads().values())
-            total = sum(len(plan_shards(s.study, args.shard, nthreads)) for s in studies)
+            dev = None if args.device is None else str(device)
+            total = sum(len(plan_shards(s.study, args.shard, nthreads, dev)) for s in studies)
             step, close_bar = _progress(total, "montecarlo", "shard", bar=not args.json)
             try:
-                results = run_studies([s.study for s in studies], client, shard=args.shard,
-                                      device=None if args.device is None else str(device),
-                                      progress=_progress_to_file(step, args.progress_file, "shard"))
+                results = run_studies([s.study for s in studies], client, shard=args.shard, device=dev,
+                                      progress=_progress_to_file(step, args.progress_file, "shard"),
+                                      names=[f"sub-study {s.name}" if sweep else "the study" for s in studies])
             except StudyFailed as exc:
                 results, failure = exc.partial, str(exc)
             close_bar()
@@ -741,8 +750,10 @@ def cmd_montecarlo(args) -> int:
             results = []
             for s in studies:
                 step, close_bar = _progress(s.study.realisations, "montecarlo", "realisation", bar=not args.json)
+                t1 = time.perf_counter()
                 results.append(run_study(s.study, progress=_progress_to_file(step, args.progress_file, "realisation"),
                                          device=device))
+                seconds.append(time.perf_counter() - t1)
                 close_bar()
                 if results[-1].interrupted:
                     break
@@ -754,11 +765,16 @@ def cmd_montecarlo(args) -> int:
             raise CLIError(failure)
         raise CLIError("interrupted before any realisation finished; nothing to summarise")
     rows = []
-    for d, s, result in zip(dirs, studies, results):
+    for i, (d, s, result) in enumerate(zip(dirs, studies, results)):
         if not result.finished:
             continue
         summary = summarise(result)
-        summary.update({"logdir": str(d), "seconds": round(elapsed, 2), "preset": s.preset})
+        # a sweep's sub-studies scheduled together have no time of their own: the sweep's is given as such
+        summary.update({"logdir": str(d), "preset": s.preset,
+                        **({"seconds": round(seconds[i], 2)} if i < len(seconds) else {}),
+                        **({"sweep_seconds": round(elapsed, 2)} if sweep else {})})
+        if not sweep:
+            summary["seconds"] = round(elapsed, 2)
         if sweep:
             summary["sweep"] = {"name": s.name, "values": s.values}
         save_study(d, s.study, s.preset, result, summary, figures=args.figures, hparams=s.hparams())
@@ -966,14 +982,15 @@ def build_parser() -> argparse.ArgumentParser:
     mc.add_argument("--realisations", type=int)
     mc.add_argument("--seed", type=int)
     mc.add_argument("--chunk", type=int, help="realisations per batch (default: sized to memory)")
-    mc.add_argument("--log-points", type=int, help="steps logged to TensorBoard and the fan charts (default ≤ 1000, "
-                                                   "fewer above 10⁵ realisations)")
+    mc.add_argument("--log-points", type=int, help="steps logged to TensorBoard and the fan charts (default ≤ 1000; "
+                                                   "fewer above 67 000 realisations, to keep them within 1 GiB)")
     mc.add_argument("--workers", type=int, help="run the study as shards on a local Dask cluster of N processes")
     mc.add_argument("--threads-per-worker", type=int,
                     help="--workers: torch/numba threads of each process (default: the cores shared out)")
     mc.add_argument("--scheduler", help="run the study as shards on the Dask cluster of this scheduler "
                                         "(e.g. tcp://host:8786); --device then names each worker's device")
-    mc.add_argument("--connect-timeout", type=float, default=30.0, help="--scheduler: seconds to wait (default 30)")
+    mc.add_argument("--connect-timeout", type=float, default=30.0,
+                    help="--scheduler: seconds to wait for the scheduler and its first worker (default 30)")
     mc.add_argument("--shard", type=int, help="realisations per Dask task (default: ~4 per worker thread, at most "
                                               "one memory chunk)")
     mc.add_argument("--logdir", help="run directory (default runs/mc-<time>)")

@@ -34,13 +34,17 @@ class StudyFailed(RuntimeError):
         self.partial = partial
 
 
-def plan_shards(study: Study, shard: int | None, workers_threads: int) -> list[range]:
+def plan_shards(study: Study, shard: int | None, workers_threads: int, device=None) -> list[range]:
     """Consecutive ranges of realisations, one per task: ``shard`` realisations each, or by default about four
-    shards per worker thread (so that a slow or lost worker delays the end by a fraction of its share) and no more
-    than one memory chunk each (:func:`~torchtea.studies.montecarlo.auto_chunk`)."""
+    shards per worker thread (so that a slow or lost worker delays the end by a fraction of its share), on the CPU
+    no more than one memory chunk each (:func:`~torchtea.studies.montecarlo.auto_chunk`). On a GPU the shards are
+    not capped: there a batch costs hardly more than a single realisation, and the worker chunks a large shard to
+    its own memory anyway."""
     R = study.realisations
     if shard is None:
-        shard = min(study.chunk or auto_chunk(study.truth.n_steps), math.ceil(R / (4 * max(1, workers_threads))))
+        shard = math.ceil(R / (4 * max(1, workers_threads)))
+        if device is None or str(device).startswith("cpu"):
+            shard = min(shard, study.chunk or auto_chunk(study.truth.n_steps))
     if shard < 1:
         raise ValueError(f"shard must be at least 1 realisation, got {shard}")
     return [range(s, min(R, s + shard)) for s in range(0, R, shard)]
@@ -56,68 +60,89 @@ def shard_task(study: Study, start: int, stop: int, device: str | None, threads:
 
 
 def run_studies(studies: list[Study], client, *, shard: int | None = None, device=None, progress=None,
-                threads: int | None = None) -> list[StudyResult]:
+                threads: int | None = None, names: list[str] | None = None) -> list[StudyResult]:
     """Run studies as shards on a Dask cluster, all shards scheduled together; one result per study.
 
     ``client``: a ``distributed.Client``. ``shard``: realisations per task (default :func:`plan_shards`).
     ``device``: the device name each worker runs its shards on (``"cuda"`` is each worker's own first GPU: give
     workers different GPUs with ``CUDA_VISIBLE_DEVICES``). ``progress(done, total)`` counts shards.
-    ``threads``: torch and numba threads per shard (default: the worker's ``OMP_NUM_THREADS``).
-    Ctrl-C returns what finished, each result marked ``interrupted``; a failing shard raises
+    ``threads``: torch and numba threads per shard (default: the worker's ``OMP_NUM_THREADS``). ``names``: the
+    studies' names in error messages (default their positions).
+    Ctrl-C returns what finished, a study marked ``interrupted`` where shards are missing; a failing shard raises
     :class:`StudyFailed` holding the same.
     """
-    from dask.base import tokenize
+    import uuid
+
     from distributed import as_completed
 
     dev = None if device is None else str(device)
     nthreads = sum(client.nthreads().values()) or 1
-    plans = [plan_shards(st, shard, nthreads) for st in studies]
+    plans = [plan_shards(st, shard, nthreads, dev) for st in studies]
+    names = names or [f"study {i}" for i in range(len(studies))]
+    run_id = uuid.uuid4().hex[:10]  # keys unique to this call: equal studies, or a rerun, never share a task
     futures = {}
     for i, (st, ranges) in enumerate(zip(studies, plans)):
-        token = tokenize(st, dev, threads)
         for rows in ranges:
             fut = client.submit(shard_task, st, rows.start, rows.stop, dev, threads,
-                                key=f"torchtea-shard-{token[:12]}-{rows.start}-{rows.stop}")
-            futures[fut.key] = (i, fut)
+                                key=f"torchtea-shard-{run_id}-{i}-{rows.start}-{rows.stop}")
+            futures[fut.key] = (i, rows, fut)
     parts = [[] for _ in studies]
     total, done = len(futures), 0
-    interrupted = False
     failure = None
-    ac = as_completed([f for _, f in futures.values()], with_results=False)
+    ac = as_completed([f for *_, f in futures.values()], with_results=False)
     try:
         for fut in ac:
-            i, _ = futures.pop(fut.key)
-            if fut.status == "error":
-                failure = (fut.key, fut.exception())
+            i, rows, _ = futures[fut.key]
+            try:
+                if fut.status == "cancelled":
+                    raise RuntimeError("cancelled by the cluster")
+                part = fut.result()  # raises the task's exception, or KilledWorker after allowed-failures deaths
+            except Exception as exc:  # noqa: BLE001 -- every failure of a shard ends the study the same way
+                failure = (names[i], rows, exc, _remote_traceback(fut))
+                del futures[fut.key]
                 break
-            if fut.status == "cancelled":
-                failure = (fut.key, RuntimeError("cancelled by the cluster"))
-                break
-            part = fut.result()
+            del futures[fut.key]  # only now: a Ctrl-C during the fetch leaves it pending, and cancelled below
             fut.release()  # the worker may drop it: a worker lost later does not recompute a fetched shard
             parts[i].append(part)
             done += 1
             if progress is not None:
                 progress(done, total)
     except KeyboardInterrupt:
-        interrupted = True
+        pass
     finally:
         ac.clear()
-        pending = [f for _, f in futures.values()]
+        pending = [f for *_, f in futures.values()]
         if pending:
             client.cancel(pending)
-    stopped = interrupted or failure is not None
-    results = [_merge(st, p, stopped) for st, p in zip(studies, parts)]
+    results = [_merge(st, p) for st, p in zip(studies, parts)]
     if failure is not None:
-        key, exc = failure
-        raise StudyFailed(f"shard {key} failed on the cluster: {type(exc).__name__}: {exc}", results)
+        name, rows, exc, tb = failure
+        where = f"{name}, realisations {rows.start}–{rows.stop - 1}"
+        raise StudyFailed(f"a shard failed on the cluster ({where}): {type(exc).__name__}: {exc}{tb}", results)
     return results
 
 
-def _merge(study: Study, parts: list[StudyResult], interrupted: bool) -> StudyResult:
-    if parts:
-        return StudyResult.concat(parts, interrupted=interrupted)
-    return StudyResult.empty(study, interrupted=interrupted)
+def _remote_traceback(fut) -> str:
+    """The last lines of a failed task's traceback, as the worker raised it ('' where there is none)."""
+    import traceback
+
+    try:
+        tb = fut.traceback()
+    except Exception:  # noqa: BLE001 -- a cancelled or lost task has none
+        return ""
+    if tb is None:
+        return ""
+    lines = "".join(traceback.format_tb(tb)).rstrip().splitlines()
+    return "\n  worker traceback (last lines):\n" + "\n".join(lines[-6:]) if lines else ""
+
+
+def _merge(study: Study, parts: list[StudyResult]) -> StudyResult:
+    """One study's finished shards; ``interrupted`` when any of its realisations is missing."""
+    if not parts:
+        return StudyResult.empty(study, interrupted=True)
+    result = StudyResult.concat(parts)
+    result.interrupted = result.finished < study.realisations
+    return result
 
 
 def local_cluster(workers: int, *, threads_per_worker: int | None = None, quiet: bool = True):

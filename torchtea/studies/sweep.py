@@ -1,8 +1,9 @@
 """Sweeps: a study file whose ``[sweep]`` table lists values of truth and estimator settings.
 
 Every combination of the listed values is a sub-study; all of them share the study's seed, so realisation ``i``
-of every sub-study draws the same input and noises where the truth's length allows (common random numbers: the
-sub-studies differ by their settings, not by their luck). ::
+of every sub-study draws the same input and noises (common random numbers: the sub-studies differ by their
+settings, not by their luck) — unless the sweep changes the truth's length ``n`` or whether it has an input,
+which changes what is drawn. ::
 
     realisations = 200
     seed = 5

@@ -98,12 +98,12 @@ def test_sigma_points_batched_equal_one_at_a_time():
     w = -1.0 + 0.2 * torch.randn(B + (1,), generator=g, dtype=torch.float64)
     sig_o = _sigma_points(alpha, torch.full(B + (1, 1), 0.05, dtype=torch.float64), 3.0)
     sig_w = _sigma_points(w, torch.full(B + (1, 1), 0.2, dtype=torch.float64), 3.0)
-    Y = _replica(model, _ExactMemory(), (xh, None), sig_o, w, sig_w, x_prev, u_prev)
-    assert Y.shape == B + (6, 1)
+    Y, chi = _replica(model, _ExactMemory(), (xh, None), sig_o, w, sig_w, x_prev, u_prev)
+    assert Y.shape == B + (6, 1) and torch.equal(chi, Y)  # C = 1: the outputs are the states
     for i in range(3):
-        one_o = _replica(model, _ExactMemory(), (xh, None), sig_o[..., i : i + 1, :], w, sig_w[..., :1, :], x_prev, u_prev)
+        one_o = _replica(model, _ExactMemory(), (xh, None), sig_o[..., i : i + 1, :], w, sig_w[..., :1, :], x_prev, u_prev)[0]
         torch.testing.assert_close(Y[..., i, :], one_o[..., 0, :], rtol=0, atol=1e-14)
-        one_w = _replica(model, _ExactMemory(), (xh, None), sig_o[..., :1, :], w, sig_w[..., i : i + 1, :], x_prev, u_prev)
+        one_w = _replica(model, _ExactMemory(), (xh, None), sig_o[..., :1, :], w, sig_w[..., i : i + 1, :], x_prev, u_prev)[0]
         torch.testing.assert_close(Y[..., 3 + i, :], one_w[..., 1, :], rtol=0, atol=1e-14)
     # and each equals the model formula written out, (17) and (42)
     from torchtea.core.gl import gl_coefficients

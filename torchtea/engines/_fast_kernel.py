@@ -184,7 +184,7 @@ def adapt_q(Q, K, e, delta, qmax, obs):
 
 @njit(cache=True, parallel=True, error_model="numpy")
 def advance(k0, k1, yoff, ooff, every, y, u, has_u,
-            h, Q, R, Ro, Rw, qmax_o, qmax_w, scaled, start, lo, hi, limit, delta_o, delta_w,
+            h, Q, R, Ro, Rw, qmax_o, qmax_w, scaled, start, lo, hi, limit, delta_o, delta_w, propagated,
             wm_o, wc_o, scale_o, wm_w, wc_w, scale_w,
             kind, xl, pl, H, ka, kb, kbig, decay, inject, eta, klo, khi, count_lo, count_hi, la, lb,
             X, P, AL, PO, QO, W, PW, QW, DIV, DAT, CLAMP,
@@ -294,6 +294,12 @@ def advance(k0, k1, yoff, ooff, every, y, u, has_u,
             F = hp * w + a
             Qx = Q[b] * (hp * hp) if scaled else Q[b]
             P_pred = F * Pk * F + Qx + cov
+            if propagated:
+                # the order's and the parameter's uncertainty (tea._estimate_uncertainty): J P J with J the
+                # statistical linearisation of the replica over the sigma points, Σᵢ Wᵢᶜ Yᵢ (σᵢ − m) / P̃
+                Jo = wc_o[1] * ro * (Y[1] - Y[2]) / Pot if Pot > 0 else 0.0
+                Jw = wc_w[1] * rw * (Y[4] - Y[5]) / Pwt if Pwt > 0 else 0.0
+                P_pred += Jo * Jo * Po_n + Jw * Jw * Pw
             S = P_pred + R[b]
             Kx = P_pred / S if obs else 0.0
             e = yv - x_pred if obs else 0.0

@@ -121,6 +121,7 @@ class FastTEA:
             self.hist = [zeros(1), zeros(1), zeros(xl), zeros(ka.shape[0]), zeros(pl), zeros(H)]
         self.settings = (float(h), Q, R, Ro, Rw, qmax_o, qmax_w, cfg.noise_scaling == "scaled", int(cfg.sigma_sum_start),
                          lo, hi, float(cfg.divergence_limit), float(cfg.kfo.delta), float(cfg.kfw.delta),
+                         cfg.kfx_uncertainty == "propagated",
                          wm_o, wc_o, sc_o, wm_w, wc_w, sc_w,
                          kind, xl, pl, H, ka, kb, float(np.abs(kb[:-1]).max(initial=0.0)), decay, inject, eta, klo, khi,
                          klo if kind == 1 else -math.inf, khi if kind == 1 else math.inf, *_lag_tables(horizon if kind == 0 else max(xl, pl)))

@@ -74,6 +74,8 @@ class UnscentedConfig:
 
 
 NOISE_SCALINGS = ("scaled", "unscaled")
+#: How KFx's prediction sees the order and parameter estimates (TEAConfig.kfx_uncertainty).
+KFX_UNCERTAINTIES = ("paper", "propagated")
 
 
 @dataclass(frozen=True)
@@ -95,6 +97,13 @@ class TEAConfig:
         ``[−limit, limit]`` or become non-finite is flagged and frozen.
     memory : how the GL history sums of all three filters are evaluated
         (:class:`torchtea.core.memory.MemoryConfig`: ``exact``, ``soe`` or ``window``).
+    kfx_uncertainty : "paper" or "propagated" — whether KFx's prediction treats α̂_k
+        and ŵ_{k−1} as exact (the paper) or adds their uncertainty to P̃:
+        ``J_α P_α J_αᵀ + J_w P_w J_wᵀ``, with the sensitivities ``J`` of the predicted
+        state to the order and parameter taken by statistical linearisation over
+        KFo's and KFw's sigma points (``J = P_χσ P̃_σ⁻¹``, the replica values the
+        step computes anyway), ``P_α`` KFo's covariance after its update and ``P_w``
+        KFw's covariance of ŵ_{k−1}.
     """
 
     kfx: StateFilterConfig = field(default_factory=StateFilterConfig)
@@ -105,8 +114,11 @@ class TEAConfig:
     order_bounds: tuple = (0.0, 2.5)
     divergence_limit: float = 1e8
     memory: MemoryConfig = field(default_factory=MemoryConfig)
+    kfx_uncertainty: str = "paper"
 
     def __post_init__(self):
+        if self.kfx_uncertainty not in KFX_UNCERTAINTIES:
+            raise ValueError(f"kfx_uncertainty must be one of {KFX_UNCERTAINTIES}, got {self.kfx_uncertainty!r}")
         if self.sigma_sum_start not in (0, 1):
             raise ValueError("sigma_sum_start must be 0 or 1")
         if self.noise_scaling not in NOISE_SCALINGS:

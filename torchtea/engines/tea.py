@@ -316,7 +316,7 @@ def _replica(model: _Model, memory, hist, orders_o, w_prev, sigma_w, x_prev, u_p
     ``(*B, Sw, m)`` (KFw sigma parameters, with order ``α̂_{k−1}``). KFw's order is KFo's
     centre sigma point (sigma point 0 is the mean), so one GL history evaluation over the ``So``
     orders serves both, and one batched matrix product every drive term. Returns predicted
-    outputs ``(*B, So + Sw, p)``.
+    outputs ``(*B, So + Sw, p)`` and the predicted states ``(*B, So + Sw, n)`` they come from.
     """
     So, Sw = orders_o.shape[-2], sigma_w.shape[-2]
     mem_sum = memory.mean_sums(hist, orders_o)  # (*B, So, n)
@@ -328,7 +328,7 @@ def _replica(model: _Model, memory, hist, orders_o, w_prev, sigma_w, x_prev, u_p
     hp = torch.cat([hpow, centre(hpow)], dim=-2)
     mem = torch.cat([mem_sum, centre(mem_sum)], dim=-2)
     chi = hp * drive - mem
-    return _mm(chi, model.C.mT)
+    return _mm(chi, model.C.mT), chi
 
 
 # --------------------------------------------------------------------------- memory strategies
@@ -441,7 +441,7 @@ def _tea_step(model: _Model, params: TEAParams, weights, memory, carry: Carry, y
     Pw_t = carry.Pw + carry.Qw
     sig_o = _sigma_points(carry.alpha, Po_t, scale_o)
     sig_w = _sigma_points(carry.w, Pw_t, scale_w)
-    Y = _replica(model, memory, hist, model.full(sig_o), carry.w, sig_w, carry.x, u_prev)
+    Y, chi = _replica(model, memory, hist, model.full(sig_o), carry.w, sig_w, carry.x, u_prev)
     So = sig_o.shape[-2]
     alpha, Po, Ko, eo, _ = _ut_update(sig_o, Y[..., :So, :], carry.alpha, Po_t, params.Ro, y0, mask, wm_o, wc_o, start)
     lo, hi = cfg.order_bounds
@@ -458,11 +458,35 @@ def _tea_step(model: _Model, params: TEAParams, weights, memory, carry: Carry, y
     x_pred = hp * _drive(model, A, carry.x, u_prev) - mem_mean
     F = hp.unsqueeze(-1) * A + torch.diag_embed(a)
     Qx = params.Q * (hp.unsqueeze(-1) * hp.unsqueeze(-2)) if cfg.noise_scaling == "scaled" else params.Q
-    P_pred = _symmetrise(_mm(_mm(F, carry.P), F.mT) + Qx + mem_cov)
+    P_pred = _mm(_mm(F, carry.P), F.mT) + Qx + mem_cov
+    if cfg.kfx_uncertainty == "propagated":
+        P_pred = P_pred + _estimate_uncertainty(chi[..., :So, :], sig_o, carry.alpha, Po_t, Po, wc_o) \
+            + _estimate_uncertainty(chi[..., So:, :], sig_w, carry.w, Pw_t, carry.Pw, wc_w)
+    P_pred = _symmetrise(P_pred)
     x, P, e, S = _kfx_update(model, params, x_pred, P_pred, y0, mask)
 
     new = Carry(x, P, alpha, Po, Qo, w, Pw, Qw, carry.diverged)
     return _guard(new, carry, cfg.divergence_limit, branchless), StepOutput(e, S)
+
+
+def _estimate_uncertainty(chi, points, mean, prior_cov, cov, wc):
+    """``J P Jᵀ``: the spread that an estimate's covariance ``cov`` puts into KFx's predicted state.
+
+    ``J`` is the statistical linearisation of the replica state ``χ`` over the estimate's sigma points:
+    ``J = P_χσ P̃⁻¹`` with ``P_χσ = Σᵢ Wᵢᶜ (χᵢ − χ̄)(σᵢ − m)ᵀ`` and ``P̃`` the covariance the points were drawn
+    with (for the symmetric set, ``(χ₊ᵢ − χ₋ᵢ)/2`` over the root's column: a central difference). chi
+    ``(*B, S, n)``, points ``(*B, S, L)``, mean ``(*B, L)``, prior_cov and cov ``(*B, L, L)``; zero where
+    ``P̃`` is zero.
+    """
+    dX = points - mean.unsqueeze(-2)
+    dC = chi - chi.mean(-2, keepdim=True)  # any centre: Σᵢ Wᵢᶜ dXᵢ = 0 for the symmetric points
+    P_cs = _mm((dC * wc.unsqueeze(-1)).mT, dX)  # (*B, n, L)
+    if prior_cov.shape[-1] == 1:
+        p = prior_cov[..., 0, 0]
+        J = torch.where((p > 0)[..., None, None], P_cs / torch.where(p > 0, p, 1.0)[..., None, None], 0.0)
+    else:
+        J = _mm(P_cs, torch.linalg.pinv(prior_cov, hermitian=True))
+    return _mm(_mm(J, cov), J.mT)
 
 
 def _kfx_update(model: _Model, params: TEAParams, x_pred, P_pred, y, mask):

@@ -1,0 +1,125 @@
+"""KFx's prediction with the order's and parameter's uncertainty (TEAConfig.kfx_uncertainty = "propagated")."""
+from dataclasses import replace
+
+import math
+
+import pytest
+import torch
+
+from torchtea.core.gl import gl_coefficients
+from torchtea.core.memory import parse_memory
+from torchtea.engines.presets import SCENARIOS, get_preset
+from torchtea.engines.settings import TEAConfig, UnscentedConfig
+from torchtea.engines.simulate import gaussian_input, simulate
+from torchtea.engines.structure import Structure
+from torchtea.engines.tea import _estimate_uncertainty, _sigma_points, make_params, run_tea, ut_weights
+
+from .test_fast import _same
+
+
+def predicted_state(alpha, w, hist, u):
+    """x̃(α, w) = h^α (w x̂_{k−1} + u_{k−1}) − Σ_{j=1}^{k} c_j(α) x̂_{k−j} with h = 0.1; hist = x̂_{k−1} … x̂_0."""
+    k = hist.shape[-1]
+    c = gl_coefficients(alpha, k)[..., 1:]  # (…, k)
+    return 0.1 ** alpha * (w * hist[0] + u) - (c * hist).sum(-1)
+
+
+def brute_force_variance(alpha, P_alpha, w, P_w, hist, u, n=400_000, seed=0):
+    g = torch.Generator().manual_seed(seed)
+    a = alpha + math.sqrt(P_alpha) * torch.randn(n, generator=g, dtype=torch.float64)
+    b = w + math.sqrt(P_w) * torch.randn(n, generator=g, dtype=torch.float64)
+    return predicted_state(a, b, hist, u).var(), n
+
+
+def test_the_term_equals_a_brute_force_variance_of_the_prediction():
+    """J_α P_α J_α + J_w P_w J_w, with J from the sigma points as the engine forms them, against the sample variance
+    of x̃(α, w) over α ~ N(α̂, P_α), w ~ N(ŵ, P_w) on a 40-step history, for small and moderate spreads; the
+    tolerance is 5 standard errors of a sample variance (√(2/n)) plus the first-order term's own error, which
+    the moderate case shows growing with the spread."""
+    g = torch.Generator().manual_seed(4)
+    hist = torch.randn(40, generator=g, dtype=torch.float64).cumsum(0).flip(0)  # x̂_{k−1} … x̂_0, a rough path
+    u = 0.7
+    alpha, w = 0.45, -1.3
+    wm, wc, scale = ut_weights(1, 1.0, 2.0, None)
+    for P_alpha, P_w, slack in ((1e-6, 1e-4, 0.0), (1e-4, 1e-2, 0.02)):
+        sig_o = _sigma_points(torch.tensor([alpha], dtype=torch.float64), torch.tensor([[P_alpha]], dtype=torch.float64), scale)
+        sig_w = _sigma_points(torch.tensor([w], dtype=torch.float64), torch.tensor([[P_w]], dtype=torch.float64), scale)
+        chi_o = predicted_state(sig_o[:, 0], torch.tensor(w, dtype=torch.float64), hist, u).unsqueeze(-1)
+        chi_w = predicted_state(torch.tensor(alpha, dtype=torch.float64), sig_w[:, 0], hist, u).unsqueeze(-1)
+        term = (_estimate_uncertainty(chi_o, sig_o, torch.tensor([alpha]).double(), torch.tensor([[P_alpha]]).double(),
+                                      torch.tensor([[P_alpha]]).double(), wc)
+                + _estimate_uncertainty(chi_w, sig_w, torch.tensor([w]).double(), torch.tensor([[P_w]]).double(),
+                                        torch.tensor([[P_w]]).double(), wc))[0, 0]
+        var, n = brute_force_variance(alpha, P_alpha, w, P_w, hist, u)
+        assert float(term) == pytest.approx(float(var), rel=5 * math.sqrt(2 / n) + slack), (P_alpha, P_w)
+
+
+def test_the_engines_add_exactly_that_term_at_the_first_step():
+    """At step 1 both settings start from the same carry, so the innovation covariances differ by the term alone:
+    checked against the brute-force variance of x̃₁(α, w) = h^α (w x̂₀ + u₀) + α x̂₀ over α ~ N(α̂₁, Pᵒ₁) and
+    w ~ N(w₀, Pʷ₀), in both engines. KFo's measurement covariance is large, so that α̂₁ ≈ α₀ (where the
+    sensitivity is taken) and the first-order term is exact to the sampling error."""
+    cfg = TEAConfig(kfo=UnscentedConfig(x0=0.45, P0=1e-6, Q0=1e-7, R=1e3, delta=0.0),
+                    kfw=UnscentedConfig(x0=-1.3, P0=1e-2, Q0=0.0, R=1e3, delta=0.0))
+    y = torch.tensor([[[0.8], [1.1]]], dtype=torch.float64)
+    u = torch.tensor([[[0.7], [0.0]]], dtype=torch.float64)
+    for engine in ("torch", "numba"):
+        out = {mode: run_tea(y, h=0.1, params=make_params(replace(cfg, kfx_uncertainty=mode), Structure()), inputs=u,
+                             engine=engine) for mode in ("paper", "propagated")}
+        p, q = out["paper"], out["propagated"]
+        assert torch.equal(p.x[:, 0], q.x[:, 0]) and torch.equal(p.alpha, q.alpha)  # KFo does not see KFx's P
+        diff = float(q.innovation_cov[0, 1, 0, 0] - p.innovation_cov[0, 1, 0, 0])
+        x0 = p.x[0, 0, 0]
+        var, n = brute_force_variance(float(q.alpha[0, 1, 0]), float(q.P_alpha[0, 1, 0, 0]), -1.3, 1e-2,
+                                      x0.reshape(1), 0.7)
+        assert diff > 0 and diff == pytest.approx(float(var), rel=5 * math.sqrt(2 / n) + 1e-3), engine
+
+
+@pytest.mark.parametrize("memory", ["exact", "soe"])
+def test_numba_equals_torch_with_the_term(memory):
+    sc = SCENARIOS["paper-example1"]
+    g = torch.Generator().manual_seed(3)
+    u = gaussian_input((4,), 150, 1, sc.input_std, generator=g)
+    sim = simulate(Structure(), n_steps=150, h=sc.h, order=sc.order, parameters=[sc.param], process_noise=sc.q,
+                   measurement_noise=sc.r, inputs=u, batch_shape=(4,), generator=g)
+    cfg = replace(get_preset("paper-example1"), memory=parse_memory(memory), kfx_uncertainty="propagated")
+    a = run_tea(sim.y, h=sc.h, params=make_params(cfg, Structure()), inputs=u, engine="torch")
+    b = run_tea(sim.y, h=sc.h, params=make_params(cfg, Structure()), inputs=u, engine="numba")
+    _same(a, b)
+    paper = run_tea(sim.y, h=sc.h, params=make_params(replace(cfg, kfx_uncertainty="paper"), Structure()), inputs=u)
+    assert bool((b.P[:, 1:] > paper.P[:, 1:]).any())  # the term is there
+
+
+def test_statistical_linearisation_is_exact_for_a_linear_map():
+    """For χ = M σ + c the sensitivity from the sigma points is M itself, whatever the spread they were drawn
+    with: the term is M P Mᵀ (two estimated orders, three states: the general path)."""
+    g = torch.Generator().manual_seed(5)
+    M = torch.randn(3, 2, generator=g, dtype=torch.float64)
+    A = torch.randn(2, 2, generator=g, dtype=torch.float64)
+    prior = A @ A.T + 0.1 * torch.eye(2, dtype=torch.float64)
+    B = torch.randn(2, 2, generator=g, dtype=torch.float64)
+    post = 0.01 * (B @ B.T)
+    mean = torch.tensor([0.3, 1.0], dtype=torch.float64)
+    wm, wc, scale = ut_weights(2, 1.0, 2.0, None)
+    pts = _sigma_points(mean, prior, scale)
+    chi = pts @ M.T + torch.tensor([1.0, -2.0, 0.5], dtype=torch.float64)
+    torch.testing.assert_close(_estimate_uncertainty(chi, pts, mean, prior, post, wc), M @ post @ M.T,
+                               rtol=1e-12, atol=1e-14)
+
+
+def test_two_estimated_orders_run_and_the_term_only_adds():
+    """The torch engine with two states and two estimated orders: at step 1 (the same carry in both settings)
+    the innovation covariance of the propagated setting exceeds the paper's; the run stays finite. The paper's
+    behaviour is the default."""
+    from .test_device import _mems, _two_state
+
+    assert get_preset("paper-example1").kfx_uncertainty == "paper" == TEAConfig().kfx_uncertainty
+    with pytest.raises(ValueError, match="kfx_uncertainty must be one of"):
+        TEAConfig(kfx_uncertainty="joint")
+    st = _two_state()
+    y = _mems(2, 60, seed=21)
+    out = {mode: run_tea(y, h=0.01, params=make_params(replace(get_preset("paper-mems-x"), kfx_uncertainty=mode), st),
+                         structure=st, engine="torch") for mode in ("paper", "propagated")}
+    assert torch.equal(out["paper"].alpha[:, 1], out["propagated"].alpha[:, 1])
+    assert bool((out["propagated"].innovation_cov[:, 1] > out["paper"].innovation_cov[:, 1]).all())
+    assert all(torch.isfinite(r.P).all() for r in out.values())

@@ -70,6 +70,11 @@ def test_summary_matches_direct_statistics():
     # ±2σ coverage: the fraction of (realisation, step) pairs whose truth lies within α̂ ± 2√Pᵒ, counted here
     inside = (res["alpha"][keep] - res["alpha_true"][keep]).abs() <= 2 * res["P_alpha"][keep].clamp(min=0).sqrt()
     assert s["order"]["coverage_2sigma"] == pytest.approx(inside.double().mean().item(), rel=1e-12)
+    # and by thirds of the 150 steps: 0–49, 50–99, 100–149; NEES from step 1: 1–49, 50–98, 99–149
+    for part, (lo, hi) in zip(s["order"]["coverage_2sigma_by_third"], ((0, 50), (50, 100), (100, 150))):
+        assert part == pytest.approx(inside[:, lo:hi].double().mean().item(), rel=1e-12)
+    for part, (lo, hi) in zip(s["nees"]["mean_by_third"], ((1, 50), (50, 99), (99, 150))):
+        assert part == pytest.approx(res["nees"][keep][:, lo:hi].mean().item(), rel=1e-12)
     assert s["nees"]["mean"] == pytest.approx(res["nees"][keep][:, 1:].mean().item(), rel=1e-12)
     # the convergence times: the last step outside the tolerance, found here by a loop
     err = (res["alpha"] - res["alpha_true"]).abs()
@@ -121,6 +126,11 @@ def test_tensorboard_event_files_read_back(tmp_path):
     assert mean[-1].value == pytest.approx(float(res.trajectories["alpha"][keep, k].mean()), rel=1e-6)
     nees = ea.Scalars("consistency/nees")
     assert nees[-1].step == k and nees[-1].value == pytest.approx(float(res.trajectories["nees"][keep, k].mean()), rel=1e-6)
+    tr = res.trajectories
+    inside = (tr["alpha"][keep, k] - tr["alpha_true"][keep, k]).abs() <= 2 * tr["P_alpha"][keep, k].sqrt()
+    assert ea.Scalars("consistency/order_coverage")[-1].value == pytest.approx(inside.double().mean().item(), rel=1e-6)
+    assert ea.Scalars("metric/nees_mean")[0].value == pytest.approx(summary["nees"]["mean"], rel=1e-6)
+    assert ea.Scalars("metric/order_coverage")[0].value == pytest.approx(summary["order"]["coverage_2sigma"], rel=1e-6)
     assert ea.Scalars("order/truth")[0].value == pytest.approx(0.35)
     assert ea.Scalars("metric/order_rmse")[0].value == pytest.approx(summary["order"]["rmse"], rel=1e-6)
     assert any("summary" in t for t in tags["tensors"])

@@ -138,6 +138,7 @@ class StudyResult:
     covered: dict  # "order", "param" → (R,) int64 number of steps whose truth lies within estimate ± 2σ
     nees_sum: Tensor  # (N,) Σ NEES over the realisations that did not diverge
     nis_sum: Tensor  # (N,) Σ NIS over the same
+    covered_steps: dict  # "order", "param" → (N,) int64 count of the same realisations covered at each step
     steps: Tensor  # (P,) int64 logged sample indices
     logged: dict  # "alpha", "w" → (R, P) estimates at the logged steps; "alpha_true" → (P,)
     interrupted: bool = False
@@ -163,7 +164,7 @@ class StudyResult:
                    diverged=torch.empty(0, dtype=torch.bool), final={k: f64(0) for k in FINALS},
                    converged_at={"order": f64(0), "param": f64(0)}, covered={"order": count(), "param": count()},
                    nees_sum=torch.zeros(N, dtype=torch.float64), nis_sum=torch.zeros(N, dtype=torch.float64),
-                   steps=steps, logged={"alpha": f64(0, len(steps)), "w": f64(0, len(steps)),
+                   covered_steps={k: torch.zeros(N, dtype=torch.int64) for k in ("order", "param")}, steps=steps, logged={"alpha": f64(0, len(steps)), "w": f64(0, len(steps)),
                                         "alpha_true": torch.full((len(steps),), math.nan, dtype=torch.float64)},
                    interrupted=interrupted, trajectories={k: f64(0, N) for k in TRAJECTORIES} if trajectories else None)
 
@@ -185,6 +186,7 @@ class StudyResult:
                    converged_at={k: cat(lambda p: p.converged_at[k]) for k in ("order", "param")},
                    covered={k: cat(lambda p: p.covered[k]) for k in ("order", "param")},
                    nees_sum=_sum(p.nees_sum for p in parts), nis_sum=_sum(p.nis_sum for p in parts),
+                   covered_steps={k: _sum(p.covered_steps[k] for p in parts) for k in ("order", "param")},
                    steps=first.steps, logged={"alpha": cat(lambda p: p.logged["alpha"]),
                                               "w": cat(lambda p: p.logged["w"]),
                                               "alpha_true": first.logged["alpha_true"]},
@@ -208,11 +210,13 @@ def _digest(study: Study, rows: range, sim, res, steps: list[int], trajectories:
     diverged = res.diverged.to("cpu")
     keep = ~diverged
     w_true = torch.tensor(tr.param, dtype=torch.float64)
-    converged_at, covered = {}, {}
+    converged_at, covered, covered_steps = {}, {}, {}
     for name, est, truth, var, tol in (("order", alpha, alpha_true, P_alpha, study.order_tolerance),
                                        ("param", w, w_true.expand_as(w), P_w, study.param_tolerance)):
         converged_at[name] = convergence_time(est.unsqueeze(-1), truth.unsqueeze(-1), tol, tr.h)[:, 0]
-        covered[name] = coverage(est, truth, var).sum(1)
+        inside = coverage(est, truth, var)
+        covered[name] = inside.sum(1)
+        covered_steps[name] = (inside & keep[:, None]).sum(0)
     zero = torch.zeros((), dtype=torch.float64)
     idx = torch.tensor(steps)
     full = {"alpha_true": alpha_true, "alpha": alpha, "P_alpha": P_alpha, "w": w, "P_w": P_w, "nees": e_nees,
@@ -221,6 +225,7 @@ def _digest(study: Study, rows: range, sim, res, steps: list[int], trajectories:
         study=study, t=torch.arange(tr.n_steps, dtype=torch.float64) * tr.h,
         index=torch.arange(rows.start, rows.stop), diverged=diverged,
         final={k: full[k][:, -1].clone() for k in FINALS}, converged_at=converged_at, covered=covered,
+        covered_steps=covered_steps,
         nees_sum=torch.where(keep[:, None], e_nees, zero).sum(0), nis_sum=torch.where(keep[:, None], e_nis, zero).sum(0),
         steps=idx, logged={"alpha": alpha[:, idx], "w": w[:, idx], "alpha_true": alpha_true[0, idx]},
         trajectories=full if trajectories else None)
@@ -320,14 +325,25 @@ def summarise(result: StudyResult) -> dict:
                 ct, torch.tensor([0.05, 0.5, 0.95], dtype=ct.dtype)))} if kept and not torch.isnan(ct).all() else {})
         # the fraction of (realisation, step) pairs inside ±2σ: a sum of integers, the same however it was split
         entry["coverage_2sigma"] = int(result.covered[name][keep].sum()) / (kept * N) if kept else math.nan
+        # the same by thirds of the run: a filter can be honest while it learns and overconfident once settled
+        entry["coverage_2sigma_by_third"] = [
+            int(result.covered_steps[name][part].sum()) / (kept * (part.stop - part.start)) if kept else math.nan
+            for part in _thirds(N)]
         out[name] = entry
     if kept:
         lo, hi = chi2_band(1, kept)
         for name, total in (("nees", result.nees_sum), ("nis", result.nis_sum)):
             avg = total[1:] / kept
             out[name] = {"mean": float(avg.mean()), "band_95": [lo, hi],
-                         "fraction_of_steps_inside_band": float(((avg >= lo) & (avg <= hi)).double().mean())}
+                         "fraction_of_steps_inside_band": float(((avg >= lo) & (avg <= hi)).double().mean()),
+                         "mean_by_third": [float((total[part] / kept).mean()) for part in _thirds(N, first=1)]}
     return out
+
+
+def _thirds(N: int, first: int = 0) -> list[slice]:
+    """Steps ``first … N−1`` in three consecutive parts (the last holds the remainder)."""
+    n = N - first
+    return [slice(first, first + n // 3), slice(first + n // 3, first + 2 * (n // 3)), slice(first + 2 * (n // 3), N)]
 
 
 def build_study(data: dict, flags: dict | None = None, *, memory=None, source: str = "study") -> tuple[Study, str]:
@@ -420,6 +436,7 @@ def save_study(logdir, study: Study, preset: str, result: StudyResult | None = N
     hp = {"realisations": result.finished, "seed": study.seed, "preset": preset, "order": tr.order,
           "param": tr.param, "q": tr.q, "r": tr.r, "h": tr.h, "n": tr.n_steps,
           "input_std": tr.input_std if tr.input_std is not None else 0.0, "truth_memory": tr.memory,
+          "kfx_uncertainty": study.estimator.kfx_uncertainty,
           **(hparams or {})}
     log_study(logdir, result, summary, hp, figures=figures)
     return logdir

@@ -19,7 +19,8 @@ def log_study(logdir, result, summary: dict, hparams: dict, *, figures: bool = F
 
     Scalars at the study's logged steps (x axis: sample index k; ≤ 1000 evenly strided steps,
     :func:`~torchtea.studies.montecarlo.logged_steps`): ``order/{truth,mean,q05…q95,rmse}``, ``param/{…}``,
-    ``consistency/{nees,nis,band_lo,band_hi}``; the fan charts as TensorBoard's own margin charts (CUSTOM SCALARS
+    ``consistency/{nees,nis,band_lo,band_hi,order_coverage,param_coverage}`` (the coverages: the fraction of
+    realisations whose truth lies within the estimate ± 2σ at that step); the fan charts as TensorBoard's own margin charts (CUSTOM SCALARS
     tab: the median with the 5–95 % and 25–75 % bands, truth against mean, NEES/NIS in their band); histograms
     ``final/order``, ``final/param``; text ``summary``; hparams (study settings → final metrics, tags
     ``metric/…``) so that several studies can be compared side by side in the HParams view.
@@ -61,13 +62,19 @@ def log_study(logdir, result, summary: dict, hparams: dict, *, figures: bool = F
             at = steps[1:] if len(steps) > 1 else steps
             lo, hi = summary["nees"]["band_95"]
             series.append(({"consistency/nees": result.nees_sum[at] / kept, "consistency/nis": result.nis_sum[at] / kept,
-                            "consistency/band_lo": [lo] * len(at), "consistency/band_hi": [hi] * len(at)}, at))
+                            "consistency/band_lo": [lo] * len(at), "consistency/band_hi": [hi] * len(at),
+                            "consistency/order_coverage": result.covered_steps["order"][at] / kept,
+                            "consistency/param_coverage": result.covered_steps["param"][at] / kept}, at))
         _scalars(w, series)
         w.add_custom_scalars(fan_layout())
         w.add_text("summary", _markdown(summary), 0)
         metrics = {"metric/order_rmse": summary["order"]["rmse"], "metric/order_bias": summary["order"]["bias"],
                    "metric/param_rmse": summary["param"]["rmse"], "metric/param_bias": summary["param"]["bias"],
-                   "metric/diverged_fraction": summary["diverged_fraction"]}
+                   "metric/diverged_fraction": summary["diverged_fraction"],
+                   "metric/order_coverage": summary["order"]["coverage_2sigma"],
+                   "metric/param_coverage": summary["param"]["coverage_2sigma"],
+                   "metric/nees_mean": summary.get("nees", {}).get("mean", math.nan),
+                   "metric/nis_mean": summary.get("nis", {}).get("mean", math.nan)}
         metrics = {k: (v if math.isfinite(v) else -1.0) for k, v in metrics.items()}
         for s in hparams_summary(hparams, metrics):
             w.file_writer.add_summary(s)
@@ -84,7 +91,9 @@ def fan_layout() -> dict:
                         f"{name}: median, 25–75 %": ["Margin", [f"{name}/q50", f"{name}/q25", f"{name}/q75"]],
                         f"{name}: truth and mean": ["Multiline", [f"{name}/truth", f"{name}/mean"]]}
     layout["consistency"] = {"NEES and NIS (means over realisations) and the 95 % band": [
-        "Multiline", ["consistency/nees", "consistency/nis", "consistency/band_lo", "consistency/band_hi"]]}
+        "Multiline", ["consistency/nees", "consistency/nis", "consistency/band_lo", "consistency/band_hi"]],
+        "±2σ coverage of the order and the parameter (fraction of realisations; 0.95 if honest)": [
+        "Multiline", ["consistency/order_coverage", "consistency/param_coverage"]]}
     return layout
 
 

@@ -1,0 +1,90 @@
+"""Issue 15: KFx's consistency with the order's and parameter's uncertainty propagated, against the paper's KFx.
+
+    python experiments/montecarlo/consistency.py [--realisations 200] [--only NAME ...]
+
+Every setting runs as a `torchtea montecarlo` sweep over ``estimator.kfx_uncertainty = ["paper", "propagated"]``
+(same seed: the two settings see the same realisations) into experiments/montecarlo/runs/consistency/<setting>/,
+one TensorBoard run per sub-study (the HParams tab compares them: metric/nees_mean, metric/order_coverage, …).
+The settings are those of README.md's table: Examples 1–3, the MEMS setting and the 3 × 3 sweep of Example 1.
+Writes consistency.json (the summaries) and prints the before/after table of README.md.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
+from torchtea.cli import main as cli  # noqa: E402
+
+HERE = Path(__file__).resolve().parent
+RUNS = HERE / "runs" / "consistency"
+MODES = ("paper", "propagated")
+MEMS_TRUTH = {"h": 0.01, "n": 3000, "order": "0.4", "param": -4.0, "q": 0.01, "r": 4e-4}
+SETTINGS = {
+    "example1": ("paper-example1", {}, 1),
+    "example2": ("paper-example2", {}, 2),
+    "example3": ("paper-example3", {}, 3),
+    "mems": ("paper-mems-x", MEMS_TRUTH, 4),
+    **{f"sweep_a{o}_f{p}": ("paper-example1", {"order": o, "param": float(p)}, 5)
+       for o in ("0.2", "0.35", "0.6") for p in ("-0.5", "-1", "-2")},
+}
+
+
+def toml_value(v):
+    return f'"{v}"' if isinstance(v, str) else repr(v)
+
+
+def run(name: str, preset: str, truth: dict, seed: int, realisations: int) -> dict:
+    cfg = RUNS / f"{name}.toml"
+    cfg.parent.mkdir(parents=True, exist_ok=True)
+    lines = [f"realisations = {realisations}", f"seed = {seed}", "[estimator]", f'preset = "{preset}"']
+    if truth:
+        lines += ["[truth]"] + [f"{k} = {toml_value(v)}" for k, v in truth.items()]
+    lines += ["[sweep.estimator]", 'kfx_uncertainty = ["paper", "propagated"]']
+    cfg.write_text("\n".join(lines) + "\n")
+    t0 = time.perf_counter()
+    code = cli(["montecarlo", "--config", str(cfg), "--logdir", str(RUNS / name), "--json"])
+    table = json.loads((RUNS / name / "sweep.json").read_text())
+    print(f"{name}: {time.perf_counter() - t0:.1f} s (exit {code})", file=sys.stderr, flush=True)
+    return {s["sweep"]["values"]["estimator.kfx_uncertainty"]: s for s in table["studies"]}
+
+
+def fmt(v, spec):
+    return "–" if v is None else format(v, spec)
+
+
+def table(results: dict) -> str:
+    rows = ["| setting | KFx | mean NEES (thirds) | order ±2σ coverage (thirds) | param ±2σ coverage | order bias / RMSE | "
+            "param bias / RMSE | mean NIS |", "|---|---|---|---|---|---|---|---|"]
+    for name, by_mode in results.items():
+        for mode in MODES:
+            s = by_mode[mode]
+            o, p = s["order"], s["param"]
+            thirds = lambda xs, spec: " / ".join(fmt(x, spec) for x in xs)  # noqa: E731
+            rows.append(f"| {name} | {mode} | {s['nees']['mean']:.3g} ({thirds(s['nees']['mean_by_third'], '.3g')}) | "
+                        f"{o['coverage_2sigma']:.3f} ({thirds(o['coverage_2sigma_by_third'], '.3f')}) | "
+                        f"{p['coverage_2sigma']:.3f} | {o['bias']:+.4f} / {o['rmse']:.4f} | "
+                        f"{p['bias']:+.3f} / {p['rmse']:.3f} | {s['nis']['mean']:.3f} |")
+    return "\n".join(rows)
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--realisations", type=int, default=200)
+    ap.add_argument("--only", nargs="*")
+    args = ap.parse_args()
+    path = HERE / "consistency.json"
+    results = json.loads(path.read_text()) if path.exists() else {}
+    for name, (preset, truth, seed) in SETTINGS.items():
+        if args.only and name not in args.only:
+            continue
+        results[name] = run(name, preset, truth, seed, args.realisations)
+        path.write_text(json.dumps(results, indent=2) + "\n")
+    print(table({k: results[k] for k in SETTINGS if k in results}))
+
+
+if __name__ == "__main__":
+    main()

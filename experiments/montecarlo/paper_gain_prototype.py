@@ -14,7 +14,8 @@ with J_α and J_w the sensitivities of the prediction as the package takes them 
 KFo's and KFw's sigma points). The filter is the scalar NumPy reference loop of the tests (tests/reference_tea.py),
 extended by these lines; it is slow (O(N²) in Python), hence the small sizes. Prints the NEES of x̂ against P
 (the paper's) and against Pʰ, per setting, and the same realisations' NEES under the package's "propagated"
-setting for comparison.
+setting for comparison. ``--r-from-kfx`` adds a first look at KFo's honesty: KFo and KFw with KFx's last
+innovation covariance as their measurement covariance, and the order's ±2σ coverage of both variants.
 """
 from __future__ import annotations
 
@@ -35,8 +36,9 @@ from torchtea.engines.simulate import simulate  # noqa: E402
 from torchtea.engines.structure import Structure  # noqa: E402
 
 
-def tea_with_honest_cov(y, u, h, s):
-    """The reference TEA (paper's gain) returning x̂, P and the honest Pʰ."""
+def tea_with_honest_cov(y, u, h, s, r_from_kfx=False):
+    """The reference TEA (paper's gain) returning x̂, P, the honest Pʰ, α̂ and Pᵒ. ``r_from_kfx``: KFo's and KFw's
+    measurement covariance is KFx's last innovation covariance S_{k−1} instead of the fixed Rᵒ, Rʷ."""
     N = len(y)
     u = np.zeros(N) if u is None else np.asarray(u, dtype=float)
     lam = s["ua"] ** 2 * (1 + s["kappa"]) - 1
@@ -49,7 +51,7 @@ def tea_with_honest_cov(y, u, h, s):
     Ph = P
     a, Po, Qo, w, Pw, Qw = s["a0"], s["P0o"], s["Q0o"], s["w0"], s["P0w"], s["Q0w"]
     xs, Ps, Phs = [x], [P], [Ph]
-    out_x, out_P, out_Ph = [x], [P], [Ph]
+    out_x, out_P, out_Ph, out_a, out_Po = [x], [P], [Ph], [a], [Po]
 
     def ut(mean, Pt, pts, Ys, R, yk):
         yp = sum(Wm[i] * Ys[i] for i in range(3))
@@ -75,7 +77,7 @@ def tea_with_honest_cov(y, u, h, s):
         ro = math.sqrt((1 + lam) * Pot)
         pts = [a, a + ro, a - ro]
         Yo = [model(p, w) for p in pts]
-        a_new, Po, Kk, e = ut(a, Pot, pts, Yo, s["Ro"], y[k])
+        a_new, Po, Kk, e = ut(a, Pot, pts, Yo, S if r_from_kfx else s["Ro"], y[k])
         a_new = min(max(a_new, s["lo"]), s["hi"])
         Qo = adapt(Qo, Kk, e, s["delta_o"], s["Qmax_o"])
         Pw_prev = Pw
@@ -83,7 +85,7 @@ def tea_with_honest_cov(y, u, h, s):
         rw = math.sqrt((1 + lam) * Pwt)
         ptw = [w, w + rw, w - rw]
         Yw = [model(a, p) for p in ptw]
-        w_new, Pw, Kk, e = ut(w, Pwt, ptw, Yw, s["Rw"], y[k])
+        w_new, Pw, Kk, e = ut(w, Pwt, ptw, Yw, S if r_from_kfx else s["Rw"], y[k])
         Qw = adapt(Qw, Kk, e, s["delta_w"], s["Qmax_w"])
         # the sensitivities, as the package's "propagated" setting takes them
         Jo = Wc[1] * ro * (Yo[1] - Yo[2]) / Pot if Pot > 0 else 0.0
@@ -107,7 +109,9 @@ def tea_with_honest_cov(y, u, h, s):
         out_x.append(x)
         out_P.append(P)
         out_Ph.append(Ph)
-    return np.array(out_x), np.array(out_P), np.array(out_Ph)
+        out_a.append(a)
+        out_Po.append(Po)
+    return tuple(np.array(v) for v in (out_x, out_P, out_Ph, out_a, out_Po))
 
 
 SETTINGS = {
@@ -121,28 +125,37 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--realisations", type=int, default=40)
     ap.add_argument("--n", type=int, default=1500)
+    ap.add_argument("--r-from-kfx", action="store_true",
+                    help="also the variant whose KFo and KFw take KFx's last S as their measurement covariance")
     args = ap.parse_args()
-    print(f"{'setting':<16} {'NEES paper P':>13} {'NEES Pʰ (paper gain)':>21} {'NEES propagated':>16}  "
-          "(means over realisations and steps 1…N−1)")
+    print(f"{'setting':<16} {'variant':<10} {'NEES paper P':>13} {'NEES Pʰ':>9} {'NEES propagated':>16} "
+          f"{'order ±2σ cov.':>15} {'order RMSE':>11}  (NEES: means over realisations and steps 1…N−1; the order's "
+          "coverage over (realisation, step) pairs, RMSE at the last sample)")
     for name, (truth, preset) in SETTINGS.items():
         tr = Truth(n_steps=args.n, **truth)
         cfg = get_preset(preset)
         s = settings_from_config(cfg)
-        nees_p, nees_h = [], []
-        for i in range(args.realisations):
-            u, z_w, z_v = draw_realisation(tr, 7, i)
-            sim = simulate(Structure(), n_steps=tr.n_steps, h=tr.h, order=tr.schedule(), parameters=[tr.param],
-                           process_noise=tr.q, measurement_noise=tr.r, inputs=None if u is None else u.unsqueeze(0),
-                           standard_draws=(z_w.unsqueeze(0), z_v.unsqueeze(0)), memory="soe")
-            y = sim.y[0, :, 0].numpy()
-            xt = sim.x[0, :, 0].numpy()
-            x, P, Ph = tea_with_honest_cov(y, None if u is None else u[:, 0].numpy(), tr.h, s)
-            err2 = (x - xt) ** 2
-            nees_p.append(np.mean(err2[1:] / P[1:]))
-            nees_h.append(np.mean(err2[1:] / Ph[1:]))
+        alpha_true = tr.schedule().values(tr.n_steps, tr.h, 1)[:, 0].numpy()
         prop = run_study(Study(tr, replace(cfg, kfx_uncertainty="propagated"), realisations=args.realisations, seed=7))
         nees_prop = float(prop.nees_sum[1:].sum() / (prop.kept * (args.n - 1)))
-        print(f"{name:<16} {np.mean(nees_p):13.3f} {np.mean(nees_h):21.3f} {nees_prop:16.3f}", flush=True)
+        for variant in (("paper R", False), ("R = S", True))[: 2 if args.r_from_kfx else 1]:
+            nees_p, nees_h, cover, final = [], [], [], []
+            for i in range(args.realisations):
+                u, z_w, z_v = draw_realisation(tr, 7, i)
+                sim = simulate(Structure(), n_steps=tr.n_steps, h=tr.h, order=tr.schedule(), parameters=[tr.param],
+                               process_noise=tr.q, measurement_noise=tr.r,
+                               inputs=None if u is None else u.unsqueeze(0),
+                               standard_draws=(z_w.unsqueeze(0), z_v.unsqueeze(0)), memory="soe")
+                y = sim.y[0, :, 0].numpy()
+                xt = sim.x[0, :, 0].numpy()
+                x, P, Ph, a, Po = tea_with_honest_cov(y, None if u is None else u[:, 0].numpy(), tr.h, s, variant[1])
+                err2 = (x - xt) ** 2
+                nees_p.append(np.mean(err2[1:] / P[1:]))
+                nees_h.append(np.mean(err2[1:] / Ph[1:]))
+                cover.append(np.mean(np.abs(a - alpha_true) <= 2 * np.sqrt(Po)))
+                final.append(a[-1] - alpha_true[-1])
+            print(f"{name:<16} {variant[0]:<10} {np.mean(nees_p):13.3f} {np.mean(nees_h):9.3f} {nees_prop:16.3f} "
+                  f"{np.mean(cover):15.3f} {math.sqrt(np.mean(np.square(final))):11.4f}", flush=True)
 
 
 if __name__ == "__main__":

@@ -123,3 +123,28 @@ def test_two_estimated_orders_run_and_the_term_only_adds():
     assert torch.equal(out["paper"].alpha[:, 1], out["propagated"].alpha[:, 1])
     assert bool((out["propagated"].innovation_cov[:, 1] > out["paper"].innovation_cov[:, 1]).all())
     assert all(torch.isfinite(r.P).all() for r in out.values())
+
+
+def test_cli_flag_sets_the_setting_in_montecarlo_identify_and_refuses_a_swept_one(tmp_path, capsys):
+    """--kfx-uncertainty: the study file written by montecarlo says it, the same seed's NEES falls from the paper's
+    overconfident value to near 1; identify's report names it as a change; a sweep over it refuses the flag."""
+    import json
+
+    from torchtea.cli import main
+
+    base = ["montecarlo", "--preset", "paper-example1", "--n", "300", "--realisations", "8", "--seed", "2", "--json"]
+    assert main(base + ["--logdir", str(tmp_path / "paper")]) == 0
+    paper = json.loads(capsys.readouterr().out)
+    assert main(base + ["--logdir", str(tmp_path / "prop"), "--kfx-uncertainty", "propagated"]) == 0
+    prop = json.loads(capsys.readouterr().out)
+    assert 'kfx_uncertainty = "propagated"' in (tmp_path / "prop" / "study.toml").read_text()
+    assert paper["nees"]["mean"] > 10 and 0.5 < prop["nees"]["mean"] < 2, (paper["nees"], prop["nees"])
+    assert main(["identify", "--samples", "300", "--r", "measured", "--kfx-uncertainty", "propagated", "--out",
+                 str(tmp_path / "id")]) == 0
+    capsys.readouterr()
+    assert "`kfx_uncertainty: 'paper' → 'propagated'`" in (tmp_path / "id" / "report.md").read_text()
+    cfg = tmp_path / "s.toml"
+    cfg.write_text('realisations = 2\n[estimator]\npreset = "paper-example1"\n[truth]\nn = 60\n'
+                   '[sweep.estimator]\nkfx_uncertainty = ["paper", "propagated"]\n')
+    assert main(["montecarlo", "--config", str(cfg), "--kfx-uncertainty", "paper", "--logdir", str(tmp_path / "sw")]) == 2
+    assert "estimator.kfx_uncertainty is swept; leave out --kfx-uncertainty" in capsys.readouterr().err

@@ -26,6 +26,11 @@ COMPILE_HELP = ("soe/window memory: run the filter through torch.compile (about 
                 "cached afterwards; pays off for long recordings, not for large batches)")
 
 
+KFX_UNCERTAINTY_HELP = ("how KFx's prediction sees the order and parameter estimates: paper (as exact, the "
+                        "paper's KFx) or propagated (their covariances added to KFx's P̃; consistent NEES, see "
+                        "experiments/montecarlo/README.md); default: the settings'")
+
+
 ALLOW_MISSING_HELP = ("predict through missing samples (empty or NaN values, the recorder's NaN rows) instead of "
                       "stopping; they are left out of every statistic and counted in the output")
 
@@ -364,6 +369,10 @@ def cmd_estimate(args) -> int:
 
     cfg, source = _tea_config(args)
     cfg = _with_memory(cfg, args.memory)
+    if args.kfx_uncertainty:
+        from dataclasses import replace
+
+        cfg = replace(cfg, kfx_uncertainty=args.kfx_uncertainty)
     try:
         cols = read_series(args.file, ["y"], ["u", "t"], allow_missing=True)
     except InputError as exc:
@@ -481,6 +490,9 @@ def _identify_overrides(args):
     if mem is not None:
         overrides = dict(overrides, memory=mem.to_dict())
         where.append(f"--memory {args.memory}")
+    if args.kfx_uncertainty:
+        overrides = dict(overrides, kfx_uncertainty=args.kfx_uncertainty)
+        where.append(f"--kfx-uncertainty {args.kfx_uncertainty}")
     if not overrides:
         return None, None, "exact"
     import torch
@@ -617,6 +629,11 @@ def _studies_from_args(args):
 
     data = read_toml(args.config, "study") if args.config else {}
     memory = _memory(args.memory)
+    if args.kfx_uncertainty:
+        swept = data.get("sweep", {}).get("estimator", {})
+        if isinstance(swept, dict) and "kfx_uncertainty" in swept:
+            raise CLIError(f"{args.config}: estimator.kfx_uncertainty is swept; leave out --kfx-uncertainty")
+        data = dict(data, estimator={**data.get("estimator", {}), "kfx_uncertainty": args.kfx_uncertainty})
     flags = {k: getattr(args, k) for k in ("realisations", "seed", "chunk", "log_points", "preset", "n", "h", "order",
                                             "param", "q", "r", "input_std")}
     try:
@@ -890,6 +907,7 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--out", help="trajectory CSV (default: FILE.tea.csv next to the input)")
     e.add_argument("--allow-missing", action="store_true", help=ALLOW_MISSING_HELP)
     e.add_argument("--memory", help=MEMORY_HELP)
+    e.add_argument("--kfx-uncertainty", choices=("paper", "propagated"), help=KFX_UNCERTAINTY_HELP)
     e.add_argument("--compile", action="store_true", help=COMPILE_HELP)
     e.add_argument("--device", help=DEVICE_HELP)
     e.add_argument("--json", action="store_true", help="print a JSON summary")
@@ -916,6 +934,7 @@ def build_parser() -> argparse.ArgumentParser:
     i.add_argument("--out", help="output directory (default identify-<recording name>)")
     i.add_argument("--no-plots", action="store_true")
     i.add_argument("--memory", help=MEMORY_HELP)
+    i.add_argument("--kfx-uncertainty", choices=("paper", "propagated"), help=KFX_UNCERTAINTY_HELP)
     i.add_argument("--compile", action="store_true", help=COMPILE_HELP)
     i.add_argument("--device", help=DEVICE_HELP + "; the --r fitted noise-level fit runs on the CPU whatever the "
                                                   "device (its exact Kalman filter is compiled for the CPU)")
@@ -1003,6 +1022,7 @@ def build_parser() -> argparse.ArgumentParser:
     mc.add_argument("--r", type=_nonneg_float)
     mc.add_argument("--input-std", type=_nonneg_float)
     mc.add_argument("--memory", help="estimator's " + MEMORY_HELP)
+    mc.add_argument("--kfx-uncertainty", choices=("paper", "propagated"), help=KFX_UNCERTAINTY_HELP)
     mc.add_argument("--device", help=DEVICE_HELP)
     mc.add_argument("--figures", action="store_true",
                     help="also the matplotlib fan charts as TensorBoard images (the margin charts in CUSTOM SCALARS "

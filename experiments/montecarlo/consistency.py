@@ -11,6 +11,8 @@ Writes consistency.json (the summaries) and prints the before/after table of REA
 from __future__ import annotations
 
 import argparse
+import contextlib
+import io
 import json
 import sys
 import time
@@ -46,7 +48,8 @@ def run(name: str, preset: str, truth: dict, seed: int, realisations: int) -> di
     lines += ["[sweep.estimator]", 'kfx_uncertainty = ["paper", "propagated"]']
     cfg.write_text("\n".join(lines) + "\n")
     t0 = time.perf_counter()
-    code = cli(["montecarlo", "--config", str(cfg), "--logdir", str(RUNS / name), "--json"])
+    with contextlib.redirect_stdout(io.StringIO()):  # the sweep's JSON is read back from sweep.json below
+        code = cli(["montecarlo", "--config", str(cfg), "--logdir", str(RUNS / name), "--json"])
     table = json.loads((RUNS / name / "sweep.json").read_text())
     print(f"{name}: {time.perf_counter() - t0:.1f} s (exit {code})", file=sys.stderr, flush=True)
     return {s["sweep"]["values"]["estimator.kfx_uncertainty"]: s for s in table["studies"]}

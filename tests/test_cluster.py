@@ -41,6 +41,8 @@ def assert_same_result(a: StudyResult, b: StudyResult):
         assert torch.equal(a.covered[k], b.covered[k])
     for k in a.logged:
         torch.testing.assert_close(a.logged[k], b.logged[k], rtol=1e-12, atol=0)
+    for k in ("order", "param"):
+        assert torch.equal(a.covered_steps[k], b.covered_steps[k])
     torch.testing.assert_close(a.nees_sum, b.nees_sum, rtol=1e-12, atol=0)
     torch.testing.assert_close(a.nis_sum, b.nis_sum, rtol=1e-12, atol=0)
 

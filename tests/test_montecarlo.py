@@ -323,3 +323,18 @@ def test_study_on_cuda_equals_cpu():
     cpu, gpu = run_study(study, trajectories=True), run_study(study, device="cuda", trajectories=True)
     for name in ("alpha_true", "alpha", "P_alpha", "w", "P_w", "nees", "nis"):
         torch.testing.assert_close(gpu.trajectories[name], cpu.trajectories[name], rtol=1e-9, atol=1e-11)
+
+
+def test_a_two_sample_study_has_no_thirds_to_split(tmp_path, capsys):
+    """The shortest study the CLI accepts (n = 2): the statistics by thirds of the run are null where a third is
+    empty, not a division by zero."""
+    import json
+
+    from torchtea.cli import main
+
+    assert main(["montecarlo", "--preset", "paper-example1", "--n", "2", "--realisations", "3", "--logdir",
+                 str(tmp_path / "mc"), "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["order"]["coverage_2sigma_by_third"][:2] == [None, None]
+    assert 0 <= out["order"]["coverage_2sigma_by_third"][2] <= 1
+    assert out["nees"]["mean_by_third"][:2] == [None, None] and out["nees"]["mean_by_third"][2] > 0

@@ -27,8 +27,8 @@ COMPILE_HELP = ("soe/window memory: run the filter through torch.compile (about 
 
 
 KFX_UNCERTAINTY_HELP = ("how KFx's prediction sees the order and parameter estimates: paper (as exact, the "
-                        "paper's KFx) or propagated (their covariances added to KFx's P̃; consistent NEES, see "
-                        "experiments/montecarlo/README.md); default: the settings'")
+                        "paper's KFx) or propagated (their covariances added to KFx's P̃: NEES near 1 where the "
+                        "order is identifiable, see experiments/montecarlo/README.md); default: the settings'")
 
 
 ALLOW_MISSING_HELP = ("predict through missing samples (empty or NaN values, the recorder's NaN rows) instead of "

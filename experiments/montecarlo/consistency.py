@@ -48,8 +48,11 @@ def run(name: str, preset: str, truth: dict, seed: int, realisations: int) -> di
     lines += ["[sweep.estimator]", 'kfx_uncertainty = ["paper", "propagated"]']
     cfg.write_text("\n".join(lines) + "\n")
     t0 = time.perf_counter()
+    (RUNS / name / "sweep.json").unlink(missing_ok=True)  # never read back an earlier run's table
     with contextlib.redirect_stdout(io.StringIO()):  # the sweep's JSON is read back from sweep.json below
         code = cli(["montecarlo", "--config", str(cfg), "--logdir", str(RUNS / name), "--json"])
+    if code != 0:
+        raise SystemExit(f"{name}: torchtea montecarlo exited {code}")
     table = json.loads((RUNS / name / "sweep.json").read_text())
     print(f"{name}: {time.perf_counter() - t0:.1f} s (exit {code})", file=sys.stderr, flush=True)
     return {s["sweep"]["values"]["estimator.kfx_uncertainty"]: s for s in table["studies"]}

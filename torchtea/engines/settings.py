@@ -103,7 +103,10 @@ class TEAConfig:
         state to the order and parameter taken by statistical linearisation over
         KFo's and KFw's sigma points (``J = P_χσ P̃_σ⁻¹``, the replica values the
         step computes anyway), ``P_α`` KFo's covariance after its update and ``P_w``
-        KFw's covariance of ŵ_{k−1}.
+        KFw's covariance of ŵ_{k−1}. Approximations: J is taken around α̂_{k−1} (where
+        the sigma points are) while KFx predicts at α̂_k, and the cross-covariances of
+        x̂_{k−1} with α̂ and ŵ, and of α̂_k with the measurement noise at k (α̂_k has
+        already used y_k), are neglected.
     """
 
     kfx: StateFilterConfig = field(default_factory=StateFilterConfig)

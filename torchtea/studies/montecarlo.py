@@ -327,8 +327,8 @@ def summarise(result: StudyResult) -> dict:
         entry["coverage_2sigma"] = int(result.covered[name][keep].sum()) / (kept * N) if kept else math.nan
         # the same by thirds of the run: a filter can be honest while it learns and overconfident once settled
         entry["coverage_2sigma_by_third"] = [
-            int(result.covered_steps[name][part].sum()) / (kept * (part.stop - part.start)) if kept else math.nan
-            for part in _thirds(N)]
+            int(result.covered_steps[name][part].sum()) / (kept * (part.stop - part.start))
+            if kept and part.stop > part.start else math.nan for part in _thirds(N)]
         out[name] = entry
     if kept:
         lo, hi = chi2_band(1, kept)
@@ -336,12 +336,14 @@ def summarise(result: StudyResult) -> dict:
             avg = total[1:] / kept
             out[name] = {"mean": float(avg.mean()), "band_95": [lo, hi],
                          "fraction_of_steps_inside_band": float(((avg >= lo) & (avg <= hi)).double().mean()),
-                         "mean_by_third": [float((total[part] / kept).mean()) for part in _thirds(N, first=1)]}
+                         "mean_by_third": [float((total[part] / kept).mean()) if part.stop > part.start else math.nan
+                                           for part in _thirds(N, first=1)]}
     return out
 
 
 def _thirds(N: int, first: int = 0) -> list[slice]:
-    """Steps ``first … N−1`` in three consecutive parts (the last holds the remainder)."""
+    """Steps ``first … N−1`` in three consecutive parts (the last holds the remainder; parts are empty, and their
+    statistics NaN, when there are fewer than three steps)."""
     n = N - first
     return [slice(first, first + n // 3), slice(first + n // 3, first + 2 * (n // 3)), slice(first + 2 * (n // 3), N)]
 

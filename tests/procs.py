@@ -1,5 +1,6 @@
 """Helpers for tests that run torchtea in a child process."""
 import signal
+import time
 
 
 def sigint_as_in_a_terminal():
@@ -10,3 +11,17 @@ def sigint_as_in_a_terminal():
     child as KeyboardInterrupt; the default disposition lets Python install its handler.
     """
     signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
+def wait_for_progress(path, proc, at_least: int, timeout: float, poll: float = 0.05) -> int:
+    """Wait until the first number in ``path`` (a ``--progress-file``) reaches ``at_least``, the process ends or
+    ``timeout`` seconds pass; returns the last number read (0 if none)."""
+    deadline = time.monotonic() + timeout
+    done = 0
+    while done < at_least and time.monotonic() < deadline and proc.poll() is None:
+        time.sleep(poll)
+        try:
+            done = int(path.read_text().split()[0])
+        except (OSError, ValueError, IndexError):
+            pass
+    return done

@@ -364,9 +364,8 @@ def test_ctrl_c_with_local_workers_keeps_finished_shards(tmp_path):
     exit 130, and the run directory holds the finished shards' realisations, by their numbers."""
     import subprocess
     import sys
-    import time
 
-    from .procs import sigint_as_in_a_terminal
+    from .procs import sigint_as_in_a_terminal, wait_for_progress
 
     logdir, progress = tmp_path / "mc", tmp_path / "progress"
     proc = subprocess.Popen([sys.executable, "-m", "torchtea.cli", "montecarlo", "--preset", "paper-example1",
@@ -374,14 +373,7 @@ def test_ctrl_c_with_local_workers_keeps_finished_shards(tmp_path):
                              "--logdir", str(logdir), "--progress-file", str(progress), "--json"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             preexec_fn=lambda: (sigint_as_in_a_terminal(), os.setpgrp()))
-    deadline = time.monotonic() + 180
-    done = 0
-    while done < 3 and time.monotonic() < deadline and proc.poll() is None:
-        time.sleep(0.1)
-        try:
-            done = int(progress.read_text().split()[0])
-        except (OSError, ValueError, IndexError):
-            pass
+    done = wait_for_progress(progress, proc, 3, timeout=180, poll=0.1)
     assert done >= 3, ("no progress within 180 s", proc.poll())
     os.killpg(proc.pid, signal.SIGINT)  # the whole process group, as Ctrl-C in a terminal
     out, err = proc.communicate(timeout=300)

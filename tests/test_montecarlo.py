@@ -8,7 +8,7 @@ from torchtea.studies.montecarlo import Study, Truth, draw_realisation, realisat
 from torchtea.engines.presets import get_preset
 from torchtea.core.stats import over_realisations
 
-from .procs import sigint_as_in_a_terminal
+from .procs import sigint_as_in_a_terminal, wait_for_progress
 
 TRUTH = Truth(h=1e-3, n_steps=150, order="0.35", param=-1.0, q=1e-4, r=1e-3, input_std=1.0)
 
@@ -259,7 +259,6 @@ def test_sigint_leaves_a_readable_partial_run(tmp_path):
     import signal
     import subprocess
     import sys
-    import time
 
     import numpy as np
 
@@ -270,14 +269,7 @@ def test_sigint_leaves_a_readable_partial_run(tmp_path):
                              "--progress-file", str(progress), "--json"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             preexec_fn=sigint_as_in_a_terminal)
-    deadline = time.monotonic() + 120
-    done = 0
-    while done < 3 and time.monotonic() < deadline and proc.poll() is None:
-        time.sleep(0.05)
-        try:
-            done = int(progress.read_text().split()[0])
-        except (OSError, ValueError, IndexError):
-            pass
+    done = wait_for_progress(progress, proc, 3, timeout=120)
     assert done >= 3, "no progress within 120 s"
     proc.send_signal(signal.SIGINT)
     out, err = proc.communicate(timeout=300)

@@ -750,14 +750,13 @@ def cmd_montecarlo(args) -> int:
     t0 = time.perf_counter()
     try:
         if client is not None:
-            from .studies.cluster import StudyFailed, plan_shards, run_studies
+            from .studies.cluster import StudyFailed, plan_studies, run_studies
 
-            nthreads = sum(client.nthreads().values())
             dev = None if args.device is None else str(device)
-            total = sum(len(plan_shards(s.study, args.shard, nthreads, dev)) for s in studies)
-            step, close_bar = _progress(total, "montecarlo", "shard", bar=not args.json)
+            plans = plan_studies([s.study for s in studies], client, args.shard, dev)
+            step, close_bar = _progress(sum(map(len, plans)), "montecarlo", "shard", bar=not args.json)
             try:
-                results = run_studies([s.study for s in studies], client, shard=args.shard, device=dev,
+                results = run_studies([s.study for s in studies], client, shard=args.shard, device=dev, plans=plans,
                                       progress=_progress_to_file(step, args.progress_file, "shard"),
                                       names=[f"sub-study {s.name}" if sweep else "the study" for s in studies])
             except StudyFailed as exc:
@@ -786,14 +785,13 @@ def cmd_montecarlo(args) -> int:
         if not result.finished:
             continue
         summary = summarise(result)
-        # a sweep's sub-studies scheduled together have no time of their own: the sweep's is given as such
-        summary.update({"logdir": str(d), "preset": s.preset,
-                        **({"seconds": round(seconds[i], 2)} if i < len(seconds) else {}),
-                        **({"sweep_seconds": round(elapsed, 2)} if sweep else {})})
+        summary.update({"logdir": str(d), "preset": s.preset})
         if not sweep:
             summary["seconds"] = round(elapsed, 2)
-        if sweep:
-            summary["sweep"] = {"name": s.name, "values": s.values}
+        else:
+            if i < len(seconds):  # sub-studies scheduled together have no time of their own, only the sweep's
+                summary["seconds"] = round(seconds[i], 2)
+            summary.update(sweep_seconds=round(elapsed, 2), sweep={"name": s.name, "values": s.values})
         save_study(d, s.study, s.preset, result, summary, figures=args.figures, hparams=s.hparams())
         warnings = _study_warnings(summary, result, d)
         if sweep:

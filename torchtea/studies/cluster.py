@@ -21,7 +21,7 @@ import os
 
 from .montecarlo import Study, StudyResult, auto_chunk, run_range
 
-__all__ = ["run_studies", "plan_shards", "local_cluster", "StudyFailed", "shard_task"]
+__all__ = ["run_studies", "plan_studies", "plan_shards", "local_cluster", "StudyFailed", "shard_task"]
 
 
 class StudyFailed(RuntimeError):
@@ -50,6 +50,12 @@ def plan_shards(study: Study, shard: int | None, workers_threads: int, device=No
     return [range(s, min(R, s + shard)) for s in range(0, R, shard)]
 
 
+def plan_studies(studies: list[Study], client, shard: int | None = None, device=None) -> list[list[range]]:
+    """:func:`plan_shards` of each study for the worker threads ``client``'s cluster has now."""
+    nthreads = sum(client.nthreads().values()) or 1
+    return [plan_shards(st, shard, nthreads, device) for st in studies]
+
+
 def shard_task(study: Study, start: int, stop: int, device: str | None, threads: int | None) -> StudyResult:
     """The Dask task of one shard (module level, so that workers import it rather than unpickle code)."""
     if threads is None:
@@ -60,14 +66,16 @@ def shard_task(study: Study, start: int, stop: int, device: str | None, threads:
 
 
 def run_studies(studies: list[Study], client, *, shard: int | None = None, device=None, progress=None,
-                threads: int | None = None, names: list[str] | None = None) -> list[StudyResult]:
+                threads: int | None = None, names: list[str] | None = None,
+                plans: list[list[range]] | None = None) -> list[StudyResult]:
     """Run studies as shards on a Dask cluster, all shards scheduled together; one result per study.
 
     ``client``: a ``distributed.Client``. ``shard``: realisations per task (default :func:`plan_shards`).
     ``device``: the device name each worker runs its shards on (``"cuda"`` is each worker's own first GPU: give
     workers different GPUs with ``CUDA_VISIBLE_DEVICES``). ``progress(done, total)`` counts shards.
     ``threads``: torch and numba threads per shard (default: the worker's ``OMP_NUM_THREADS``). ``names``: the
-    studies' names in error messages (default their positions).
+    studies' names in error messages (default their positions). ``plans``: the shards of each study, as
+    :func:`plan_studies` gives them for these ``shard`` and ``device`` (computed here when not given).
     Ctrl-C returns what finished, a study marked ``interrupted`` where shards are missing; a failing shard raises
     :class:`StudyFailed` holding the same.
     """
@@ -76,8 +84,7 @@ def run_studies(studies: list[Study], client, *, shard: int | None = None, devic
     from distributed import as_completed
 
     dev = None if device is None else str(device)
-    nthreads = sum(client.nthreads().values()) or 1
-    plans = [plan_shards(st, shard, nthreads, dev) for st in studies]
+    plans = plans or plan_studies(studies, client, shard, dev)
     names = names or [f"study {i}" for i in range(len(studies))]
     run_id = uuid.uuid4().hex[:10]  # keys unique to this call: equal studies, or a rerun, never share a task
     futures = {}

@@ -50,6 +50,10 @@ class Truth:
     def schedule(self) -> OrderSchedule:
         return parse_order_spec(self.order)
 
+    def param_like(self, t: Tensor) -> Tensor:
+        """The true parameter in the shape and dtype of ``t`` (a broadcast view, no copy)."""
+        return torch.tensor(self.param, dtype=t.dtype).expand_as(t)
+
 
 @dataclass(frozen=True)
 class Study:
@@ -209,10 +213,9 @@ def _digest(study: Study, rows: range, sim, res, steps: list[int], trajectories:
     e_nees, e_nis = cpu(nees(res.x, sim.x, res.P)), cpu(nis(res.innovation, res.innovation_cov))
     diverged = res.diverged.to("cpu")
     keep = ~diverged
-    w_true = torch.tensor(tr.param, dtype=torch.float64)
     converged_at, covered, covered_steps = {}, {}, {}
     for name, est, truth, var, tol in (("order", alpha, alpha_true, P_alpha, study.order_tolerance),
-                                       ("param", w, w_true.expand_as(w), P_w, study.param_tolerance)):
+                                       ("param", w, tr.param_like(w), P_w, study.param_tolerance)):
         converged_at[name] = convergence_time(est.unsqueeze(-1), truth.unsqueeze(-1), tol, tr.h)[:, 0]
         inside = coverage(est, truth, var)
         covered[name] = inside.sum(1)
@@ -309,10 +312,9 @@ def summarise(result: StudyResult) -> dict:
            "diverged": int(result.diverged.sum()),
            "diverged_fraction": float(result.diverged.double().mean()) if result.finished else math.nan,
            "excluded_from_statistics": "diverged realisations"}
-    w_true = torch.tensor(tr.param, dtype=torch.float64)
     for name, est, truth, tol in (
             ("order", result.final["alpha"], result.final["alpha_true"], st.order_tolerance),
-            ("param", result.final["w"], w_true.expand_as(result.final["w"]), st.param_tolerance)):
+            ("param", result.final["w"], tr.param_like(result.final["w"]), st.param_tolerance)):
         final = over_realisations(est[:, None, None], truth[:, None, None], keep)
         ct = result.converged_at[name][keep]
         entry = {k: float(final[k][0, 0]) for k in ("mean", "bias", "std", "rmse")}

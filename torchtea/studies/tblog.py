@@ -27,7 +27,6 @@ def log_study(logdir, result, summary: dict, hparams: dict, *, figures: bool = F
     ``figures``: also the matplotlib fan charts (at the logged steps) as images ``figures/{order,param}_fan``
     (≈1.5 s: pyplot's import and two renderings).
     """
-    import torch
     from torch.utils.tensorboard import SummaryWriter
     from torch.utils.tensorboard.summary import hparams as hparams_summary
 
@@ -35,8 +34,7 @@ def log_study(logdir, result, summary: dict, hparams: dict, *, figures: bool = F
     keep = ~result.diverged
     steps = result.steps.tolist()
     t = result.t[result.steps]
-    truths = {"order": result.logged["alpha_true"],
-              "param": torch.full((len(steps),), result.study.truth.param, dtype=torch.float64)}
+    truths = {"order": result.logged["alpha_true"], "param": result.study.truth.param_like(result.logged["alpha_true"])}
     with SummaryWriter(log_dir=str(logdir)) as w:
         series = []  # (columns, steps), written together at the end: one event per step
         for name, key, fkey in (("order", "alpha", "alpha"), ("param", "w", "w")):

@@ -18,13 +18,19 @@ def gl(a: float, n: int) -> np.ndarray:
     return np.concatenate([[1.0], np.cumprod(f)])
 
 
-def tea_reference(y, u, h, s):
+def tea_reference(y, u, h, s, *, honest: bool = False, r_from_kfx: bool = False):
     """Run the TEA on one scalar series.
 
     y : (N,) measurements (NaN = missing); u : (N,) inputs or None;
     s : dict with x0 P0 Q R a0 P0o Q0o Ro w0 P0w Q0w Rw ua ub kappa delta_o delta_w
         Qmax_o Qmax_w start scaled lo hi.
     Returns a dict of (N,) arrays.
+
+    Two options of issue 15's studies (experiments/montecarlo/paper_gain_prototype.py), off by default:
+    ``honest`` adds ``out["Ph"]``, the covariance of the error of this (the paper's) filter with the order's and
+    parameter's uncertainty included: ``P̃ʰ = F² Pʰ + Q + Σ_{j≥2} c_j² Pʰ_{k−j} + J_α² Pᵒ_k + J_w² Pʷ_{k−1}``
+    (J as ``kfx_uncertainty = "propagated"`` takes them) and ``Pʰ = (1 − K)² P̃ʰ + K² R`` with the paper's K.
+    ``r_from_kfx``: KFo and KFw take KFx's last innovation covariance S as their measurement covariance.
     """
     N = len(y)
     u = np.zeros(N) if u is None else np.asarray(u, dtype=float)
@@ -32,8 +38,8 @@ def tea_reference(y, u, h, s):
     Wm = [lam / (1 + lam), 1 / (2 * (1 + lam)), 1 / (2 * (1 + lam))]
     Wc = [Wm[0] + 1 - s["ua"] ** 2 + s["ub"], Wm[1], Wm[2]]
     st = s["start"]
-    out = {k: np.zeros(N) for k in ("x", "P", "a", "Po", "Qo", "w", "Pw", "Qw", "e", "S")}
-    xs, Ps = [], []  # history, oldest first
+    out = {k: np.zeros(N) for k in ("x", "P", "a", "Po", "Qo", "w", "Pw", "Qw", "e", "S") + (("Ph",) if honest else ())}
+    xs, Ps, Phs = [], [], []  # history, oldest first
 
     # k = 0: KFx update from the prior
     x, P = s["x0"], s["P0"]
@@ -47,8 +53,10 @@ def tea_reference(y, u, h, s):
     a, Po, Qo, w, Pw, Qw = s["a0"], s["P0o"], s["Q0o"], s["w0"], s["P0w"], s["Q0w"]
     xs.append(x)
     Ps.append(P)
-    for key, v in zip(("x", "P", "a", "Po", "Qo", "w", "Pw", "Qw", "e", "S"), (x, P, a, Po, Qo, w, Pw, Qw, e, S)):
-        out[key][0] = v
+    Phs.append(P)
+    for key, v in zip(("x", "P", "a", "Po", "Qo", "w", "Pw", "Qw", "e", "S", "Ph"), (x, P, a, Po, Qo, w, Pw, Qw, e, S, P)):
+        if key in out:
+            out[key][0] = v
 
     for k in range(1, N):
         past = np.array(xs[::-1])  # x_{k-1}, …, x_0
@@ -81,15 +89,18 @@ def tea_reference(y, u, h, s):
         r = math.sqrt((1 + lam) * Pot)
         pts = [a, a + r, a - r]
         Ys = [model(p, w) for p in pts]
-        a_new, Po, K, e = unscented(a, Pot, pts, Ys, s["Ro"])
+        a_new, Po, K, e = unscented(a, Pot, pts, Ys, S if r_from_kfx else s["Ro"])
+        Jo = Wc[1] * r * (Ys[1] - Ys[2]) / Pot if Pot > 0 else 0.0
         a_new = min(max(a_new, s["lo"]), s["hi"])
         Qo = adapt(Qo, K, e, s["delta_o"], s["Qmax_o"])
         # KFw (order α̂_{k−1})
+        Pw_prev = Pw
         Pwt = Pw + Qw
         r = math.sqrt((1 + lam) * Pwt)
         ptw = [w, w + r, w - r]
         Ys = [model(a, p) for p in ptw]
-        w_new, Pw, K, e = unscented(w, Pwt, ptw, Ys, s["Rw"])
+        w_new, Pw, K, e = unscented(w, Pwt, ptw, Ys, S if r_from_kfx else s["Rw"])
+        Jw = Wc[1] * r * (Ys[1] - Ys[2]) / Pwt if Pwt > 0 else 0.0
         Qw = adapt(Qw, K, e, s["delta_w"], s["Qmax_w"])
         # KFx with α̂_k and ŵ_{k−1}
         c = gl(a_new, k)
@@ -103,12 +114,20 @@ def tea_reference(y, u, h, s):
             e = y[k] - xp
             x, P = xp + K * e, max(Pp - K * S * K, 0.0)
         else:
-            e, x, P = 0.0, xp, Pp
+            K, e, x, P = 0.0, 0.0, xp, Pp
+        Ph = 0.0
+        if honest:
+            pastPh = np.array(Phs[::-1])
+            Pph = ((hp * w + a_new) ** 2 * pastPh[0] + Q + float(np.dot(c[2:] ** 2, pastPh[1:]))
+                   + Jo * Jo * Po + Jw * Jw * Pw_prev)
+            Ph = (1 - K) ** 2 * Pph + K * K * s["R"]
         a, w = a_new, w_new
         xs.append(x)
         Ps.append(P)
-        for key, v in zip(("x", "P", "a", "Po", "Qo", "w", "Pw", "Qw", "e", "S"), (x, P, a, Po, Qo, w, Pw, Qw, e, S)):
-            out[key][k] = v
+        Phs.append(Ph)
+        for key, v in zip(("x", "P", "a", "Po", "Qo", "w", "Pw", "Qw", "e", "S", "Ph"), (x, P, a, Po, Qo, w, Pw, Qw, e, S, Ph)):
+            if key in out:
+                out[key][k] = v
     return out
 
 

@@ -11,8 +11,8 @@ covariance of the error of that filter,
     Pʰ_k = (1 − K)² P̃ʰ_k + K² R    (Joseph form with the paper's K),
 
 with J_α and J_w the sensitivities of the prediction as the package takes them (statistical linearisation over
-KFo's and KFw's sigma points). The filter is the scalar NumPy reference loop of the tests (tests/reference_tea.py),
-extended by these lines; it is slow (O(N²) in Python), hence the small sizes. Prints the NEES of x̂ against P
+KFo's and KFw's sigma points). The filter is the scalar NumPy reference loop of the tests
+(``tests/reference_tea.tea_reference(..., honest=True)``); it is slow (O(N²) in Python), hence the small sizes. Prints the NEES of x̂ against P
 (the paper's) and against Pʰ, per setting, and the same realisations' NEES under the package's "propagated"
 setting for comparison. ``--r-from-kfx`` adds a first look at KFo's honesty: KFo and KFw with KFx's last
 innovation covariance as their measurement covariance, and the order's ±2σ coverage of both variants.
@@ -29,89 +29,11 @@ import numpy as np
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
-from tests.reference_tea import gl, settings_from_config  # noqa: E402
+from tests.reference_tea import settings_from_config, tea_reference  # noqa: E402
 from torchtea.engines.presets import get_preset  # noqa: E402
 from torchtea.studies.montecarlo import Study, Truth, draw_realisation, run_study  # noqa: E402
 from torchtea.engines.simulate import simulate  # noqa: E402
 from torchtea.engines.structure import Structure  # noqa: E402
-
-
-def tea_with_honest_cov(y, u, h, s, r_from_kfx=False):
-    """The reference TEA (paper's gain) returning x̂, P, the honest Pʰ, α̂ and Pᵒ. ``r_from_kfx``: KFo's and KFw's
-    measurement covariance is KFx's last innovation covariance S_{k−1} instead of the fixed Rᵒ, Rʷ."""
-    N = len(y)
-    u = np.zeros(N) if u is None else np.asarray(u, dtype=float)
-    lam = s["ua"] ** 2 * (1 + s["kappa"]) - 1
-    Wm = [lam / (1 + lam), 1 / (2 * (1 + lam)), 1 / (2 * (1 + lam))]
-    Wc = [Wm[0] + 1 - s["ua"] ** 2 + s["ub"], Wm[1], Wm[2]]
-    x, P = s["x0"], s["P0"]
-    S = P + s["R"]
-    K = P / S
-    x, P = x + K * (y[0] - x), max(P - K * S * K, 0.0)
-    Ph = P
-    a, Po, Qo, w, Pw, Qw = s["a0"], s["P0o"], s["Q0o"], s["w0"], s["P0w"], s["Q0w"]
-    xs, Ps, Phs = [x], [P], [Ph]
-    out_x, out_P, out_Ph, out_a, out_Po = [x], [P], [Ph], [a], [Po]
-
-    def ut(mean, Pt, pts, Ys, R, yk):
-        yp = sum(Wm[i] * Ys[i] for i in range(3))
-        Pyy = sum(Wc[i] * (Ys[i] - yp) ** 2 for i in range(3)) + R
-        Pxy = sum(Wc[i] * (pts[i] - mean) * (Ys[i] - yp) for i in range(3))
-        Kk = Pxy / Pyy
-        e = yk - yp
-        return mean + Kk * e, max(Pt - Kk * Pyy * Kk, 0.0), Kk, e
-
-    def adapt(Q, Kk, e, delta, qmax):
-        Qn = (1 - delta) * Q + delta * (Kk * e) ** 2
-        return min(Qn, qmax) if qmax is not None else Qn
-
-    for k in range(1, N):
-        past, pastP, pastPh = np.array(xs[::-1]), np.array(Ps[::-1]), np.array(Phs[::-1])
-        x_prev, u_prev = xs[-1], u[k - 1]
-
-        def model(order, param):
-            c = gl(order, k)
-            return h**order * (param * x_prev + u_prev) - float(np.dot(c[1:], past))
-
-        Pot = Po + Qo
-        ro = math.sqrt((1 + lam) * Pot)
-        pts = [a, a + ro, a - ro]
-        Yo = [model(p, w) for p in pts]
-        a_new, Po, Kk, e = ut(a, Pot, pts, Yo, S if r_from_kfx else s["Ro"], y[k])
-        a_new = min(max(a_new, s["lo"]), s["hi"])
-        Qo = adapt(Qo, Kk, e, s["delta_o"], s["Qmax_o"])
-        Pw_prev = Pw
-        Pwt = Pw + Qw
-        rw = math.sqrt((1 + lam) * Pwt)
-        ptw = [w, w + rw, w - rw]
-        Yw = [model(a, p) for p in ptw]
-        w_new, Pw, Kk, e = ut(w, Pwt, ptw, Yw, S if r_from_kfx else s["Rw"], y[k])
-        Qw = adapt(Qw, Kk, e, s["delta_w"], s["Qmax_w"])
-        # the sensitivities, as the package's "propagated" setting takes them
-        Jo = Wc[1] * ro * (Yo[1] - Yo[2]) / Pot if Pot > 0 else 0.0
-        Jw = Wc[1] * rw * (Yw[1] - Yw[2]) / Pwt if Pwt > 0 else 0.0
-        c = gl(a_new, k)
-        hp = h**a_new
-        xp = hp * (w * x_prev + u_prev) - float(np.dot(c[1:], past))
-        Q = s["Q"] * hp * hp if s["scaled"] else s["Q"]
-        F2 = (hp * w + a_new) ** 2
-        Pp = F2 * pastP[0] + Q + float(np.dot(c[2:] ** 2, pastP[1:]))
-        Pph = F2 * pastPh[0] + Q + float(np.dot(c[2:] ** 2, pastPh[1:])) + Jo * Jo * Po + Jw * Jw * Pw_prev
-        S = Pp + s["R"]
-        K = Pp / S
-        x = xp + K * (y[k] - xp)
-        P = max(Pp - K * S * K, 0.0)
-        Ph = (1 - K) ** 2 * Pph + K * K * s["R"]
-        a, w = a_new, w_new
-        xs.append(x)
-        Ps.append(P)
-        Phs.append(Ph)
-        out_x.append(x)
-        out_P.append(P)
-        out_Ph.append(Ph)
-        out_a.append(a)
-        out_Po.append(Po)
-    return tuple(np.array(v) for v in (out_x, out_P, out_Ph, out_a, out_Po))
 
 
 SETTINGS = {
@@ -148,7 +70,9 @@ def main():
                                standard_draws=(z_w.unsqueeze(0), z_v.unsqueeze(0)), memory="soe")
                 y = sim.y[0, :, 0].numpy()
                 xt = sim.x[0, :, 0].numpy()
-                x, P, Ph, a, Po = tea_with_honest_cov(y, None if u is None else u[:, 0].numpy(), tr.h, s, variant[1])
+                out = tea_reference(y, None if u is None else u[:, 0].numpy(), tr.h, s, honest=True,
+                                    r_from_kfx=variant[1])
+                x, P, Ph, a, Po = out["x"], out["P"], out["Ph"], out["a"], out["Po"]
                 err2 = (x - xt) ** 2
                 nees_p.append(np.mean(err2[1:] / P[1:]))
                 nees_h.append(np.mean(err2[1:] / Ph[1:]))

@@ -232,11 +232,8 @@ def simulate_noise_model(*, n_steps: int, h: float, order: OrderSchedule, param:
     """
     g = torch.Generator().manual_seed(seed)
     u = None if input_std is None else gaussian_input((), n_steps, 1, input_std, generator=g)
-    if device is not None and torch.device(device).type != "cpu":
-        # the same draws, from the CPU generator in simulate's order (ω, then ν); the recursion on the device
-        draws = tuple(torch.randn(n_steps, 1, generator=g, dtype=torch.float64).to(device) for _ in range(2))
-        return simulate(Structure(), n_steps=n_steps, h=h, order=order, parameters=[param], process_noise=q,
-                        measurement_noise=r, inputs=None if u is None else u.to(device), standard_draws=draws,
-                        memory=memory, device=device)
+    # ω, then ν, drawn on the CPU in the order simulate draws them from a generator; the recursion on ``device``
+    draws = tuple(torch.randn(n_steps, 1, generator=g, dtype=torch.float64).to(device) for _ in range(2))
     return simulate(Structure(), n_steps=n_steps, h=h, order=order, parameters=[param], process_noise=q,
-                    measurement_noise=r, inputs=u, generator=g, memory=memory)
+                    measurement_noise=r, inputs=None if u is None else u.to(device), standard_draws=draws,
+                    memory=memory, device=device)

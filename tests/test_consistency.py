@@ -1,4 +1,5 @@
-"""KFx's prediction with the order's and parameter's uncertainty (TEAConfig.kfx_uncertainty = "propagated")."""
+"""KFx with the order's and parameter's uncertainty: TEAConfig.kfx_uncertainty = "propagated" (in the prediction,
+so in the gain) and "paper-gain" (the paper's gain, with the covariance of that filter's error reported)."""
 from dataclasses import replace
 
 import math
@@ -67,9 +68,12 @@ def test_the_engines_add_exactly_that_term_at_the_first_step():
     h, a0, w0, u0 = 0.1, 0.45, -1.3, 0.7
     for engine in ("torch", "numba"):
         out = {mode: run_tea(y, h=h, params=make_params(replace(cfg, kfx_uncertainty=mode), Structure()), inputs=u,
-                             engine=engine) for mode in ("paper", "propagated")}
-        p, q = out["paper"], out["propagated"]
+                             engine=engine) for mode in ("paper", "propagated", "paper-gain")}
+        p, q, g = out["paper"], out["propagated"], out["paper-gain"]
         assert torch.equal(p.x[:, 0], q.x[:, 0]) and torch.equal(p.alpha, q.alpha)  # KFo does not see KFx's P
+        # paper-gain: the same term in the reported S (P₀ is the same in all settings), the paper's estimate
+        torch.testing.assert_close(g.innovation_cov, q.innovation_cov, rtol=1e-12, atol=0)
+        assert torch.equal(g.x, p.x)
         x0 = float(p.x[0, 0, 0])
         Po1 = float(q.P_alpha[0, 1, 0, 0])
         r = math.sqrt(3 * (2e-3 + 1e-3))
@@ -83,8 +87,9 @@ def test_the_engines_add_exactly_that_term_at_the_first_step():
         assert diff == pytest.approx(part_a + part_w, rel=1e-10), engine
 
 
+@pytest.mark.parametrize("mode", ["propagated", "paper-gain"])
 @pytest.mark.parametrize("memory,start", [("exact", 0), ("soe", 0), ("window:30", 1)])
-def test_numba_equals_torch_with_the_term(memory, start):
+def test_numba_equals_torch_with_the_term(memory, start, mode):
     """The two engines with the term, also through a gap of missing samples, with the paper's sigma sums from
     i = 1, and with KFw's covariance at zero in one realisation (P̃ʷ = 0: no term from it)."""
     sc = SCENARIOS["paper-example1"]
@@ -94,7 +99,7 @@ def test_numba_equals_torch_with_the_term(memory, start):
                    measurement_noise=sc.r, inputs=u, batch_shape=(4,), generator=g)
     y = sim.y.clone()
     y[1, 60:66] = float("nan")
-    cfg = replace(get_preset("paper-example1"), memory=parse_memory(memory), kfx_uncertainty="propagated",
+    cfg = replace(get_preset("paper-example1"), memory=parse_memory(memory), kfx_uncertainty=mode,
                   sigma_sum_start=start)
     params = make_params(cfg, Structure())
     params = params._replace(P0w=params.P0w.expand(4, 1, 1).clone(), Q0w=params.Q0w.expand(4, 1, 1).clone())
@@ -165,3 +170,61 @@ def test_cli_flag_sets_the_setting_in_montecarlo_identify_and_refuses_a_swept_on
                    '[sweep.estimator]\nkfx_uncertainty = ["paper", "propagated"]\n')
     assert main(["montecarlo", "--config", str(cfg), "--kfx-uncertainty", "paper", "--logdir", str(tmp_path / "sw")]) == 2
     assert "estimator.kfx_uncertainty is swept; leave out --kfx-uncertainty" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("engine", ["torch", "numba"])
+def test_paper_gain_matches_the_reference_loop_and_keeps_the_papers_estimates(engine):
+    """"paper-gain" against the NumPy reference loop's ``honest`` covariance (exact memory, a gap of missing
+    samples, several realisations): P to 1e-10. Its estimates and innovations are the paper setting's bit for bit
+    (the gain is the paper's), while P and S are larger by far on this setting (the paper's KFx is
+    overconfident here, experiments/montecarlo/README.md)."""
+    import numpy as np
+
+    from .reference_tea import settings_from_config, tea_reference
+    from .test_tea import _data
+
+    sim, u = _data((3,), seed=5)
+    y = sim.y.clone()
+    y[..., 50:53, :] = float("nan")
+    cfg = replace(get_preset("paper-example1"), kfx_uncertainty="paper-gain")
+    g = run_tea(y, h=1e-3, params=make_params(cfg, Structure()), inputs=u, engine=engine)
+    p = run_tea(y, h=1e-3, params=make_params(replace(cfg, kfx_uncertainty="paper"), Structure()), inputs=u,
+                engine=engine)
+    for name in ("x", "alpha", "P_alpha", "Q_alpha", "w", "P_w", "Q_w", "innovation"):
+        assert torch.equal(getattr(g, name), getattr(p, name)), name
+    assert float((g.P / p.P)[:, 100:].median()) > 10
+    assert bool((g.innovation_cov[:, 1:] >= p.innovation_cov[:, 1:]).all())
+    s = settings_from_config(cfg)
+    for i in range(3):
+        ref = tea_reference(y[i, :, 0].numpy(), u[i, :, 0].numpy(), 1e-3, s, honest=True)
+        np.testing.assert_allclose(g.P[i, :, 0, 0].numpy(), ref["Ph"], rtol=1e-10, atol=0, err_msg=f"realisation {i}")
+        np.testing.assert_allclose(p.P[i, :, 0, 0].numpy(), ref["P"], rtol=1e-10, atol=0)
+
+
+@pytest.mark.parametrize("engine", ["torch", "numba"])
+def test_paper_gain_stream_equals_the_whole_run(engine):
+    """TEAStream carries the gain's covariance and its history (soe memory, a missing sample) and gives run_tea's
+    estimates, P and S."""
+    from torchtea.engines.tea import TEAStream
+
+    from .test_device import _mems
+
+    y = _mems(2, 200, seed=8).clone()
+    y[1, 40] = float("nan")
+    cfg = replace(get_preset("paper-mems-x"), memory=parse_memory("soe"), kfx_uncertainty="paper-gain")
+    params = make_params(cfg, Structure())
+    whole = run_tea(y, h=0.01, params=params, engine=engine)
+    stream = TEAStream(h=0.01, params=params, batch=(2,), horizon=200, engine=engine)
+    rows = [stream.step(y[:, k]) for k in range(200)]
+    assert all(c.Pg is not None for c, _ in rows)
+    for got, ref in ((torch.stack([c.x for c, _ in rows], 1), whole.x),
+                     (torch.stack([c.P for c, _ in rows], 1), whole.P),
+                     (torch.stack([o.innovation_cov for _, o in rows], 1), whole.innovation_cov)):
+        torch.testing.assert_close(got, ref, rtol=1e-10, atol=1e-14)
+
+
+def test_cli_choices_are_the_settings():
+    from torchtea.cli import KFX_UNCERTAINTY_CHOICES
+    from torchtea.engines.settings import KFX_UNCERTAINTIES
+
+    assert KFX_UNCERTAINTY_CHOICES == KFX_UNCERTAINTIES

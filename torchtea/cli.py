@@ -26,9 +26,12 @@ COMPILE_HELP = ("soe/window memory: run the filter through torch.compile (about 
                 "cached afterwards; pays off for long recordings, not for large batches)")
 
 
-KFX_UNCERTAINTY_HELP = ("how KFx's prediction sees the order and parameter estimates: paper (as exact, the "
-                        "paper's KFx) or propagated (their covariances added to KFx's P̃: NEES near 1 where the "
-                        "order is identifiable, see experiments/montecarlo/README.md); default: the settings'")
+KFX_UNCERTAINTY_HELP = ("how KFx sees the order and parameter estimates: paper (as exact, the paper's KFx), "
+                        "propagated (their covariances added to KFx's P̃, so to its gain) or paper-gain (the paper's "
+                        "gain and estimates, with P and S the covariance of that filter's error, the order and "
+                        "parameter uncertainty included); see experiments/montecarlo/README.md; default: the settings'")
+#: --kfx-uncertainty's choices (settings.KFX_UNCERTAINTIES, without importing torch for --help)
+KFX_UNCERTAINTY_CHOICES = ("paper", "propagated", "paper-gain")
 
 
 ALLOW_MISSING_HELP = ("predict through missing samples (empty or NaN values, the recorder's NaN rows) instead of "
@@ -905,7 +908,7 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--out", help="trajectory CSV (default: FILE.tea.csv next to the input)")
     e.add_argument("--allow-missing", action="store_true", help=ALLOW_MISSING_HELP)
     e.add_argument("--memory", help=MEMORY_HELP)
-    e.add_argument("--kfx-uncertainty", choices=("paper", "propagated"), help=KFX_UNCERTAINTY_HELP)
+    e.add_argument("--kfx-uncertainty", choices=KFX_UNCERTAINTY_CHOICES, help=KFX_UNCERTAINTY_HELP)
     e.add_argument("--compile", action="store_true", help=COMPILE_HELP)
     e.add_argument("--device", help=DEVICE_HELP)
     e.add_argument("--json", action="store_true", help="print a JSON summary")
@@ -932,7 +935,7 @@ def build_parser() -> argparse.ArgumentParser:
     i.add_argument("--out", help="output directory (default identify-<recording name>)")
     i.add_argument("--no-plots", action="store_true")
     i.add_argument("--memory", help=MEMORY_HELP)
-    i.add_argument("--kfx-uncertainty", choices=("paper", "propagated"), help=KFX_UNCERTAINTY_HELP)
+    i.add_argument("--kfx-uncertainty", choices=KFX_UNCERTAINTY_CHOICES, help=KFX_UNCERTAINTY_HELP)
     i.add_argument("--compile", action="store_true", help=COMPILE_HELP)
     i.add_argument("--device", help=DEVICE_HELP + "; the --r fitted noise-level fit runs on the CPU whatever the "
                                                   "device (its exact Kalman filter is compiled for the CPU)")
@@ -1020,7 +1023,7 @@ def build_parser() -> argparse.ArgumentParser:
     mc.add_argument("--r", type=_nonneg_float)
     mc.add_argument("--input-std", type=_nonneg_float)
     mc.add_argument("--memory", help="estimator's " + MEMORY_HELP)
-    mc.add_argument("--kfx-uncertainty", choices=("paper", "propagated"), help=KFX_UNCERTAINTY_HELP)
+    mc.add_argument("--kfx-uncertainty", choices=KFX_UNCERTAINTY_CHOICES, help=KFX_UNCERTAINTY_HELP)
     mc.add_argument("--device", help=DEVICE_HELP)
     mc.add_argument("--figures", action="store_true",
                     help="also the matplotlib fan charts as TensorBoard images (the margin charts in CUSTOM SCALARS "

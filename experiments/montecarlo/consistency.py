@@ -2,7 +2,8 @@
 
     python experiments/montecarlo/consistency.py [--realisations 200] [--only NAME ...]
 
-Every setting runs as a `torchtea montecarlo` sweep over ``estimator.kfx_uncertainty = ["paper", "propagated"]``
+Every setting runs as a `torchtea montecarlo` sweep over ``estimator.kfx_uncertainty = ["paper", "propagated",
+"paper-gain"]``
 (same seed: the two settings see the same realisations) into experiments/montecarlo/runs/consistency/<setting>/,
 one TensorBoard run per sub-study (the HParams tab compares them: metric/nees_mean, metric/order_coverage, …).
 The settings are those of README.md's table: Examples 1–3, the MEMS setting and the 3 × 3 sweep of Example 1.
@@ -23,7 +24,7 @@ from torchtea.cli import main as cli  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 RUNS = HERE / "runs" / "consistency"
-MODES = ("paper", "propagated")
+MODES = ("paper", "propagated", "paper-gain")
 MEMS_TRUTH = {"h": 0.01, "n": 3000, "order": "0.4", "param": -4.0, "q": 0.01, "r": 4e-4}
 SETTINGS = {
     "example1": ("paper-example1", {}, 1),
@@ -45,7 +46,7 @@ def run(name: str, preset: str, truth: dict, seed: int, realisations: int) -> di
     lines = [f"realisations = {realisations}", f"seed = {seed}", "[estimator]", f'preset = "{preset}"']
     if truth:
         lines += ["[truth]"] + [f"{k} = {toml_value(v)}" for k, v in truth.items()]
-    lines += ["[sweep.estimator]", 'kfx_uncertainty = ["paper", "propagated"]']
+    lines += ["[sweep.estimator]", "kfx_uncertainty = [" + ", ".join(f'"{m}"' for m in MODES) + "]"]
     cfg.write_text("\n".join(lines) + "\n")
     t0 = time.perf_counter()
     (RUNS / name / "sweep.json").unlink(missing_ok=True)  # never read back an earlier run's table

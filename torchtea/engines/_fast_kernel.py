@@ -184,16 +184,21 @@ def adapt_q(Q, K, e, delta, qmax, obs):
 
 @njit(cache=True, parallel=True, error_model="numpy")
 def advance(k0, k1, yoff, ooff, every, y, u, has_u,
-            h, Q, R, Ro, Rw, qmax_o, qmax_w, scaled, start, lo, hi, limit, delta_o, delta_w, propagated,
+            h, Q, R, Ro, Rw, qmax_o, qmax_w, scaled, start, lo, hi, limit, delta_o, delta_w, mode,
             wm_o, wc_o, scale_o, wm_w, wc_w, scale_w,
             kind, xl, pl, H, ka, kb, kbig, decay, inject, eta, klo, khi, count_lo, count_hi, la, lb,
-            X, P, AL, PO, QO, W, PW, QW, DIV, DAT, CLAMP,
-            xh, Ph, win, modes, Pwin, Phead,
+            X, P, AL, PO, QO, W, PW, QW, DIV, DAT, CLAMP, PG,
+            xh, Ph, win, modes, Pwin, Phead, Pgh, Pwin_g, Phead_g,
             o_x, o_P, o_a, o_Po, o_Qo, o_w, o_Pw, o_Qw, o_e, o_S):
+    """Steps ``k0 … k1−1`` of every realisation in place (FastTEA.advance). ``mode``: ``kfx_uncertainty`` as
+    0 (paper), 1 (propagated) or 2 (paper-gain: ``PG`` and the histories ``Pgh``/``Pwin_g``/``Phead_g`` hold the
+    paper's covariance, which sets the gain, and ``P`` that filter's error covariance)."""
     nB = y.shape[0]
     M = modes.shape[1]
+    gain = mode == 2
     for b in prange(nB):
         x, Pk, al, Po, Qo, w, Pw, Qw = X[b], P[b], AL[b], PO[b], QO[b], W[b], PW[b], QW[b]
+        Pg = PG[b]
         div = DIV[b]
         dat = DAT[b]
         clamp = CLAMP[b]
@@ -252,6 +257,7 @@ def advance(k0, k1, yoff, ooff, every, y, u, has_u,
             a = al_n
             mean = 0.0
             cov = 0.0
+            covg = 0.0
             if kind == 0:
                 c = 1.0
                 for j in range(1, k + 1):
@@ -259,6 +265,8 @@ def advance(k0, k1, yoff, ooff, every, y, u, has_u,
                     mean += c * xh[b, k - j]
                     if j >= 2:
                         cov += c * c * Ph[b, k - j]
+                        if gain:
+                            covg += c * c * Pgh[b, k - j]
             else:
                 c = 1.0
                 sumsq = 0.0
@@ -268,6 +276,8 @@ def advance(k0, k1, yoff, ooff, every, y, u, has_u,
                         mean += c * win[b, j - 1]
                     if j >= 2:
                         cov += c * c * Pwin[b, j - 1]
+                        if gain:
+                            covg += c * c * Pwin_g[b, j - 1]
                     sumsq += c * c
                 if kind == 1:
                     mean += tail(a, modes[b], ka, kb, eta, klo, khi, arg, Ex, ib, fb)
@@ -282,32 +292,45 @@ def advance(k0, k1, yoff, ooff, every, y, u, has_u,
                         g = 0.5 * (ac * (1.0 + ac) + ac * (1.0 + ac))
                         beyond = r * r * (KK ** (-p1) / p1 + g * KK ** (-p1 - 1.0) / (p1 + 1.0))
                         cov += (total - (1.0 + sumsq) - beyond) * Pwin[b, pl - 1]
+                        if gain:
+                            covg += (total - (1.0 + sumsq) - beyond) * Pwin_g[b, pl - 1]
                     j0 = max(k - H + 1, pl + 1)  # the head's lags k − i beyond the window: j0 … k
                     if H > 0 and j0 <= k:
                         # c_j(ac) at the smallest lag by log-gamma, then c_{j+1} = c_j (j − ac)/(j + 1)
                         ch = r * math.exp(math.lgamma(j0 - ac) - math.lgamma(j0 + 1.0))
                         for j in range(j0, k + 1):
                             cov += ch * ch * Phead[b, k - j]
+                            if gain:
+                                covg += ch * ch * Phead_g[b, k - j]
                             ch *= (j - ac) / (j + 1.0)
             hp = h ** a
             x_pred = hp * (w * x + up) - mean
             F = hp * w + a
             Qx = Q[b] * (hp * hp) if scaled else Q[b]
             P_pred = F * Pk * F + Qx + cov
-            if propagated:
+            if mode != 0:
                 # the order's and the parameter's uncertainty (tea._estimate_uncertainty): J P J with J the
                 # statistical linearisation of the replica over the sigma points, Σᵢ Wᵢᶜ Yᵢ (σᵢ − m) / P̃
                 Jo = wc_o[1] * ro * (Y[1] - Y[2]) / Pot if Pot > 0 else 0.0
                 Jw = wc_w[1] * rw * (Y[4] - Y[5]) / Pwt if Pwt > 0 else 0.0
                 P_pred += Jo * Jo * Po_n + Jw * Jw * Pw
             S = P_pred + R[b]
-            Kx = P_pred / S if obs else 0.0
             e = yv - x_pred if obs else 0.0
+            Pg_n = 0.0
+            if gain:
+                # the paper's KFx sets the gain; P is the covariance of that filter's error (Joseph form)
+                Pg_pred = F * Pg * F + Qx + covg
+                Sg = Pg_pred + R[b]
+                Kx = Pg_pred / Sg if obs else 0.0
+                Pg_n = psd(Pg_pred - Kx * Sg * Kx)
+                P_n = (1.0 - Kx) * P_pred * (1.0 - Kx) + Kx * R[b] * Kx
+            else:
+                Kx = P_pred / S if obs else 0.0
+                P_n = psd(P_pred - Kx * S * Kx)
             x_n = x_pred + Kx * e
-            P_n = psd(P_pred - Kx * S * Kx)
             # the guard: non-finite or beyond the limit → flagged and frozen
             bad = False
-            for v in (x_n, P_n, al_n, Po_n, Qo_n, w_n, Pw_n, Qw_n):
+            for v in (x_n, P_n, al_n, Po_n, Qo_n, w_n, Pw_n, Qw_n, Pg_n):
                 if not (abs(v) <= limit):
                     bad = True
             if div or bad:
@@ -315,11 +338,13 @@ def advance(k0, k1, yoff, ooff, every, y, u, has_u,
                     dat = k
                 div = True
             else:
-                x, Pk, al, Po, Qo, w, Pw, Qw = x_n, P_n, al_n, Po_n, Qo_n, w_n, Pw_n, Qw_n
+                x, Pk, al, Po, Qo, w, Pw, Qw, Pg = x_n, P_n, al_n, Po_n, Qo_n, w_n, Pw_n, Qw_n, Pg_n
             # the history
             if kind == 0:
                 xh[b, k] = x
                 Ph[b, k] = Pk
+                if gain:
+                    Pgh[b, k] = Pg
             else:
                 if M > 0:
                     dropped = win[b, xl - 1]
@@ -333,12 +358,19 @@ def advance(k0, k1, yoff, ooff, every, y, u, has_u,
                 Pwin[b, 0] = Pk
                 if k < H:
                     Phead[b, k] += Pk
+                if gain:
+                    for j in range(pl - 1, 0, -1):
+                        Pwin_g[b, j] = Pwin_g[b, j - 1]
+                    Pwin_g[b, 0] = Pg
+                    if k < H:
+                        Phead_g[b, k] += Pg
             if k % every == 0:
                 row = k // every - ooff
                 o_x[b, row], o_P[b, row], o_a[b, row], o_Po[b, row] = x, Pk, al, Po
                 o_Qo[b, row], o_w[b, row], o_Pw[b, row], o_Qw[b, row] = Qo, w, Pw, Qw
                 o_e[b, row], o_S[b, row] = e, S
         X[b], P[b], AL[b], PO[b], QO[b], W[b], PW[b], QW[b] = x, Pk, al, Po, Qo, w, Pw, Qw
+        PG[b] = Pg
         DIV[b] = div
         DAT[b] = dat
         CLAMP[b] = clamp

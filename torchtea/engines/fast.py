@@ -86,6 +86,7 @@ class FastTEA:
     the settings as numpy arrays, advanced in place by the kernel. ``horizon``: the ``exact`` history's length."""
 
     def __init__(self, *, h: float, params, batch, memory, horizon: int, carry, has_u: bool):
+        from .settings import KFX_UNCERTAINTIES
         from .tea import ut_weights
 
         cfg = params.config
@@ -109,35 +110,42 @@ class FastTEA:
         kind = self.kind = {"exact": 0, "soe": 1, "window": 2}[cfg.memory.kind]
         ka = kb = decay = inject = np.zeros(0)
         eta, klo, khi = 1.0, -math.inf, math.inf
+        gain = cfg.kfx_uncertainty == "paper-gain"  # the gain's covariance kept apart: its history too
         if kind == 0:
             xl = pl = H = 0
-            self.hist = [zeros(horizon), zeros(horizon), zeros(1), zeros(0), zeros(1), zeros(0)]
+            self.hist = [zeros(horizon), zeros(horizon), zeros(1), zeros(0), zeros(1), zeros(0),
+                         zeros(horizon if gain else 1), zeros(1), zeros(0)]
         else:
             xl, pl, H = memory.x_lags, memory.p_lags, memory.head
             if kind == 1:
                 ka, kb, decay, inject = (t.numpy() for t in memory.kernel.tensors(torch.float64, torch.device("cpu")))
                 eta = float(memory.kernel.eta)
                 klo, khi = (float(v) for v in memory.kernel.order_range)
-            self.hist = [zeros(1), zeros(1), zeros(xl), zeros(ka.shape[0]), zeros(pl), zeros(H)]
+            self.hist = [zeros(1), zeros(1), zeros(xl), zeros(ka.shape[0]), zeros(pl), zeros(H),
+                         zeros(1), zeros(pl if gain else 1), zeros(H if gain else 0)]
         self.settings = (float(h), Q, R, Ro, Rw, qmax_o, qmax_w, cfg.noise_scaling == "scaled", int(cfg.sigma_sum_start),
                          lo, hi, float(cfg.divergence_limit), float(cfg.kfo.delta), float(cfg.kfw.delta),
-                         cfg.kfx_uncertainty == "propagated",
+                         KFX_UNCERTAINTIES.index(cfg.kfx_uncertainty),
                          wm_o, wc_o, sc_o, wm_w, wc_w, sc_w,
                          kind, xl, pl, H, ka, kb, float(np.abs(kb[:-1]).max(initial=0.0)), decay, inject, eta, klo, khi,
                          klo if kind == 1 else -math.inf, khi if kind == 1 else math.inf, *_lag_tables(horizon if kind == 0 else max(xl, pl)))
         # the carry after step 0 (tea._first_step) and its history
-        self.state = [np.array(t.reshape(B, -1)[:, 0].numpy(), dtype=np.float64) for t in carry[:-1]]
+        self.state = [np.array(t.reshape(B, -1)[:, 0].numpy(), dtype=np.float64) for t in carry[:8]]
+        self.gain = gain
+        self.pg = np.array(carry.Pg.reshape(B).numpy(), dtype=np.float64) if gain else zeros()
         self.div = np.array(carry.diverged.reshape(B).numpy(), dtype=np.bool_)
         self.dat = np.where(self.div, 0, -1).astype(np.int64)
         self.clamp = np.zeros(B, dtype=np.int64)
-        xh, Ph, win, modes, Pwin, Phead = self.hist
+        xh, Ph, win, modes, Pwin, Phead, Pgh, Pwin_g, Phead_g = self.hist
         x0, P0 = self.state[0], self.state[1]
         if kind == 0:
-            xh[:, 0], Ph[:, 0] = x0, P0
+            xh[:, 0], Ph[:, 0], Pgh[:, 0] = x0, P0, self.pg
         else:
-            win[:, 0], Pwin[:, 0] = x0, P0
+            win[:, 0], Pwin[:, 0], Pwin_g[:, 0] = x0, P0, self.pg
             if H > 0:
                 Phead[:, 0] += P0
+                if gain:
+                    Phead_g[:, 0] += self.pg
         self._advance = _kernel()
 
     def advance(self, k0: int, k1: int, y: np.ndarray, u: np.ndarray | None, outs, *, yoff: int = 0, ooff: int = 0,
@@ -145,7 +153,7 @@ class FastTEA:
         """Steps ``k0 … k1−1``: ``y[:, k − yoff]``, ``u[:, k − 1 − yoff]``; outputs of the steps ``k`` with
         ``k % every == 0`` into row ``k // every − ooff`` of the ten arrays ``outs``."""
         self._advance(k0, k1, yoff, ooff, every, y, np.zeros((1, 1)) if u is None else u, u is not None,
-                      *self.settings, *self.state, self.div, self.dat, self.clamp, *self.hist, *outs)
+                      *self.settings, *self.state, self.div, self.dat, self.clamp, self.pg, *self.hist, *outs)
 
     def carry(self):
         """The current carry as torch tensors of :class:`~.tea.Carry`'s shapes."""
@@ -154,7 +162,7 @@ class FastTEA:
         t = lambda a: torch.from_numpy(a.copy()).reshape(self.batch)  # noqa: E731
         x, P, al, Po, Qo, w, Pw, Qw = (t(a) for a in self.state)
         v, m = (lambda a: a.unsqueeze(-1)), (lambda a: a.unsqueeze(-1).unsqueeze(-1))
-        return Carry(v(x), m(P), v(al), m(Po), m(Qo), v(w), m(Pw), m(Qw), t(self.div))
+        return Carry(v(x), m(P), v(al), m(Po), m(Qo), v(w), m(Pw), m(Qw), t(self.div), m(t(self.pg)) if self.gain else None)
 
 
 def block_steps(eng: "FastTEA", k: int, B: int) -> int:

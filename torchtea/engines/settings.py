@@ -75,7 +75,7 @@ class UnscentedConfig:
 
 NOISE_SCALINGS = ("scaled", "unscaled")
 #: How KFx's prediction sees the order and parameter estimates (TEAConfig.kfx_uncertainty).
-KFX_UNCERTAINTIES = ("paper", "propagated")
+KFX_UNCERTAINTIES = ("paper", "propagated", "paper-gain")
 
 
 @dataclass(frozen=True)
@@ -97,8 +97,8 @@ class TEAConfig:
         ``[−limit, limit]`` or become non-finite is flagged and frozen.
     memory : how the GL history sums of all three filters are evaluated
         (:class:`torchtea.core.memory.MemoryConfig`: ``exact``, ``soe`` or ``window``).
-    kfx_uncertainty : "paper" or "propagated" — whether KFx's prediction treats α̂_k
-        and ŵ_{k−1} as exact (the paper) or adds their uncertainty to P̃:
+    kfx_uncertainty : "paper", "propagated" or "paper-gain". "paper": KFx's prediction treats α̂_k
+        and ŵ_{k−1} as exact. "propagated": it adds their uncertainty to P̃ (so to the gain):
         ``J_α P_α J_αᵀ + J_w P_w J_wᵀ``, with the sensitivities ``J`` of the predicted
         state to the order and parameter taken by statistical linearisation over
         KFo's and KFw's sigma points (``J = P_χσ P̃_σ⁻¹``, the replica values the
@@ -107,6 +107,11 @@ class TEAConfig:
         the sigma points are) while KFx predicts at α̂_k, and the cross-covariances of
         x̂_{k−1} with α̂ and ŵ, and of α̂_k with the measurement noise at k (α̂_k has
         already used y_k), are neglected.
+        "paper-gain": the paper's filter — its gain, so its estimates, bit for bit — and, as ``P`` and
+        the innovation covariance ``S``, the covariance of that filter's error with the same term:
+        ``P̃ = F P Fᵀ + Q + Σ_{j≥2} c_j P_{k−j} c_jᵀ + J_α P_α J_αᵀ + J_w P_w J_wᵀ`` over the history of these
+        ``P``, and ``P = (I − K C) P̃ (I − K C)ᵀ + K R Kᵀ`` (Joseph form) with the paper's ``K``, which is
+        computed from the paper's covariance, carried alongside (``Carry.Pg``).
     """
 
     kfx: StateFilterConfig = field(default_factory=StateFilterConfig)

@@ -275,6 +275,9 @@ class Carry(NamedTuple):
     Pw: Tensor  # (*B, m, m)
     Qw: Tensor  # (*B, m, m)
     diverged: Tensor  # (*B,) bool
+    #: ``kfx_uncertainty = "paper-gain"`` only: the paper's KFx covariance, which sets the gain (``P`` is then the
+    #: covariance of that filter's error with the order's and parameter's uncertainty included); else None
+    Pg: Tensor | None = None
 
 
 class StepOutput(NamedTuple):
@@ -336,7 +339,8 @@ def _replica(model: _Model, memory, hist, orders_o, w_prev, sigma_w, x_prev, u_p
 
 class _ExactMemory:
     """Full-history sums (O(k) per step). ``hist = (xh, Ph)``: the KFx history newest first,
-    ``x̂_{k−1} … x̂_0`` ``(*B, n, k)`` and ``P_{k−1} … P_0`` ``(*B, n, n, k)``."""
+    ``x̂_{k−1} … x̂_0`` ``(*B, n, k)`` and ``P_{k−1} … P_0`` ``(*B, n, n, k)``; with ``kfx_uncertainty =
+    "paper-gain"`` a third entry, the gain's covariances ``Pg`` in the same form."""
 
     bounded = False
 
@@ -344,22 +348,26 @@ class _ExactMemory:
         return history_sum(orders, hist[0])
 
     def kfx_sums(self, hist, a, k):
-        xh, Ph = hist
+        """``(Σ_j c_j x̂_{k−j}, Σ_{j≥2} c_j² P_{k−j}, the same over Pg or None)``."""
+        xh = hist[0]
         c = gl_tail_coefficients(a, xh.shape[-1])  # (*B, n, k): c_1 … c_k
         mean = (c.unsqueeze(-2) @ xh.unsqueeze(-1))[..., 0, 0]
         cj = c[..., 1:]  # lags 2…k
-        if cj.shape[-1]:
-            cov = torch.einsum("...sj,...tj,...stj->...st", cj, cj, Ph[..., 1:])
-        else:
-            cov = torch.zeros_like(Ph[..., 0])
-        return mean, cov
+
+        def cov(Ph):
+            if cj.shape[-1]:
+                return torch.einsum("...sj,...tj,...stj->...st", cj, cj, Ph[..., 1:])
+            return torch.zeros_like(Ph[..., 0])
+
+        return mean, cov(hist[1]), cov(hist[2]) if len(hist) > 2 else None
 
 
 class _BoundedMemory:
     """``soe`` or ``window`` memory: constant work per step.
 
     ``hist = (BoundedHistory, Pwin, Phead)``: ``Pwin`` ``(*B, n, n, J_P)`` = ``P_{k−1} … P_{k−J_P}`` and
-    (``soe``) ``Phead`` ``(*B, n, n, H)`` = ``P_0 … P_{H−1}``, the start-up covariances whose terms stay exact.
+    (``soe``) ``Phead`` ``(*B, n, n, H)`` = ``P_0 … P_{H−1}``, the start-up covariances whose terms stay exact;
+    with ``kfx_uncertainty = "paper-gain"`` two more entries, the gain's covariances ``Pg`` in the same form.
     """
 
     bounded = True
@@ -378,42 +386,55 @@ class _BoundedMemory:
             self.n_modes = self.head = 0
         self.head_index = torch.arange(self.head, dtype=dtype, device=device)
 
-    def init(self, batch, n: int, dtype, device):
+    def init(self, batch, n: int, dtype, device, gain: bool = False):
+        """An empty history; ``gain``: with the gain's covariances (``kfx_uncertainty = "paper-gain"``)."""
         z = lambda *s: torch.zeros(tuple(batch) + s, dtype=dtype, device=device)  # noqa: E731
         return (BoundedHistory.zeros(batch, n, self.x_lags, self.n_modes, dtype=dtype, device=device),
-                z(n, n, self.p_lags), z(n, n, self.head))
+                z(n, n, self.p_lags), z(n, n, self.head)) + ((z(n, n, self.p_lags), z(n, n, self.head)) if gain else ())
 
-    def push(self, hist, x, P, k):
-        """Append ``x̂_k``, ``P_k`` (``k`` the step they belong to)."""
-        xhist, Pwin, Phead = hist
-        if self.head:
-            slot = (self.head_index == k).to(P.dtype)  # P_k goes to head slot k while k < H
-            Phead = Phead + P.unsqueeze(-1) * slot
-        return (xhist.push(x, self.decay, self.inject), torch.cat([P.unsqueeze(-1), Pwin[..., :-1]], dim=-1), Phead)
+    def push(self, hist, x, P, k, Pg=None):
+        """Append ``x̂_k``, ``P_k`` (and ``Pg_k`` where the history keeps them; ``k`` the step they belong to)."""
+        slot = (self.head_index == k).to(P.dtype)  # P_k goes to head slot k while k < H
+
+        def cov(Pwin, Phead, P):
+            if self.head:
+                Phead = Phead + P.unsqueeze(-1) * slot
+            return torch.cat([P.unsqueeze(-1), Pwin[..., :-1]], dim=-1), Phead
+
+        out = (hist[0].push(x, self.decay, self.inject),) + cov(hist[1], hist[2], P)
+        return out + cov(hist[3], hist[4], Pg) if len(hist) > 3 else out
 
     def mean_sums(self, hist, orders):
         c = gl_tail_coefficients(orders, self.x_lags)
         return hist[0].sum(c, orders, self.kernel)
 
     def kfx_sums(self, hist, a, k):
-        xhist, Pwin, Phead = hist
+        """``(Σ_j c_j x̂_{k−j}, Σ_{j≥2} c_j² P_{k−j}, the same over Pg or None)``, bounded as the class says."""
+        xhist = hist[0]
         c = gl_tail_coefficients(a, self.p_lags)  # (*B, n, J_P)
         mean = xhist.sum(c[..., : self.x_lags].unsqueeze(-3), a.unsqueeze(-2), self.kernel)[..., 0, :]
         cj = c[..., 1:]
-        cov = torch.einsum("...sj,...tj,...stj->...st", cj, cj, Pwin[..., 1:])
+        mass = ch = None
         if self.kernel is not None:
             J, H = self.p_lags, self.head
             ac = a.clamp(min=max(-0.49, self.kernel.order_range[0]))  # Gauss's sum needs a + b > −1
             # lags J+1 … k−H: coefficient mass × the oldest windowed covariance
             mass = cov_tail_mass(ac.unsqueeze(-1), ac.unsqueeze(-2), c.unsqueeze(-2), c.unsqueeze(-3), k - H)
-            cov = cov + mass * Pwin[..., -1]
             if H:
                 # lags k−H+1 … k (P_{H−1} … P_0), where beyond the window: exact terms
                 lags = k - self.head_index  # lag of P_i is k − i
                 ch = gl_coefficients_at(ac.unsqueeze(-1), lags.clamp(min=J + 1))  # (*B, n, H)
                 ch = ch * (lags > J).to(ch.dtype)
-                cov = cov + torch.einsum("...sj,...tj,...stj->...st", ch, ch, Phead)
-        return mean, cov
+
+        def cov(Pwin, Phead):
+            out = torch.einsum("...sj,...tj,...stj->...st", cj, cj, Pwin[..., 1:])
+            if mass is not None:
+                out = out + mass * Pwin[..., -1]
+            if ch is not None:
+                out = out + torch.einsum("...sj,...tj,...stj->...st", ch, ch, Phead)
+            return out
+
+        return mean, cov(hist[1], hist[2]), cov(hist[3], hist[4]) if len(hist) > 3 else None
 
 
 def _make_memory(cfg: TEAConfig, horizon: int, dtype, device):
@@ -452,20 +473,29 @@ def _tea_step(model: _Model, params: TEAParams, weights, memory, carry: Carry, y
 
     # KFx (29)–(35) with α̂_k and ŵ_{k−1}
     a = model.full(alpha)  # (*B, n)
-    mem_mean, mem_cov = memory.kfx_sums(hist, a, k)
+    mem_mean, mem_cov, mem_cov_g = memory.kfx_sums(hist, a, k)
     hp = model.h ** a
     A = model.A(carry.w)
     x_pred = hp * _drive(model, A, carry.x, u_prev) - mem_mean
     F = hp.unsqueeze(-1) * A + torch.diag_embed(a)
     Qx = params.Q * (hp.unsqueeze(-1) * hp.unsqueeze(-2)) if cfg.noise_scaling == "scaled" else params.Q
     P_pred = _mm(_mm(F, carry.P), F.mT) + Qx + mem_cov
-    if cfg.kfx_uncertainty == "propagated":
+    if cfg.kfx_uncertainty != "paper":
         P_pred = P_pred + _estimate_uncertainty(chi[..., :So, :], sig_o, carry.alpha, Po_t, Po, wc_o) \
             + _estimate_uncertainty(chi[..., So:, :], sig_w, carry.w, Pw_t, carry.Pw, wc_w)
     P_pred = _symmetrise(P_pred)
-    x, P, e, S = _kfx_update(model, params, x_pred, P_pred, y0, mask)
+    Pg = None
+    if cfg.kfx_uncertainty == "paper-gain":
+        # the paper's KFx sets the gain; P is the covariance of that filter's error (Joseph form)
+        Pg_pred = _symmetrise(_mm(_mm(F, carry.Pg), F.mT) + Qx + mem_cov_g)
+        x, Pg, e, _, K = _kfx_update(model, params, x_pred, Pg_pred, y0, mask)
+        S = _mm(_mm(model.C, P_pred), model.C.mT) + params.R
+        IKC = torch.eye(P_pred.shape[-1], dtype=P_pred.dtype, device=P_pred.device) - _mm(K, model.C)
+        P = _symmetrise(_mm(_mm(IKC, P_pred), IKC.mT) + _mm(_mm(K, params.R), K.mT))
+    else:
+        x, P, e, S, _ = _kfx_update(model, params, x_pred, P_pred, y0, mask)
 
-    new = Carry(x, P, alpha, Po, Qo, w, Pw, Qw, carry.diverged)
+    new = Carry(x, P, alpha, Po, Qo, w, Pw, Qw, carry.diverged, Pg)
     return _guard(new, carry, cfg.divergence_limit, branchless), StepOutput(e, S)
 
 
@@ -490,7 +520,7 @@ def _estimate_uncertainty(chi, points, mean, prior_cov, cov, wc):
 
 
 def _kfx_update(model: _Model, params: TEAParams, x_pred, P_pred, y, mask):
-    """KFx measurement update (33)–(35), symmetric form ``P = P̃ − K S Kᵀ``."""
+    """KFx measurement update (33)–(35), symmetric form ``P = P̃ − K S Kᵀ``; returns ``(x, P, e, S, K)``."""
     C = model.C
     PCt = _mm(P_pred, C.mT)
     S = _mm(C, PCt) + params.R
@@ -498,7 +528,7 @@ def _kfx_update(model: _Model, params: TEAParams, x_pred, P_pred, y, mask):
     e = torch.where(mask, y - _mm(x_pred.unsqueeze(-2), C.mT).squeeze(-2), torch.zeros_like(y))
     x = x_pred + _mm(K, e.unsqueeze(-1)).squeeze(-1)
     P = _psd(P_pred - _mm(_mm(K, S), K.mT))
-    return x, P, e, S
+    return x, P, e, S, K
 
 
 def _guard(new: Carry, old: Carry, limit: float, branchless: bool = False) -> Carry:
@@ -507,16 +537,17 @@ def _guard(new: Carry, old: Carry, limit: float, branchless: bool = False) -> Ca
     ``branchless`` always applies the freeze (no data-dependent Python branch, for torch.compile).
     """
     nb = old.diverged.ndim
-    flat = torch.cat([t.reshape(t.shape[:nb] + (-1,)) for t in new[:-1]], dim=-1)
+    names = [f for f in Carry._fields if f != "diverged" and getattr(new, f) is not None]
+    flat = torch.cat([getattr(new, f).reshape(getattr(new, f).shape[:nb] + (-1,)) for f in names], dim=-1)
     bad = ~torch.isfinite(flat).all(-1) | (flat.abs() > limit).any(-1)
     diverged = old.diverged | bad
     if not branchless and not bool(diverged.any()):
         return new._replace(diverged=diverged)
-    out = []
-    for tn, to in zip(new[:-1], old[:-1]):
-        d = diverged.reshape(diverged.shape + (1,) * (tn.ndim - nb))
-        out.append(torch.where(d, to, tn))
-    return Carry(*out, diverged)
+    out = {}
+    for f in names:
+        tn, to = getattr(new, f), getattr(old, f)
+        out[f] = torch.where(diverged.reshape(diverged.shape + (1,) * (tn.ndim - nb)), to, tn)
+    return new._replace(diverged=diverged, **out)
 
 
 # --------------------------------------------------------------------------- the loop
@@ -598,12 +629,13 @@ def _first_step(model: _Model, params: TEAParams, y_0: Tensor, batch) -> tuple[C
     n, L, m = params.x0.shape[-1], params.alpha0.shape[-1], params.w0.shape[-1]
     ex = lambda t, ev: t.expand(batch + ev).clone()  # noqa: E731
     mask0 = ~torch.isnan(y_0)
-    x, P, e, S = _kfx_update(model, params, ex(params.x0, (n,)), ex(params.P0, (n, n)),
-                             torch.where(mask0, y_0, torch.zeros_like(y_0)), mask0)
+    x, P, e, S, _ = _kfx_update(model, params, ex(params.x0, (n,)), ex(params.P0, (n, n)),
+                                torch.where(mask0, y_0, torch.zeros_like(y_0)), mask0)
+    gain = params.config.kfx_uncertainty == "paper-gain"  # at k = 0 both covariances are the prior's update
     carry = Carry(x, P, ex(params.alpha0, (L,)), ex(params.P0o, (L, L)), ex(params.Q0o, (L, L)),
                   ex(params.w0, (m,)), ex(params.P0w, (m, m)), ex(params.Q0w, (m, m)),
-                  torch.zeros(batch, dtype=torch.bool, device=y_0.device))
-    prior = Carry(ex(params.x0, (n,)), ex(params.P0, (n, n)), *carry[2:])
+                  torch.zeros(batch, dtype=torch.bool, device=y_0.device), P.clone() if gain else None)
+    prior = carry._replace(x=ex(params.x0, (n,)), P=ex(params.P0, (n, n)), Pg=ex(params.P0, (n, n)) if gain else None)
     return _guard(carry, prior, params.config.divergence_limit), StepOutput(e, S)
 
 
@@ -643,7 +675,8 @@ class TEAStream:
         y_k = torch.as_tensor(y_k, dtype=self.dtype, device=self.device).expand(self.batch + (self.structure.n_outputs,))
         if self.k == 0:
             self.carry, out = _first_step(self.model, self.params, y_k, self.batch)
-            self._hist = self.memory.init(self.batch, self.structure.n_states, self.dtype, self.device)
+            self._hist = self.memory.init(self.batch, self.structure.n_states, self.dtype, self.device,
+                                          self.carry.Pg is not None)
         elif self._fast:
             return self._fast_step(y_k, u_prev)
         else:
@@ -655,7 +688,7 @@ class TEAStream:
             self._engine = FastTEA(h=float(self.model.h), params=self.params, batch=self.batch, memory=self.memory,
                                    horizon=1, carry=self.carry, has_u=self.structure.n_inputs > 0)
         else:
-            self._hist = self.memory.push(self._hist, self.carry.x, self.carry.P, self.k)
+            self._hist = self.memory.push(self._hist, self.carry.x, self.carry.P, self.k, self.carry.Pg)
         self.k += 1
         return self.carry, out
 
@@ -824,21 +857,24 @@ def _loop(model, params, weights, memory, carry, y, inputs, batch, N, n, nb, dev
         if not memory.bounded:
             # the KFx history is kept time-reversed so that each step reads one contiguous slice
             xh = torch.zeros(batch + (n, N), dtype=dtype, device=device)
-            Ph = torch.zeros(batch + (n, n, N), dtype=dtype, device=device)
+            # P, and the gain's covariance Pg where it is kept apart ("paper-gain")
+            Ps = [torch.zeros(batch + (n, n, N), dtype=dtype, device=device) for c in (carry.P, carry.Pg) if c is not None]
             xh[..., N - 1] = carry.x
-            Ph[..., N - 1] = carry.P
+            for Ph, c in zip(Ps, (carry.P, carry.Pg)):
+                Ph[..., N - 1] = c
             for k in range(1, N):
                 carry, o = _tea_step(model, params, weights, memory, carry, y[..., k, :], u_at(k - 1),
-                                     (xh[..., N - k:], Ph[..., N - k:]), k, device.type != "cpu")
+                                     (xh[..., N - k:],) + tuple(Ph[..., N - k:] for Ph in Ps), k, device.type != "cpu")
                 xh[..., N - 1 - k] = carry.x
-                Ph[..., N - 1 - k] = carry.P
+                for Ph, c in zip(Ps, (carry.P, carry.Pg)):
+                    Ph[..., N - 1 - k] = c
                 record_block(k, _outputs(carry, o), False)
                 diverged_at = torch.where(carry.diverged & (diverged_at < 0), k, diverged_at)
                 stored = (k + 1, carry, diverged_at, clamped)
                 if progress is not None:
                     progress(k, N)
             return stored
-        hist = memory.push(memory.init(batch, n, dtype, device), carry.x, carry.P, 0)
+        hist = memory.push(memory.init(batch, n, dtype, device, carry.Pg is not None), carry.x, carry.P, 0, carry.Pg)
 
         kernel_low, kernel_high = (-math.inf, math.inf) if memory.kernel is None else memory.kernel.order_range
         scale_o = weights[0][2]
@@ -849,7 +885,7 @@ def _loop(model, params, weights, memory, carry, y, inputs, batch, N, n, nb, dev
             outside = ((carry.alpha - spread) < kernel_low) | ((carry.alpha + spread) > kernel_high)
             clamped = clamped + outside.any(-1).to(clamped.dtype)
             carry, o = _tea_step(model, params, weights, memory, carry, y_k, u_prev, hist, k, branchless)
-            hist = memory.push(hist, carry.x, carry.P, k)
+            hist = memory.push(hist, carry.x, carry.P, k, carry.Pg)
             diverged_at = torch.where(carry.diverged & (diverged_at < 0), k, diverged_at)
             return carry, hist, diverged_at, clamped, _outputs(carry, o)
 

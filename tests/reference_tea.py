@@ -29,7 +29,8 @@ def tea_reference(y, u, h, s, *, honest: bool = False, r_from_kfx: bool = False)
     Two options of issue 15's studies (experiments/montecarlo/paper_gain_prototype.py), off by default:
     ``honest`` adds ``out["Ph"]``, the covariance of the error of this (the paper's) filter with the order's and
     parameter's uncertainty included: ``P̃ʰ = F² Pʰ + Q + Σ_{j≥2} c_j² Pʰ_{k−j} + J_α² Pᵒ_k + J_w² Pʷ_{k−1}``
-    (J as ``kfx_uncertainty = "propagated"`` takes them) and ``Pʰ = (1 − K)² P̃ʰ + K² R`` with the paper's K.
+    (J as ``kfx_uncertainty = "propagated"`` takes them) and ``Pʰ = (1 − K)² P̃ʰ + K² R`` with the paper's K,
+    and ``out["Sh"] = P̃ʰ + R``, the innovation covariance that goes with it.
     ``r_from_kfx``: KFo and KFw take KFx's last innovation covariance S as their measurement covariance.
     """
     N = len(y)
@@ -38,7 +39,7 @@ def tea_reference(y, u, h, s, *, honest: bool = False, r_from_kfx: bool = False)
     Wm = [lam / (1 + lam), 1 / (2 * (1 + lam)), 1 / (2 * (1 + lam))]
     Wc = [Wm[0] + 1 - s["ua"] ** 2 + s["ub"], Wm[1], Wm[2]]
     st = s["start"]
-    out = {k: np.zeros(N) for k in ("x", "P", "a", "Po", "Qo", "w", "Pw", "Qw", "e", "S") + (("Ph",) if honest else ())}
+    out = {k: np.zeros(N) for k in ("x", "P", "a", "Po", "Qo", "w", "Pw", "Qw", "e", "S") + (("Ph", "Sh") if honest else ())}
     xs, Ps, Phs = [], [], []  # history, oldest first
 
     # k = 0: KFx update from the prior
@@ -54,7 +55,7 @@ def tea_reference(y, u, h, s, *, honest: bool = False, r_from_kfx: bool = False)
     xs.append(x)
     Ps.append(P)
     Phs.append(P)
-    for key, v in zip(("x", "P", "a", "Po", "Qo", "w", "Pw", "Qw", "e", "S", "Ph"), (x, P, a, Po, Qo, w, Pw, Qw, e, S, P)):
+    for key, v in zip(("x", "P", "a", "Po", "Qo", "w", "Pw", "Qw", "e", "S", "Ph", "Sh"), (x, P, a, Po, Qo, w, Pw, Qw, e, S, P, S)):
         if key in out:
             out[key][0] = v
 
@@ -115,17 +116,19 @@ def tea_reference(y, u, h, s, *, honest: bool = False, r_from_kfx: bool = False)
             x, P = xp + K * e, max(Pp - K * S * K, 0.0)
         else:
             K, e, x, P = 0.0, 0.0, xp, Pp
-        Ph = 0.0
+        Ph = Sh = 0.0
         if honest:
             pastPh = np.array(Phs[::-1])
             Pph = ((hp * w + a_new) ** 2 * pastPh[0] + Q + float(np.dot(c[2:] ** 2, pastPh[1:]))
                    + Jo * Jo * Po + Jw * Jw * Pw_prev)
             Ph = (1 - K) ** 2 * Pph + K * K * s["R"]
+            Sh = Pph + s["R"]
         a, w = a_new, w_new
         xs.append(x)
         Ps.append(P)
         Phs.append(Ph)
-        for key, v in zip(("x", "P", "a", "Po", "Qo", "w", "Pw", "Qw", "e", "S", "Ph"), (x, P, a, Po, Qo, w, Pw, Qw, e, S, Ph)):
+        for key, v in zip(("x", "P", "a", "Po", "Qo", "w", "Pw", "Qw", "e", "S", "Ph", "Sh"),
+                          (x, P, a, Po, Qo, w, Pw, Qw, e, S, Ph, Sh)):
             if key in out:
                 out[key][k] = v
     return out

@@ -356,8 +356,10 @@ def test_memory_option_on_estimate_identify_simulate(tmp_path, capsys, monkeypat
 
 
 @pytest.mark.slow
-def test_compiled_bounded_loop_equals_eager(monkeypatch):
-    """torch.compile of blocks of steps gives the eager numbers (blocks of 2 here to keep compiling short)."""
+@pytest.mark.parametrize("kfx_uncertainty", ["paper", "paper-gain"])
+def test_compiled_bounded_loop_equals_eager(monkeypatch, kfx_uncertainty):
+    """torch.compile of blocks of steps gives the eager numbers (blocks of 2 here to keep compiling short); with
+    "paper-gain" the compiled blocks carry the gain's covariance and its history as well."""
     import torchtea.engines.tea as tea
     from torchtea import SCENARIOS, MemoryConfig, Structure, gaussian_input, get_preset, make_params, run_tea, simulate
     from dataclasses import replace
@@ -368,9 +370,11 @@ def test_compiled_bounded_loop_equals_eager(monkeypatch):
     u = gaussian_input((2,), 301, 1, sc.input_std, generator=g)
     sim = simulate(Structure(), n_steps=301, h=sc.h, order=sc.order, parameters=[sc.param], process_noise=sc.q,
                    measurement_noise=sc.r, inputs=u, batch_shape=(2,), generator=g)
-    params = make_params(replace(get_preset("paper-example1"), memory=MemoryConfig("soe")), Structure())
+    params = make_params(replace(get_preset("paper-example1"), memory=MemoryConfig("soe"),
+                                 kfx_uncertainty=kfx_uncertainty), Structure())
     eager = run_tea(sim.y, h=sc.h, params=params, inputs=u)
     compiled = run_tea(sim.y, h=sc.h, params=params, inputs=u, compile=True, record_every=3)
     torch.testing.assert_close(compiled.alpha, eager.alpha[:, ::3], rtol=0, atol=1e-12)
     torch.testing.assert_close(compiled.x, eager.x[:, ::3], rtol=0, atol=1e-12)
+    torch.testing.assert_close(compiled.P, eager.P[:, ::3], rtol=1e-10, atol=0)
     assert torch.equal(compiled.memory_clamped, eager.memory_clamped)

@@ -108,8 +108,13 @@ def test_numba_equals_torch_with_the_term(memory, start, mode):
     b = run_tea(y, h=sc.h, params=params, inputs=u, engine="numba")
     _same(a, b)
     assert float(b.P_w[2].abs().max()) == 0.0
-    paper = run_tea(sim.y, h=sc.h, params=make_params(replace(cfg, kfx_uncertainty="paper"), Structure()), inputs=u)
-    assert bool((b.P[:, 1:] > paper.P[:, 1:]).any())  # the term is there
+    paper = {e: run_tea(y, h=sc.h, params=params._replace(config=replace(cfg, kfx_uncertainty="paper")), inputs=u,
+                        engine=e) for e in ("torch", "numba")}
+    assert bool((b.P[:, 1:] > paper["numba"].P[:, 1:]).any())  # the term is there
+    if mode == "paper-gain":  # the paper's estimates, with every memory (the gain's own history is the paper's)
+        for name in ("x", "alpha", "w", "innovation"):
+            assert torch.equal(getattr(a, name), getattr(paper["torch"], name)), name
+            assert torch.equal(getattr(b, name), getattr(paper["numba"], name)), name
 
 
 def test_statistical_linearisation_is_exact_for_a_linear_map():
@@ -177,7 +182,7 @@ def test_paper_gain_matches_the_reference_loop_and_keeps_the_papers_estimates(en
     """"paper-gain" against the NumPy reference loop's ``honest`` covariance (exact memory, a gap of missing
     samples, several realisations): P to 1e-10. Its estimates and innovations are the paper setting's bit for bit
     (the gain is the paper's), while P and S are larger by far on this setting (the paper's KFx is
-    overconfident here, experiments/montecarlo/README.md)."""
+    overconfident here, experiments/montecarlo/README.md); S against the reference's too."""
     import numpy as np
 
     from .reference_tea import settings_from_config, tea_reference
@@ -198,6 +203,7 @@ def test_paper_gain_matches_the_reference_loop_and_keeps_the_papers_estimates(en
     for i in range(3):
         ref = tea_reference(y[i, :, 0].numpy(), u[i, :, 0].numpy(), 1e-3, s, honest=True)
         np.testing.assert_allclose(g.P[i, :, 0, 0].numpy(), ref["Ph"], rtol=1e-10, atol=0, err_msg=f"realisation {i}")
+        np.testing.assert_allclose(g.innovation_cov[i, :, 0, 0].numpy(), ref["Sh"], rtol=1e-10, atol=0)
         np.testing.assert_allclose(p.P[i, :, 0, 0].numpy(), ref["P"], rtol=1e-10, atol=0)
 
 

@@ -159,8 +159,8 @@ class _Perturbed(_ExactMemory):
         return super().mean_sums(hist, orders) + self.eta_rep[hist[0].shape[-1]].unsqueeze(-1)
 
     def kfx_sums(self, hist, a, k):
-        mean, cov = super().kfx_sums(hist, a, k)
-        return mean + self.eta_x[k].unsqueeze(-1), cov + self.eta_P[k][..., None, None]
+        mean, cov, cov_g = super().kfx_sums(hist, a, k)
+        return mean + self.eta_x[k].unsqueeze(-1), cov + self.eta_P[k][..., None, None], cov_g
 
 
 def _tea_loop(y, u, h, params, memory):
@@ -174,7 +174,7 @@ def _tea_loop(y, u, h, params, memory):
     B, N = y.shape[0], y.shape[1]
     ex = lambda t, ev: t.expand((B,) + ev).clone()  # noqa: E731
     mask = torch.ones(B, 1, dtype=torch.bool)
-    x, P, _, _ = _kfx_update(model, params, ex(params.x0, (1,)), ex(params.P0, (1, 1)), y[:, 0], mask)
+    x, P, *_ = _kfx_update(model, params, ex(params.x0, (1,)), ex(params.P0, (1, 1)), y[:, 0], mask)
     carry = Carry(x, P, ex(params.alpha0, (1,)), ex(params.P0o, (1, 1)), ex(params.Q0o, (1, 1)), ex(params.w0, (1,)),
                   ex(params.P0w, (1, 1)), ex(params.Q0w, (1, 1)), torch.zeros(B, dtype=torch.bool))
     xs, Ps, alphas = [carry.x], [carry.P], [carry.alpha]

@@ -1,7 +1,7 @@
 """Benchmark of issue 15's KFx settings: what ``kfx_uncertainty = "propagated"`` and ``"paper-gain"`` cost next to
 the paper's KFx, side by side in one run.
 
-    python experiments/bench/kfx_uncertainty.py          # ≈ 2 min on 2 cores
+    python experiments/bench/kfx_uncertainty.py          # ≈ 3 min on 2 cores
 
 The MEMS setting of ``engines.py`` (case A's data, paper §5.1 x-axis filter settings): the compiled engine on
 1000 realisations × 3000 samples with ``soe`` and ``exact`` memory, and the torch engine on 100 × 1000 with ``soe``.

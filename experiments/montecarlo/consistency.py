@@ -4,7 +4,7 @@
 
 Every setting runs as a `torchtea montecarlo` sweep over ``estimator.kfx_uncertainty = ["paper", "propagated",
 "paper-gain"]``
-(same seed: the two settings see the same realisations) into experiments/montecarlo/runs/consistency/<setting>/,
+(same seed: the three settings see the same realisations) into experiments/montecarlo/runs/consistency/<setting>/,
 one TensorBoard run per sub-study (the HParams tab compares them: metric/nees_mean, metric/order_coverage, …).
 The settings are those of README.md's table: Examples 1–3, the MEMS setting and the 3 × 3 sweep of Example 1.
 Writes consistency.json (the summaries) and prints the before/after table of README.md.

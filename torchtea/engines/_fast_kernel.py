@@ -149,6 +149,14 @@ def window_sum(order, win, J, la, lb):
 
 
 @njit(cache=True, inline="always")
+def push_front(row, n, v):
+    """``row[:n]`` becomes ``v, row[0], …, row[n−2]`` (a window, newest first)."""
+    for j in range(n - 1, 0, -1):
+        row[j] = row[j - 1]
+    row[0] = v
+
+
+@njit(cache=True, inline="always")
 def psd(v):
     return 0.0 if v < 0.0 else v  # NaN stays NaN (as torch's clamp), so the guard sees it
 
@@ -291,9 +299,10 @@ def advance(k0, k1, yoff, ooff, every, y, u, has_u,
                         KK = kk + 0.5
                         g = 0.5 * (ac * (1.0 + ac) + ac * (1.0 + ac))
                         beyond = r * r * (KK ** (-p1) / p1 + g * KK ** (-p1 - 1.0) / (p1 + 1.0))
-                        cov += (total - (1.0 + sumsq) - beyond) * Pwin[b, pl - 1]
+                        mass = total - (1.0 + sumsq) - beyond  # coefficient mass × the oldest windowed P
+                        cov += mass * Pwin[b, pl - 1]
                         if gain:
-                            covg += (total - (1.0 + sumsq) - beyond) * Pwin_g[b, pl - 1]
+                            covg += mass * Pwin_g[b, pl - 1]
                     j0 = max(k - H + 1, pl + 1)  # the head's lags k − i beyond the window: j0 … k
                     if H > 0 and j0 <= k:
                         # c_j(ac) at the smallest lag by log-gamma, then c_{j+1} = c_j (j − ac)/(j + 1)
@@ -350,18 +359,12 @@ def advance(k0, k1, yoff, ooff, every, y, u, has_u,
                     dropped = win[b, xl - 1]
                     for n in range(M):
                         modes[b, n] = modes[b, n] * decay[n] + inject[n] * dropped
-                for j in range(xl - 1, 0, -1):
-                    win[b, j] = win[b, j - 1]
-                win[b, 0] = x
-                for j in range(pl - 1, 0, -1):
-                    Pwin[b, j] = Pwin[b, j - 1]
-                Pwin[b, 0] = Pk
+                push_front(win[b], xl, x)
+                push_front(Pwin[b], pl, Pk)
                 if k < H:
                     Phead[b, k] += Pk
                 if gain:
-                    for j in range(pl - 1, 0, -1):
-                        Pwin_g[b, j] = Pwin_g[b, j - 1]
-                    Pwin_g[b, 0] = Pg
+                    push_front(Pwin_g[b], pl, Pg)
                     if k < H:
                         Phead_g[b, k] += Pg
             if k % every == 0:
@@ -426,6 +429,4 @@ def simulate_bounded(x, hp, wv, u, om, alpha, constant, coeff, wts, J, ka, kb, e
                 dropped = win[J - 1]
                 for n in range(M):
                     modes[n] = modes[n] * decay[n] + inject[n] * dropped
-            for j in range(J - 1, 0, -1):
-                win[j] = win[j - 1]
-            win[0] = xn
+            push_front(win, J, xn)

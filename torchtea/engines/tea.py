@@ -858,15 +858,16 @@ def _loop(model, params, weights, memory, carry, y, inputs, batch, N, n, nb, dev
             # the KFx history is kept time-reversed so that each step reads one contiguous slice
             xh = torch.zeros(batch + (n, N), dtype=dtype, device=device)
             # P, and the gain's covariance Pg where it is kept apart ("paper-gain")
-            Ps = [torch.zeros(batch + (n, n, N), dtype=dtype, device=device) for c in (carry.P, carry.Pg) if c is not None]
+            covs = lambda c: (c.P,) if c.Pg is None else (c.P, c.Pg)  # noqa: E731
+            Ps = [torch.zeros(batch + (n, n, N), dtype=dtype, device=device) for _ in covs(carry)]
             xh[..., N - 1] = carry.x
-            for Ph, c in zip(Ps, (carry.P, carry.Pg)):
+            for Ph, c in zip(Ps, covs(carry)):
                 Ph[..., N - 1] = c
             for k in range(1, N):
                 carry, o = _tea_step(model, params, weights, memory, carry, y[..., k, :], u_at(k - 1),
                                      (xh[..., N - k:],) + tuple(Ph[..., N - k:] for Ph in Ps), k, device.type != "cpu")
                 xh[..., N - 1 - k] = carry.x
-                for Ph, c in zip(Ps, (carry.P, carry.Pg)):
+                for Ph, c in zip(Ps, covs(carry)):
                     Ph[..., N - 1 - k] = c
                 record_block(k, _outputs(carry, o), False)
                 diverged_at = torch.where(carry.diverged & (diverged_at < 0), k, diverged_at)

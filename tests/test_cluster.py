@@ -258,7 +258,8 @@ def test_sweep_of_2x2_settings_writes_four_runs_with_hparams(cluster, tmp_path, 
         hp = {k: v.string_value or v.number_value for k, v in start.session_start_info.hparams.items()}
         assert hp["sweep.truth.order"] == s["sweep"]["values"]["truth.order"]
         assert hp["sweep.estimator.kfo.Q0"] == pytest.approx(s["sweep"]["values"]["estimator.kfo.Q0"])
-        assert hp["realisations"] == 6 and hp["kfx_uncertainty"] == "paper"
+        assert hp["realisations"] == 6 and hp["kfx_uncertainty"] == "paper-gain"
+        assert hp["estimate_uncertainty"] == "paper"
         # the sub-study's own study.toml reruns it in one process to the same numbers
         assert main(["montecarlo", "--config", str(run / "study.toml"), "--logdir", str(tmp_path / "again"),
                      "--json"]) == 0

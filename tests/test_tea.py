@@ -44,12 +44,9 @@ VARIANTS = {
 @pytest.mark.parametrize("batch_shape", [(), (5,), (2, 4)])
 @pytest.mark.parametrize("variant", list(VARIANTS))
 def test_batched_matches_scalar_reference(batch_shape, variant, engine):
-    cfg = TEAConfig.from_dict(VARIANTS[variant], get_preset("paper-example1"))
-    base_seed = 101 if variant == "as-printed" else 7 * len(variant)
-    sim, u = _data(batch_shape, seed=base_seed + len(batch_shape))
-    y = sim.y.clone()
-    y[..., 50:53, :] = float("nan")  # a gap: predict without update
-    res = run_tea(y, h=1e-3, params=make_params(cfg, Structure()), inputs=u, engine=engine)
+    """The paper's filters (kfx_uncertainty = "paper"), every field against the reference loop."""
+    cfg = TEAConfig.from_dict({**VARIANTS[variant], "kfx_uncertainty": "paper"}, get_preset("paper-example1"))
+    y, u, res = _reference_case(cfg, variant, batch_shape, engine)
     assert res.x.shape == batch_shape + (240, 1)
     assert res.P.shape == batch_shape + (240, 1, 1)
     assert res.alpha.shape == batch_shape + (240, 1)
@@ -61,6 +58,32 @@ def test_batched_matches_scalar_reference(batch_shape, variant, engine):
         for rk, name in FIELDS.items():
             got = getattr(res, name).reshape(-1, 240)[i].numpy()
             np.testing.assert_allclose(got, ref[rk], rtol=1e-10, atol=1e-10, err_msg=f"{name} realisation {i}")
+    assert not res.diverged.any()
+
+
+def _reference_case(cfg, variant, batch_shape, engine):
+    base_seed = 101 if variant == "as-printed" else 7 * len(variant)
+    sim, u = _data(batch_shape, seed=base_seed + len(batch_shape))
+    y = sim.y.clone()
+    y[..., 50:53, :] = float("nan")  # a gap: predict without update
+    return y, u, run_tea(y, h=1e-3, params=make_params(cfg, Structure()), inputs=u, engine=engine)
+
+
+@pytest.mark.parametrize("engine", ["torch", "numba"])
+@pytest.mark.parametrize("variant", list(VARIANTS))
+def test_default_kfx_setting_matches_the_reference_loops_honest_covariance(variant, engine):
+    """The default (kfx_uncertainty = "paper-gain"): the paper's estimates, innovations and KFo/KFw covariances, with
+    P and S the reference loop's covariance of that filter's error (``honest``)."""
+    cfg = TEAConfig.from_dict(VARIANTS[variant], get_preset("paper-example1"))
+    assert cfg.kfx_uncertainty == "paper-gain"
+    y, u, res = _reference_case(cfg, variant, (3,), engine)
+    s = settings_from_config(cfg)
+    for i in range(3):
+        ref = tea_reference(y[i, :, 0].numpy(), u[i, :, 0].numpy(), 1e-3, s, honest=True)
+        for rk, name in {**FIELDS, "P": "P", "S": "innovation_cov"}.items():
+            got = getattr(res, name)[i].reshape(240).numpy()
+            want = ref[{"P": "Ph", "S": "Sh"}.get(rk, rk)]
+            np.testing.assert_allclose(got, want, rtol=1e-10, atol=1e-10, err_msg=f"{name} realisation {i}")
     assert not res.diverged.any()
 
 

@@ -331,7 +331,8 @@ def test_montecarlo_prints_nees_and_warns_outside_its_band(tmp_path, capsys):
     cap = capsys.readouterr()
     s = strict_loads((tmp_path / "mc" / "summary.json").read_text())
     lo, hi = s["nis"]["band_95"]
-    assert s["nis"]["mean"] > 10 * hi and s["nis"]["fraction_of_steps_inside_band"] < 0.8
+    # (NIS ≈ 20: the default KFx's S includes the order's and parameter's uncertainty, so not the full 100×)
+    assert s["nis"]["mean"] > 5 * hi and s["nis"]["fraction_of_steps_inside_band"] < 0.8
     assert f"NIS: mean {s['nis']['mean']:.4g} over steps and realisations" in cap.out
     assert f"[{lo:.3g}, {hi:.3g}]" in cap.out and "NEES: mean" in cap.out
     msg = "NIS (innovations against KFx's S): its mean over realisations lies inside the per-step 95 % band"

@@ -29,9 +29,29 @@ COMPILE_HELP = ("soe/window memory: run the filter through torch.compile (about 
 KFX_UNCERTAINTY_HELP = ("how KFx sees the order and parameter estimates: paper (as exact, the paper's KFx), "
                         "propagated (their covariances added to KFx's P̃, so to its gain) or paper-gain (the paper's "
                         "gain and estimates, with P and S the covariance of that filter's error, the order and "
-                        "parameter uncertainty included); see experiments/montecarlo/README.md; default: the settings'")
+                        "parameter uncertainty included: TEAConfig's default); see experiments/montecarlo/README.md; default: the settings'")
 #: --kfx-uncertainty's choices (settings.KFX_UNCERTAINTIES, without importing torch for --help)
 KFX_UNCERTAINTY_CHOICES = ("paper", "propagated", "paper-gain")
+ESTIMATE_UNCERTAINTY_HELP = ("the covariance KFo and KFw report for the order and parameter: paper (their own, "
+                             "that of a random-walk truth: about twice the error variance for a constant truth) or "
+                             "constant-truth (the paper's estimates, bit for bit, with the covariance of their error "
+                             "when the true order and parameter are constant; too small for a time-varying order); "
+                             "see experiments/montecarlo/README.md; default: the settings'")
+#: --estimate-uncertainty's choices (settings.ESTIMATE_UNCERTAINTIES)
+ESTIMATE_UNCERTAINTY_CHOICES = ("paper", "constant-truth")
+#: TEAConfig settings that estimate, identify and montecarlo take as flags: (setting, choices, help)
+UNCERTAINTY_FLAGS = (("kfx_uncertainty", KFX_UNCERTAINTY_CHOICES, KFX_UNCERTAINTY_HELP),
+                     ("estimate_uncertainty", ESTIMATE_UNCERTAINTY_CHOICES, ESTIMATE_UNCERTAINTY_HELP))
+
+
+def _add_uncertainty_flags(parser):
+    for name, choices, text in UNCERTAINTY_FLAGS:
+        parser.add_argument("--" + name.replace("_", "-"), choices=choices, help=text)
+
+
+def _uncertainty_flags(args) -> dict:
+    """The UNCERTAINTY_FLAGS given on the command line, as TEAConfig overrides."""
+    return {name: getattr(args, name) for name, _, _ in UNCERTAINTY_FLAGS if getattr(args, name)}
 
 
 ALLOW_MISSING_HELP = ("predict through missing samples (empty or NaN values, the recorder's NaN rows) instead of "
@@ -372,10 +392,10 @@ def cmd_estimate(args) -> int:
 
     cfg, source = _tea_config(args)
     cfg = _with_memory(cfg, args.memory)
-    if args.kfx_uncertainty:
+    if _uncertainty_flags(args):
         from dataclasses import replace
 
-        cfg = replace(cfg, kfx_uncertainty=args.kfx_uncertainty)
+        cfg = replace(cfg, **_uncertainty_flags(args))
     try:
         cols = read_series(args.file, ["y"], ["u", "t"], allow_missing=True)
     except InputError as exc:
@@ -493,9 +513,9 @@ def _identify_overrides(args):
     if mem is not None:
         overrides = dict(overrides, memory=mem.to_dict())
         where.append(f"--memory {args.memory}")
-    if args.kfx_uncertainty:
-        overrides = dict(overrides, kfx_uncertainty=args.kfx_uncertainty)
-        where.append(f"--kfx-uncertainty {args.kfx_uncertainty}")
+    for name, value in _uncertainty_flags(args).items():
+        overrides = dict(overrides, **{name: value})
+        where.append(f"--{name.replace('_', '-')} {value}")
     if not overrides:
         return None, None, "exact"
     import torch
@@ -632,11 +652,11 @@ def _studies_from_args(args):
 
     data = read_toml(args.config, "study") if args.config else {}
     memory = _memory(args.memory)
-    if args.kfx_uncertainty:
+    for name, value in _uncertainty_flags(args).items():
         swept = data.get("sweep", {}).get("estimator", {})
-        if isinstance(swept, dict) and "kfx_uncertainty" in swept:
-            raise CLIError(f"{args.config}: estimator.kfx_uncertainty is swept; leave out --kfx-uncertainty")
-        data = dict(data, estimator={**data.get("estimator", {}), "kfx_uncertainty": args.kfx_uncertainty})
+        if isinstance(swept, dict) and name in swept:
+            raise CLIError(f"{args.config}: estimator.{name} is swept; leave out --{name.replace('_', '-')}")
+        data = dict(data, estimator={**data.get("estimator", {}), name: value})
     flags = {k: getattr(args, k) for k in ("realisations", "seed", "chunk", "log_points", "preset", "n", "h", "order",
                                             "param", "q", "r", "input_std")}
     try:
@@ -908,7 +928,7 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--out", help="trajectory CSV (default: FILE.tea.csv next to the input)")
     e.add_argument("--allow-missing", action="store_true", help=ALLOW_MISSING_HELP)
     e.add_argument("--memory", help=MEMORY_HELP)
-    e.add_argument("--kfx-uncertainty", choices=KFX_UNCERTAINTY_CHOICES, help=KFX_UNCERTAINTY_HELP)
+    _add_uncertainty_flags(e)
     e.add_argument("--compile", action="store_true", help=COMPILE_HELP)
     e.add_argument("--device", help=DEVICE_HELP)
     e.add_argument("--json", action="store_true", help="print a JSON summary")
@@ -935,7 +955,7 @@ def build_parser() -> argparse.ArgumentParser:
     i.add_argument("--out", help="output directory (default identify-<recording name>)")
     i.add_argument("--no-plots", action="store_true")
     i.add_argument("--memory", help=MEMORY_HELP)
-    i.add_argument("--kfx-uncertainty", choices=KFX_UNCERTAINTY_CHOICES, help=KFX_UNCERTAINTY_HELP)
+    _add_uncertainty_flags(i)
     i.add_argument("--compile", action="store_true", help=COMPILE_HELP)
     i.add_argument("--device", help=DEVICE_HELP + "; the --r fitted noise-level fit runs on the CPU whatever the "
                                                   "device (its exact Kalman filter is compiled for the CPU)")
@@ -1023,7 +1043,7 @@ def build_parser() -> argparse.ArgumentParser:
     mc.add_argument("--r", type=_nonneg_float)
     mc.add_argument("--input-std", type=_nonneg_float)
     mc.add_argument("--memory", help="estimator's " + MEMORY_HELP)
-    mc.add_argument("--kfx-uncertainty", choices=KFX_UNCERTAINTY_CHOICES, help=KFX_UNCERTAINTY_HELP)
+    _add_uncertainty_flags(mc)
     mc.add_argument("--device", help=DEVICE_HELP)
     mc.add_argument("--figures", action="store_true",
                     help="also the matplotlib fan charts as TensorBoard images (the margin charts in CUSTOM SCALARS "

@@ -18,7 +18,7 @@ HERE = Path(__file__).resolve().parent
 
 def main():
     truth = Truth(h=1e-3, n_steps=2000, order="0.35", param=-1.0, q=1e-4, r=1e-3, input_std=1.0)
-    base = get_preset("paper-example1")
+    base = TEAConfig.from_dict({"kfx_uncertainty": "paper"}, get_preset("paper-example1"))  # the paper's KFx
     pinned = TEAConfig.from_dict({"kfo": {"x0": 0.35, "P0": 1e-30, "Q0": 1e-30, "delta": 0.0},
                                   "kfw": {"x0": -1.0, "P0": 1e-30, "Q0": 1e-30, "delta": 0.0}}, base)
     out = {}

@@ -37,7 +37,8 @@ SWEEP_PARAMS = ("-0.5", "-1", "-2")
 def run(name, argv) -> dict:
     logdir = RUNS / name
     t0 = time.perf_counter()
-    code = cli(["montecarlo", *argv, "--logdir", str(logdir), "--json"])
+    # the paper's KFx, as when the table was measured (before issue 15 made "paper-gain" the default)
+    code = cli(["montecarlo", *argv, "--kfx-uncertainty", "paper", "--logdir", str(logdir), "--json"])
     wall = time.perf_counter() - t0
     summary = json.loads((logdir / "summary.json").read_text())
     summary["wall_seconds"] = round(wall, 1)

@@ -35,7 +35,7 @@ HERE = Path(__file__).resolve().parent
 def variants(name: str) -> dict:
     """Settings variants: torchtea's defaults for the open points, each open point read as printed, and both
     alternatives for the adaptive Q (open point 4)."""
-    base = get_preset(name)
+    base = replace(get_preset(name), kfx_uncertainty="paper")  # the paper's KFx: its P and S (NIS) as printed
     none = {"kfo": {"Q_max": "none"}, "kfw": {"Q_max": "none"}}
     return {
         "torchtea": base,

@@ -164,7 +164,7 @@ def psd(v):
 @njit(cache=True, inline="always")
 def ut_update(Y, off, pts, mean, Pt, wm, wc, start, R, obs, yv):
     """Unscented update (19)–(24) of one scalar filter (tea._ut_update): sigma points ``pts``, their predicted
-    outputs ``Y[off:off+3]``; returns (mean, covariance, gain, innovation)."""
+    outputs ``Y[off:off+3]``; returns (mean, covariance, gain, innovation, Pyy, Pxy)."""
     yp = wm[0] * Y[off] + wm[1] * Y[off + 1] + wm[2] * Y[off + 2]
     Pyy = 0.0
     Pxy = 0.0
@@ -176,7 +176,16 @@ def ut_update(Y, off, pts, mean, Pt, wm, wc, start, R, obs, yv):
     Pyy += R
     K = Pxy / Pyy if obs else 0.0
     e = yv - yp if obs else 0.0
-    return mean + K * e, psd(Pt - K * Pyy * K), K, e
+    return mean + K * e, psd(Pt - K * Pyy * K), K, e, Pyy, Pxy
+
+
+@njit(cache=True, inline="always")
+def constant_truth(Sig, Pt, K, Pyy, Pxy):
+    """The error covariance of a scalar unscented filter for a constant truth (tea._constant_truth_cov):
+    (1 − K H)² Σ + K² (P_yy − H² P̃) with H = P_σy / P̃ (0 where P̃ is 0)."""
+    Hh = Pxy / Pt if Pt > 0 else 0.0
+    g = 1.0 - K * Hh
+    return psd(g * Sig * g + K * psd(Pyy - Hh * Pt * Hh) * K)
 
 
 @njit(cache=True, inline="always")
@@ -192,21 +201,24 @@ def adapt_q(Q, K, e, delta, qmax, obs):
 
 @njit(cache=True, parallel=True, error_model="numpy")
 def advance(k0, k1, yoff, ooff, every, y, u, has_u,
-            h, Q, R, Ro, Rw, qmax_o, qmax_w, scaled, start, lo, hi, limit, delta_o, delta_w, mode,
+            h, Q, R, Ro, Rw, qmax_o, qmax_w, scaled, start, lo, hi, limit, delta_o, delta_w, mode, const,
             wm_o, wc_o, scale_o, wm_w, wc_w, scale_w,
             kind, xl, pl, H, ka, kb, kbig, decay, inject, eta, klo, khi, count_lo, count_hi, la, lb,
-            X, P, AL, PO, QO, W, PW, QW, DIV, DAT, CLAMP, PG,
+            X, P, AL, PO, QO, W, PW, QW, DIV, DAT, CLAMP, PG, POG, PWG,
             xh, Ph, win, modes, Pwin, Phead, Pgh, Pwin_g, Phead_g,
             o_x, o_P, o_a, o_Po, o_Qo, o_w, o_Pw, o_Qw, o_e, o_S):
     """Steps ``k0 … k1−1`` of every realisation in place (FastTEA.advance). ``mode``: ``kfx_uncertainty`` as
     0 (paper), 1 (propagated) or 2 (paper-gain: ``PG`` and the histories ``Pgh``/``Pwin_g``/``Phead_g`` hold the
-    paper's covariance, which sets the gain, and ``P`` that filter's error covariance)."""
+    paper's covariance, which sets the gain, and ``P`` that filter's error covariance). ``const``
+    (``estimate_uncertainty = "constant-truth"``): ``POG``/``PWG`` hold KFo's and KFw's own covariances, which set
+    their gains, and ``PO``/``PW`` their error covariances for a constant truth; otherwise the two are equal."""
     nB = y.shape[0]
     M = modes.shape[1]
     gain = mode == 2
     for b in prange(nB):
         x, Pk, al, Po, Qo, w, Pw, Qw = X[b], P[b], AL[b], PO[b], QO[b], W[b], PW[b], QW[b]
         Pg = PG[b]
+        Pog, Pwg = POG[b], PWG[b]
         div = DIV[b]
         dat = DAT[b]
         clamp = CLAMP[b]
@@ -228,12 +240,12 @@ def advance(k0, k1, yoff, ooff, every, y, u, has_u,
             yv = yk if obs else 0.0
             up = u[b, k - 1 - yoff] if has_u else 0.0
             # the soe clamp count (tea._loop): extreme KFo sigma orders, before the step
-            spread = math.sqrt(psd(scale_o * (Po + Qo)))
+            spread = math.sqrt(psd(scale_o * (Pog + Qo)))
             if (al - spread) < count_lo or (al + spread) > count_hi:
                 clamp += 1
             # KFo and KFw sigma points (15)/(40)
-            Pot = Po + Qo
-            Pwt = Pw + Qw
+            Pot = Pog + Qo
+            Pwt = Pwg + Qw
             ro = math.sqrt(psd(scale_o * Pot))
             rw = math.sqrt(psd(scale_w * Pwt))
             so[0], so[1], so[2] = al, al + ro, al - ro
@@ -256,11 +268,13 @@ def advance(k0, k1, yoff, ooff, every, y, u, has_u,
                     for jw in range(3):
                         Y[3 + jw] = hp * (sw[jw] * x + up) - ms
             # KFo update (19)–(24) with the order projected, adaptation (25); then KFw the same
-            al_n, Po_n, K, e = ut_update(Y, 0, so, al, Pot, wm_o, wc_o, start, Ro[b], obs, yv)
+            al_n, Pog_n, K, e, Pyy, Pxy = ut_update(Y, 0, so, al, Pot, wm_o, wc_o, start, Ro[b], obs, yv)
             al_n = min(max(al_n, lo), hi)
             Qo_n = adapt_q(Qo, K, e, delta_o, qmax_o[b], obs)
-            w_n, Pw_n, K, e = ut_update(Y, 3, sw, w, Pwt, wm_w, wc_w, start, Rw[b], obs, yv)
+            Po_n = constant_truth(Po, Pot, K, Pyy, Pxy) if const else Pog_n
+            w_n, Pwg_n, K, e, Pyy, Pxy = ut_update(Y, 3, sw, w, Pwt, wm_w, wc_w, start, Rw[b], obs, yv)
             Qw_n = adapt_q(Qw, K, e, delta_w, qmax_w[b], obs)
+            Pw_n = constant_truth(Pw, Pwt, K, Pyy, Pxy) if const else Pwg_n
             # KFx (29)–(35) with α̂_k and ŵ_{k−1}
             a = al_n
             mean = 0.0
@@ -322,7 +336,7 @@ def advance(k0, k1, yoff, ooff, every, y, u, has_u,
                 # statistical linearisation of the replica over the sigma points, Σᵢ Wᵢᶜ Yᵢ (σᵢ − m) / P̃
                 Jo = wc_o[1] * ro * (Y[1] - Y[2]) / Pot if Pot > 0 else 0.0
                 Jw = wc_w[1] * rw * (Y[4] - Y[5]) / Pwt if Pwt > 0 else 0.0
-                P_pred += Jo * Jo * Po_n + Jw * Jw * Pw
+                P_pred += Jo * Jo * Pog_n + Jw * Jw * Pwg  # the filters' own covariances (tea._tea_step)
             S = P_pred + R[b]
             e = yv - x_pred if obs else 0.0
             Pg_n = 0.0
@@ -339,7 +353,7 @@ def advance(k0, k1, yoff, ooff, every, y, u, has_u,
             x_n = x_pred + Kx * e
             # the guard: non-finite or beyond the limit → flagged and frozen
             bad = False
-            for v in (x_n, P_n, al_n, Po_n, Qo_n, w_n, Pw_n, Qw_n, Pg_n):
+            for v in (x_n, P_n, al_n, Po_n, Qo_n, w_n, Pw_n, Qw_n, Pg_n, Pog_n, Pwg_n):
                 if not (abs(v) <= limit):
                     bad = True
             if div or bad:
@@ -348,6 +362,7 @@ def advance(k0, k1, yoff, ooff, every, y, u, has_u,
                 div = True
             else:
                 x, Pk, al, Po, Qo, w, Pw, Qw, Pg = x_n, P_n, al_n, Po_n, Qo_n, w_n, Pw_n, Qw_n, Pg_n
+                Pog, Pwg = Pog_n, Pwg_n
             # the history
             if kind == 0:
                 xh[b, k] = x
@@ -374,6 +389,7 @@ def advance(k0, k1, yoff, ooff, every, y, u, has_u,
                 o_e[b, row], o_S[b, row] = e, S
         X[b], P[b], AL[b], PO[b], QO[b], W[b], PW[b], QW[b] = x, Pk, al, Po, Qo, w, Pw, Qw
         PG[b] = Pg
+        POG[b], PWG[b] = Pog, Pwg
         DIV[b] = div
         DAT[b] = dat
         CLAMP[b] = clamp

@@ -86,7 +86,7 @@ class FastTEA:
     the settings as numpy arrays, advanced in place by the kernel. ``horizon``: the ``exact`` history's length."""
 
     def __init__(self, *, h: float, params, batch, memory, horizon: int, carry, has_u: bool):
-        from .settings import KFX_UNCERTAINTIES
+        from .settings import ESTIMATE_UNCERTAINTIES, KFX_UNCERTAINTIES
         from .tea import ut_weights
 
         cfg = params.config
@@ -126,6 +126,7 @@ class FastTEA:
         self.settings = (float(h), Q, R, Ro, Rw, qmax_o, qmax_w, cfg.noise_scaling == "scaled", int(cfg.sigma_sum_start),
                          lo, hi, float(cfg.divergence_limit), float(cfg.kfo.delta), float(cfg.kfw.delta),
                          KFX_UNCERTAINTIES.index(cfg.kfx_uncertainty),
+                         ESTIMATE_UNCERTAINTIES.index(cfg.estimate_uncertainty) == 1,
                          wm_o, wc_o, sc_o, wm_w, wc_w, sc_w,
                          kind, xl, pl, H, ka, kb, float(np.abs(kb[:-1]).max(initial=0.0)), decay, inject, eta, klo, khi,
                          klo if kind == 1 else -math.inf, khi if kind == 1 else math.inf, *_lag_tables(horizon if kind == 0 else max(xl, pl)))
@@ -133,6 +134,10 @@ class FastTEA:
         self.state = [np.array(t.reshape(B, -1)[:, 0].numpy(), dtype=np.float64) for t in carry[:8]]
         self.gain = gain
         self.pg = np.array(carry.Pg.reshape(B).numpy(), dtype=np.float64) if gain else zeros()
+        # KFo's and KFw's own covariances, which set their gains (equal to Po, Pw unless "constant-truth")
+        self.constant = carry.Pog is not None
+        own = (carry.Pog, carry.Pwg) if self.constant else (carry.Po, carry.Pw)
+        self.pog, self.pwg = (np.array(t.reshape(B).numpy(), dtype=np.float64) for t in own)
         self.div = np.array(carry.diverged.reshape(B).numpy(), dtype=np.bool_)
         self.dat = np.where(self.div, 0, -1).astype(np.int64)
         self.clamp = np.zeros(B, dtype=np.int64)
@@ -153,7 +158,8 @@ class FastTEA:
         """Steps ``k0 … k1−1``: ``y[:, k − yoff]``, ``u[:, k − 1 − yoff]``; outputs of the steps ``k`` with
         ``k % every == 0`` into row ``k // every − ooff`` of the ten arrays ``outs``."""
         self._advance(k0, k1, yoff, ooff, every, y, np.zeros((1, 1)) if u is None else u, u is not None,
-                      *self.settings, *self.state, self.div, self.dat, self.clamp, self.pg, *self.hist, *outs)
+                      *self.settings, *self.state, self.div, self.dat, self.clamp, self.pg, self.pog, self.pwg, *self.hist,
+                      *outs)
 
     def carry(self):
         """The current carry as torch tensors of :class:`~.tea.Carry`'s shapes."""
@@ -162,7 +168,9 @@ class FastTEA:
         t = lambda a: torch.from_numpy(a.copy()).reshape(self.batch)  # noqa: E731
         x, P, al, Po, Qo, w, Pw, Qw = (t(a) for a in self.state)
         v, m = (lambda a: a.unsqueeze(-1)), (lambda a: a.unsqueeze(-1).unsqueeze(-1))
-        return Carry(v(x), m(P), v(al), m(Po), m(Qo), v(w), m(Pw), m(Qw), t(self.div), m(t(self.pg)) if self.gain else None)
+        own = (m(t(self.pog)), m(t(self.pwg))) if self.constant else (None, None)
+        return Carry(v(x), m(P), v(al), m(Po), m(Qo), v(w), m(Pw), m(Qw), t(self.div), m(t(self.pg)) if self.gain else None,
+                     *own)
 
 
 def block_steps(eng: "FastTEA", k: int, B: int) -> int:

@@ -231,7 +231,7 @@ def _gain(Pxy: Tensor, Pyy: Tensor, mask: Tensor) -> Tensor:
 
 
 def _ut_update(points, Y, prior_mean, prior_cov, R, y, mask, wm, wc, start):
-    """Unscented update (19)–(24): returns (mean, cov, gain, innovation, Pyy).
+    """Unscented update (19)–(24): returns (mean, cov, gain, innovation, Pyy, Pxy).
 
     points ``(*B, S, q)``, Y ``(*B, S, p)``; sums over sigma points ``i ≥ start`` in (20)–(21).
     """
@@ -245,7 +245,24 @@ def _ut_update(points, Y, prior_mean, prior_cov, R, y, mask, wm, wc, start):
     e = torch.where(mask, y - y_pred, torch.zeros_like(y_pred))
     mean = prior_mean + _mm(K, e.unsqueeze(-1)).squeeze(-1)  # (23)
     cov = _psd(prior_cov - _mm(_mm(K, Pyy), K.mT))  # (24)
-    return mean, cov, K, e, Pyy
+    return mean, cov, K, e, Pyy, Pxy
+
+
+def _constant_truth_cov(Sigma, prior_cov, K, Pyy, Pxy):
+    """The covariance of an unscented filter's error after its update when the truth is constant
+    (``estimate_uncertainty = "constant-truth"``): ``(I − K H) Σ (I − K H)ᵀ + K (P_yy − H P̃ Hᵀ) Kᵀ`` with ``H =
+    P_σyᵀ P̃⁻¹`` (statistical linearisation over the sigma points drawn with ``prior_cov`` = P̃) and ``Σ`` the
+    previous error covariance, no ``Q`` added. ``K`` has zero columns for missing outputs, so a missing sample
+    leaves ``Σ`` as it is. Where P̃ is zero, ``H`` is zero."""
+    if prior_cov.shape[-1] == 1:
+        p = prior_cov[..., 0, 0]
+        Pinv = torch.where(p > 0, 1.0 / torch.where(p > 0, p, 1.0), 0.0)[..., None, None]
+    else:
+        Pinv = torch.linalg.pinv(prior_cov, hermitian=True)
+    H = _mm(Pxy.mT, Pinv)  # (*B, p, L)
+    IKH = torch.eye(Sigma.shape[-1], dtype=Sigma.dtype, device=Sigma.device) - _mm(K, H)
+    R_eff = _psd(Pyy - _mm(_mm(H, prior_cov), H.mT))
+    return _psd(_mm(_mm(IKH, Sigma), IKH.mT) + _mm(_mm(K, R_eff), K.mT))
 
 
 def _adapt_q(Q, K, e, delta: float, q_max: Tensor, observed):
@@ -278,6 +295,10 @@ class Carry(NamedTuple):
     #: ``kfx_uncertainty = "paper-gain"`` only: the paper's KFx covariance, which sets the gain (``P`` is then the
     #: covariance of that filter's error with the order's and parameter's uncertainty included); else None
     Pg: Tensor | None = None
+    #: ``estimate_uncertainty = "constant-truth"`` only: KFo's and KFw's own covariances, which set their gains
+    #: (``Po`` and ``Pw`` are then the covariances of their errors for a constant truth); else None
+    Pog: Tensor | None = None
+    Pwg: Tensor | None = None
 
 
 class StepOutput(NamedTuple):
@@ -457,19 +478,23 @@ def _tea_step(model: _Model, params: TEAParams, weights, memory, carry: Carry, y
     observed = mask.any(-1)
     y0 = torch.where(mask, y, torch.zeros_like(y))
 
-    # KFo and KFw predictions (13)–(15), (38)–(40)
-    Po_t = carry.Po + carry.Qo
-    Pw_t = carry.Pw + carry.Qw
+    # KFo and KFw predictions (13)–(15), (38)–(40), from the covariances that set their gains
+    constant = cfg.estimate_uncertainty == "constant-truth"
+    Po_t = (carry.Pog if constant else carry.Po) + carry.Qo
+    Pw_t = (carry.Pwg if constant else carry.Pw) + carry.Qw
     sig_o = _sigma_points(carry.alpha, Po_t, scale_o)
     sig_w = _sigma_points(carry.w, Pw_t, scale_w)
     Y, chi = _replica(model, memory, hist, model.full(sig_o), carry.w, sig_w, carry.x, u_prev)
     So = sig_o.shape[-2]
-    alpha, Po, Ko, eo, _ = _ut_update(sig_o, Y[..., :So, :], carry.alpha, Po_t, params.Ro, y0, mask, wm_o, wc_o, start)
+    alpha, Po, Ko, eo, Pyy_o, Pxy_o = _ut_update(sig_o, Y[..., :So, :], carry.alpha, Po_t, params.Ro, y0, mask,
+                                                 wm_o, wc_o, start)
     lo, hi = cfg.order_bounds
     alpha = alpha.clamp(lo, hi)
     Qo = _adapt_q(carry.Qo, Ko, eo, cfg.kfo.delta, params.Qmax_o, observed)
-    w, Pw, Kw, ew, _ = _ut_update(sig_w, Y[..., So:, :], carry.w, Pw_t, params.Rw, y0, mask, wm_w, wc_w, start)
+    w, Pw, Kw, ew, Pyy_w, Pxy_w = _ut_update(sig_w, Y[..., So:, :], carry.w, Pw_t, params.Rw, y0, mask,
+                                             wm_w, wc_w, start)
     Qw = _adapt_q(carry.Qw, Kw, ew, cfg.kfw.delta, params.Qmax_w, observed)
+    Pw_own = carry.Pwg if constant else carry.Pw  # KFw's own covariance of ŵ_{k−1}
 
     # KFx (29)–(35) with α̂_k and ŵ_{k−1}
     a = model.full(alpha)  # (*B, n)
@@ -481,8 +506,9 @@ def _tea_step(model: _Model, params: TEAParams, weights, memory, carry: Carry, y
     Qx = params.Q * (hp.unsqueeze(-1) * hp.unsqueeze(-2)) if cfg.noise_scaling == "scaled" else params.Q
     P_pred = _mm(_mm(F, carry.P), F.mT) + Qx + mem_cov
     if cfg.kfx_uncertainty != "paper":
+        # with the filters' own covariances, also under "constant-truth" (TEAConfig.estimate_uncertainty says why)
         P_pred = P_pred + _estimate_uncertainty(chi[..., :So, :], sig_o, carry.alpha, Po_t, Po, wc_o) \
-            + _estimate_uncertainty(chi[..., So:, :], sig_w, carry.w, Pw_t, carry.Pw, wc_w)
+            + _estimate_uncertainty(chi[..., So:, :], sig_w, carry.w, Pw_t, Pw_own, wc_w)
     P_pred = _symmetrise(P_pred)
     Pg = None
     if cfg.kfx_uncertainty == "paper-gain":
@@ -495,7 +521,13 @@ def _tea_step(model: _Model, params: TEAParams, weights, memory, carry: Carry, y
     else:
         x, P, e, S, _ = _kfx_update(model, params, x_pred, P_pred, y0, mask)
 
-    new = Carry(x, P, alpha, Po, Qo, w, Pw, Qw, carry.diverged, Pg)
+    Pog = Pwg = None
+    if constant:
+        # the filters' own covariances set the gains; Po and Pw become those of their errors for a constant truth
+        Pog, Pwg = Po, Pw
+        Po = _constant_truth_cov(carry.Po, Po_t, Ko, Pyy_o, Pxy_o)
+        Pw = _constant_truth_cov(carry.Pw, Pw_t, Kw, Pyy_w, Pxy_w)
+    new = Carry(x, P, alpha, Po, Qo, w, Pw, Qw, carry.diverged, Pg, Pog, Pwg)
     return _guard(new, carry, cfg.divergence_limit, branchless), StepOutput(e, S)
 
 
@@ -632,9 +664,11 @@ def _first_step(model: _Model, params: TEAParams, y_0: Tensor, batch) -> tuple[C
     x, P, e, S, _ = _kfx_update(model, params, ex(params.x0, (n,)), ex(params.P0, (n, n)),
                                 torch.where(mask0, y_0, torch.zeros_like(y_0)), mask0)
     gain = params.config.kfx_uncertainty == "paper-gain"  # at k = 0 both covariances are the prior's update
+    constant = params.config.estimate_uncertainty == "constant-truth"  # both start at the prior's
     carry = Carry(x, P, ex(params.alpha0, (L,)), ex(params.P0o, (L, L)), ex(params.Q0o, (L, L)),
                   ex(params.w0, (m,)), ex(params.P0w, (m, m)), ex(params.Q0w, (m, m)),
-                  torch.zeros(batch, dtype=torch.bool, device=y_0.device), P.clone() if gain else None)
+                  torch.zeros(batch, dtype=torch.bool, device=y_0.device), P.clone() if gain else None,
+                  ex(params.P0o, (L, L)) if constant else None, ex(params.P0w, (m, m)) if constant else None)
     prior = carry._replace(x=ex(params.x0, (n,)), P=ex(params.P0, (n, n)), Pg=ex(params.P0, (n, n)) if gain else None)
     return _guard(carry, prior, params.config.divergence_limit), StepOutput(e, S)
 
@@ -882,7 +916,8 @@ def _loop(model, params, weights, memory, carry, y, inputs, batch, N, n, nb, dev
 
         def one_step(carry, hist, diverged_at, clamped, y_k, u_prev, k, branchless):
             # extreme KFo sigma orders, bounded through the diagonal of P̃ᵒ (conservative)
-            spread = (scale_o * torch.diagonal(carry.Po + carry.Qo, dim1=-2, dim2=-1)).clamp(min=0).sqrt()
+            Po_gain = carry.Po if carry.Pog is None else carry.Pog  # the covariance the sigma points come from
+            spread = (scale_o * torch.diagonal(Po_gain + carry.Qo, dim1=-2, dim2=-1)).clamp(min=0).sqrt()
             outside = ((carry.alpha - spread) < kernel_low) | ((carry.alpha + spread) > kernel_high)
             clamped = clamped + outside.any(-1).to(clamped.dtype)
             carry, o = _tea_step(model, params, weights, memory, carry, y_k, u_prev, hist, k, branchless)

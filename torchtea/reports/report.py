@@ -14,6 +14,20 @@ __all__ = ["settle_time", "axis_statistics", "write_report", "log_identification
            "save_identification"]
 
 
+def _uncertainty_note(cfg) -> str:
+    """What KFx's P and S and KFo's/KFw's covariances mean under the settings used (TEAConfig's two uncertainty
+    settings; the defaults are not the paper's for KFx)."""
+    kfx = {"paper": "`kfx_uncertainty = \"paper\"`: KFx's P and S as the paper computes them (the order and "
+                    "parameter taken as exact)",
+           "paper-gain": "`kfx_uncertainty = \"paper-gain\"` (default, not in the paper): the paper's estimates, with "
+                         "KFx's P and S including the order's and parameter's uncertainty",
+           "propagated": "`kfx_uncertainty = \"propagated\"` (not in the paper): the order's and parameter's "
+                         "uncertainty in KFx's prediction and gain"}[cfg.kfx_uncertainty]
+    est = {"paper": "Pᵒ and Pʷ the filters' own", "constant-truth": "Pᵒ and Pʷ those of a constant order and "
+                                                                        "parameter (`estimate_uncertainty`)"}
+    return kfx + "; " + est[cfg.estimate_uncertainty]
+
+
 def axis_statistics(ident: Identification, axes: dict) -> dict:
     """Per axis: sample variance and standard deviation of the (mean-removed) noise over the part used,
     the KFx innovation variance (observed samples), its predicted variance and the residual variance over
@@ -92,6 +106,7 @@ def write_report(path, ident: Identification, summary: dict, figures: list, *, c
                              "started at the fitted α̂ and f̂ (see *Fitted noise model*)"}.get(
                     summary.get("r_mode"), "the paper's printed values")
                 + f"; GL history `{summary.get('memory', 'exact')}`; each axis's mean removed"
+                + f"; {_uncertainty_note(ident.configs[0])}"
                 + (" — except where listed below" if ident.changes else ""))
     src.append(settings)
     if ident.changes:

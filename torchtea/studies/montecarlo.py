@@ -441,6 +441,7 @@ def save_study(logdir, study: Study, preset: str, result: StudyResult | None = N
           "param": tr.param, "q": tr.q, "r": tr.r, "h": tr.h, "n": tr.n_steps,
           "input_std": tr.input_std if tr.input_std is not None else 0.0, "truth_memory": tr.memory,
           "kfx_uncertainty": study.estimator.kfx_uncertainty,
+          "estimate_uncertainty": study.estimator.estimate_uncertainty,
           **(hparams or {})}
     log_study(logdir, result, summary, hp, figures=figures)
     return logdir

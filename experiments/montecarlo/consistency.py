@@ -1,11 +1,12 @@
-"""Issue 15: KFx's consistency with the order's and parameter's uncertainty propagated, against the paper's KFx.
+"""Issue 15: the TEA's consistency with the order's and parameter's uncertainty in KFx and honest KFo/KFw
+covariances, against the paper's filters.
 
     python experiments/montecarlo/consistency.py [--realisations 200] [--only NAME ...]
 
 Every setting runs as a `torchtea montecarlo` sweep over ``estimator.kfx_uncertainty = ["paper", "propagated",
-"paper-gain"]``
-(same seed: the three settings see the same realisations) into experiments/montecarlo/runs/consistency/<setting>/,
-one TensorBoard run per sub-study (the HParams tab compares them: metric/nees_mean, metric/order_coverage, …).
+"paper-gain"]`` × ``estimator.estimate_uncertainty = ["paper", "constant-truth"]`` (same seed: the six combinations
+see the same realisations) into experiments/montecarlo/runs/consistency/<setting>/, one TensorBoard run per
+sub-study (the HParams tab compares them: metric/nees_mean, metric/order_coverage, …).
 The settings are those of README.md's table: Examples 1–3, the MEMS setting and the 3 × 3 sweep of Example 1.
 Writes consistency.json (the summaries) and prints the before/after table of README.md.
 """
@@ -24,7 +25,10 @@ from torchtea.cli import main as cli  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 RUNS = HERE / "runs" / "consistency"
-MODES = ("paper", "propagated", "paper-gain")
+KFX = ("paper", "propagated", "paper-gain")
+ESTIMATE = ("paper", "constant-truth")
+#: (kfx_uncertainty, estimate_uncertainty) of every sub-study; the first is the paper's filters ("before")
+MODES = tuple((k, e) for e in ESTIMATE for k in KFX)
 MEMS_TRUTH = {"h": 0.01, "n": 3000, "order": "0.4", "param": -4.0, "q": 0.01, "r": 4e-4}
 SETTINGS = {
     "example1": ("paper-example1", {}, 1),
@@ -46,7 +50,8 @@ def run(name: str, preset: str, truth: dict, seed: int, realisations: int) -> di
     lines = [f"realisations = {realisations}", f"seed = {seed}", "[estimator]", f'preset = "{preset}"']
     if truth:
         lines += ["[truth]"] + [f"{k} = {toml_value(v)}" for k, v in truth.items()]
-    lines += ["[sweep.estimator]", "kfx_uncertainty = [" + ", ".join(f'"{m}"' for m in MODES) + "]"]
+    lines += ["[sweep.estimator]", "kfx_uncertainty = [" + ", ".join(f'"{m}"' for m in KFX) + "]",
+              "estimate_uncertainty = [" + ", ".join(f'"{m}"' for m in ESTIMATE) + "]"]
     cfg.write_text("\n".join(lines) + "\n")
     t0 = time.perf_counter()
     (RUNS / name / "sweep.json").unlink(missing_ok=True)  # never read back an earlier run's table
@@ -56,7 +61,12 @@ def run(name: str, preset: str, truth: dict, seed: int, realisations: int) -> di
         raise SystemExit(f"{name}: torchtea montecarlo exited {code}")
     table = json.loads((RUNS / name / "sweep.json").read_text())
     print(f"{name}: {time.perf_counter() - t0:.1f} s (exit {code})", file=sys.stderr, flush=True)
-    return {s["sweep"]["values"]["estimator.kfx_uncertainty"]: s for s in table["studies"]}
+    return {key(s["sweep"]["values"]["estimator.kfx_uncertainty"], s["sweep"]["values"]["estimator.estimate_uncertainty"]): s
+            for s in table["studies"]}
+
+
+def key(kfx: str, estimate: str) -> str:
+    return f"{kfx} / {estimate}"
 
 
 def fmt(v, spec):
@@ -64,17 +74,37 @@ def fmt(v, spec):
 
 
 def table(results: dict) -> str:
-    rows = ["| setting | KFx | mean NEES (thirds) | order ±2σ coverage (thirds) | param ±2σ coverage | order bias / RMSE | "
+    rows = ["| setting | KFx / KFo-KFw covariance | mean NEES (thirds) | order ±2σ coverage (thirds) | param ±2σ coverage | order bias / RMSE | "
             "param bias / RMSE | mean NIS |", "|---|---|---|---|---|---|---|---|"]
     for name, by_mode in results.items():
         for mode in MODES:
-            s = by_mode[mode]
+            s = by_mode[key(*mode)]
             o, p = s["order"], s["param"]
             thirds = lambda xs, spec: " / ".join(fmt(x, spec) for x in xs)  # noqa: E731
-            rows.append(f"| {name} | {mode} | {s['nees']['mean']:.3g} ({thirds(s['nees']['mean_by_third'], '.3g')}) | "
+            rows.append(f"| {name} | {key(*mode)} | {s['nees']['mean']:.3g} ({thirds(s['nees']['mean_by_third'], '.3g')}) | "
                         f"{o['coverage_2sigma']:.3f} ({thirds(o['coverage_2sigma_by_third'], '.3f')}) | "
                         f"{p['coverage_2sigma']:.3f} | {o['bias']:+.4f} / {o['rmse']:.4f} | "
                         f"{p['bias']:+.3f} / {p['rmse']:.3f} | {s['nis']['mean']:.3f} |")
+    return "\n".join(rows)
+
+
+#: the before/after pair of the issue's table: the paper's filters, and the default KFx with constant-truth
+#: order and parameter covariances
+BEFORE, AFTER = ("paper", "paper"), ("paper-gain", "constant-truth")
+
+
+def before_after(results: dict) -> str:
+    """One row per setting: the paper's filters → paper-gain with constant-truth covariances."""
+    rows = ["| setting | mean NEES | order ±2σ coverage | param ±2σ coverage | order bias / RMSE | param bias / RMSE |",
+            "|---|---|---|---|---|---|"]
+    for name, by_mode in results.items():
+        b, a = by_mode[key(*BEFORE)], by_mode[key(*AFTER)]
+        arrow = lambda f, spec: f"{format(f(b), spec)} → {format(f(a), spec)}"  # noqa: E731
+        rows.append(f"| {name} | {arrow(lambda s: s['nees']['mean'], '.3g')} | "
+                    f"{arrow(lambda s: s['order']['coverage_2sigma'], '.3f')} | "
+                    f"{arrow(lambda s: s['param']['coverage_2sigma'], '.3f')} | "
+                    f"{arrow(lambda s: s['order']['bias'], '+.4f')} / {arrow(lambda s: s['order']['rmse'], '.4f')} | "
+                    f"{arrow(lambda s: s['param']['bias'], '+.3f')} / {arrow(lambda s: s['param']['rmse'], '.3f')} |")
     return "\n".join(rows)
 
 
@@ -90,7 +120,10 @@ def main():
             continue
         results[name] = run(name, preset, truth, seed, args.realisations)
         path.write_text(json.dumps(results, indent=2) + "\n")
-    print(table({k: results[k] for k in SETTINGS if k in results}))
+    done = {k: results[k] for k in SETTINGS if k in results}
+    print(table(done))
+    print()
+    print(before_after(done))
 
 
 if __name__ == "__main__":

@@ -92,6 +92,25 @@ def test_estimate_with_config_file(tmp_path, capsys):
     assert "delta = 0.0" in written and "order_bounds = [0.3, 0.4]" in written
 
 
+def test_estimate_uncertainty_flags(tmp_path, capsys):
+    """--kfx-uncertainty and --estimate-uncertainty on estimate: written to the settings file beside the trajectory;
+    the same α̂, a different P_alpha column (the constant-truth one smaller once settled) and the paper's P smaller
+    than the default's."""
+    sim = tmp_path / "s.csv"
+    run("simulate", "--n", 400, "--h", 0.001, "--order", 0.35, "--param", -1, "--q", 1e-4, "--r", 1e-3,
+        "--input-std", 1, "--seed", 3, "--out", sim)
+    base = ["estimate", sim, "--h", 0.001, "--preset", "paper-example1", "--json"]
+    assert run(*base, "--out", tmp_path / "a.csv") == 0
+    assert run(*base, "--out", tmp_path / "b.csv", "--kfx-uncertainty", "paper", "--estimate-uncertainty",
+               "constant-truth") == 0
+    capsys.readouterr()
+    written = (tmp_path / "b.toml").read_text()
+    assert 'kfx_uncertainty = "paper"' in written and 'estimate_uncertainty = "constant-truth"' in written
+    a, b = (np.genfromtxt(tmp_path / f, delimiter=",", names=True) for f in ("a.csv", "b.csv"))
+    assert np.array_equal(a["alpha_hat"], b["alpha_hat"])
+    assert (b["P_alpha"][200:] < a["P_alpha"][200:]).all() and (b["P"][200:] < a["P"][200:]).all()
+
+
 def test_estimate_missing_samples(tmp_path, capsys):
     f = tmp_path / "gap.csv"
     body = "\n".join(f"{0.01 * ((7 * k) % 11 - 5)}" for k in range(120))

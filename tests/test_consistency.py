@@ -117,6 +117,8 @@ def test_numba_equals_torch_with_the_term(memory, start, mode, estimate):
              for e in ("torch", "numba")}
     if mode != "paper":
         assert bool((b.P[:, 1:] > paper["numba"].P[:, 1:]).any())  # the term is there
+    if memory == "soe":
+        assert torch.equal(a.memory_clamped, paper["torch"].memory_clamped)  # from the gain's covariance
     if estimate != "paper":
         assert not torch.equal(b.P_alpha, paper["numba"].P_alpha)
         # it changes what KFo and KFw report, nothing else
@@ -304,6 +306,46 @@ def test_constant_truth_covariance_equals_a_brute_force_variance_on_a_linear_mod
         var = float((mean - truth).var())
         assert float(Sigma[0, 0, 0]) == pytest.approx(var, rel=tol), k
     assert float(P[0, 0, 0]) > 1.5 * var  # the random-walk covariance: 1.75× the error variance here
+
+
+@pytest.mark.parametrize("start", [0, 1])
+def test_constant_truth_covariance_with_two_orders_and_three_outputs_equals_a_brute_force_covariance(start):
+    """The general path (L = 2, p = 3, pinv, matrix Joseph form): a linear model y = M α + v with a constant truth
+    α ~ N(m₀, P₀), 40 000 draws, one sample with one output missing and one with all missing, sigma sums from
+    i = 0 and from i = 1. Every entry of the constant-truth covariance equals the sample covariance of α̂ − α
+    within 5 standard errors of a sample covariance entry (√((Σᵢᵢ Σⱼⱼ + Σᵢⱼ²) / n))."""
+    n = 40_000
+    g = torch.Generator().manual_seed(13)
+    M = torch.tensor([[1.0, 0.5], [-0.3, 2.0], [0.8, 0.8]], dtype=torch.float64)
+    m0 = torch.tensor([0.3, 0.6], dtype=torch.float64)
+    P0 = torch.tensor([[0.04, 0.01], [0.01, 0.02]], dtype=torch.float64)
+    Q = 1e-3 * torch.eye(2, dtype=torch.float64)
+    R = torch.diag(torch.tensor([0.05, 0.1, 0.08], dtype=torch.float64))
+    truth = m0 + torch.randn(n, 2, generator=g, dtype=torch.float64) @ torch.linalg.cholesky(P0).T
+    wm, wc, scale = ut_weights(2, 1.0, 2.0, None)
+    mean, P = m0.expand(n, 2).clone(), P0.expand(n, 2, 2).clone()
+    Sigma = P.clone()
+    for k in range(25):
+        y = truth @ M.T + torch.randn(n, 3, generator=g, dtype=torch.float64) @ R.sqrt()
+        mask = torch.ones(n, 3, dtype=torch.bool)
+        if k == 5:
+            mask[:, 1] = False
+        if k == 9:
+            mask[:] = False
+        Pt = P + Q
+        pts = _sigma_points(mean, Pt, scale)
+        Sigma_prev = Sigma
+        mean, P, K, _, Pyy, Pxy = _ut_update(pts, pts @ M.T, mean, Pt, R, torch.where(mask, y, 0.0), mask, wm, wc,
+                                             start)
+        Sigma = _constant_truth_cov(Sigma, Pt, K, Pyy, Pxy)
+        if k == 9:  # nothing observed: Σ stays (to the rounding of the PSD projection)
+            torch.testing.assert_close(Sigma, Sigma_prev, rtol=1e-12, atol=0)
+        err = mean - truth
+        emp = err.T @ err / (n - 1) - torch.outer(err.mean(0), err.mean(0)) * n / (n - 1)
+        S = Sigma[0]
+        se = ((torch.outer(S.diagonal(), S.diagonal()) + S ** 2) / n).sqrt()
+        assert bool(((emp - S).abs() <= 5 * se).all()), (k, emp, S)
+    assert float(P[0, 0, 0]) > 1.3 * float(Sigma[0, 0, 0])  # the random-walk covariance is larger
 
 
 def test_constant_truth_order_and_parameter_covariances_match_their_errors_on_example1():

@@ -29,6 +29,9 @@ def _same(a, b, rtol=1e-10, atol=1e-12):
         torch.testing.assert_close(getattr(a, name), getattr(b, name), rtol=rtol, atol=atol, msg=name)
     assert torch.equal(a.diverged, b.diverged) and torch.equal(a.diverged_at, b.diverged_at)
     assert torch.equal(a.steps, b.steps)
+    assert (a.memory_clamped is None) == (b.memory_clamped is None)
+    if a.memory_clamped is not None:
+        assert torch.equal(a.memory_clamped, b.memory_clamped), "memory_clamped"
 
 
 @pytest.mark.parametrize("memory", ["exact", "soe", "window:40"])

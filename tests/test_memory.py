@@ -208,7 +208,7 @@ def test_tea_soe_against_exact_example1_within_first_order_bound():
     u = gaussian_input((B,), N, 1, sc.input_std, generator=g)
     sim = simulate(Structure(), n_steps=N, h=sc.h, order=sc.order, parameters=[sc.param], process_noise=sc.q,
                    measurement_noise=sc.r, inputs=u, batch_shape=(B,), generator=g)
-    base = get_preset("paper-example1")
+    base = replace(get_preset("paper-example1"), kfx_uncertainty="paper")  # _tea_loop is the paper's KFx
     soe_cfg = replace(base, memory=MemoryConfig("soe", tol=tol))
     soe = run_tea(sim.y, h=sc.h, params=make_params(soe_cfg, Structure()), inputs=u)
     exact = run_tea(sim.y, h=sc.h, params=make_params(base, Structure()), inputs=u)

@@ -249,7 +249,7 @@ def test_nis_far_from_one_is_warned_about_with_labelled_spans(tmp_path, capsys):
     # an order whose own filter σ is large is called poorly determined, with the numbers; one that is not, is not
     for a in "xyz":
         sd = out["axes"][a]["alpha_filter_sd_final"]
-        said = any(w.startswith(f"axis {a}: α̂ is poorly determined: KFo's own σ at the last sample is {sd:.3g}")
+        said = any(w.startswith(f"axis {a}: α̂ is poorly determined: σ at the last sample is {sd:.3g}, KFo's own ")
                    for w in out["warnings"])
         assert said == (sd > 0.1), (a, sd)
     assert out["axes"]["z"]["alpha_filter_sd_final"] > 0.1 > out["axes"]["x"]["alpha_filter_sd_final"]

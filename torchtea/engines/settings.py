@@ -117,19 +117,22 @@ class TEAConfig:
         this larger ``P``: a realisation whose reported ``P`` leaves ``divergence_limit`` is frozen where the
         paper setting would go on (none did in experiments/montecarlo's studies).
         The default is "paper-gain": the paper's estimates, with a ``P`` whose NEES is 0.7–2.5 where the paper's is
-        23–1400 (experiments/montecarlo/README.md). The paper reproduction pins "paper".
+        23–931, and 3.9 where the paper's is 1370 (α = 0.6, f = −2; experiments/montecarlo/README.md). The paper
+        reproduction pins "paper".
     estimate_uncertainty : "paper" or "constant-truth" — the covariance KFo and KFw report for the order and
         parameter estimates (``P_alpha``, ``P_w``); nothing else changes. "paper": the filters' own covariances, those
         of their random-walk models ``α_k =
         α_{k−1} + noise`` with covariance ``Qᵒ``; for a constant true order they are about twice the variance of
-        the error once the filter has settled (error variance ``K R / (2 − K H)`` against ``P = K R / H``, scalar
+        the error once the filter has settled (error variance ``K R / (H (2 − K H))`` against ``P = K R / H``, scalar
         case), so a ±2σ interval covers the truth ~99.5 % of the time, not 95 %. "constant-truth": the filters
         run as the paper's (their gains, so every estimate, bit for bit, from their own covariances, carried
         alongside as ``Carry.Pog``, ``Carry.Pwg``), and report the covariance of their error when the true
         order and parameter are constant: ``Σ_k = (I − K H) Σ_{k−1} (I − K H)ᵀ + K (P_yy − H P̃ Hᵀ) Kᵀ``,
         ``Σ_0 = P₀``, with ``H = P_σyᵀ P̃⁻¹`` the statistical linearisation of the replica over the sigma points
-        (P̃ the covariance they were drawn with) and no ``Q`` (a constant truth does not move). Honest only for a
-        constant truth: for a time-varying order it is too small. It treats KFo's innovation noise as white,
+        (P̃ the covariance they were drawn with) and no ``Q`` (a constant truth does not move). ``P_yy − H P̃ Hᵀ``
+        is the filters' ``R`` plus what the linearisation leaves over, so it is honest only where that ``R``
+        matches the noise in their innovations, and only for a constant truth: for a time-varying order it is too
+        small. The projection of α̂ onto ``order_bounds`` is not in it. It treats KFo's innovation noise as white,
         which it is not (KFx's state errors are correlated in time); experiments/montecarlo/README.md measures
         the result. KFx's term of ``kfx_uncertainty`` keeps the filters' own covariances: with these smaller
         ones it under-predicts KFx's error (NEES 1.2–1.7 where it is 0.7–1.0, and 3.9–7.8 at α = 0.6, in

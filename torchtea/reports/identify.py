@@ -222,19 +222,27 @@ def settle_time(est: np.ndarray, t: np.ndarray, target: float, band: float = SET
     return float(t[first])
 
 
-def _meaning(k0: int, N: int, h: float) -> dict:
+def filter_sd_label(config: TEAConfig, which: str = "KFo") -> str:
+    """What √Pᵒ (``which="KFo"``) or √Pʷ (``"KFw"``) is under ``config.estimate_uncertainty``."""
+    if config.estimate_uncertainty == "constant-truth":
+        return (f"the standard deviation of {which}'s error if the true "
+                f"{'order' if which == 'KFo' else 'parameter'} is constant (estimate_uncertainty = constant-truth)")
+    return f"{which}'s own standard deviation"
+
+
+def _meaning(k0: int, N: int, h: float, config: TEAConfig) -> dict:
     span = f"samples {k0}–{N - 1} ({k0 * h:.2f}–{(N - 1) * h:.2f} s)"
     return {
         "alpha": f"mean of the order estimate α̂ over the last third, {span}",
         "alpha_std_last_third": "standard deviation of α̂ over the last third: how much the estimate still "
                                 "moves, not an uncertainty of the order",
         "alpha_final": "α̂ at the last sample",
-        "alpha_filter_sd_final": "√Pᵒ at the last sample: KFo's own standard deviation (not a calibrated "
+        "alpha_filter_sd_final": f"√Pᵒ at the last sample: {filter_sd_label(config)} (not a calibrated "
                                  "interval; see experiments/montecarlo/README.md for its measured coverage)",
         "param": f"mean of the parameter estimate ŵ over the last third, {span}",
         "param_std_last_third": "standard deviation of ŵ over the last third (movement, not uncertainty)",
         "param_final": "ŵ at the last sample",
-        "param_filter_sd_final": "√Pʷ at the last sample: KFw's own standard deviation",
+        "param_filter_sd_final": f"√Pʷ at the last sample: {filter_sd_label(config, 'KFw')}",
         "R": "measurement-noise variance R given to KFx (= Rᵒ = Rʷ) [(m/s²)²]",
         "innovation_nis": "mean normalised innovation squared e²/S of KFx over the whole run (observed samples, "
                           "k ≥ 1); 1 for a consistent filter",
@@ -277,7 +285,8 @@ def trust_warnings(axis: str, s: dict, config: TEAConfig) -> list[str]:
                    "levels (Q, R) do not match this sensor and α̂, ŵ are conditional on them")
     sd = s["alpha_filter_sd_final"]
     if sd > ALPHA_SD_LIMIT:
-        out.append(f"{axis}: α̂ is poorly determined: KFo's own σ at the last sample is {sd:.3g} (α̂ ± 2σ = "
+        out.append(f"{axis}: α̂ is poorly determined: σ at the last sample is {sd:.3g}, {filter_sd_label(config)} "
+                   f"(α̂ ± 2σ = "
                    f"{s['alpha_final']:.3g} ± {2 * sd:.2g}), so these data do not pin the order down")
     b_lo, b_hi = config.order_bounds
     frac = s["alpha_at_bound_fraction"]
@@ -384,5 +393,5 @@ def summarise(result: TEAResult, configs, means=None, *, y: torch.Tensor | None 
         total = N if y is None else y.shape[-2]
         warnings.append(f"interrupted (Ctrl-C) after {N} of {total} steps: every number covers only those steps, "
                         "and the outputs hold those steps only")
-    return {"axes": axes, "warnings": warnings, "meaning": _meaning(k0, N, h),
+    return {"axes": axes, "warnings": warnings, "meaning": _meaning(k0, N, h, configs[0]),
             "last_third": {"first_sample": k0, "last_sample": N - 1, "t0_s": k0 * h, "t1_s": (N - 1) * h}}

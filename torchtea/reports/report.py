@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from ..sensors.datacheck import MISSING_POLICY
-from .identify import AXES, NIS_TRUST_BAND, SETTLE_BAND, Identification, mean_or_nan, settle_time
+from .identify import AXES, NIS_TRUST_BAND, SETTLE_BAND, Identification, filter_sd_label, mean_or_nan, settle_time
 from ..core.stats import last_third
 
 __all__ = ["settle_time", "axis_statistics", "write_report", "log_identification", "orders_figure",
@@ -157,8 +157,9 @@ def write_report(path, ident: Identification, summary: dict, figures: list, *, c
                      f"{_fmt(st['alpha_settle_s'], '.1f')} | {'**yes**' if s['diverged'] else 'no'} |")
     lines += ["", "¹ How much the estimate still moves over the last third: not an uncertainty of the order or "
               "parameter.  ",
-              "² The filter's own standard deviation at the last sample (√Pᵒ, √Pʷ): not a calibrated interval "
-              "(the Monte Carlo studies in `experiments/montecarlo/README.md` measure its coverage).  ",
+              f"² √Pᵒ, √Pʷ at the last sample: {filter_sd_label(ident.configs[0])}, and the same for KFw: not a "
+              "calibrated interval (the Monte Carlo studies in `experiments/montecarlo/README.md` measure its "
+              "coverage).  ",
               f"³ The time from which α̂ stays within ±{SETTLE_BAND} of its last-third mean (—: not within the last third).",
               "", "## Noise variances [(m/s²)²] and filter consistency", "",
               "| axis | mean removed [m/s²] | noise variance, all samples used | std [m/s²] | R given to KFx | "

@@ -390,3 +390,12 @@ def test_constant_truth_order_and_parameter_covariances_match_their_errors_on_ex
             # the parameter's: conservative by ~20 % here (0.81 ± 0.04; the innovation noise is not white)
             assert 0.7 < rw < 1 + 4 * se_w, (rw, se_w)
             assert abs(cover - 0.95) < 4 * se_c, (cover, se_c)
+
+
+def test_identify_labels_say_which_order_covariance_they_report():
+    """identify's summary, warnings and report name √Pᵒ/√Pʷ by what they are under the setting used."""
+    from torchtea.reports.identify import filter_sd_label
+
+    assert filter_sd_label(TEAConfig()) == "KFo's own standard deviation"
+    const = filter_sd_label(TEAConfig(estimate_uncertainty="constant-truth"), "KFw")
+    assert "KFw's error" in const and "parameter is constant" in const and "own" not in const

@@ -136,8 +136,7 @@ class FastTEA:
         self.pg = np.array(carry.Pg.reshape(B).numpy(), dtype=np.float64) if gain else zeros()
         # KFo's and KFw's own covariances, which set their gains (equal to Po, Pw unless "constant-truth")
         self.constant = carry.Pog is not None
-        own = (carry.Pog, carry.Pwg) if self.constant else (carry.Po, carry.Pw)
-        self.pog, self.pwg = (np.array(t.reshape(B).numpy(), dtype=np.float64) for t in own)
+        self.pog, self.pwg = (np.array(t.reshape(B).numpy(), dtype=np.float64) for t in (carry.Po_own, carry.Pw_own))
         self.div = np.array(carry.diverged.reshape(B).numpy(), dtype=np.bool_)
         self.dat = np.where(self.div, 0, -1).astype(np.int64)
         self.clamp = np.zeros(B, dtype=np.int64)

@@ -254,12 +254,7 @@ def _constant_truth_cov(Sigma, prior_cov, K, Pyy, Pxy):
     P_σyᵀ P̃⁻¹`` (statistical linearisation over the sigma points drawn with ``prior_cov`` = P̃) and ``Σ`` the
     previous error covariance, no ``Q`` added. ``K`` has zero columns for missing outputs, so a missing sample
     leaves ``Σ`` as it is. Where P̃ is zero, ``H`` is zero."""
-    if prior_cov.shape[-1] == 1:
-        p = prior_cov[..., 0, 0]
-        Pinv = torch.where(p > 0, 1.0 / torch.where(p > 0, p, 1.0), 0.0)[..., None, None]
-    else:
-        Pinv = torch.linalg.pinv(prior_cov, hermitian=True)
-    H = _mm(Pxy.mT, Pinv)  # (*B, p, L)
+    H = _over_cov(Pxy.mT, prior_cov)  # (*B, p, L)
     IKH = torch.eye(Sigma.shape[-1], dtype=Sigma.dtype, device=Sigma.device) - _mm(K, H)
     R_eff = _psd(Pyy - _mm(_mm(H, prior_cov), H.mT))
     return _psd(_mm(_mm(IKH, Sigma), IKH.mT) + _mm(_mm(K, R_eff), K.mT))
@@ -299,6 +294,16 @@ class Carry(NamedTuple):
     #: (``Po`` and ``Pw`` are then the covariances of their errors for a constant truth); else None
     Pog: Tensor | None = None
     Pwg: Tensor | None = None
+
+    @property
+    def Po_own(self) -> Tensor:
+        """KFo's own covariance, the one its sigma points and gain come from."""
+        return self.Po if self.Pog is None else self.Pog
+
+    @property
+    def Pw_own(self) -> Tensor:
+        """KFw's own covariance, the one its sigma points and gain come from."""
+        return self.Pw if self.Pwg is None else self.Pwg
 
 
 class StepOutput(NamedTuple):
@@ -479,9 +484,8 @@ def _tea_step(model: _Model, params: TEAParams, weights, memory, carry: Carry, y
     y0 = torch.where(mask, y, torch.zeros_like(y))
 
     # KFo and KFw predictions (13)–(15), (38)–(40), from the covariances that set their gains
-    constant = cfg.estimate_uncertainty == "constant-truth"
-    Po_t = (carry.Pog if constant else carry.Po) + carry.Qo
-    Pw_t = (carry.Pwg if constant else carry.Pw) + carry.Qw
+    Po_t = carry.Po_own + carry.Qo
+    Pw_t = carry.Pw_own + carry.Qw
     sig_o = _sigma_points(carry.alpha, Po_t, scale_o)
     sig_w = _sigma_points(carry.w, Pw_t, scale_w)
     Y, chi = _replica(model, memory, hist, model.full(sig_o), carry.w, sig_w, carry.x, u_prev)
@@ -494,7 +498,6 @@ def _tea_step(model: _Model, params: TEAParams, weights, memory, carry: Carry, y
     w, Pw, Kw, ew, Pyy_w, Pxy_w = _ut_update(sig_w, Y[..., So:, :], carry.w, Pw_t, params.Rw, y0, mask,
                                              wm_w, wc_w, start)
     Qw = _adapt_q(carry.Qw, Kw, ew, cfg.kfw.delta, params.Qmax_w, observed)
-    Pw_own = carry.Pwg if constant else carry.Pw  # KFw's own covariance of ŵ_{k−1}
 
     # KFx (29)–(35) with α̂_k and ŵ_{k−1}
     a = model.full(alpha)  # (*B, n)
@@ -508,7 +511,7 @@ def _tea_step(model: _Model, params: TEAParams, weights, memory, carry: Carry, y
     if cfg.kfx_uncertainty != "paper":
         # with the filters' own covariances, also under "constant-truth" (TEAConfig.estimate_uncertainty says why)
         P_pred = P_pred + _estimate_uncertainty(chi[..., :So, :], sig_o, carry.alpha, Po_t, Po, wc_o) \
-            + _estimate_uncertainty(chi[..., So:, :], sig_w, carry.w, Pw_t, Pw_own, wc_w)
+            + _estimate_uncertainty(chi[..., So:, :], sig_w, carry.w, Pw_t, carry.Pw_own, wc_w)
     P_pred = _symmetrise(P_pred)
     Pg = None
     if cfg.kfx_uncertainty == "paper-gain":
@@ -522,7 +525,7 @@ def _tea_step(model: _Model, params: TEAParams, weights, memory, carry: Carry, y
         x, P, e, S, _ = _kfx_update(model, params, x_pred, P_pred, y0, mask)
 
     Pog = Pwg = None
-    if constant:
+    if cfg.estimate_uncertainty == "constant-truth":
         # the filters' own covariances set the gains; Po and Pw become those of their errors for a constant truth
         Pog, Pwg = Po, Pw
         Po = _constant_truth_cov(carry.Po, Po_t, Ko, Pyy_o, Pxy_o)
@@ -543,12 +546,18 @@ def _estimate_uncertainty(chi, points, mean, prior_cov, cov, wc):
     dX = points - mean.unsqueeze(-2)
     dC = chi - chi.mean(-2, keepdim=True)  # any centre: Σᵢ Wᵢᶜ dXᵢ = 0 for the symmetric points
     P_cs = _mm((dC * wc.unsqueeze(-1)).mT, dX)  # (*B, n, L)
+    J = _over_cov(P_cs, prior_cov)
+    return _mm(_mm(J, cov), J.mT)
+
+
+def _over_cov(M, prior_cov):
+    """``M P̃⁻¹``, the statistical linearisation's division by the covariance the sigma points were drawn with:
+    M ``(*B, r, L)``, prior_cov ``(*B, L, L)``; a scalar P̃ divides (zero where P̃ is zero), a matrix one takes the
+    pseudo-inverse."""
     if prior_cov.shape[-1] == 1:
         p = prior_cov[..., 0, 0]
-        J = torch.where((p > 0)[..., None, None], P_cs / torch.where(p > 0, p, 1.0)[..., None, None], 0.0)
-    else:
-        J = _mm(P_cs, torch.linalg.pinv(prior_cov, hermitian=True))
-    return _mm(_mm(J, cov), J.mT)
+        return torch.where((p > 0)[..., None, None], M / torch.where(p > 0, p, 1.0)[..., None, None], 0.0)
+    return _mm(M, torch.linalg.pinv(prior_cov, hermitian=True))
 
 
 def _kfx_update(model: _Model, params: TEAParams, x_pred, P_pred, y, mask):
@@ -916,8 +925,7 @@ def _loop(model, params, weights, memory, carry, y, inputs, batch, N, n, nb, dev
 
         def one_step(carry, hist, diverged_at, clamped, y_k, u_prev, k, branchless):
             # extreme KFo sigma orders, bounded through the diagonal of P̃ᵒ (conservative)
-            Po_gain = carry.Po if carry.Pog is None else carry.Pog  # the covariance the sigma points come from
-            spread = (scale_o * torch.diagonal(Po_gain + carry.Qo, dim1=-2, dim2=-1)).clamp(min=0).sqrt()
+            spread = (scale_o * torch.diagonal(carry.Po_own + carry.Qo, dim1=-2, dim2=-1)).clamp(min=0).sqrt()
             outside = ((carry.alpha - spread) < kernel_low) | ((carry.alpha + spread) > kernel_high)
             clamped = clamped + outside.any(-1).to(clamped.dtype)
             carry, o = _tea_step(model, params, weights, memory, carry, y_k, u_prev, hist, k, branchless)

@@ -330,3 +330,115 @@ def test_a_two_sample_study_has_no_thirds_to_split(tmp_path, capsys):
     assert out["order"]["coverage_2sigma_by_third"][:2] == [None, None]
     assert 0 <= out["order"]["coverage_2sigma_by_third"][2] <= 1
     assert out["nees"]["mean_by_third"][:2] == [None, None] and out["nees"]["mean_by_third"][2] > 0
+
+
+# --------------------------------------------------------------------------- consistent priors (issue 15)
+
+
+def test_consistent_prior_draws_follow_the_estimators_priors_around_the_truth():
+    """draw_prior: x̂₀, α̂₀, ŵ₀ ~ N(truth, P₀) with the estimator's own P₀ — a 2 × 2 correlated P₀ʷ too — checked
+    against 4000 draws (means within 5 standard errors, covariances within 5 SE of the sample covariance); a zero
+    P₀ gives the truth itself; the draws use a stream of their own."""
+    from torchtea.engines.structure import Structure
+    from torchtea.engines.tea import make_params
+    from torchtea.studies.montecarlo import draw_prior
+
+    params = make_params(get_preset("paper-example1"), Structure())
+    Pw = torch.tensor([[0.04, -0.018], [-0.018, 0.01]], dtype=torch.float64)
+    params = params._replace(P0w=Pw, P0o=torch.tensor([[0.02]], dtype=torch.float64))
+    x_true, a_true, w_true = (torch.tensor(v, dtype=torch.float64) for v in ([0.3], [0.35], [-1.0, 2.0]))
+    n = 4000
+    draws = [draw_prior(params, 9, i, x_true, a_true, w_true) for i in range(n)]
+    for k, (truth, P) in enumerate(((x_true, params.P0), (a_true, params.P0o), (w_true, Pw))):
+        d = torch.stack([dr[k] for dr in draws])
+        assert d.shape == (n, truth.shape[0])
+        se_mean = (torch.diagonal(P) / n).sqrt()
+        assert ((d.mean(0) - truth).abs() < 5 * se_mean).all(), k
+        err = d - truth
+        S = err.T @ err / n
+        se_cov = ((P ** 2 + torch.outer(torch.diagonal(P), torch.diagonal(P))) / n).sqrt()  # SE of a Gaussian sample covariance
+        assert ((S - P).abs() < 5 * se_cov).all(), (k, S, P)
+    assert realisation_seed(9, 3, stream=1) != realisation_seed(9, 3)
+    a = draw_prior(params, 9, 3, x_true, a_true, w_true)
+    b = draw_prior(params, 9, 3, x_true, a_true, w_true)
+    assert all(torch.equal(u, v) for u, v in zip(a, b))
+    zero = params._replace(P0=torch.zeros(1, 1, dtype=torch.float64), P0o=torch.zeros(1, 1, dtype=torch.float64),
+                           P0w=torch.zeros(2, 2, dtype=torch.float64))
+    assert all(torch.equal(u, v) for u, v in zip(draw_prior(zero, 9, 3, x_true, a_true, w_true), (x_true, a_true, w_true)))
+    # α̂₀ is kept inside the order bounds
+    wide = params._replace(P0o=torch.tensor([[100.0]], dtype=torch.float64))
+    lo, hi = params.config.order_bounds
+    alphas = torch.stack([draw_prior(wide, 9, i, x_true, a_true, w_true)[1] for i in range(200)])
+    assert alphas.min() == lo and alphas.max() == hi
+
+
+def test_consistent_prior_starts_each_realisation_from_its_draw_on_the_same_noise():
+    """prior = "consistent": the same truths as "preset" (the draws come from another stream), the filters start
+    at draw_prior's values, and the study does not depend on the chunking."""
+    from torchtea.engines.structure import Structure
+    from torchtea.engines.tea import make_params
+    from torchtea.studies.montecarlo import draw_prior
+
+    preset = run_study(Study(TRUTH, get_preset("paper-example1"), realisations=5, seed=11), trajectories=True)
+    whole = run_study(Study(TRUTH, get_preset("paper-example1"), realisations=5, seed=11, prior="consistent"),
+                      trajectories=True)
+    parts = run_study(Study(TRUTH, get_preset("paper-example1"), realisations=5, seed=11, prior="consistent", chunk=2),
+                      trajectories=True)
+    assert torch.equal(whole.trajectories["alpha_true"], preset.trajectories["alpha_true"])
+    for name in ("alpha", "P_alpha", "w", "P_w", "nees", "nis"):
+        torch.testing.assert_close(parts.trajectories[name], whole.trajectories[name], rtol=1e-12, atol=0)
+    params = make_params(get_preset("paper-example1"), Structure())
+    w_true = torch.tensor([TRUTH.param], dtype=torch.float64)
+    for i in range(5):
+        _, a0, w0 = draw_prior(params, 11, i, torch.zeros(1, dtype=torch.float64), torch.tensor([0.35], dtype=torch.float64), w_true)
+        # KFo and KFw do not update at step 0: their first row is the prior itself
+        assert whole.trajectories["alpha"][i, 0] == a0[0] and whole.trajectories["w"][i, 0] == w0[0]
+    assert not torch.equal(whole.trajectories["alpha"][:, 0], preset.trajectories["alpha"][:, 0])
+    with pytest.raises(ValueError, match="prior must be one of preset, consistent"):
+        Study(TRUTH, prior="truth")
+
+
+def test_montecarlo_prior_flag_study_file_and_sweep(tmp_path, capsys):
+    """--prior consistent reaches the study, its summary, its study.toml (which reproduces the run) and its
+    hparams; a study file's prior can be swept (two sub-studies on the same realisations); bad values are refused
+    naming where they came from."""
+    import json
+
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+    from tensorboard.plugins.hparams import metadata as hp_metadata
+    from tensorboard.plugins.hparams import plugin_data_pb2
+
+    from torchtea.cli import PRIOR_CHOICES, main
+    from torchtea.studies.montecarlo import PRIORS
+
+    assert PRIOR_CHOICES == PRIORS
+    logdir = tmp_path / "mc"
+    args = ["montecarlo", "--preset", "paper-example1", "--n", "120", "--realisations", "4", "--seed", "4", "--json"]
+    assert main(args + ["--prior", "consistent", "--logdir", str(logdir)]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["prior"] == "consistent"
+    assert 'prior = "consistent"' in (logdir / "study.toml").read_text()
+    assert main(["montecarlo", "--config", str(logdir / "study.toml"), "--logdir", str(tmp_path / "again"), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["order"]["rmse"] == out["order"]["rmse"]
+    assert main(args + ["--logdir", str(tmp_path / "preset")]) == 0
+    assert json.loads(capsys.readouterr().out)["order"]["rmse"] != out["order"]["rmse"]
+    ea = EventAccumulator(str(logdir), size_guidance={"tensors": 0})
+    ea.Reload()
+    content = ea.PluginTagToContent(hp_metadata.PLUGIN_NAME)
+    start = plugin_data_pb2.HParamsPluginData.FromString(content[hp_metadata.SESSION_START_INFO_TAG])
+    assert start.session_start_info.hparams["prior"].string_value == "consistent"
+    cfg = tmp_path / "sweep.toml"
+    cfg.write_text('realisations = 3\nseed = 2\n[estimator]\npreset = "paper-example1"\n[truth]\nn = 100\n'
+                   '[sweep]\nprior = ["preset", "consistent"]\n')
+    assert main(["montecarlo", "--config", str(cfg), "--logdir", str(tmp_path / "sw"), "--json"]) == 0
+    table = json.loads(capsys.readouterr().out)
+    assert sorted(s["sweep"]["name"] for s in table["studies"]) == ["prior=consistent", "prior=preset"]
+    assert {s["prior"] for s in table["studies"]} == {"preset", "consistent"}
+    assert main(["montecarlo", "--config", str(cfg), "--prior", "preset", "--logdir", str(tmp_path / "x")]) == 2
+    assert "prior is swept; leave out --prior" in capsys.readouterr().err
+    bad = tmp_path / "bad.toml"
+    bad.write_text('prior = "truth"\n[estimator]\npreset = "paper-example1"\n')
+    assert main(["montecarlo", "--config", str(bad), "--logdir", str(tmp_path / "y")]) == 2
+    assert f"{bad}: prior must be one of preset, consistent, got 'truth'" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(args + ["--prior", "truth"])

@@ -39,6 +39,8 @@ ESTIMATE_UNCERTAINTY_HELP = ("the covariance KFo and KFw report for the order an
                              "see experiments/montecarlo/README.md; default: the settings'")
 #: --estimate-uncertainty's choices (settings.ESTIMATE_UNCERTAINTIES)
 ESTIMATE_UNCERTAINTY_CHOICES = ("paper", "constant-truth")
+#: montecarlo --prior's choices (studies.montecarlo.PRIORS)
+PRIOR_CHOICES = ("preset", "consistent")
 #: TEAConfig settings that estimate, identify and montecarlo take as flags: (setting, choices, help)
 UNCERTAINTY_FLAGS = (("kfx_uncertainty", KFX_UNCERTAINTY_CHOICES, KFX_UNCERTAINTY_HELP),
                      ("estimate_uncertainty", ESTIMATE_UNCERTAINTY_CHOICES, ESTIMATE_UNCERTAINTY_HELP))
@@ -657,8 +659,10 @@ def _studies_from_args(args):
         if isinstance(swept, dict) and name in swept:
             raise CLIError(f"{args.config}: estimator.{name} is swept; leave out --{name.replace('_', '-')}")
         data = dict(data, estimator={**data.get("estimator", {}), name: value})
-    flags = {k: getattr(args, k) for k in ("realisations", "seed", "chunk", "log_points", "preset", "n", "h", "order",
-                                            "param", "q", "r", "input_std")}
+    flags = {k: getattr(args, k) for k in ("realisations", "seed", "chunk", "log_points", "prior", "preset", "n", "h",
+                                            "order", "param", "q", "r", "input_std")}
+    if args.prior is not None and "prior" in data.get("sweep", {}):
+        raise CLIError(f"{args.config}: prior is swept; leave out --prior")
     try:
         if "sweep" in data:
             return build_sweep(data, flags, memory=memory, source=args.config)
@@ -1043,6 +1047,10 @@ def build_parser() -> argparse.ArgumentParser:
     mc.add_argument("--r", type=_nonneg_float)
     mc.add_argument("--input-std", type=_nonneg_float)
     mc.add_argument("--memory", help="estimator's " + MEMORY_HELP)
+    mc.add_argument("--prior", choices=PRIOR_CHOICES,
+                    help="where each realisation's filters start: 'preset' (default), the estimator's x0 for all; "
+                         "'consistent', drawn per realisation from the estimator's P0 around the truth, the condition "
+                         "under which a consistent filter's NEES is 1 and its ±2σ coverage 95 %% from the start")
     _add_uncertainty_flags(mc)
     mc.add_argument("--device", help=DEVICE_HELP)
     mc.add_argument("--figures", action="store_true",

@@ -1,7 +1,9 @@
 """Monte Carlo studies of the TEA: many simulated realisations as one (chunked) batch.
 
 Realisation ``i`` of a study with seed ``s`` draws its input and noises from its own generator, seeded by
-``numpy.random.SeedSequence(s, spawn_key=(i,))``, so a realisation is the same whatever the chunking.
+``numpy.random.SeedSequence(s, spawn_key=(i,))``, so a realisation is the same whatever the chunking. Under
+``prior = "consistent"`` its filters' starting estimates come from a second stream, ``spawn_key=(i, 1)``
+(:func:`draw_prior`), so the input and noises are those of ``prior = "preset"``.
 """
 from __future__ import annotations
 
@@ -20,11 +22,13 @@ from ..core.stats import chi2_band, convergence_time, coverage, nees, nis, over_
 from ..engines.tea import make_params, run_tea
 from ..engines.settings import TEAConfig
 
-__all__ = ["Truth", "Study", "StudyResult", "realisation_seed", "draw_realisation", "run_study", "run_range",
-           "auto_chunk", "logged_steps", "summarise", "build_study", "save_study", "STUDY_KEYS"]
+__all__ = ["Truth", "Study", "StudyResult", "realisation_seed", "draw_realisation", "draw_prior", "run_study",
+           "run_range", "auto_chunk", "logged_steps", "summarise", "build_study", "save_study", "STUDY_KEYS", "PRIORS"]
 
 #: The top-level keys of a study's TOML table.
-STUDY_KEYS = ("realisations", "seed", "chunk", "log_points", "truth", "estimator", "sweep")
+STUDY_KEYS = ("realisations", "seed", "chunk", "log_points", "prior", "truth", "estimator", "sweep")
+#: Where each realisation's filters start (:attr:`Study.prior`).
+PRIORS = ("preset", "consistent")
 #: Command-line flags that set the truth, and the Truth field each sets.
 TRUTH_FLAGS = {"n": "n_steps", "h": "h", "order": "order", "param": "param", "q": "q", "r": "r",
                "input_std": "input_std"}
@@ -67,12 +71,40 @@ class Study:
     order_tolerance: float = 0.05
     param_tolerance: float = 0.2
     log_points: int | None = None  # steps kept for TensorBoard and fan charts; None = automatic (logged_steps)
+    #: where each realisation's KFx, KFo and KFw start: "preset" — the estimator's x0 for every realisation (a
+    #: fixed start, however far from the truth its P0 says it may be); "consistent" — drawn per realisation from
+    #: the estimator's own priors centred on the truth (:func:`draw_prior`), the condition under which a
+    #: consistent filter's NEES averages 1 and its ±2σ intervals cover 95 % from the first step
+    prior: str = "preset"
+
+    def __post_init__(self):
+        if self.prior not in PRIORS:
+            raise ValueError(f"prior must be one of {', '.join(PRIORS)}, got {self.prior!r}")
 
 
-def realisation_seed(seed: int, index: int) -> int:
-    """A 63-bit torch seed for realisation ``index`` of a study seeded ``seed``."""
-    state = np.random.SeedSequence(seed, spawn_key=(index,)).generate_state(2, dtype=np.uint32)
+def realisation_seed(seed: int, index: int, stream: int = 0) -> int:
+    """A 63-bit torch seed for realisation ``index`` of a study seeded ``seed``: its input and noises
+    (``stream`` 0) or its filters' starting estimates (``stream`` 1, :func:`draw_prior`)."""
+    key = (index,) if stream == 0 else (index, stream)
+    state = np.random.SeedSequence(seed, spawn_key=key).generate_state(2, dtype=np.uint32)
     return int((int(state[0]) << 31) ^ int(state[1])) & ((1 << 63) - 1)
+
+
+def draw_prior(params, seed: int, index: int, x_true0: Tensor, alpha_true0: Tensor, w_true: Tensor):
+    """Realisation ``index``'s starting estimates under ``prior = "consistent"``: ``x̂₀ ~ N(x₀, P₀)``,
+    ``α̂₀ ~ N(α₀, P₀ᵒ)`` (then clipped into ``order_bounds``) and ``ŵ₀ ~ N(w, P₀ʷ)``: the estimator's own prior
+    covariances (``params``, from :func:`~torchtea.engines.tea.make_params`) around the truth at step 0 (``x_true0``
+    ``(n,)``, ``alpha_true0`` ``(L,)``, ``w_true`` ``(m,)``). Drawn from the realisation's second stream, so any
+    chunking gives the same draws. Returns ``(x0, alpha0, w0)``."""
+    g = torch.Generator().manual_seed(realisation_seed(seed, index, stream=1))
+    lo, hi = params.config.order_bounds
+
+    def draw(mean, cov):
+        vals, vecs = torch.linalg.eigh(cov.to("cpu", torch.float64))  # a root that also serves a singular P0
+        z = torch.randn(mean.shape, generator=g, dtype=torch.float64)
+        return mean + vecs @ (vals.clamp(min=0.0).sqrt() * z)
+
+    return draw(x_true0, params.P0), draw(alpha_true0, params.P0o).clamp(lo, hi), draw(w_true, params.P0w)
 
 
 def draw_realisation(truth: Truth, seed: int, index: int, dtype=torch.float64):
@@ -268,7 +300,7 @@ def run_range(study: Study, start: int, stop: int, *, device=None, progress=None
             sim = simulate(Structure(), n_steps=N, h=tr.h, order=schedule, parameters=[tr.param],
                            process_noise=tr.q, measurement_noise=tr.r, inputs=u, standard_draws=(z_w, z_v),
                            memory=tr.memory, device=device)
-            res = run_tea(sim.y, h=tr.h, params=params, inputs=u)
+            res = run_tea(sim.y, h=tr.h, params=_prior_params(study, params, rows, sim), inputs=u)
             parts.append(_digest(study, rows, sim, res, steps, trajectories))
             del sim, res
             done = rows.stop
@@ -279,6 +311,19 @@ def run_range(study: Study, start: int, stop: int, *, device=None, progress=None
     if not parts:  # interrupted before the first chunk finished
         return StudyResult.empty(study, trajectories=trajectories, interrupted=interrupted)
     return StudyResult.concat(parts, interrupted=interrupted)
+
+
+def _prior_params(study: Study, params, rows: range, sim):
+    """``params`` as the study's prior says: unchanged for "preset", per-realisation starting estimates
+    (:func:`draw_prior`, leading batch dimension ``len(rows)``) for "consistent"."""
+    if study.prior == "preset":
+        return params
+    cpu = lambda t: t.to("cpu", torch.float64)  # noqa: E731
+    w_true = torch.full(params.w0.shape, study.truth.param, dtype=torch.float64)
+    draws = [draw_prior(params, study.seed, i, cpu(sim.x[j, 0]), cpu(sim.alpha[j, 0, :params.alpha0.shape[-1]]), w_true)
+             for j, i in enumerate(rows)]
+    x0, alpha0, w0 = (torch.stack(t).to(params.x0) for t in zip(*draws))
+    return params._replace(x0=x0, alpha0=alpha0, w0=w0)
 
 
 def run_study(study: Study, *, progress=None, device=None, client=None, shard: int | None = None,
@@ -308,7 +353,8 @@ def summarise(result: StudyResult) -> dict:
     keep = ~result.diverged
     kept = result.kept
     N = tr.n_steps
-    out = {"realisations": result.finished, "requested": st.realisations, "interrupted": result.interrupted,
+    out = {"realisations": result.finished, "requested": st.realisations, "prior": st.prior,
+           "interrupted": result.interrupted,
            "diverged": int(result.diverged.sum()),
            "diverged_fraction": float(result.diverged.double().mean()) if result.finished else math.nan,
            "excluded_from_statistics": "diverged realisations"}
@@ -399,12 +445,19 @@ def build_study(data: dict, flags: dict | None = None, *, memory=None, source: s
         raise ValueError(f"bad truth: {exc}") from None
     study = Study(tr, estimator, realisations=int(flags.get("realisations", data.get("realisations", 100))),
                   seed=int(flags.get("seed", data.get("seed", 0))), chunk=flags.get("chunk", data.get("chunk")),
-                  log_points=flags.get("log_points", data.get("log_points")))
+                  log_points=flags.get("log_points", data.get("log_points")),
+                  prior=_prior_choice(flags.get("prior", data.get("prior", "preset")), source))
     if study.realisations < 1:
         raise ValueError("--realisations must be at least 1")
     if study.log_points is not None and study.log_points < 1:
         raise ValueError(f"{source}: log_points must be at least 1")
     return study, preset
+
+
+def _prior_choice(value, source: str) -> str:
+    if value not in PRIORS:
+        raise ValueError(f"{source}: prior must be one of {', '.join(PRIORS)}, got {value!r}")
+    return value
 
 
 def save_study(logdir, study: Study, preset: str, result: StudyResult | None = None,
@@ -425,6 +478,7 @@ def save_study(logdir, study: Study, preset: str, result: StudyResult | None = N
         study_dict = {"realisations": study.realisations, "seed": study.seed,
                       **({"chunk": study.chunk} if study.chunk else {}),
                       **({"log_points": study.log_points} if study.log_points else {}),
+                      "prior": study.prior,
                       "truth": {k: v for k, v in vars(tr).items() if v is not None},
                       "estimator": {"preset": preset, **study.estimator.to_dict()}}
         (logdir / "study.toml").write_text(dumps_toml(study_dict))
@@ -440,7 +494,7 @@ def save_study(logdir, study: Study, preset: str, result: StudyResult | None = N
     hp = {"realisations": result.finished, "seed": study.seed, "preset": preset, "order": tr.order,
           "param": tr.param, "q": tr.q, "r": tr.r, "h": tr.h, "n": tr.n_steps,
           "input_std": tr.input_std if tr.input_std is not None else 0.0, "truth_memory": tr.memory,
-          "kfx_uncertainty": study.estimator.kfx_uncertainty,
+          "prior": study.prior, "kfx_uncertainty": study.estimator.kfx_uncertainty,
           "estimate_uncertainty": study.estimator.estimate_uncertainty,
           **(hparams or {})}
     log_study(logdir, result, summary, hp, figures=figures)

@@ -1,4 +1,5 @@
-"""Sweeps: a study file whose ``[sweep]`` table lists values of truth and estimator settings.
+"""Sweeps: a study file whose ``[sweep]`` table lists values of truth and estimator settings (and of the study's
+``prior``).
 
 Every combination of the listed values is a sub-study; all of them share the study's seed, so realisation ``i``
 of every sub-study draws the same input and noises (common random numbers: the sub-studies differ by their
@@ -27,7 +28,7 @@ from .montecarlo import Study, build_study
 
 __all__ = ["SubStudy", "build_sweep", "sweep_axes"]
 
-SWEEPABLE = ("truth", "estimator")
+SWEEPABLE = ("truth", "estimator", "prior")
 
 
 class SubStudy:
@@ -110,7 +111,7 @@ def _truth_key(path: str) -> str:
 def _name(values: dict) -> str:
     """``order=0.2,kfo.Q0=0.1``: each swept setting without its ``truth.``/``estimator.`` prefix, unless two
     settings would then read alike (``truth.memory`` and ``estimator.memory``)."""
-    shorts = [p.split(".", 1)[1] for p in values]
+    shorts = [p.split(".", 1)[-1] for p in values]
     parts = []
     for (path, value), short in zip(values.items(), shorts):
         label = path if shorts.count(short) > 1 else short

@@ -1,14 +1,21 @@
 """Issue 15: the TEA's consistency with the order's and parameter's uncertainty in KFx and honest KFo/KFw
 covariances, against the paper's filters.
 
-    python experiments/montecarlo/consistency.py [--realisations 200] [--only NAME ...]
+    python experiments/montecarlo/consistency.py [--realisations 200] [--only NAME ...] [--prior consistent]
 
 Every setting runs as a `torchtea montecarlo` sweep over ``estimator.kfx_uncertainty = ["paper", "propagated",
 "paper-gain"]`` × ``estimator.estimate_uncertainty = ["paper", "constant-truth"]`` (same seed: the six combinations
 see the same realisations) into experiments/montecarlo/runs/consistency/<setting>/, one TensorBoard run per
 sub-study (the HParams tab compares them: metric/nees_mean, metric/order_coverage, …).
 The settings are those of README.md's table: Examples 1–3, the MEMS setting and the 3 × 3 sweep of Example 1.
+A further setting, ``mems_constant``, is the MEMS truth with KFo and KFw set for a constant order and parameter
+(Q₀ = 0, δ = 0) instead of the paper's random walk of variance 0.1 per step.
 Writes consistency.json (the summaries) and prints the before/after table of README.md.
+
+``--prior consistent`` starts every realisation's filters from draws of their own priors around the truth
+(``torchtea montecarlo --prior consistent``) instead of the presets' fixed starts, which lie up to 40 prior
+standard deviations from the truth; it writes consistency_prior.json and runs/consistency_prior/ (same
+realisations: the draws of the starts come from a stream of their own).
 """
 from __future__ import annotations
 
@@ -24,7 +31,6 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 from torchtea.cli import main as cli  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
-RUNS = HERE / "runs" / "consistency"
 KFX = ("paper", "propagated", "paper-gain")
 ESTIMATE = ("paper", "constant-truth")
 #: (kfx_uncertainty, estimate_uncertainty) of every sub-study; the first is the paper's filters ("before")
@@ -35,6 +41,7 @@ SETTINGS = {
     "example2": ("paper-example2", {}, 2),
     "example3": ("paper-example3", {}, 3),
     "mems": ("paper-mems-x", MEMS_TRUTH, 4),
+    "mems_constant": ("paper-mems-x", MEMS_TRUTH, 4, {"kfo": {"Q0": 0.0, "delta": 0.0}, "kfw": {"Q0": 0.0, "delta": 0.0}}),
     **{f"sweep_a{o}_f{p}": ("paper-example1", {"order": o, "param": float(p)}, 5)
        for o in ("0.2", "0.35", "0.6") for p in ("-0.5", "-1", "-2")},
 }
@@ -44,22 +51,30 @@ def toml_value(v):
     return f'"{v}"' if isinstance(v, str) else repr(v)
 
 
-def run(name: str, preset: str, truth: dict, seed: int, realisations: int) -> dict:
-    cfg = RUNS / f"{name}.toml"
+def runs_dir(prior: str) -> Path:
+    return HERE / "runs" / ("consistency" if prior == "preset" else "consistency_prior")
+
+
+def run(name: str, preset: str, truth: dict, seed: int, realisations: int, estimator: dict | None = None,
+        prior: str = "preset") -> dict:
+    runs = runs_dir(prior)
+    cfg = runs / f"{name}.toml"
     cfg.parent.mkdir(parents=True, exist_ok=True)
-    lines = [f"realisations = {realisations}", f"seed = {seed}", "[estimator]", f'preset = "{preset}"']
+    lines = [f"realisations = {realisations}", f"seed = {seed}", f'prior = "{prior}"', "[estimator]", f'preset = "{preset}"']
+    for table_name, values in (estimator or {}).items():
+        lines += [f"[estimator.{table_name}]"] + [f"{k} = {toml_value(v)}" for k, v in values.items()]
     if truth:
         lines += ["[truth]"] + [f"{k} = {toml_value(v)}" for k, v in truth.items()]
     lines += ["[sweep.estimator]", "kfx_uncertainty = [" + ", ".join(f'"{m}"' for m in KFX) + "]",
               "estimate_uncertainty = [" + ", ".join(f'"{m}"' for m in ESTIMATE) + "]"]
     cfg.write_text("\n".join(lines) + "\n")
     t0 = time.perf_counter()
-    (RUNS / name / "sweep.json").unlink(missing_ok=True)  # never read back an earlier run's table
+    (runs / name / "sweep.json").unlink(missing_ok=True)  # never read back an earlier run's table
     with contextlib.redirect_stdout(io.StringIO()):  # the sweep's JSON is read back from sweep.json below
-        code = cli(["montecarlo", "--config", str(cfg), "--logdir", str(RUNS / name), "--json"])
+        code = cli(["montecarlo", "--config", str(cfg), "--logdir", str(runs / name), "--json"])
     if code != 0:
         raise SystemExit(f"{name}: torchtea montecarlo exited {code}")
-    table = json.loads((RUNS / name / "sweep.json").read_text())
+    table = json.loads((runs / name / "sweep.json").read_text())
     print(f"{name}: {time.perf_counter() - t0:.1f} s (exit {code})", file=sys.stderr, flush=True)
     return {key(s["sweep"]["values"]["estimator.kfx_uncertainty"], s["sweep"]["values"]["estimator.estimate_uncertainty"]): s
             for s in table["studies"]}
@@ -112,13 +127,14 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--realisations", type=int, default=200)
     ap.add_argument("--only", nargs="*")
+    ap.add_argument("--prior", choices=("preset", "consistent"), default="preset")
     args = ap.parse_args()
-    path = HERE / "consistency.json"
+    path = HERE / ("consistency.json" if args.prior == "preset" else "consistency_prior.json")
     results = json.loads(path.read_text()) if path.exists() else {}
-    for name, (preset, truth, seed) in SETTINGS.items():
+    for name, (preset, truth, seed, *estimator) in SETTINGS.items():
         if args.only and name not in args.only:
             continue
-        results[name] = run(name, preset, truth, seed, args.realisations)
+        results[name] = run(name, preset, truth, seed, args.realisations, *estimator, prior=args.prior)
         path.write_text(json.dumps(results, indent=2) + "\n")
     done = {k: results[k] for k in SETTINGS if k in results}
     print(table(done))

@@ -336,7 +336,7 @@ def test_a_two_sample_study_has_no_thirds_to_split(tmp_path, capsys):
 
 
 def test_consistent_prior_draws_follow_the_estimators_priors_around_the_truth():
-    """draw_prior: x̂₀, α̂₀, ŵ₀ ~ N(truth, P₀) with the estimator's own P₀ — a 2 × 2 correlated P₀ʷ too — checked
+    """draw_prior: x̂₀, α̂₀, ŵ₀ ~ N(truth, P₀) with the estimator's own P₀ — a 3 × 3 correlated P₀ʷ too — checked
     against 4000 draws (means within 5 standard errors, covariances within 5 SE of the sample covariance); a zero
     P₀ gives the truth itself; the draws use a stream of their own."""
     from torchtea.engines.structure import Structure
@@ -344,9 +344,11 @@ def test_consistent_prior_draws_follow_the_estimators_priors_around_the_truth():
     from torchtea.studies.montecarlo import draw_prior
 
     params = make_params(get_preset("paper-example1"), Structure())
-    Pw = torch.tensor([[0.04, -0.018], [-0.018, 0.01]], dtype=torch.float64)
+    Pw = torch.tensor([[0.04, -0.018, 0.006], [-0.018, 0.01, 0.002], [0.006, 0.002, 0.03]], dtype=torch.float64)
+    vecs = torch.linalg.eigh(Pw).eigenvectors
+    assert not torch.allclose(vecs, vecs.T)  # so a transposed root would draw another covariance
     params = params._replace(P0w=Pw, P0o=torch.tensor([[0.02]], dtype=torch.float64))
-    x_true, a_true, w_true = (torch.tensor(v, dtype=torch.float64) for v in ([0.3], [0.35], [-1.0, 2.0]))
+    x_true, a_true, w_true = (torch.tensor(v, dtype=torch.float64) for v in ([0.3], [0.35], [-1.0, 2.0, 0.5]))
     n = 4000
     draws = [draw_prior(params, 9, i, x_true, a_true, w_true) for i in range(n)]
     for k, (truth, P) in enumerate(((x_true, params.P0), (a_true, params.P0o), (w_true, Pw))):
@@ -363,7 +365,7 @@ def test_consistent_prior_draws_follow_the_estimators_priors_around_the_truth():
     b = draw_prior(params, 9, 3, x_true, a_true, w_true)
     assert all(torch.equal(u, v) for u, v in zip(a, b))
     zero = params._replace(P0=torch.zeros(1, 1, dtype=torch.float64), P0o=torch.zeros(1, 1, dtype=torch.float64),
-                           P0w=torch.zeros(2, 2, dtype=torch.float64))
+                           P0w=torch.zeros(3, 3, dtype=torch.float64))
     assert all(torch.equal(u, v) for u, v in zip(draw_prior(zero, 9, 3, x_true, a_true, w_true), (x_true, a_true, w_true)))
     # α̂₀ is kept inside the order bounds
     wide = params._replace(P0o=torch.tensor([[100.0]], dtype=torch.float64))
@@ -372,16 +374,22 @@ def test_consistent_prior_draws_follow_the_estimators_priors_around_the_truth():
     assert alphas.min() == lo and alphas.max() == hi
 
 
-def test_consistent_prior_starts_each_realisation_from_its_draw_on_the_same_noise():
-    """prior = "consistent": the same truths as "preset" (the draws come from another stream), the filters start
-    at draw_prior's values, and the study does not depend on the chunking."""
+def test_consistent_prior_starts_each_realisation_from_its_draw_on_the_same_noise(monkeypatch):
+    """prior = "consistent": the same truths as "preset" (the draws come from another stream), KFx, KFo and KFw
+    start at draw_prior's values around the truth at step 0 (x₀ = 0), and the study does not depend on the
+    chunking."""
+    import torchtea.studies.montecarlo as mc
     from torchtea.engines.structure import Structure
     from torchtea.engines.tea import make_params
     from torchtea.studies.montecarlo import draw_prior
 
     preset = run_study(Study(TRUTH, get_preset("paper-example1"), realisations=5, seed=11), trajectories=True)
+    seen = []
+    run_tea = mc.run_tea
+    monkeypatch.setattr(mc, "run_tea", lambda *a, params, **k: seen.append(params) or run_tea(*a, params=params, **k))
     whole = run_study(Study(TRUTH, get_preset("paper-example1"), realisations=5, seed=11, prior="consistent"),
                       trajectories=True)
+    monkeypatch.undo()
     parts = run_study(Study(TRUTH, get_preset("paper-example1"), realisations=5, seed=11, prior="consistent", chunk=2),
                       trajectories=True)
     assert torch.equal(whole.trajectories["alpha_true"], preset.trajectories["alpha_true"])
@@ -390,7 +398,9 @@ def test_consistent_prior_starts_each_realisation_from_its_draw_on_the_same_nois
     params = make_params(get_preset("paper-example1"), Structure())
     w_true = torch.tensor([TRUTH.param], dtype=torch.float64)
     for i in range(5):
-        _, a0, w0 = draw_prior(params, 11, i, torch.zeros(1, dtype=torch.float64), torch.tensor([0.35], dtype=torch.float64), w_true)
+        x0, a0, w0 = draw_prior(params, 11, i, torch.zeros(1, dtype=torch.float64), torch.tensor([0.35], dtype=torch.float64), w_true)
+        # the starts the filters were given
+        assert torch.equal(seen[0].x0[i], x0) and torch.equal(seen[0].alpha0[i], a0) and torch.equal(seen[0].w0[i], w0)
         # KFo and KFw do not update at step 0: their first row is the prior itself
         assert whole.trajectories["alpha"][i, 0] == a0[0] and whole.trajectories["w"][i, 0] == w0[0]
     assert not torch.equal(whole.trajectories["alpha"][:, 0], preset.trajectories["alpha"][:, 0])
@@ -436,6 +446,11 @@ def test_montecarlo_prior_flag_study_file_and_sweep(tmp_path, capsys):
     assert {s["prior"] for s in table["studies"]} == {"preset", "consistent"}
     assert main(["montecarlo", "--config", str(cfg), "--prior", "preset", "--logdir", str(tmp_path / "x")]) == 2
     assert "prior is swept; leave out --prior" in capsys.readouterr().err
+    from torchtea.engines.config import read_toml
+    from torchtea.studies.sweep import build_sweep
+
+    with pytest.raises(ValueError, match="prior is swept; leave out --prior"):  # the API refuses it too
+        build_sweep(read_toml(str(cfg), "study"), {"prior": "preset"}, source=str(cfg))
     bad = tmp_path / "bad.toml"
     bad.write_text('prior = "truth"\n[estimator]\npreset = "paper-example1"\n')
     assert main(["montecarlo", "--config", str(bad), "--logdir", str(tmp_path / "y")]) == 2

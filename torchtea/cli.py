@@ -661,8 +661,6 @@ def _studies_from_args(args):
         data = dict(data, estimator={**data.get("estimator", {}), name: value})
     flags = {k: getattr(args, k) for k in ("realisations", "seed", "chunk", "log_points", "prior", "preset", "n", "h",
                                             "order", "param", "q", "r", "input_std")}
-    if args.prior is not None and "prior" in data.get("sweep", {}):
-        raise CLIError(f"{args.config}: prior is swept; leave out --prior")
     try:
         if "sweep" in data:
             return build_sweep(data, flags, memory=memory, source=args.config)

@@ -318,10 +318,10 @@ def _prior_params(study: Study, params, rows: range, sim):
     (:func:`draw_prior`, leading batch dimension ``len(rows)``) for "consistent"."""
     if study.prior == "preset":
         return params
-    cpu = lambda t: t.to("cpu", torch.float64)  # noqa: E731
+    x_true0 = sim.x[:, 0].to("cpu", torch.float64)  # the truth at step 0, moved once per chunk
+    alpha_true0 = sim.alpha[:, 0, :params.alpha0.shape[-1]].to("cpu", torch.float64)
     w_true = torch.full(params.w0.shape, study.truth.param, dtype=torch.float64)
-    draws = [draw_prior(params, study.seed, i, cpu(sim.x[j, 0]), cpu(sim.alpha[j, 0, :params.alpha0.shape[-1]]), w_true)
-             for j, i in enumerate(rows)]
+    draws = [draw_prior(params, study.seed, i, x_true0[j], alpha_true0[j], w_true) for j, i in enumerate(rows)]
     x0, alpha0, w0 = (torch.stack(t).to(params.x0) for t in zip(*draws))
     return params._replace(x0=x0, alpha0=alpha0, w0=w0)
 

@@ -44,7 +44,7 @@ class SubStudy:
 
 
 def sweep_axes(table: dict, source: str = "sweep") -> dict:
-    """The ``[sweep]`` table flattened to ``{"truth.order": [values…], "estimator.kfo.Q0": [values…]}``."""
+    """The ``[sweep]`` table flattened to ``{"truth.order": [values…], "estimator.kfo.Q0": [values…], "prior": […]}``."""
     axes = {}
 
     def walk(node, path):
@@ -61,7 +61,7 @@ def sweep_axes(table: dict, source: str = "sweep") -> dict:
 
     bad = set(table) - set(SWEEPABLE)
     if bad:
-        raise ValueError(f"{source}: [sweep] can list truth and estimator settings, not {sorted(bad)}")
+        raise ValueError(f"{source}: [sweep] can list truth and estimator settings and the prior, not {sorted(bad)}")
     walk(table, ())
     if not axes:
         raise ValueError(f"{source}: the [sweep] table lists no settings")
@@ -82,6 +82,8 @@ def build_sweep(data: dict, flags: dict | None = None, *, memory=None, source: s
         raise ValueError(f"{source}: {', '.join(clash)} is swept; leave out its command-line flag")
     if "estimator.preset" in axes and (flags or {}).get("preset"):
         raise ValueError(f"{source}: estimator.preset is swept; leave out --preset")
+    if "prior" in axes and (flags or {}).get("prior"):
+        raise ValueError(f"{source}: prior is swept; leave out --prior")
     subs, names = [], set()
     for combo in itertools.product(*axes.values()):
         values = dict(zip(axes, combo))

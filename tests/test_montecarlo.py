@@ -340,19 +340,20 @@ def test_consistent_prior_draws_follow_the_estimators_priors_around_the_truth():
     against 4000 draws (means within 5 standard errors, covariances within 5 SE of the sample covariance); a zero
     P₀ gives the truth itself; the draws use a stream of their own."""
     from torchtea.engines.structure import Structure
-    from torchtea.engines.tea import make_params
+    from torchtea.engines.tea import _sqrt_psd, make_params
     from torchtea.studies.montecarlo import draw_prior
 
     params = make_params(get_preset("paper-example1"), Structure())
     Pw = torch.tensor([[0.04, -0.018, 0.006], [-0.018, 0.01, 0.002], [0.006, 0.002, 0.03]], dtype=torch.float64)
-    vecs = torch.linalg.eigh(Pw).eigenvectors
-    assert not torch.allclose(vecs, vecs.T)  # so a transposed root would draw another covariance
+    root = _sqrt_psd(Pw)
+    assert not torch.allclose(root, root.T)  # so a transposed root would draw another covariance
     params = params._replace(P0w=Pw, P0o=torch.tensor([[0.02]], dtype=torch.float64))
     x_true, a_true, w_true = (torch.tensor(v, dtype=torch.float64) for v in ([0.3], [0.35], [-1.0, 2.0, 0.5]))
     n = 4000
-    draws = [draw_prior(params, 9, i, x_true, a_true, w_true) for i in range(n)]
+    at = lambda v, rows: v.expand(len(rows), -1)  # noqa: E731  the truth of every realisation
+    draws = draw_prior(params, 9, range(n), at(x_true, range(n)), at(a_true, range(n)), w_true)
     for k, (truth, P) in enumerate(((x_true, params.P0), (a_true, params.P0o), (w_true, Pw))):
-        d = torch.stack([dr[k] for dr in draws])
+        d = draws[k]
         assert d.shape == (n, truth.shape[0])
         se_mean = (torch.diagonal(P) / n).sqrt()
         assert ((d.mean(0) - truth).abs() < 5 * se_mean).all(), k
@@ -361,16 +362,19 @@ def test_consistent_prior_draws_follow_the_estimators_priors_around_the_truth():
         se_cov = ((P ** 2 + torch.outer(torch.diagonal(P), torch.diagonal(P))) / n).sqrt()  # SE of a Gaussian sample covariance
         assert ((S - P).abs() < 5 * se_cov).all(), (k, S, P)
     assert realisation_seed(9, 3, stream=1) != realisation_seed(9, 3)
-    a = draw_prior(params, 9, 3, x_true, a_true, w_true)
-    b = draw_prior(params, 9, 3, x_true, a_true, w_true)
+    one = range(3, 4)
+    a = draw_prior(params, 9, one, at(x_true, one), at(a_true, one), w_true)
+    b = draw_prior(params, 9, one, at(x_true, one), at(a_true, one), w_true)
     assert all(torch.equal(u, v) for u, v in zip(a, b))
+    assert all(torch.equal(u[0], v[3]) for u, v in zip(a, draws))  # realisation 3 alone draws as within a batch
     zero = params._replace(P0=torch.zeros(1, 1, dtype=torch.float64), P0o=torch.zeros(1, 1, dtype=torch.float64),
                            P0w=torch.zeros(3, 3, dtype=torch.float64))
-    assert all(torch.equal(u, v) for u, v in zip(draw_prior(zero, 9, 3, x_true, a_true, w_true), (x_true, a_true, w_true)))
+    assert all(torch.equal(u[0], v) for u, v in zip(draw_prior(zero, 9, one, at(x_true, one), at(a_true, one), w_true),
+                                                 (x_true, a_true, w_true)))
     # α̂₀ is kept inside the order bounds
     wide = params._replace(P0o=torch.tensor([[100.0]], dtype=torch.float64))
     lo, hi = params.config.order_bounds
-    alphas = torch.stack([draw_prior(wide, 9, i, x_true, a_true, w_true)[1] for i in range(200)])
+    alphas = draw_prior(wide, 9, range(200), at(x_true, range(200)), at(a_true, range(200)), w_true)[1]
     assert alphas.min() == lo and alphas.max() == hi
 
 
@@ -397,8 +401,9 @@ def test_consistent_prior_starts_each_realisation_from_its_draw_on_the_same_nois
         torch.testing.assert_close(parts.trajectories[name], whole.trajectories[name], rtol=1e-12, atol=0)
     params = make_params(get_preset("paper-example1"), Structure())
     w_true = torch.tensor([TRUTH.param], dtype=torch.float64)
-    for i in range(5):
-        x0, a0, w0 = draw_prior(params, 11, i, torch.zeros(1, dtype=torch.float64), torch.tensor([0.35], dtype=torch.float64), w_true)
+    starts = draw_prior(params, 11, range(5), torch.zeros(5, 1, dtype=torch.float64),
+                        torch.full((5, 1), 0.35, dtype=torch.float64), w_true)
+    for i, (x0, a0, w0) in enumerate(zip(*starts)):
         # the starts the filters were given
         assert torch.equal(seen[0].x0[i], x0) and torch.equal(seen[0].alpha0[i], a0) and torch.equal(seen[0].w0[i], w0)
         # KFo and KFw do not update at step 0: their first row is the prior itself

@@ -180,12 +180,18 @@ def ut_update(Y, off, pts, mean, Pt, wm, wc, start, R, obs, yv):
 
 
 @njit(cache=True, inline="always")
+def joseph(P, K, H, R):
+    """(1 − K H) P (1 − K H) + K R K, scalar (tea._joseph)."""
+    g = 1.0 - K * H
+    return g * P * g + K * R * K
+
+
+@njit(cache=True, inline="always")
 def constant_truth(Sig, Pt, K, Pyy, Pxy):
     """The error covariance of a scalar unscented filter for a constant truth (tea._constant_truth_cov):
     (1 − K H)² Σ + K² (P_yy − H² P̃) with H = P_σy / P̃ (0 where P̃ is 0)."""
     Hh = Pxy / Pt if Pt > 0 else 0.0
-    g = 1.0 - K * Hh
-    return psd(g * Sig * g + K * psd(Pyy - Hh * Pt * Hh) * K)
+    return psd(joseph(Sig, K, Hh, psd(Pyy - Hh * Pt * Hh)))
 
 
 @njit(cache=True, inline="always")
@@ -346,7 +352,7 @@ def advance(k0, k1, yoff, ooff, every, y, u, has_u,
                 Sg = Pg_pred + R[b]
                 Kx = Pg_pred / Sg if obs else 0.0
                 Pg_n = psd(Pg_pred - Kx * Sg * Kx)
-                P_n = (1.0 - Kx) * P_pred * (1.0 - Kx) + Kx * R[b] * Kx
+                P_n = joseph(P_pred, Kx, 1.0, R[b])
             else:
                 Kx = P_pred / S if obs else 0.0
                 P_n = psd(P_pred - Kx * S * Kx)

@@ -86,7 +86,7 @@ class FastTEA:
     the settings as numpy arrays, advanced in place by the kernel. ``horizon``: the ``exact`` history's length."""
 
     def __init__(self, *, h: float, params, batch, memory, horizon: int, carry, has_u: bool):
-        from .settings import ESTIMATE_UNCERTAINTIES, KFX_UNCERTAINTIES
+        from .settings import KFX_UNCERTAINTIES
         from .tea import ut_weights
 
         cfg = params.config
@@ -126,7 +126,7 @@ class FastTEA:
         self.settings = (float(h), Q, R, Ro, Rw, qmax_o, qmax_w, cfg.noise_scaling == "scaled", int(cfg.sigma_sum_start),
                          lo, hi, float(cfg.divergence_limit), float(cfg.kfo.delta), float(cfg.kfw.delta),
                          KFX_UNCERTAINTIES.index(cfg.kfx_uncertainty),
-                         ESTIMATE_UNCERTAINTIES.index(cfg.estimate_uncertainty) == 1,
+                         cfg.estimate_uncertainty == "constant-truth",
                          wm_o, wc_o, sc_o, wm_w, wc_w, sc_w,
                          kind, xl, pl, H, ka, kb, float(np.abs(kb[:-1]).max(initial=0.0)), decay, inject, eta, klo, khi,
                          klo if kind == 1 else -math.inf, khi if kind == 1 else math.inf, *_lag_tables(horizon if kind == 0 else max(xl, pl)))

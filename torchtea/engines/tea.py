@@ -255,9 +255,15 @@ def _constant_truth_cov(Sigma, prior_cov, K, Pyy, Pxy):
     previous error covariance, no ``Q`` added. ``K`` has zero columns for missing outputs, so a missing sample
     leaves ``Σ`` as it is. Where P̃ is zero, ``H`` is zero."""
     H = _over_cov(Pxy.mT, prior_cov)  # (*B, p, L)
-    IKH = torch.eye(Sigma.shape[-1], dtype=Sigma.dtype, device=Sigma.device) - _mm(K, H)
     R_eff = _psd(Pyy - _mm(_mm(H, prior_cov), H.mT))
-    return _psd(_mm(_mm(IKH, Sigma), IKH.mT) + _mm(_mm(K, R_eff), K.mT))
+    return _psd(_joseph(Sigma, K, H, R_eff))
+
+
+def _joseph(P, K, H, R):
+    """``(I − K H) P (I − K H)ᵀ + K R Kᵀ``: the covariance of an update's error with gain ``K`` for a measurement
+    ``H`` with noise ``R`` whatever ``P`` the gain came from (not symmetrised)."""
+    IKH = torch.eye(P.shape[-1], dtype=P.dtype, device=P.device) - _mm(K, H)
+    return _mm(_mm(IKH, P), IKH.mT) + _mm(_mm(K, R), K.mT)
 
 
 def _adapt_q(Q, K, e, delta: float, q_max: Tensor, observed):
@@ -519,8 +525,7 @@ def _tea_step(model: _Model, params: TEAParams, weights, memory, carry: Carry, y
         Pg_pred = _symmetrise(_mm(_mm(F, carry.Pg), F.mT) + Qx + mem_cov_g)
         x, Pg, e, _, K = _kfx_update(model, params, x_pred, Pg_pred, y0, mask)
         S = _mm(_mm(model.C, P_pred), model.C.mT) + params.R
-        IKC = torch.eye(P_pred.shape[-1], dtype=P_pred.dtype, device=P_pred.device) - _mm(K, model.C)
-        P = _symmetrise(_mm(_mm(IKC, P_pred), IKC.mT) + _mm(_mm(K, params.R), K.mT))
+        P = _symmetrise(_joseph(P_pred, K, model.C, params.R))
     else:
         x, P, e, S, _ = _kfx_update(model, params, x_pred, P_pred, y0, mask)
 

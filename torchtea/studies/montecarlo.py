@@ -90,21 +90,23 @@ def realisation_seed(seed: int, index: int, stream: int = 0) -> int:
     return int((int(state[0]) << 31) ^ int(state[1])) & ((1 << 63) - 1)
 
 
-def draw_prior(params, seed: int, index: int, x_true0: Tensor, alpha_true0: Tensor, w_true: Tensor):
-    """Realisation ``index``'s starting estimates under ``prior = "consistent"``: ``x̂₀ ~ N(x₀, P₀)``,
+def draw_prior(params, seed: int, rows, x_true0: Tensor, alpha_true0: Tensor, w_true: Tensor):
+    """The starting estimates of realisations ``rows`` under ``prior = "consistent"``: ``x̂₀ ~ N(x₀, P₀)``,
     ``α̂₀ ~ N(α₀, P₀ᵒ)`` (then clipped into ``order_bounds``) and ``ŵ₀ ~ N(w, P₀ʷ)``: the estimator's own prior
     covariances (``params``, from :func:`~torchtea.engines.tea.make_params`) around the truth at step 0 (``x_true0``
-    ``(n,)``, ``alpha_true0`` ``(L,)``, ``w_true`` ``(m,)``). Drawn from the realisation's second stream, so any
-    chunking gives the same draws. Returns ``(x0, alpha0, w0)``."""
-    g = torch.Generator().manual_seed(realisation_seed(seed, index, stream=1))
+    ``(R, n)``, ``alpha_true0`` ``(R, L)``, one row per realisation, and ``w_true`` ``(m,)``). Realisation ``i``
+    draws from its second stream, so any chunking gives the same draws. Returns ``(x0, alpha0, w0)``, each with
+    the leading dimension ``R = len(rows)``."""
+    from ..engines.tea import _sqrt_psd
+
     lo, hi = params.config.order_bounds
-
-    def draw(mean, cov):
-        vals, vecs = torch.linalg.eigh(cov.to("cpu", torch.float64))  # a root that also serves a singular P0
-        z = torch.randn(mean.shape, generator=g, dtype=torch.float64)
-        return mean + vecs @ (vals.clamp(min=0.0).sqrt() * z)
-
-    return draw(x_true0, params.P0), draw(alpha_true0, params.P0o).clamp(lo, hi), draw(w_true, params.P0w)
+    roots = [_sqrt_psd(c.to("cpu", torch.float64)) for c in (params.P0, params.P0o, params.P0w)]  # also singular P0
+    out = []
+    for i in rows:
+        g = torch.Generator().manual_seed(realisation_seed(seed, i, stream=1))
+        out.append([root @ torch.randn(root.shape[-1], generator=g, dtype=torch.float64) for root in roots])
+    x0, alpha0, w0 = (torch.stack(d) for d in zip(*out))
+    return x_true0 + x0, (alpha_true0 + alpha0).clamp(lo, hi), w_true + w0
 
 
 def draw_realisation(truth: Truth, seed: int, index: int, dtype=torch.float64):
@@ -318,12 +320,11 @@ def _prior_params(study: Study, params, rows: range, sim):
     (:func:`draw_prior`, leading batch dimension ``len(rows)``) for "consistent"."""
     if study.prior == "preset":
         return params
-    x_true0 = sim.x[:, 0].to("cpu", torch.float64)  # the truth at step 0, moved once per chunk
-    alpha_true0 = sim.alpha[:, 0, :params.alpha0.shape[-1]].to("cpu", torch.float64)
+    cpu = lambda t: t.to("cpu", torch.float64)  # noqa: E731
     w_true = torch.full(params.w0.shape, study.truth.param, dtype=torch.float64)
-    draws = [draw_prior(params, study.seed, i, x_true0[j], alpha_true0[j], w_true) for j, i in enumerate(rows)]
-    x0, alpha0, w0 = (torch.stack(t).to(params.x0) for t in zip(*draws))
-    return params._replace(x0=x0, alpha0=alpha0, w0=w0)
+    x0, alpha0, w0 = draw_prior(params, study.seed, rows, cpu(sim.x[:, 0]), cpu(sim.alpha[:, 0, :params.alpha0.shape[-1]]),
+                                w_true)
+    return params._replace(x0=x0.to(params.x0), alpha0=alpha0.to(params.x0), w0=w0.to(params.x0))
 
 
 def run_study(study: Study, *, progress=None, device=None, client=None, shard: int | None = None,
@@ -443,21 +444,18 @@ def build_study(data: dict, flags: dict | None = None, *, memory=None, source: s
         parse_memory(tr.memory)
     except (TypeError, ValueError) as exc:
         raise ValueError(f"bad truth: {exc}") from None
-    study = Study(tr, estimator, realisations=int(flags.get("realisations", data.get("realisations", 100))),
-                  seed=int(flags.get("seed", data.get("seed", 0))), chunk=flags.get("chunk", data.get("chunk")),
-                  log_points=flags.get("log_points", data.get("log_points")),
-                  prior=_prior_choice(flags.get("prior", data.get("prior", "preset")), source))
+    try:
+        study = Study(tr, estimator, realisations=int(flags.get("realisations", data.get("realisations", 100))),
+                      seed=int(flags.get("seed", data.get("seed", 0))), chunk=flags.get("chunk", data.get("chunk")),
+                      log_points=flags.get("log_points", data.get("log_points")),
+                      prior=flags.get("prior", data.get("prior", "preset")))
+    except ValueError as exc:  # the prior's check
+        raise ValueError(f"{source}: {exc}") from None
     if study.realisations < 1:
         raise ValueError("--realisations must be at least 1")
     if study.log_points is not None and study.log_points < 1:
         raise ValueError(f"{source}: log_points must be at least 1")
     return study, preset
-
-
-def _prior_choice(value, source: str) -> str:
-    if value not in PRIORS:
-        raise ValueError(f"{source}: prior must be one of {', '.join(PRIORS)}, got {value!r}")
-    return value
 
 
 def save_study(logdir, study: Study, preset: str, result: StudyResult | None = None,

@@ -18,17 +18,21 @@ import sys
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE))
+sys.path.insert(0, str(HERE.parents[1]))
+from consistency import MEMS_TRUTH, SETTINGS  # noqa: E402
+
 from torchtea import TEAConfig, get_preset  # noqa: E402
 from torchtea.reports import strictjson  # noqa: E402
 from torchtea.studies.montecarlo import Study, Truth, run_study, summarise  # noqa: E402
 
-HERE = Path(__file__).resolve().parent
-ALPHA, PARAM = 0.4, -4.0
+PRESET, _, SEED = SETTINGS["mems"]
+ALPHA, PARAM = float(MEMS_TRUTH["order"]), MEMS_TRUTH["param"]
 PIN_O = {"x0": ALPHA, "P0": 1e-30, "Q0": 1e-30, "delta": 0.0}
 PIN_W = {"x0": PARAM, "P0": 1e-30, "Q0": 1e-30, "delta": 0.0}
 CONST = {"Q0": 0.0, "delta": 0.0}
-#: (name, KFo/KFw overrides of the paper-mems-x preset, prior, r)
+#: (name, KFo/KFw overrides of the MEMS setting's preset, prior, r)
 CASES = (
     ("paper settings: the TEA", {}, "preset", 4e-4),
     ("paper settings: KFw alone (order pinned)", {"kfo": PIN_O}, "preset", 4e-4),
@@ -51,11 +55,11 @@ def main():
     rows = ["| case | order bias / RMSE | order ±2σ coverage | param bias / RMSE | param ±2σ coverage | mean NEES | diverged |",
             "|---|---|---|---|---|---|---|"]
     for name, overrides, prior, r in CASES:
-        truth = Truth(h=0.01, n_steps=3000, order=str(ALPHA), param=PARAM, q=0.01, r=r)
-        base = TEAConfig.from_dict({"kfx": {"R": r}, "kfo": {"R": r}, "kfw": {"R": r}}, get_preset("paper-mems-x"))
+        truth = Truth(**{"n_steps" if k == "n" else k: v for k, v in MEMS_TRUTH.items()} | {"r": r})
+        base = TEAConfig.from_dict({"kfx": {"R": r}, "kfo": {"R": r}, "kfw": {"R": r}}, get_preset(PRESET))
         cfg = TEAConfig.from_dict(overrides, base)
         t0 = time.perf_counter()
-        s = summarise(run_study(Study(truth, cfg, realisations=args.realisations, seed=4, prior=prior)))
+        s = summarise(run_study(Study(truth, cfg, realisations=args.realisations, seed=SEED, prior=prior)))
         o, p = s["order"], s["param"]
         out[name] = {"overrides": overrides, "prior": prior, "r": r, "summary": s}
         rows.append(f"| {name} | {o['bias']:+.4f} / {o['rmse']:.4f} | {o['coverage_2sigma']:.3f} | "

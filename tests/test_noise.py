@@ -292,9 +292,10 @@ def test_bad_model_specs_name_the_problem():
 
 
 def test_cli_fit_json(capsys):
-    assert main(["fit", "--samples", "1500", "--bootstrap", "9", "--json"]) == 0
+    assert main(["fit", "--samples", "1500", "--bootstrap", "9", "--json", "--columns", "ax,ay,az"]) == 0
     doc = json.loads(capsys.readouterr().out, parse_constant=lambda c: pytest.fail(f"non-JSON {c}"))
-    assert doc["model"] == "fractional+white" and set(doc["axes"]) == {"x", "y", "z"}
+    assert doc["model"] == "fractional+white" and set(doc["axes"]) == {"ax", "ay", "az"}
+    assert all(a["unit"] == "m/s²" and a["sensor"] == "accelerometer" for a in doc["axes"].values())
     for a in doc["axes"].values():
         assert set(a["parameters"]) == {"fractional.order", "fractional.pole", "fractional.q", "white.r"}
         assert abs(a["nis"] - 1) < 0.1  # fitted noise levels: the innovations match
@@ -339,11 +340,13 @@ def test_observed_information_is_converged_in_its_step():
     """The exact fit's standard errors (central differences of the exact ℓ at the MLE, step d = 10⁻³ in the
     unconstrained coordinates) equal those with half the step to 1 %. Compared as standard errors, not
     Hessian entries: order and pole trade along a ridge, so H is ill-conditioned and small entry errors
-    move H⁻¹ a lot (a forward formula with entries good to 0.3 % moved them by up to 14 %)."""
+    move H⁻¹ a lot (a forward formula with entries good to 0.3 % moved them by up to 14 %). 6000 samples: at 3000
+    of this seed the exact likelihood's highest maximum (which the fit's multi-start finds) sits at the order's
+    bound 1, where there is no Hessian to test."""
     from torchtea.fitting.mle import _fd_hessian, exact_loglik
 
     m = parse_model("fractional+white")
-    y = simulate_model(m, FW, n_steps=3000, h=H, generator=torch.Generator().manual_seed(11))[0, 0].numpy()
+    y = simulate_model(m, FW, n_steps=6000, h=H, generator=torch.Generator().manual_seed(11))[0, 0].numpy()
     f, = fit_series(m, [y], H, method="exact", profile=False)
     u = m.to_unconstrained(f.values, H)[0].numpy()
 
@@ -378,7 +381,7 @@ def test_cli_fit_with_a_temperature_column(tmp_path, capsys):
     assert "give --temperature COL" in capsys.readouterr().err
     path.write_text(path.read_text().replace(f",{T[10]:.6f}\n", ",\n", 1))
     assert main(base + ["--model", "fractional+white+temperature-bias", "--temperature", "degC"]) == 2
-    assert "'degC' has 1 missing value(s) where the acceleration is observed" in capsys.readouterr().err
+    assert "'degC' has 1 missing value(s) where a channel is observed" in capsys.readouterr().err
 
 
 TO = dict(FW, **{"temperature-order.order_per_degC": 0.05, "temperature-order.t_ref": 25.0})

@@ -29,7 +29,8 @@ import torch
 from torch import Tensor
 
 from ..likelihood.kalman import filter_fast, loglik_fast
-from ..likelihood.whittle import periodogram, whittle_loglik
+from ..likelihood.settings import current as likelihood_settings
+from ..likelihood.whittle import RESOLUTION, WhittleData, periodogram, whittle_data
 from ..noise.model import NoiseModel, StateSpace, parse_model, state_memory
 from .optimize import newton
 
@@ -215,7 +216,10 @@ def _free_mask(model: NoiseModel, fixed, stochastic_only: bool) -> Tensor:
 class WhittleFit(NamedTuple):
     """Whittle MLEs of ``S`` series: ``values`` ``(S, P)``, ``loglik`` ``(S,)``, unconstrained ``u`` ``(S, P)`` and
     the Hessian of −ℓ_W there ``(S, P, P)``, the least-squares mean values per series, ``converged`` ``(S,)``,
-    the ``free`` mask ``(P,)``, and the periodograms ``I`` ``(S, W)`` at ``omega`` of the residual series."""
+    the ``free`` mask ``(P,)``, the terms of the Whittle sums of the residual series ``data``
+    (:class:`~torchtea.likelihood.whittle.WhittleData`, binned as the likelihood settings say), and per series
+    its distinct local maxima ``modes`` (a list of ``(u (P,), loglik, hessian (P, P))``, best first; the first is
+    the estimate) — the starts of the exact fit's multi-start."""
 
     values: Tensor
     loglik: Tensor
@@ -224,14 +228,29 @@ class WhittleFit(NamedTuple):
     means: list
     converged: Tensor
     free: Tensor
-    omega: Tensor
-    I: Tensor
+    data: WhittleData
+    modes: list | None = None
 
 
-def _whittle_loss(model: NoiseModel, omega: Tensor, I: Tensor, h: float):
-    """−ℓ_W of problems ``rows`` (rows of ``I``) at parameters ``u`` (one row each), for :func:`newton`."""
+#: Two Whittle optima are distinct modes when their free unconstrained coordinates differ by more than this.
+MODE_DISTANCE = 0.1
+#: At most this many modes per series are kept (:attr:`WhittleFit.modes`).
+MAX_MODES = 4
+
+
+def whittle_resolution() -> float | None:
+    """The binned Whittle sum's resolution under the likelihood settings in force (None: every ordinate)."""
+    how = likelihood_settings().whittle
+    if how not in ("binned", "full"):
+        raise ValueError(f"likelihood setting whittle must be 'binned' or 'full', got {how!r}")
+    return None if how == "full" else RESOLUTION
+
+
+def _whittle_loss(model: NoiseModel, data: WhittleData, h: float):
+    """−ℓ_W of problems ``rows`` (series of ``data``) at parameters ``u`` (one row each), for :func:`newton`."""
     def loss(u, rows):
-        return -whittle_loglik(model.spectrum(model.from_unconstrained(u, h), omega, h), I[rows])
+        d = data.rows(rows)
+        return -d.loglik(model.spectrum(model.from_unconstrained(u, h), d.frequencies(), h))
     return loss
 
 
@@ -245,6 +264,7 @@ def whittle_fit(model, series: list, h: float, *, inputs: list | None = None, fi
     fixed = dict(fixed or {})
     rows_u, owner, mean_list, Is = [], [], [], []
     omega = None
+    resolution = whittle_resolution()
     for s, y in enumerate(series):
         mean_vals, resid = regress_mean(model, y, h, None if inputs is None else inputs[s])
         mean_list.append(mean_vals)
@@ -257,17 +277,31 @@ def whittle_fit(model, series: list, h: float, *, inputs: list | None = None, fi
         for v in points:
             rows_u.append(model.to_unconstrained(v, h)[0])
             owner.append(s)
-    Is = torch.stack(Is)
+    data = whittle_data(omega, torch.stack(Is), resolution)
     owner = torch.tensor(owner)
     free = _free_mask(model, fixed, True)
-    # a few iterations from every start, then only each series' best start to convergence
-    res = newton(_whittle_loss(model, omega, Is[owner], h), torch.stack(rows_u), free, max_iter=8)
+    # every start to convergence (the binned sum makes it cheap): after a few iterations a start on the order–pole
+    # ridge can look better than one that converges to the higher mode
+    res = newton(_whittle_loss(model, data.rows(owner), h), torch.stack(rows_u), free)
     finite = torch.where(torch.isfinite(res.loss), res.loss, torch.full_like(res.loss, math.inf))
-    best = torch.stack([(owner == s).nonzero().squeeze(-1)[torch.argmin(finite[owner == s])]
-                        for s in range(len(series))])
-    res = newton(_whittle_loss(model, omega, Is, h), res.u[best], free)
-    return WhittleFit(model.as_matrix(model.from_unconstrained(res.u, h)).detach(), -res.loss, res.u, res.hessian,
-                      mean_list, res.converged, free, omega, Is)
+    modes, best = [], []
+    for s in range(len(series)):
+        mine = (owner == s).nonzero().squeeze(-1)
+        order = mine[torch.argsort(finite[mine])]
+        kept = []
+        for i in order.tolist():
+            if not math.isfinite(float(finite[i])):
+                continue
+            if all(float((res.u[i] - res.u[j])[free].abs().max()) > MODE_DISTANCE for j in kept):
+                kept.append(i)
+            if len(kept) == MAX_MODES:
+                break
+        kept = kept or [int(order[0])]
+        best.append(kept[0])
+        modes.append([(res.u[i].clone(), -float(res.loss[i]), res.hessian[i].clone()) for i in kept])
+    best = torch.tensor(best)
+    return WhittleFit(model.as_matrix(model.from_unconstrained(res.u[best], h)).detach(), -res.loss[best],
+                      res.u[best], res.hessian[best], mean_list, res.converged[best], free, data, modes)
 
 
 # --------------------------------------------------------------------------- exact
@@ -302,13 +336,7 @@ def _exact_refine(model, y, h, u0: Tensor, free: Tensor, inputs, memory, metric:
     idx = free.nonzero().squeeze(-1).numpy()
     p = len(idx)
     base = u0.clone()
-
-    def batch(points: np.ndarray) -> np.ndarray:
-        U = base.repeat(points.shape[0], 1)
-        U[:, idx] = torch.as_tensor(points)
-        vals = model.from_unconstrained(U, h)
-        ll = exact_loglik(model, vals, y, h, inputs=inputs, memory=memory)
-        return np.where(np.isfinite(ll), -ll, 1e300)
+    batch = _objective(model, y, h, base, idx, inputs, memory)
 
     def fun(x):
         pts = [x] + [x + FD_STEP * e for e in np.eye(p)] + [x - FD_STEP * e for e in np.eye(p)]
@@ -373,10 +401,60 @@ def _exact_refine(model, y, h, u0: Tensor, free: Tensor, inputs, memory, metric:
     u[idx] = torch.as_tensor(x)
     if not hessian:
         return u, -float(f), None, ok, iterations
-    H = _fd_hessian(batch, x)
+    return u, -float(f), _exact_hessian(model, y, h, u, free, inputs, memory), ok, iterations
+
+
+def _objective(model, y, h, base: Tensor, idx: np.ndarray, inputs, memory):
+    """The exact −ℓ of many points at once, each point the free coordinates ``idx`` of ``base`` (unconstrained);
+    +1e300 where ℓ is not finite."""
+    def batch(points: np.ndarray) -> np.ndarray:
+        U = base.repeat(points.shape[0], 1)
+        U[:, idx] = torch.as_tensor(points)
+        vals = model.from_unconstrained(U, h)
+        ll = exact_loglik(model, vals, y, h, inputs=inputs, memory=memory)
+        return np.where(np.isfinite(ll), -ll, 1e300)
+    return batch
+
+
+def _exact_hessian(model, y, h, u: Tensor, free: Tensor, inputs, memory) -> Tensor:
+    """The Hessian of the exact −ℓ at ``u`` over the ``free`` coordinates by central differences
+    (:func:`_fd_hessian`), zero rows and columns for the others ``(P, P)``."""
+    idx = free.nonzero().squeeze(-1).numpy()
+    H = _fd_hessian(_objective(model, y, h, u.clone(), idx, inputs, memory), u[idx].numpy().copy())
     Hfull = torch.zeros(len(u), len(u), dtype=torch.float64)
     Hfull[np.ix_(idx, idx)] = torch.as_tensor(H)
-    return u, -float(f), Hfull, ok, iterations
+    return Hfull
+
+
+#: The exact fit's multi-start refines every Whittle mode whose exact ℓ at the Whittle optimum is within this many
+#: nats of the best one's (at most :data:`MAX_MODES`), and keeps the highest exact maximum.
+EXACT_MODE_MARGIN = 10.0
+
+
+def _exact_multistart(model, y, h, modes: list, free: Tensor, inputs, memory, hessian: bool):
+    """:func:`_exact_refine` from the Whittle ``modes`` (``(u, ℓ_W, H_W)`` each) whose exact ℓ is within
+    :data:`EXACT_MODE_MARGIN` of the best; the best exact maximum, with its Hessian when ``hessian``. Returns
+    ``(u, ℓ, H or None, converged, notes)``."""
+    notes = []
+    if len(modes) > 1:
+        U = torch.stack([m[0] for m in modes])
+        ll0 = exact_loglik(model, model.from_unconstrained(U, h), y, h, inputs=inputs, memory=memory)
+        ll0 = np.where(np.isfinite(ll0), ll0, -np.inf)
+        order = [int(i) for i in np.argsort(-ll0) if ll0[i] >= ll0.max() - EXACT_MODE_MARGIN]
+        modes = [modes[i] for i in order]
+    if len(modes) == 1:
+        u, ll, H, ok, _ = _exact_refine(model, y, h, modes[0][0].clone(), free, inputs, memory, modes[0][2],
+                                        hessian=hessian)
+        return u, ll, H, ok, notes
+    runs = [_exact_refine(model, y, h, m[0].clone(), free, inputs, memory, m[2], hessian=False) for m in modes]
+    best = max(range(len(runs)), key=lambda i: runs[i][1] if math.isfinite(runs[i][1]) else -math.inf)
+    u, ll, _, ok, _ = runs[best]
+    lls = sorted((r[1] for r in runs), reverse=True)
+    if best != 0:
+        notes.append(f"the exact likelihood's best maximum (ℓ {ll:.2f}) came from the Whittle fit's mode number "
+                     f"{best + 1} of {len(runs)}, not from its best one (exact ℓ there {runs[0][1]:.2f})")
+    H = _exact_hessian(model, y, h, u, free, inputs, memory) if hessian else None
+    return u, ll, H, ok, notes
 
 
 def _fd_hessian(batch, x: np.ndarray, d: float = 1e-3) -> np.ndarray:
@@ -484,7 +562,7 @@ def profile_order(model, wf: WhittleFit, h: float, *, grid: int = 21, fixed: dic
         kk = torch.cat([k_up[up], k_down[down]])
         u0 = torch.cat([u_up[up], u_down[down]])
         u0[:, io] = ua[kk]
-        res = newton(_whittle_loss(model, wf.omega, wf.I[rows], h), u0, free, max_iter=30, ftol=1e-9, dtol=1e-3)
+        res = newton(_whittle_loss(model, wf.data.rows(rows), h), u0, free, max_iter=30, ftol=1e-9, dtol=1e-3)
         u_up[up], u_down[down] = res.u[:len(up)], res.u[len(up):]
         loss_grid[rows, kk] = res.loss
     out = []
@@ -616,8 +694,9 @@ def fit_series(model, series: list, h: float, *, method: str = "exact", inputs: 
             ll_exact = float(exact_loglik(model, vals, y_exact, h, inputs=inp, memory=memory)[0])
         else:
             free = torch.tensor([n not in fx for n in model.names])
-            u, ll, H, ok, _ = _exact_refine(model, y_exact, h, wf.u[s].clone(), free, inp, memory, wf.hessian[s],
-                                            hessian=intervals)
+            modes = wf.modes[s] if wf.modes else [(wf.u[s], float(wf.loglik[s]), wf.hessian[s])]
+            u, ll, H, ok, more = _exact_multistart(model, y_exact, h, modes, free, inp, memory, intervals)
+            notes += more
             vals, se, ci, how = _estimates(model, u, H, free, h)
             ll_exact = ll
         kfree = [n for n, f in zip(model.names, free.tolist()) if f]

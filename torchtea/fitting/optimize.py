@@ -27,12 +27,12 @@ def _value_grad_hess(loss_fn, u: Tensor, free: Tensor, rows: Tensor):
     f = loss_fn(u, rows)
     g, = torch.autograd.grad(f.sum(), u, create_graph=True)
     P = u.shape[-1]
+    # every row of the Hessian in one batched backward pass (vmap over the one-hot output gradients)
+    eye = torch.eye(P, dtype=u.dtype)[free]  # (F, P): the free coordinates' rows
+    seeds = eye.unsqueeze(1).expand(-1, u.shape[0], -1)  # (F, B, P)
+    rows, = torch.autograd.grad(g, u, grad_outputs=seeds, is_grads_batched=True)
     H = u.new_zeros(u.shape[0], P, P)
-    for i in range(P):
-        if not bool(free[i]):
-            continue
-        row, = torch.autograd.grad(g[:, i].sum(), u, retain_graph=True)
-        H[:, i] = row
+    H[:, free] = rows.transpose(0, 1)
     fm = free.to(u.dtype)
     H = (H * fm.unsqueeze(-1) * fm.unsqueeze(-2)).detach()
     g = (g * fm).detach()

@@ -168,161 +168,13 @@ def kalman_filter(ss: StateSpace, y, mean=None, *, keep_states: bool = False, sm
 
 # --------------------------------------------------------------------------- the compiled fast path
 
-_KERNEL = None
-
-
 def _compiled():
-    global _KERNEL
-    if _KERNEL is None:
-        try:
-            import numba
-        except ImportError as exc:  # pragma: no cover - numba is a dependency
-            raise ImportError("the fast exact filter needs numba (pip install numba)") from exc
-        _KERNEL = _build(numba)
-    return _KERNEL
-
-
-def _build(numba):
-    njit, prange = numba.njit, numba.prange
-
-    # error_model="numpy": a zero innovation variance (white noise → 0 with a zero-variance start) gives an
-    # infinite or NaN log-likelihood, which the optimisers reject, instead of raising ZeroDivisionError
-    @njit(cache=True, fastmath=False, error_model="numpy")
-    def one(indptr, indices, fval, Q, C, cidx, R, y, mu, e_out, s_out, w_out, keep, tv_i, tv_F, tv_q, g0, lvl):
-        n = Q.shape[0]
-        N = y.shape[0]
-        z = np.zeros(n)
-        w = np.zeros(n)  # the filter's state for the constant regressor (level profiling)
-        P = np.zeros((n, n))
-        for i in range(n):
-            for j in range(n):
-                P[i, j] = g0[i] * g0[j]
-        M = np.zeros((n, n))
-        Pc = np.zeros(n)
-        ll = 0.0
-        sww = 0.0  # Σ w²/S
-        beta = 0.0  # the GLS level so far
-        rss = 0.0  # Σ (e − β w)²/S at the current β, updated recursively (no cancellation when some S is tiny)
-        nc = cidx.shape[0]
-        for k in range(N):
-            # update with y_k (C has few non-zeros: cidx)
-            for i in range(n):
-                acc = 0.0
-                for t in range(nc):
-                    acc += P[i, cidx[t]] * C[cidx[t]]
-                Pc[i] = acc
-            S = R
-            pred = mu[k]
-            for t in range(nc):
-                S += C[cidx[t]] * Pc[cidx[t]]
-                pred += C[cidx[t]] * z[cidx[t]]
-            e = y[k] - pred
-            ew = 0.0
-            if lvl:
-                ew = 1.0
-                for t in range(nc):
-                    ew -= C[cidx[t]] * w[cidx[t]]
-            if keep:
-                e_out[k] = e
-                s_out[k] = S
-                if lvl:
-                    w_out[k] = ew
-            if not np.isnan(e):
-                if lvl:  # recursive weighted least squares of e on w (a constant's innovations)
-                    ll -= 0.5 * math.log(2.0 * math.pi * S)
-                    if sww > 0.0:
-                        d = e - beta * ew
-                        rss += d * d / (S + ew * ew / sww)
-                        sww += ew * ew / S
-                        beta += (ew / S) * d / sww
-                    elif ew != 0.0:
-                        sww = ew * ew / S
-                        beta = e / ew
-                    else:
-                        rss += e * e / S
-                    g = ew / S
-                    for i in range(n):
-                        w[i] += Pc[i] * g
-                else:
-                    ll -= 0.5 * (math.log(2.0 * math.pi * S) + e * e / S)
-                g = e / S
-                for i in range(n):
-                    z[i] += Pc[i] * g
-                for i in range(n):
-                    a = Pc[i] / S
-                    for j in range(i, n):
-                        v = P[i, j] - a * Pc[j]
-                        P[i, j] = v
-                        P[j, i] = v
-            if k + 1 == N:
-                break
-            # predict: z = F z, P = F P Fᵀ + Q, with F in CSR form
-            # row tv_i (a time-varying order) is tv_F[k] (dense) instead of its CSR row, and Q[tv_i, tv_i] tv_q[k]
-            znew = np.zeros(n)
-            wnew = np.zeros(n)
-            for i in range(n):
-                acc = 0.0
-                accw = 0.0
-                if i == tv_i:
-                    for r in range(n):
-                        acc += tv_F[k, r] * z[r]
-                        accw += tv_F[k, r] * w[r]
-                else:
-                    for t in range(indptr[i], indptr[i + 1]):
-                        acc += fval[t] * z[indices[t]]
-                        accw += fval[t] * w[indices[t]]
-                znew[i] = acc
-                wnew[i] = accw
-            z = znew
-            w = wnew
-            for i in range(n):  # M = F P
-                for j in range(n):
-                    M[i, j] = 0.0
-                if i == tv_i:
-                    for r in range(n):
-                        f = tv_F[k, r]
-                        if f != 0.0:
-                            for j in range(n):
-                                M[i, j] += f * P[r, j]
-                    continue
-                for t in range(indptr[i], indptr[i + 1]):
-                    f = fval[t]
-                    r = indices[t]
-                    for j in range(n):
-                        M[i, j] += f * P[r, j]
-            for i in range(n):  # P = M Fᵀ + Q (symmetric: upper triangle, mirrored)
-                for j in range(i, n):
-                    acc = Q[i, j]
-                    if j == tv_i:
-                        if i == tv_i:
-                            acc = tv_q[k]
-                        for r in range(n):
-                            acc += M[i, r] * tv_F[k, r]
-                    else:
-                        for t in range(indptr[j], indptr[j + 1]):
-                            acc += M[i, indices[t]] * fval[t]
-                    P[i, j] = acc
-                    P[j, i] = acc
-        if lvl:
-            ll -= 0.5 * rss
-            if sww > 0.0:
-                ll += 0.5 * math.log(2.0 * math.pi / sww)
-            if keep:
-                for k in range(N):
-                    e_out[k] -= beta * w_out[k]
-        return ll
-
-    @njit(parallel=True, cache=True, error_model="numpy")
-    def batch(indptr, indices, fvals, Qs, Cs, cidx, Rs, ys, mus, e_out, s_out, w_out, keep, tv_i, tv_Fs, tv_qs, g0s,
-              lvl):
-        B = fvals.shape[0]
-        out = np.zeros(B)
-        for b in prange(B):
-            out[b] = one(indptr, indices, fvals[b], Qs[b], Cs[b], cidx, Rs[b], ys[b], mus[b], e_out[b], s_out[b],
-                         w_out[b], keep, tv_i, tv_Fs[b], tv_qs[b], g0s[b], lvl)
-        return out
-
-    return batch
+    """The Riccati batch kernel (numba; compiled on first use, then loaded from numba's on-disk cache)."""
+    try:
+        from ._kernels import riccati_batch
+    except ImportError as exc:  # pragma: no cover - numba is a dependency
+        raise ImportError("the fast exact filter needs numba (pip install numba)") from exc
+    return riccati_batch
 
 
 def _csr(F: np.ndarray):
@@ -336,7 +188,27 @@ def _csr(F: np.ndarray):
     return indptr, cols.astype(np.int64), np.ascontiguousarray(F[:, rows, cols])
 
 
-def _fast(ss: StateSpace, y, mean, keep: bool, level: bool = False):
+#: The compiled exact filter's engines: ``"chandrasekhar"`` (:mod:`.chandrasekhar`, O(n r) per sample, for a
+#: time-invariant model) and ``"riccati"`` (the textbook covariance update, O(n²) per sample, any model); ``"auto"``
+#: takes the first where it applies.
+ENGINES = ("auto", "chandrasekhar", "riccati")
+
+
+def _engine(ss: StateSpace, engine: str | None) -> str:
+    from .settings import current
+
+    engine = engine or current().exact
+    if engine not in ENGINES:
+        raise ValueError(f"engine must be one of {ENGINES}, got {engine!r}")
+    if engine == "chandrasekhar" and ss.varying is not None:
+        raise ValueError("the Chandrasekhar recursions need a time-invariant model; a temperature-driven order makes "
+                         "the transition vary (engine='riccati' or 'auto')")
+    if engine == "auto":
+        return "riccati" if ss.varying is not None else "chandrasekhar"
+    return engine
+
+
+def _fast(ss: StateSpace, y, mean, keep: bool, level: bool = False, engine: str | None = None):
     F = ss.F.detach().cpu().numpy()
     B = F.shape[0]
     yt = _as_series(y, B).detach().cpu()
@@ -350,6 +222,17 @@ def _fast(ss: StateSpace, y, mean, keep: bool, level: bool = False):
     e_out = np.zeros((B, N) if keep else (B, 1))
     s_out = np.zeros_like(e_out)
     w_out = np.zeros((B, N) if (keep and level) else (B, 1))
+    R = np.ascontiguousarray(ss.R.detach().cpu().numpy(), dtype=np.float64)
+    if _engine(ss, engine) == "chandrasekhar":
+        from .chandrasekhar import compiled, initial_factor
+
+        G = ss.G.detach().cpu().numpy()
+        g0 = None if ss.g0 is None else ss.g0.detach().cpu().numpy()
+        L0, M0, b0, S0 = initial_factor(F, G, C, R, g0, ~np.isnan(ya[:, 0] - mu[:, 0]))
+        ll = compiled()(indptr, indices, fvals, np.ascontiguousarray(L0), np.ascontiguousarray(M0),
+                        np.ascontiguousarray(b0), np.ascontiguousarray(S0), np.ascontiguousarray(C), cidx, R, ya, mu,
+                        e_out, s_out, w_out, keep, bool(level))
+        return ll, e_out, s_out
     if ss.varying is None:
         tv_i, tv_F, tv_q = -1, np.zeros((B, 1, F.shape[-1])), np.zeros((B, 1))
     else:
@@ -358,19 +241,20 @@ def _fast(ss: StateSpace, y, mean, keep: bool, level: bool = False):
         tv_q = np.ascontiguousarray(ss.varying[2].detach().cpu().numpy() ** 2, dtype=np.float64)
     g0 = np.ascontiguousarray(ss.initial.detach().cpu().numpy(), dtype=np.float64)
     ll = _compiled()(indptr, indices, fvals, np.ascontiguousarray(ss.Q.detach().cpu().numpy()),
-                     np.ascontiguousarray(C), cidx, np.ascontiguousarray(ss.R.detach().cpu().numpy()),
-                     ya, mu, e_out, s_out, w_out, keep, tv_i, tv_F, tv_q, g0, bool(level))
+                     np.ascontiguousarray(C), cidx, R, ya, mu, e_out, s_out, w_out, keep, tv_i, tv_F, tv_q, g0,
+                     bool(level))
     return ll, e_out, s_out
 
 
-def loglik_fast(ss: StateSpace, y, mean=None, *, level: bool = False) -> np.ndarray:
+def loglik_fast(ss: StateSpace, y, mean=None, *, level: bool = False, engine: str | None = None) -> np.ndarray:
     """The exact log-likelihood ``(B,)`` as :func:`kalman_filter` computes it, compiled (CPU, float64,
     the parameter sets spread over the CPU's cores; no gradients). ``level=True``: integrated over an unknown
-    constant added to ``y`` (see :func:`kalman_filter`)."""
-    return _fast(ss, y, mean, False, level)[0]
+    constant added to ``y`` (see :func:`kalman_filter`). ``engine``: one of :data:`ENGINES` (default: the
+    :mod:`.settings` in force, ``"auto"``)."""
+    return _fast(ss, y, mean, False, level, engine)[0]
 
 
-def filter_fast(ss: StateSpace, y, mean=None, *, level: bool = False):
-    """``(loglik (B,), innovations (B, N), variances (B, N))`` from the compiled filter (``level``: as in
+def filter_fast(ss: StateSpace, y, mean=None, *, level: bool = False, engine: str | None = None):
+    """``(loglik (B,), innovations (B, N), variances (B, N))`` from the compiled filter (``level``, ``engine``: as in
     :func:`loglik_fast`; the innovations are then those of ``y`` minus the estimated constant)."""
-    return _fast(ss, y, mean, True, level)
+    return _fast(ss, y, mean, True, level, engine)

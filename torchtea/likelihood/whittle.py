@@ -10,6 +10,19 @@ which approximates the Gaussian log-likelihood :math:`-\tfrac12[N\log 2\pi + \lo
 on the same scale (:math:`\log\det\Sigma \approx \sum_j \log 2\pi S(\omega_j)` over all N frequencies;
 each pair ±ω_j counted once, the zero frequency — the mean — and Nyquist left out). Exact for no finite N; the approximation is good for
 long stationary series, and for a random walk (not stationary) it is the usual pseudo-likelihood.
+
+**Binned.** The model spectra are smooth, so their terms need not be evaluated at all N/2 frequencies:
+:func:`whittle_data` keeps the lowest ordinates one by one and groups the others in bins whose width is a
+fixed fraction (``resolution``, default 1/200) of their frequency, about 1 300 terms for any N above a few
+thousand. In each bin b of :math:`m_b` ordinates the sum becomes
+:math:`m_b [\log 4\pi^2 S(\bar\omega_b) + \bar I_b / S(\tilde\omega_b)]`, with :math:`\bar I_b` the mean
+ordinate, :math:`\bar\omega_b` the geometric mean frequency of the bin and :math:`\tilde\omega_b` the
+frequency whose logarithm is the :math:`I`-weighted mean of the bin's log frequencies. Both are the centres
+that make the first-order term of :math:`\log S` and :math:`1/S` in :math:`\log\omega` vanish, so a bin's
+error is second order in its width (relative :math:`\approx (\mathrm d\log S/\mathrm d\log\omega)^2 \delta^2/24`,
+about 10⁻⁶ at δ = 1/200 for a power law of slope −1); and a line in the data — power on one ordinate — pulls
+:math:`\tilde\omega_b` onto its own frequency, so its term is that of the full sum. ``resolution=None`` keeps
+every ordinate (the full sum above, term for term).
 """
 from __future__ import annotations
 
@@ -18,7 +31,12 @@ import math
 import torch
 from torch import Tensor
 
-__all__ = ["periodogram", "whittle_loglik"]
+from dataclasses import dataclass
+
+__all__ = ["periodogram", "whittle_loglik", "WhittleData", "whittle_data", "RESOLUTION"]
+
+#: Relative width of the binned Whittle sum's bins (:func:`whittle_data`).
+RESOLUTION = 1.0 / 200.0
 
 
 def periodogram(y: Tensor) -> tuple[Tensor, Tensor]:
@@ -41,3 +59,73 @@ def periodogram(y: Tensor) -> tuple[Tensor, Tensor]:
 def whittle_loglik(spectrum: Tensor, I: Tensor) -> Tensor:
     """``ℓ_W`` of periodogram ``I`` ``(*B, W)`` under spectral density ``spectrum`` ``(*B, W)`` → ``(*B,)``."""
     return -(torch.log(4.0 * math.pi ** 2 * spectrum) + I / spectrum).sum(-1)
+
+
+@dataclass(frozen=True)
+class WhittleData:
+    """The terms of a (binned) Whittle sum of ``S`` series: per term its number of Fourier ordinates ``weight``
+    ``(W,)``, the frequency of its log-spectrum ``omega_log`` ``(W,)``, the frequency of its ratio term ``omega_I``
+    ``(S, W)`` and the mean periodogram ordinate ``I`` ``(S, W)``. With ``weight`` all ones and both frequencies
+    the Fourier frequencies it is the full sum."""
+
+    weight: Tensor
+    omega_log: Tensor
+    omega_I: Tensor
+    I: Tensor
+
+    @property
+    def terms(self) -> int:
+        return int(self.weight.shape[-1])
+
+    def rows(self, rows: Tensor) -> "WhittleData":
+        """The data of series ``rows``."""
+        return WhittleData(self.weight, self.omega_log, self.omega_I[rows], self.I[rows])
+
+    def frequencies(self) -> Tensor:
+        """``(S, 2W)``: where a spectrum must be evaluated — the log frequencies, then the ratio frequencies."""
+        S = self.I.shape[0]
+        return torch.cat([self.omega_log.expand(S, -1), self.omega_I], dim=-1)
+
+    def loglik(self, spectrum: Tensor) -> Tensor:
+        """``ℓ_W`` ``(S,)`` from the spectrum evaluated at :meth:`frequencies` ``(S, 2W)`` (or ``(B, 2W)`` with B = S)."""
+        W = self.terms
+        s_log, s_I = spectrum[..., :W], spectrum[..., W:]
+        return -(self.weight * (torch.log(4.0 * math.pi ** 2 * s_log) + self.I / s_I)).sum(-1)
+
+
+def bin_edges(W: int, resolution: float | None) -> Tensor:
+    """Start indices of the bins over the ordinates 0 … W−1 (ordinate i is Fourier frequency i + 1), and W at the
+    end: single ordinates while ``resolution · j < 1``, then bins of ``⌊resolution · j⌋`` ordinates."""
+    if resolution is None:
+        return torch.arange(W + 1)
+    edges, j = [], 1
+    while j <= W:
+        edges.append(j - 1)
+        j += max(1, int(resolution * j))
+    edges.append(W)
+    return torch.tensor(edges)
+
+
+def whittle_data(omega: Tensor, I: Tensor, resolution: float | None = RESOLUTION) -> WhittleData:
+    """:class:`WhittleData` of periodograms ``I`` ``(S, W)`` (or ``(W,)``) at Fourier frequencies ``omega`` ``(W,)``,
+    binned at ``resolution`` (module docstring; None: every ordinate its own term)."""
+    I = torch.as_tensor(I, dtype=torch.float64)
+    I = I.unsqueeze(0) if I.ndim == 1 else I
+    omega = torch.as_tensor(omega, dtype=torch.float64)
+    W = omega.shape[-1]
+    if resolution is None:
+        return WhittleData(torch.ones(W, dtype=torch.float64), omega, omega.expand(I.shape[0], -1).clone(), I)
+    edges = bin_edges(W, resolution)
+    counts = (edges[1:] - edges[:-1]).to(torch.float64)
+    owner = torch.repeat_interleave(torch.arange(len(counts)), edges[1:] - edges[:-1])  # bin of each ordinate
+    lw = torch.log(omega)
+
+    def bin_sum(x):  # sums over each bin of the last dimension
+        out = torch.zeros(*x.shape[:-1], len(counts), dtype=torch.float64)
+        return out.index_add_(-1, owner, x)
+
+    omega_log = torch.exp(bin_sum(lw) / counts)
+    total = bin_sum(I)
+    safe = torch.where(total > 0, total, torch.ones_like(total))
+    omega_I = torch.where(total > 0, torch.exp(bin_sum(I * lw) / safe), omega_log.expand_as(total))
+    return WhittleData(counts, omega_log, omega_I, total / counts)

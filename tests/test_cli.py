@@ -10,6 +10,8 @@ import pytest
 import torch
 
 from torchtea.cli import main
+
+AXES = ("ax", "ay", "az")  # identify's default channels: the accelerometer's
 from torchtea.core.gl import difference
 from torchtea.sensors.io import bundled_recording
 
@@ -176,27 +178,29 @@ def test_debug_shows_traceback(tmp_path):
 def test_identify_bundled_json_contract(tmp_path, capsys):
     assert run("identify", "--json", "--samples", 600, "--out", tmp_path / "id") == 0
     out = json.loads(capsys.readouterr().out)
-    assert set(out["axes"]) == {"x", "y", "z"}
+    assert set(out["axes"]) == {"ax", "ay", "az"}
+    assert all(out["axes"][a]["unit"] == "m/s²" and out["channels"][a]["sensor"] == "accelerometer" for a in out["axes"])
     # the CLI's numbers are the library's: identify() on the same recording and settings
     from torchtea.reports.identify import identify
     from torchtea.sensors.io import read_recording
+    from torchtea.sensors.measurements import prepare
 
-    lib = identify(read_recording(), n_samples=600).summary()
-    for axis in "xyz":
+    lib = identify(prepare(read_recording(columns=AXES), samples=600)).summary()
+    for axis in AXES:
         for key in ("alpha", "param", "alpha_final", "innovation_nis", "R"):
             assert out["axes"][axis][key] == pytest.approx(lib["axes"][axis][key], rel=1e-12), (axis, key)
     d = np.genfromtxt(tmp_path / "id" / "trajectories.csv", delimiter=",", names=True)
     assert len(d) == 600
-    assert out["axes"]["y"]["alpha"] == pytest.approx(d["alpha_y"][400:].mean(), rel=1e-12)
+    assert out["axes"]["ay"]["alpha"] == pytest.approx(d["alpha_ay"][400:].mean(), rel=1e-12)
     # the mean was removed per axis, and R is the fitted white-noise variance, Q the fitted drive
-    assert abs(d["y_z"].mean()) < 1e-12
-    for axis in "xyz":
+    assert abs(d["y_az"].mean()) < 1e-12
+    for axis in AXES:
         fit = out["fit"][axis]["parameters"]
         assert out["axes"][axis]["R"] == pytest.approx(fit["white.r"]["value"], rel=1e-12)
         assert out["fit"][axis]["nis"] == pytest.approx(1.0, abs=0.1)  # the fitted model's own innovations
     assert out["r_mode"] == "fitted"
-    for axis in "xyz":
-        png = tmp_path / "id" / f"axis_{axis}.png"
+    for axis in AXES:
+        png = tmp_path / "id" / f"channel_{axis}.png"
         assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
@@ -213,15 +217,15 @@ def test_identify_report_and_tensorboard(tmp_path, capsys):
         assert f"| {a['param']:.4f} |" in row
         assert f"{st['noise_var']:.4e}" in report and st["noise_var"] == pytest.approx(a["R"], rel=1e-12)
     assert "Samples**: 450 of 44930 at 100 Hz" in report
-    for png in ("axis_x.png", "axis_y.png", "axis_z.png", "orders.png"):
+    for png in ("channel_ax.png", "channel_ay.png", "channel_az.png", "orders.png"):
         assert f"]({png})" in report and (tmp_path / "id" / png).read_bytes()[:4] == b"\x89PNG"
     d = np.genfromtxt(tmp_path / "id" / "trajectories.csv", delimiter=",", names=True)
     ea = EventAccumulator(str(tmp_path / "id" / "tb"), size_guidance={"scalars": 0})
     ea.Reload()
-    ev = ea.Scalars("order/y")
+    ev = ea.Scalars("order/ay")
     assert len(ev) == 450 and ev[-1].step == 449
-    assert ev[-1].value == pytest.approx(d["alpha_y"][-1], rel=1e-6)  # float32 in the event file
-    assert {"param/z", "innovation/x", "order_sd/x"} <= set(ea.Tags()["scalars"])
+    assert ev[-1].value == pytest.approx(d["alpha_ay"][-1], rel=1e-6)  # float32 in the event file
+    assert {"param/az", "innovation/ax", "order_sd/ax"} <= set(ea.Tags()["scalars"])
 
 
 def test_identify_generic_csv_columns_and_units(tmp_path, capsys):
@@ -236,12 +240,20 @@ def test_identify_generic_csv_columns_and_units(tmp_path, capsys):
     generic = json.loads(capsys.readouterr().out)
     assert run("identify", "--samples", 400, "--json", "--no-plots", "--out", tmp_path / "b") == 0
     bundled = json.loads(capsys.readouterr().out)
-    for axis in "xyz":
+    for axis in AXES:
         assert generic["axes"][axis]["alpha"] == pytest.approx(bundled["axes"][axis]["alpha"], rel=1e-9, abs=1e-12)
-    assert run("identify", f, "--columns", "X,Y", "--rate", 100) == 2
-    assert "--columns needs three names" in capsys.readouterr().err
-    assert run("identify", f, "--columns", "X,Y,Z", "--units", "g", "--lsb-per-g", 1, "--rate", 100) == 2
-    assert "not both" in capsys.readouterr().err
+    # any number of columns; one of them alone gives what it gave among three (a batch of independent channels)
+    assert run("identify", f, "--columns", "Y", "--units", "g", "--rate", 100, "--json", "--no-plots",
+               "--out", tmp_path / "c") == 0
+    one = json.loads(capsys.readouterr().out)
+    assert set(one["axes"]) == {"ay"}
+    assert one["axes"]["ay"]["alpha"] == pytest.approx(bundled["axes"]["ay"]["alpha"], rel=1e-9, abs=1e-12)
+    named = tmp_path / "named.csv"  # columns whose names say accelerometer need a unit in a generic CSV
+    named.write_text(f.read_text().replace("i,X,Y,Z", "i,acc_x,acc_y,acc_z"))
+    assert run("identify", named, "--rate", 100) == 2
+    assert "unknown unit of column 'acc_x' (accelerometer x): give --units" in capsys.readouterr().err
+    assert run("identify", f, "--columns", "X,Y,Z", "--units", "g,g", "--rate", 100) == 2
+    assert "2 units for 3 columns" in capsys.readouterr().err
 
 
 def test_identify_batched_equals_per_axis(tmp_path, capsys):
@@ -249,12 +261,12 @@ def test_identify_batched_equals_per_axis(tmp_path, capsys):
     run("identify", "--r", "measured", "--json", "--samples", 300, "--no-plots", "--out", tmp_path / "id")
     ident = json.loads(capsys.readouterr().out)
     d = np.genfromtxt(tmp_path / "id" / "trajectories.csv", delimiter=",", names=True)
-    for axis in "xyz":
+    for axis in AXES:
         f = tmp_path / f"{axis}.csv"
         np.savetxt(f, d[f"y_{axis}"], header="y", comments="", fmt="%.17g")
         r = ident["axes"][axis]["R"]
         cfg = tmp_path / f"{axis}.toml"
-        cfg.write_text(f'preset = "paper-mems-{axis}"\n[kfx]\nR = {r!r}\n[kfo]\nR = {r!r}\n[kfw]\nR = {r!r}\n')
+        cfg.write_text(f'preset = "paper-mems-{axis[1]}"\n[kfx]\nR = {r!r}\n[kfo]\nR = {r!r}\n[kfw]\nR = {r!r}\n')
         assert run("estimate", f, "--h", 0.01, "--config", cfg, "--json") == 0
         one = json.loads(capsys.readouterr().out)
         assert one["alpha_mean_last_third"] == pytest.approx(ident["axes"][axis]["alpha"], rel=1e-9, abs=1e-12)
@@ -264,9 +276,9 @@ def test_identify_batched_equals_per_axis(tmp_path, capsys):
 def test_identify_bad_recordings(tmp_path, capsys):
     f = tmp_path / "r.csv"
     f.write_text("Fs,100\nax,ay,gz\n1,2,3\n")
-    assert run("identify", f) == 2
+    assert run("identify", f, "--columns", "ax,ay,az") == 2
     err = capsys.readouterr().err
-    assert "line 2: the header lacks column(s) 'az' (it has ax, ay, gz)" in err and "--columns X,Y,Z" in err
+    assert "line 2: the header lacks column(s) 'az' (it has ax, ay, gz)" in err and "--columns" in err
     f.write_text("Fs,100\nax,ay,az\n1,2,3\n1,x,3\n")
     assert run("identify", f) == 2
     assert "line 4: column 'ay' holds 'x'" in capsys.readouterr().err
@@ -331,7 +343,7 @@ def test_generic_csv_in_g(tmp_path, capsys):
     assert run("identify", f, "--rate", 100, "--lsb-per-g", 1, "--no-plots", "--json", "--out", tmp_path / "o") == 0
     out = json.loads(capsys.readouterr().out)
     assert out["samples"] == 200
-    assert out["axes"]["z"]["mean_removed_ms2"] == pytest.approx(9.80665 * (1 + 0.001 * np.mean([(5 * i) % 3 - 1 for i in range(200)])))
+    assert out["axes"]["az"]["mean_removed"] == pytest.approx(9.80665 * (1 + 0.001 * np.mean([(5 * i) % 3 - 1 for i in range(200)])))
 
 
 @pytest.mark.slow

@@ -150,10 +150,11 @@ def test_identify_on_the_device(device):
     """identify's TEA on the device gives the CPU's estimates (the report reads them back on the CPU)."""
     from torchtea.reports.identify import identify
     from torchtea.sensors.io import read_recording
+    from torchtea.sensors.measurements import prepare
 
-    rec = read_recording()  # the bundled recording
-    cpu = identify(rec, n_samples=400, r_mode="measured")
-    dev = identify(rec, n_samples=400, r_mode="measured", device=device)
+    m = prepare(read_recording(columns=("ax", "ay", "az")), samples=400)  # the bundled recording's accelerometer
+    cpu = identify(m, r_mode="measured")
+    dev = identify(m, r_mode="measured", device=device)
     assert dev.result.alpha.device.type == "cpu"
     torch.testing.assert_close(dev.result.alpha, cpu.result.alpha, rtol=1e-9, atol=1e-11)
     torch.testing.assert_close(dev.result.w, cpu.result.w, rtol=1e-9, atol=1e-11)

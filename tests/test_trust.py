@@ -12,6 +12,7 @@ import torch
 from torchtea.cli import main
 from torchtea.sensors.datacheck import check_timing, find_missing
 from torchtea.sensors.io import read_recording
+from torchtea.sensors.measurements import prepare
 from torchtea.reports.strictjson import dumps, strict
 
 SHARED_TEMP = Path(__file__).resolve().parents[2] / "shared" / "data" / "mpu6050_sensor_fusion_temperature"
@@ -23,6 +24,9 @@ def strict_loads(text):
         raise ValueError(f"not JSON: {name}")
 
     return json.loads(text, parse_constant=refuse)
+
+
+AX = ("ax", "ay", "az")  # identify's channels by default: the accelerometer's
 
 
 def run(*argv):
@@ -59,7 +63,7 @@ def test_identify_and_estimate_json_are_strict(tmp_path, capsys):
     out = strict_loads(capsys.readouterr().out)
     on_disk = strict_loads((tmp_path / "id" / "summary.json").read_text())
     assert on_disk["axes"] == out["axes"]
-    settle = [on_disk["statistics"][a]["alpha_settle_s"] for a in "xyz"]
+    settle = [on_disk["statistics"][a]["alpha_settle_s"] for a in AX]
     assert None in settle  # the case that used to be written as NaN
     sim = tmp_path / "s.csv"
     run("simulate", "--n", 300, "--h", 0.001, "--order", 0.35, "--param", -1, "--q", 1e-4, "--r", 1e-3,
@@ -87,7 +91,7 @@ def test_missing_samples_are_one_policy_in_identify_and_estimate(tmp_path, capsy
                "--out", tmp_path / "id") == 2
     err = capsys.readouterr().err
     assert "3 of 300 samples are missing (sample index 120–121, 200" in err and "--allow-missing" in err
-    assert "per axis 'x': 1, 'y': 2)" in err and err.count("\n") == 1
+    assert "per channel 'ax': 1, 'ay': 2)" in err and err.count("\n") == 1
     y = tmp_path / "y.csv"
     y.write_text("y\n0.1\n\n0.2\nnan\n" + "0.3\n" * 116)
     assert run("estimate", y, "--h", 0.01) == 2
@@ -104,18 +108,18 @@ def test_allowed_missing_samples_are_stated_and_left_out_of_statistics(tmp_path,
                "--no-plots", "--out", tmp_path / "id") == 0
     out = strict_loads(capsys.readouterr().out)
     assert out["missing_samples"] == 3 and out["missing"]["ranges"] == [[120, 121], [200, 200]]
-    assert out["missing"]["per_column"] == {"x": 1, "y": 2, "z": 0}
-    assert [out["axes"][a]["missing_samples"] for a in "xyz"] == [1, 2, 0]
+    assert out["missing"]["per_column"] == {"ax": 1, "ay": 2, "az": 0}
+    assert [out["axes"][a]["missing_samples"] for a in AX] == [1, 2, 0]
     report = (tmp_path / "id" / "report.md").read_text()
     assert "**Missing samples** in the part used: 3 of 300 samples missing (sample index 120–121, 200)" in report
     # NIS over the observed samples only: a missing sample's zero innovation does not count
     d = np.genfromtxt(tmp_path / "id" / "trajectories.csv", delimiter=",", names=True)
-    for a in "xyz":
+    for a in AX:
         seen = ~np.isnan(d[f"y_{a}"])
         seen[0] = False
         nis = d[f"innovation_{a}"] ** 2 / d[f"innovation_var_{a}"]
         assert out["axes"][a]["innovation_nis"] == pytest.approx(nis[seen].mean(), rel=1e-12)
-        assert out["axes"][a]["innovation_nis"] != pytest.approx(nis[1:].mean(), rel=1e-6) or a == "z"
+        assert out["axes"][a]["innovation_nis"] != pytest.approx(nis[1:].mean(), rel=1e-6) or a == "az"
 
 
 def test_too_few_samples_is_an_error_not_a_nan_report(tmp_path, capsys):
@@ -226,9 +230,9 @@ def test_recorder_file_device_clock_is_checked(tmp_path):
         rows.append(f"0,{k},{t!r}," + ",".join(repr(float(v)) for v in a) + ",0,0,0,25")
     f = tmp_path / "rec.csv"
     f.write_text("\n".join(rows) + "\n")
-    rec = read_recording(f)
+    rec = read_recording(f, columns=("ax", "ay", "az"))
     assert rec.time_column == "t_s" and rec.rate_source == "the device's header (rate_hz)"
-    ident = identify(rec)
+    ident = identify(prepare(rec))
     assert ident.timing.rate_mismatch == pytest.approx(0.02, rel=1e-9)
     assert any("+2.00 %" in w for w in ident.timing.warnings)
 
@@ -240,19 +244,19 @@ def test_nis_far_from_one_is_warned_about_with_labelled_spans(tmp_path, capsys):
     assert run("identify", "--r", "measured", "--samples", 600, "--json", "--no-plots", "--out", tmp_path / "id") == 0
     cap = capsys.readouterr()
     out = strict_loads(cap.out)
-    x = out["axes"]["x"]
+    x = out["axes"]["ax"]
     assert x["innovation_nis_last_third"] < 0.5  # the bundled x axis: the MEMS noise levels do not fit
-    msg = f"axis x: NIS over the last third is {x['innovation_nis_last_third']:.3g}, outside [0.5, 2]"
+    msg = f"channel ax: NIS over the last third is {x['innovation_nis_last_third']:.3g}, outside [0.5, 2]"
     assert msg in cap.err and any(w.startswith(msg) for w in out["warnings"])
     report = (tmp_path / "id" / "report.md").read_text()
     assert msg in report and "## Warnings" in report
     # an order whose own filter σ is large is called poorly determined, with the numbers; one that is not, is not
-    for a in "xyz":
+    for a in AX:
         sd = out["axes"][a]["alpha_filter_sd_final"]
-        said = any(w.startswith(f"axis {a}: α̂ is poorly determined: σ at the last sample is {sd:.3g}, KFo's own ")
+        said = any(w.startswith(f"channel {a}: α̂ is poorly determined: σ at the last sample is {sd:.3g}, KFo's own ")
                    for w in out["warnings"])
         assert said == (sd > 0.1), (a, sd)
-    assert out["axes"]["z"]["alpha_filter_sd_final"] > 0.1 > out["axes"]["x"]["alpha_filter_sd_final"]
+    assert out["axes"]["az"]["alpha_filter_sd_final"] > 0.1 > out["axes"]["ax"]["alpha_filter_sd_final"]
     # each number says over which span it is: the last third is samples 400–599
     assert out["last_third"] == {"first_sample": 400, "last_sample": 599, "t0_s": 4.0, "t1_s": 5.99}
     assert "samples 400–599" in out["meaning"]["alpha"] and "not an uncertainty" in out["meaning"]["alpha_std_last_third"]
@@ -261,7 +265,7 @@ def test_nis_far_from_one_is_warned_about_with_labelled_spans(tmp_path, capsys):
     assert "± sd" not in report
     # the NIS of the last third is the last third's, not the whole run's
     d = np.genfromtxt(tmp_path / "id" / "trajectories.csv", delimiter=",", names=True)
-    nis = d["innovation_x"] ** 2 / d["innovation_var_x"]
+    nis = d["innovation_ax"] ** 2 / d["innovation_var_ax"]
     assert x["innovation_nis_last_third"] == pytest.approx(nis[400:].mean(), rel=1e-12)
     assert x["innovation_nis"] == pytest.approx(nis[1:].mean(), rel=1e-12)
 
@@ -272,15 +276,15 @@ def test_order_at_bound_and_parameter_that_never_moved_are_warned_about(tmp_path
     assert run("identify", "--r", "measured", "--samples", 300, "--config", cfg, "--json", "--no-plots", "--out", tmp_path / "id") == 0
     cap = capsys.readouterr()
     out = strict_loads(cap.out)
-    x = out["axes"]["x"]
+    x = out["axes"]["ax"]
     assert x["alpha_at_bound_fraction"] > 0.1
-    assert "axis x: α̂ sits at its bound (order_bounds [0.6, 0.7])" in cap.err
-    assert x["param_max_move"] < 1e-9 and "axis x: ŵ never left its start value 0" in cap.err
+    assert "channel ax: α̂ sits at its bound (order_bounds [0.6, 0.7])" in cap.err
+    assert x["param_max_move"] < 1e-9 and "channel ax: ŵ never left its start value 0" in cap.err
     # and where they do not apply, they are not said: the default bounds and KFw's own priors
     assert run("identify", "--r", "measured", "--samples", 300, "--json", "--no-plots", "--out", tmp_path / "id2") == 0
     cap = capsys.readouterr()
     assert "sits at its bound" not in cap.err and "never left its start value" not in cap.err
-    assert all(strict_loads(cap.out)["axes"][a]["param_max_move"] > 1e-3 for a in "xyz")
+    assert all(strict_loads(cap.out)["axes"][a]["param_max_move"] > 1e-3 for a in AX)
 
 
 def test_consistent_filter_on_its_own_model_gives_no_warning(tmp_path, capsys):
@@ -355,10 +359,10 @@ def test_identify_config_merges_onto_the_mems_settings_and_keeps_its_r(tmp_path,
     cfg.write_text("[kfo]\ndelta = 0.3\n")  # no preset line, no R
     assert run("identify", "--r", "measured", "--samples", 300, "--config", cfg, "--json", "--no-plots", "--out", tmp_path / "a") == 0
     out = strict_loads(capsys.readouterr().out)
-    used = tomllib.loads((tmp_path / "a" / "config_x.toml").read_text())
+    used = tomllib.loads((tmp_path / "a" / "config_ax.toml").read_text())
     assert used["kfo"]["delta"] == 0.3
     assert used["kfx"]["Q0"] == 0.01 and used["kfo"]["x0"] == 1.0  # the MEMS preset's, not TEAConfig's defaults
-    assert used["kfx"]["R"] == pytest.approx(out["statistics"]["x"]["noise_var"], rel=1e-12)  # measured, per axis
+    assert used["kfx"]["R"] == pytest.approx(out["statistics"]["ax"]["noise_var"], rel=1e-12)  # measured, per axis
     assert out["settings_changed"] == ["kfo.delta: 0.5 → 0.3"]
     report = (tmp_path / "a" / "report.md").read_text()
     assert f"**Changed from those settings** by `--config {cfg}`: `kfo.delta: 0.5 → 0.3`" in report
@@ -367,10 +371,10 @@ def test_identify_config_merges_onto_the_mems_settings_and_keeps_its_r(tmp_path,
     cfg.write_text(f"[kfx]\nR = {rx!r}\n[kfo]\nR = {rx!r}\n[kfw]\nR = {rx!r}\n")
     assert run("identify", "--r", "measured", "--samples", 300, "--config", cfg, "--json", "--no-plots", "--out", tmp_path / "b") == 0
     out = strict_loads(capsys.readouterr().out)
-    assert [out["axes"][a]["R"] for a in "xyz"] == [rx] * 3  # the file's R is kept
-    ry = out["statistics"]["y"]["noise_var"]
-    assert f"axis y: kfx.R: {ry!r} → {rx!r}" in out["settings_changed"]
-    assert not any(c.startswith("axis x") for c in out["settings_changed"])
+    assert [out["axes"][a]["R"] for a in AX] == [rx] * 3  # the file's R is kept
+    ry = out["statistics"]["ay"]["noise_var"]
+    assert f"channel ay: kfx.R: {ry!r} → {rx!r}" in out["settings_changed"]
+    assert not any(c.startswith("channel ax") for c in out["settings_changed"])
     assert run("identify", "--r", "measured", "--samples", 300, "--json", "--no-plots", "--out", tmp_path / "c") == 0
     plain = strict_loads(capsys.readouterr().out)
     assert plain["settings_changed"] == [] and "Changed from" not in (tmp_path / "c" / "report.md").read_text()
@@ -387,9 +391,9 @@ def test_progress_lines_when_stderr_is_not_a_terminal(tmp_path, capsys, monkeypa
 
     monkeypatch.setattr(cli, "PROGRESS_EVERY_S", 0.0)
     assert run("identify", "--samples", 200, "--no-plots", "--out", tmp_path / "id") == 0
-    lines = [ln for ln in capsys.readouterr().err.splitlines() if ln.startswith("torchtea TEA x,y,z: ")]
+    lines = [ln for ln in capsys.readouterr().err.splitlines() if ln.startswith("torchtea TEA ax,ay,az: ")]
     # the compiled engine reports once per block of steps (fast.BLOCK), the torch engine once per step
-    assert len(lines) >= 1 and lines[-1].startswith("torchtea TEA x,y,z: 199/199 steps (100 %)")
+    assert len(lines) >= 1 and lines[-1].startswith("torchtea TEA ax,ay,az: 199/199 steps (100 %)")
     assert "s elapsed, about 0 s left" in lines[-1]
 
 
@@ -458,10 +462,10 @@ def test_a_run_stopped_too_early_says_its_checks_did_not_run(tmp_path, capsys, m
     ctrl_c_at_step(monkeypatch, 1)
     assert run("identify", "--samples", 300, "--json", "--no-plots", "--out", tmp_path / "id") == 130
     out = strict_loads(capsys.readouterr().out)
-    assert out["steps_done"] == 2 and out["axes"]["x"]["alpha"] is None
+    assert out["steps_done"] == 2 and out["axes"]["ax"]["alpha"] is None
     assert "only 2 steps: the last-third statistics need at least 100" in out["warnings"][0]
-    assert "axis y: NIS over the last third cannot be computed" in " ".join(out["warnings"])
-    assert out["statistics"]["x"]["alpha_settle_s"] is None  # not "settled after 0.0 s"
+    assert "channel ay: NIS over the last third cannot be computed" in " ".join(out["warnings"])
+    assert out["statistics"]["ax"]["alpha_settle_s"] is None  # not "settled after 0.0 s"
     report = (tmp_path / "id" / "report.md").read_text()
     assert "None: every axis" not in report and "last ⅓ = no samples (too few steps)" in report
 
@@ -475,7 +479,7 @@ def test_wrong_delimiter_gets_a_hint(tmp_path, capsys, header, sep):
     f.write_text(header + "\n" + "\n".join(sep.join(["0.01", "0.02", "1.0"]) for _ in range(200)) + "\n")
     assert run("identify", f, "--units", "g", "--rate", 100) == 2
     err = capsys.readouterr().err
-    assert "the header lacks column(s) 'ax', 'ay', 'az'" in err
+    assert "no accelerometer or gyroscope column recognised in the header" in err
     assert ("semicolons" if sep == ";" else "tabs") in err and "comma-separated" in err and err.count("\n") == 1
     y = tmp_path / "y.csv"
     y.write_text("t;y\n0;0.1\n")

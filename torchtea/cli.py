@@ -14,6 +14,9 @@ __all__ = ["main"]
 
 #: Above this many samples `identify` warns that the exact O(N²) history sums take minutes.
 LONG_RECORDING = 20000
+#: Above this many samples `fit` skips the fractional-presence bootstrap unless --bootstrap asks for it (99
+#: simulated replicates of the null, each fitted twice).
+BOOTSTRAP_LIMIT = 200_000
 
 
 class CLIError(Exception):
@@ -269,52 +272,44 @@ def _simulate_model(args) -> int:
 # --------------------------------------------------------------------------- check
 
 
-def _read_check_input(args):
-    """(name → series, h, temperature or None, description) for ``check``."""
-    import numpy as np
+def _measurements(args, command: str, *, min_samples: int = 1, sensors=None):
+    """The recording named by the reading flags (:func:`_recording_flags`), prepared for ``command``
+    (:func:`torchtea.sensors.measurements.prepare`): the ``--columns`` asked for — else every accelerometer and
+    gyroscope axis the file names, or only the ``sensors`` given when it has them — with the faults and missing
+    samples found; the notes (faults, timing) printed on stderr."""
+    from .sensors.io import read_recording
+    from .sensors.measurements import prepare
 
-    from .sensors.datacheck import check_missing
-    from .sensors.io import read_series
+    columns = None
+    if args.columns:
+        columns = [c.strip() for c in args.columns.split(",")]
+        if not all(columns):
+            raise CLIError(f"--columns {args.columns!r}: an empty name")
+        if len(set(columns)) != len(columns):
+            raise CLIError(f"--columns {args.columns!r}: a column named twice")
+    n = None if args.samples == "all" else _whole(args.samples, "--samples")
+    if n is not None and n < 1:
+        raise CLIError(f"--samples must be positive or 'all', got {n}")
+    time_column = None if args.time_column == "none" else args.time_column
+    rec = read_recording(args.recording, columns=columns, units=args.units, lsb_per_g=args.lsb_per_g,
+                         lsb_per_dps=args.lsb_per_dps, rate_hz=args.rate, segment=args.segment,
+                         time_column=time_column, temperature_column=getattr(args, "temperature", None))
+    if columns is None and sensors:
+        chosen = tuple(c for c in rec.channels if c.sensor in sensors)
+        if chosen:
+            from dataclasses import replace
 
-    if args.column is not None:
-        if args.recording is None:
-            raise CLIError("--column needs a RECORDING (a CSV with that column)")
-        optional = ["t"] + ([args.temperature] if args.temperature else [])
-        cols = read_series(args.recording, [args.column], optional, allow_missing=True)
-        y = cols[args.column]
-        if args.rate is not None:
-            h = 1.0 / args.rate
-        elif "t" in cols and len(cols["t"]) > 1:
-            h = float(np.nanmedian(np.diff(cols["t"])))
-        else:
-            raise CLIError(f"{args.recording}: give --rate (no 't' column to take it from)")
-        n = None if args.samples == "all" else _whole(args.samples, "--samples")
-        series = {args.column: y[:n]}
-        T = cols.get(args.temperature) if args.temperature else None
-        if args.temperature and T is None:
-            raise CLIError(f"{args.recording}: no temperature column {args.temperature!r}")
-        check_missing(args.recording, y[:n, None], (args.column,), allow=args.allow_missing, per="axis")
-        return series, h, None if T is None else T[:n], {"recording": str(args.recording), "rate_hz": 1.0 / h,
-                                                         "samples": len(series[args.column]), "units": "as in the file"}
-    rec, n = _read_accel(args)
-    acc = rec.accel_ms2()[: n or None]
-    names = ("x", "y", "z") if not args.columns else tuple(c.strip() for c in args.columns.split(","))
-    check_missing(rec.path, acc, names, allow=args.allow_missing, per="axis")
-    axes = names if args.axes is None else tuple(a.strip() for a in args.axes.split(","))
-    bad = [a for a in axes if a not in names]
-    if bad:
-        raise CLIError(f"--axes {args.axes!r}: not among the axes {', '.join(names)}")
-    series = {a: acc[:, names.index(a)] for a in axes}
-    T = None
-    if args.temperature is not None:
-        T = rec.temperature[: n or None].copy()
-        seen = np.isfinite(T)
-        if not seen.any():
-            raise CLIError(f"{rec.path}: the temperature column has no values")
-        k = np.arange(len(T))
-        T[~seen] = np.interp(k[~seen], k[seen], T[seen])
-    return series, rec.h, T, {"recording": str(rec.path), "rate_hz": rec.rate_hz, "samples": len(acc),
-                              "units": "m/s²"}
+            rec = replace(rec, channels=chosen)
+    if rec.metadata.get("segments") and len(rec.metadata["segments"]) > 1 and args.segment is None:
+        print(f"torchtea: note: {Path(rec.path).name} has {len(rec.metadata['segments'])} segments (device resets); "
+              f"using the longest, segment {rec.metadata['segment']} (choose with --segment)", file=sys.stderr)
+    for key in ("time_column_skipped", "time_unit"):
+        if key in rec.metadata:
+            print(f"torchtea: note: {rec.metadata[key]}", file=sys.stderr)
+    m = prepare(rec, samples=n, allow_missing=args.allow_missing, min_samples=min_samples, command=command)
+    for line in m.notes():
+        print(f"torchtea: warning: {line}", file=sys.stderr)
+    return m
 
 
 def cmd_check(args) -> int:
@@ -322,28 +317,29 @@ def cmd_check(args) -> int:
     from .checking.report import write_report
     from .reports.strictjson import dumps
 
-    series, h, T, meta = _read_check_input(args)
-    inputs = None if T is None else {"temperature": T}
+    m = _measurements(args, "check", min_samples=1000)
+    inputs = None if args.temperature is None else {"temperature": m.temperature_input()}
     results = {}
     t0 = time.perf_counter()
-    for name, y in series.items():
-        if len(y) < 1000:
-            raise CLIError(f"{meta['recording']}: only {len(y)} samples; check needs at least 1000")
-        print(f"torchtea: checking axis {name} ({len(y)} samples, model {args.model}) …", file=sys.stderr)
-        r = check(y, h, model=args.model, inputs=inputs, level=args.level, screen_level=args.screen_level,
+    for c in m.channels:
+        print(f"torchtea: checking {c.label}, {c.title} ({m.samples} samples, model {args.model}) …", file=sys.stderr)
+        r = check(c.values, m.h, model=args.model, inputs=inputs, level=args.level, screen_level=args.screen_level,
                   intervals=not args.no_intervals)
         for effect in args.add:
             r = r.add(effect, intervals=not args.no_intervals)
-        results[name] = r
-    name = Path(meta["recording"]).stem
+        results[c.label] = r
+    name = Path(m.recording.path).stem
     out = Path(args.out or f"check-{name}")
-    meta.update(command="torchtea " + " ".join(sys.argv[1:]), seconds=time.perf_counter() - t0)
+    meta = m.describe()
+    meta.update(command="torchtea " + " ".join(sys.argv[1:]), seconds=time.perf_counter() - t0,
+                warnings=m.notes())
     doc = write_report(out, results, meta, plots=not args.no_plots)
     if args.json:
         print(dumps(doc))
         return 0
     for a, r in results.items():
-        head = f"axis {a}: {r.model.spec}: {'adequate' if r.adequate else 'NOT adequate'}"
+        c = m.channel(a)
+        head = f"{a} ({c.title}): {r.model.spec}: {'adequate' if r.adequate else 'NOT adequate'}"
         if r.before is not None:
             b = r.before
             head += (f" (before, {b.model.spec}: nll/sample {b.metrics['nll_per_sample']:.5f}, failed "
@@ -357,8 +353,18 @@ def cmd_check(args) -> int:
             print(f"  suggest {s.effect}: gain {s.gain:.1f} (ΔBIC), {pars}; repairs {', '.join(s.repairs) or '—'}")
         if not r.suggestions:
             print("  no suggestion: no effect of the library passes its screen")
+    print(f"units: {'; '.join(f'{k}: {v}' for k, v in _units_of(m).items())}")
     print(f"report: {out / 'report.md'}; JSON: {out / 'check.json'}")
     return 0
+
+
+def _units_of(m) -> dict:
+    """``{sensor: unit}`` of the channels analysed (for the closing line of a command)."""
+    out = {}
+    for c in m.channels:
+        out.setdefault(c.sensor if c.sensor != "signal" else f"column {c.name}", c.unit if c.sensor != "signal"
+                       else c.source_unit)
+    return out
 
 
 # --------------------------------------------------------------------------- estimate
@@ -398,21 +404,25 @@ def cmd_estimate(args) -> int:
         from dataclasses import replace
 
         cfg = replace(cfg, **_uncertainty_flags(args))
+    name = (args.columns or "y").strip()
+    if "," in name:
+        raise CLIError(f"--columns {args.columns!r}: estimate runs the TEA on one column")
     try:
-        cols = read_series(args.file, ["y"], ["u", "t"], allow_missing=True)
+        cols = read_series(args.file, [name], ["u", "t"], allow_missing=True)
     except InputError as exc:
         if exc.column != "t":
             raise
         # a time column that is not in seconds is not a reason to stop: read the file again without it
         print(f"torchtea: note: column 't' is not used as time stamps ({exc})", file=sys.stderr)
-        cols = read_series(args.file, ["y"], ["u"], allow_missing=True)
+        cols = read_series(args.file, [name], ["u"], allow_missing=True)
+    cols["y"] = cols.pop(name) if name != "y" else cols["y"]
     N = len(cols["y"])
     if N < MIN_SAMPLES:
         raise CLIError(f"{args.file}: {N} samples; estimate needs at least {MIN_SAMPLES} (its estimates are "
                        "summarised over the last third of the run)")
-    missing = check_missing(args.file, cols["y"], ["y"], allow=args.allow_missing)
+    missing = check_missing(args.file, cols["y"], [name], allow=args.allow_missing)
     if missing.count >= N - 1:
-        raise CLIError(f"{args.file}: column 'y' has {N - missing.count} observed sample(s); nothing to estimate")
+        raise CLIError(f"{args.file}: column {name!r} has {N - missing.count} observed sample(s); nothing to estimate")
     y = torch.as_tensor(cols["y"]).unsqueeze(-1)
     u = torch.as_tensor(cols["u"]).unsqueeze(-1) if "u" in cols else None
     if u is not None and torch.isnan(u).any():
@@ -519,7 +529,7 @@ def _identify_overrides(args):
         overrides = dict(overrides, **{name: value})
         where.append(f"--{name.replace('_', '-')} {value}")
     if not overrides:
-        return None, None, "exact"
+        return None, None, None  # identify picks the memory by the recording's length
     import torch
 
     try:  # check the file once, before any work, so its errors name it
@@ -527,53 +537,32 @@ def _identify_overrides(args):
         cfg = axis_configs(torch.zeros(3, 2, 1, dtype=torch.float64), mode, overrides)[0]
     except (TypeError, ValueError) as exc:
         raise CLIError(f"{args.config or '--memory'}: {exc}") from None
-    return overrides, " and ".join(where), cfg.memory.kind
-
-
-def _read_accel(args):
-    """The recording named by identify's / fit's reading flags, and the ``--samples`` count (None = all)."""
-    from .sensors.io import STANDARD_GRAVITY, read_recording
-
-    lsb = args.lsb_per_g
-    if args.units is not None:
-        if lsb is not None:
-            raise CLIError("give --units or --lsb-per-g, not both")
-        lsb = {"g": 1.0, "ms2": STANDARD_GRAVITY}[args.units]
-    columns = tuple(c.strip() for c in args.columns.split(",")) if args.columns else ("ax", "ay", "az")
-    if len(columns) != 3 or not all(columns):
-        raise CLIError(f"--columns needs three names (x,y,z), got {args.columns!r}")
-    n = None if args.samples == "all" else _whole(args.samples, "--samples")
-    if n is not None and n < 1:
-        raise CLIError(f"--samples must be positive or 'all', got {n}")
-    time_column = None if args.time_column == "none" else args.time_column
-    rec = read_recording(args.recording, lsb_per_g=lsb, rate_hz=args.rate, columns=columns, segment=args.segment,
-                         time_column=time_column, temperature_column=getattr(args, "temperature", None))
-    if rec.metadata.get("segments") and len(rec.metadata["segments"]) > 1 and args.segment is None:
-        print(f"torchtea: note: {Path(rec.path).name} has {len(rec.metadata['segments'])} segments (device resets); "
-              f"using the longest, segment {rec.metadata['segment']} (choose with --segment)", file=sys.stderr)
-    if "time_column_skipped" in rec.metadata:
-        print(f"torchtea: note: {rec.metadata['time_column_skipped']}", file=sys.stderr)
-    return rec, n
+    return overrides, " and ".join(where), cfg.memory.kind if "memory" in overrides else None
 
 
 def cmd_identify(args) -> int:
-    from .reports.identify import identify
+    from .reports.identify import LONG_INPUT, MIN_SAMPLES, identify
     from .reports.report import save_identification
 
     dev = _device(args.device)  # before any work
-    rec, n = _read_accel(args)
+    m = _measurements(args, "identify", min_samples=MIN_SAMPLES, sensors=("accelerometer",))
     overrides, config_source, memory_kind = _identify_overrides(args)
-    total = min(n or len(rec.accel_counts), len(rec.accel_counts))
+    total = m.samples
+    memory_kind = memory_kind or ("soe" if total >= LONG_INPUT else "exact")  # identify's choice by the length
     if total > LONG_RECORDING and memory_kind == "exact":
         print(f"torchtea: note: {total} samples with the exact full-history GL sums cost O(N²) "
               "(the whole bundled recording takes about 2.5 minutes on 2 cores); --memory soe costs O(N)",
               file=sys.stderr)
-    step, close = _progress(total - 1, "TEA x,y,z", bar=not args.json)
+    elif total >= LONG_INPUT and "memory" not in (overrides or {}) and args.memory is None:
+        print(f"torchtea: note: {total} samples: the TEA runs with soe memory (O(N); --memory exact for the full "
+              "sums, O(N²))", file=sys.stderr)
+    step, close = _progress(total - 1, "TEA " + ",".join(m.labels), bar=not args.json)
     t0 = time.perf_counter()
-    ident = identify(rec, n_samples=n, r_mode=args.r, overrides=overrides, progress=step, compile=args.compile,
-                     allow_missing=args.allow_missing, partial=True, device=dev)
+    ident = identify(m, r_mode=args.r, overrides=overrides, progress=step, compile=args.compile, partial=True,
+                     device=dev)
     elapsed = time.perf_counter() - t0
     close()
+    rec = m.recording
     out_dir = Path(args.out) if args.out else Path(f"identify-{Path(rec.path).stem}")
     summary = save_identification(ident, out_dir, plots=not args.no_plots, r_mode=args.r, seconds=elapsed,
                                   command="torchtea " + " ".join(sys.argv[1:]) if sys.argv[1:] else "",
@@ -583,17 +572,20 @@ def cmd_identify(args) -> int:
     if not _report(out_dir, summary, warnings, args.json):
         used = "the paper's §5.1 MEMS settings" + (f" changed by {config_source}" if ident.changes else "")
         print(f"{Path(rec.path).name}: {summary['samples']} samples at {rec.rate_hz:g} Hz (rate from {rec.rate_source}), "
-              f"mean removed per axis, TEA with {used}, R = " + {"measured": "measured variance",
-                                                                 "fitted": "fitted r̂ and Q = fitted q̂ (fractional+white, exact likelihood)"}.get(args.r, "paper values"))
+              f"mean removed per channel, TEA with {used}, R = " + {"measured": "measured variance",
+                                                                    "fitted": "fitted r̂ and Q = fitted q̂ (fractional+white, exact likelihood)"}.get(args.r, "paper values"))
+        print("channels: " + "; ".join(f"{c.label} = {c.title}" for c in m.channels))
         for a, fs in summary.get("fit", {}).items():
             p_ = fs["parameters"]
             c = p_["fractional.order"]["ci95"]
+            unit = summary["axes"][a]["unit"]
             print(f"fit {a}: α̂ {p_['fractional.order']['value']:.3f} "
                   + ("(no interval: on a boundary)" if c is None else f"[{c[0]:.3f}, {c[1]:.3f}] 95 % CI")
                   + f", f̂ {p_['fractional.pole']['value']:.3g}, q̂ {p_['fractional.q']['value']:.3g}, "
-                  f"r̂ {p_['white.r']['value']:.3g} (m/s²)², NIS of the fit {fs['nis']:.3f}")
+                  f"r̂ {p_['white.r']['value']:.3g} ({unit})², white-noise density "
+                  f"{math.sqrt(p_['white.r']['value'] * ident.h):.3g} {unit}/√Hz, NIS of the fit {fs['nis']:.3f}")
         print(f"missing samples: {ident.missing.describe()}")
-        print(f"{'axis':>4} {'R [(m/s²)²]':>12} {'α̂ last⅓':>9} {'sd last⅓':>9} {'α̂ final':>9} "
+        print(f"{'chan':>4} {'R [unit²]':>12} {'α̂ last⅓':>9} {'sd last⅓':>9} {'α̂ final':>9} "
               f"{'ŵ last⅓':>9} {'sd last⅓':>9} {'ŵ final':>9} {'NIS last⅓':>9}")
         for a, s in summary["axes"].items():
             print(f"{a:>4} {s['R']:12.3e} {s['alpha']:9.4f} {s['alpha_std_last_third']:9.4f} {s['alpha_final']:9.4f} "
@@ -881,16 +873,30 @@ def cmd_presets(args) -> int:
 # --------------------------------------------------------------------------- main
 
 
-def _recording_flags(parser, temperature_help: str) -> None:
-    """The flags that say how to read an accelerometer recording (``fit``, ``check``; see :func:`_read_accel`)."""
-    parser.add_argument("--rate", type=_positive_float, help="sample rate [Hz] if the file does not say")
+UNITS_HELP = ("unit of the columns: one for all (g, ms2, rad/s, deg/s, counts) or one per column "
+              "(e.g. g,g,g,deg/s,deg/s,deg/s); counts take --lsb-per-g / --lsb-per-dps. A torchtea recording is in "
+              "m/s² and rad/s, the bundled format in counts (±2 g, ±250 °/s); a generic CSV needs it")
+
+
+def _recording_flags(parser, *, columns_help: str, temperature_help: str | None, samples_default: str,
+                     samples_help: str) -> None:
+    """The flags that say how to read a recording, the same on ``identify``, ``fit`` and ``check``
+    (:func:`_measurements`)."""
+    parser.add_argument("recording", nargs="?", help="recording CSV (default: the bundled MPU-6050 recording)")
+    parser.add_argument("--columns", help=columns_help)
+    parser.add_argument("--units", help=UNITS_HELP)
     parser.add_argument("--lsb-per-g", type=_positive_float, help="accelerometer counts per g (bundled format: 16384)")
-    parser.add_argument("--columns", help="generic CSV: the three accelerometer columns (default ax,ay,az)")
-    parser.add_argument("--units", choices=("g", "ms2"),
-                        help="generic CSV already in g or m/s² (else counts: --lsb-per-g)")
+    parser.add_argument("--lsb-per-dps", type=_positive_float,
+                        help="gyroscope counts per °/s (bundled format: 131)")
+    parser.add_argument("--rate", type=_positive_float, help="sample rate [Hz] if the file does not say")
     parser.add_argument("--segment", type=int, help="torchtea recording: which segment (default: the longest)")
-    parser.add_argument("--time-column", default="auto", help="column of time stamps (auto, a name, or none)")
-    parser.add_argument("--temperature", metavar="COL", help=temperature_help)
+    parser.add_argument("--time-column", default="auto",
+                        help="column of time stamps, checked against the rate (default: the first of t, t_s, time, "
+                             "sec, timestamp, stamp, %%time, …; seconds unless the name or the spacing says ns, µs "
+                             "or ms; 'none' ignores them). A generic CSV without --rate takes the stamps' mean rate")
+    if temperature_help is not None:
+        parser.add_argument("--temperature", metavar="COL", help=temperature_help)
+    parser.add_argument("--samples", default=samples_default, help=samples_help)
     parser.add_argument("--allow-missing", action="store_true", help=ALLOW_MISSING_HELP)
 
 
@@ -923,6 +929,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     e = sub.add_parser("estimate", help="run the TEA on a CSV with column y (and u)")
     e.add_argument("file")
+    e.add_argument("--columns", help="the column to estimate (default y; with u, t read when there)")
     e.add_argument("--h", type=_positive_float,
                    help="sample time [s] (default: the mean interval of a time column 't', e.g. simulate's output)")
     e.add_argument("--preset", help="named settings (see `torchtea presets`); default paper-example1")
@@ -936,24 +943,15 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--json", action="store_true", help="print a JSON summary")
     e.set_defaults(func=cmd_estimate)
 
-    i = sub.add_parser("identify", help="identify the noise model of an accelerometer recording")
-    i.add_argument("recording", nargs="?", help="recording CSV (default: the bundled MPU-6050 recording)")
-    i.add_argument("--samples", default="3000",
-                   help="use the first N samples (default 3000 = the paper's 30 s; at least 100), or 'all'")
+    i = sub.add_parser("identify", help="identify the noise model of an IMU recording's channels with the TEA")
+    _recording_flags(i, columns_help="the columns to identify, any number (default: the accelerometer's x, y, z; "
+                                     "e.g. gx,gy,gz for the gyroscope)",
+                     temperature_help=None, samples_default="3000",
+                     samples_help="use the first N samples (default 3000 = the paper's 30 s; at least 100), or 'all'")
     i.add_argument("--r", choices=("fitted", "measured", "paper"), default="fitted",
-                   help="R, Rᵒ, Rʷ per axis: fitted by likelihood with Q (default), the axis's measured variance "
-                        "(the paper's rule) or the paper's printed values")
+                   help="R, Rᵒ, Rʷ per channel: fitted by likelihood with Q (default), the channel's measured "
+                        "variance (the paper's rule) or the paper's printed values")
     i.add_argument("--config", help="TOML settings applied on top of the paper's MEMS settings")
-    i.add_argument("--rate", type=_positive_float, help="sample rate [Hz] if the file does not say")
-    i.add_argument("--lsb-per-g", type=_positive_float, help="accelerometer counts per g (bundled format: 16384)")
-    i.add_argument("--columns", help="generic CSV: the three accelerometer columns (default ax,ay,az)")
-    i.add_argument("--units", choices=("g", "ms2"), help="generic CSV already in g or m/s² (else counts: --lsb-per-g)")
-    i.add_argument("--segment", type=int, help="torchtea recording: which segment (default: the longest)")
-    i.add_argument("--time-column", default="auto",
-                   help="column of time stamps in seconds, checked against the rate (default: the first of "
-                        "t, t_s, time, time_s, sec, seconds, timestamp; 'none' ignores them). A generic CSV "
-                        "without --rate takes the stamps' mean rate")
-    i.add_argument("--allow-missing", action="store_true", help=ALLOW_MISSING_HELP)
     i.add_argument("--out", help="output directory (default identify-<recording name>)")
     i.add_argument("--no-plots", action="store_true")
     i.add_argument("--memory", help=MEMORY_HELP)
@@ -965,39 +963,41 @@ def build_parser() -> argparse.ArgumentParser:
     i.set_defaults(func=cmd_identify)
 
     fp = sub.add_parser("fit", help="fit a noise model by maximum likelihood, with intervals")
-    fp.add_argument("recording", nargs="?", help="recording CSV (default: the bundled MPU-6050 recording)")
+    _recording_flags(fp, columns_help="the columns to fit, any number (default: every accelerometer and gyroscope "
+                                      "axis the file names)",
+                     temperature_help="temperature column (°C) for temperature-bias / temperature-order (a torchtea "
+                                      "recording: temp)", samples_default="all",
+                     samples_help="use the first N samples (default all)")
     fp.add_argument("--model", default="fractional+white",
                     help="components joined by '+': fractional, white, quantisation, random-walk, low-pass, "
                          "offset, ramp, sinusoid, temperature-bias, temperature-order (default fractional+white)")
     fp.add_argument("--method", choices=("whittle", "exact"), default="exact",
                     help="likelihood of the final answer (default exact; Whittle always gives the start)")
-    fp.add_argument("--samples", default="all", help="use the first N samples (default all)")
     fp.add_argument("--profile", action="store_true",
                     help="also the order's Whittle profile-likelihood interval with --method exact (always with "
                          "--method whittle, where it is the order's interval)")
-    fp.add_argument("--bootstrap", type=int, default=99,
-                    help="replicates of the fractional-presence test (0: do not test; default 99)")
+    fp.add_argument("--bootstrap", type=int, default=None,
+                    help="replicates of the fractional-presence test (0: do not test; default 99, 0 above "
+                         f"{BOOTSTRAP_LIMIT} samples)")
     fp.add_argument("--seed", type=int, default=0, help="seed of the bootstrap")
-    _recording_flags(fp, "temperature column (°C) for temperature-bias / temperature-order (a torchtea "
-                         "recording: temp)")
     fp.add_argument("--out", help="write the JSON document to this file")
     fp.add_argument("--json", action="store_true", help="print the JSON document")
     fp.set_defaults(func=cmd_fit)
 
     ck = sub.add_parser("check", help="test a noise model against a recording and rank the effects it is missing")
-    ck.add_argument("recording", nargs="?", help="recording CSV (default: the bundled MPU-6050 recording)")
+    _recording_flags(ck, columns_help="the columns to check, any number (default: every accelerometer and gyroscope "
+                                      "axis the file names, both sensors side by side)",
+                     temperature_help="temperature column (°C): enables the temperature diagnostic and the "
+                                      "temperature effects (a torchtea recording: temp)", samples_default="all",
+                     samples_help="use the first N samples (default all)")
     ck.add_argument("--model", default="fractional+white", help="noise model SPEC (default fractional+white)")
     ck.add_argument("--add", action="append", default=[], metavar="EFFECT",
                     help="add an effect and check again, before/after (repeatable)")
-    ck.add_argument("--axes", help="which axes (default all), e.g. z or x,z")
-    ck.add_argument("--column", help="generic CSV: check this one column (rate from --rate or a 't' column)")
-    ck.add_argument("--samples", default="all", help="use the first N samples (default all)")
     ck.add_argument("--level", type=float, default=0.01, help="level of each diagnostic (default 0.01)")
     ck.add_argument("--screen-level", type=float, default=0.05,
                     help="family level of the effect screens (default 0.05: on data from the model, at most "
                          "5 %% of checks suggest anything)")
     ck.add_argument("--no-intervals", action="store_true", help="skip the finite-difference intervals (faster)")
-    _recording_flags(ck, "temperature column (°C): enables the temperature diagnostic and the temperature effects")
     ck.add_argument("--out", help="output directory (default check-<recording name>)")
     ck.add_argument("--no-plots", action="store_true")
     ck.add_argument("--json", action="store_true", help="print the JSON document")
@@ -1069,9 +1069,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def cmd_fit(args) -> int:
-    import numpy as np
+    import math as _math
 
-    from .sensors.datacheck import check_missing
     from .fitting import fit_series
     from .fitting.presence import fractional_test
     from .fitting.summary import MEANING, axis_summary, fit_nis
@@ -1079,13 +1078,8 @@ def cmd_fit(args) -> int:
     from .reports.strictjson import dumps, write
 
     model = parse_model(args.model)
-    rec, n = _read_accel(args)
-    acc = rec.accel_ms2()[: n or None]
-    names = ("x", "y", "z") if not args.columns else tuple(c.strip() for c in args.columns.split(","))
-    if len(acc) < 100:
-        raise CLIError(f"{rec.path}: only {len(acc)} samples; a fit needs at least 100")
-    missing = check_missing(rec.path, acc, names, allow=args.allow_missing, per="axis")
-    series = [acc[:, i] for i in range(3)]
+    m = _measurements(args, "a fit", min_samples=100)
+    series = [c.values for c in m.channels]
     inputs = None
     needs = sorted({name for _, c in model.components for name in c.inputs})
     if needs and args.temperature is None:
@@ -1094,23 +1088,22 @@ def cmd_fit(args) -> int:
         print(f"torchtea: note: model {model.spec!r} has no temperature component; --temperature is not used "
               "(add temperature-bias or temperature-order)", file=sys.stderr)
     elif args.temperature is not None:
-        T = rec.temperature[: n or None].copy()
-        seen = np.isfinite(T)
-        observed = np.isfinite(acc).all(axis=1)
-        bad = int(np.sum(observed & ~seen))
-        if bad:
-            raise CLIError(f"{rec.path}: temperature column {rec.temperature_column!r} has {bad} missing value(s) "
-                           "where the acceleration is observed; the temperature input cannot be missing there")
-        if not seen.all():  # under missing samples only (the recorder's NaN rows): interpolated, never used in ℓ
-            k = np.arange(len(T))
-            T[~seen] = np.interp(k[~seen], k[seen], T[seen])
-        inputs = [{"temperature": T}] * 3
+        inputs = [{"temperature": m.temperature_input()}] * len(series)
+    n_boot = args.bootstrap if args.bootstrap is not None else (99 if m.samples <= BOOTSTRAP_LIMIT else 0)
+    if args.bootstrap is None and n_boot == 0 and model.has("fractional"):
+        print(f"torchtea: note: {m.samples} samples: the fractional-presence bootstrap is not run (--bootstrap 99 "
+              "runs it: 99 simulated replicates, each fitted twice)", file=sys.stderr)
     t0 = time.perf_counter()
-    fits = fit_series(model, series, rec.h, method=args.method, inputs=inputs,
-                      profile=True if args.profile else None)
-    tests = [None] * 3
-    if model.has("fractional") and args.bootstrap > 0:
-        if missing.count:
+    step, close = _progress(len(series), "fit " + model.spec, "channel", bar=not args.json)
+    fits = []
+    for i, y in enumerate(series):  # one channel at a time: bounded memory, progress per channel
+        fits += fit_series(model, [y], m.h, method=args.method, inputs=None if inputs is None else [inputs[i]],
+                           profile=True if args.profile else None)
+        step(i + 1, len(series))
+    close()
+    tests = [None] * len(series)
+    if model.has("fractional") and n_boot > 0:
+        if m.missing.count:
             print("torchtea: note: the fractional test needs complete series (Whittle): not run", file=sys.stderr)
         else:
             tested, test_series = model, series
@@ -1119,27 +1112,35 @@ def cmd_fit(args) -> int:
                 import torch
 
                 tested = parse_model("+".join(c.name for _, c in model.components if not c.inputs))
-                t = torch.arange(len(acc), dtype=torch.float64) * rec.h
+                t = torch.arange(m.samples, dtype=torch.float64) * m.h
                 test_series = [y - model.mean(f.values, t, inp).numpy()[0] for y, f, inp in zip(series, fits, inputs)]
-            tests = fractional_test(tested, test_series, rec.h, n_boot=args.bootstrap, seed=args.seed)
+            tests = fractional_test(tested, test_series, m.h, n_boot=n_boot, seed=args.seed)
     axes = {}
-    for name, f, y, test in zip(names, fits, series, tests):
-        axes[name] = axis_summary(f, nis=fit_nis(f, y, rec.h, inputs=None if inputs is None else inputs[0]), test=test)
-    doc = {"model": model.spec, "method": args.method, "recording": str(rec.path), "samples": len(acc),
-           "rate_hz": rec.rate_hz, "rate_source": rec.rate_source, "units": "m/s²",
-           "missing_samples": missing.count, "bootstrap": args.bootstrap, "axes": axes, "meaning": MEANING,
-           "seconds": time.perf_counter() - t0,
+    for c, f, y, test in zip(m.channels, fits, series, tests):
+        a = axis_summary(f, nis=fit_nis(f, y, m.h, inputs=None if inputs is None else inputs[0]), test=test)
+        a.update(sensor=c.sensor, unit=c.unit if c.sensor != "signal" else c.source_unit, column=c.name)
+        if "white.r" in f.values:
+            a["white_noise_density"] = _math.sqrt(f.values["white.r"] * m.h)
+        axes[c.label] = a
+    meaning = dict(MEANING, unit="the channel's unit: every parameter's 'units' is this unit (variances unit²)",
+                   white_noise_density="√(r h): the white noise's density in unit/√Hz (the value σ/√(sample rate) "
+                                       "converts back to a per-sample σ)")
+    doc = {"model": model.spec, "method": args.method, **m.describe(), "bootstrap": n_boot, "axes": axes,
+           "meaning": meaning, "seconds": time.perf_counter() - t0, "warnings": m.notes(),
            "command": "torchtea " + " ".join(sys.argv[1:]) if sys.argv[1:] else ""}
     if args.out:
         write(Path(args.out), doc)
     if args.json:
         print(dumps(doc))
         return 0
-    print(f"{Path(rec.path).name}: {len(acc)} samples at {rec.rate_hz:g} Hz, model {model.spec}, "
-          f"{args.method} likelihood, units m/s²")
-    for name, a in axes.items():
-        print(f"axis {name}: loglik {a['loglik']:.2f}  AIC {a['aic']:.2f}  BIC {a['bic']:.2f}  "
-              f"NIS {_num(a['nis'], '.3f')}  fractional p {_num(a['fractional_p_value'], '.3f')}")
+    print(f"{Path(m.recording.path).name}: {m.samples} samples at {m.recording.rate_hz:g} Hz, model {model.spec}, "
+          f"{args.method} likelihood")
+    for c in m.channels:
+        a = axes[c.label]
+        print(f"{c.label} ({c.title}): loglik {a['loglik']:.2f}  AIC {a['aic']:.2f}  BIC {a['bic']:.2f}  "
+              f"NIS {_num(a['nis'], '.3f')}  fractional p {_num(a['fractional_p_value'], '.3f')}"
+              + (f"  white-noise density {a['white_noise_density']:.3g} {a['unit']}/√Hz"
+                 if "white_noise_density" in a else ""))
         for pname, p in a["parameters"].items():
             ci = (f"[{p['ci95'][0]:.4g}, {p['ci95'][1]:.4g}] ({p['ci95_method']})" if p["ci95"] is not None
                   else "" if p["ci95_method"] in ("fixed", None) else f"({p['ci95_method']})")
@@ -1148,7 +1149,8 @@ def cmd_fit(args) -> int:
         for note in a["notes"]:
             print(f"    note: {note}")
     print("se: standard error from the observed information; NIS: mean e²/S of the exact filter, 1 when the "
-          "fitted noise levels match the data; p: bootstrap test of 'no fractional component'")
+          "fitted noise levels match the data; p: bootstrap test of 'no fractional component'; units: "
+          + "; ".join(f"{k}: {v}" for k, v in _units_of(m).items()) + " ('units' in a parameter's unit)")
     if args.out:
         print(f"written {args.out}")
     return 0

@@ -1,4 +1,4 @@
-"""The ``check`` report: ``report.md``, ``check.json`` and the figures, per axis.
+"""The ``check`` report: ``report.md``, ``check.json`` and the figures, per channel, the sensors side by side.
 
 Figures (matplotlib, Agg): the data's spectrum (log-band averages of the periodogram) against the model's,
 with the 99 % band of the band averages and each component's own curve; the overlapping Allan deviation with
@@ -68,7 +68,8 @@ def _band_average(I: np.ndarray, omega: np.ndarray, bins: int = 60):
     return np.array(f), np.array(avg), np.array(m)
 
 
-def figures(res: CheckResult, out: Path, tag: str) -> list[Path]:
+def figures(res: CheckResult, out: Path, tag: str, unit: str = "units") -> list[Path]:
+    """The figures of one channel (``tag`` its label, ``unit`` its unit for the axes' labels)."""
     plt = pyplot()
     h = res.h
     paths = []
@@ -96,7 +97,7 @@ def figures(res: CheckResult, out: Path, tag: str) -> list[Path]:
     for (a, b), d in zip(res.diagnostic("spectrum").ranges, res.diagnostic("spectrum").directions):
         ax.axvspan(a, b, color="red", alpha=0.08)
     ax.set_xlabel("frequency (Hz)")
-    ax.set_ylabel("one-sided PSD (units²/Hz)")
+    ax.set_ylabel(f"one-sided PSD (({unit})²/Hz)")
     ax.set_title(f"{tag}: spectrum (shaded: bands where the innovations fail)")
     ax.legend(fontsize=7)
     paths.append(save_figure(plt, fig, out / f"spectrum_{tag}.png"))
@@ -119,7 +120,7 @@ def figures(res: CheckResult, out: Path, tag: str) -> list[Path]:
             ax.loglog(tau, np.sqrt(allan.model_avar(alt.fit.model, alt.fit.values, h, mm)[0] + det), "C1--",
                       label=f"with {alt.effect}")
         ax.set_xlabel("τ (s)")
-        ax.set_ylabel("Allan deviation (units)")
+        ax.set_ylabel(f"Allan deviation ({unit})")
         ax.set_title(f"{tag}: Allan deviation")
         ax.legend(fontsize=7)
         paths.append(save_figure(plt, fig, out / f"allan_{tag}.png"))
@@ -175,24 +176,65 @@ def _fmt(x, f=".4g"):
     return "—" if x is None or (isinstance(x, float) and not math.isfinite(x)) else format(x, f)
 
 
+def _sqrt_r(r: CheckResult) -> float | None:
+    """√(r h) of the fitted white noise (its density, unit/√Hz), None without one."""
+    rs = [v for n, v in r.fit.values.items() if n.split(".")[0].startswith("white") and n.endswith(".r")]
+    return math.sqrt(sum(rs) * r.h) if rs else None
+
+
 def write_report(out: Path, results: dict, meta: dict, plots: bool = True) -> dict:
-    """``check.json`` and ``report.md`` (and the figures) for ``results`` {axis: CheckResult}; returns the JSON
-    document."""
+    """``check.json`` and ``report.md`` (and the figures) for ``results`` {channel label: CheckResult}; ``meta``
+    describes the recording (``channels``: label → its column, sensor, axis and unit, as
+    :meth:`~torchtea.sensors.measurements.Measurements.describe` writes them). Returns the JSON document."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
+    channels = meta.get("channels", {})
     doc = dict(meta)
-    doc["meaning"] = MEANING
-    doc["axes"] = {a: axis_document(r) for a, r in results.items()}
+    doc["meaning"] = dict(MEANING, white_noise_density="√(r h) of the fitted white noise: its density in unit/√Hz",
+                          unit="the channel's unit (m/s² accelerometer, rad/s gyroscope); a parameter's 'units' is it")
+    doc["axes"] = {}
+    for a, r in results.items():
+        d = axis_document(r)
+        info = channels.get(a, {})
+        d.update(sensor=info.get("sensor", "signal"), unit=info.get("unit", "units"), column=info.get("column", a),
+                 white_noise_density=_sqrt_r(r))
+        doc["axes"][a] = d
     if len(results) == 1:
         doc.update(next(iter(doc["axes"].values())))
+    first = next(iter(results.values()))
     lines = [f"# torchtea check: {meta.get('recording', '')}", "",
              f"{meta.get('samples', '')} samples at {meta.get('rate_hz', 0):g} Hz. Each diagnostic is a test at level "
-             f"{next(iter(results.values())).level:g} of 'the data came from the fitted model' (Bonferroni inside "
+             f"{first.level:g} of 'the data came from the fitted model' (Bonferroni inside "
              "it); an effect is suggested when its screening p-value is below "
-             f"{next(iter(results.values())).screen_level:g} / (effects screened) and its exact refit lowers BIC. "
+             f"{first.screen_level:g} / (effects screened) and its exact refit lowers BIC. "
              "`gain` = BIC before − BIC after.", ""]
+    faults = meta.get("faults", {}).get("found", [])
+    if faults:
+        lines += ["## Recording faults (found before any fit; their samples are missing samples, never physics)", ""]
+        lines += [f"- **{f['kind']}** ({', '.join(f['channels'])}): {f['message']}" for f in faults] + [""]
+    for w in meta.get("warnings", []):
+        if not w.startswith("recording fault"):
+            lines.append(f"- warning: {w}")
+    by_sensor: dict = {}
+    for a in results:
+        by_sensor.setdefault(channels.get(a, {}).get("sensor", "signal"), []).append(a)
+    lines += ["## Summary, the sensors side by side", "",
+              "| sensor | channel | unit | model | verdict | failed diagnostics | white-noise density (unit/√Hz) | "
+              "fractional order | top suggestion (gain) |", "|---|---|---|---|---|---|---|---|---|"]
+    for sensor, labels in by_sensor.items():
+        for a in labels:
+            r, d = results[a], doc["axes"][a]
+            order = next((v for n, v in r.fit.values.items() if n.endswith("fractional.order")), None)
+            top = r.suggestions[0] if r.suggestions else None
+            lines.append(f"| {sensor} | {a} | {d['unit']} | `{r.model.spec}` | {'adequate' if r.adequate else '**NOT adequate**'} "
+                         f"| {', '.join(r.failed) or '—'} | {_fmt(d['white_noise_density'], '.4g')} | "
+                         f"{_fmt(order, '.3f')} | {'—' if top is None else f'{top.effect} ({top.gain:.1f})'} |")
+    lines.append("")
     for a, r in results.items():
-        lines += [f"## axis {a}: model `{r.model.spec}` — {'adequate' if r.adequate else 'NOT adequate'}", ""]
+        info = channels.get(a, {})
+        title = (f"{info['sensor']} {info['axis']} ({info['unit']}, column `{info['column']}`)"
+                 if info.get("sensor", "signal") != "signal" else f"column `{info.get('column', a)}`")
+        lines += [f"## {a}: {title}: model `{r.model.spec}` — {'adequate' if r.adequate else 'NOT adequate'}", ""]
         if r.before is not None:
             b = r.before
             lines += ["| | model | nll/sample | psd misfit | adev misfit | failed |", "|---|---|---|---|---|---|",
@@ -200,10 +242,11 @@ def write_report(out: Path, results: dict, meta: dict, plots: bool = True) -> di
                       f"| {_fmt(b.metrics['adev_misfit'], '.4f')} | {', '.join(b.failed) or 'none'} |",
                       f"| after | `{r.model.spec}` | {r.metrics['nll_per_sample']:.5f} | {_fmt(r.metrics['psd_misfit'], '.4f')} "
                       f"| {_fmt(r.metrics['adev_misfit'], '.4f')} | {', '.join(r.failed) or 'none'} |", ""]
-        lines += ["| parameter | value | 95 % interval |", "|---|---|---|"]
+        lines += [f"| parameter | value | 95 % interval | (units = {doc['axes'][a]['unit']}) |", "|---|---|---|---|"]
         for n, v in r.fit.values.items():
             ci = r.fit.ci95.get(n)
-            lines.append(f"| {n} | {v:.5g} | {'—' if ci is None else f'[{ci[0]:.4g}, {ci[1]:.4g}]'} |")
+            lines.append(f"| {n} | {v:.5g} | {'—' if ci is None else f'[{ci[0]:.4g}, {ci[1]:.4g}]'} | "
+                         f"{r.model.param_spec(n).unit} |")
         lines += ["", "| diagnostic | domain | p-value | result |", "|---|---|---|---|"]
         for d in r.diagnostics:
             res_ = "not run" if d.passed is None else ("pass" if d.passed else "**FAIL**")
@@ -229,7 +272,7 @@ def write_report(out: Path, results: dict, meta: dict, plots: bool = True) -> di
         for note in r.notes:
             lines.append(f"Note: {note}")
         if plots:
-            for p in figures(r, out, a):
+            for p in figures(r, out, a, doc["axes"][a]["unit"]):
                 lines.append(f"![{p.stem}]({p.name})")
         lines.append("")
     (out / "report.md").write_text("\n".join(lines))

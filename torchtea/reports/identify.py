@@ -1,8 +1,10 @@
-"""Identification of a static accelerometer's noise, paper §5.
+"""Identification of a static IMU's noise, paper §5.
 
-Steps (paper §5.1): counts → m/s²; each axis's mean removed; the TEA with the
-paper's MEMS settings on the three axes as one batch (no known input);
-per-axis order α̂ and parameter ŵ, final and averaged over the last third.
+Steps (paper §5.1): the channels in SI units (m/s², rad/s); each channel's mean removed; the TEA with the
+paper's MEMS settings on the channels as one batch (no known input);
+per-channel order α̂ and parameter ŵ, final and averaged over the last third. The paper's settings are for its
+accelerometer's axes (``paper-mems-x`` … ``-z``); a gyroscope axis or another column takes ``paper-mems-x``'s,
+whose noise levels and starts the likelihood fit replaces anyway (``r_mode="fitted"``).
 
 Every number of the summary says what it is and over which span (``summary["meaning"]``), and
 :func:`trust_warnings` says where a result should not be trusted: a filter whose innovations are far
@@ -17,8 +19,9 @@ from dataclasses import dataclass, replace
 import numpy as np
 import torch
 
-from ..sensors.datacheck import Missing, Timing, check_missing, check_timing
+from ..sensors.datacheck import Missing, Timing
 from ..sensors.io import InputError, Recording
+from ..sensors.measurements import Measurements
 from ..engines.structure import Structure
 from ..engines.presets import get_preset
 from ..core.stats import last_third, mean_nis
@@ -26,10 +29,21 @@ from ..engines.tea import CLAMP_NOTE, TEAResult, make_params, run_tea, stack_par
 from ..engines.settings import TEAConfig
 from ..noise.tea import tea_config
 
-__all__ = ["AXES", "mean_or_nan", "sd_or_nan", "MIN_SAMPLES", "NIS_TRUST_BAND", "SETTLE_BAND", "DRIFT_BAND", "ALPHA_SD_LIMIT", "Identification", "axis_configs",
+__all__ = ["AXES", "preset_for", "LONG_INPUT", "mean_or_nan", "sd_or_nan", "MIN_SAMPLES", "NIS_TRUST_BAND", "SETTLE_BAND", "DRIFT_BAND", "ALPHA_SD_LIMIT", "Identification", "axis_configs",
            "identify", "summarise", "settle_time", "trust_warnings", "config_changes", "axis_changes"]
 
 AXES = ("x", "y", "z")
+
+#: From this many samples on, ``identify`` runs the TEA with ``soe`` memory unless the settings say otherwise: the
+#: exact GL sums cost O(N²) per series (the whole 449 s bundled recording: 2.5 minutes; an hour at 200 Hz: days).
+LONG_INPUT = 20000
+
+
+def preset_for(channel) -> str:
+    """The paper's §5.1 settings for a channel (a :class:`~torchtea.sensors.io.Channel`, or an axis name ``"x"``):
+    its accelerometer axis's, ``paper-mems-x``'s for anything else."""
+    sensor, axis = ("accelerometer", channel) if isinstance(channel, str) else (channel.sensor, channel.axis)
+    return f"paper-mems-{axis}" if sensor == "accelerometer" and axis in AXES else "paper-mems-x"
 
 #: Fewest samples ``identify`` accepts: the last third, over which the estimates are summarised, then has
 #: at least 33 samples.
@@ -71,6 +85,14 @@ class Identification:
     timing: Timing | None = None
     changes: tuple = ()
     fits: tuple = ()
+    #: The channels identified (:class:`~torchtea.sensors.io.Channel`), in batch order.
+    channels: tuple = ()
+    measurements: Measurements | None = None
+
+    @property
+    def labels(self) -> tuple:
+        """The channels' labels (``ax`` … ``gz``), the keys of the summary's ``axes``."""
+        return tuple(c.label for c in self.channels) if self.channels else AXES
 
     @property
     def steps(self) -> int:
@@ -82,7 +104,8 @@ class Identification:
         return np.arange(self.steps) * self.h
 
     def summary(self) -> dict:
-        return summarise(self.result, self.configs, self.means, y=self.y, h=self.h)
+        return summarise(self.result, self.configs, self.means, y=self.y, h=self.h, names=self.labels,
+                         label="channel {}")
 
 
 def _flat(d: dict, prefix: str = "") -> dict:
@@ -106,39 +129,42 @@ def axis_changes(base, used, names=AXES) -> list[str]:
     with their axis (``"axis y: kfx.R: 0.00085 → 0.004"``)."""
     per = [config_changes(b, u) for b, u in zip(base, used)]
     common = [c for c in per[0] if all(c in p for p in per[1:])]
-    return common + [f"axis {a}: {c}" for a, p in zip(names, per) for c in p if c not in common]
+    return common + [f"channel {a}: {c}" for a, p in zip(names, per) for c in p if c not in common]
 
 
 R_MODES = ("fitted", "measured", "paper")
 
 
-def axis_configs(y: torch.Tensor, r_mode: str = "measured", overrides: dict | None = None, fits=()) -> tuple:
-    """The paper's §5.1 settings per axis, with ``overrides`` on top.
+def axis_configs(y: torch.Tensor, r_mode: str = "measured", overrides: dict | None = None, fits=(),
+                 presets=None) -> tuple:
+    """The paper's §5.1 settings per channel (``presets``, default ``paper-mems-x``, ``-y``, ``-z`` for three
+    accelerometer axes; see :func:`preset_for`), with ``overrides`` on top.
 
     ``r_mode="fitted"`` (:func:`identify`'s default; this function's is ``"measured"``, which the live mode
     and the scripts use) takes the noise levels of a maximum-likelihood fit of
-    ``fractional+white`` to the axis (``fits``, :func:`torchtea.fitting.fit_series`): KFx's R = Rᵒ = Rʷ = r̂,
+    ``fractional+white`` to the channel (``fits``, :func:`torchtea.fitting.fit_series`): KFx's R = Rᵒ = Rʷ = r̂,
     KFx's Q = q̂, and the order and parameter filters start at α̂ and f̂ — the TEA then checks whether the
     order varies in time around a model whose noise levels match the data (NIS near 1).
 
     ``r_mode="paper"`` keeps the printed R, Rᵒ, Rʷ (4, 3.9, 11 ·10⁻⁴ (m/s²)²);
-    ``"measured"`` sets all three to each axis's sample variance — the paper's
+    ``"measured"`` sets all three to each channel's sample variance — the paper's
     rule ("adjusted according to noise measurement corresponding to each axis"),
     which its printed values follow for the MPU-9250.
 
     ``overrides`` is a settings table as in a TOML config (a partial nested dict): a ``preset`` key
-    replaces the MEMS preset as the base of every axis, and every other key overrides that base — an
+    replaces the MEMS preset as the base of every channel, and every other key overrides that base — an
     ``R`` given there wins over the measured one.
     """
+    presets = list(presets) if presets is not None else [f"paper-mems-{a}" for a in AXES]
     if r_mode not in R_MODES:
         raise ValueError(f"r_mode must be one of {R_MODES}, got {r_mode!r}")
-    if r_mode == "fitted" and len(fits) != len(AXES):
-        raise ValueError("r_mode 'fitted' needs one fit per axis")
+    if r_mode == "fitted" and len(fits) != len(presets):
+        raise ValueError("r_mode 'fitted' needs one fit per channel")
     overrides = dict(overrides or {})
     preset = overrides.pop("preset", None)
     out = []
-    for i, axis in enumerate(AXES):
-        cfg = get_preset(preset or f"paper-mems-{axis}")
+    for i, name in enumerate(presets):
+        cfg = get_preset(preset or name)
         if r_mode == "measured":
             r = float(np.nanvar(y[i, :, 0].cpu().numpy()))
             cfg = replace(cfg, kfx=replace(cfg.kfx, R=r), kfo=replace(cfg.kfo, R=r), kfw=replace(cfg.kfw, R=r))
@@ -150,28 +176,26 @@ def axis_configs(y: torch.Tensor, r_mode: str = "measured", overrides: dict | No
     return tuple(out)
 
 
-def identify(recording: Recording, *, n_samples: int | None = None, r_mode: str = "fitted",
-             overrides: dict | None = None, progress=None, compile: bool = False, allow_missing: bool = False,
-             partial: bool = False, device=None) -> Identification:
-    """Run the TEA on the three accelerometer axes of a recording as one batch.
+def identify(measurements: Measurements, *, r_mode: str = "fitted", overrides: dict | None = None, progress=None,
+             compile: bool = False, partial: bool = False, device=None) -> Identification:
+    """Run the TEA on the channels of a prepared recording (:func:`torchtea.sensors.measurements.prepare`) as one
+    batch.
 
     Parameters
     ----------
-    recording : Recording
-    n_samples : int, optional
-        Use the first ``n_samples`` samples (the paper used 3000 at 100 Hz); all by default.
-        At least :data:`MIN_SAMPLES`.
+    measurements : Measurements
+        The channels (each in SI units; its mean is removed here), their missing samples (NaN, predicted through:
+        :func:`~torchtea.sensors.measurements.prepare` has applied the missing-sample policy) and time stamps. At
+        least :data:`MIN_SAMPLES` samples.
     r_mode : {"fitted", "measured", "paper"}
-        See :func:`axis_configs`. ``"fitted"`` first fits ``fractional+white`` to each axis by the exact
+        See :func:`axis_configs`. ``"fitted"`` first fits ``fractional+white`` to each channel by the exact
         likelihood (:func:`torchtea.fitting.fit_series`, kept in ``Identification.fits``).
     overrides : dict, optional
-        TEA settings applied on top of the presets (as in a TOML config), e.g.
-        ``{"memory": {"kind": "soe"}}`` for long recordings; see :func:`axis_configs`.
+        TEA settings applied on top of the presets (as in a TOML config), e.g. ``{"memory": {"kind": "exact"}}``;
+        see :func:`axis_configs`. Without a ``memory`` entry, series of :data:`LONG_INPUT` samples or more run with
+        ``soe`` memory (O(N) instead of O(N²)).
     compile : bool
         Passed to :func:`torchtea.engines.tea.run_tea`.
-    allow_missing : bool
-        Missing samples (NaN) are an :class:`~torchtea.sensors.io.InputError` unless this is set; then the filters
-        predict through them (the policy of :mod:`torchtea.sensors.datacheck`).
     partial : bool
         On Ctrl-C keep the steps that finished (``result.interrupted``) instead of raising.
     device : torch device, optional
@@ -179,35 +203,32 @@ def identify(recording: Recording, *, n_samples: int | None = None, r_mode: str 
         engine). The noise-level fit of ``r_mode="fitted"`` runs on the CPU whatever the device (its exact
         Kalman filter is compiled for the CPU); the result comes back to the CPU.
     """
-    acc = recording.accel_ms2()
-    if n_samples is not None:
-        acc = acc[:n_samples]
-    N = acc.shape[0]
+    m = measurements
+    rec = m.recording
+    N = m.samples
     if N < MIN_SAMPLES:
-        raise InputError(f"{recording.path}: {N} samples; identify needs at least {MIN_SAMPLES} (its estimates are "
+        raise InputError(f"{rec.path}: {N} samples; identify needs at least {MIN_SAMPLES} (its estimates are "
                          "summarised over the last third of the run)")
-    missing = check_missing(recording.path, acc, AXES, allow=allow_missing, per="axis")
-    empty = [a for a, c in missing.per_column.items() if c >= N - 1]
-    if empty:
-        raise InputError(f"{recording.path}: axis {', '.join(empty)} has no samples in the part used")
-    timing = None
-    if recording.time_s is not None:
-        timing = check_timing(recording.time_s[:N], recording.rate_hz, column=recording.time_column,
-                              rate_source=recording.rate_source)
-    means = np.nanmean(acc, axis=0)
-    y = torch.as_tensor((acc - means).T.copy(), dtype=torch.float64).unsqueeze(-1)  # (3, N, 1)
+    values = np.column_stack([c.values for c in m.channels])
+    means = np.nanmean(values, axis=0)
+    y = torch.as_tensor((values - means).T.copy(), dtype=torch.float64).unsqueeze(-1)  # (C, N, 1)
     fits = ()
     if r_mode == "fitted":
         from ..fitting import fit_series
 
-        fits = tuple(fit_series("fractional+white", [y[i, :, 0].numpy() for i in range(len(AXES))], recording.h,
+        fits = tuple(fit_series("fractional+white", [y[i, :, 0].numpy() for i in range(len(m.channels))], rec.h,
                                 method="exact", profile=True))
-    configs = axis_configs(y, r_mode, overrides, fits)
-    changes = tuple(axis_changes(axis_configs(y, r_mode, None, fits), configs))
+    overrides = dict(overrides or {})
+    if "memory" not in overrides and N >= LONG_INPUT:
+        overrides["memory"] = {"kind": "soe"}
+    presets = [preset_for(c) for c in m.channels]
+    configs = axis_configs(y, r_mode, overrides or None, fits, presets)
+    changes = tuple(axis_changes(axis_configs(y, r_mode, None, fits, presets), configs,
+                                 [c.label for c in m.channels]))
     params = stack_params([make_params(c, Structure()) for c in configs])
-    result = run_tea(y.to(device or "cpu"), h=recording.h, params=params, progress=progress, compile=compile,
+    result = run_tea(y.to(device or "cpu"), h=rec.h, params=params, progress=progress, compile=compile,
                      partial=partial).to("cpu")
-    return Identification(recording, recording.h, y, means, configs, result, missing, timing, changes, fits)
+    return Identification(rec, rec.h, y, means, configs, result, m.missing, m.timing, changes, fits, m.channels, m)
 
 
 def settle_time(est: np.ndarray, t: np.ndarray, target: float, band: float = SETTLE_BAND) -> float:
@@ -243,7 +264,7 @@ def _meaning(k0: int, N: int, h: float, config: TEAConfig) -> dict:
         "param_std_last_third": "standard deviation of ŵ over the last third (movement, not uncertainty)",
         "param_final": "ŵ at the last sample",
         "param_filter_sd_final": f"√Pʷ at the last sample: {filter_sd_label(config, 'KFw')}",
-        "R": "measurement-noise variance R given to KFx (= Rᵒ = Rʷ) [(m/s²)²]",
+        "R": "measurement-noise variance R given to KFx (= Rᵒ = Rʷ) [unit²]",
         "innovation_nis": "mean normalised innovation squared e²/S of KFx over the whole run (observed samples, "
                           "k ≥ 1); 1 for a consistent filter",
         "innovation_nis_last_third": f"the same over the last third, {span}",
@@ -262,7 +283,9 @@ def _meaning(k0: int, N: int, h: float, config: TEAConfig) -> dict:
         "param_drift_last_third": "as alpha_drift_last_third, for ŵ (warned about beyond "
                                   f"±{DRIFT_BAND} × max(1, |ŵ|))",
         "warnings": "where a number of this series should not be trusted, and why",
-        "mean_removed_ms2": "the series' mean, removed before estimation [m/s²]",
+        "mean_removed": "the series' mean, removed before estimation (in unit)",
+        "unit": "the channel's unit (m/s² for an accelerometer axis, rad/s for a gyroscope axis); R and every "
+                "variance are in unit²",
         "memory_clamped_steps": "soe memory: steps at which a KFo sigma order left the kernel's range",
         "diverged": "the TEA flagged the run as diverged (estimates frozen from there)",
     }
@@ -378,7 +401,7 @@ def summarise(result: TEAResult, configs, means=None, *, y: torch.Tensor | None 
         s["alpha_drift_last_third"] = mean_or_nan(a[half:]) - mean_or_nan(a[k0:half])
         s["param_drift_last_third"] = mean_or_nan(w[half:]) - mean_or_nan(w[k0:half])
         if means is not None:
-            s["mean_removed_ms2"] = float(means[i])
+            s["mean_removed"] = float(means[i])
         if s["diverged"]:
             warnings.append(f"{label.format(axis)}: the TEA diverged at step {int(result.diverged_at[i])}; its estimates are "
                             "frozen at the last good step")

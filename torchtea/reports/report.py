@@ -1,4 +1,4 @@
-"""The identification report: per-axis results as Markdown with PNG figures, and TensorBoard logs."""
+"""The identification report: per-channel results as Markdown with PNG figures, and TensorBoard logs."""
 from __future__ import annotations
 
 import math
@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from ..sensors.datacheck import MISSING_POLICY
-from .identify import AXES, NIS_TRUST_BAND, SETTLE_BAND, Identification, filter_sd_label, mean_or_nan, settle_time
+from .identify import NIS_TRUST_BAND, SETTLE_BAND, Identification, filter_sd_label, mean_or_nan, settle_time
 from ..core.stats import last_third
 
 __all__ = ["settle_time", "axis_statistics", "write_report", "log_identification", "orders_figure",
@@ -36,7 +36,7 @@ def axis_statistics(ident: Identification, axes: dict) -> dict:
     N = ident.steps
     third = last_third(N)
     out = {}
-    for i, axis in enumerate(AXES):
+    for i, axis in enumerate(ident.labels):
         y = ident.y[i, :N, 0].numpy()
         x = res.x[i, :, 0].numpy()
         e = res.innovation[i, :, 0].numpy()
@@ -69,7 +69,7 @@ def write_report(path, ident: Identification, summary: dict, figures: list, *, c
     meta = rec.metadata
     n = ident.y.shape[-2]
     done = ident.steps
-    total = len(rec.accel_counts)
+    total = ident.measurements.total if ident.measurements is not None else rec.samples
     stats = summary["statistics"]
     span = summary["last_third"]
     third = (f"last ⅓ = samples {span['first_sample']}–{span['last_sample']} "
@@ -81,8 +81,9 @@ def write_report(path, ident: Identification, summary: dict, figures: list, *, c
                   ""]
     src = [f"- **Recording**: `{rec.path}`"]
     if "sensor" in meta:
-        src.append(f"- **Sensor**: {meta['sensor']}, digital low-pass {meta.get('dlpf_hz', '?')} Hz, "
-                   f"{rec.accel_lsb_per_g:g} LSB/g")
+        src.append(f"- **Sensor**: {meta['sensor']}, digital low-pass {meta.get('dlpf_hz', '?')} Hz")
+    src.append("- **Channels**: " + "; ".join(f"{c.label} = column `{c.name}`, {c.sensor} {c.axis if c.sensor != 'signal' else ''}"
+                                              f" in {c.unit} (the file: {c.source_unit})" for c in ident.channels))
     if "segment" in meta:
         src.append(f"- **Segment** {meta['segment']} of {len(meta['segments'])} (rows per segment: "
                    + ", ".join(f"{k}: {v}" for k, v in meta["segments"].items()) + ")")
@@ -96,6 +97,10 @@ def write_report(path, ident: Identification, summary: dict, figures: list, *, c
                    f"of {tm.stamp_rate_hz:.5g} Hz (the rate in use is {tm.rate_mismatch * 100:+.2f} % from it); intervals median {tm.interval_median_s * 1e3:.3g} ms, "
                    f"99th percentile {tm.interval_p99_s * 1e3:.3g} ms; {tm.irregular_fraction * 100:.1f} % outside 0.5–1.5 h"
                    + (" — see the warnings" if tm.warnings else " — consistent with the rate"))
+    meas = ident.measurements
+    if meas is not None and meas.faults:
+        src.append("- **Recording faults** (treated as missing samples, never as physics): "
+                   + " ".join(f"{f.kind}: {f.message}." for f in meas.faults.items))
     miss = ident.missing
     src.append("- **Missing samples** in the part used: " + (miss.describe() if miss is not None else "not checked")
                + ("; the filters predict through them and they are left out of every statistic"
@@ -117,13 +122,14 @@ def write_report(path, ident: Identification, summary: dict, figures: list, *, c
     lines += src + [""]
     if summary.get("fit"):
         lines += ["## Fitted noise model (maximum likelihood, before the TEA)", "",
-                  "`fractional+white` fitted to each axis by the exact likelihood (Kalman filter on the "
+                  "`fractional+white` fitted to each channel by the exact likelihood (Kalman filter on the "
                   "exponential-sum state; Whittle gives the start). Changed against the paper: the paper sets "
                   "R = Rᵒ = Rʷ to the measurement noise and keeps Q = 0.01; here r and q are the values that make "
                   "the model's innovations match the data (NIS of the fitted model ≈ 1), and KFo/KFw start at the "
                   "fitted order and pole instead of 1 and 0. The TEA below then shows whether the order moves in "
                   "time around that model.", "",
-                  "| axis | α̂ [95 % CI] | f̂ ± se | q̂ [95 % CI] | r̂ [95 % CI] | loglik | NIS (fit) |", "|---|---|---|---|---|---|---|"]
+                  "| channel | unit | α̂ [95 % CI] | f̂ ± se | q̂ [95 % CI] (unit²) | r̂ [95 % CI] (unit²) | white-noise density √(r̂h) (unit/√Hz) | loglik | NIS (fit) |",
+                  "|---|---|---|---|---|---|---|---|---|"]
         for a, fs in summary["fit"].items():
             p_ = fs["parameters"]
 
@@ -131,10 +137,11 @@ def write_report(path, ident: Identification, summary: dict, figures: list, *, c
                 c = p_[name]["ci95"]
                 return "no interval" if c is None else f"[{c[0]:{fmt}}, {c[1]:{fmt}}]"
             se = p_["fractional.pole"]["se"]
-            lines.append(f"| {a} | {p_['fractional.order']['value']:.3f} {ci('fractional.order', '.3f')} | "
+            lines.append(f"| {a} | {summary['axes'][a]['unit']} | {p_['fractional.order']['value']:.3f} {ci('fractional.order', '.3f')} | "
                          f"{p_['fractional.pole']['value']:.3g}" + ("" if se is None else f" ± {se:.2g}")
                          + f" | {p_['fractional.q']['value']:.3g} {ci('fractional.q', '.3g')} | "
-                         f"{p_['white.r']['value']:.3g} {ci('white.r', '.3g')} | {fs['loglik']:.1f} | "
+                         f"{p_['white.r']['value']:.3g} {ci('white.r', '.3g')} | "
+                         f"{math.sqrt(p_['white.r']['value'] * ident.h):.3g} | {fs['loglik']:.1f} | "
                          f"{fs['nis']:.3f} |")
         lines += ["", "Intervals: Wald on the logit (order) or log (q, r) scale from the exact observed information; "
                   "'no interval' where that information is not positive definite (an estimate on a boundary). "
@@ -146,7 +153,7 @@ def write_report(path, ident: Identification, summary: dict, figures: list, *, c
         f"None: every axis has NIS over the last third within [{NIS_TRUST_BAND[0]:g}, {NIS_TRUST_BAND[1]:g}], α̂ off its "
         "bounds, α̂ and ŵ moved from their start values and no longer drift."]
     lines += ["", "## Results", "", f"Spans: {third}; final = the last sample.", "",
-              "| axis | α̂ mean, last ⅓ | sd of α̂, last ⅓ ¹ | α̂ final | KFo σ(α̂), final ² | ŵ mean, last ⅓ | "
+              "| channel | α̂ mean, last ⅓ | sd of α̂, last ⅓ ¹ | α̂ final | KFo σ(α̂), final ² | ŵ mean, last ⅓ | "
               "sd of ŵ, last ⅓ ¹ | ŵ final | KFw σ(ŵ), final ² | α̂ settled after [s] ³ | diverged |",
               "|---|---|---|---|---|---|---|---|---|---|---|"]
     for a, s in summary["axes"].items():
@@ -161,13 +168,13 @@ def write_report(path, ident: Identification, summary: dict, figures: list, *, c
               "calibrated interval (the Monte Carlo studies in `experiments/montecarlo/README.md` measure its "
               "coverage).  ",
               f"³ The time from which α̂ stays within ±{SETTLE_BAND} of its last-third mean (—: not within the last third).",
-              "", "## Noise variances [(m/s²)²] and filter consistency", "",
-              "| axis | mean removed [m/s²] | noise variance, all samples used | std [m/s²] | R given to KFx | "
+              "", "## Noise variances (in each channel's unit², the unit in the table) and filter consistency", "",
+              "| channel | unit | mean removed | noise variance, all samples used | std | R given to KFx | "
               "mean squared innovation, last ⅓ | predicted S = C P̃ Cᵀ + R, last ⅓ | residual y − x̂ variance, last ⅓ | "
-              "NIS, last ⅓ | NIS, whole run |", "|---|---|---|---|---|---|---|---|---|---|"]
+              "NIS, last ⅓ | NIS, whole run |", "|---|---|---|---|---|---|---|---|---|---|---|"]
     for a, s in summary["axes"].items():
         st = stats[a]
-        lines.append(f"| {a} | {_fmt(s.get('mean_removed_ms2', math.nan), '.5f')} | {st['noise_var']:.4e} | "
+        lines.append(f"| {a} | {s['unit']} | {_fmt(s.get('mean_removed', math.nan), '.5g')} | {st['noise_var']:.4e} | "
                      f"{st['noise_std']:.4e} | {s['R']:.4e} | {st['innovation_var_last_third']:.4e} | "
                      f"{st['predicted_innovation_var_last_third']:.4e} | {st['residual_var_last_third']:.4e} | "
                      f"{_fmt(s['innovation_nis_last_third'], '.3f')} | {_fmt(s['innovation_nis'], '.3f')} |")
@@ -178,21 +185,21 @@ def write_report(path, ident: Identification, summary: dict, figures: list, *, c
         for f in figures:
             rel = Path(f).relative_to(path.parent) if Path(f).is_relative_to(path.parent) else Path(f)
             lines += [f"![{rel.stem}]({rel.as_posix()})", ""]
-    lines += ["Trajectories: `trajectories.csv`; per-axis settings: `config_<axis>.toml` (reusable with "
+    lines += ["Trajectories: `trajectories.csv`; per-channel settings: `config_<channel>.toml` (reusable with "
               "`torchtea estimate --config`); TensorBoard: `tensorboard --logdir " + str(path.parent / "tb") + "`.", ""]
     path.write_text("\n".join(lines))
     return path
 
 
 def orders_figure(path, ident: Identification) -> Path:
-    """α̂ of the three axes on one plot with ±2σ (the filter's) — convergence at a glance."""
+    """α̂ of every channel on one plot with ±2σ (the filter's) — convergence at a glance."""
     from .plots import pyplot, save_figure
 
     plt = pyplot()
     t = ident.t
     res = ident.result
     fig, ax = plt.subplots(2, 1, figsize=(9, 6), sharex=True)
-    for i, a in enumerate(AXES):
+    for i, a in enumerate(ident.labels):
         for panel, est, var in ((ax[0], res.alpha[i, :, 0], res.P_alpha[i, :, 0, 0]), (ax[1], res.w[i, :, 0], res.P_w[i, :, 0, 0])):
             e = est.numpy()
             sd = var.clamp(min=0).sqrt().numpy()
@@ -202,7 +209,7 @@ def orders_figure(path, ident: Identification) -> Path:
     ax[1].set_ylabel("parameter ŵ")
     ax[1].set_xlabel("time [s]")
     ax[0].legend(loc="upper right", fontsize=8)
-    ax[0].set_title(f"{Path(ident.recording.path).name}: estimates of the three axes (±2σ of the filters)")
+    ax[0].set_title(f"{Path(ident.recording.path).name}: estimates of the channels (±2σ of the filters)")
     return save_figure(plt, fig, path)
 
 
@@ -218,12 +225,12 @@ def log_identification(logdir, ident: Identification, summary: dict, *, max_poin
     logdir = Path(logdir)
     with SummaryWriter(log_dir=str(logdir)) as w:
         for k in decimated_steps(N, max_points):
-            for i, a in enumerate(AXES):
+            for i, a in enumerate(ident.labels):
                 w.add_scalar(f"order/{a}", float(res.alpha[i, k, 0]), k)
                 w.add_scalar(f"param/{a}", float(res.w[i, k, 0]), k)
                 w.add_scalar(f"innovation/{a}", float(res.innovation[i, k, 0]), k)
                 w.add_scalar(f"order_sd/{a}", math.sqrt(max(float(res.P_alpha[i, k, 0, 0]), 0.0)), k)
-        table = ["| axis | α̂ mean, last ⅓ | ŵ mean, last ⅓ | R | NIS, last ⅓ |", "|---|---|---|---|---|"]
+        table = ["| channel | α̂ mean, last ⅓ | ŵ mean, last ⅓ | R | NIS, last ⅓ |", "|---|---|---|---|---|"]
         table += [f"| {a} | {s['alpha']:.4f} | {s['param']:.4f} | {s['R']:.3e} | {s['innovation_nis_last_third']:.3f} |"
                   for a, s in summary["axes"].items()]
         if summary.get("warnings"):
@@ -246,24 +253,26 @@ def save_identification(ident: Identification, out_dir, *, plots: bool = True, r
     N = ident.steps
     summary = ident.summary()
     cols = {"t": t}
-    for i, a in enumerate(AXES):
+    for i, a in enumerate(ident.labels):
         cols.update({f"y_{a}": ident.y[i, :N, 0], f"x_hat_{a}": res.x[i, :, 0], f"alpha_{a}": res.alpha[i, :, 0],
                      f"P_alpha_{a}": res.P_alpha[i, :, 0, 0], f"w_{a}": res.w[i, :, 0], f"P_w_{a}": res.P_w[i, :, 0, 0],
                      f"innovation_{a}": res.innovation[i, :, 0], f"innovation_var_{a}": res.innovation_cov[i, :, 0, 0]})
     write_columns(out_dir / "trajectories.csv", cols)
-    for i, a in enumerate(AXES):
-        write_config(out_dir / f"config_{a}.toml", ident.configs[i], {"h": ident.h, "axis": a})
+    for i, a in enumerate(ident.labels):
+        write_config(out_dir / f"config_{a}.toml", ident.configs[i], {"h": ident.h, "channel": a})
     figures = []
     if plots:
         from .plots import estimation_figure
 
-        for i, a in enumerate(AXES):
+        for i, (a, c) in enumerate(zip(ident.labels, ident.channels)):
             figures.append(str(estimation_figure(
-                out_dir / f"axis_{a}.png", t, y=ident.y[i, :N, 0].numpy(), x_hat=res.x[i, :, 0].numpy(),
+                out_dir / f"channel_{a}.png", t, y=ident.y[i, :N, 0].numpy(), x_hat=res.x[i, :, 0].numpy(),
                 alpha_hat=res.alpha[i, :, 0].numpy(), alpha_sd=res.P_alpha[i, :, 0, 0].clamp(min=0).sqrt().numpy(),
                 w_hat=res.w[i, :, 0].numpy(), w_sd=res.P_w[i, :, 0, 0].clamp(min=0).sqrt().numpy(),
-                title=f"{Path(rec.path).name}: {a}-axis noise (cf. paper Figs. {12 + 3 * i}–{14 + 3 * i})",
-                state_label="noise [m/s²]", zoom=(t[-1] - 5.0, t[-1]))))
+                title=f"{Path(rec.path).name}: {c.title} noise"
+                      + (f" (cf. paper Figs. {12 + 3 * 'xyz'.index(c.axis)}–{14 + 3 * 'xyz'.index(c.axis)})"
+                         if c.sensor == "accelerometer" else ""),
+                state_label=f"noise [{c.unit}]", zoom=(t[-1] - 5.0, t[-1]))))
         figures.append(str(orders_figure(out_dir / "orders.png", ident)))
     summary.update({"recording": str(rec.path), "samples": int(ident.y.shape[-2]), "steps_done": N,
                     "interrupted": bool(res.interrupted), "h": ident.h, "rate_hz": rec.rate_hz,
@@ -279,18 +288,27 @@ def save_identification(ident: Identification, out_dir, *, plots: bool = True, r
         from ..fitting.summary import axis_summary, fit_nis
 
         summary["fit"] = {a: axis_summary(f, nis=fit_nis(f, ident.y[i, :, 0].numpy(), ident.h))
-                          for i, (a, f) in enumerate(zip(AXES, ident.fits))}
+                          for i, (a, f) in enumerate(zip(ident.labels, ident.fits))}
     summary["meaning"].update({
-        "fit": "per axis: maximum-likelihood fit of fractional+white (exact likelihood) whose r̂, q̂, α̂, f̂ set the "
+        "fit": "per channel: maximum-likelihood fit of fractional+white (exact likelihood) whose r̂, q̂, α̂, f̂ set the "
                "TEA (r_mode fitted); see torchtea fit --json for the meaning of its entries",
-        "statistics": "per axis: noise variance and std over all samples used; over the last third the mean squared "
+        "statistics": "per channel: noise variance and std over all samples used; over the last third the mean squared "
                       "innovation, its predicted value S and the residual y − x̂ variance; settling times [s]",
         "timing": "the file's time stamps against the rate in use (null: the file has no time column)",
-        "rate_source": "where rate_hz came from", "r_mode": "fitted: R, Q and the start values from a likelihood fit; measured: R = each axis's "
+        "rate_source": "where rate_hz came from", "channels": "each channel: its column, sensor, axis, unit (SI) "
+        "and what the file held", "faults": "the recording's own faults, found before any fit (their samples are "
+        "missing samples)", "r_mode": "fitted: R, Q and the start values from a likelihood fit; measured: R = each axis's "
                   "variance; paper: the paper's printed R",
         "seconds": "wall-clock time of the TEA", "steps_done": "steps the TEA finished (samples unless interrupted)",
         "settings_changed": "settings that differ from the paper's §5.1 MEMS settings with measured R",
     })
+    for i, c in enumerate(ident.channels):
+        summary["axes"][c.label].update(unit=c.unit, sensor=c.sensor, column=c.name,
+                                        mean_removed=float(ident.means[i]))
+    summary["channels"] = {c.label: c.describe() for c in ident.channels}
+    if ident.measurements is not None:
+        summary["faults"] = ident.measurements.faults.to_dict()
+        summary["warnings"] = [f"recording fault: {x}" for x in ident.measurements.faults.lines()] + summary["warnings"]
     if ident.timing is not None:
         summary["warnings"] = list(ident.timing.warnings) + summary["warnings"]
     if seconds is not None:

@@ -1,13 +1,25 @@
 """Reading recordings and series, writing trajectories.
 
-Every reader raises :class:`InputError` with a message that names the file
-(and line or column) and says what is wrong.
+One reader serves every command (:func:`read_recording`): a torchtea recording, the bundled Arduino format or a
+generic CSV, any number of columns, each in its own unit. Every column becomes a :class:`Channel` in SI units —
+an accelerometer axis in m/s², a gyroscope axis in rad/s, any other column (a ``signal``) as the file has it —
+that knows its sensor, its axis, what the file held and the sensor's full scale where the format says it.
+
+Units (:data:`UNITS`, ``--units``): ``g``, ``ms2`` (m/s²), ``rad/s``, ``deg/s``, or counts, scaled by the
+sensor's ``lsb_per_g`` / ``lsb_per_dps`` (``--lsb-per-g``, ``--lsb-per-dps``). A column's sensor comes from its
+unit, else from its name (:func:`sensor_of`: ``ax``, ``acc_x``, ``accel_x``, ``linear_acceleration.x`` … and
+``gx``, ``gyro_x``, ``gyr_x``, ``angular_velocity.x`` …).
+
+Every reader raises :class:`InputError` with a message that names the file (and line or column) and says what
+is wrong.
 """
 from __future__ import annotations
 
 import csv
+import io as _io
 import json
 import math
+import re
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
@@ -15,16 +27,38 @@ from typing import Sequence
 
 import numpy as np
 
-__all__ = ["RECORDER_COLUMNS", "InputError", "Recording", "bundled_recording", "read_recording", "read_series", "write_columns",
-           "STANDARD_GRAVITY", "BUNDLED", "TIME_COLUMNS"]
+__all__ = ["RECORDER_COLUMNS", "InputError", "Channel", "Recording", "bundled_recording", "read_recording",
+           "read_series", "write_columns", "STANDARD_GRAVITY", "BUNDLED", "TIME_COLUMNS", "UNITS", "SI_UNITS",
+           "sensor_of", "parse_units"]
 
 STANDARD_GRAVITY = 9.80665  # m/s² per g (CGPM 1901)
+DEG = math.pi / 180.0
 
 #: The vendored recordings (MIT, see torchtea/data/LICENSE and PROVENANCE.md).
 BUNDLED = {"main": "example_data_tinit_calc.csv", "second": "imu_static_test.csv"}
 
-#: Column names taken as time stamps in seconds when a reader is asked to find them (``time_column="auto"``).
-TIME_COLUMNS = ("t", "t_s", "time", "time_s", "sec", "seconds", "timestamp")
+#: Column names taken as time stamps when a reader is asked to find them (``time_column="auto"``), in seconds
+#: unless the name says otherwise (:data:`TIME_UNITS`) or the stamps' spacing shows ms, µs or ns.
+TIME_COLUMNS = ("t", "t_s", "time", "time_s", "sec", "seconds", "timestamp", "stamp", "%time", "header.stamp",
+                "field.header.stamp", "time_ns", "t_ns", "timestamp_ns", "stamp_ns", "time_us", "t_us",
+                "timestamp_us", "time_ms", "t_ms", "timestamp_ms")
+#: Seconds per unit of a time column whose name ends so.
+TIME_UNITS = {"_ns": 1e-9, "_us": 1e-6, "_ms": 1e-3, "%time": 1e-9, "header.stamp": 1e-9}
+
+#: ``--units`` names: (sensor, factor from the file's value to SI). Counts have no factor of their own.
+UNITS = {"g": ("accelerometer", STANDARD_GRAVITY), "ms2": ("accelerometer", 1.0), "m/s2": ("accelerometer", 1.0),
+         "m/s^2": ("accelerometer", 1.0), "rad/s": ("gyroscope", 1.0), "deg/s": ("gyroscope", DEG),
+         "dps": ("gyroscope", DEG), "counts": (None, None)}
+#: The SI unit of each sensor's channels, written next to every number.
+SI_UNITS = {"accelerometer": "m/s²", "gyroscope": "rad/s", "signal": "units of the file"}
+#: Canonical labels of IMU channels (result keys): sensor letter + axis.
+_PREFIX = {"accelerometer": "a", "gyroscope": "g"}
+_SENSOR_PATTERNS = (
+    ("accelerometer", re.compile(r"^(?:.*[._])?(?:a|acc|accel|accl|acceleration|linear_acceleration|lin_acc)[._ ]?([xyz])"
+                                 r"(?:[._ ]?(?:g|ms2|mps2|m_s2))?$")),
+    ("gyroscope", re.compile(r"^(?:.*[._])?(?:g|gyr|gyro|gyroscope|w|omega|angular_velocity|ang_vel|rate)[._ ]?([xyz])"
+                             r"(?:[._ ]?(?:dps|rads|rad_s|deg_s))?$")),
+)
 
 
 class InputError(ValueError):
@@ -37,16 +71,74 @@ class InputError(ValueError):
 
 
 @dataclass(frozen=True)
+class Channel:
+    """One measured column of a recording, in SI units.
+
+    Attributes
+    ----------
+    name : the column's name in the file.
+    sensor : ``"accelerometer"``, ``"gyroscope"`` or ``"signal"`` (a column of no known sensor, in the file's units).
+    axis : ``"x"``, ``"y"``, ``"z"`` for a sensor axis; the column's name for a signal.
+    values : ``(N,)`` float64 in :attr:`unit` (NaN = missing).
+    source_unit : what the file holds (``"counts (16384 LSB/g)"``, ``"g"``, ``"°/s"`` …).
+    scale : file value × scale = :attr:`values`.
+    full_scale : ``(low, high)`` file values at which the sensor clips (16-bit counts: −32768, 32767), or None when
+        the format does not say.
+    """
+
+    name: str
+    sensor: str
+    axis: str
+    values: np.ndarray
+    source_unit: str
+    scale: float = 1.0
+    full_scale: tuple | None = None
+
+    @property
+    def unit(self) -> str:
+        return SI_UNITS[self.sensor]
+
+    @property
+    def label(self) -> str:
+        """The result key: ``ax`` … ``gz`` for a sensor axis, the column name for a signal."""
+        return _PREFIX[self.sensor] + self.axis if self.sensor in _PREFIX else self.name
+
+    @property
+    def title(self) -> str:
+        """``accelerometer x (m/s²)``, ``gyroscope z (rad/s)``, ``column 'y'``."""
+        if self.sensor in _PREFIX:
+            return f"{self.sensor} {self.axis} ({self.unit})"
+        return f"column {self.name!r} ({self.source_unit})"
+
+    @property
+    def raw(self) -> np.ndarray:
+        """The values as the file held them (counts come back exactly)."""
+        raw = self.values / self.scale
+        rounded = np.rint(raw)
+        return rounded if np.nanmax(np.abs(raw - rounded), initial=0.0) < 1e-6 and "counts" in self.source_unit else raw
+
+    def describe(self) -> dict:
+        return {"column": self.name, "sensor": self.sensor, "axis": self.axis, "unit": self.unit,
+                "file_unit": self.source_unit, "full_scale": None if self.full_scale is None else list(self.full_scale)}
+
+    def head(self, n: int | None) -> "Channel":
+        """The first ``n`` samples (all for None)."""
+        return Channel(self.name, self.sensor, self.axis, self.values[:n], self.source_unit, self.scale,
+                       self.full_scale)
+
+    def with_values(self, values: np.ndarray) -> "Channel":
+        return Channel(self.name, self.sensor, self.axis, values, self.source_unit, self.scale, self.full_scale)
+
+
+@dataclass(frozen=True)
 class Recording:
-    """A static IMU recording.
+    """A static IMU recording: its channels in SI units, sample rate, time stamps and temperature.
 
     Attributes
     ----------
     path : source file.
     rate_hz : sample rate.
-    accel_counts : ``(N, 3)`` raw accelerometer counts (x, y, z); NaN = missing sample.
-    accel_lsb_per_g : counts per g.
-    gyro_counts : ``(N, 3)`` or None.
+    channels : the :class:`Channel` s read, in the order asked for.
     metadata : whatever the file's header said.
     time_s : ``(N,)`` the file's time stamps in seconds (NaN where a sample has none), or None.
     time_column : the name of the column they came from.
@@ -57,9 +149,7 @@ class Recording:
 
     path: Path
     rate_hz: float
-    accel_counts: np.ndarray
-    accel_lsb_per_g: float
-    gyro_counts: np.ndarray | None = None
+    channels: tuple
     metadata: dict = field(default_factory=dict)
     time_s: np.ndarray | None = None
     time_column: str | None = None
@@ -71,9 +161,57 @@ class Recording:
     def h(self) -> float:
         return 1.0 / self.rate_hz
 
+    @property
+    def samples(self) -> int:
+        return len(self.channels[0].values)
+
+    def channel(self, label: str) -> Channel:
+        """The channel with this label (``ax`` … ``gz``) or column name."""
+        for c in self.channels:
+            if label in (c.label, c.name):
+                return c
+        raise KeyError(f"{self.path}: no channel {label!r} (channels: {', '.join(c.label for c in self.channels)})")
+
+    def sensor(self, sensor: str) -> tuple:
+        """The channels of one sensor (``"accelerometer"``, ``"gyroscope"``), in x, y, z order."""
+        return tuple(sorted((c for c in self.channels if c.sensor == sensor), key=lambda c: c.axis))
+
+    def _three(self, sensor: str) -> tuple:
+        cs = self.sensor(sensor)
+        if [c.axis for c in cs] != ["x", "y", "z"]:
+            raise ValueError(f"{self.path}: the {sensor} axes x, y, z are not all among the channels read "
+                             f"({', '.join(c.label for c in self.channels)})")
+        return cs
+
     def accel_ms2(self) -> np.ndarray:
-        """Acceleration in m/s², ``(N, 3)``: counts / (LSB per g) · g₀."""
-        return self.accel_counts / self.accel_lsb_per_g * STANDARD_GRAVITY
+        """Acceleration in m/s², ``(N, 3)`` (the accelerometer's x, y, z channels)."""
+        return np.column_stack([c.values for c in self._three("accelerometer")])
+
+    @property
+    def accel_counts(self) -> np.ndarray:
+        """``(N, 3)`` the accelerometer's values as the file held them (counts where it held counts)."""
+        return np.column_stack([c.raw for c in self._three("accelerometer")])
+
+    @property
+    def accel_lsb_per_g(self) -> float:
+        """Counts per g of the accelerometer (1 for data in g)."""
+        return STANDARD_GRAVITY / self._three("accelerometer")[0].scale
+
+    @property
+    def gyro_counts(self) -> np.ndarray | None:
+        """``(N, 3)`` the gyroscope's values as the file held them, or None without a gyroscope."""
+        try:
+            return np.column_stack([c.raw for c in self._three("gyroscope")])
+        except ValueError:
+            return None
+
+    def head(self, n: int | None) -> "Recording":
+        """The recording's first ``n`` samples (all for None)."""
+        if n is None:
+            return self
+        return Recording(self.path, self.rate_hz, tuple(c.head(n) for c in self.channels), self.metadata,
+                         None if self.time_s is None else self.time_s[:n], self.time_column, self.rate_source,
+                         None if self.temperature is None else self.temperature[:n], self.temperature_column)
 
 
 def bundled_recording(which: str = "main") -> Path:
@@ -154,65 +292,187 @@ def read_series(path, columns: Sequence[str], optional: Sequence[str] = (), *, a
     return {c: np.asarray(v, dtype=np.float64) for c, v in out.items()}
 
 
-def read_recording(path=None, *, lsb_per_g: float | None = None, rate_hz: float | None = None,
-                   columns: Sequence[str] = ("ax", "ay", "az"), segment: int | None = None,
+def sensor_of(name: str) -> tuple[str, str] | None:
+    """``(sensor, axis)`` that a column's name says (``acc_x`` → accelerometer x, ``gyro_z`` → gyroscope z), or None."""
+    key = name.strip().lower()
+    if key in ("t", "time", "temp", "temperature"):
+        return None
+    for sensor, pattern in _SENSOR_PATTERNS:
+        m = pattern.match(key)
+        if m:
+            return sensor, m.group(1)
+    return None
+
+
+def parse_units(spec, columns: Sequence[str]) -> list[str | None]:
+    """``--units``: one unit for every column (``"g"``) or one per column (``"g,g,g,deg/s,deg/s,deg/s"``) → a
+    list with one entry per column (None where not given). Raises ``ValueError`` naming the bad unit."""
+    if spec is None:
+        return [None] * len(columns)
+    parts = [p.strip().lower() for p in (spec.split(",") if isinstance(spec, str) else spec)]
+    for p in parts:
+        if p not in UNITS:
+            raise ValueError(f"--units {spec!r}: unknown unit {p!r}; choose from {', '.join(UNITS)} "
+                             "(one for every column, or one per column)")
+    if len(parts) == 1:
+        return parts * len(columns)
+    if len(parts) != len(columns):
+        raise ValueError(f"--units {spec!r}: {len(parts)} units for {len(columns)} columns ({', '.join(columns)}); "
+                         "give one unit for all of them or one per column")
+    return parts
+
+
+def _counts_scale(sensor: str, lsb_per_g, lsb_per_dps):
+    """SI per count of a sensor, and how the file's unit reads; None when the scale is not known."""
+    if sensor == "accelerometer" and lsb_per_g is not None:
+        return STANDARD_GRAVITY / lsb_per_g, f"counts ({lsb_per_g:g} LSB/g)"
+    if sensor == "gyroscope" and lsb_per_dps is not None:
+        return DEG / lsb_per_dps, f"counts ({lsb_per_dps:g} LSB/(°/s))"
+    return None
+
+
+_UNIT_NAMES = {"g": "g", "ms2": "m/s²", "m/s2": "m/s²", "m/s^2": "m/s²", "rad/s": "rad/s", "deg/s": "°/s",
+               "dps": "°/s"}
+
+
+def _make_channels(path: Path, names: Sequence[str], data: np.ndarray, units: list, *, default_counts: bool,
+                   lsb_per_g, lsb_per_dps, full_scale=None, si: bool = False) -> tuple:
+    """Channels from the columns ``data`` ``(N, k)`` named ``names``. ``units`` per column (None: by the format);
+    ``default_counts``: a column of no given unit is in counts (the bundled format); ``si``: already in SI (a
+    torchtea recording: m/s², rad/s)."""
+    out = []
+    for j, (name, unit) in enumerate(zip(names, units)):
+        guess = sensor_of(name)
+        col = data[:, j]
+        if unit is not None and unit != "counts":
+            sensor, factor = UNITS[unit]
+            if guess is not None and guess[0] != sensor:
+                raise InputError(f"{path}: column {name!r} looks like a {guess[0]} axis but --units says {unit} "
+                                 f"({sensor}); give its own unit (one unit per column, e.g. --units g,g,g,deg/s,"
+                                 "deg/s,deg/s)")
+            axis = guess[1] if guess is not None else _axis_from_name(name)
+            if axis is None:
+                raise InputError(f"{path}: column {name!r} is a {sensor} channel (--units {unit}) but its name says no "
+                                 "axis x, y or z; rename it (e.g. acc_x)")
+            out.append(Channel(name, sensor, axis, col * factor, _UNIT_NAMES[unit], factor))
+            continue
+        if guess is None:
+            if unit == "counts":
+                raise InputError(f"{path}: column {name!r} is in counts but its name says neither accelerometer nor "
+                                 "gyroscope (ax, acc_x, gx, gyro_x …); rename it or give its unit (--units g, ms2, "
+                                 "rad/s, deg/s)")
+            out.append(Channel(name, "signal", name, col.copy(), "as in the file"))
+            continue
+        sensor, axis = guess
+        if si and unit is None:
+            scale = _counts_scale(sensor, lsb_per_g, lsb_per_dps)
+            out.append(Channel(name, sensor, axis, col.copy(), SI_UNITS[sensor], 1.0,
+                               None if scale is None or full_scale is None else
+                               tuple(v * scale[0] for v in full_scale)))
+            continue
+        if unit == "counts" or default_counts or _counts_scale(sensor, lsb_per_g, lsb_per_dps) is not None:
+            scale = _counts_scale(sensor, lsb_per_g, lsb_per_dps)
+            if scale is None:
+                flag = "--lsb-per-g" if sensor == "accelerometer" else "--lsb-per-dps"
+                raise InputError(f"{path}: column {name!r} ({sensor} {axis}) is in counts, and the scale is not known: "
+                                 f"give {flag} (counts per {'g' if sensor == 'accelerometer' else '°/s'}), or --units "
+                                 "for data already in physical units")
+            out.append(Channel(name, sensor, axis, col * scale[0], scale[1], scale[0], full_scale))
+            continue
+        raise InputError(f"{path}: unknown unit of column {name!r} ({sensor} {axis}): give --units (g or ms2 for an "
+                         "accelerometer, rad/s or deg/s for a gyroscope; one for all columns or one per column), or "
+                         f"{'--lsb-per-g' if sensor == 'accelerometer' else '--lsb-per-dps'} for counts")
+    return tuple(out)
+
+
+def _axis_from_name(name: str) -> str | None:
+    m = re.search(r"([xyz])$", name.strip().lower())
+    return m.group(1) if m else None
+
+
+def default_columns(header: Sequence[str]) -> list[str]:
+    """The IMU columns of a header (accelerometer, then gyroscope, each x, y, z as the names say), in file order
+    within each sensor."""
+    found = {}
+    for c in header:
+        g = sensor_of(c)
+        if g is not None and g not in found:
+            found[g] = c
+    return [found[(s, a)] for s in ("accelerometer", "gyroscope") for a in "xyz" if (s, a) in found]
+
+
+def read_recording(path=None, *, columns: Sequence[str] | None = None, units=None, lsb_per_g: float | None = None,
+                   lsb_per_dps: float | None = None, rate_hz: float | None = None, segment: int | None = None,
                    time_column: str | None = "auto", temperature_column: str | None = None) -> Recording:
-    """Read an accelerometer recording.
+    """Read a recording: the ``columns`` asked for (default: every accelerometer and gyroscope axis its header
+    names), each as a :class:`Channel` in SI units.
 
     Formats:
 
     * ``torchtea record``'s format (first line ``# torchtea-recording 1``, physical units, see
-      ``docs/recording.md``): rate and scale come from the segment's header; ``segment`` picks one
-      segment (default: the longest). Counts are recovered exactly from the m/s² values;
+      ``docs/recording.md``): rate and scales come from the segment's header; ``segment`` picks one segment
+      (default: the longest); its temperature ``temp`` is always read;
+    * the bundled format (``Fs,100`` and other ``key,value`` lines, then a header ``ax,ay,az,gx,gy,gz`` and integer
+      rows) — the vendored MPU-6050 files: counts, ±2 g at 16384 LSB/g and ±250 °/s at 131 LSB/(°/s) unless
+      ``lsb_per_g`` / ``lsb_per_dps`` say otherwise (see PROVENANCE.md);
+    * a generic CSV with a header row: every column needs its unit (``units``: one for all or one per column,
+      see :func:`parse_units`; or ``lsb_per_g`` / ``lsb_per_dps`` for counts), except a column that no sensor's
+      name pattern matches, which is read as a ``signal`` in the file's units.
 
-    * the bundled format (``Fs,100`` and other ``key,value`` lines, then a header
-      ``ax,ay,az,gx,gy,gz`` and integer rows) — the vendored MPU-6050 files; the
-      accelerometer scale defaults to ±2 g, 16384 LSB/g (see PROVENANCE.md);
-    * a generic CSV whose header names the three accelerometer ``columns``
-      (``rate_hz`` and ``lsb_per_g`` then required: ``lsb_per_g = 1`` for data in g,
-      ``lsb_per_g = 9.80665`` for data already in m/s²).
+    Time stamps: ``time_column`` names a column of time stamps; ``"auto"`` takes the first column named as in
+    :data:`TIME_COLUMNS`, ``None`` ignores them. Seconds unless the name says ns, µs or ms (``_ns``, ``_us``,
+    ``_ms``; ROS's ``%time`` and ``header.stamp`` are ns): then they are converted and ``metadata["time_unit"]``
+    says so. Stamps in seconds whose spacing is 10³, 10⁶ or 10⁹ times off the rate look like ms, µs or ns, which
+    the timing check says (:func:`~torchtea.sensors.datacheck.check_timing`). A generic CSV without ``rate_hz`` or
+    an ``Fs`` line takes the stamps' mean rate. Missing values stay NaN (see
+    :mod:`torchtea.sensors.datacheck` for the policy).
 
-    Time stamps: ``time_column`` names a column of time stamps in seconds; ``"auto"`` takes the first column
-    named as in :data:`TIME_COLUMNS` (the recorder's ``t_s``, the device clock), ``None`` ignores them. A
-    generic CSV without ``rate_hz`` or an ``Fs`` line takes the stamps' mean rate. The stamps are kept in
-    ``Recording.time_s``; :func:`torchtea.sensors.datacheck.check_timing` compares them with the rate. Missing values
-    stay NaN (see :mod:`torchtea.sensors.datacheck` for the policy).
-
-    Temperature: a torchtea recording always carries its ``temp`` column (``Recording.temperature``); a
-    generic CSV's ``temperature_column`` names one (°C).
+    Temperature: ``temperature_column`` names a column in °C (a torchtea recording's is ``temp``, read always).
     """
     path = bundled_recording() if path is None else Path(path)
-    lines = _open_lines(path)
+    text = _read_text(path)
+    lines = text.splitlines()
     if lines and lines[0].strip() == RECORDING_MAGIC:
         if temperature_column not in (None, "temp"):
             raise InputError(f"{path}: a torchtea recording's temperature column is 'temp', not {temperature_column!r}")
-        return _read_recorder_format(path, lines, segment, rate_hz, time_column)
+        return _read_recorder_format(path, lines, segment, rate_hz, time_column, columns, units, lsb_per_g,
+                                     lsb_per_dps)
     if segment is not None:
         raise InputError(f"{path}: not a torchtea recording, it has no segments")
     meta: dict = {}
-    start = 0
+    start = None
     for i, line in enumerate(lines):
         parts = [p.strip() for p in line.split(",")]
-        if all(c in parts for c in columns):
-            start = i
-            break
-        if len(parts) == 2:
+        if len(parts) == 2 and not (columns and all(c in parts for c in columns)) and not default_columns(parts) \
+                and not _is_number(parts[0]):
             meta[parts[0]] = parts[1]
             continue
-        lacking = [c for c in columns if c not in parts]
-        raise InputError(f"{path}, line {i + 1}: the header lacks column(s) {', '.join(map(repr, lacking))} "
-                         f"(it has {', '.join(parts[:12])}{' …' if len(parts) > 12 else ''}); name the three "
-                         "accelerometer columns with --columns X,Y,Z" + _delimiter_hint(line))
-    else:
-        raise InputError(f"{path}: no header with columns {', '.join(columns)} found")
+        start = i
+        break
+    if start is None:
+        raise InputError(f"{path}: no header row found")
     header = [h.strip() for h in lines[start].split(",")]
+    wanted = list(columns) if columns else default_columns(header)
+    if not wanted:
+        raise InputError(f"{path}, line {start + 1}: no accelerometer or gyroscope column recognised in the header "
+                         f"({', '.join(header[:12])}{' …' if len(header) > 12 else ''}); name the columns with "
+                         "--columns (e.g. --columns acc_x,acc_y,acc_z)" + _delimiter_hint(lines[start]))
+    lacking = [c for c in wanted if c not in header]
+    if lacking:
+        raise InputError(f"{path}, line {start + 1}: the header lacks column(s) {', '.join(map(repr, lacking))} "
+                         f"(it has {', '.join(header[:12])}{' …' if len(header) > 12 else ''}); name the columns with "
+                         "--columns" + _delimiter_hint(lines[start]))
+    bundled = "Fs" in meta
     tcol = _time_column(path, header, time_column)
     if tcol is not None and time_column == "auto" and not _numeric_column(lines, start, header.index(tcol)):
         meta["time_column_skipped"] = (f"column {tcol!r} is not in seconds (its first value is not a number); "
                                        "it is not used as time stamps")
         tcol = None
+    if temperature_column is not None and temperature_column not in header:
+        raise InputError(f"{path}: no temperature column {temperature_column!r} (the header has "
+                         f"{', '.join(header[:12])}{' …' if len(header) > 12 else ''})")
     rate_source = "--rate" if rate_hz is not None else ""
-    if rate_hz is None and "Fs" in meta:
+    if rate_hz is None and bundled:
         try:
             rate_hz = float(meta["Fs"])
         except ValueError:
@@ -222,40 +482,33 @@ def read_recording(path=None, *, lsb_per_g: float | None = None, rate_hz: float 
         raise InputError(f"{path}: sample rate must be positive, got {rate_hz}")
     if rate_hz is None and tcol is None:
         raise InputError(f"{path}: no sample rate in the file (an 'Fs,<Hz>' line or a time column named "
-                         f"{', '.join(TIME_COLUMNS)}); give it with --rate")
-    if lsb_per_g is None:
-        if "Fs" not in meta:
-            raise InputError(f"{path}: unknown accelerometer scale; give it with --lsb-per-g (counts per g), or "
-                             "--units g / --units ms2 for data already in physical units")
-        lsb_per_g = 16384.0  # bundled format: MPU-6050 library default ±2 g
-    idx = [header.index(c) for c in columns]
-    if temperature_column is not None and temperature_column not in header:
-        raise InputError(f"{path}: no temperature column {temperature_column!r} (the header has "
-                         f"{', '.join(header[:12])}{' …' if len(header) > 12 else ''})")
-    temp_idx = None if temperature_column is None else header.index(temperature_column)
-    temps = []
-    gyro_idx = [header.index(c) for c in ("gx", "gy", "gz")] if all(c in header for c in ("gx", "gy", "gz")) else None
-    acc, gyr, stamps = [], [], []
-    for i in range(start + 1, len(lines)):
-        line = lines[i]
-        if not line.strip():
-            continue
-        parts = line.split(",")
-        if len(parts) != len(header):
-            raise InputError(f"{path}, line {i + 1}: {len(parts)} fields, the header has {len(header)}")
-        acc.append([_number(parts[j], path, i + 1, header[j], allow_missing=True) for j in idx])
-        if gyro_idx:
-            gyr.append([_number(parts[j], path, i + 1, header[j], allow_missing=True) for j in gyro_idx])
-        if temp_idx is not None:
-            temps.append(_number(parts[temp_idx], path, i + 1, temperature_column, allow_missing=True))
-        if tcol is not None:
-            try:
-                stamps.append(_number(parts[header.index(tcol)], path, i + 1, tcol, allow_missing=True))
-            except InputError as exc:
-                raise InputError(f"{exc}; time stamps must be seconds (--time-column none ignores them)") from None
-    if not acc:
-        raise InputError(f"{path}: no data rows")
-    t = np.asarray(stamps, dtype=np.float64) if tcol is not None else None
+                         f"{', '.join(TIME_COLUMNS[:8])} …); give it with --rate")
+    try:
+        unit_list = parse_units(units, wanted)
+    except ValueError as exc:
+        raise InputError(str(exc)) from None
+    if bundled:
+        lsb_per_g = 16384.0 if lsb_per_g is None else lsb_per_g  # MPU-6050 library defaults: ±2 g …
+        lsb_per_dps = 131.0 if lsb_per_dps is None else lsb_per_dps  # … and ±250 °/s
+    extra = [c for c in (tcol, temperature_column) if c is not None and c not in wanted]
+    try:
+        data = _parse_body(path, lines, start, header, wanted + extra)
+    except InputError as exc:
+        if tcol is not None and exc.column == tcol:
+            raise InputError(f"{exc}; time stamps must be seconds (--time-column none ignores them)", tcol) from None
+        raise
+    channels = _make_channels(path, wanted, data[:, :len(wanted)], unit_list, default_counts=bundled,
+                              lsb_per_g=lsb_per_g, lsb_per_dps=lsb_per_dps,
+                              full_scale=(-32768.0, 32767.0) if bundled else None)
+
+    def col(name):
+        return data[:, (wanted + extra).index(name)]
+
+    t = None
+    if tcol is not None:
+        t, unit_note = _seconds(tcol, col(tcol))
+        if unit_note:
+            meta["time_unit"] = unit_note
     if rate_hz is None:
         from .datacheck import stamp_rate
 
@@ -268,12 +521,87 @@ def read_recording(path=None, *, lsb_per_g: float | None = None, rate_hz: float 
                              "IMU: time stamps are read as seconds; give the rate with --rate (and --time-column none "
                              "if the stamps are in other units)")
         rate_source = f"the mean rate of time column {tcol!r} over the whole file"
-    return Recording(path=path, rate_hz=float(rate_hz), accel_counts=np.asarray(acc, dtype=np.float64),
-                     accel_lsb_per_g=float(lsb_per_g),
-                     gyro_counts=np.asarray(gyr, dtype=np.float64) if gyro_idx else None, metadata=meta,
-                     time_s=t, time_column=tcol, rate_source=rate_source,
-                     temperature=np.asarray(temps, dtype=np.float64) if temp_idx is not None else None,
+    return Recording(path=path, rate_hz=float(rate_hz), channels=channels, metadata=meta, time_s=t, time_column=tcol,
+                     rate_source=rate_source,
+                     temperature=None if temperature_column is None else col(temperature_column).copy(),
                      temperature_column=temperature_column)
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+        return True
+    except ValueError:
+        return False
+
+
+def _seconds(name: str, t: np.ndarray) -> tuple[np.ndarray, str]:
+    """Time stamps in seconds, by the column's name (``_ns``, ``_us``, ``_ms``, ROS's ``%time`` and ``header.stamp``
+    in ns); other columns are read as seconds, and :func:`~torchtea.sensors.datacheck.check_timing` says when their
+    spacing looks like ms, µs or ns. The note says what was converted."""
+    low = name.lower()
+    for suffix, factor in TIME_UNITS.items():
+        if low.endswith(suffix):
+            return t * factor, f"column {name!r} read as {_UNIT_WORD[factor]} (its name says so)"
+    return t, ""
+
+
+_UNIT_WORD = {1e-3: "milliseconds", 1e-6: "microseconds", 1e-9: "nanoseconds"}
+
+
+def _read_text(path: Path) -> str:
+    try:
+        with open(path, newline="") as fh:
+            return fh.read()
+    except FileNotFoundError:
+        raise InputError(f"{path}: no such file") from None
+    except IsADirectoryError:
+        raise InputError(f"{path}: is a directory, expected a CSV file") from None
+    except UnicodeDecodeError:
+        raise InputError(f"{path}: not a text file") from None
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read ({exc.strerror})") from None
+
+
+def _parse_body(path: Path, lines: list, start: int, header: list, wanted: list) -> np.ndarray:
+    """``(N, len(wanted))`` float64 of the rows after the header line ``start``; empty or ``nan`` fields are NaN.
+    The fast path reads the whole body with numpy's C parser; a file it cannot read (a text field, a row of the
+    wrong length) is read again line by line, which names the line and column at fault."""
+    idx = [header.index(c) for c in wanted]
+    body = [ln for ln in lines[start + 1:] if ln.strip() and not ln.startswith("#")]
+    if not body:
+        raise InputError(f"{path}: no data rows")
+    try:
+        with np.errstate(all="ignore"):
+            arr = np.loadtxt(_io.StringIO("\n".join(body)), delimiter=",", usecols=idx, ndmin=2, dtype=np.float64,
+                             converters=None, encoding=None)
+        if arr.shape[0] != len(body) or (_row_lengths_differ(body, len(header))):
+            raise ValueError
+        if not np.all(np.isfinite(arr) | np.isnan(arr)):
+            raise ValueError
+        return arr
+    except ValueError:
+        pass
+    out = np.empty((len(lines) - start - 1, len(wanted)))
+    n = 0
+    for i in range(start + 1, len(lines)):
+        line = lines[i]
+        if not line.strip() or line.startswith("#"):
+            continue
+        parts = line.split(",")
+        if len(parts) != len(header):
+            raise InputError(f"{path}, line {i + 1}: {len(parts)} fields, the header has {len(header)}")
+        for k, j in enumerate(idx):
+            out[n, k] = _number(parts[j], path, i + 1, header[j], allow_missing=True)
+        n += 1
+    return out[:n]
+
+
+def _row_lengths_differ(body: list, width: int) -> bool:
+    """Whether some row has another number of fields than the header (numpy would read the wanted columns of a
+    longer row silently)."""
+    counts = np.fromiter((ln.count(",") for ln in body), dtype=np.int64, count=len(body))
+    return bool(np.any(counts != width - 1))
 
 
 def _numeric_column(lines: list, start: int, j: int) -> bool:
@@ -310,44 +638,36 @@ RECORDING_MAGIC = "# torchtea-recording 1"
 RECORDER_COLUMNS = ("segment", "counter", "t_s", "ax", "ay", "az", "gx", "gy", "gz", "temp")
 
 
-def _read_recorder_format(path: Path, lines: list[str], segment: int | None, rate_hz, time_column) -> Recording:
+def _read_recorder_format(path: Path, lines: list[str], segment: int | None, rate_hz, time_column, columns, units,
+                          lsb_per_g, lsb_per_dps) -> Recording:
     headers: dict = {}
-    rows: dict = {}
-    columns = None
+    header_line = None
     for i, line in enumerate(lines[1:], start=2):
-        if not line.strip():
-            continue
-        if line.startswith("#"):
-            if line.startswith("# segment "):
-                seg, _, rest = line[len("# segment "):].partition(":")
-                try:
-                    headers[int(seg)] = json.loads(rest)
-                except ValueError:
-                    raise InputError(f"{path}, line {i}: malformed segment header {line[:80]!r}") from None
-            continue
-        parts = line.split(",")
-        if columns is None:
-            columns = tuple(p.strip() for p in parts)
-            if columns != RECORDER_COLUMNS:
+        if line.startswith("# segment "):
+            seg, _, rest = line[len("# segment "):].partition(":")
+            try:
+                headers[int(seg)] = json.loads(rest)
+            except ValueError:
+                raise InputError(f"{path}, line {i}: malformed segment header {line[:80]!r}") from None
+        elif header_line is None and line.strip() and not line.startswith("#"):
+            header_line = i - 1
+            if tuple(p.strip() for p in line.split(",")) != RECORDER_COLUMNS:
                 raise InputError(f"{path}, line {i}: expected columns {','.join(RECORDER_COLUMNS)}, got {line[:80]!r}")
-            continue
-        if len(parts) != len(columns):
-            raise InputError(f"{path}, line {i}: {len(parts)} fields, the header has {len(columns)}")
-        try:
-            seg = int(parts[0])
-        except ValueError:
-            raise InputError(f"{path}, line {i}: segment {parts[0]!r} is not a whole number") from None
-        if seg not in headers:
-            raise InputError(f"{path}, line {i}: segment {seg} has no '# segment {seg}:' header line")
-        rows.setdefault(seg, []).append(
-            [_number(v, path, i, c, allow_missing=True) for v, c in zip(parts[1:], columns[1:])])
-    if not rows:
+    if header_line is None:
         raise InputError(f"{path}: no data rows")
-    sizes = {s: len(r) for s, r in rows.items()}
+    data = _parse_body(path, lines, header_line, list(RECORDER_COLUMNS), list(RECORDER_COLUMNS))
+    segs = data[:, 0]
+    if np.isnan(segs).any() or np.any(segs != np.rint(segs)):
+        bad = int(np.flatnonzero(np.isnan(segs) | (segs != np.rint(segs)))[0])
+        raise InputError(f"{path}: data row {bad + 1}: the segment is not a whole number")
+    for seg in np.unique(segs).astype(int):
+        if seg not in headers:
+            raise InputError(f"{path}: segment {seg} has no '# segment {seg}:' header line")
+    sizes = {int(k): int(v) for k, v in zip(*np.unique(segs.astype(int), return_counts=True))}
     if segment is None:
         segment = max(sizes, key=lambda s: (sizes[s], -s))
-    elif segment not in rows:
-        raise InputError(f"{path}: no segment {segment} (segments: {', '.join(map(str, sorted(rows)))})")
+    elif segment not in sizes:
+        raise InputError(f"{path}: no segment {segment} (segments: {', '.join(map(str, sorted(sizes)))})")
     meta = dict(headers[segment])
     try:
         rate = float(meta["rate_hz"])
@@ -356,23 +676,36 @@ def _read_recorder_format(path: Path, lines: list[str], segment: int | None, rat
     except (KeyError, ValueError):
         raise InputError(f"{path}: segment {segment}'s header lacks a numeric rate_hz, accel_lsb_per_g or "
                          "gyro_lsb_per_dps") from None
-    data = np.asarray(rows[segment], dtype=np.float64)  # counter, t_s, ax … temp
+    if lsb_per_g is not None or lsb_per_dps is not None:
+        raise InputError(f"{path}: a torchtea recording's scales are in its header ({lsb:g} LSB/g, {dps:g} LSB/(°/s)); "
+                         "--lsb-per-g and --lsb-per-dps are for files of counts")
+    if units is not None:
+        raise InputError(f"{path}: a torchtea recording is in m/s², rad/s and °C already; leave out --units")
+    data = data[segs == segment, 1:]  # counter, t_s, ax … temp
     counters = data[:, 0]
     if np.any(np.diff(counters) != 1):
         raise InputError(f"{path}: segment {segment}: counters are not consecutive (rows missing or reordered)")
-    acc = data[:, 2:5] / STANDARD_GRAVITY * lsb
-    rounded = np.rint(acc)
-    if np.nanmax(np.abs(acc - rounded), initial=0.0) < 1e-6:
-        acc = rounded  # values written by the recorder: the counts come back exactly
-    gyr = data[:, 5:8] / (math.pi / 180.0) * dps
+    names = list(RECORDER_COLUMNS[3:9])
+    wanted = list(columns) if columns else names
+    lacking = [c for c in wanted if c not in names]
+    if lacking:
+        raise InputError(f"{path}: a torchtea recording's channels are {', '.join(names)} (and temp); no "
+                         f"{', '.join(map(repr, lacking))}")
+    idx = [RECORDER_COLUMNS.index(c) - 1 for c in wanted]
+    channels = _make_channels(path, wanted, data[:, idx], [None] * len(wanted), default_counts=False,
+                              lsb_per_g=lsb, lsb_per_dps=dps, full_scale=(-32768.0, 32767.0), si=True)
+    # the recorder wrote counts × scale: the counts come back exactly (Channel.raw), given the scale
+    channels = tuple(Channel(c.name, c.sensor, c.axis, c.values, f"{c.unit} (from counts, "
+                             + (f"{lsb:g} LSB/g)" if c.sensor == "accelerometer" else f"{dps:g} LSB/(°/s))"),
+                             _counts_scale(c.sensor, lsb, dps)[0], c.full_scale and (-32768.0, 32767.0))
+                     for c in channels)
     meta.update(segment=segment, segments=sizes, first_counter=int(counters[0]),
                 missing_samples=int(np.isnan(data[:, 2]).sum()))
     tcol = None if time_column is None else "t_s"
     if time_column not in (None, "auto", "t_s"):
         raise InputError(f"{path}: a torchtea recording's time column is 't_s' (the device clock), not {time_column!r}")
-    return Recording(path=path, rate_hz=float(rate_hz) if rate_hz is not None else rate, accel_counts=acc,
-                     accel_lsb_per_g=lsb, gyro_counts=gyr, metadata=meta,
-                     time_s=data[:, 1] if tcol else None, time_column=tcol,
+    return Recording(path=path, rate_hz=float(rate_hz) if rate_hz is not None else rate, channels=channels,
+                     metadata=meta, time_s=data[:, 1] if tcol else None, time_column=tcol,
                      rate_source="--rate" if rate_hz is not None else "the device's header (rate_hz)",
                      temperature=data[:, RECORDER_COLUMNS.index("temp") - 1], temperature_column="temp")
 

@@ -1,0 +1,138 @@
+"""What every analysing command reads of a recording, prepared once: the channels asked for, in SI units, with the
+recording's faults found and made missing, the missing-sample policy applied, the time stamps checked and the
+temperature ready for the models that read it.
+
+``fit``, ``check`` and ``identify`` all start here (:func:`prepare`), so they read one column or six, in any units,
+from any of the formats, the same way.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .datacheck import Missing, Timing, check_timing, find_missing, missing_error
+from .faults import Faults, apply_faults, find_faults
+from .io import Channel, InputError, Recording
+
+__all__ = ["Measurements", "prepare", "fill_temperature"]
+
+
+def fill_temperature(T: np.ndarray, source) -> np.ndarray:
+    """The temperature with its missing samples (NaN) interpolated linearly in time (held at the ends) — a model
+    input must be complete; ``source`` names the file in the error when there is no value at all."""
+    T = np.asarray(T, dtype=np.float64).copy()
+    seen = np.isfinite(T)
+    if not seen.any():
+        raise InputError(f"{source}: the temperature column has no values")
+    if not seen.all():
+        k = np.arange(len(T))
+        T[~seen] = np.interp(k[~seen], k[seen], T[seen])
+    return T
+
+
+@dataclass(frozen=True)
+class Measurements:
+    """The part of a recording a command analyses.
+
+    ``recording``: the recording as read (its first ``samples`` samples); ``channels``: the channels analysed, with
+    the faults' samples made missing; ``faults`` (:class:`~.faults.Faults`), ``missing`` (:class:`~.datacheck.Missing`,
+    per channel label, the faults' samples included) and ``timing`` (None without time stamps); ``temperature`` the
+    temperature channel (°C) with faulty samples NaN, or None."""
+
+    recording: Recording
+    channels: tuple
+    faults: Faults
+    missing: Missing
+    timing: Timing | None
+    temperature: np.ndarray | None
+    allow_missing: bool = False
+    #: samples in the whole recording (the part used is the first :attr:`samples`)
+    total: int = 0
+
+    @property
+    def h(self) -> float:
+        return self.recording.h
+
+    @property
+    def samples(self) -> int:
+        return len(self.channels[0].values)
+
+    @property
+    def labels(self) -> list[str]:
+        return [c.label for c in self.channels]
+
+    def series(self) -> dict:
+        """``{label: (N,) values}`` in SI units, NaN where missing."""
+        return {c.label: c.values for c in self.channels}
+
+    def channel(self, label: str) -> Channel:
+        return next(c for c in self.channels if c.label == label)
+
+    def temperature_input(self) -> np.ndarray:
+        """The temperature as a model input: complete, its missing samples interpolated (:func:`fill_temperature`):
+        those a fault made missing, those where every channel is missing, and — with ``allow_missing`` — any other.
+        Without it, a temperature missing in the file where a channel is observed is an :class:`~.io.InputError`."""
+        rec = self.recording
+        if self.temperature is None:
+            raise InputError(f"{rec.path}: no temperature channel (--temperature COLUMN)")
+        observed = np.isfinite(np.column_stack([c.values for c in self.channels])).any(axis=1)
+        bad = int(np.sum(observed & np.isnan(rec.temperature)))
+        if bad and not self.allow_missing:
+            raise InputError(f"{rec.path}: temperature column {rec.temperature_column!r} has {bad} missing value(s) "
+                             "where a channel is observed; the temperature input cannot be missing there (add "
+                             "--allow-missing to interpolate it)")
+        return fill_temperature(self.temperature, rec.path)
+
+    def sensors(self) -> dict:
+        """``{sensor: [labels]}`` in channel order (accelerometer, gyroscope, signals)."""
+        out: dict = {}
+        for c in self.channels:
+            out.setdefault(c.sensor, []).append(c.label)
+        return out
+
+    def describe(self) -> dict:
+        """The JSON entry: the recording, its channels with units, the faults, missing samples and timing."""
+        rec = self.recording
+        return {"recording": str(rec.path), "rate_hz": rec.rate_hz, "rate_source": rec.rate_source,
+                "samples": self.samples, "samples_in_recording": self.total, "channels": {c.label: c.describe() for c in self.channels},
+                "temperature_column": rec.temperature_column, "faults": self.faults.to_dict(),
+                "missing_samples": self.missing.count, "missing": self.missing.to_dict(),
+                "timing": None if self.timing is None else self.timing.to_dict()}
+
+    def notes(self) -> list[str]:
+        """Lines for stderr and the reports: the faults, then the timing warnings."""
+        out = [f"recording fault: {line}" for line in self.faults.lines()]
+        if self.timing is not None:
+            out += list(self.timing.warnings)
+        return out
+
+
+def prepare(recording: Recording, *, samples: int | None = None, allow_missing: bool = False,
+            min_samples: int = 1, command: str = "this command") -> Measurements:
+    """The recording's first ``samples`` samples (all for None), its faults found (:func:`~.faults.find_faults`) and
+    made missing, and the missing-sample policy applied: an :class:`~.io.InputError` naming the file, the faults, the
+    missing samples and ``--allow-missing`` when any sample is missing and ``allow_missing`` is False; one when fewer
+    than ``min_samples`` samples are there."""
+    total = recording.samples
+    rec = recording.head(samples)
+    N = rec.samples
+    if N < min_samples:
+        raise InputError(f"{rec.path}: {N} samples; {command} needs at least {min_samples}")
+    faults = find_faults(rec.channels, h=rec.h, temperature=rec.temperature, time_s=rec.time_s)
+    channels, temperature = apply_faults(rec.channels, rec.temperature, faults)
+    values = np.column_stack([c.values for c in channels])
+    missing = find_missing(values, [c.label for c in channels])
+    if missing.count and not allow_missing:
+        why = ""
+        if faults.missing_count:
+            why = (f" — {faults.missing_count} of them made missing by the recording's faults: "
+                   + "; ".join(f.message for f in faults.items if f.treatment == "missing"))
+        raise InputError(missing_error(rec.path, missing, per="channel") + why)
+    empty = [c.label for c in channels if int(np.isnan(c.values).sum()) >= N - 1]
+    if empty:
+        raise InputError(f"{rec.path}: channel {', '.join(empty)} has no samples in the part used")
+    timing = None
+    if rec.time_s is not None:
+        timing = check_timing(rec.time_s, rec.rate_hz, column=rec.time_column, rate_source=rec.rate_source)
+    return Measurements(rec, channels, faults, missing, timing, temperature, allow_missing, total)

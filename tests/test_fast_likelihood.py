@@ -164,3 +164,31 @@ def test_exact_multistart_finds_the_better_mode():
     bent = {k: float(x[0]) for k, x in m.from_unconstrained(wf.modes[0][[o > 0.6 for o in orders].index(True)][0],
                                                              H).items()}
     assert fit.loglik > float(exact_loglik(m, bent, y - y.mean(), H)[0]) + 100
+
+
+def test_time_varying_rows_are_tabulated_without_loss(monkeypatch):
+    """A temperature-driven order's rows are a table over the orders (memory O(N), not O(N n)): exact at ≤ ROW_TABLE
+    distinct orders; above, linear interpolation on a grid — with a grid of 256 over the orders of 2000 samples the
+    log-likelihood moves by less than 1e-6 nats, far below the exponential-sum kernel's own error."""
+    import torchtea.noise.model as nm
+
+    m, v, y, inp = _case("fractional+white+temperature-order", 2000, 7)
+    v["temperature-order.order_per_degC"] = 0.03
+    ss = m.state_space(v, H, len(y), "soe:1e-4", inputs=inp)
+    assert ss.varying.table.shape[1] == len(np.unique(ss.varying.index[0].numpy())) and not ss.varying.frac.any()
+    exact = loglik_fast(ss, y - np.mean(y), level=True)[0]
+    monkeypatch.setattr(nm, "ROW_TABLE", 256)
+    ss2 = m.state_space(v, H, len(y), "soe:1e-4", inputs=inp)
+    assert ss2.varying.table.shape[1] == 256 and bool(ss2.varying.frac.any())
+    assert loglik_fast(ss2, y - np.mean(y), level=True)[0] == pytest.approx(exact, abs=1e-6)
+    # the rows the filter uses are the model's rows at each step's order
+    from torchtea.noise.components import COMPONENTS
+
+    f64 = {"dtype": torch.float64}
+    alpha = COMPONENTS["temperature-order"].orders({"order_per_degC": torch.tensor([0.03], **f64), "t_ref": torch.tensor(
+        [v["temperature-order.t_ref"]], **f64)}, torch.tensor([v["fractional.order"]], **f64), inp["temperature"])[0]
+    row, _ = COMPONENTS["fractional"].first_row(alpha[1:6], torch.tensor(v["fractional.pole"], **f64),
+                                                torch.tensor(v["fractional.q"], **f64), H,
+                                                nm.state_memory("soe:1e-4", len(y)))
+    got = ss.varying.rows()[0, :5, : row.shape[-1]]
+    torch.testing.assert_close(got, row, rtol=1e-14, atol=1e-14)

@@ -452,7 +452,9 @@ def test_time_varying_row_draws_its_own_noise_in_every_parameter_set():
     ss = m.state_space(v, H, N, "soe", inputs=inputs)
     _, z = simulate_model(m, v, n_steps=N, h=H, inputs=inputs, return_states=True,
                           generator=torch.Generator().manual_seed(9))
-    i, rows, g, _ = ss.varying
+    v = ss.varying
+    i, rows = v.i, v.rows()
+    g = torch.stack([v.loading(k) for k in range(N)], dim=1)
     z1 = z[1, 0]  # (N, n) of the second set
     drive = (z1[1:, i] - (rows[1, :-1] * z1[:-1]).sum(-1)) / g[1, :-1]
     rw_steps = torch.diff(z1[:, 0])

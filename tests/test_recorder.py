@@ -159,7 +159,7 @@ def test_end_to_end_pty_record_then_identify(tmp_path):
     out, err = ident.communicate(timeout=300)
     assert ident.returncode == 0, err
     summary = json.loads(out)
-    assert summary["samples"] == 400 and set(summary["axes"]) == {"x", "y", "z"}
+    assert summary["samples"] == 400 and set(summary["axes"]) == {"ax", "ay", "az"}
     assert all(np.isfinite(a["alpha"]) and not a["diverged"] for a in summary["axes"].values())
     # the device clock t_s was checked against the header's rate: 10 ms steps exactly
     assert summary["timing"]["column"] == "t_s" and summary["timing"]["irregular_fraction"] == 0.0

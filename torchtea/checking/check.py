@@ -25,6 +25,7 @@ r"""``check``: fit a noise model, test it against the measurements, and rank the
 """
 from __future__ import annotations
 
+import copy
 import math
 import time
 from dataclasses import dataclass, field
@@ -182,7 +183,8 @@ def _assess(model, values, y, h, inputs, level):
     return inn, diags, metrics(inn, diags)
 
 
-def _screen(model: NoiseModel, fit: Fit, wf, inn: Innovations, diags, y, h, inputs, candidates) -> list[dict]:
+def _screen(model: NoiseModel, fit: Fit, wf, inn: Innovations, diags, y, h, inputs, candidates,
+            cache: dict | None = None) -> list[dict]:
     """Screening statistic, p-value and a starting point for each candidate effect."""
     N = len(y)
     t = np.arange(N) * h
@@ -248,7 +250,7 @@ def _screen(model: NoiseModel, fit: Fit, wf, inn: Innovations, diags, y, h, inpu
         for row, _ in stochastic:
             row["note"] = "not screened: the Whittle likelihood-ratio needs a complete series (missing samples)"
     elif stochastic:
-        _whittle_screens(model, wf, stochastic, y, h, inputs)
+        _whittle_screens(model, wf, stochastic, y, h, inputs, {} if cache is None else cache)
     return out
 
 
@@ -271,13 +273,18 @@ def _alt_starts(model, alt, label, base_values: dict, h: float, n: int) -> list[
     return [{**base_values, **o} for o in out]
 
 
-def _whittle_screens(model, base, rows_alts, y, h, inputs):
+def _whittle_screens(model, base, rows_alts, y, h, inputs, cache: dict):
     """Whittle LR of each stochastic candidate against the model (its Whittle fit ``base``), on the same
-    periodogram."""
+    periodogram. They do not depend on the model's exact fit, so a check run again from a better exact fit takes
+    them from ``cache`` (keyed by the candidate's spec)."""
     yy = centred(model, y)
     inp = None if inputs is None else [inputs]
     base_values = dict(zip(model.names, base.values[0].tolist()))
     for row, alt in rows_alts:
+        key = ("whittle screen", alt.spec)
+        if key in cache:
+            row.update(cache[key])
+            continue
         label = _new_label(model, alt)
         # the grid as well: a model that lacks a random walk (or a low-pass) may have bent its fractional order to
         # ≈ 1 to mimic it, and the extended model's optimum is then far from the model's. Both searches are run to
@@ -290,8 +297,10 @@ def _whittle_screens(model, base, rows_alts, y, h, inputs):
         logp = math.log(0.5) + stats.chi2.logsf(lr, 1) if lr > 0 else 0.0
         vals = dict(zip(alt.names, wf.values[0].tolist()))
         vals.update(wf.means[0])
-        row.update(statistic=lr, p_value=float(math.exp(logp)), log10_p=float(logp / math.log(10)),
-                   start=vals, metric=wf.hessian[0])
+        found = dict(statistic=lr, p_value=float(math.exp(logp)), log10_p=float(logp / math.log(10)),
+                     start=vals, metric=wf.hessian[0])
+        cache[key] = found
+        row.update(found)
 
 
 def _scan_order_slope(model, alt, label, fit, inn, y, h, inputs) -> tuple[float, float]:
@@ -343,7 +352,7 @@ def _scan_order_slope(model, alt, label, fit, inn, y, h, inputs) -> tuple[float,
 
 def check(y, h: float, model="fractional+white", inputs: dict | None = None, *, level: float = LEVEL,
           screen_level: float = 0.05, candidates=CANDIDATES, fit: Fit | None = None, intervals: bool = True,
-          _restarts: int = 1) -> CheckResult:
+          _restarts: int = 1, _cache: dict | None = None) -> CheckResult:
     """Fit ``model`` to the series ``y`` (NaN = missing, sample time ``h``), run the diagnostics and rank the
     missing effects (module docstring). ``inputs``: ``{"temperature": (N,)}`` (°C) when there is a temperature
     channel. ``fit``: an existing exact fit of ``model`` to ``y`` to use. ``intervals``: compute the intervals of
@@ -368,7 +377,12 @@ def check(y, h: float, model="fractional+white", inputs: dict | None = None, *, 
     inp_list = None if inputs is None else [inputs]
     clock = _Clock()
     filled = np.where(np.isnan(y), np.nanmean(y), y)
-    wf = whittle_fit(model, [filled], h, inputs=inp_list)
+    # what a run from a better exact fit would compute again unchanged: the model's Whittle fit, the stochastic
+    # candidates' Whittle screens and the refits from the same starts
+    cache = {} if _cache is None else _cache
+    if ("whittle", model.spec) not in cache:
+        cache[("whittle", model.spec)] = whittle_fit(model, [filled], h, inputs=inp_list)
+    wf = cache[("whittle", model.spec)]
     if fit is None or fit.model.spec != model.spec:
         fit = fit_series(model, [y], h, method="exact", inputs=inp_list, profile=False, whittle=wf,
                          intervals=intervals)[0]
@@ -377,7 +391,7 @@ def check(y, h: float, model="fractional+white", inputs: dict | None = None, *, 
     clock("fit")
     inn, diags, mets = _assess(model, fit.values, y, h, inputs, level)
     clock("diagnostics")
-    screens = _screen(model, fit, wf, inn, diags, y, h, inputs, [c for c in candidates if c in CANDIDATES])
+    screens = _screen(model, fit, wf, inn, diags, y, h, inputs, [c for c in candidates if c in CANDIDATES], cache)
     clock("screen")
     screened = [r for r in screens if r["p_value"] is not None]
     threshold = screen_level / max(1, len(screened))
@@ -401,11 +415,17 @@ def check(y, h: float, model="fractional+white", inputs: dict | None = None, *, 
             # fit (what the effect distorted in the model's fit is undone there), the effect's from the screen
             # (from the grid too: a mean the model lacked can have pushed its fit to the other mode of the
             # order–pole ridge, and the extended model's optimum is then on the first)
-            wfa = whittle_fit(alt, [filled], h, inputs=inp_list, starts=[[dict(zip(model.names, wf.values[0].tolist()))]],
-                              fractions=(0.5,))
+            key = ("whittle", alt.spec)
+            if key not in cache:
+                cache[key] = whittle_fit(alt, [filled], h, inputs=inp_list,
+                                         starts=[[dict(zip(model.names, wf.values[0].tolist()))]], fractions=(0.5,))
+            wfa = cache[key]
             noise = {n: x for n, x in zip(alt.names, wfa.values[0].tolist()) if n in model.names}
             start, metric = {**start, **noise}, wfa.hessian[0]
-        f2 = refine_exact(alt, y, h, start, inputs=inputs, fixed=fixed, metric=metric, intervals=False)
+        key = ("refit", alt.spec, tuple(sorted((k, float(v)) for k, v in start.items())))
+        if key not in cache:
+            cache[key] = refine_exact(alt, y, h, start, inputs=inputs, fixed=fixed, metric=metric, intervals=False)
+        f2 = copy.deepcopy(cache[key])  # the frequency's bookkeeping below changes the fit
         refits.append(f2)
         if row["effect"] == "sinusoid":
             f2.free.append(f"{label}.frequency_hz")
@@ -427,7 +447,7 @@ def check(y, h: float, model="fractional+white", inputs: dict | None = None, *, 
         better = _better_model_fit(model, fit, refits, y, h, inputs, intervals)
         if better is not None:
             res = check(y, h, model=model, inputs=inputs, level=level, screen_level=screen_level,
-                        candidates=candidates, fit=better, intervals=intervals, _restarts=_restarts - 1)
+                        candidates=candidates, fit=better, intervals=intervals, _restarts=_restarts - 1, _cache=cache)
             res.notes.insert(0, f"the first exact fit of {model.spec} was a local maximum (ℓ {fit.loglik:.2f}); a "
                                 f"candidate's refit without its new component was a better point (ℓ "
                                 f"{better.loglik:.2f} after refining), and the check was run from there")

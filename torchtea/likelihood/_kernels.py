@@ -14,9 +14,12 @@ from .chandrasekhar import DROP
 # error_model="numpy": a zero innovation variance (white noise → 0 with a zero-variance start) gives an
 # infinite or NaN log-likelihood, which the optimisers reject, instead of raising ZeroDivisionError
 @njit(cache=True, fastmath=False, error_model="numpy")
-def riccati_one(indptr, indices, fval, Q, C, cidx, R, y, mu, e_out, s_out, w_out, keep, tv_i, tv_F, tv_q, g0, lvl):
+def riccati_one(indptr, indices, fval, Q, C, cidx, R, y, mu, e_out, s_out, w_out, keep, tv_i, tv_T, tv_g, tv_j, tv_w,
+                g0, lvl):
     n = Q.shape[0]
     N = y.shape[0]
+    rowk = np.zeros(n)  # row tv_i of F at this step (a time-varying order), interpolated in its table
+    tvq = 0.0
     z = np.zeros(n)
     w = np.zeros(n)  # the filter's state for the constant regressor (level profiling)
     P = np.zeros((n, n))
@@ -83,7 +86,15 @@ def riccati_one(indptr, indices, fval, Q, C, cidx, R, y, mu, e_out, s_out, w_out
         if k + 1 == N:
             break
         # predict: z = F z, P = F P Fᵀ + Q, with F in CSR form
-        # row tv_i (a time-varying order) is tv_F[k] (dense) instead of its CSR row, and Q[tv_i, tv_i] tv_q[k]
+        # row tv_i (a time-varying order) is rowk (dense) instead of its CSR row, and Q[tv_i, tv_i] tvq
+        if tv_i >= 0:
+            j = tv_j[k]
+            j1 = min(j + 1, tv_T.shape[0] - 1)
+            wk = tv_w[k]
+            for r in range(n):
+                rowk[r] = tv_T[j, r] * (1.0 - wk) + tv_T[j1, r] * wk
+            gk = tv_g[j] * (1.0 - wk) + tv_g[j1] * wk
+            tvq = gk * gk
         znew = np.zeros(n)
         wnew = np.zeros(n)
         for i in range(n):
@@ -91,8 +102,8 @@ def riccati_one(indptr, indices, fval, Q, C, cidx, R, y, mu, e_out, s_out, w_out
             accw = 0.0
             if i == tv_i:
                 for r in range(n):
-                    acc += tv_F[k, r] * z[r]
-                    accw += tv_F[k, r] * w[r]
+                    acc += rowk[r] * z[r]
+                    accw += rowk[r] * w[r]
             else:
                 for t in range(indptr[i], indptr[i + 1]):
                     acc += fval[t] * z[indices[t]]
@@ -106,7 +117,7 @@ def riccati_one(indptr, indices, fval, Q, C, cidx, R, y, mu, e_out, s_out, w_out
                 M[i, j] = 0.0
             if i == tv_i:
                 for r in range(n):
-                    f = tv_F[k, r]
+                    f = rowk[r]
                     if f != 0.0:
                         for j in range(n):
                             M[i, j] += f * P[r, j]
@@ -121,9 +132,9 @@ def riccati_one(indptr, indices, fval, Q, C, cidx, R, y, mu, e_out, s_out, w_out
                 acc = Q[i, j]
                 if j == tv_i:
                     if i == tv_i:
-                        acc = tv_q[k]
+                        acc = tvq
                     for r in range(n):
-                        acc += M[i, r] * tv_F[k, r]
+                        acc += M[i, r] * rowk[r]
                 else:
                     for t in range(indptr[j], indptr[j + 1]):
                         acc += M[i, indices[t]] * fval[t]
@@ -139,13 +150,13 @@ def riccati_one(indptr, indices, fval, Q, C, cidx, R, y, mu, e_out, s_out, w_out
     return ll
 
 @njit(parallel=True, cache=True, error_model="numpy")
-def riccati_batch(indptr, indices, fvals, Qs, Cs, cidx, Rs, ys, mus, e_out, s_out, w_out, keep, tv_i, tv_Fs, tv_qs, g0s,
-          lvl):
+def riccati_batch(indptr, indices, fvals, Qs, Cs, cidx, Rs, ys, mus, e_out, s_out, w_out, keep, tv_i, tv_Ts, tv_gs,
+                  tv_js, tv_ws, g0s, lvl):
     B = fvals.shape[0]
     out = np.zeros(B)
     for b in prange(B):
         out[b] = riccati_one(indptr, indices, fvals[b], Qs[b], Cs[b], cidx, Rs[b], ys[b], mus[b], e_out[b], s_out[b],
-                     w_out[b], keep, tv_i, tv_Fs[b], tv_qs[b], g0s[b], lvl)
+                             w_out[b], keep, tv_i, tv_Ts[b], tv_gs[b], tv_js[b], tv_ws[b], g0s[b], lvl)
     return out
 
 

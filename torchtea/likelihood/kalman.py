@@ -133,10 +133,10 @@ def kalman_filter(ss: StateSpace, y, mean=None, *, keep_states: bool = False, sm
             Ps.append(P)
         Fk, Ftk, Qk = F, Ft, Q
         if ss.varying is not None:  # a time-varying order: row i of F and Q[i, i] of this step
-            i, rows, g, _ = ss.varying
+            v = ss.varying
             Fk, Qk = F.clone(), Q.clone()
-            Fk[:, i] = rows[:, k]
-            Qk[:, i, i] = g[:, k] ** 2
+            Fk[:, v.i] = v.row(k)
+            Qk[:, v.i, v.i] = v.loading(k) ** 2
             Ftk = Fk.mT
         z = (z.unsqueeze(-2) @ Ftk).squeeze(-2)
         if level:
@@ -233,16 +233,20 @@ def _fast(ss: StateSpace, y, mean, keep: bool, level: bool = False, engine: str 
                         np.ascontiguousarray(b0), np.ascontiguousarray(S0), np.ascontiguousarray(C), cidx, R, ya, mu,
                         e_out, s_out, w_out, keep, bool(level))
         return ll, e_out, s_out
-    if ss.varying is None:
-        tv_i, tv_F, tv_q = -1, np.zeros((B, 1, F.shape[-1])), np.zeros((B, 1))
+    v = ss.varying
+    if v is None:
+        tv_i, tv_T, tv_g = -1, np.zeros((B, 1, F.shape[-1])), np.zeros((B, 1))
+        tv_j, tv_w = np.zeros((B, 1), dtype=np.int64), np.zeros((B, 1))
     else:
-        tv_i = int(ss.varying[0])
-        tv_F = np.ascontiguousarray(ss.varying[1].detach().cpu().numpy(), dtype=np.float64)
-        tv_q = np.ascontiguousarray(ss.varying[2].detach().cpu().numpy() ** 2, dtype=np.float64)
+        tv_i = int(v.i)
+        tv_T = np.ascontiguousarray(v.table.detach().cpu().numpy(), dtype=np.float64)
+        tv_g = np.ascontiguousarray(v.loading_table.detach().cpu().numpy(), dtype=np.float64)
+        tv_j = np.ascontiguousarray(v.index.detach().cpu().numpy(), dtype=np.int64)
+        tv_w = np.ascontiguousarray(v.frac.detach().cpu().numpy(), dtype=np.float64)
     g0 = np.ascontiguousarray(ss.initial.detach().cpu().numpy(), dtype=np.float64)
     ll = _compiled()(indptr, indices, fvals, np.ascontiguousarray(ss.Q.detach().cpu().numpy()),
-                     np.ascontiguousarray(C), cidx, R, ya, mu, e_out, s_out, w_out, keep, tv_i, tv_F, tv_q, g0,
-                     bool(level))
+                     np.ascontiguousarray(C), cidx, R, ya, mu, e_out, s_out, w_out, keep, tv_i, tv_T, tv_g, tv_j, tv_w,
+                     g0, bool(level))
     return ll, e_out, s_out
 
 

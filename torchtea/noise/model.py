@@ -29,7 +29,8 @@ from ..core.gl import broadcast_shapes
 from ..core.memory import MemoryConfig, SOEKernel, kernel_for, parse_memory
 from .components import COMPONENTS, ORDER_BOUNDS, Component, LowPass, logit
 
-__all__ = ["NoiseModel", "parse_model", "StateSpace", "StateMemory", "state_memory", "EXACT_MEMORY_LIMIT"]
+__all__ = ["NoiseModel", "parse_model", "StateSpace", "VaryingRow", "StateMemory", "state_memory",
+           "EXACT_MEMORY_LIMIT", "ROW_TABLE"]
 
 #: ``exact`` memory puts the whole past in the state (O(N²) per step): only for short series (tests).
 EXACT_MEMORY_LIMIT = 4000
@@ -62,6 +63,50 @@ def state_memory(memory, n_steps: int) -> StateMemory:
     return StateMemory(cfg.exact_lags, kernel_for(cfg, max(n_steps, cfg.exact_lags + 2), lo, hi))
 
 
+#: A time-varying order's first rows are tabulated: exactly at each distinct order when there are at most this many,
+#: else on this many equally spaced orders between the lowest and highest with linear interpolation between them.
+ROW_TABLE = 4096
+
+
+@dataclass(frozen=True)
+class VaryingRow:
+    """Row ``i`` of F and the noise loading of its noise ``column`` per step, for a time-varying order: step k → k+1
+    uses ``row(k)`` ``(B, n)`` and ``loading(k)`` ``(B,)`` (so ``Q_k[i, i] = loading²``); every other entry of F and
+    Q is constant. Stored as a table over orders — ``table`` ``(B, G, n)``, ``loading_table`` ``(B, G)`` — and per
+    step the table position ``index`` ``(B, N)`` and the weight ``frac`` ``(B, N)`` of the next entry: memory O(N),
+    not O(N n) (a three-hour recording's rows would take gigabytes). The entries are exact at the table's orders;
+    between them (more than :data:`ROW_TABLE` distinct orders) the interpolation's error is that of a line through
+    a smooth function over a step of (range of orders)/4095 — about 10⁻¹⁰ relative for a range of 0.1, far below
+    the exponential-sum kernel's own tolerance."""
+
+    i: int
+    table: Tensor
+    loading_table: Tensor
+    index: Tensor
+    frac: Tensor
+    column: int
+
+    def row(self, k: int) -> Tensor:
+        b = torch.arange(self.table.shape[0])
+        j, w = self.index[:, k], self.frac[:, k].unsqueeze(-1)
+        nxt = (j + 1).clamp(max=self.table.shape[1] - 1)
+        return self.table[b, j] * (1.0 - w) + self.table[b, nxt] * w
+
+    def loading(self, k: int) -> Tensor:
+        b = torch.arange(self.table.shape[0])
+        j, w = self.index[:, k], self.frac[:, k]
+        nxt = (j + 1).clamp(max=self.table.shape[1] - 1)
+        return self.loading_table[b, j] * (1.0 - w) + self.loading_table[b, nxt] * w
+
+    def rows(self) -> Tensor:
+        """Every step's row ``(B, N, n)`` (O(N n) memory: for short series and tests)."""
+        return torch.stack([self.row(k) for k in range(self.index.shape[1])], dim=1)
+
+    def expand(self, m: int) -> "VaryingRow":
+        return VaryingRow(self.i, self.table.expand(m, -1, -1), self.loading_table.expand(m, -1),
+                          self.index.expand(m, -1), self.frac.expand(m, -1), self.column)
+
+
 @dataclass(frozen=True)
 class StateSpace:
     r"""``z_{k+1} = F z_k + ε_k``, ε ~ N(0, Q); ``y_k = μ_k + C z_k + ν_k``, ν ~ N(0, R); ``z_0 = 0``.
@@ -75,11 +120,9 @@ class StateSpace:
     C: Tensor
     R: Tensor
     blocks: dict = field(default_factory=dict)
-    #: A time-varying order (``temperature-order``): ``(i, rows (B, N, n), loading (B, N), column)`` — step
-    #: k → k+1 uses ``rows[:, k]`` as row ``i`` of F and ``loading[:, k]`` as G's entry in row ``i`` and noise
-    #: ``column`` (which no other row shares), so ``Q_k[i, i] = loading²`` and every other entry of F and Q is
-    #: constant.
-    varying: tuple | None = None
+    #: A time-varying order (``temperature-order``, :class:`VaryingRow`): row ``i`` of F and G's entry in row ``i``
+    #: and noise ``column`` (which no other row shares) per step; every other entry of F and Q is constant.
+    varying: VaryingRow | None = None
     #: The initial state's loading ``(B, n)``: ``z_0 = g0 ξ`` with ξ standard normal (``P_0 = g0 g0ᵀ``); None is
     #: zero (every state starts at zero). A low-pass that filters white noise starts at its first input sample.
     g0: Tensor | None = None
@@ -96,8 +139,7 @@ class StateSpace:
             raise ValueError(f"expand needs a state space of one parameter set, got {self.F.shape[0]}")
         v = self.varying
         return StateSpace(self.F.expand(m, -1, -1), self.G.expand(m, -1, -1), self.C.expand(m, -1), self.R.expand(m),
-                          self.blocks,
-                          None if v is None else (v[0], v[1].expand(m, -1, -1), v[2].expand(m, -1), v[3]),
+                          self.blocks, None if v is None else v.expand(m),
                           None if self.g0 is None else self.g0.expand(m, -1))
 
     @property
@@ -344,12 +386,29 @@ class NoiseModel:
         frac = byc[fracs[0]]
         alpha = COMPONENTS["temperature-order"].orders(byc[mods[0]], frac["order"], T[:n_steps])  # (B, N): α_k
         a_next = torch.cat([alpha[:, 1:], alpha[:, -1:]], dim=1)  # step k → k+1 uses α_{k+1}
-        row, g = COMPONENTS["fractional"].first_row(a_next, frac["pole"].unsqueeze(-1), frac["q"].unsqueeze(-1), h,
+        grids, index, weight = [], [], []
+        for b in range(B):
+            values, inverse = torch.unique(a_next[b], return_inverse=True)
+            if len(values) <= ROW_TABLE:  # exact: a row per distinct order
+                grids.append(values)
+                index.append(inverse)
+                weight.append(torch.zeros(n_steps, dtype=torch.float64))
+            else:
+                lo, hi = float(values[0]), float(values[-1])
+                grid = torch.linspace(lo, hi, ROW_TABLE, dtype=torch.float64)
+                pos = (a_next[b] - lo) / (hi - lo) * (ROW_TABLE - 1)
+                j = pos.floor().clamp(0, ROW_TABLE - 2)
+                grids.append(grid)
+                index.append(j.to(torch.int64))
+                weight.append(pos - j)
+        G_ = max(len(g_) for g_ in grids)
+        orders = torch.stack([torch.cat([g_, g_[-1:].expand(G_ - len(g_))]) for g_ in grids])  # (B, G)
+        row, g = COMPONENTS["fractional"].first_row(orders, frac["pole"].unsqueeze(-1), frac["q"].unsqueeze(-1), h,
                                                     mem)
         sl = blocks[fracs[0]]
-        rows = row.new_zeros(B, n_steps, n)
-        rows[..., sl] = row
-        return sl.start, rows, g, noise_cols[fracs[0]]
+        table = row.new_zeros(B, G_, n)
+        table[..., sl] = row
+        return VaryingRow(sl.start, table, g, torch.stack(index), torch.stack(weight), noise_cols[fracs[0]])
 
     # ------------------------------------------------------------------ starting values
     def initial_values(self, y: Tensor, h: float, order: float = 0.3) -> dict:

@@ -430,8 +430,7 @@ def read_recording(path=None, *, columns: Sequence[str] | None = None, units=Non
     Temperature: ``temperature_column`` names a column in °C (a torchtea recording's is ``temp``, read always).
     """
     path = bundled_recording() if path is None else Path(path)
-    text = _read_text(path)
-    lines = text.splitlines()
+    lines = _head_lines(path)  # the format and the header are in the first lines; the body is streamed
     if lines and lines[0].strip() == RECORDING_MAGIC:
         if temperature_column not in (None, "temp"):
             raise InputError(f"{path}: a torchtea recording's temperature column is 'temp', not {temperature_column!r}")
@@ -492,7 +491,7 @@ def read_recording(path=None, *, columns: Sequence[str] | None = None, units=Non
         lsb_per_dps = 131.0 if lsb_per_dps is None else lsb_per_dps  # … and ±250 °/s
     extra = [c for c in (tcol, temperature_column) if c is not None and c not in wanted]
     try:
-        data = _parse_body(path, lines, start, header, wanted + extra)
+        data = _parse_body(path, start, header, wanted + extra)
     except InputError as exc:
         if tcol is not None and exc.column == tcol:
             raise InputError(f"{exc}; time stamps must be seconds (--time-column none ignores them)", tcol) from None
@@ -549,6 +548,30 @@ def _seconds(name: str, t: np.ndarray) -> tuple[np.ndarray, str]:
 _UNIT_WORD = {1e-3: "milliseconds", 1e-6: "microseconds", 1e-9: "nanoseconds"}
 
 
+#: Lines read to find a file's format and header row.
+HEAD_LINES = 200
+
+
+def _head_lines(path: Path, limit: int = HEAD_LINES) -> list[str]:
+    """The first ``limit`` lines of a file (without their line ends)."""
+    try:
+        out = []
+        with open(path, newline="") as fh:
+            for line in fh:
+                out.append(line.rstrip("\r\n"))
+                if len(out) >= limit:
+                    break
+        return out
+    except FileNotFoundError:
+        raise InputError(f"{path}: no such file") from None
+    except IsADirectoryError:
+        raise InputError(f"{path}: is a directory, expected a CSV file") from None
+    except UnicodeDecodeError:
+        raise InputError(f"{path}: not a text file") from None
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read ({exc.strerror})") from None
+
+
 def _read_text(path: Path) -> str:
     try:
         with open(path, newline="") as fh:
@@ -563,25 +586,24 @@ def _read_text(path: Path) -> str:
         raise InputError(f"{path}: cannot read ({exc.strerror})") from None
 
 
-def _parse_body(path: Path, lines: list, start: int, header: list, wanted: list) -> np.ndarray:
-    """``(N, len(wanted))`` float64 of the rows after the header line ``start``; empty or ``nan`` fields are NaN.
-    The fast path reads the whole body with numpy's C parser; a file it cannot read (a text field, a row of the
-    wrong length) is read again line by line, which names the line and column at fault."""
+def _parse_body(path: Path, start: int, header: list, wanted: list) -> np.ndarray:
+    """``(N, len(wanted))`` float64 of the rows after the header (line ``start``, 0-based); empty or ``nan`` fields
+    are NaN; blank lines and ``#`` lines are skipped. The fast path streams the file through numpy's C parser (memory:
+    the numbers only, whatever the file's size); a file it cannot read (an empty field, text, a row of another
+    length) is read again line by line, which names the line and column at fault."""
     idx = [header.index(c) for c in wanted]
-    body = [ln for ln in lines[start + 1:] if ln.strip() and not ln.startswith("#")]
-    if not body:
-        raise InputError(f"{path}: no data rows")
     try:
         with np.errstate(all="ignore"):
-            arr = np.loadtxt(_io.StringIO("\n".join(body)), delimiter=",", usecols=idx, ndmin=2, dtype=np.float64,
-                             converters=None, encoding=None)
-        if arr.shape[0] != len(body) or (_row_lengths_differ(body, len(header))):
+            arr = np.loadtxt(path, delimiter=",", skiprows=start + 1, ndmin=2, dtype=np.float64, comments="#",
+                             encoding="utf-8")
+        if arr.shape[0] == 0:
+            raise InputError(f"{path}: no data rows")
+        if arr.shape[1] != len(header) or np.isinf(arr).any():
             raise ValueError
-        if not np.all(np.isfinite(arr) | np.isnan(arr)):
-            raise ValueError
-        return arr
+        return np.ascontiguousarray(arr[:, idx])
     except ValueError:
         pass
+    lines = _read_text(path).splitlines()
     out = np.empty((len(lines) - start - 1, len(wanted)))
     n = 0
     for i in range(start + 1, len(lines)):
@@ -594,14 +616,9 @@ def _parse_body(path: Path, lines: list, start: int, header: list, wanted: list)
         for k, j in enumerate(idx):
             out[n, k] = _number(parts[j], path, i + 1, header[j], allow_missing=True)
         n += 1
+    if n == 0:
+        raise InputError(f"{path}: no data rows")
     return out[:n]
-
-
-def _row_lengths_differ(body: list, width: int) -> bool:
-    """Whether some row has another number of fields than the header (numpy would read the wanted columns of a
-    longer row silently)."""
-    counts = np.fromiter((ln.count(",") for ln in body), dtype=np.int64, count=len(body))
-    return bool(np.any(counts != width - 1))
 
 
 def _numeric_column(lines: list, start: int, j: int) -> bool:
@@ -642,20 +659,24 @@ def _read_recorder_format(path: Path, lines: list[str], segment: int | None, rat
                           lsb_per_g, lsb_per_dps) -> Recording:
     headers: dict = {}
     header_line = None
-    for i, line in enumerate(lines[1:], start=2):
-        if line.startswith("# segment "):
-            seg, _, rest = line[len("# segment "):].partition(":")
-            try:
-                headers[int(seg)] = json.loads(rest)
-            except ValueError:
-                raise InputError(f"{path}, line {i}: malformed segment header {line[:80]!r}") from None
-        elif header_line is None and line.strip() and not line.startswith("#"):
-            header_line = i - 1
-            if tuple(p.strip() for p in line.split(",")) != RECORDER_COLUMNS:
-                raise InputError(f"{path}, line {i}: expected columns {','.join(RECORDER_COLUMNS)}, got {line[:80]!r}")
+    with open(path, newline="") as fh:  # the segment headers, anywhere in the file (one pass, line by line)
+        for i, line in enumerate(fh, start=1):
+            if i == 1:
+                continue
+            if line.startswith("# segment "):
+                seg, _, rest = line[len("# segment "):].partition(":")
+                try:
+                    headers[int(seg)] = json.loads(rest)
+                except ValueError:
+                    raise InputError(f"{path}, line {i}: malformed segment header {line[:80]!r}") from None
+            elif header_line is None and line.strip() and not line.startswith("#"):
+                header_line = i - 1
+                if tuple(p.strip() for p in line.split(",")) != RECORDER_COLUMNS:
+                    raise InputError(f"{path}, line {i}: expected columns {','.join(RECORDER_COLUMNS)}, got "
+                                     f"{line.strip()[:80]!r}")
     if header_line is None:
         raise InputError(f"{path}: no data rows")
-    data = _parse_body(path, lines, header_line, list(RECORDER_COLUMNS), list(RECORDER_COLUMNS))
+    data = _parse_body(path, header_line, list(RECORDER_COLUMNS), list(RECORDER_COLUMNS))
     segs = data[:, 0]
     if np.isnan(segs).any() or np.any(segs != np.rint(segs)):
         bad = int(np.flatnonzero(np.isnan(segs) | (segs != np.rint(segs)))[0])

@@ -5,22 +5,23 @@
     python scripts/identify_imu.py rec.csv --seconds 120
 
 Reads a recording (torchtea's recorder format, the bundled format, or generic CSV), runs the TEA on
-the three axes as one batch with the paper's §5.1 settings scaled to each axis's measured noise, and
+the accelerometer's three axes as one batch with the paper's §5.1 settings scaled to each axis's measured noise, and
 writes the report (Markdown + figures), trajectories and TensorBoard logs. `torchtea identify` does
 the same with more options.
 """
 import argparse
 from dataclasses import replace
 
+import numpy as np
 import torch
 
-from torchtea.sensors.datacheck import check_missing, check_timing
-from torchtea.reports.identify import AXES, Identification, axis_configs
-from torchtea.sensors.io import read_recording
 from torchtea.core.memory import parse_memory
 from torchtea.engines.structure import Structure
-from torchtea.reports.report import save_identification
 from torchtea.engines.tea import make_params, run_tea, stack_params
+from torchtea.reports.identify import Identification, axis_configs, preset_for
+from torchtea.reports.report import save_identification
+from torchtea.sensors.io import read_recording
+from torchtea.sensors.measurements import prepare
 
 ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
 ap.add_argument("recording", nargs="?", help="default: the bundled MPU-6050 recording")
@@ -29,31 +30,32 @@ ap.add_argument("--out", default="identify-imu")
 ap.add_argument("--allow-missing", action="store_true", help="predict through missing samples instead of stopping")
 args = ap.parse_args()
 
-# 1. The recording: counts → m/s², each axis's mean removed (paper §5.1). Missing samples stop the run
-#    unless allowed; the file's time stamps, if any, are checked against the rate.
+# 1. The recording: every channel in SI units (the accelerometer's in m/s²), its faults found, missing samples
+#    stop the run unless allowed, the time stamps checked against the rate; each channel's mean removed (§5.1).
 rec = read_recording(args.recording)
-acc = rec.accel_ms2()[: int(args.seconds * rec.rate_hz)]
-missing = check_missing(rec.path, acc, AXES, allow=args.allow_missing, per="axis")
-timing = None if rec.time_s is None else check_timing(rec.time_s[: len(acc)], rec.rate_hz, column=rec.time_column,
-                                                      rate_source=rec.rate_source)
-means = torch.as_tensor(acc).nanmean(0)
-y = (torch.as_tensor(acc) - means).T.unsqueeze(-1)  # (3 axes, N, 1): the axes are a batch
+rec = replace(rec, channels=rec.sensor("accelerometer"))
+m = prepare(rec, samples=int(args.seconds * rec.rate_hz), allow_missing=args.allow_missing)
+values = np.column_stack([c.values for c in m.channels])
+means = np.nanmean(values, axis=0)
+y = torch.as_tensor((values - means).T.copy()).unsqueeze(-1)  # (3 axes, N, 1): the axes are a batch
 
 # 2. Settings: the paper's MEMS presets with R, Rᵒ, Rʷ set to each axis's noise variance;
 #    exponential-sum history (O(N)) so long recordings are fine.
-configs = [replace(c, memory=parse_memory("soe")) for c in axis_configs(y)]
+configs = [replace(c, memory=parse_memory("soe"))
+           for c in axis_configs(y, presets=[preset_for(c) for c in m.channels])]
 params = stack_params([make_params(c, Structure()) for c in configs])
 
 # 3. The TEA on the three axes at once.
-result = run_tea(y, h=rec.h, params=params)
+result = run_tea(y, h=m.h, params=params)
 
 # 4. Report, figures, trajectories, TensorBoard.
-ident = Identification(rec, rec.h, y, means.numpy(), tuple(configs), result, missing, timing)
+ident = Identification(m.recording, m.h, y, means, tuple(configs), result, m.missing, m.timing,
+                       channels=m.channels, measurements=m)
 summary = save_identification(ident, args.out, command="python scripts/identify_imu.py")
 for axis, s in summary["axes"].items():
     print(f"{axis}: α̂ = {s['alpha']:.4f} (sd over the last third {s['alpha_std_last_third']:.4f}), ŵ = {s['param']:.4f} "
           f"(sd {s['param_std_last_third']:.4f}), NIS {s['innovation_nis_last_third']:.3f}, noise variance "
-          f"{summary['statistics'][axis]['noise_var']:.3e} (m/s²)²")
+          f"{summary['statistics'][axis]['noise_var']:.3e} ({s['unit']})²")
 print("the sd is how much an estimate still moves over the last third, not its uncertainty; NIS is 1 for a "
       "consistent filter")
 for w in summary["warnings"]:

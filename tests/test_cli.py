@@ -247,7 +247,9 @@ def test_identify_generic_csv_columns_and_units(tmp_path, capsys):
                "--out", tmp_path / "c") == 0
     one = json.loads(capsys.readouterr().out)
     assert set(one["axes"]) == {"ay"}
-    assert one["axes"]["ay"]["alpha"] == pytest.approx(bundled["axes"]["ay"]["alpha"], rel=1e-9, abs=1e-12)
+    # (to rounding: the likelihood fit of one series and of a batch of three round differently in batched linear
+    # algebra, which the optimiser and the TEA carry to ~1e-7)
+    assert one["axes"]["ay"]["alpha"] == pytest.approx(bundled["axes"]["ay"]["alpha"], rel=1e-6)
     named = tmp_path / "named.csv"  # columns whose names say accelerometer need a unit in a generic CSV
     named.write_text(f.read_text().replace("i,X,Y,Z", "i,acc_x,acc_y,acc_z"))
     assert run("identify", named, "--rate", 100) == 2

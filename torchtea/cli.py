@@ -250,22 +250,34 @@ def _simulate_model(args) -> int:
     except ValueError:
         raise CLIError(f"--temperature-profile needs four numbers T0,WARMUP,TAU_S,WANDER, got "
                        f"{args.temperature_profile!r}") from None
+    columns = [c.strip() for c in (args.columns or "y").split(",")]
+    if not all(columns) or len(set(columns)) != len(columns) or any(c in ("t", "temp") for c in columns):
+        raise CLIError(f"--columns {args.columns!r}: distinct names, not t or temp")
     gen = torch.Generator().manual_seed(args.seed)
     T = temperature_profile(args.n, args.h, start=t0, warmup=warm, tau_s=tau, wander=wander, generator=gen)
-    values = default_values(model, args.h, T)
+    base = default_values(model, args.h, T)
+    values = {c: dict(base) for c in columns}
     for item in args.set:
-        name, sep, text = item.partition("=")
-        if not sep or name not in values:
-            raise CLIError(f"--set {item!r}: expected NAME=VALUE with NAME one of {', '.join(values)}")
-        values[name] = _finite_float(text)
-    y = simulate_model(model, values, n_steps=args.n, h=args.h, inputs={"temperature": T}, generator=gen,
-                       memory=_memory(args.memory) or "soe")[0, 0]
+        target, sep, text = item.partition("=")
+        col, colon, name = target.rpartition(":")
+        cols = [col] if colon else columns
+        if not sep or name not in base or (colon and col not in columns):
+            raise CLIError(f"--set {item!r}: expected NAME=VALUE or COLUMN:NAME=VALUE with NAME one of "
+                           f"{', '.join(base)} and COLUMN one of {', '.join(columns)}")
+        for c in cols:
+            values[c][name] = _finite_float(text)
+    # every column its own draw (one batch of parameter sets: the same seed gives the same series whatever the rest)
+    batch = {k: [values[c][k] for c in columns] for k in base}
+    y = simulate_model(model, batch, n_steps=args.n, h=args.h, inputs={"temperature": T}, generator=gen,
+                       memory=_memory(args.memory) or "soe")[:, 0]
     t = torch.arange(args.n, dtype=torch.float64) * args.h
-    out = write_columns(args.out, {"t": t, "y": y, "temp": T})
+    out = write_columns(args.out, {"t": t, **{c: y[i] for i, c in enumerate(columns)}, "temp": T})
     truth = Path(str(out) + ".truth.json")
-    truth.write_text(json.dumps({"model": model.spec, "values": values, "h": args.h, "n": args.n, "seed": args.seed,
-                                 "temperature_profile": args.temperature_profile}, indent=1))
-    print(f"wrote {args.n} samples of {model.spec} to {out} (values in {truth.name})", file=sys.stderr)
+    doc = {"model": model.spec, "values": values[columns[0]] if columns == ["y"] else values, "h": args.h,
+           "n": args.n, "seed": args.seed, "temperature_profile": args.temperature_profile, "columns": columns}
+    truth.write_text(json.dumps(doc, indent=1))
+    print(f"wrote {args.n} samples of {model.spec} in {len(columns)} column(s) to {out} (values in {truth.name})",
+          file=sys.stderr)
     return 0
 
 
@@ -560,6 +572,8 @@ def cmd_identify(args) -> int:
     t0 = time.perf_counter()
     ident = identify(m, r_mode=args.r, overrides=overrides, progress=step, compile=args.compile, partial=True,
                      device=dev)
+    if ident.changes and config_source is None:
+        config_source = f"the recording's length (soe memory from {LONG_INPUT} samples; --memory exact for the full sums)"
     elapsed = time.perf_counter() - t0
     close()
     rec = m.recording
@@ -580,7 +594,7 @@ def cmd_identify(args) -> int:
             c = p_["fractional.order"]["ci95"]
             unit = summary["axes"][a]["unit"]
             print(f"fit {a}: α̂ {p_['fractional.order']['value']:.3f} "
-                  + ("(no interval: on a boundary)" if c is None else f"[{c[0]:.3f}, {c[1]:.3f}] 95 % CI")
+                  + (f"({p_['fractional.order']['ci95_method']})" if c is None else f"[{c[0]:.3f}, {c[1]:.3f}] 95 % CI")
                   + f", f̂ {p_['fractional.pole']['value']:.3g}, q̂ {p_['fractional.q']['value']:.3g}, "
                   f"r̂ {p_['white.r']['value']:.3g} ({unit})², white-noise density "
                   f"{math.sqrt(p_['white.r']['value'] * ident.h):.3g} {unit}/√Hz, NIS of the fit {fs['nis']:.3f}")
@@ -914,8 +928,11 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--r", type=_nonneg_float, help="variance of the measurement noise ν (the paper's model)")
     s.add_argument("--model", help="a noise model SPEC (e.g. fractional+white+sinusoid): writes t, y and temp; "
                                    "parameters MEMS-like unless --set")
-    s.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
-                   help="--model: a parameter value, e.g. sinusoid.frequency_hz=3.37 (repeatable)")
+    s.add_argument("--set", action="append", default=[], metavar="[COLUMN:]NAME=VALUE",
+                   help="--model: a parameter value, e.g. sinusoid.frequency_hz=3.37, for every column or one "
+                        "(gx:white.r=1e-8) (repeatable)")
+    s.add_argument("--columns", help="--model: the columns to write, each its own draw of the model (default y; e.g. "
+                                     "ax,ay,az,gx,gy,gz for a six-axis recording, read back with --units)")
     s.add_argument("--temperature-profile", default="25,3,60,0.2", metavar="T0,WARMUP,TAU_S,WANDER",
                    help="--model: the temperature written to 'temp' and read by temperature components: start "
                         "°C, warm-up °C, its time constant s, slow wander sd °C (default 25,3,60,0.2)")
@@ -946,8 +963,9 @@ def build_parser() -> argparse.ArgumentParser:
     i = sub.add_parser("identify", help="identify the noise model of an IMU recording's channels with the TEA")
     _recording_flags(i, columns_help="the columns to identify, any number (default: the accelerometer's x, y, z; "
                                      "e.g. gx,gy,gz for the gyroscope)",
-                     temperature_help=None, samples_default="3000",
-                     samples_help="use the first N samples (default 3000 = the paper's 30 s; at least 100), or 'all'")
+                     temperature_help=None, samples_default="all",
+                     samples_help="use the first N samples (at least 100; the paper used 3000, 30 s), or 'all' "
+                                  "(default; from 20 000 samples on the TEA runs with soe memory, O(N))")
     i.add_argument("--r", choices=("fitted", "measured", "paper"), default="fitted",
                    help="R, Rᵒ, Rʷ per channel: fitted by likelihood with Q (default), the channel's measured "
                         "variance (the paper's rule) or the paper's printed values")

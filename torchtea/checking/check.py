@@ -332,7 +332,8 @@ def _scan_order_slope(model, alt, label, fit, inn, y, h, inputs) -> tuple[float,
         return None if c2 >= 0 else -c1 / (2 * c2)
 
     d = g_max / 40
-    g3, l3 = ll([-d, 0.0, d])
+    g2_, l2_ = ll([-d, d])  # γ = 0 is the model itself: its ℓ is the fit's, no need to filter again
+    g3, l3 = np.array([g2_[0], 0.0, g2_[1]]), np.array([l2_[0], inn.loglik, l2_[1]])
     g1 = vertex(g3, l3)
     if g1 is None:  # not concave at 0: head up the slope
         g1 = math.copysign(g_max / 4, l3[2] - l3[0])

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import torch
 from torch import Tensor
 
@@ -117,12 +118,12 @@ def whittle_data(omega: Tensor, I: Tensor, resolution: float | None = RESOLUTION
         return WhittleData(torch.ones(W, dtype=torch.float64), omega, omega.expand(I.shape[0], -1).clone(), I)
     edges = bin_edges(W, resolution)
     counts = (edges[1:] - edges[:-1]).to(torch.float64)
-    owner = torch.repeat_interleave(torch.arange(len(counts)), edges[1:] - edges[:-1])  # bin of each ordinate
+    starts = edges[:-1].numpy()
     lw = torch.log(omega)
 
-    def bin_sum(x):  # sums over each bin of the last dimension
-        out = torch.zeros(*x.shape[:-1], len(counts), dtype=torch.float64)
-        return out.index_add_(-1, owner, x)
+    def bin_sum(x):  # sums over each bin of the last dimension, each in order (deterministic, unlike a threaded
+        # index_add_, whose rounding changed with the threads' timing and moved a fit's estimate by 1e-8)
+        return torch.from_numpy(np.add.reduceat(x.numpy(), starts, axis=-1))
 
     omega_log = torch.exp(bin_sum(lw) / counts)
     total = bin_sum(I)

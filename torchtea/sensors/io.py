@@ -377,7 +377,10 @@ def _make_channels(path: Path, names: Sequence[str], data: np.ndarray, units: li
                 raise InputError(f"{path}: column {name!r} ({sensor} {axis}) is in counts, and the scale is not known: "
                                  f"give {flag} (counts per {'g' if sensor == 'accelerometer' else '°/s'}), or --units "
                                  "for data already in physical units")
-            out.append(Channel(name, sensor, axis, col * scale[0], scale[1], scale[0], full_scale))
+            # counts / (LSB per unit) × (SI per unit): the data in g and °/s give the same bits as their counts
+            lsb = lsb_per_g if sensor == "accelerometer" else lsb_per_dps
+            per_unit = STANDARD_GRAVITY if sensor == "accelerometer" else DEG
+            out.append(Channel(name, sensor, axis, col / lsb * per_unit, scale[1], scale[0], full_scale))
             continue
         raise InputError(f"{path}: unknown unit of column {name!r} ({sensor} {axis}): give --units (g or ms2 for an "
                          "accelerometer, rad/s or deg/s for a gyroscope; one for all columns or one per column), or "

@@ -155,7 +155,9 @@ def riccati_batch(indptr, indices, fvals, Qs, Cs, cidx, Rs, ys, mus, e_out, s_ou
     B = fvals.shape[0]
     out = np.zeros(B)
     for b in prange(B):
-        out[b] = riccati_one(indptr, indices, fvals[b], Qs[b], Cs[b], cidx, Rs[b], ys[b], mus[b], e_out[b], s_out[b],
+        jy = np.int64(b) if ys.shape[0] > 1 else np.int64(0)  # one series for every set, or one each
+        jm = np.int64(b) if mus.shape[0] > 1 else np.int64(0)
+        out[b] = riccati_one(indptr, indices, fvals[b], Qs[b], Cs[b], cidx, Rs[b], ys[jy], mus[jm], e_out[b], s_out[b],
                              w_out[b], keep, tv_i, tv_Ts[b], tv_gs[b], tv_js[b], tv_ws[b], g0s[b], lvl)
     return out
 
@@ -444,6 +446,9 @@ def chandrasekhar_batch(indptr, indices, fvals, L0s, M0s, b0s, S0s, Cs, cidx, Rs
     B = fvals.shape[0]
     out = np.zeros(B)
     for i in prange(B):
-        out[i] = chandrasekhar_one(indptr, indices, fvals[i], L0s[i], M0s[i], b0s[i], S0s[i], Cs[i], cidx, Rs[i], ys[i], mus[i],
+        jy = np.int64(i) if ys.shape[0] > 1 else np.int64(0)  # one series for every set, or one each
+        jm = np.int64(i) if mus.shape[0] > 1 else np.int64(0)
+        out[i] = chandrasekhar_one(indptr, indices, fvals[i], L0s[i], M0s[i], b0s[i], S0s[i], Cs[i], cidx, Rs[i],
+                                   ys[jy], mus[jm],
                      e_out[i], s_out[i], w_out[i], keep, lvl)
     return out

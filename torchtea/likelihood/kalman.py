@@ -209,13 +209,14 @@ def _engine(ss: StateSpace, engine: str | None) -> str:
 
 
 def _rows(x, B: int) -> np.ndarray:
-    """``(B, N)`` float64 for the kernels; one series for all B parameter sets is a broadcast view, not B copies
-    (a likelihood's 11 difference points on 2·10⁶ samples would copy 190 MB)."""
-    a = np.asarray(torch.as_tensor(x, dtype=torch.float64).detach().cpu().numpy(), dtype=np.float64)
+    """``(1, N)`` or ``(B, N)`` C-contiguous float64 for the kernels, which read row 0 for every parameter set when
+    there is one: one series for all B sets is not copied B times (a likelihood's 11 difference points on 2·10⁶
+    samples would copy 190 MB), and every call has the same array types, so numba compiles each kernel once."""
+    a = np.ascontiguousarray(torch.as_tensor(x, dtype=torch.float64).detach().cpu().numpy(), dtype=np.float64)
     a = a.reshape(1, -1) if a.ndim == 1 else a
-    if a.shape[0] == 1:
-        return np.broadcast_to(np.ascontiguousarray(a[0]), (B, a.shape[1]))
-    return np.ascontiguousarray(a)
+    if a.shape[0] not in (1, B):
+        raise ValueError(f"{a.shape[0]} series for {B} parameter sets")
+    return a
 
 
 def _fast(ss: StateSpace, y, mean, keep: bool, level: bool = False, engine: str | None = None):
@@ -223,7 +224,7 @@ def _fast(ss: StateSpace, y, mean, keep: bool, level: bool = False, engine: str 
     B = F.shape[0]
     ya = _rows(y, B)
     N = ya.shape[-1]
-    mu = np.broadcast_to(np.zeros(N), (B, N)) if mean is None else _rows(mean, B)
+    mu = np.zeros((1, N)) if mean is None else _rows(mean, B)
     C = ss.C.detach().cpu().numpy()
     cidx = np.nonzero((C != 0).any(axis=0))[0].astype(np.int64)
     indptr, indices, fvals = _csr(F)
@@ -236,7 +237,8 @@ def _fast(ss: StateSpace, y, mean, keep: bool, level: bool = False, engine: str 
 
         G = ss.G.detach().cpu().numpy()
         g0 = None if ss.g0 is None else ss.g0.detach().cpu().numpy()
-        L0, M0, b0, S0 = initial_factor(F, G, C, R, g0, ~np.isnan(ya[:, 0] - mu[:, 0]))
+        first = np.broadcast_to(~np.isnan(ya[:, 0] - mu[:, 0]), (B,))  # whether sample 0 is observed, per set
+        L0, M0, b0, S0 = initial_factor(F, G, C, R, g0, first)
         ll = compiled()(indptr, indices, fvals, np.ascontiguousarray(L0), np.ascontiguousarray(M0),
                         np.ascontiguousarray(b0), np.ascontiguousarray(S0), np.ascontiguousarray(C), cidx, R, ya, mu,
                         e_out, s_out, w_out, keep, bool(level))

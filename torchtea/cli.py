@@ -333,13 +333,16 @@ def cmd_check(args) -> int:
     inputs = None if args.temperature is None else {"temperature": m.temperature_input()}
     results = {}
     t0 = time.perf_counter()
-    for c in m.channels:
+    step, close = _progress(len(m.channels), "check", "channel", bar=not args.json)
+    for i, c in enumerate(m.channels):
         print(f"torchtea: checking {c.label}, {c.title} ({m.samples} samples, model {args.model}) …", file=sys.stderr)
         r = check(c.values, m.h, model=args.model, inputs=inputs, level=args.level, screen_level=args.screen_level,
                   intervals=not args.no_intervals)
         for effect in args.add:
             r = r.add(effect, intervals=not args.no_intervals)
         results[c.label] = r
+        step(i + 1, len(m.channels))
+    close()
     name = Path(m.recording.path).stem
     out = Path(args.out or f"check-{name}")
     meta = m.describe()

@@ -303,14 +303,20 @@ def _whittle_screens(model, base, rows_alts, y, h, inputs, cache: dict):
         row.update(found)
 
 
+#: The temperature-order scan stops after its first stage when the parabola through γ = 0, ±δ peaks less than this
+#: many nats above the model's ℓ (its LR below 1; the screen passes at about 10).
+SCAN_QUIET = 0.5
+
+
 def _scan_order_slope(model, alt, label, fit, inn, y, h, inputs) -> tuple[float, float]:
     """2·max Δℓ over the temperature-order slope γ with the other parameters at the fit, and the best γ.
 
     ℓ(γ) is sharply peaked (its width is the slope's standard error, often 1 % of the range of slopes that keep
     the order inside (0, 1)), so a coarse grid misses it. Two Newton-like stages, three points each in one
     batched evaluation: a parabola through γ = 0, ±δ (δ = 1/40 of that range) gives the first step; a parabola
-    through the step's ½×, 1×, 2× refines it. The best γ evaluated is kept — the statistic is a lower bound
-    of the full maximisation, which only makes the test conservative."""
+    through the step's ½×, 1×, 2× refines it — unless the first parabola peaks below :data:`SCAN_QUIET` (no
+    signal to refine). The best γ evaluated is kept — the statistic is a lower bound of the full maximisation,
+    which only makes the test conservative."""
     T = np.asarray(inputs["temperature"], dtype=np.float64)
     frac = next(lb for lb, c in model.components if c.name == "fractional")
     a0 = fit.values[f"{frac}.order"]
@@ -325,20 +331,26 @@ def _scan_order_slope(model, alt, label, fit, inn, y, h, inputs) -> tuple[float,
         vals[f"{label}.t_ref"] = [float(T.mean())] * len(gs)
         return gs, exact_loglik(alt, vals, yc, h, inputs={"temperature": T})
 
-    def vertex(g3, l3):
-        """The parabola's maximiser through three points (None when it is not concave)."""
+    def parabola(g3, l3):
+        """The maximiser of the parabola through three points and its value (None, None when it is not concave)."""
         A = np.vander(g3, 3)
-        c2, c1, _ = np.linalg.solve(A, l3)
-        return None if c2 >= 0 else -c1 / (2 * c2)
+        c2, c1, c0 = np.linalg.solve(A, l3)
+        return (None, None) if c2 >= 0 else (-c1 / (2 * c2), c0 - c1 * c1 / (4 * c2))
+
+    def vertex(g3, l3):
+        return parabola(g3, l3)[0]
 
     d = g_max / 40
     g2_, l2_ = ll([-d, d])  # γ = 0 is the model itself: its ℓ is the fit's, no need to filter again
     g3, l3 = np.array([g2_[0], 0.0, g2_[1]]), np.array([l2_[0], inn.loglik, l2_[1]])
-    g1 = vertex(g3, l3)
+    g1, top = parabola(g3, l3)
     if g1 is None:  # not concave at 0: head up the slope
         g1 = math.copysign(g_max / 4, l3[2] - l3[0])
     gs, ls = [*g3], [*l3]
-    if abs(g1) > 1e-12:
+    # a concave parabola whose peak is less than ½ nat above the fit (an LR below 1, a tenth of what the screen
+    # needs) sees no signal, and the refinement, which starts at that peak, would not find one: it is skipped
+    quiet = top is not None and top - inn.loglik < SCAN_QUIET
+    if abs(g1) > 1e-12 and not quiet:
         g3b, l3b = ll([0.5 * g1, g1, 2.0 * g1])
         gs += [*g3b]
         ls += [*l3b]

@@ -14,7 +14,7 @@ from torchtea.checking.hidden import HIDDEN_STRENGTH, hidden_case
 from torchtea.checking.diagnostics import (LEVEL, _stochastic_avar, change, innovations, linear_lr, lines, ljung_box, nis_windows,
                                            run_diagnostics, spectrum_bands, temperature_view)
 from torchtea.cli import main
-from torchtea.fitting.mle import exact_loglik
+from torchtea.fitting.mle import exact_loglik, refine_exact
 from torchtea.noise import default_values, parse_model, simulate_model, temperature_profile
 
 H = 0.01
@@ -186,6 +186,23 @@ def test_temperature_view_finds_a_temperature_term():
     assert temperature_view(innovations(model, v, y, H), T, H).passed
     d = temperature_view(innovations(model, v, y + 0.1 * (T - T.mean()), H), T, H)
     assert not d.passed and abs(d.detail["bias_per_degC_gls"] - 0.1) < 0.03
+
+
+def test_an_order_at_its_bound_is_not_scanned_for_a_temperature_slope():
+    """A fit whose order sits at its bound 1 (as fractional+white often does on 30 s of the bundled recording)
+    leaves no slope per °C that keeps the order inside (0, 1): the temperature-order screen says so and the check
+    goes on (it stopped on a singular parabola through three equal slopes)."""
+    model = parse_model("fractional+white")
+    v = {"fractional.order": 0.95, "fractional.pole": -25.0, "fractional.q": 0.17, "white.r": 2e-3}
+    n = 3000
+    y = simulate_model(model, v, n_steps=n, h=H, generator=torch.Generator().manual_seed(28))[0, 0].numpy()
+    T = temperature_profile(n, H, generator=torch.Generator().manual_seed(2)).numpy()
+    at_bound = refine_exact(model, y, H, {**v, "fractional.order": 1.0}, fixed=["fractional.order"], intervals=False)
+    assert at_bound.values["fractional.order"] == 1.0
+    r = check(y, H, model=model, inputs={"temperature": T}, fit=at_bound, intervals=False)
+    row = next(s for s in r.screens if s["effect"] == "temperature-order")
+    assert row["p_value"] is None and "at its bound" in row["note"]
+    assert [s for s in r.screens if s["effect"] == "temperature-bias"][0]["p_value"] is not None  # the rest screened
 
 
 def test_extend_places_the_low_pass_after_the_states():

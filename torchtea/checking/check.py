@@ -236,6 +236,13 @@ def _screen(model: NoiseModel, fit: Fit, wf, inn: Innovations, diags, y, h, inpu
             row.update(statistic=lr, start=start)
         elif effect == "temperature-order":
             lr, g = _scan_order_slope(model, alt, label, fit, inn, y, h, inputs)
+            if lr is None:
+                frac = next(lb for lb, c in model.components if c.name == "fractional")
+                order = fit.values[f"{frac}.order"]
+                row["note"] = (f"not screened: the fitted order {order:.3g} is at its bound, and no slope per °C "
+                               "keeps it inside (0, 1)")
+                out.append(row)
+                continue
             logp = stats.chi2.logsf(lr, 1)
             start = dict(base)
             start.update({f"{label}.order_per_degC": g, f"{label}.t_ref": float(np.mean(T))})
@@ -308,8 +315,9 @@ def _whittle_screens(model, base, rows_alts, y, h, inputs, cache: dict):
 SCAN_QUIET = 0.5
 
 
-def _scan_order_slope(model, alt, label, fit, inn, y, h, inputs) -> tuple[float, float]:
-    """2·max Δℓ over the temperature-order slope γ with the other parameters at the fit, and the best γ.
+def _scan_order_slope(model, alt, label, fit, inn, y, h, inputs) -> tuple[float | None, float | None]:
+    """2·max Δℓ over the temperature-order slope γ with the other parameters at the fit, and the best γ (None,
+    None when the fitted order is at its bound 0 or 1, where no slope keeps it inside).
 
     ℓ(γ) is sharply peaked (its width is the slope's standard error, often 1 % of the range of slopes that keep
     the order inside (0, 1)), so a coarse grid misses it. Two Newton-like stages, three points each in one
@@ -322,6 +330,8 @@ def _scan_order_slope(model, alt, label, fit, inn, y, h, inputs) -> tuple[float,
     a0 = fit.values[f"{frac}.order"]
     span = max(float(np.max(np.abs(T - T.mean()))), 1e-9)
     g_max = 0.9 * min(a0, 1 - a0) / span
+    if g_max * span < 1e-9:  # the order at its bound: no slope keeps it inside (0, 1)
+        return None, None
     yc = centred(model, y)
 
     def ll(gs):
@@ -333,8 +343,9 @@ def _scan_order_slope(model, alt, label, fit, inn, y, h, inputs) -> tuple[float,
 
     def parabola(g3, l3):
         """The maximiser of the parabola through three points and its value (None, None when it is not concave)."""
-        A = np.vander(g3, 3)
-        c2, c1, c0 = np.linalg.solve(A, l3)
+        if len(set(np.asarray(g3).tolist())) < 3:  # points that coincide (clipped at ±g_max): no parabola
+            return None, None
+        c2, c1, c0 = np.linalg.solve(np.vander(g3, 3), l3)
         return (None, None) if c2 >= 0 else (-c1 / (2 * c2), c0 - c1 * c1 / (4 * c2))
 
     def vertex(g3, l3):
@@ -354,7 +365,7 @@ def _scan_order_slope(model, alt, label, fit, inn, y, h, inputs) -> tuple[float,
         g3b, l3b = ll([0.5 * g1, g1, 2.0 * g1])
         gs += [*g3b]
         ls += [*l3b]
-        g2 = vertex(g3b, l3b) if len(set(g3b.tolist())) == 3 else None
+        g2 = vertex(g3b, l3b)
         if g2 is not None and abs(g2) > 1e-12:
             gc, lc = ll([g2])
             gs += [*gc]

@@ -205,6 +205,18 @@ def test_an_order_at_its_bound_is_not_scanned_for_a_temperature_slope():
     assert [s for s in r.screens if s["effect"] == "temperature-bias"][0]["p_value"] is not None  # the rest screened
 
 
+def test_the_model_intervals_reach_the_json():
+    """check computes the model's intervals (the CLI's default): its document carries them beside the values."""
+    model = parse_model("fractional+white")
+    v = default_values(model, H)
+    y = simulate_model(model, v, n_steps=3000, h=H, generator=torch.Generator().manual_seed(3))[0, 0].numpy()
+    base = check(y, H, model=model, candidates=()).as_dict()["base"]
+    for n, x in base["parameters"].items():
+        lo, hi = base["ci95"][n]
+        assert base["se"][n] > 0 and lo < x < hi and "Wald" in base["ci95_method"][n], n
+    json.dumps(base)
+
+
 def test_extend_places_the_low_pass_after_the_states():
     assert extend(parse_model("fractional+white"), "low-pass").spec == "fractional+white+low-pass"
     assert extend(parse_model("fractional+white"), "sinusoid").spec == "fractional+white+sinusoid"

@@ -164,7 +164,8 @@ class CheckResult:
     def as_dict(self) -> dict:
         return {"model": self.model.spec, "adequate": self.adequate,
                 "base": dict(self.metrics, failed=self.failed, failing_ranges_s=self.failing_ranges_s,
-                             parameters=self.fit.values, loglik=self.fit.loglik_exact, bic=_bic(self.fit)),
+                             parameters=self.fit.values, se=self.fit.se, ci95=self.fit.ci95,
+                             ci95_method=self.fit.ci95_method, loglik=self.fit.loglik_exact, bic=_bic(self.fit)),
                 "diagnostics": [d.as_dict() for d in self.diagnostics],
                 "screens": self.screens,
                 "suggestions": [s.as_dict() for s in self.suggestions],

@@ -4,7 +4,9 @@ clean data?
     python experiments/check/hidden.py                      # all cases (resumes: one JSON per case)
     python experiments/check/hidden.py --effects sinusoid --seeds 5
     python experiments/check/hidden.py --tables             # only the tables from what is saved
-    python experiments/check/hidden.py --shard 0/2 & python experiments/check/hidden.py --shard 1/2   # two processes
+    # two processes, one thread each (two processes with numba's and torch's default threads run ~10× slower)
+    export NUMBA_NUM_THREADS=1 OMP_NUM_THREADS=1
+    python experiments/check/hidden.py --shard 0/2 & python experiments/check/hidden.py --shard 1/2
 
 Data: MEMS-like base noise — ``fractional+white`` with :func:`torchtea.noise.default_values` (order 0.3, pole
 at 40 % of its stability limit, drive q = r/h^{2α}, white r = 10⁻³ (m/s²)²), h = 0.01 s, 30 000 samples — and a

@@ -2,6 +2,7 @@
 rates at the true model, and ``check`` end to end on data with a hidden effect."""
 from __future__ import annotations
 
+import importlib
 import json
 import math
 
@@ -203,6 +204,29 @@ def test_an_order_at_its_bound_is_not_scanned_for_a_temperature_slope():
     row = next(s for s in r.screens if s["effect"] == "temperature-order")
     assert row["p_value"] is None and "at its bound" in row["note"]
     assert [s for s in r.screens if s["effect"] == "temperature-bias"][0]["p_value"] is not None  # the rest screened
+
+
+def test_a_quiet_temperature_order_scan_stops_early_and_says_so(monkeypatch):
+    """Clean data: where the parabola through γ = 0, ±δ peaks under SCAN_QUIET nats the scan stops there, the row
+    says so, and its statistic is a lower bound of the full two-stage scan's (both small); where it peaks higher
+    (seed 3, LR ≈ 3) the scan goes on and no note is written."""
+    ck = importlib.import_module("torchtea.checking.check")  # the module (the package's ``check`` is the function)
+
+    model = parse_model("fractional+white")
+    v = default_values(model, H)
+    T = temperature_profile(3000, H, generator=torch.Generator().manual_seed(5)).numpy()
+
+    def row(seed):
+        y = simulate_model(model, v, n_steps=3000, h=H, generator=torch.Generator().manual_seed(seed))[0, 0].numpy()
+        r = check(y, H, model=model, inputs={"temperature": T}, candidates=("temperature-order",), intervals=False)
+        return r.screens[0]
+
+    quiet, loud = row(1), row(3)
+    assert "scan stopped" in quiet["note"] and quiet["statistic"] < 2 * ck.SCAN_QUIET
+    assert loud["note"] == "" and loud["statistic"] > 2 * ck.SCAN_QUIET
+    monkeypatch.setattr(ck, "SCAN_QUIET", -math.inf)  # never quiet: both stages run
+    full = row(1)
+    assert full["note"] == "" and quiet["statistic"] <= full["statistic"] < 2.0
 
 
 def test_the_model_intervals_reach_the_json():

@@ -236,7 +236,10 @@ def _screen(model: NoiseModel, fit: Fit, wf, inn: Innovations, diags, y, h, inpu
                           f"{label}.phase": float(math.atan2(beta[1], beta[0]))})
             row.update(statistic=lr, start=start)
         elif effect == "temperature-order":
-            lr, g = _scan_order_slope(model, alt, label, fit, inn, y, h, inputs)
+            lr, g, quiet = _scan_order_slope(model, alt, label, fit, inn, y, h, inputs)
+            if quiet:
+                row["note"] = (f"the scan stopped after γ = 0, ±δ: their parabola peaks less than {SCAN_QUIET:g} nat "
+                               "above the model (a lower bound of the statistic)")
             if lr is None:
                 frac = next(lb for lb, c in model.components if c.name == "fractional")
                 order = fit.values[f"{frac}.order"]
@@ -312,17 +315,19 @@ def _whittle_screens(model, base, rows_alts, y, h, inputs, cache: dict):
 
 
 #: The temperature-order scan stops after its first stage when the parabola through γ = 0, ±δ peaks less than this
-#: many nats above the model's ℓ (its LR below 1; the screen passes at about 10).
+#: many nats above the model's ℓ (its LR below 1; passing the screen at 0.05 / 6 effects needs an LR of about 7).
 SCAN_QUIET = 0.5
 
 
-def _scan_order_slope(model, alt, label, fit, inn, y, h, inputs) -> tuple[float | None, float | None]:
-    """2·max Δℓ over the temperature-order slope γ with the other parameters at the fit, and the best γ (None,
-    None when the fitted order is at its bound 0 or 1, where no slope keeps it inside).
+def _scan_order_slope(model, alt, label, fit, inn, y, h, inputs) -> tuple[float | None, float | None, bool]:
+    """2·max Δℓ over the temperature-order slope γ with the other parameters at the fit, the best γ, and whether
+    the scan stopped after its first stage (None, None, False when the fitted order is within 10⁻⁶ of its bound 0
+    or 1, where no slope keeps it inside).
 
     ℓ(γ) is sharply peaked (its width is the slope's standard error, often 1 % of the range of slopes that keep
     the order inside (0, 1)), so a coarse grid misses it. Two Newton-like stages, three points each in one
-    batched evaluation: a parabola through γ = 0, ±δ (δ = 1/40 of that range) gives the first step; a parabola
+    batched evaluation: a parabola through γ = 0, ±δ (δ = γ_max / 40, γ_max = 0.9 × the largest |γ| that keeps
+    the order inside (0, 1) at the recording's temperatures) gives the first step; a parabola
     through the step's ½×, 1×, 2× refines it — unless the first parabola peaks below :data:`SCAN_QUIET` (no
     signal to refine). The best γ evaluated is kept — the statistic is a lower bound of the full maximisation,
     which only makes the test conservative."""
@@ -330,9 +335,9 @@ def _scan_order_slope(model, alt, label, fit, inn, y, h, inputs) -> tuple[float 
     frac = next(lb for lb, c in model.components if c.name == "fractional")
     a0 = fit.values[f"{frac}.order"]
     span = max(float(np.max(np.abs(T - T.mean()))), 1e-9)
+    if min(a0, 1 - a0) < 1e-6:  # the order at its bound: no slope keeps it inside (0, 1)
+        return None, None, False
     g_max = 0.9 * min(a0, 1 - a0) / span
-    if g_max * span < 1e-9:  # the order at its bound: no slope keeps it inside (0, 1)
-        return None, None
     yc = centred(model, y)
 
     def ll(gs):
@@ -359,7 +364,7 @@ def _scan_order_slope(model, alt, label, fit, inn, y, h, inputs) -> tuple[float 
     if g1 is None:  # not concave at 0: head up the slope
         g1 = math.copysign(g_max / 4, l3[2] - l3[0])
     gs, ls = [*g3], [*l3]
-    # a concave parabola whose peak is less than ½ nat above the fit (an LR below 1, a tenth of what the screen
+    # a concave parabola whose peak is less than ½ nat above the fit (an LR below 1, a seventh of what the screen
     # needs) sees no signal, and the refinement, which starts at that peak, would not find one: it is skipped
     quiet = top is not None and top - inn.loglik < SCAN_QUIET
     if abs(g1) > 1e-12 and not quiet:
@@ -372,7 +377,7 @@ def _scan_order_slope(model, alt, label, fit, inn, y, h, inputs) -> tuple[float 
             gs += [*gc]
             ls += [*lc]
     k = int(np.argmax(ls))
-    return max(0.0, 2.0 * float(ls[k] - inn.loglik)), float(gs[k])
+    return max(0.0, 2.0 * float(ls[k] - inn.loglik)), float(gs[k]), quiet
 
 
 def check(y, h: float, model="fractional+white", inputs: dict | None = None, *, level: float = LEVEL,

@@ -194,6 +194,9 @@ def main():
             r = peak_of([sys.executable, "-m", "torchtea.cli", "check", str(rec), "--units", SIX_UNITS, "--model",
                          model, "--temperature", "temp", "--no-plots", "--json", "--out", str(out)], ROOT)
             doc_ = json.loads((out / "check.json").read_text()) if (out / "check.json").exists() else {}
+            if doc_:  # the whole document (screens, suggestions, their parameters) beside reach.json
+                (HERE / "reach_check3h").mkdir(exist_ok=True)
+                (HERE / "reach_check3h" / f"{model}.json").write_text(json.dumps(doc_, indent=1))
             summary = {a: {"adequate": d.get("adequate"), "failed": d.get("base", {}).get("failed"),
                            "parameters": d.get("base", {}).get("parameters"),
                            "top": (d.get("suggestions") or [{}])[0].get("effect")}
@@ -209,8 +212,9 @@ def main():
                         "--out", str(cache / "out")]
                 argv += ["--axes", "z"] if tree == "today" else ["--columns", "az"]
                 r = peak_of(argv, trees[tree], env_extra={"NUMBA_CACHE_DIR": str(cache)})
+                cache_state = "empty numba cache" if attempt == "first" else "the cache the first run filled"
                 add({"case": "firstrun", "data": f"torchtea check --samples 3000, one axis, {attempt} run after "
-                                                 "install (empty numba cache)", "tree": tree, **r})
+                                                 f"install ({cache_state})", "tree": tree, **r})
     print()
     print("| case | data | today [s] | new [s] | new peak memory [MB] |")
     print("|---|---|---|---|---|")

@@ -20,6 +20,7 @@ import io as _io
 import json
 import math
 import re
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
@@ -219,10 +220,12 @@ def bundled_recording(which: str = "main") -> Path:
     return Path(str(resources.files("torchtea") / "data" / BUNDLED[which]))
 
 
-def _open_lines(path: Path) -> list[str]:
+@contextmanager
+def _text_file(path: Path):
+    """The file opened as text; what goes wrong while opening or reading it is one :class:`InputError` naming it."""
     try:
         with open(path, newline="") as fh:
-            return fh.read().splitlines()
+            yield fh
     except FileNotFoundError:
         raise InputError(f"{path}: no such file") from None
     except IsADirectoryError:
@@ -231,6 +234,11 @@ def _open_lines(path: Path) -> list[str]:
         raise InputError(f"{path}: not a text file") from None
     except OSError as exc:
         raise InputError(f"{path}: cannot read ({exc.strerror})") from None
+
+
+def _read_text(path: Path) -> str:
+    with _text_file(path) as fh:
+        return fh.read()
 
 
 def _delimiter_hint(line: str) -> str:
@@ -265,7 +273,7 @@ def read_series(path, columns: Sequence[str], optional: Sequence[str] = (), *, a
     ``optional`` columns that exist.
     """
     path = Path(path)
-    lines = _open_lines(path)
+    lines = _read_text(path).splitlines()
     rows = list(csv.reader(lines))
     if not rows:
         raise InputError(f"{path}: empty file")
@@ -557,36 +565,13 @@ HEAD_LINES = 200
 
 def _head_lines(path: Path, limit: int = HEAD_LINES) -> list[str]:
     """The first ``limit`` lines of a file (without their line ends)."""
-    try:
-        out = []
-        with open(path, newline="") as fh:
-            for line in fh:
-                out.append(line.rstrip("\r\n"))
-                if len(out) >= limit:
-                    break
-        return out
-    except FileNotFoundError:
-        raise InputError(f"{path}: no such file") from None
-    except IsADirectoryError:
-        raise InputError(f"{path}: is a directory, expected a CSV file") from None
-    except UnicodeDecodeError:
-        raise InputError(f"{path}: not a text file") from None
-    except OSError as exc:
-        raise InputError(f"{path}: cannot read ({exc.strerror})") from None
-
-
-def _read_text(path: Path) -> str:
-    try:
-        with open(path, newline="") as fh:
-            return fh.read()
-    except FileNotFoundError:
-        raise InputError(f"{path}: no such file") from None
-    except IsADirectoryError:
-        raise InputError(f"{path}: is a directory, expected a CSV file") from None
-    except UnicodeDecodeError:
-        raise InputError(f"{path}: not a text file") from None
-    except OSError as exc:
-        raise InputError(f"{path}: cannot read ({exc.strerror})") from None
+    out = []
+    with _text_file(path) as fh:
+        for line in fh:
+            out.append(line.rstrip("\r\n"))
+            if len(out) >= limit:
+                break
+    return out
 
 
 def _parse_body(path: Path, start: int, header: list, wanted: list) -> np.ndarray:

@@ -8,6 +8,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
+from ..noise._simulate_kernel import varying_row
 from .chandrasekhar import DROP
 
 
@@ -88,12 +89,7 @@ def riccati_one(indptr, indices, fval, Q, C, cidx, R, y, mu, e_out, s_out, w_out
         # predict: z = F z, P = F P Fᵀ + Q, with F in CSR form
         # row tv_i (a time-varying order) is rowk (dense) instead of its CSR row, and Q[tv_i, tv_i] tvq
         if tv_i >= 0:
-            j = tv_j[k]
-            j1 = min(j + 1, tv_T.shape[0] - 1)
-            wk = tv_w[k]
-            for r in range(n):
-                rowk[r] = tv_T[j, r] * (1.0 - wk) + tv_T[j1, r] * wk
-            gk = tv_g[j] * (1.0 - wk) + tv_g[j1] * wk
+            gk = varying_row(tv_T, tv_g, tv_j, tv_w, k, rowk)
             tvq = gk * gk
         znew = np.zeros(n)
         wnew = np.zeros(n)

@@ -4,6 +4,20 @@ import numpy as np
 from numba import njit, prange
 
 
+@njit(cache=True, inline="always", error_model="numpy")
+def varying_row(tv_T, tv_g, tv_j, tv_w, k, row):
+    """Step k's row of a time-varying order from its table (:class:`~torchtea.noise.model.VaryingRow`): ``row`` is
+    filled with the rows ``tv_j[k]`` and the next one mixed by the weight ``tv_w[k]``; returns the noise gain, mixed
+    alike. Shared by the simulator and the likelihood's Riccati kernel (numba's cache does not see a change here
+    from those modules: clear their ``__pycache__`` after editing it)."""
+    j = tv_j[k]
+    j1 = min(j + 1, tv_T.shape[0] - 1)
+    wk = tv_w[k]
+    for r in range(row.shape[0]):
+        row[r] = tv_T[j, r] * (1.0 - wk) + tv_T[j1, r] * wk
+    return tv_g[j] * (1.0 - wk) + tv_g[j1] * wk
+
+
 @njit(cache=True, error_model="numpy")
 def simulate_one(indptr, indices, fval, G, C, z0, xi, out, states, keep, tv_i, tv_T, tv_g, tv_j, tv_w, tv_col):
     """``z_{k+1} = F z_k + G ξ_k`` from ``z_0 = z0``, ``out[k] = C z_k``, F in CSR form; row ``tv_i`` of F and its
@@ -26,12 +40,7 @@ def simulate_one(indptr, indices, fval, G, C, z0, xi, out, states, keep, tv_i, t
             break
         gk = 0.0
         if tv_i >= 0:
-            j = tv_j[k]
-            j1 = min(j + 1, tv_T.shape[0] - 1)
-            wk = tv_w[k]
-            for r in range(n):
-                rowk[r] = tv_T[j, r] * (1.0 - wk) + tv_T[j1, r] * wk
-            gk = tv_g[j] * (1.0 - wk) + tv_g[j1] * wk
+            gk = varying_row(tv_T, tv_g, tv_j, tv_w, k, rowk)
         for i in range(n):
             acc = 0.0
             if i == tv_i:

@@ -25,7 +25,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from ..noise.model import StateSpace
+from ..noise.model import StateSpace, varying_kernel_args
 
 __all__ = ["FilterResult", "kalman_filter", "loglik_fast", "filter_fast"]
 
@@ -243,16 +243,7 @@ def _fast(ss: StateSpace, y, mean, keep: bool, level: bool = False, engine: str 
                         np.ascontiguousarray(b0), np.ascontiguousarray(S0), np.ascontiguousarray(C), cidx, R, ya, mu,
                         e_out, s_out, w_out, keep, bool(level))
         return ll, e_out, s_out
-    v = ss.varying
-    if v is None:
-        tv_i, tv_T, tv_g = -1, np.zeros((B, 1, F.shape[-1])), np.zeros((B, 1))
-        tv_j, tv_w = np.zeros((B, 1), dtype=np.int64), np.zeros((B, 1))
-    else:
-        tv_i = int(v.i)
-        tv_T = np.ascontiguousarray(v.table.detach().cpu().numpy(), dtype=np.float64)
-        tv_g = np.ascontiguousarray(v.loading_table.detach().cpu().numpy(), dtype=np.float64)
-        tv_j = np.ascontiguousarray(v.index.detach().cpu().numpy(), dtype=np.int64)
-        tv_w = np.ascontiguousarray(v.frac.detach().cpu().numpy(), dtype=np.float64)
+    tv_i, tv_T, tv_g, tv_j, tv_w, _ = varying_kernel_args(ss.varying, B, F.shape[-1])
     g0 = np.ascontiguousarray(ss.initial.detach().cpu().numpy(), dtype=np.float64)
     ll = _compiled()(indptr, indices, fvals, np.ascontiguousarray(ss.Q.detach().cpu().numpy()),
                      np.ascontiguousarray(C), cidx, R, ya, mu, e_out, s_out, w_out, keep, tv_i, tv_T, tv_g, tv_j, tv_w,

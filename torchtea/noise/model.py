@@ -22,6 +22,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+import numpy as np
 import torch
 from torch import Tensor
 
@@ -86,17 +87,20 @@ class VaryingRow:
     frac: Tensor
     column: int
 
+    def _at(self, tab: Tensor, k: int) -> Tensor:
+        """Step k's entry of ``tab`` (``(B, G, …)``): its table entry and the next mixed by the weight (the compiled
+        kernels do the same in :func:`torchtea.noise._simulate_kernel.varying_row`)."""
+        b = torch.arange(tab.shape[0])
+        j = self.index[:, k]
+        w = self.frac[:, k].reshape(-1, *([1] * (tab.dim() - 2)))
+        nxt = (j + 1).clamp(max=tab.shape[1] - 1)
+        return tab[b, j] * (1.0 - w) + tab[b, nxt] * w
+
     def row(self, k: int) -> Tensor:
-        b = torch.arange(self.table.shape[0])
-        j, w = self.index[:, k], self.frac[:, k].unsqueeze(-1)
-        nxt = (j + 1).clamp(max=self.table.shape[1] - 1)
-        return self.table[b, j] * (1.0 - w) + self.table[b, nxt] * w
+        return self._at(self.table, k)
 
     def loading(self, k: int) -> Tensor:
-        b = torch.arange(self.table.shape[0])
-        j, w = self.index[:, k], self.frac[:, k]
-        nxt = (j + 1).clamp(max=self.table.shape[1] - 1)
-        return self.loading_table[b, j] * (1.0 - w) + self.loading_table[b, nxt] * w
+        return self._at(self.loading_table, k)
 
     def rows(self) -> Tensor:
         """Every step's row ``(B, N, n)`` (O(N n) memory: for short series and tests)."""
@@ -105,6 +109,20 @@ class VaryingRow:
     def expand(self, m: int) -> "VaryingRow":
         return VaryingRow(self.i, self.table.expand(m, -1, -1), self.loading_table.expand(m, -1),
                           self.index.expand(m, -1), self.frac.expand(m, -1), self.column)
+
+
+def varying_kernel_args(v: VaryingRow | None, B: int, n: int) -> tuple:
+    """``(i, table, loading_table, index, frac, column)`` as NumPy arrays in the form the compiled kernels take them
+    (the simulator's loop, the Riccati filter); without a time-varying order (``v`` None) ``i = -1`` and
+    placeholders of the same types, so each kernel is compiled once."""
+    if v is None:
+        return -1, np.zeros((B, 1, n)), np.zeros((B, 1)), np.zeros((B, 1), dtype=np.int64), np.zeros((B, 1)), 0
+
+    def arr(t: Tensor, dtype) -> np.ndarray:
+        return np.ascontiguousarray(t.detach().cpu().numpy(), dtype=dtype)
+
+    return (int(v.i), arr(v.table, np.float64), arr(v.loading_table, np.float64), arr(v.index, np.int64),
+            arr(v.frac, np.float64), int(v.column))
 
 
 @dataclass(frozen=True)

@@ -11,7 +11,7 @@ import math
 
 import torch
 
-from .model import parse_model
+from .model import parse_model, varying_kernel_args
 
 __all__ = ["simulate_model", "temperature_profile", "default_values"]
 
@@ -59,12 +59,7 @@ def _run(ss, z0: torch.Tensor, xi: torch.Tensor, keep: bool):
     indptr, indices, fvals = _csr(F)
     out = np.empty((B, R_, N))
     states = np.empty((B, R_, N, n)) if keep else np.empty((1, 1, 1, 1))
-    v = ss.varying
-    if v is None:
-        tv = (-1, np.zeros((B, 1, n)), np.zeros((B, 1)), np.zeros((B, 1), dtype=np.int64), np.zeros((B, 1)), 0)
-    else:
-        tv = (int(v.i), np.ascontiguousarray(v.table.numpy()), np.ascontiguousarray(v.loading_table.numpy()),
-              np.ascontiguousarray(v.index.numpy()), np.ascontiguousarray(v.frac.numpy()), int(v.column))
+    tv = varying_kernel_args(ss.varying, B, n)
     simulate_batch(indptr, indices, fvals, np.ascontiguousarray(ss.G.numpy()), np.ascontiguousarray(ss.C.numpy()),
                    np.ascontiguousarray(z0.numpy()), np.ascontiguousarray(xi.numpy()), out, states, keep, *tv)
     return torch.from_numpy(out), torch.from_numpy(states) if keep else None

@@ -354,9 +354,6 @@ def _scan_order_slope(model, alt, label, fit, inn, y, h, inputs) -> tuple[float 
         c2, c1, c0 = np.linalg.solve(np.vander(g3, 3), l3)
         return (None, None) if c2 >= 0 else (-c1 / (2 * c2), c0 - c1 * c1 / (4 * c2))
 
-    def vertex(g3, l3):
-        return parabola(g3, l3)[0]
-
     d = g_max / 40
     g2_, l2_ = ll([-d, d])  # γ = 0 is the model itself: its ℓ is the fit's, no need to filter again
     g3, l3 = np.array([g2_[0], 0.0, g2_[1]]), np.array([l2_[0], inn.loglik, l2_[1]])
@@ -371,7 +368,7 @@ def _scan_order_slope(model, alt, label, fit, inn, y, h, inputs) -> tuple[float 
         g3b, l3b = ll([0.5 * g1, g1, 2.0 * g1])
         gs += [*g3b]
         ls += [*l3b]
-        g2 = vertex(g3b, l3b)
+        g2, _ = parabola(g3b, l3b)
         if g2 is not None and abs(g2) > 1e-12:
             gc, lc = ll([g2])
             gs += [*gc]

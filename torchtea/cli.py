@@ -920,6 +920,9 @@ def _recording_flags(parser, *, columns_help: str, temperature_help: str | None,
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="torchtea", description=__doc__)
     p.add_argument("--debug", action="store_true", help="show tracebacks")
+    p.add_argument("--effects", action="append", default=[], metavar="MODULE",
+                   help="import MODULE (a module name or a .py file) before the command: the effects it registers "
+                        "(torchtea.effects.register) can be named in --model and --add; may be repeated")
     sub = p.add_subparsers(dest="command", required=True)
 
     s = sub.add_parser("simulate", help="simulate the fractional noise model (43)–(45), or any --model, to CSV")
@@ -1177,12 +1180,39 @@ def cmd_fit(args) -> int:
     return 0
 
 
+def _import_effects(name: str) -> None:
+    """Import a user's module of effects (``--effects``): a ``.py`` file by its path, else a module by name."""
+    import importlib
+    import importlib.util
+
+    try:
+        if name.endswith(".py"):
+            path = Path(name)
+            if not path.is_file():
+                raise CLIError(f"--effects {name}: no such file")
+            key = f"torchtea_user_effects_{path.stem}"
+            if getattr(sys.modules.get(key), "__file__", None) == str(path.resolve()):
+                return  # imported by an earlier command in this process: its effects are registered
+            spec = importlib.util.spec_from_file_location(key, path.resolve())
+            module = importlib.util.module_from_spec(spec)
+            sys.modules[spec.name] = module
+            spec.loader.exec_module(module)
+        else:
+            importlib.import_module(name)
+    except CLIError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - the user's module: say which one failed and why
+        raise CLIError(f"--effects {name}: could not import it: {type(exc).__name__}: {exc}") from exc
+
+
 def main(argv=None) -> int:
     from .sensors.io import InputError
 
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
+        for name in args.effects:
+            _import_effects(name)
         return args.func(args)
     except (CLIError, InputError) as exc:
         if args.debug:

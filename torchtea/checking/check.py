@@ -51,23 +51,16 @@ SCREENS = {"random-walk": "Whittle LR, ½χ²₀+½χ²₁", "low-pass": "Whittl
 
 
 def extend(model: NoiseModel, effect: str) -> NoiseModel:
-    """``model`` with one more component: a ``low-pass`` right after the last stochastic component (a sensor's
-    digital filter filters its whole signal, white noise included), anything else at the end."""
+    """``model`` with one more component, where the component's :meth:`~torchtea.noise.components.Component.position`
+    puts it (a ``low-pass`` right after the last stochastic component, anything else at the end)."""
     model = parse_model(model)
     if effect not in COMPONENTS:
         raise ValueError(f"unknown effect {effect!r}; choose from: {', '.join(CANDIDATES)}")
+    comp = COMPONENTS[effect]
     names = [c.name for _, c in model.components]
-    if effect in names and effect != "sinusoid":
+    if effect in names and not comp.add_again:
         raise ValueError(f"model {model.spec!r} already has {effect!r}")
-    if effect == "low-pass":
-        last = max((i for i, (_, c) in enumerate(model.components) if c.kind in ("state", "measurement")), default=None)
-        if last is None:
-            raise ValueError(f"a low-pass filters stochastic components; {model.spec!r} has none")
-        names.insert(last + 1, effect)
-    elif effect == "temperature-order" and not model.has("fractional"):
-        raise ValueError(f"temperature-order drives a fractional component's order; {model.spec!r} has none")
-    else:
-        names.append(effect)
+    names.insert(comp.position(model), effect)
     return parse_model("+".join(names))
 
 

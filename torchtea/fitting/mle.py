@@ -122,44 +122,27 @@ def regress_mean(model: NoiseModel, y, h: float, inputs: dict | None = None) -> 
     cols, names = [], []
     model.check_inputs(inputs)
     for label, comp in model.components:
-        if comp.name == "ramp":
-            cols.append(t - t[ok].mean())
-            names.append(f"{label}.slope")
-        elif comp.name == "temperature-bias":
-            T = np.asarray(inputs["temperature"], dtype=np.float64)
-            tref = float(np.nanmean(T))
-            vals[f"{label}.t_ref"] = tref
-            cols.append(T - tref)
-            names.append(f"{label}.bias_per_degC")
-        elif comp.name == "temperature-order":  # not a mean: only its reference, and γ = 0 to start from
-            vals[f"{label}.t_ref"] = float(np.nanmean(np.asarray(inputs["temperature"], dtype=np.float64)))
-            vals[f"{label}.order_per_degC"] = 0.0
+        fixed, columns = comp.regressors(label, t, inputs, ok)
+        vals.update(fixed)
+        for name, col in columns:
+            cols.append(col)
+            names.append(name)
     if cols:
         X = np.stack(cols, 1)[ok]
         X = X - X.mean(0)
         coef, *_ = np.linalg.lstsq(X, resid[ok], rcond=None)
         resid[ok] -= X @ coef
         vals.update(dict(zip(names, coef.tolist())))
+    start = None
+    for label, comp in model.components:  # what the residual shows (a line), one component after the other
+        if comp.kind == "mean" and start is None:
+            start = model.initial_values(torch.as_tensor(np.where(ok, y, np.nanmean(y))), h)
+        vals.update(comp.fit_residual(label, resid, t, ok, h, start or {}, inputs))
+    # the level: the mean of what is left plus what was removed
     for label, comp in model.components:
-        if comp.name != "sinusoid":
-            continue
-        r = np.where(ok, resid, 0.0)
-        spec = np.abs(np.fft.rfft(r)) ** 2
-        spec[:3] = 0.0  # not the trend
-        j = int(np.argmax(spec))
-        f0 = refine_frequency(r, j / (N * h), h)
-        w = 2 * np.pi * f0 * t
-        X = np.stack([np.sin(w), np.cos(w)], 1)
-        coef, *_ = np.linalg.lstsq(X[ok], resid[ok], rcond=None)
-        resid[ok] -= X[ok] @ coef
-        vals[f"{label}.frequency_hz"] = f0
-        vals[f"{label}.amplitude"] = float(math.hypot(*coef))
-        vals[f"{label}.phase"] = float(math.atan2(coef[1], coef[0]))
-    # the offset: the mean of what is left plus what was removed
-    for label, comp in model.components:
-        if comp.name == "offset":
+        if comp.level:
             m = model.mean({**{n: 0.0 for n in model.names}, **vals}, torch.as_tensor(t)).numpy()[0]
-            vals[f"{label}.value"] = float(np.mean((y - m)[ok]))
+            vals[f"{label}.{comp.params[0].name}"] = float(np.mean((y - m)[ok]))
     return vals, resid
 
 
@@ -187,13 +170,7 @@ def _starts(model: NoiseModel, y: np.ndarray, h: float, omega: Tensor, I: Tensor
             v = dict(base)
             v.update(mean_vals)
             for label, comp in model.components:
-                if comp.name == "white":
-                    v[f"{label}.r"] = white * 0.5
-                elif comp.name == "quantisation":
-                    v[f"{label}.step"] = math.sqrt(12 * white * 0.5)
-                elif comp.name == "fractional":
-                    v[f"{label}.order"] = a
-                    v[f"{label}.pole"] = -rho * 2.0 ** a / h ** a
+                comp.grid_start(label, v, white, a, rho, h)
             v.update(fixed)
             # scale the state drives so that the mean spectrum matches on the lower half
             S = model.spectrum(v, omega, h)[0]
@@ -202,10 +179,7 @@ def _starts(model: NoiseModel, y: np.ndarray, h: float, omega: Tensor, I: Tensor
             if now > 0 and target > 0:
                 s = target / now
                 for label, comp in model.components:
-                    if comp.name == "fractional" and f"{label}.q" not in fixed:
-                        v[f"{label}.q"] = v[f"{label}.q"] * s
-                    if comp.name == "random-walk" and f"{label}.sigma" not in fixed:
-                        v[f"{label}.sigma"] = v[f"{label}.sigma"] * math.sqrt(s) * 0.1
+                    comp.scale_drive(label, v, s, fixed)
             if all(v != w for w in starts):
                 starts.append(v)
     return starts
@@ -638,7 +612,7 @@ def centred(model: NoiseModel, y) -> np.ndarray:
     likelihood then integrates the level out, :func:`unknown_level`, so removing the mean only keeps the numbers
     small)."""
     y = np.asarray(y, dtype=np.float64)
-    return y if model.has("offset") else y - np.nanmean(y)
+    return y if model.has_level else y - np.nanmean(y)
 
 
 def unknown_level(model: NoiseModel) -> bool:
@@ -646,7 +620,7 @@ def unknown_level(model: NoiseModel) -> bool:
     (``level=True`` of :func:`~torchtea.likelihood.kalman.kalman_filter`, the diffuse likelihood): always, unless
     the model has an ``offset`` that fits it as a parameter. A random walk's path then need not start at the
     series' mean."""
-    return not model.has("offset")
+    return not model.has_level
 
 
 class ExactPass(NamedTuple):
@@ -738,7 +712,7 @@ def fit_series(model, series: list, h: float, *, method: str = "exact", inputs: 
             vals, se, ci, how = _estimates(model, u, H, free, h)
             ll_exact = ll
         kfree = [n for n, f in zip(model.names, free.tolist()) if f]
-        if not model.has("offset"):
+        if not model.has_level:
             notes.append(f"mean {float(np.nanmean(y)):.6g} removed before fitting; the model has no offset, so the "
                          "exact likelihood integrates the unknown level out")
         prof = profiles[s]

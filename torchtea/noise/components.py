@@ -25,13 +25,15 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
+import numpy as np
 import torch
 from torch import Tensor
 
 from ..core.gl import gl_tail_coefficients
 
-__all__ = ["ParamSpec", "Component", "COMPONENTS", "ORDER_BOUNDS", "logit"]
+__all__ = ["ParamSpec", "Component", "StartData", "COMPONENTS", "ORDER_BOUNDS", "logit"]
 
 #: Orders the ``fractional`` component may take: open interval, the kernel is designed on it.
 ORDER_BOUNDS = (0.0, 1.0)
@@ -55,6 +57,19 @@ class ParamSpec:
         """``logit((x − low)/(high − low))``: a ``bounded`` value on the optimisers' scale."""
         lo, hi = self.bounds
         return logit((x - lo) / (hi - lo))
+
+
+class StartData(NamedTuple):
+    """What a component's :meth:`Component.start` may use: the series ``y`` (tensor), its variance, half the
+    variance of its first differences (the white level), the number of state components, the sample time and the
+    fractional order to start from."""
+
+    y: Tensor
+    var: float
+    white: float
+    n_state: int
+    h: float
+    order: float
 
 
 def logit(p: Tensor) -> Tensor:
@@ -90,6 +105,100 @@ class Component:
 
     def measurement_variance(self, v: dict) -> Tensor:
         raise NotImplementedError
+
+    # ---- how a model holds it ---------------------------------------------------------------------------
+    #: at most one in a model (``parse_model`` refuses a second)
+    single: bool = False
+    #: ``check`` may add it to a model that has it already (a second line)
+    add_again: bool = False
+    #: it carries the series' constant level: the fits do not centre the series (``offset``)
+    level: bool = False
+
+    def position(self, model) -> int:
+        """Where :func:`~torchtea.checking.check.extend` inserts it among ``model``'s components (default: at the
+        end); raises ``ValueError`` naming what the model lacks when it cannot be added."""
+        return len(model.components)
+
+    # ---- values -----------------------------------------------------------------------------------------
+    def typical(self, param: str, h: float, t_ref: float) -> float:
+        """A MEMS-like value of ``param`` (accelerometer units, m/s²; sample time ``h``; ``t_ref`` the mean
+        temperature): what ``torchtea simulate --model`` uses unless ``--set`` gives another."""
+        raise NotImplementedError(f"component {self.name!r} has no typical value of {param!r}")
+
+    def start(self, param: str, data: "StartData") -> float:
+        """A rough data-based value of ``param`` to start a fit from (not an estimate). Default: 0 for a free
+        parameter, 1 for a positive one, the middle of a bounded one's range."""
+        spec = next(p for p in self.params if p.name == param)
+        if spec.kind == "positive":
+            return 1.0
+        if spec.kind == "fraction":
+            return 0.5
+        if spec.kind == "bounded":
+            lo, hi = spec.bounds
+            return 0.5 * (lo + hi) if math.isfinite(lo) and math.isfinite(hi) else 0.0
+        return 0.0
+
+    def grid_start(self, label: str, v: dict, white: float, order, fraction, h: float) -> None:
+        """Set this component's values (in place) in one start of the Whittle fit's grid: ``white`` the
+        periodogram's level at high frequencies (variance), ``order``/``fraction`` the grid's fractional order
+        and pole fraction (None without a fractional part)."""
+
+    def scale_drive(self, label: str, v: dict, s: float, fixed) -> None:
+        """Scale this component's drive (in place) when a grid start's spectrum is scaled by ``s`` to meet the
+        periodogram on the lower half of the band (names in ``fixed`` are kept)."""
+
+    def regressors(self, label: str, t, inputs: dict | None, ok) -> tuple[dict, list]:
+        """The mean's linear part for the least-squares start (:func:`~torchtea.fitting.mle.regress_mean`):
+        ``(values fixed by the data, [(parameter name, regressor column (N,)), …])``."""
+        return {}, []
+
+    def fit_residual(self, label: str, resid, t, ok, h: float, start: dict, inputs: dict | None) -> dict:
+        """Values estimated from the residual after the linear regression (a line's frequency, amplitude and
+        phase); removes what it explains from ``resid`` in place. ``start``: this component's start values
+        (:meth:`start`). Default: nothing for a component that is not a mean, carries the level or whose mean the
+        regression took (:meth:`regressors`); a mean that the regression did not take (a user's effect) by nonlinear least
+        squares over its parameters from ``start`` (:func:`scipy.optimize.least_squares`)."""
+        if self.kind != "mean" or self.level or self.regressors(label, t, inputs, ok)[1]:
+            return {}
+        from scipy.optimize import least_squares
+
+        names = [p.name for p in self.params]
+        tt = torch.as_tensor(t, dtype=torch.float64)
+        inp = None if inputs is None else {k: torch.as_tensor(x, dtype=torch.float64) for k, x in inputs.items()}
+
+        def natural(u):
+            out = {}
+            for p, x in zip(self.params, u):
+                if p.kind == "positive":
+                    out[p.name] = math.exp(x)
+                elif p.kind in ("bounded", "fraction"):
+                    lo, hi = p.bounds if p.kind == "bounded" else (0.0, 1.0)
+                    out[p.name] = lo + (hi - lo) / (1.0 + math.exp(-x))
+                else:
+                    out[p.name] = x
+            return out
+
+        def unconstrained(p, x):
+            if p.kind == "positive":
+                return math.log(x)
+            if p.kind in ("bounded", "fraction"):
+                lo, hi = p.bounds if p.kind == "bounded" else (0.0, 1.0)
+                q = (x - lo) / (hi - lo)
+                return math.log(q / (1 - q))
+            return x
+
+        def residual(u):
+            v = {n: torch.tensor([x], dtype=torch.float64) for n, x in natural(u).items()}
+            m = self.mean(v, tt, inp)[0].numpy()
+            r = resid - m
+            return (r - r[ok].mean())[ok]
+
+        u0 = [unconstrained(p, start[f"{label}.{p.name}"]) for p in self.params]
+        sol = least_squares(residual, u0, method="lm")
+        best = natural(sol.x)
+        v = {n: torch.tensor([best[n]], dtype=torch.float64) for n in names}
+        resid[ok] -= self.mean(v, tt, inp)[0].numpy()[ok]
+        return {f"{label}.{n}": float(best[n]) for n in names}
 
 
 class Fractional(Component):
@@ -127,6 +236,23 @@ class Fractional(Component):
         row[..., 0] = row[..., 0] + hp * f
         return row, hp * torch.sqrt(q)
 
+    def typical(self, param, h, t_ref):
+        a = 0.3  # the Monte Carlo studies' part: order 0.3, pole at 40 % of its stability limit, q = r / h^{2α}
+        return {"order": a, "pole": -0.4 * 2 ** a / h ** a, "q": 1e-3 / h ** (2 * a)}[param]
+
+    def start(self, param, data):
+        a = data.order
+        return {"order": a, "pole": -0.5 * 2.0 ** a / data.h ** a,
+                "q": max(data.var - data.white, 0.1 * data.var) / data.n_state}[param]
+
+    def grid_start(self, label, v, white, order, fraction, h):
+        v[f"{label}.order"] = order
+        v[f"{label}.pole"] = -fraction * 2.0 ** order / h ** order
+
+    def scale_drive(self, label, v, s, fixed):
+        if f"{label}.q" not in fixed:
+            v[f"{label}.q"] = v[f"{label}.q"] * s
+
     def block(self, v, h, memory):
         alpha, f, q = v["order"], v["pole"], v["q"]
         B = alpha.shape[0]
@@ -161,6 +287,16 @@ class RandomWalk(Component):
     def n_states(self, memory) -> int:
         return 1
 
+    def typical(self, param, h, t_ref):
+        return 2e-3
+
+    def start(self, param, data):
+        return math.sqrt(max(data.var, 1e-12) / (len(data.y) * data.h)) / 10.0
+
+    def scale_drive(self, label, v, s, fixed):
+        if f"{label}.sigma" not in fixed:
+            v[f"{label}.sigma"] = v[f"{label}.sigma"] * math.sqrt(s) * 0.1
+
     def block(self, v, h, memory):
         s = v["sigma"]
         F = s.new_ones(s.shape[0], 1, 1)
@@ -184,6 +320,23 @@ class LowPass(Component):
     def coefficient(self, v, h):
         return torch.exp(-2.0 * math.pi * v["cutoff_hz"] * h)
 
+    single = True
+
+    def position(self, model):
+        """Right after the last stochastic component: a sensor's digital filter filters its whole signal, white
+        noise included."""
+        last = max((i for i, (_, c) in enumerate(model.components) if c.kind in ("state", "measurement")),
+                   default=None)
+        if last is None:
+            raise ValueError(f"a low-pass filters stochastic components; {model.spec!r} has none")
+        return last + 1
+
+    def typical(self, param, h, t_ref):
+        return 5.0
+
+    def start(self, param, data):
+        return 0.25 / data.h
+
 
 class White(Component):
     """Measurement (ADC) noise ν_k ~ N(0, r): spectrum r/2π."""
@@ -194,6 +347,15 @@ class White(Component):
 
     def measurement_variance(self, v):
         return v["r"]
+
+    def typical(self, param, h, t_ref):
+        return 1e-3
+
+    def start(self, param, data):
+        return data.white / 2.0
+
+    def grid_start(self, label, v, white, order, fraction, h):
+        v[f"{label}.r"] = white * 0.5
 
     def spectrum(self, v, omega, h):
         return (v["r"] / (2.0 * math.pi)).unsqueeze(-1).expand(-1, omega.shape[-1])
@@ -209,6 +371,15 @@ class Quantisation(Component):
     def measurement_variance(self, v):
         return v["step"] ** 2 / 12.0
 
+    def typical(self, param, h, t_ref):
+        return 0.01
+
+    def start(self, param, data):
+        return math.sqrt(12.0 * data.white / 2.0)
+
+    def grid_start(self, label, v, white, order, fraction, h):
+        v[f"{label}.step"] = math.sqrt(12 * white * 0.5)
+
     def spectrum(self, v, omega, h):
         return (self.measurement_variance(v) / (2.0 * math.pi)).unsqueeze(-1).expand(-1, omega.shape[-1])
 
@@ -217,9 +388,16 @@ class Offset(Component):
     name = "offset"
     kind = "mean"
     params = (ParamSpec("value", "free", "units"),)
+    level = True
 
     def mean(self, v, t, inputs):
         return v["value"].unsqueeze(-1).expand(-1, t.shape[-1])
+
+    def typical(self, param, h, t_ref):
+        return 0.0
+
+    def start(self, param, data):
+        return float(data.y.mean())
 
 
 class Ramp(Component):
@@ -233,6 +411,12 @@ class Ramp(Component):
     def mean(self, v, t, inputs):
         return v["slope"].unsqueeze(-1) * (t - t.mean())
 
+    def typical(self, param, h, t_ref):
+        return 1e-4
+
+    def regressors(self, label, t, inputs, ok):
+        return {}, [(f"{label}.slope", t - t[ok].mean())]
+
 
 class Sinusoid(Component):
     """A sin(2π f₀ t + φ): a vibration line. Not a spectral density — removed before the Whittle sum."""
@@ -242,9 +426,35 @@ class Sinusoid(Component):
     params = (ParamSpec("frequency_hz", "positive", "f₀ (Hz)"), ParamSpec("amplitude", "positive", "A (units)"),
               ParamSpec("phase", "free", "φ (rad)"))
 
+    add_again = True  # a second line
+
     def mean(self, v, t, inputs):
         return v["amplitude"].unsqueeze(-1) * torch.sin(2.0 * math.pi * v["frequency_hz"].unsqueeze(-1) * t
                                                         + v["phase"].unsqueeze(-1))
+
+    def typical(self, param, h, t_ref):
+        return {"frequency_hz": 3.37, "amplitude": 0.01, "phase": 0.0}[param]
+
+    def start(self, param, data):
+        return {"frequency_hz": 0.1 / data.h, "amplitude": math.sqrt(data.var) / 10.0, "phase": 0.0}[param]
+
+    def fit_residual(self, label, resid, t, ok, h, start, inputs):
+        """The residual periodogram's highest peak (not the trend's three lowest bins), its frequency refined,
+        amplitude and phase by least squares."""
+        from ..fitting.mle import refine_frequency
+
+        N = len(resid)
+        r = np.where(ok, resid, 0.0)
+        spec = np.abs(np.fft.rfft(r)) ** 2
+        spec[:3] = 0.0  # not the trend
+        j = int(np.argmax(spec))
+        f0 = refine_frequency(r, j / (N * h), h)
+        w = 2 * np.pi * f0 * t
+        X = np.stack([np.sin(w), np.cos(w)], 1)
+        coef, *_ = np.linalg.lstsq(X[ok], resid[ok], rcond=None)
+        resid[ok] -= X[ok] @ coef
+        return {f"{label}.frequency_hz": f0, f"{label}.amplitude": float(math.hypot(*coef)),
+                f"{label}.phase": float(math.atan2(coef[1], coef[0]))}
 
 
 class TemperatureBias(Component):
@@ -260,6 +470,14 @@ class TemperatureBias(Component):
         T = inputs["temperature"]
         return v["bias_per_degC"].unsqueeze(-1) * (T - v["t_ref"].unsqueeze(-1))
 
+    def typical(self, param, h, t_ref):
+        return {"bias_per_degC": 0.02, "t_ref": t_ref}[param]
+
+    def regressors(self, label, t, inputs, ok):
+        T = np.asarray(inputs["temperature"], dtype=np.float64)
+        tref = float(np.nanmean(T))
+        return {f"{label}.t_ref": tref}, [(f"{label}.bias_per_degC", T - tref)]
+
 
 class TemperatureOrder(Component):
     r"""The fractional component's order driven by temperature: :math:`\alpha_k = \alpha_0 + \gamma (T_k - T_\mathrm{ref})`,
@@ -274,6 +492,19 @@ class TemperatureOrder(Component):
     kind = "modifier"
     inputs = ("temperature",)
     params = (ParamSpec("order_per_degC", "free", "1/°C"), ParamSpec("t_ref", "free", "T_ref (°C)"))
+
+    def position(self, model):
+        if not model.has("fractional"):
+            raise ValueError(f"temperature-order drives a fractional component's order; {model.spec!r} has none")
+        return len(model.components)
+
+    def typical(self, param, h, t_ref):
+        return {"order_per_degC": 0.03, "t_ref": t_ref}[param]
+
+    def regressors(self, label, t, inputs, ok):
+        """Not a mean: only its reference (the mean temperature), and γ = 0 to start from."""
+        return {f"{label}.t_ref": float(np.nanmean(np.asarray(inputs["temperature"], dtype=np.float64))),
+                f"{label}.order_per_degC": 0.0}, []
 
     def orders(self, v: dict, alpha0: Tensor, T: Tensor) -> Tensor:
         """``(B, N)`` orders α_k for ``(B,)`` α₀ and the temperature ``(N,)``."""

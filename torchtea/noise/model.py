@@ -19,7 +19,6 @@ constant); a low-pass that filters white noise starts at its first filtered samp
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -28,7 +27,7 @@ from torch import Tensor
 
 from ..core.gl import broadcast_shapes
 from ..core.memory import MemoryConfig, SOEKernel, kernel_for, parse_memory
-from .components import COMPONENTS, ORDER_BOUNDS, Component, LowPass, logit
+from .components import COMPONENTS, ORDER_BOUNDS, Component, LowPass, StartData, logit
 
 __all__ = ["NoiseModel", "parse_model", "StateSpace", "VaryingRow", "StateMemory", "state_memory",
            "EXACT_MEMORY_LIMIT", "ROW_TABLE"]
@@ -184,6 +183,11 @@ class NoiseModel:
     # ------------------------------------------------------------------ structure
     def has(self, name: str) -> bool:
         return any(comp.name == name for _, comp in self.components)
+
+    @property
+    def has_level(self) -> bool:
+        """A component carries the series' constant level (an ``offset``): the fits do not centre the series."""
+        return any(comp.level for _, comp in self.components)
 
     def labels(self, kind: str | None = None) -> list[str]:
         return [label for label, comp in self.components if kind is None or comp.kind == kind]
@@ -436,35 +440,8 @@ class NoiseModel:
         var = var if var > 0 else 1.0
         d = torch.diff(y)
         white = max(float(d.var()) / 2.0, 1e-6 * var) if d.numel() > 1 else var / 2
-        out = {}
-        n_state = len(self.labels("state"))
-        for label, comp in self.components:
-            for p in comp.params:
-                key = f"{label}.{p.name}"
-                if comp.name == "fractional":
-                    if p.name == "order":
-                        out[key] = order
-                    elif p.name == "pole":
-                        out[key] = -0.5 * 2.0 ** order / h ** order
-                    else:
-                        out[key] = max(var - white, 0.1 * var) / n_state
-                elif comp.name == "white":
-                    out[key] = white / 2.0
-                elif comp.name == "quantisation":
-                    out[key] = math.sqrt(12.0 * white / 2.0)
-                elif comp.name == "random-walk":
-                    out[key] = math.sqrt(max(var, 1e-12) / (len(y) * h)) / 10.0
-                elif comp.name == "low-pass":
-                    out[key] = 0.25 / h
-                elif comp.name == "offset":
-                    out[key] = float(y.mean())
-                elif comp.name == "sinusoid":
-                    out[key] = {"frequency_hz": 0.1 / h, "amplitude": math.sqrt(var) / 10.0, "phase": 0.0}[p.name]
-                elif comp.name == "temperature-bias":
-                    out[key] = 0.0
-                else:
-                    out[key] = 0.0
-        return out
+        data = StartData(y, var, white, len(self.labels("state")), h, order)
+        return {f"{label}.{p.name}": comp.start(p.name, data) for label, comp in self.components for p in comp.params}
 
 
 def parse_model(spec) -> NoiseModel:
@@ -478,13 +455,18 @@ def parse_model(spec) -> NoiseModel:
         raise ValueError(f"bad model spec {spec!r}: components joined by '+', e.g. fractional+white")
     comps, seen = [], {}
     for p in parts:
+        if p not in COMPONENTS:  # an installed package's effect, registered on first use
+            from ..effects import load_entry_points
+
+            load_entry_points()
         if p not in COMPONENTS:
             raise ValueError(f"unknown component {p!r} in model {spec!r}; choose from: {', '.join(COMPONENTS)}")
         seen[p] = seen.get(p, 0) + 1
         label = p if seen[p] == 1 else f"{p}{seen[p]}"
         comps.append((label, COMPONENTS[p]))
-    if seen.get("low-pass", 0) > 1:
-        raise ValueError(f"model {spec!r}: at most one low-pass")
+    for p, count in seen.items():
+        if count > 1 and COMPONENTS[p].single:
+            raise ValueError(f"model {spec!r}: at most one {p}")
     if not any(c.kind in ("state", "measurement") for _, c in comps):
         raise ValueError(f"model {spec!r} has no stochastic component (fractional, white, random-walk …)")
     return NoiseModel(comps, "+".join(parts))

@@ -94,15 +94,5 @@ def default_values(model, h: float, temperature=None) -> dict:
     t_ref = 25.0 if temperature is None else float(torch.as_tensor(temperature, dtype=torch.float64).mean())
     for label, comp in model.components:
         for p in comp.params:
-            key = f"{label}.{p.name}"
-            if comp.name == "fractional":
-                a = 0.3
-                out[key] = {"order": a, "pole": -0.4 * 2 ** a / h ** a, "q": 1e-3 / h ** (2 * a)}[p.name]
-            else:
-                out[key] = {("white", "r"): 1e-3, ("quantisation", "step"): 0.01, ("random-walk", "sigma"): 2e-3,
-                            ("low-pass", "cutoff_hz"): 5.0, ("offset", "value"): 0.0, ("ramp", "slope"): 1e-4,
-                            ("sinusoid", "frequency_hz"): 3.37, ("sinusoid", "amplitude"): 0.01,
-                            ("sinusoid", "phase"): 0.0, ("temperature-bias", "bias_per_degC"): 0.02,
-                            ("temperature-bias", "t_ref"): t_ref, ("temperature-order", "order_per_degC"): 0.03,
-                            ("temperature-order", "t_ref"): t_ref}[(comp.name, p.name)]
+            out[f"{label}.{p.name}"] = comp.typical(p.name, h, t_ref)
     return out

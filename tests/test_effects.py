@@ -1,0 +1,185 @@
+"""Effects as one class each (issue 30, item 1): a user's effect, written here outside the package, is registered,
+simulated, fitted, checked and reported like a built-in one; the registry refuses what it cannot use."""
+import json
+import sys
+import textwrap
+
+import numpy as np
+import pytest
+import torch
+
+import torchtea.effects as effects
+from torchtea.checking import check
+from torchtea.checking.report import write_report
+from torchtea.effects import register, unregister
+from torchtea.fitting.mle import fit_series, regress_mean
+from torchtea.noise.components import COMPONENTS, Component, ParamSpec
+from torchtea.noise.model import parse_model
+from torchtea.noise.simulate import default_values, simulate_model
+
+H = 0.01
+
+
+class WarmUp(Component):  # a settling transient after power-on: A·exp(−t/τ)
+    name = "warm-up"
+    kind = "mean"
+    params = (ParamSpec("amplitude", "free", "units"), ParamSpec("tau_s", "positive", "τ (s)"))
+
+    def mean(self, v, t, inputs):
+        return v["amplitude"].unsqueeze(-1) * torch.exp(-t / v["tau_s"].unsqueeze(-1))
+
+    def typical(self, param, h, t_ref):
+        return {"amplitude": 0.05, "tau_s": 20.0}[param]
+    # the README's effect, word for word: no start method (0 for the amplitude, 1 s for the time constant)
+
+
+@pytest.fixture
+def warm_up():
+    register(WarmUp)
+    yield COMPONENTS["warm-up"]
+    unregister("warm-up")
+
+
+def _series(n=30000, seed=3, amplitude=0.3):
+    m = "fractional+white+warm-up"
+    v = default_values(m, H)
+    v["warm-up.amplitude"] = amplitude
+    y = simulate_model(m, v, n_steps=n, h=H, generator=torch.Generator().manual_seed(seed))[0, 0].numpy()
+    return m, v, y
+
+
+def test_a_user_effect_is_simulated_and_fitted_like_a_built_in_one(warm_up):
+    m, v, y = _series()
+    assert parse_model(m).names[-2:] == ["warm-up.amplitude", "warm-up.tau_s"]
+    assert v["warm-up.tau_s"] == 20.0  # its typical value, from its class
+    # the simulated series carries its mean: the first second sits A above the last
+    assert np.mean(y[:100]) - np.mean(y[-3000:]) == pytest.approx(0.3 * np.exp(-0.5 / 20), abs=0.1)
+    # the least-squares start takes it by nonlinear least squares from its start values (no regressor of its own)
+    assert parse_model(m).initial_values(torch.as_tensor(y), H)["warm-up.tau_s"] == 1.0
+    vals, resid = regress_mean(parse_model(m), y, H)
+    assert vals["warm-up.tau_s"] == pytest.approx(20.0, rel=0.2) and vals["warm-up.amplitude"] == pytest.approx(0.3,
+                                                                                                                rel=0.2)
+    f = fit_series(m, [y], H, method="exact")[0]
+    assert f.converged
+    for name in ("warm-up.amplitude", "warm-up.tau_s", "fractional.order", "white.r"):
+        assert abs(f.values[name] - v[name]) < 4 * f.se[name], (name, f.values[name], f.se[name])
+    assert f.ci95_method["warm-up.tau_s"] == "Wald on the log scale"  # its ParamSpec's transform
+
+
+def test_a_user_effect_goes_through_check_and_its_report(warm_up, tmp_path):
+    m, v, y = _series(n=6000, seed=4)
+    r = check(y, H, model=m, intervals=False)
+    assert "warm-up.tau_s" in r.fit.values and r.fit.values["warm-up.tau_s"] == pytest.approx(20, rel=0.3)
+    doc = write_report(tmp_path, {"ax": r}, {"recording": "sim.csv", "samples": len(y), "rate_hz": 1 / H},
+                       plots=False)
+    assert doc["axes"]["ax"]["model"] == m
+    text = (tmp_path / "report.md").read_text()
+    assert "warm-up.tau_s" in text and "τ (s)" in text  # its parameter with the unit its class gave
+    assert json.loads((tmp_path / "check.json").read_text())["model"] == m
+    # the model without it explains the data worse
+    r0 = check(y, H, model="fractional+white", intervals=False)
+    assert r0.fit.loglik < r.fit.loglik - 10
+
+
+def test_the_registry_refuses_what_it_cannot_use():
+    def effect(**attrs):
+        return type("Bad", (WarmUp,), attrs)
+
+    for attrs, words in [({"name": "Warm Up"}, "lower-case"), ({"name": "a+b"}, "'+'"), ({"name": "drift2"}, "digit"),
+                         ({"kind": "noise"}, "kind 'noise'"), ({"params": ()}, "ParamSpec"),
+                         ({"name": "white"}, "built-in")]:
+        with pytest.raises(ValueError, match="effect Bad") as info:
+            register(effect(**attrs))
+        assert words in str(info.value)
+    no_mean = type("NoMean", (Component,), {"name": "no-mean", "kind": "mean", "params": WarmUp.params})
+    with pytest.raises(ValueError, match="effect NoMean: a mean effect must define mean"):
+        register(no_mean)
+    with pytest.raises(TypeError):
+        register(object)
+    register(WarmUp)
+    try:
+        with pytest.raises(ValueError, match="registered already"):
+            register(WarmUp)
+        register(WarmUp, replace=True)
+    finally:
+        unregister("warm-up")
+    with pytest.raises(ValueError, match="unknown component 'warm-up'"):
+        parse_model("fractional+white+warm-up")
+    with pytest.raises(ValueError, match="built-in"):
+        unregister("white")
+
+
+def test_an_installed_package_registers_its_effects_by_entry_point(tmp_path, monkeypatch):
+    """A distribution on the path whose entry points name a Component subclass in group torchtea.effects: the
+    first model that names the effect loads it."""
+    (tmp_path / "my_effects.py").write_text(textwrap.dedent("""
+        import torch
+        from torchtea.noise.components import Component, ParamSpec
+
+        class Step(Component):
+            name = "level-step-demo"
+            kind = "mean"
+            params = (ParamSpec("size", "free", "units"),)
+
+            def mean(self, v, t, inputs):
+                return v["size"].unsqueeze(-1) * (t >= t[len(t) // 2]).to(t.dtype)
+        """))
+    dist = tmp_path / "my_effects-0.1.dist-info"
+    dist.mkdir()
+    (dist / "METADATA").write_text("Metadata-Version: 2.1\nName: my-effects\nVersion: 0.1\n")
+    (dist / "entry_points.txt").write_text("[torchtea.effects]\nstep = my_effects:Step\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.setattr(effects, "_loaded_entry_points", False)
+    try:
+        m = parse_model("fractional+white+level-step-demo")
+        assert m.names[-1] == "level-step-demo.size" and type(COMPONENTS["level-step-demo"]).__name__ == "Step"
+    finally:
+        unregister("level-step-demo")
+        sys.modules.pop("my_effects", None)
+
+
+def test_the_command_line_takes_a_users_effects_module(tmp_path, capsys):
+    """``torchtea --effects my_effects.py simulate/check --model …+warm-up``: the module's effect is simulated,
+    checked and reported; a module that does not import is one clear error naming it."""
+    from torchtea.cli import main
+
+    mod = tmp_path / "my_effects.py"
+    mod.write_text(textwrap.dedent('''
+        import torch
+        from torchtea.effects import register
+        from torchtea.noise.components import Component, ParamSpec
+
+        @register
+        class WarmUp(Component):
+            name = "warm-up"
+            kind = "mean"
+            params = (ParamSpec("amplitude", "free", "units"), ParamSpec("tau_s", "positive", "τ (s)"))
+
+            def mean(self, v, t, inputs):
+                return v["amplitude"].unsqueeze(-1) * torch.exp(-t / v["tau_s"].unsqueeze(-1))
+
+            def typical(self, param, h, t_ref):
+                return {"amplitude": 0.3, "tau_s": 8.0}[param]
+
+            def start(self, param, data):
+                return {"amplitude": 0.0, "tau_s": 10.0}[param]
+        '''))
+    spec = "fractional+white+warm-up"
+    try:
+        assert main(["--effects", str(mod), "simulate", "--model", spec, "--n", "4000", "--h", str(H), "--seed", "7",
+                     "--out", str(tmp_path / "w.csv")]) == 0
+        assert main(["--effects", str(mod), "check", str(tmp_path / "w.csv"), "--column", "y", "--model", spec,
+                     "--no-plots", "--out", str(tmp_path / "c")]) == 0
+        doc = json.loads((tmp_path / "c" / "check.json").read_text())
+        assert doc["model"] == spec and "warm-up.tau_s" in (tmp_path / "c" / "report.md").read_text()
+    finally:
+        unregister("warm-up")
+    capsys.readouterr()
+    assert main(["--effects", str(tmp_path / "missing.py"), "simulate", "--model", spec, "--n", "10", "--h", "0.01",
+                 "--out", str(tmp_path / "x.csv")]) == 2
+    assert "--effects" in capsys.readouterr().err and not (tmp_path / "x.csv").exists()
+    (tmp_path / "broken.py").write_text("import no_such_module_here\n")
+    assert main(["--effects", str(tmp_path / "broken.py"), "simulate", "--model", "fractional+white", "--n", "10",
+                 "--h", "0.01", "--out", str(tmp_path / "x.csv")]) == 2
+    err = capsys.readouterr().err
+    assert "broken.py" in err and "ModuleNotFoundError" in err

@@ -1,0 +1,107 @@
+"""The registry of model components (effects): one class per effect, found by name everywhere.
+
+Every part of a noise model — the built-in ``fractional``, ``white``, ``random-walk``, ``low-pass``, ``offset``,
+``ramp``, ``sinusoid``, ``temperature-bias``, ``temperature-order``, ``quantisation`` and any a user writes — is a
+:class:`~torchtea.noise.components.Component` subclass that carries its own knowledge: its parameters with units
+and transforms, its spectrum or state block or mean, its typical values (``torchtea simulate``), its data-based
+start, its part of the least-squares start, and where ``check`` inserts it. :func:`parse_model` finds it here by
+name. A user adds an effect from their own module or notebook::
+
+    import torch
+    from torchtea.effects import register
+    from torchtea.noise.components import Component, ParamSpec
+
+    @register
+    class WarmUp(Component):  # a settling transient after power-on: A·exp(−t/τ)
+        name = "warm-up"
+        kind = "mean"
+        params = (ParamSpec("amplitude", "free", "units"), ParamSpec("tau_s", "positive", "τ (s)"))
+
+        def mean(self, v, t, inputs):
+            return v["amplitude"].unsqueeze(-1) * torch.exp(-t / v["tau_s"].unsqueeze(-1))
+
+        def typical(self, param, h, t_ref):
+            return {"amplitude": 0.05, "tau_s": 20.0}[param]
+
+        def start(self, param, data):
+            return {"amplitude": 0.0, "tau_s": 10.0}[param]
+
+and ``fractional+white+warm-up`` is then simulated, fitted (Whittle and exact) and reported like a built-in model.
+A package can register its effects through the entry-point group ``torchtea.effects`` (each entry a Component
+subclass); they are loaded the first time a model names a component that is not registered.
+"""
+from __future__ import annotations
+
+from importlib import metadata
+
+from .noise.components import COMPONENTS, Component, ParamSpec
+
+__all__ = ["register", "unregister", "registered", "ENTRY_POINTS"]
+
+#: The entry-point group a package registers its effects under.
+ENTRY_POINTS = "torchtea.effects"
+
+KINDS = ("state", "measurement", "filter", "mean", "modifier")
+_BUILT_IN = frozenset(COMPONENTS)
+_loaded_entry_points = False
+
+
+def register(effect, *, replace: bool = False):
+    """Register a :class:`~torchtea.noise.components.Component` subclass (or an instance of one) under its
+    ``name``; returns what it was given, so it serves as a class decorator. Raises ``ValueError`` naming the
+    effect when its name, kind or parameters are not usable, or when the name is taken (``replace=True`` replaces
+    a user's effect; the built-in ones cannot be replaced)."""
+    comp = effect() if isinstance(effect, type) else effect
+    if not isinstance(comp, Component):
+        raise TypeError(f"register() takes a Component subclass, got {effect!r}")
+    name = comp.name
+    where = f"effect {type(comp).__name__}"
+    if not isinstance(name, str) or not name or name != name.strip().lower() or any(c in name for c in "+. "):
+        raise ValueError(f"{where}: name {name!r} must be a non-empty lower-case word without '+', '.' or spaces")
+    if name[-1].isdigit():
+        raise ValueError(f"{where}: name {name!r} must not end in a digit (a second copy is labelled {name}2)")
+    if comp.kind not in KINDS:
+        raise ValueError(f"{where}: kind {comp.kind!r} must be one of {', '.join(KINDS)}")
+    if not comp.params or not all(isinstance(p, ParamSpec) for p in comp.params):
+        raise ValueError(f"{where}: params must be a non-empty tuple of ParamSpec")
+    if comp.kind == "mean" and type(comp).mean is Component.mean:
+        raise ValueError(f"{where}: a mean effect must define mean(v, t, inputs)")
+    if comp.kind == "state" and (type(comp).block is Component.block or type(comp).spectrum is Component.spectrum):
+        raise ValueError(f"{where}: a state effect must define block(v, h, memory) and spectrum(v, omega, h)")
+    if name in _BUILT_IN:
+        raise ValueError(f"{where}: {name!r} is a built-in component and cannot be replaced")
+    if name in COMPONENTS and not replace:
+        raise ValueError(f"{where}: {name!r} is registered already ({type(COMPONENTS[name]).__name__}); "
+                         "replace=True replaces it")
+    COMPONENTS[name] = comp
+    return effect
+
+
+def unregister(name: str) -> None:
+    """Remove a user's effect from the registry (the built-in ones stay)."""
+    if name in _BUILT_IN:
+        raise ValueError(f"{name!r} is a built-in component and cannot be removed")
+    COMPONENTS.pop(name, None)
+
+
+def registered() -> dict:
+    """``{name: component}`` of every registered effect, built-in first."""
+    return dict(COMPONENTS)
+
+
+def load_entry_points() -> None:
+    """Register the effects of installed packages (entry-point group :data:`ENTRY_POINTS`), once. A broken
+    entry point is reported with its name and skipped."""
+    global _loaded_entry_points
+    if _loaded_entry_points:
+        return
+    _loaded_entry_points = True
+    import warnings
+
+    for ep in metadata.entry_points(group=ENTRY_POINTS):
+        try:
+            obj = ep.load()
+            if getattr(obj, "name", None) not in COMPONENTS:
+                register(obj)
+        except Exception as exc:  # noqa: BLE001 - a third party's module: name it and go on
+            warnings.warn(f"torchtea effect entry point {ep.name!r} ({ep.value}) not loaded: {exc}", stacklevel=2)

@@ -183,3 +183,25 @@ def test_the_command_line_takes_a_users_effects_module(tmp_path, capsys):
                  "--h", "0.01", "--out", str(tmp_path / "x.csv")]) == 2
     err = capsys.readouterr().err
     assert "broken.py" in err and "ModuleNotFoundError" in err
+
+
+def test_check_screens_and_suggests_a_users_effect(warm_up):
+    """A registered mean effect is a candidate of check's screen (its default screen: the exact LR at its
+    least-squares values, the model held), after the built-in ones; hidden in the data it is suggested first, with
+    its parameters near the truth; on data without it it passes no screen."""
+    from torchtea.checking.check import CANDIDATES, candidates_all
+    from torchtea.noise.components import MEAN_SCREEN
+
+    assert candidates_all()[-1] == "warm-up" and "warm-up" not in CANDIDATES
+    m, v, y = _series(n=6000, seed=5, amplitude=0.3)
+    r = check(y, H, intervals=False)
+    row = next(s for s in r.screens if s["effect"] == "warm-up")
+    assert row["test"] == MEAN_SCREEN and row["passed"] and row["p_value"] < 1e-4
+    top = r.suggestions[0]
+    assert top.effect == "warm-up" and top.fit.model.spec == m
+    assert top.fit.values["warm-up.tau_s"] == pytest.approx(20, rel=0.3)
+    y0 = simulate_model("fractional+white", default_values("fractional+white", H), n_steps=6000, h=H,
+                        generator=torch.Generator().manual_seed(5))[0, 0].numpy()
+    r0 = check(y0, H, intervals=False)
+    row0 = next(s for s in r0.screens if s["effect"] == "warm-up")
+    assert row0["p_value"] is not None and not row0["passed"] and not r0.suggestions

@@ -4,8 +4,9 @@ r"""``check``: fit a noise model, test it against the measurements, and rank the
 2. **Diagnose** it (:mod:`.diagnostics`): the standardised innovations in time, lag and frequency, the Allan
    deviation against the model's band, the innovations against the temperature. ``adequate`` when every
    diagnostic that ran passed at its level.
-3. **Screen** every effect of the library that the model lacks, each with a test whose null distribution is
-   known, so its p-value is calibrated (:data:`SCREENS`):
+3. **Screen** every registered effect (:mod:`torchtea.effects`) that the model lacks, each with a test whose
+   null distribution is known, so its p-value is calibrated — each component's ``screen`` (the built-in ones'
+   in :data:`SCREENS`):
 
    - linear mean terms (``ramp``, ``temperature-bias``): the exact likelihood-ratio at the fitted noise
      parameters, by least squares of the innovations on the *whitened* regressor (χ²₁; mean and noise
@@ -15,7 +16,9 @@ r"""``check``: fit a noise model, test it against the measurements, and rank the
    - stochastic components (``random-walk``, ``low-pass``, ``quantisation``): the Whittle likelihood-ratio of
      the model with and without the component (the null value is on the boundary: ½χ²₀ + ½χ²₁);
    - ``temperature-order``: the exact likelihood-ratio over its slope alone, the other parameters held
-     at the fit (χ²₁; holding them makes the test conservative).
+     at the fit (χ²₁; holding them makes the test conservative);
+   - a user's mean effect without a screen of its own: the exact likelihood-ratio at its least-squares values
+     with the model held (χ²ₖ, conservative).
 
    An effect passes when its p-value is below ``screen_level`` / (number screened) — Bonferroni, so on data
    from the model the chance of any suggestion is at most ``screen_level``.
@@ -35,19 +38,18 @@ import torch
 from scipy import stats
 
 from ..fitting.mle import Fit, centred, exact_loglik, fit_series, refine_exact, refine_frequency, whittle_fit
-from ..noise.components import COMPONENTS
+from ..noise.components import COMPONENTS, Component, NotScreened
+from ..noise.components import candidates as candidates_all
 from ..noise.model import NoiseModel, parse_model
 from .diagnostics import LEVEL, Diagnostic, Innovations, innovations, linear_lr, metrics, run_diagnostics
 
 __all__ = ["check", "CheckResult", "Suggestion", "CANDIDATES", "extend", "SCREENS", "effect_parameters"]
 
-#: The effects screened, in this order (each a component of :mod:`torchtea.noise.components`).
-CANDIDATES = ("random-walk", "sinusoid", "temperature-bias", "temperature-order", "low-pass", "ramp", "quantisation")
-SCREENS = {"random-walk": "Whittle LR, ½χ²₀+½χ²₁", "low-pass": "Whittle LR, ½χ²₀+½χ²₁",
-           "quantisation": "Whittle LR, ½χ²₀+½χ²₁", "ramp": "exact LR (whitened regressor), χ²₁",
-           "temperature-bias": "exact LR (whitened regressor), χ²₁",
-           "sinusoid": "largest innovation periodogram line (F(2,200), max over frequencies)",
-           "temperature-order": "exact LR over the slope, others held (χ²₁, conservative)"}
+#: The built-in effects check screens, in the order of its table; :func:`~torchtea.noise.components.candidates` gives
+#: every registered one (a user's too) at call time.
+CANDIDATES = candidates_all()
+#: What each built-in effect's screen computes (each component's ``screen_test``).
+SCREENS = {name: COMPONENTS[name].screen_test for name in CANDIDATES}
 
 
 def extend(model: NoiseModel, effect: str) -> NoiseModel:
@@ -55,7 +57,7 @@ def extend(model: NoiseModel, effect: str) -> NoiseModel:
     puts it (a ``low-pass`` right after the last stochastic component, anything else at the end)."""
     model = parse_model(model)
     if effect not in COMPONENTS:
-        raise ValueError(f"unknown effect {effect!r}; choose from: {', '.join(CANDIDATES)}")
+        raise ValueError(f"unknown effect {effect!r}; choose from: {', '.join(candidates_all())}")
     comp = COMPONENTS[effect]
     names = [c.name for _, c in model.components]
     if effect in names and not comp.add_again:
@@ -177,104 +179,68 @@ def _assess(model, values, y, h, inputs, level):
     return inn, diags, metrics(inn, diags)
 
 
-def _screen(model: NoiseModel, fit: Fit, wf, inn: Innovations, diags, y, h, inputs, candidates,
+@dataclass
+class ScreenContext:
+    """What a component's :meth:`~torchtea.noise.components.Component.screen` may use: the model and its fit, the
+    model extended by the component (``alt``, the component labelled ``label``), the model's innovations and
+    diagnostics at the fit, the series ``y`` (NaN = missing) with its times ``t`` (s) and sample time ``h``, and the
+    input channels (``{"temperature": (N,)}`` or None)."""
+
+    model: NoiseModel
+    alt: NoiseModel
+    label: str
+    fit: Fit
+    inn: Innovations
+    diags: list
+    y: np.ndarray
+    t: np.ndarray
+    h: float
+    inputs: dict | None
+
+    def diagnostic(self, name: str) -> Diagnostic:
+        return next(d for d in self.diags if d.name == name)
+
+
+def _screen(model: NoiseModel, fit: Fit, wf, inn: Innovations, diags, y, h, inputs, effects,
             cache: dict | None = None) -> list[dict]:
-    """Screening statistic, p-value and a starting point for each candidate effect."""
-    N = len(y)
-    t = np.arange(N) * h
-    T = None if inputs is None else inputs.get("temperature")
+    """Screening statistic, p-value and a starting point for each candidate effect: each component's own
+    :meth:`~torchtea.noise.components.Component.screen`, the stochastic ones without one by the Whittle
+    likelihood-ratio (all of them on one periodogram)."""
+    t = np.arange(len(y)) * h
     out = []
     stochastic = []
-    for effect in candidates:
-        row = {"effect": effect, "test": SCREENS[effect], "statistic": None, "p_value": None, "log10_p": None,
+    for effect in effects:
+        comp = COMPONENTS[effect]
+        row = {"effect": effect, "test": comp.screen_test, "statistic": None, "p_value": None, "log10_p": None,
                "start": None, "note": ""}
+        out.append(row)
         try:
             alt = extend(model, effect)
         except ValueError as exc:
             row["note"] = f"not screened: {exc}"
-            out.append(row)
             continue
         label = _new_label(model, alt)
-        if effect in ("temperature-bias", "temperature-order") and T is None:
-            row["note"] = "not screened: needs the temperature channel"
-            out.append(row)
+        missing = [k for k in comp.inputs if inputs is None or inputs.get(k) is None]
+        reason = f"needs the {' and '.join(missing)} channel" if missing else comp.not_screened(model)
+        if reason:
+            row["note"] = f"not screened: {reason}"
             continue
-        if effect == "quantisation" and model.has("white"):
-            row["note"] = "not screened: quantisation noise is white, indistinguishable from the white component"
-            out.append(row)
-            continue
-        base = dict(fit.values)
-        if effect in ("ramp", "temperature-bias"):
-            if effect == "ramp":
-                lr, beta = linear_lr(inn, t - t.mean())
-            else:  # the temperature diagnostic's score test is this likelihood ratio
-                dt = next(d for d in diags if d.name == "temperature").detail
-                lr, beta = dt["score_bias"], [dt["bias_per_degC_gls"]]
-            logp = stats.chi2.logsf(lr, 1)
-            start = dict(base)
-            if effect == "ramp":
-                start[f"{label}.slope"] = float(beta[0])
-            else:
-                start[f"{label}.bias_per_degC"] = float(beta[0])
-                start[f"{label}.t_ref"] = float(np.mean(T))
-            row.update(statistic=lr, start=start)
-        elif effect == "sinusoid":
-            ln = next(d for d in diags if d.name == "lines")
-            r = inn.y - inn.mean
-            f0 = refine_frequency(np.where(inn.observed, r, 0.0), ln.detail["peak_hz"], h)
-            lr, beta = linear_lr(inn, np.stack([np.sin(2 * np.pi * f0 * t), np.cos(2 * np.pi * f0 * t)]))
-            logp = ln.detail["log_p"]
-            start = dict(base)
-            start.update({f"{label}.frequency_hz": f0, f"{label}.amplitude": float(math.hypot(*beta)),
-                          f"{label}.phase": float(math.atan2(beta[1], beta[0]))})
-            row.update(statistic=lr, start=start)
-        elif effect == "temperature-order":
-            lr, g, quiet = _scan_order_slope(model, alt, label, fit, inn, y, h, inputs)
-            if quiet:
-                row["note"] = (f"the scan stopped after γ = 0, ±δ: their parabola peaks less than {SCAN_QUIET:g} nat "
-                               "above the model (a lower bound of the statistic)")
-            if lr is None:
-                frac = next(lb for lb, c in model.components if c.name == "fractional")
-                order = fit.values[f"{frac}.order"]
-                row["note"] = (f"not screened: the fitted order {order:.3g} is at its bound, and no slope per °C "
-                               "keeps it inside (0, 1)")
-                out.append(row)
-                continue
-            logp = stats.chi2.logsf(lr, 1)
-            start = dict(base)
-            start.update({f"{label}.order_per_degC": g, f"{label}.t_ref": float(np.mean(T))})
-            row.update(statistic=lr, start=start)
-        else:
+        if comp.kind in ("state", "measurement", "filter") and type(comp).screen is Component.screen:
             stochastic.append((row, alt))
-            out.append(row)
             continue
-        row.update(p_value=float(math.exp(logp)), log10_p=float(logp / math.log(10)))
-        out.append(row)
+        try:
+            lr, logp, values, note = comp.screen(ScreenContext(model, alt, label, fit, inn, diags, y, t, h, inputs))
+        except NotScreened as exc:
+            row["note"] = f"not screened: {exc}"
+            continue
+        row.update(statistic=lr, start={**dict(fit.values), **values}, note=note,
+                   p_value=float(math.exp(logp)), log10_p=float(logp / math.log(10)))
     if stochastic and np.isnan(y).any():
         for row, _ in stochastic:
             row["note"] = "not screened: the Whittle likelihood-ratio needs a complete series (missing samples)"
     elif stochastic:
         _whittle_screens(model, wf, stochastic, y, h, inputs, {} if cache is None else cache)
     return out
-
-
-def _alt_starts(model, alt, label, base_values: dict, h: float, n: int) -> list[dict]:
-    """Starts of an extended model's Whittle fit: the model's Whittle estimate plus the new component at a
-    few strengths (a random walk whose spectrum at the lowest frequency is 0.1× / 1× the total, a low-pass at
-    0.4× / 0.1× the Nyquist frequency, a quantisation step of the white level)."""
-    comp = dict(alt.components)[label]
-    omega1 = torch.tensor([2 * math.pi / n], dtype=torch.float64)
-    level = float(model.spectrum(base_values, omega1, h)[0, 0])
-    out = []
-    if comp.name == "random-walk":
-        for share in (0.1, 1.0):  # S_rw(ω₁) = σ²h/(2π·4 sin²(ω₁/2))
-            out.append({f"{label}.sigma": math.sqrt(share * level * 2 * math.pi * 4 * math.sin(omega1 / 2) ** 2 / h)})
-    elif comp.name == "low-pass":
-        out = [{f"{label}.cutoff_hz": c / (2 * h)} for c in (0.4, 0.1)]
-    elif comp.name == "quantisation":
-        r = float(model.measurement_variance(base_values)[0]) or level * 2 * math.pi
-        out = [{f"{label}.step": math.sqrt(12 * r)}]
-    return [{**base_values, **o} for o in out]
 
 
 def _whittle_screens(model, base, rows_alts, y, h, inputs, cache: dict):
@@ -295,7 +261,8 @@ def _whittle_screens(model, base, rows_alts, y, h, inputs, cache: dict):
         # convergence and the better kept: after a few iterations the bent start can look better and is not
         wf = max((whittle_fit(alt, [yy], h, inputs=inp, fractions=(0.5,)),
                   whittle_fit(alt, [yy], h, inputs=inp, grid=False,
-                              starts=[_alt_starts(model, alt, label, base_values, h, len(y))])),
+                              starts=[[{**base_values, **o} for o in dict(alt.components)[label].strengths(
+                                  label, model, base_values, h, len(y))]])),
                  key=lambda w: float(w.loglik[0]) if bool(torch.isfinite(w.loglik[0])) else -math.inf)
         lr = max(0.0, 2.0 * float(wf.loglik[0] - base.loglik[0]))
         logp = math.log(0.5) + stats.chi2.logsf(lr, 1) if lr > 0 else 0.0
@@ -371,11 +338,13 @@ def _scan_order_slope(model, alt, label, fit, inn, y, h, inputs) -> tuple[float 
 
 
 def check(y, h: float, model="fractional+white", inputs: dict | None = None, *, level: float = LEVEL,
-          screen_level: float = 0.05, candidates=CANDIDATES, fit: Fit | None = None, intervals: bool = True,
+          screen_level: float = 0.05, candidates=None, fit: Fit | None = None, intervals: bool = True,
           _restarts: int = 1, _cache: dict | None = None) -> CheckResult:
     """Fit ``model`` to the series ``y`` (NaN = missing, sample time ``h``), run the diagnostics and rank the
     missing effects (module docstring). ``inputs``: ``{"temperature": (N,)}`` (°C) when there is a temperature
-    channel. ``fit``: an existing exact fit of ``model`` to ``y`` to use. ``intervals``: compute the intervals of
+    channel. ``candidates``: the effects to screen (default: every registered candidate,
+    :func:`~torchtea.noise.components.candidates`). ``fit``: an existing exact fit of ``model`` to ``y`` to use.
+    ``intervals``: compute the intervals of
     the model's parameters and of the best suggestion's (a finite-difference Hessian each, 1 + 2k² likelihood
     evaluations for k parameters); the other suggestions' parameters come without.
 
@@ -411,7 +380,9 @@ def check(y, h: float, model="fractional+white", inputs: dict | None = None, *, 
     clock("fit")
     inn, diags, mets = _assess(model, fit.values, y, h, inputs, level)
     clock("diagnostics")
-    screens = _screen(model, fit, wf, inn, diags, y, h, inputs, [c for c in candidates if c in CANDIDATES], cache)
+    effects = [c for c in (candidates_all() if candidates is None else candidates)
+               if c in COMPONENTS and COMPONENTS[c].candidate]
+    screens = _screen(model, fit, wf, inn, diags, y, h, inputs, effects, cache)
     clock("screen")
     screened = [r for r in screens if r["p_value"] is not None]
     threshold = screen_level / max(1, len(screened))
@@ -446,13 +417,15 @@ def check(y, h: float, model="fractional+white", inputs: dict | None = None, *, 
         if key not in cache:
             cache[key] = refine_exact(alt, y, h, start, inputs=inputs, fixed=fixed, metric=metric, intervals=False)
         f2 = copy.deepcopy(cache[key])  # the frequency's bookkeeping below changes the fit
+        if not f2.loglik >= fit.loglik - NESTED_SLACK:
+            f2 = _nested_refit(model, alt, label, fit, f2, row, y, h, inputs, fixed, cache)
         refits.append(f2)
         if row["effect"] == "sinusoid":
             f2.free.append(f"{label}.frequency_hz")
             f2.ci95_method[f"{label}.frequency_hz"] = "refined periodogram peak (held in the exact refit): no interval"
         gain = _bic(fit) - _bic(f2)
         if gain <= 0:
-            row["note"] = (f"passed the screen but the exact refit does not lower BIC (gain {gain:.1f}): "
+            _add_note(row, f"passed the screen but the exact refit does not lower BIC (gain {gain:.1f}): "
                            "not suggested")
             continue
         _, d2, m2 = _assess(alt, f2.values, y, h, inputs, level)
@@ -485,6 +458,48 @@ def check(y, h: float, model="fractional+white", inputs: dict | None = None, *, 
     clock("intervals")
     return CheckResult(y, h, inputs, fit, inn, diags, mets, screens, suggestions, level, screen_level,
                        time.perf_counter() - t0, notes, timings=clock.laps)
+
+
+def _add_note(row: dict, text: str) -> None:
+    row["note"] = f"{row['note']}; {text}" if row.get("note") else text
+
+
+#: A refit of the extended model whose ℓ is more than this many nats below the model's fit has failed (the
+#: extended model contains the model, so its maximum is at least the model's): it is refitted from the model's fit.
+NESTED_SLACK = 0.5
+
+
+def _nested_refit(model, alt, label, fit: Fit, f2: Fit, row: dict, y, h, inputs, fixed, cache: dict) -> Fit:
+    """The extended model ``alt`` refitted from the point where it is the model at its fit ``fit``: the model's
+    values, a mean or modifier effect's parameters at the screen's estimate (given the model's values), a stochastic
+    one's where it vanishes (:meth:`~torchtea.noise.components.Component.vanishing`). Returns the better of this and
+    the failed refit ``f2``; the row's note says what happened."""
+    comp = dict(alt.components)[label]
+    new = [n for n in alt.names if n not in model.names]
+    if comp.kind in ("mean", "modifier"):
+        effect = {n: row["start"][n] for n in new if n in row["start"]}
+    else:
+        effect = comp.vanishing(label, model, dict(fit.values), h, len(y))
+    start = {**dict(fit.values), **effect}
+    if set(start) != set(alt.names):  # the effect does not say where it vanishes: nothing to refit from
+        _add_note(row, f"the refit ended at ℓ {f2.loglik:.2f}, below the model's {fit.loglik:.2f}: an optimiser "
+                       f"failure (the models are nested), and {comp.name} does not say where it vanishes")
+        return f2
+    metric = None
+    if fit.hessian is not None:  # the model's curvature; the new parameters' own is found by differences
+        idx = [alt.names.index(n) for n in model.names]
+        metric = torch.zeros(len(alt.names), len(alt.names), dtype=torch.float64)
+        metric[np.ix_(idx, idx)] = fit.hessian.to(torch.float64)
+    key = ("nested refit", alt.spec, tuple(sorted((k, float(v)) for k, v in start.items())))
+    if key not in cache:
+        cache[key] = refine_exact(alt, y, h, start, inputs=inputs, fixed=fixed, metric=metric, intervals=False)
+    f3 = copy.deepcopy(cache[key])
+    better = f3 if f3.loglik > f2.loglik or not math.isfinite(f2.loglik) else f2
+    how = "at the screen's estimate" if comp.kind in ("mean", "modifier") else "vanishing"
+    _add_note(row, f"the first refit ended at ℓ {f2.loglik:.2f}, below the model's {fit.loglik:.2f} — an optimiser "
+                   "failure, not evidence (the extended model contains the model); refitted from the model's fit "
+                   f"with {comp.name} {how}: ℓ {f3.loglik:.2f}")
+    return better
 
 
 def _better_model_fit(model, fit: Fit, refits: list, y, h, inputs, intervals: bool) -> Fit | None:

@@ -33,7 +33,8 @@ from torch import Tensor
 
 from ..core.gl import gl_tail_coefficients
 
-__all__ = ["ParamSpec", "Component", "StartData", "COMPONENTS", "ORDER_BOUNDS", "logit"]
+__all__ = ["ParamSpec", "Component", "StartData", "NotScreened", "COMPONENTS", "ORDER_BOUNDS", "logit", "candidates",
+           "WHITTLE_SCREEN", "MEAN_SCREEN"]
 
 #: Orders the ``fractional`` component may take: open interval, the kernel is designed on it.
 ORDER_BOUNDS = (0.0, 1.0)
@@ -72,6 +73,19 @@ class StartData(NamedTuple):
     order: float
 
 
+class NotScreened(Exception):
+    """Raised by a component's :meth:`Component.screen` when this model or these data cannot screen it; the
+    message says why (``check`` writes it in the screen's row)."""
+
+
+#: The screen of a stochastic component (a state, measurement or filter): the Whittle likelihood-ratio of the model
+#: with and without it; the null value is on the boundary of the parameter space, hence the mixture.
+WHITTLE_SCREEN = "Whittle LR, ½χ²₀+½χ²₁"
+#: The default screen of a user's mean effect: the exact likelihood-ratio at the effect's least-squares values (on
+#: the model's residual) with the model's parameters held — a lower bound of the refit's, so conservative.
+MEAN_SCREEN = "exact LR at the effect's least-squares values, the model's held (χ²ₖ, conservative)"
+
+
 def logit(p: Tensor) -> Tensor:
     return torch.log(p) - torch.log1p(-p)
 
@@ -106,6 +120,61 @@ class Component:
     def measurement_variance(self, v: dict) -> Tensor:
         raise NotImplementedError
 
+    # ---- how check screens it -----------------------------------------------------------------------------
+    #: ``check`` screens it when the model lacks it (the base parts — fractional, white, offset — are not)
+    candidate: bool = True
+    #: the order of the screens in check's table (the built-in ones 10 … 70; a user's effect after them)
+    screen_order: int = 100
+
+    @property
+    def screen_test(self) -> str | None:
+        """What the screen computes, named in check's table: a stochastic component's Whittle LR, a mean's exact LR
+        at its least-squares values (:meth:`screen`); None: not screened (a modifier without a screen)."""
+        if self.kind in ("state", "measurement", "filter"):
+            return WHITTLE_SCREEN
+        return MEAN_SCREEN if self.kind == "mean" else None
+
+    def not_screened(self, model) -> str | None:
+        """Why ``model`` cannot be screened for it (None: it can); ``check`` skips it with this note."""
+        return None
+
+    def screen(self, ctx) -> tuple[float, float, dict, str]:
+        """The screen of ``ctx.alt`` (the model extended by this component, labelled ``ctx.label``) against the
+        model at its fit: ``(statistic, log p-value, this component's start values, note)``; raises
+        :class:`NotScreened` with the reason when it cannot. ``ctx``: :class:`~torchtea.checking.check.ScreenContext`.
+
+        A stochastic component without its own screen is screened by the Whittle likelihood-ratio in ``check``
+        (this method is not called). The default for a mean (a user's effect): its values by least squares on the
+        model's residual — its :meth:`regressors` and :meth:`fit_residual`, from its :meth:`start` — and the
+        exact likelihood-ratio there with the model's parameters held (:data:`MEAN_SCREEN`, χ² with as many degrees
+        of freedom as it has parameters)."""
+        if self.kind != "mean":
+            raise NotScreened(f"{self.name} has no screen")
+        from scipy import stats
+
+        from ..fitting.mle import centred, exact_loglik
+
+        y, t, ok = ctx.y, ctx.t, ~np.isnan(ctx.y)
+        inp = None if ctx.inputs is None else {k: torch.as_tensor(v, dtype=torch.float64)
+                                                for k, v in ctx.inputs.items()}
+        fitted = ctx.model.mean(dict(ctx.fit.values), torch.as_tensor(t), inp).numpy()[0]
+        resid = np.where(ok, y - fitted, np.nan)
+        resid[ok] -= resid[ok].mean()
+        start = ctx.alt.initial_values(torch.as_tensor(np.where(ok, y, np.nanmean(y))), ctx.h)
+        values, columns = self.regressors(ctx.label, t, ctx.inputs, ok)
+        if columns:
+            X = np.stack([c for _, c in columns], 1)[ok]
+            X = X - X.mean(0)
+            coef, *_ = np.linalg.lstsq(X, resid[ok], rcond=None)
+            resid[ok] -= X @ coef
+            values.update({n: float(b) for (n, _), b in zip(columns, coef)})
+        values.update(self.fit_residual(ctx.label, resid, t, ok, ctx.h, start, ctx.inputs))
+        values = {n: values.get(n, start[n]) for n in ctx.alt.names if n not in ctx.model.names}
+        ll = float(exact_loglik(ctx.alt, {**ctx.fit.values, **values}, centred(ctx.alt, y), ctx.h,
+                                inputs=ctx.inputs)[0])
+        lr = max(0.0, 2.0 * (ll - ctx.inn.loglik)) if math.isfinite(ll) else 0.0
+        return lr, float(stats.chi2.logsf(lr, len(values))), values, ""
+
     # ---- how a model holds it ---------------------------------------------------------------------------
     #: at most one in a model (``parse_model`` refuses a second)
     single: bool = False
@@ -113,6 +182,10 @@ class Component:
     add_again: bool = False
     #: it carries the series' constant level: the fits do not centre the series (``offset``)
     level: bool = False
+
+    def validate(self, components: list, spec: str) -> None:
+        """Raise ``ValueError`` (naming the model ``spec``) when the model's ``(label, component)`` list cannot hold
+        this component (a combination no filter can evaluate); default: any model can."""
 
     def position(self, model) -> int:
         """Where :func:`~torchtea.checking.check.extend` inserts it among ``model``'s components (default: at the
@@ -146,6 +219,17 @@ class Component:
     def scale_drive(self, label: str, v: dict, s: float, fixed) -> None:
         """Scale this component's drive (in place) when a grid start's spectrum is scaled by ``s`` to meet the
         periodogram on the lower half of the band (names in ``fixed`` are kept)."""
+
+    def strengths(self, label: str, model, values: dict, h: float, n: int) -> list[dict]:
+        """This component's parameters at a few strengths, to start the Whittle fit of ``model`` extended by it
+        from the fit ``values`` of ``model`` (``n`` samples); default none (the grid's starts only)."""
+        return []
+
+    def vanishing(self, label: str, model, values: dict, h: float, n: int) -> dict:
+        """This component's parameters where it (all but) vanishes, so that ``model`` extended by it at these
+        values is ``model`` at ``values``: the start from which an extended model's likelihood is at least the
+        model's (the models are nested). Default: empty (not known)."""
+        return {}
 
     def regressors(self, label: str, t, inputs: dict | None, ok) -> tuple[dict, list]:
         """The mean's linear part for the least-squares start (:func:`~torchtea.fitting.mle.regress_mean`):
@@ -208,6 +292,7 @@ class Fractional(Component):
 
     name = "fractional"
     kind = "state"
+    candidate = False
     params = (ParamSpec("order", "bounded", "α (dimensionless)", ORDER_BOUNDS),
               ParamSpec("pole", "fraction", "f (1/s^α), stable for −2^α < f h^α < 0"),
               ParamSpec("q", "positive", "drive variance (units²)"))
@@ -278,6 +363,7 @@ class RandomWalk(Component):
 
     name = "random-walk"
     kind = "state"
+    screen_order = 10
     params = (ParamSpec("sigma", "positive", "K (units/√s)"),)
 
     def spectrum(self, v, omega, h):
@@ -297,6 +383,19 @@ class RandomWalk(Component):
         if f"{label}.sigma" not in fixed:
             v[f"{label}.sigma"] = v[f"{label}.sigma"] * math.sqrt(s) * 0.1
 
+    def _sigma(self, share, model, values, h, n):
+        """The σ whose spectrum at the lowest Fourier frequency ω₁ is ``share`` × the model's there:
+        S_rw(ω₁) = σ²h/(2π·4 sin²(ω₁/2))."""
+        omega1 = torch.tensor([2 * math.pi / n], dtype=torch.float64)
+        level = float(model.spectrum(values, omega1, h)[0, 0])
+        return math.sqrt(share * level * 2 * math.pi * 4 * math.sin(float(omega1) / 2) ** 2 / h)
+
+    def strengths(self, label, model, values, h, n):
+        return [{f"{label}.sigma": self._sigma(share, model, values, h, n)} for share in (0.1, 1.0)]
+
+    def vanishing(self, label, model, values, h, n):
+        return {f"{label}.sigma": self._sigma(1e-8, model, values, h, n)}
+
     def block(self, v, h, memory):
         s = v["sigma"]
         F = s.new_ones(s.shape[0], 1, 1)
@@ -311,6 +410,7 @@ class LowPass(Component):
 
     name = "low-pass"
     kind = "filter"
+    screen_order = 50
     params = (ParamSpec("cutoff_hz", "positive", "f_c (Hz)"),)
 
     def gain(self, v, omega, h):
@@ -337,12 +437,19 @@ class LowPass(Component):
     def start(self, param, data):
         return 0.25 / data.h
 
+    def strengths(self, label, model, values, h, n):
+        return [{f"{label}.cutoff_hz": c / (2 * h)} for c in (0.4, 0.1)]  # 0.4× and 0.1× the Nyquist frequency
+
+    def vanishing(self, label, model, values, h, n):
+        return {f"{label}.cutoff_hz": 10.0 / h}  # a = e^{−20π}: the filter passes every frequency unchanged
+
 
 class White(Component):
     """Measurement (ADC) noise ν_k ~ N(0, r): spectrum r/2π."""
 
     name = "white"
     kind = "measurement"
+    candidate = False
     params = (ParamSpec("r", "positive", "variance (units²)"),)
 
     def measurement_variance(self, v):
@@ -366,6 +473,7 @@ class Quantisation(Component):
 
     name = "quantisation"
     kind = "measurement"
+    screen_order = 70
     params = (ParamSpec("step", "positive", "Δ (units)"),)
 
     def measurement_variance(self, v):
@@ -380,6 +488,25 @@ class Quantisation(Component):
     def grid_start(self, label, v, white, order, fraction, h):
         v[f"{label}.step"] = math.sqrt(12 * white * 0.5)
 
+    def not_screened(self, model):
+        if model.has("white"):
+            return "quantisation noise is white, indistinguishable from the white component"
+        return None
+
+    def _level(self, model, values, h, n):
+        """The model's white level: its measurement variance, else its spectrum's at ω₁ × 2π."""
+        r = float(model.measurement_variance(values)[0])
+        if not r:
+            omega1 = torch.tensor([2 * math.pi / n], dtype=torch.float64)
+            r = float(model.spectrum(values, omega1, h)[0, 0]) * 2 * math.pi
+        return r
+
+    def strengths(self, label, model, values, h, n):
+        return [{f"{label}.step": math.sqrt(12 * self._level(model, values, h, n))}]
+
+    def vanishing(self, label, model, values, h, n):
+        return {f"{label}.step": math.sqrt(12 * 1e-8 * self._level(model, values, h, n))}
+
     def spectrum(self, v, omega, h):
         return (self.measurement_variance(v) / (2.0 * math.pi)).unsqueeze(-1).expand(-1, omega.shape[-1])
 
@@ -387,6 +514,7 @@ class Quantisation(Component):
 class Offset(Component):
     name = "offset"
     kind = "mean"
+    candidate = False
     params = (ParamSpec("value", "free", "units"),)
     level = True
 
@@ -417,6 +545,20 @@ class Ramp(Component):
     def regressors(self, label, t, inputs, ok):
         return {}, [(f"{label}.slope", t - t[ok].mean())]
 
+    screen_test = "exact LR (whitened regressor), χ²₁"
+    screen_order = 60
+
+    def screen(self, ctx):
+        """The exact likelihood-ratio at the fitted noise parameters, by least squares of the innovations on the
+        whitened time (mean and noise parameters are orthogonal in a Gaussian model: holding the latter is
+        asymptotically exact)."""
+        from scipy import stats
+
+        from ..checking.diagnostics import linear_lr
+
+        lr, beta = linear_lr(ctx.inn, ctx.t - ctx.t.mean())
+        return lr, stats.chi2.logsf(lr, 1), {f"{ctx.label}.slope": float(beta[0])}, ""
+
 
 class Sinusoid(Component):
     """A sin(2π f₀ t + φ): a vibration line. Not a spectral density — removed before the Whittle sum."""
@@ -437,6 +579,24 @@ class Sinusoid(Component):
 
     def start(self, param, data):
         return {"frequency_hz": 0.1 / data.h, "amplitude": math.sqrt(data.var) / 10.0, "phase": 0.0}[param]
+
+    screen_test = "largest innovation periodogram line (F(2,200), max over frequencies)"
+    screen_order = 20
+
+    def screen(self, ctx):
+        """The ``lines`` diagnostic's p-value (the largest innovation periodogram ordinate against its neighbours,
+        over all frequencies); the statistic and the start: the whitened sine and cosine at the refined peak."""
+        from ..checking.diagnostics import linear_lr
+        from ..fitting.mle import refine_frequency
+
+        ln = ctx.diagnostic("lines")
+        inn, t = ctx.inn, ctx.t
+        r = inn.y - inn.mean
+        f0 = refine_frequency(np.where(inn.observed, r, 0.0), ln.detail["peak_hz"], ctx.h)
+        lr, beta = linear_lr(inn, np.stack([np.sin(2 * np.pi * f0 * t), np.cos(2 * np.pi * f0 * t)]))
+        return lr, ln.detail["log_p"], {f"{ctx.label}.frequency_hz": f0,
+                                        f"{ctx.label}.amplitude": float(math.hypot(*beta)),
+                                        f"{ctx.label}.phase": float(math.atan2(beta[1], beta[0]))}, ""
 
     def fit_residual(self, label, resid, t, ok, h, start, inputs):
         """The residual periodogram's highest peak (not the trend's three lowest bins), its frequency refined,
@@ -478,6 +638,18 @@ class TemperatureBias(Component):
         tref = float(np.nanmean(T))
         return {f"{label}.t_ref": tref}, [(f"{label}.bias_per_degC", T - tref)]
 
+    screen_test = "exact LR (whitened regressor), χ²₁"
+    screen_order = 30
+
+    def screen(self, ctx):
+        """The temperature diagnostic's score test, which is this likelihood-ratio (the whitened temperature)."""
+        from scipy import stats
+
+        dt = ctx.diagnostic("temperature").detail
+        lr = dt["score_bias"]
+        return lr, stats.chi2.logsf(lr, 1), {f"{ctx.label}.bias_per_degC": float(dt["bias_per_degC_gls"]),
+                                             f"{ctx.label}.t_ref": float(np.mean(ctx.inputs["temperature"]))}, ""
+
 
 class TemperatureOrder(Component):
     r"""The fractional component's order driven by temperature: :math:`\alpha_k = \alpha_0 + \gamma (T_k - T_\mathrm{ref})`,
@@ -493,6 +665,12 @@ class TemperatureOrder(Component):
     inputs = ("temperature",)
     params = (ParamSpec("order_per_degC", "free", "1/°C"), ParamSpec("t_ref", "free", "T_ref (°C)"))
 
+    def validate(self, components, spec):
+        names = [c.name for _, c in components]
+        if names.count(self.name) > 1 or names.count("fractional") != 1 or "low-pass" in names:
+            raise ValueError(f"model {spec!r}: temperature-order drives the order of one fractional component and "
+                             "cannot be combined with a low-pass")
+
     def position(self, model):
         if not model.has("fractional"):
             raise ValueError(f"temperature-order drives a fractional component's order; {model.spec!r} has none")
@@ -506,6 +684,28 @@ class TemperatureOrder(Component):
         return {f"{label}.t_ref": float(np.nanmean(np.asarray(inputs["temperature"], dtype=np.float64))),
                 f"{label}.order_per_degC": 0.0}, []
 
+    screen_test = "exact LR over the slope, others held (χ²₁, conservative)"
+    screen_order = 40
+
+    def screen(self, ctx):
+        """The exact likelihood-ratio over the slope alone, the other parameters held at the fit (a scan:
+        :func:`~torchtea.checking.check._scan_order_slope`)."""
+        import importlib
+
+        from scipy import stats
+
+        ck = importlib.import_module("torchtea.checking.check")
+        lr, g, quiet = ck._scan_order_slope(ctx.model, ctx.alt, ctx.label, ctx.fit, ctx.inn, ctx.y, ctx.h,
+                                            ctx.inputs)
+        if lr is None:
+            frac = next(lb for lb, c in ctx.model.components if c.name == "fractional")
+            raise NotScreened(f"the fitted order {ctx.fit.values[f'{frac}.order']:.3g} is at its bound, and no "
+                              "slope per °C keeps it inside (0, 1)")
+        note = (f"the scan stopped after γ = 0, ±δ: their parabola peaks less than {ck.SCAN_QUIET:g} nat above the "
+                "model (a lower bound of the statistic)") if quiet else ""
+        return lr, stats.chi2.logsf(lr, 1), {f"{ctx.label}.order_per_degC": g,
+                                             f"{ctx.label}.t_ref": float(np.mean(ctx.inputs["temperature"]))}, note
+
     def orders(self, v: dict, alpha0: Tensor, T: Tensor) -> Tensor:
         """``(B, N)`` orders α_k for ``(B,)`` α₀ and the temperature ``(N,)``."""
         a = alpha0.unsqueeze(-1) + v["order_per_degC"].unsqueeze(-1) * (T - v["t_ref"].unsqueeze(-1))
@@ -514,3 +714,10 @@ class TemperatureOrder(Component):
 
 COMPONENTS = {c.name: c for c in (Fractional(), White(), Quantisation(), RandomWalk(), LowPass(), Offset(), Ramp(),
                                   Sinusoid(), TemperatureBias(), TemperatureOrder())}
+
+
+def candidates() -> tuple:
+    """The effects ``check`` screens, in the order of its table: every registered component with ``candidate``
+    set, by ``screen_order`` (a user's effects after the built-in ones)."""
+    return tuple(sorted((n for n, c in COMPONENTS.items() if c.candidate),
+                        key=lambda n: (COMPONENTS[n].screen_order, list(COMPONENTS).index(n))))

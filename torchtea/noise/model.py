@@ -469,4 +469,6 @@ def parse_model(spec) -> NoiseModel:
             raise ValueError(f"model {spec!r}: at most one {p}")
     if not any(c.kind in ("state", "measurement") for _, c in comps):
         raise ValueError(f"model {spec!r} has no stochastic component (fractional, white, random-walk …)")
+    for _, comp in comps:
+        comp.validate(comps, spec)
     return NoiseModel(comps, "+".join(parts))

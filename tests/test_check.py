@@ -349,3 +349,50 @@ def test_a_candidate_that_cannot_join_the_model_is_skipped_with_a_note():
     assert next(s for s in r.screens if s["effect"] == "temperature-bias")["p_value"] is not None
     with pytest.raises(ValueError, match="cannot be combined with a low-pass"):
         parse_model("fractional+white+low-pass+temperature-order")
+
+
+def _two_effects(n=12000, seed=1):
+    m = "fractional+white+temperature-bias+sinusoid"
+    T = temperature_profile(n, H, generator=torch.Generator().manual_seed(seed)).numpy()
+    v = default_values(m, H, temperature=T)
+    v["temperature-bias.bias_per_degC"] = 0.01
+    y = simulate_model(m, v, n_steps=n, h=H, inputs={"temperature": torch.as_tensor(T)},
+                       generator=torch.Generator().manual_seed(seed))[0, 0].numpy()
+    return y, T
+
+
+def test_the_loop_runs_to_an_adequate_model_and_the_error_falls_at_each_step():
+    """``CheckResult.auto`` (issue 30, item 3) on a temperature bias and a 3.37 Hz line hidden together: both are
+    added, one per step, with a BIC gain each; between them they repair the lines and temperature diagnostics,
+    −ℓ per sample falls at each step, and the loop ends adequate, saying so."""
+    y, T = _two_effects()
+    first = check(y, H, inputs={"temperature": T}, intervals=False)
+    r = first.auto(intervals=False)
+    rows = r.step_rows()
+    assert rows[0].get("added") is None and sorted(st["added"] for st in rows[1:]) == ["sinusoid", "temperature-bias"]
+    assert r.adequate and r.loop_end == "adequate after 2 effect(s) added" and r.steps[0] is first
+    assert all(b["nll_per_sample"] < a["nll_per_sample"] for a, b in zip(rows, rows[1:]))
+    assert all(st["gain"] > 0 for st in rows[1:])  # (a step may break a diagnostic the next one repairs)
+    repaired = set().union(*(st["repaired"] for st in rows[1:]))
+    assert {"lines", "temperature"} <= repaired and not rows[-1]["failed"]
+    assert abs(r.fit.values["sinusoid.frequency_hz"] - 3.37) < 0.01
+    assert r.as_dict()["steps"] == rows
+
+
+def test_the_loop_on_the_command_line(tmp_path, capsys):
+    """``check --auto``: the terminal, report.md and check.json show every step; clean data end at step 0."""
+    y, T = _two_effects(n=6000, seed=2)
+    t = np.arange(len(y)) * H
+    np.savetxt(tmp_path / "two.csv", np.stack([t, y, T], 1), delimiter=",", header="t,y,temp", comments="")
+    assert main(["check", str(tmp_path / "two.csv"), "--column", "y", "--temperature", "temp", "--auto",
+                 "--no-intervals", "--no-plots", "--out", str(tmp_path / "c")]) == 0
+    out = capsys.readouterr().out
+    doc = json.loads((tmp_path / "c" / "check.json").read_text())
+    added = [st.get("added") for st in doc["steps"]]
+    assert added[0] is None and set(added[1:]) == {"sinusoid", "temperature-bias"} and doc["adequate"] is True
+    assert doc["loop_end"].startswith("adequate after 2") and "loop end: adequate after 2" in out
+    assert "step 2: + " in out and "The loop, one effect added per step" in (tmp_path / "c" / "report.md").read_text()
+    clean = simulate_model("fractional+white", default_values("fractional+white", H), n_steps=6000, h=H,
+                           generator=torch.Generator().manual_seed(3))[0, 0].numpy()
+    r = check(clean, H, intervals=False).auto(intervals=False)
+    assert len(r.steps) == 1 and r.loop_end == "adequate after 0 effect(s) added"

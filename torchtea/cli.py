@@ -340,6 +340,8 @@ def cmd_check(args) -> int:
                   intervals=not args.no_intervals)
         for effect in args.add:
             r = r.add(effect, intervals=not args.no_intervals)
+        if args.auto:
+            r = r.auto(max_steps=args.max_steps, intervals=not args.no_intervals)
         results[c.label] = r
         step(i + 1, len(m.channels))
     close()
@@ -355,11 +357,22 @@ def cmd_check(args) -> int:
     for a, r in results.items():
         c = m.channel(a)
         head = f"{a} ({c.title}): {r.model.spec}: {'adequate' if r.adequate else 'NOT adequate'}"
-        if r.before is not None:
+        if len(r.steps) > 2 or r.loop_end:
+            print(head)
+            for k, st in enumerate(r.step_rows()):
+                what = ("start" if k == 0 else
+                        f"+ {st['added']} (gain {st['gain']:.1f}, repaired {', '.join(st['repaired']) or '—'})")
+                print(f"  step {k}: {what}: nll/sample {st['nll_per_sample']:.5f}, psd misfit {st['psd_misfit']:.4f}, "
+                      f"adev misfit {st['adev_misfit']:.4f}, failed {', '.join(st['failed']) or 'none'}")
+            if r.loop_end:
+                print(f"  loop end: {r.loop_end}")
+            head = None
+        elif r.before is not None:
             b = r.before
             head += (f" (before, {b.model.spec}: nll/sample {b.metrics['nll_per_sample']:.5f}, failed "
                      f"{', '.join(b.failed) or 'none'}; now {r.metrics['nll_per_sample']:.5f})")
-        print(head)
+        if head is not None:
+            print(head)
         for d in r.diagnostics:
             mark = "   " if d.passed is None else (" ok" if d.passed else "BAD")
             print(f"  {mark} {d.name:12s} {d.summary}")
@@ -1017,6 +1030,10 @@ def build_parser() -> argparse.ArgumentParser:
     ck.add_argument("--model", default="fractional+white", help="noise model SPEC (default fractional+white)")
     ck.add_argument("--add", action="append", default=[], metavar="EFFECT",
                     help="add an effect and check again, before/after (repeatable)")
+    ck.add_argument("--auto", action="store_true",
+                    help="run the loop to its end: add the best suggestion and check again until the model is "
+                         "adequate or no effect passes its screen (after any --add)")
+    ck.add_argument("--max-steps", type=_count, default=6, help="--auto adds at most this many effects (default 6)")
     ck.add_argument("--level", type=float, default=0.01, help="level of each diagnostic (default 0.01)")
     ck.add_argument("--screen-level", type=float, default=0.05,
                     help="family level of the effect screens (default 0.05: on data from the model, at most "

@@ -123,6 +123,8 @@ class CheckResult:
     before: "CheckResult | None" = None
     #: Seconds per stage (fit, diagnostics, screen, refits, intervals) and exact-likelihood evaluations.
     timings: dict = field(default_factory=dict)
+    #: Why :meth:`auto` stopped here ("" when this result is not the end of a loop).
+    loop_end: str = ""
 
     @property
     def model(self) -> NoiseModel:
@@ -156,6 +158,52 @@ class CheckResult:
         res.before = self
         return res
 
+    def auto(self, max_steps: int = 6, **kw) -> "CheckResult":
+        """Run the loop to its end: add the best suggestion and check again (:meth:`add`, ``kw`` passed on), until
+        the model is adequate, no effect passes its screen and lowers BIC, or ``max_steps`` effects were added.
+        Returns the last result: its :attr:`steps` are the path, its :attr:`loop_end` says why it stopped."""
+        res = self
+        for _ in range(max_steps):
+            if res.adequate or not res.suggestions:
+                break
+            res = res.add(res.suggestions[0].effect, **kw)
+        added = len(res.steps) - len(self.steps)
+        if res.adequate:
+            res.loop_end = f"adequate after {added} effect(s) added"
+        elif not res.suggestions:
+            res.loop_end = (f"not adequate after {added} effect(s) added, and no effect of the library passes its "
+                            f"screen and lowers BIC: failing {', '.join(res.failed)}")
+        else:
+            res.loop_end = (f"stopped after {max_steps} effects added (max_steps), not adequate: failing "
+                            f"{', '.join(res.failed)}")
+        return res
+
+    @property
+    def steps(self) -> list:
+        """The checks that led here by :meth:`add` or :meth:`auto`, the first one first and this one last."""
+        chain, r = [], self
+        while r is not None:
+            chain.append(r)
+            r = r.before
+        return chain[::-1]
+
+    def step_rows(self) -> list[dict]:
+        """One dict per step of :attr:`steps`: the model, −ℓ per sample, the PSD and Allan misfits, the failed
+        diagnostics and, from the second on, the effect added, the BIC it gained and the diagnostics it repaired
+        (failed before, pass now) or broke."""
+        rows, prev = [], None
+        for r in self.steps:
+            row = {"model": r.model.spec, "adequate": r.adequate, "nll_per_sample": r.metrics["nll_per_sample"],
+                   "psd_misfit": r.metrics["psd_misfit"], "adev_misfit": r.metrics["adev_misfit"],
+                   "failed": r.failed, "bic": _bic(r.fit)}
+            if prev is not None:
+                row.update(added=_added(prev.model, r.model), gain=_bic(prev.fit) - _bic(r.fit),
+                           repaired=sorted(set(prev.failed) - set(r.failed)),
+                           broke=sorted(set(r.failed) - set(prev.failed)))
+            rows.append(row)
+            prev = r
+        return rows
+
     def as_dict(self) -> dict:
         return {"model": self.model.spec, "adequate": self.adequate,
                 "base": dict(self.metrics, failed=self.failed, failing_ranges_s=self.failing_ranges_s,
@@ -165,7 +213,14 @@ class CheckResult:
                 "screens": self.screens,
                 "suggestions": [s.as_dict() for s in self.suggestions],
                 "level": self.level, "screen_level": self.screen_level, "seconds": self.seconds,
-                "notes": self.notes}
+                "notes": self.notes, "steps": self.step_rows(), "loop_end": self.loop_end}
+
+
+def _added(before: NoiseModel, after: NoiseModel) -> str:
+    """The component ``after`` has and ``before`` has not (by label: a second line is ``sinusoid2``), as its
+    effect's name."""
+    old = {label for label, _ in before.components}
+    return next((c.name for label, c in after.components if label not in old), "")
 
 
 def _bic(fit: Fit) -> float:

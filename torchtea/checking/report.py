@@ -35,6 +35,9 @@ MEANING = {
     "p_value": "the screen's p-value for the effect (its test is named in 'screen'); suggested when below "
                "screen_level / (effects screened) and gain > 0",
     "repairs": "diagnostics that failed before and pass with the effect",
+    "steps": "the checks of the loop (--add, --auto), first first: model, nll per sample, misfits, failed "
+             "diagnostics; from the second on the effect added, its BIC gain, what it repaired and broke",
+    "loop_end": "why --auto stopped: the model adequate, no effect passing its screen, or the step limit",
 }
 
 
@@ -235,7 +238,18 @@ def write_report(out: Path, results: dict, meta: dict, plots: bool = True) -> di
         title = (f"{info['sensor']} {info['axis']} ({info['unit']}, column `{info['column']}`)"
                  if info.get("sensor", "signal") != "signal" else f"column `{info.get('column', a)}`")
         lines += [f"## {a}: {title}: model `{r.model.spec}` — {'adequate' if r.adequate else 'NOT adequate'}", ""]
-        if r.before is not None:
+        if len(r.steps) > 2 or r.loop_end:
+            lines += ["The loop, one effect added per step (`gain`: the BIC it gained; `repaired`: failed before, "
+                      "pass now):", "",
+                      "| step | model | added | gain | nll/sample | psd misfit | adev misfit | failed | repaired |",
+                      "|---|---|---|---|---|---|---|---|---|"]
+            for k, st in enumerate(r.step_rows()):
+                lines.append(f"| {k} | `{st['model']}` | {st.get('added', '—')} | "
+                             f"{_fmt(st.get('gain'), '.1f') if 'gain' in st else '—'} | {st['nll_per_sample']:.5f} | "
+                             f"{_fmt(st['psd_misfit'], '.4f')} | {_fmt(st['adev_misfit'], '.4f')} | "
+                             f"{', '.join(st['failed']) or 'none'} | {', '.join(st.get('repaired', [])) or '—'} |")
+            lines += ["", f"Loop end: {r.loop_end}." if r.loop_end else "", ""]
+        elif r.before is not None:
             b = r.before
             lines += ["| | model | nll/sample | psd misfit | adev misfit | failed |", "|---|---|---|---|---|---|",
                       f"| before | `{b.model.spec}` | {b.metrics['nll_per_sample']:.5f} | {_fmt(b.metrics['psd_misfit'], '.4f')} "

@@ -396,3 +396,30 @@ def test_the_loop_on_the_command_line(tmp_path, capsys):
                            generator=torch.Generator().manual_seed(3))[0, 0].numpy()
     r = check(clean, H, intervals=False).auto(intervals=False)
     assert len(r.steps) == 1 and r.loop_end == "adequate after 0 effect(s) added"
+
+
+def test_where_nothing_repairs_a_failure_the_verdict_says_where_and_what_would_fit(tmp_path):
+    """A vibration line drifting from 13.1 to 11.8 Hz (issue 30, item 4): no effect of the library passes its screen,
+    and the verdict names where the model fails — the spectrum band around the line, data above the model — and the
+    kind of effect that fits it (a line that wanders, not in the library), in the result, check.json and report.md."""
+    from torchtea.checking.report import write_report
+
+    n = 30000
+    y = simulate_model("fractional+white", default_values("fractional+white", H), n_steps=n, h=H,
+                       generator=torch.Generator().manual_seed(4))[0, 0].numpy()
+    t = np.arange(n) * H
+    y += 0.01 * np.sin(2 * np.pi * np.cumsum(13.1 + (11.8 - 13.1) * t / t[-1]) * H)
+    r = check(y, H, intervals=False)
+    assert not r.adequate and not r.suggestions
+    spec = next(u for u in r.unexplained if u["diagnostic"] == "spectrum")
+    assert any(a <= 11.8 and b >= 13.1 for a, b in spec["ranges"]) and "line that wanders" in spec["would_fit"]
+    assert "drifting-line" in spec["not_in_library"] and "sinusoid" in spec["in_library"]
+    assert {u["diagnostic"] for u in r.unexplained} == set(r.failed)
+    doc = write_report(tmp_path, {"y": r}, {"recording": "drift.csv", "samples": n, "rate_hz": 1 / H}, plots=False)
+    assert doc["unexplained"] == r.unexplained
+    assert "What no suggestion repairs" in (tmp_path / "report.md").read_text()
+    # a failure a suggestion repairs is not listed: the hidden line of the sinusoid case
+    y2 = simulate_model("fractional+white+sinusoid", default_values("fractional+white+sinusoid", H), n_steps=6000,
+                        h=H, generator=torch.Generator().manual_seed(7))[0, 0].numpy()
+    r2 = check(y2, H, intervals=False)
+    assert r2.suggestions[0].effect == "sinusoid" and "lines" not in {u["diagnostic"] for u in r2.unexplained}

@@ -381,6 +381,9 @@ def cmd_check(args) -> int:
             print(f"  suggest {s.effect}: gain {s.gain:.1f} (ΔBIC), {pars}; repairs {', '.join(s.repairs) or '—'}")
         if not r.suggestions:
             print("  no suggestion: no effect of the library passes its screen")
+        for u in r.unexplained:
+            print(f"  unexplained {u['diagnostic']}: {u['would_fit']}"
+                  + (f" (not in the library: {', '.join(u['not_in_library'])})" if u["not_in_library"] else ""))
     print(f"units: {'; '.join(f'{k}: {v}' for k, v in _units_of(m).items())}")
     print(f"report: {out / 'report.md'}; JSON: {out / 'check.json'}")
     return 0

@@ -149,6 +149,22 @@ class CheckResult:
     def diagnostic(self, name: str) -> Diagnostic:
         return next(d for d in self.diagnostics if d.name == name)
 
+    @property
+    def unexplained(self) -> list[dict]:
+        """The failed diagnostics that no suggestion repairs: where each fails, and which kind of effect would fit
+        that signature (:meth:`~.diagnostics.Diagnostic.signature`; ``in_library``: those of its effects that are
+        registered, ``not_in_library``: the others)."""
+        repaired = set().union(*(s.repairs for s in self.suggestions)) if self.suggestions else set()
+        out = []
+        for d in self.diagnostics:
+            if d.passed is not False or d.name in repaired:
+                continue
+            words, names = d.signature()
+            out.append({"diagnostic": d.name, "where": d.summary, "ranges": d.ranges, "unit": d.unit,
+                        "would_fit": words, "in_library": [n for n in names if n in COMPONENTS],
+                        "not_in_library": [n for n in names if n not in COMPONENTS]})
+        return out
+
     def add(self, effect: str, **kw) -> "CheckResult":
         """Check the model with ``effect`` added (reusing the suggestion's fit when there is one)."""
         alt = extend(self.model, effect)
@@ -213,7 +229,8 @@ class CheckResult:
                 "screens": self.screens,
                 "suggestions": [s.as_dict() for s in self.suggestions],
                 "level": self.level, "screen_level": self.screen_level, "seconds": self.seconds,
-                "notes": self.notes, "steps": self.step_rows(), "loop_end": self.loop_end}
+                "notes": self.notes, "steps": self.step_rows(), "loop_end": self.loop_end,
+                "unexplained": self.unexplained}
 
 
 def _added(before: NoiseModel, after: NoiseModel) -> str:

@@ -79,6 +79,90 @@ class Diagnostic:
                 "level": self.level, "passed": self.passed, "summary": self.summary, "unit": self.unit,
                 "ranges": self.ranges, "directions": self.directions}
 
+    def signature(self) -> tuple[str, list[str]]:
+        """What kind of physical effect would fit this failure — ``(words, [effect names])`` — read from where and
+        which way it fails (:data:`SIGNATURES`); ``("", [])`` when it passed or was not run."""
+        if self.passed is not False or self.name not in SIGNATURES:
+            return "", []
+        return SIGNATURES[self.name](self)
+
+
+def _where(d: "Diagnostic") -> str:
+    return "; ".join(f"{a:.3g}–{b:.3g} {d.unit}" if a != b else f"{a:.3g} {d.unit}" for a, b in d.ranges[:4])
+
+
+def _sig_nis(d):
+    if "high" in d.directions:
+        return (f"the innovations are larger than the model allows at {_where(d)}: something happened then — a "
+                "shock (spikes), a level step, or vibration for a while", ["spikes", "step"])
+    return f"the innovations are smaller than the model expects at {_where(d)}: the noise level changed over time", []
+
+
+def _sig_change(d):
+    if d.directions and "mean" in d.directions[0]:
+        return (f"the innovations' mean drifts or jumps near t = {_where(d)}: a level step, or a bias that wanders "
+                "(Gauss–Markov, random walk)", ["step", "gauss-markov", "random-walk"])
+    return f"the noise variance changes near t = {_where(d)}: a noise level that varies in time", []
+
+
+def _sig_ljung_box(d):
+    lags = ", ".join(str(a) for a, _ in d.ranges[:6]) or "several lags"
+    return (f"the innovations are correlated (lags {lags}): a filter the model lacks (a sensor's digital filter, "
+            "of higher order than one) or a line whose frequency wanders", ["low-pass", "digital-filter",
+                                                                            "drifting-line"])
+
+
+def _sig_spectrum(d):
+    top = max(d.detail.get("band_hi_hz") or [max(b for _, b in d.ranges)])
+    words, names = [], []
+    for (a, b), way in zip(d.ranges, d.directions):
+        if way == "high" and b <= 0.05 * top:
+            words.append(f"more slow power than the model below {b:.3g} Hz: a bias that wanders (Gauss–Markov, "
+                         "random walk) or a temperature effect")
+            names += ["gauss-markov", "random-walk", "thermal-lag"]
+        elif way == "high":
+            words.append(f"more power than the model at {a:.3g}–{b:.3g} Hz: a vibration band or a line that wanders")
+            names += ["drifting-line", "sinusoid"]
+        elif a >= 0.2 * top:
+            words.append(f"less power than the model at {a:.3g}–{b:.3g} Hz: the sensor's own filter")
+            names += ["low-pass", "digital-filter"]
+        else:
+            words.append(f"less power than the model at {a:.3g}–{b:.3g} Hz: the model's spectrum has the wrong shape "
+                         "there (a component too strong)")
+    return "; ".join(words), list(dict.fromkeys(names))
+
+
+def _sig_lines(d):
+    return f"a line at {_where(d)}: a vibration (another sinusoid if the model has one)", ["sinusoid"]
+
+
+def _sig_allan(d):
+    words, names = [], []
+    for (a, b), way in zip(d.ranges, d.directions):
+        if way == "high" and a >= 1.0:
+            words.append(f"the data wander more than the model at τ {a:.3g}–{b:.3g} s: a bias instability "
+                         "(Gauss–Markov) or a random walk")
+            names += ["gauss-markov", "random-walk"]
+        elif way == "high":
+            words.append(f"more short-term noise than the model at τ {a:.3g}–{b:.3g} s")
+        else:
+            words.append(f"the model wanders more than the data at τ {a:.3g}–{b:.3g} s: a component too strong")
+    return "; ".join(words), list(dict.fromkeys(names))
+
+
+def _sig_temperature(d):
+    if d.detail.get("p_bias", 1.0) < d.level / 2:
+        return ("the innovations follow the temperature: a temperature effect the model lacks — through a lag "
+                "(the die is not where the sensor of temperature is) if the model has a bias per °C already",
+                ["temperature-bias", "thermal-lag", "temperature-order"])
+    return "the noise variance moves with the temperature: a temperature-dependent noise level", []
+
+
+#: What kind of effect fits a failed diagnostic, by its name: a function of the diagnostic (where and which way
+#: it fails) returning words and the names of effects that would fit (some may not be in the library).
+SIGNATURES = {"nis": _sig_nis, "change": _sig_change, "ljung-box": _sig_ljung_box, "spectrum": _sig_spectrum,
+              "lines": _sig_lines, "allan": _sig_allan, "temperature": _sig_temperature}
+
 
 @dataclass
 class Innovations:

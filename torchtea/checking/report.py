@@ -38,6 +38,8 @@ MEANING = {
     "steps": "the checks of the loop (--add, --auto), first first: model, nll per sample, misfits, failed "
              "diagnostics; from the second on the effect added, its BIC gain, what it repaired and broke",
     "loop_end": "why --auto stopped: the model adequate, no effect passing its screen, or the step limit",
+    "unexplained": "failed diagnostics that no suggestion repairs: where, what kind of effect would fit that "
+                   "signature, and which of those effects the library has (in_library) or lacks (not_in_library)",
 }
 
 
@@ -279,7 +281,13 @@ def write_report(out: Path, results: dict, meta: dict, plots: bool = True) -> di
         else:
             lines.append("No effect of the library passes its screen: "
                          + ("nothing is missing that torchtea can add." if r.adequate else
-                            "the model fails, but no candidate explains it (see the diagnostics)."))
+                            "the model fails, and no candidate explains it."))
+        if r.unexplained:
+            lines += ["", "What no suggestion repairs — where the model fails, and what kind of effect would fit:", ""]
+            for u in r.unexplained:
+                lib = f" In the library: {', '.join(u['in_library'])}." if u["in_library"] else ""
+                new = f" Not in the library: {', '.join(u['not_in_library'])}." if u["not_in_library"] else ""
+                lines.append(f"- **{u['diagnostic']}** ({u['where']}): {u['would_fit']}.{lib}{new}")
         lines += ["", "Screens: " + "; ".join(
             f"{s['effect']} {('p ' + _fmt(s['p_value'], '.2g')) if s['p_value'] is not None else s['note']}"
             for s in r.screens), ""]

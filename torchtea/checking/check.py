@@ -468,10 +468,10 @@ def check(y, h: float, model="fractional+white", inputs: dict | None = None, *, 
             continue
         alt = extend(model, row["effect"])
         label = _new_label(model, alt)
-        # the temperature reference is fixed (the mean temperature); a sinusoid's frequency too, at the
-        # refined periodogram peak (asymptotically efficient in coloured noise, Hannan 1973) — it still counts
-        # as an estimated parameter in BIC
-        fixed = [n for n in alt.names if n.endswith(".t_ref") or n == f"{label}.frequency_hz"]
+        # what the components hold (a temperature reference; the new line's frequency at the refined periodogram
+        # peak, which still counts as an estimated parameter in BIC)
+        estimates = _held(alt, label)
+        fixed = [n for n in alt.names if n in _held(alt, None) or n in estimates]
         metric = row.pop("metric", None)
         start = row["start"]
         if metric is None:  # a mean or modifier effect: the noise parameters from the extended model's Whittle
@@ -492,9 +492,9 @@ def check(y, h: float, model="fractional+white", inputs: dict | None = None, *, 
         if not f2.loglik >= fit.loglik - NESTED_SLACK:
             f2 = _nested_refit(model, alt, label, fit, f2, row, y, h, inputs, fixed, cache)
         refits.append(f2)
-        if row["effect"] == "sinusoid":
-            f2.free.append(f"{label}.frequency_hz")
-            f2.ci95_method[f"{label}.frequency_hz"] = "refined periodogram peak (held in the exact refit): no interval"
+        for n, words in estimates.items():
+            f2.free.append(n)
+            f2.ci95_method[n] = words
         gain = _bic(fit) - _bic(f2)
         if gain <= 0:
             _add_note(row, f"passed the screen but the exact refit does not lower BIC (gain {gain:.1f}): "
@@ -522,14 +522,27 @@ def check(y, h: float, model="fractional+white", inputs: dict | None = None, *, 
     if intervals and suggestions:  # the best suggestion's intervals (a finite-difference Hessian: 1 + 2k² fits)
         top = suggestions[0]
         f = top.fit
-        fixed = [n for n in f.model.names if n not in f.free or n.endswith(".frequency_hz")]
+        held = _held(f.model, "*")
+        fixed = [n for n in f.model.names if n not in f.free or n in held]
         top.fit = refine_exact(f.model, y, h, f.values, inputs=inputs, fixed=fixed, metric=f.hessian, intervals=True)
-        if top.effect == "sinusoid":
-            top.fit.free.append(f"{top.label}.frequency_hz")
-            top.fit.ci95_method[f"{top.label}.frequency_hz"] = f.ci95_method[f"{top.label}.frequency_hz"]
+        for n in _held(f.model, top.label):
+            top.fit.free.append(n)
+            top.fit.ci95_method[n] = f.ci95_method[n]
     clock("intervals")
     return CheckResult(y, h, inputs, fit, inn, diags, mets, screens, suggestions, level, screen_level,
                        time.perf_counter() - t0, notes, timings=clock.laps)
+
+
+def _held(model: NoiseModel, label: str | None) -> dict:
+    """The parameters ``model``'s components hold (:attr:`~torchtea.noise.components.Component.held`): with
+    ``label`` None every reference (not an estimate); with a label, that component's held estimates; with
+    ``"*"`` every component's held estimates. Name → the words for its interval."""
+    out = {}
+    for lb, comp in model.components:
+        for p, words in comp.held.items():
+            if (label is None and words is None) or (words is not None and label in ("*", lb)):
+                out[f"{lb}.{p}"] = words
+    return out
 
 
 def _add_note(row: dict, text: str) -> None:

@@ -690,10 +690,11 @@ def fit_series(model, series: list, h: float, *, method: str = "exact", inputs: 
     for s, y in enumerate(series):
         inp = None if inputs is None else inputs[s]
         notes = []
-        # fixed mean parameters (temperature reference) join `fixed` for the exact stage
+        # the references the components hold (a temperature's t_ref) join `fixed` for the exact stage
         fx = dict(fixed)
+        refs = {f"{lb}.{p}" for lb, c in model.components for p, words in c.held.items() if words is None}
         for n, x in wf.means[s].items():
-            if n.endswith(".t_ref"):
+            if n in refs:
                 fx.setdefault(n, x)
         y_exact = centred(model, y)
         if method == "whittle":

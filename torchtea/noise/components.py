@@ -175,6 +175,11 @@ class Component:
         lr = max(0.0, 2.0 * (ll - ctx.inn.loglik)) if math.isfinite(ll) else 0.0
         return lr, float(stats.chi2.logsf(lr, len(values))), values, ""
 
+    #: Parameters the exact fits hold where the data put them, name → None for a reference (not an estimate:
+    #: the temperature's ``t_ref``) or the words the report gives for its interval (an estimate made elsewhere —
+    #: a line's frequency at the refined periodogram peak — which counts as estimated in BIC).
+    held: dict = {}
+
     # ---- how a model holds it ---------------------------------------------------------------------------
     #: at most one in a model (``parse_model`` refuses a second)
     single: bool = False
@@ -642,6 +647,8 @@ class Sinusoid(Component):
 
     screen_test = "largest innovation periodogram line (F(2,200), max over frequencies)"
     screen_order = 20
+    # the frequency at the refined periodogram peak (asymptotically efficient in coloured noise, Hannan 1973)
+    held = {"frequency_hz": "refined periodogram peak (held in the exact refit): no interval"}
 
     def screen(self, ctx):
         """The ``lines`` diagnostic's p-value (the largest innovation periodogram ordinate against its neighbours,
@@ -684,6 +691,7 @@ class TemperatureBias(Component):
     name = "temperature-bias"
     kind = "mean"
     inputs = ("temperature",)
+    held = {"t_ref": None}
     params = (ParamSpec("bias_per_degC", "free", "units/°C"), ParamSpec("t_ref", "free", "T_ref (°C)"))
 
     def mean(self, v, t, inputs):
@@ -723,6 +731,7 @@ class TemperatureOrder(Component):
     name = "temperature-order"
     kind = "modifier"
     inputs = ("temperature",)
+    held = {"t_ref": None}
     params = (ParamSpec("order_per_degC", "free", "1/°C"), ParamSpec("t_ref", "free", "T_ref (°C)"))
 
     def validate(self, components, spec):

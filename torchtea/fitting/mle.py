@@ -693,8 +693,9 @@ def fit_series(model, series: list, h: float, *, method: str = "exact", inputs: 
         # the references the components hold (a temperature's t_ref) join `fixed` for the exact stage
         fx = dict(fixed)
         refs = {f"{lb}.{p}" for lb, c in model.components for p, words in c.held.items() if words is None}
+        located = {f"{lb}.{p}": c.held[p] for lb, c in model.components for p in c.located if f"{lb}.{p}" not in fx}
         for n, x in wf.means[s].items():
-            if n in refs:
+            if n in refs or n in located:
                 fx.setdefault(n, x)
         y_exact = centred(model, y)
         if method == "whittle":
@@ -713,6 +714,9 @@ def fit_series(model, series: list, h: float, *, method: str = "exact", inputs: 
             vals, se, ci, how = _estimates(model, u, H, free, h)
             ll_exact = ll
         kfree = [n for n, f in zip(model.names, free.tolist()) if f]
+        for n, words in located.items():  # held where the data put them, but estimated: counted, no interval
+            kfree.append(n)
+            how[n] = words
         if not model.has_level:
             notes.append(f"mean {float(np.nanmean(y)):.6g} removed before fitting; the model has no offset, so the "
                          "exact likelihood integrates the unknown level out")

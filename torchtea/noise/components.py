@@ -179,6 +179,9 @@ class Component:
     #: the temperature's ``t_ref``) or the words the report gives for its interval (an estimate made elsewhere —
     #: a line's frequency at the refined periodogram peak — which counts as estimated in BIC).
     held: dict = {}
+    #: Of the held estimates, those every fit holds (their likelihood is not smooth — a time — so no optimiser can
+    #: move them): at the value the least-squares start found (:meth:`fit_residual`), counted as estimated in BIC.
+    located: tuple = ()
 
     # ---- how a model holds it ---------------------------------------------------------------------------
     #: at most one in a model (``parse_model`` refuses a second)
@@ -245,8 +248,8 @@ class Component:
         """Values estimated from the residual after the linear regression (a line's frequency, amplitude and
         phase); removes what it explains from ``resid`` in place. ``start``: this component's start values
         (:meth:`start`). Default: nothing for a component that is not a mean, carries the level or whose mean the
-        regression took (:meth:`regressors`); a mean that the regression did not take (a user's effect) by nonlinear least
-        squares over its parameters from ``start`` (:func:`scipy.optimize.least_squares`)."""
+        regression took (:meth:`regressors`); a mean that the regression did not take (a user's effect) by
+        nonlinear least squares over its parameters from ``start`` (:func:`scipy.optimize.least_squares`)."""
         if self.kind != "mean" or self.level or self.regressors(label, t, inputs, ok)[1]:
             return {}
         from scipy.optimize import least_squares
@@ -719,6 +722,90 @@ class TemperatureBias(Component):
                                              f"{ctx.label}.t_ref": float(np.mean(ctx.inputs["temperature"]))}, ""
 
 
+class ThermalLag(Component):
+    r"""A bias that follows the temperature through a first-order lag: :math:`\beta\,(T^{\tau}_k - T_\mathrm{ref})`
+    with :math:`T^{\tau}_k = a\,T^{\tau}_{k-1} + (1-a)\,T_k`, :math:`a = e^{-h/\tau}`, :math:`T^{\tau}_0 = T_0` —
+    the die is not where the temperature sensor is, and heat takes τ to cross (a lag of 140 s is seen on MEMS
+    boards). ``t_ref`` is the mean temperature (held). As τ → 0 it is ``temperature-bias``. Its start: β by least
+    squares for each τ of a log-spaced grid (1 s to the record's length), the best τ kept."""
+
+    name = "thermal-lag"
+    kind = "mean"
+    inputs = ("temperature",)
+    params = (ParamSpec("bias_per_degC", "free", "units/°C"), ParamSpec("tau_s", "positive", "τ (s), thermal lag"),
+              ParamSpec("t_ref", "free", "T_ref (°C)"))
+    held = {"t_ref": None}
+    candidate = False  # not screened by check yet: its study first (issue 30)
+
+    @staticmethod
+    def lagged(T: Tensor, tau: Tensor, h: float) -> Tensor:
+        """``(B, N)`` the temperature ``(N,)`` through the first-order lags of time constants ``tau`` ``(B,)``."""
+        from scipy.signal import lfilter
+
+        T = np.asarray(torch.as_tensor(T, dtype=torch.float64).cpu(), dtype=np.float64)
+        out = []
+        for t_ in np.atleast_1d(np.asarray(torch.as_tensor(tau, dtype=torch.float64).detach().cpu())):
+            a = math.exp(-h / float(t_))
+            y, _ = lfilter([1.0 - a], [1.0, -a], T, zi=[a * T[0]])
+            out.append(y)
+        return torch.as_tensor(np.stack(out), dtype=torch.float64)
+
+    def mean(self, v, t, inputs):
+        h = float(t[1] - t[0]) if t.shape[-1] > 1 else 1.0
+        lag = self.lagged(inputs["temperature"], v["tau_s"], h)
+        return v["bias_per_degC"].unsqueeze(-1) * (lag - v["t_ref"].unsqueeze(-1))
+
+    def typical(self, param, h, t_ref):
+        return {"bias_per_degC": 0.02, "tau_s": 60.0, "t_ref": t_ref}[param]
+
+    def fit_residual(self, label, resid, t, ok, h, start, inputs):
+        T = np.asarray(inputs["temperature"], dtype=np.float64)
+        t_ref = float(np.nanmean(T))
+        span = max(len(resid) * h, 2.0)
+        best = None
+        for tau in np.geomspace(1.0, span, 24):
+            x = self.lagged(T, torch.tensor([tau]), h)[0].numpy()[ok]
+            x = x - x.mean()
+            beta = float(x @ resid[ok] / (x @ x)) if x @ x > 0 else 0.0
+            rss = float(np.sum((resid[ok] - beta * x) ** 2))
+            if best is None or rss < best[0]:
+                best = (rss, tau, beta)
+        _, tau, beta = best
+        x = self.lagged(T, torch.tensor([tau]), h)[0].numpy()
+        resid[ok] -= beta * (x[ok] - x[ok].mean())
+        return {f"{label}.bias_per_degC": beta, f"{label}.tau_s": float(tau), f"{label}.t_ref": t_ref}
+
+
+class Step(Component):
+    r"""A level step at an unknown time (a knock, a mounting shift): ``size`` added from ``t_step`` (s from the first
+    sample) on. The time is found where the cumulative sum of the residual is largest (its least-squares location
+    for a step in white noise) and held in the exact fit, which estimates the size; the time counts as an estimated
+    parameter (in BIC) and has no interval yet."""
+
+    name = "step"
+    kind = "mean"
+    params = (ParamSpec("size", "free", "units"), ParamSpec("t_step", "free", "t₀ (s from the first sample)"))
+    held = {"t_step": "the cumulative sum's extremum (held in the fits): no interval"}
+    located = ("t_step",)
+    candidate = False  # not screened by check yet: its study first (issue 30)
+    add_again = True
+
+    def mean(self, v, t, inputs):
+        return v["size"].unsqueeze(-1) * (t >= v["t_step"].unsqueeze(-1)).to(t.dtype)
+
+    def typical(self, param, h, t_ref):
+        return {"size": 0.02, "t_step": 100.0}[param]
+
+    def fit_residual(self, label, resid, t, ok, h, start, inputs):
+        r = np.where(ok, resid - resid[ok].mean(), 0.0)
+        c = np.cumsum(r)
+        k = int(np.argmax(np.abs(c[:-1]))) + 1  # the step is between samples k−1 and k
+        before, after = ok[:k], ok[k:]
+        size = float(resid[k:][after].mean() - resid[:k][before].mean()) if before.any() and after.any() else 0.0
+        resid[ok & (np.arange(len(resid)) >= k)] -= size
+        return {f"{label}.size": size, f"{label}.t_step": float(t[k])}
+
+
 class TemperatureOrder(Component):
     r"""The fractional component's order driven by temperature: :math:`\alpha_k = \alpha_0 + \gamma (T_k - T_\mathrm{ref})`,
     α₀ the fractional component's ``order`` (its value at T_ref, the mean temperature unless fixed), T the
@@ -782,7 +869,8 @@ class TemperatureOrder(Component):
 
 
 COMPONENTS = {c.name: c for c in (Fractional(), White(), Quantisation(), RandomWalk(), LowPass(), Offset(), Ramp(),
-                                  Sinusoid(), TemperatureBias(), TemperatureOrder(), GaussMarkov())}
+                                  Sinusoid(), TemperatureBias(), TemperatureOrder(), GaussMarkov(), ThermalLag(),
+                                  Step())}
 
 
 def candidates() -> tuple:

@@ -112,7 +112,7 @@ def main():
         for axis in args.axes:
             run_axis(axis, args.series, args.samples, d)
     text = tables(d)
-    (HERE / "false_alarm.md").write_text(text + "\n")
+    d.with_suffix(".md").write_text(text + "\n")  # beside the cases (--dir /tmp/x → /tmp/x.md)
     print(text)
 
 

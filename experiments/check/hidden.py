@@ -138,7 +138,7 @@ def main():
                 path.write_text(json.dumps(res))
                 print(f"{e} seed {seed}: top {res['top']} ({res['seconds']:.0f} s)", flush=True)
     text = tables(d)
-    (HERE / "hidden.md").write_text(text + "\n")
+    d.with_suffix(".md").write_text(text + "\n")  # beside the cases (--dir /tmp/x → /tmp/x.md)
     print(text)
 
 

@@ -106,8 +106,9 @@ def _sig_change(d):
 
 
 def _sig_ljung_box(d):
-    lags = ", ".join(str(a) for a, _ in d.ranges[:6]) or "several lags"
-    return (f"the innovations are correlated (lags {lags}): a filter the model lacks (a sensor's digital filter, "
+    lags = (f"at lags {', '.join(str(a) for a, _ in d.ranges[:6])}" if d.ranges else
+            "over the first lags together, none alone beyond its bound")
+    return (f"the innovations are correlated ({lags}): a filter the model lacks (a sensor's digital filter, "
             "of higher order than one) or a line whose frequency wanders", ["low-pass", "digital-filter",
                                                                             "drifting-line"])
 

@@ -414,6 +414,8 @@ def test_where_nothing_repairs_a_failure_the_verdict_says_where_and_what_would_f
     spec = next(u for u in r.unexplained if u["diagnostic"] == "spectrum")
     assert any(a <= 11.8 and b >= 13.1 for a, b in spec["ranges"]) and "line that wanders" in spec["would_fit"]
     assert "drifting-line" in spec["not_in_library"] and "sinusoid" in spec["in_library"]
+    allan_ = next((u for u in r.unexplained if u["diagnostic"] == "allan"), None)
+    assert all(n not in (allan_ or {}).get("in_library", []) for n in ("gauss-markov", "step"))  # not screened
     assert {u["diagnostic"] for u in r.unexplained} == set(r.failed)
     doc = write_report(tmp_path, {"y": r}, {"recording": "drift.csv", "samples": n, "rate_hz": 1 / H}, plots=False)
     assert doc["unexplained"] == r.unexplained

@@ -86,7 +86,8 @@ def test_the_registry_refuses_what_it_cannot_use():
         return type("Bad", (WarmUp,), attrs)
 
     for attrs, words in [({"name": "Warm Up"}, "lower-case"), ({"name": "a+b"}, "'+'"), ({"name": "drift2"}, "digit"),
-                         ({"kind": "noise"}, "kind 'noise'"), ({"params": ()}, "ParamSpec"),
+                         ({"kind": "noise"}, "kind 'noise'"), ({"kind": "filter"}, "built into the state-space"),
+                         ({"kind": "modifier"}, "built into the state-space"), ({"params": ()}, "ParamSpec"),
                          ({"name": "white"}, "built-in")]:
         with pytest.raises(ValueError, match="effect Bad") as info:
             register(effect(**attrs))
@@ -271,10 +272,23 @@ def test_thermal_lag_follows_the_lagged_temperature_and_its_fit_finds_the_lag():
         assert abs(f.values[name] - v[name]) < 4 * f.se[name], (name, f.values[name], f.se[name])
 
 
+@pytest.mark.parametrize("t_step", [20.0, 280.0])
+def test_a_level_step_near_either_end_is_located_there(t_step):
+    """The step's location is the least-squares split c_k²/(k(N−k)), not the raw cumulative sum's extremum, which
+    the middle of the record pulls (a step at 20 s of 300 s was put 10–71 s off on 5 of 12 seeds; the least-squares
+    split stayed within 1.5 s): within 2 s at 20 s and at 280 s."""
+    m = "fractional+white+step"
+    v = default_values(m, H)
+    v.update({"step.size": 0.02, "step.t_step": t_step})
+    y = simulate_model(m, v, n_steps=30000, h=H, generator=torch.Generator().manual_seed(5))[0, 0].numpy()
+    vals, _ = regress_mean(parse_model(m), y, H)
+    assert abs(vals["step.t_step"] - t_step) < 2.0
+
+
 def test_a_level_step_is_located_and_its_size_fitted():
     """step: a level jump of 0.02 m/s² (two thirds of the white noise's σ) at 123.455 s in 30 000 samples: the
-    fit locates it within 0.1 s (the cumulative sum's extremum, held in the fits, counted in BIC, no interval — and
-    says so) and finds its size within 4 standard errors."""
+    fit locates it within 0.1 s (the least-squares split, held in the fits, counted in BIC, no interval — and says
+    so) and finds its size within 4 standard errors."""
     m = "fractional+white+step"
     v = default_values(m, H)
     v.update({"step.size": 0.02, "step.t_step": 123.455})
@@ -283,3 +297,44 @@ def test_a_level_step_is_located_and_its_size_fitted():
     assert f.converged and abs(f.values["step.t_step"] - 123.455) < 0.1
     assert "step.t_step" in f.free and f.se["step.t_step"] is None and "no interval" in f.ci95_method["step.t_step"]
     assert abs(f.values["step.size"] - 0.02) < 4 * f.se["step.size"]
+
+
+def test_a_users_state_effect_without_strengths_is_screened():
+    """A user's stochastic effect that gives no starting strengths is screened by the Whittle grid alone (before,
+    every later check raised "no starting values", on any model)."""
+    from torchtea.noise.components import GaussMarkov
+
+    class Plain(GaussMarkov):
+        name = "my-gm"
+        candidate = True
+
+        def strengths(self, label, model, values, h, n):
+            return []
+
+    register(Plain)
+    try:
+        y = simulate_model("fractional+white", default_values("fractional+white", H), n_steps=3000, h=H,
+                           generator=torch.Generator().manual_seed(1))[0, 0].numpy()
+        row = next(s for s in check(y, H, intervals=False).screens if s["effect"] == "my-gm")
+        assert row["p_value"] is not None and row["test"].startswith("Whittle LR")
+    finally:
+        unregister("my-gm")
+
+
+def test_a_located_step_stays_held_and_counted_in_check(tmp_path):
+    """A model with a step: every fit of check — the model's, a suggestion's refit, its intervals — holds the step's
+    time where the data put it (a sample time, not moved by differences over a step function) and counts it in
+    BIC; ``--max-steps 1`` is a valid loop limit."""
+    from torchtea.cli import build_parser
+
+    m = "fractional+white+step+random-walk"
+    v = default_values(m, H)
+    v.update({"step.size": 0.03, "step.t_step": 29.95, "random-walk.sigma": 5e-3})
+    y = simulate_model(m, v, n_steps=6000, h=H, generator=torch.Generator().manual_seed(2))[0, 0].numpy()
+    r = check(y, H, model="fractional+white+step")
+    t0 = r.fit.values["step.t_step"]
+    assert abs(t0 / H - round(t0 / H)) < 1e-9 and "step.t_step" in r.fit.free
+    top = r.suggestions[0]
+    assert top.effect == "random-walk" and top.fit.values["step.t_step"] == t0 and "step.t_step" in top.fit.free
+    assert top.fit.k == r.fit.k + 1
+    assert build_parser().parse_args(["check", "x.csv", "--auto", "--max-steps", "1"]).max_steps == 1

@@ -84,6 +84,16 @@ _nonneg_float = _float_arg(lambda v: v >= 0, "a non-negative number")
 _finite_float = _float_arg(lambda v: True, "finite")
 
 
+def _steps(text):
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1, got {v}")
+    return v
+
+
 def _count(text):
     try:
         v = int(text)
@@ -382,8 +392,9 @@ def cmd_check(args) -> int:
         if not r.suggestions:
             print("  no suggestion: no effect of the library passes its screen")
         for u in r.unexplained:
-            print(f"  unexplained {u['diagnostic']}: {u['would_fit']}"
-                  + (f" (not in the library: {', '.join(u['not_in_library'])})" if u["not_in_library"] else ""))
+            more = ([f"--add {', '.join(u['add_by_hand'])} by hand"] if u["add_by_hand"] else []) + (
+                [f"not in the library: {', '.join(u['not_in_library'])}"] if u["not_in_library"] else [])
+            print(f"  unexplained {u['diagnostic']}: {u['would_fit']}" + (f" ({'; '.join(more)})" if more else ""))
     print(f"units: {'; '.join(f'{k}: {v}' for k, v in _units_of(m).items())}")
     print(f"report: {out / 'report.md'}; JSON: {out / 'check.json'}")
     return 0
@@ -1036,7 +1047,7 @@ def build_parser() -> argparse.ArgumentParser:
     ck.add_argument("--auto", action="store_true",
                     help="run the loop to its end: add the best suggestion and check again until the model is "
                          "adequate or no effect passes its screen (after any --add)")
-    ck.add_argument("--max-steps", type=_count, default=6, help="--auto adds at most this many effects (default 6)")
+    ck.add_argument("--max-steps", type=_steps, default=6, help="--auto adds at most this many effects (default 6)")
     ck.add_argument("--level", type=float, default=0.01, help="level of each diagnostic (default 0.01)")
     ck.add_argument("--screen-level", type=float, default=0.05,
                     help="family level of the effect screens (default 0.05: on data from the model, at most "

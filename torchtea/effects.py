@@ -41,7 +41,9 @@ __all__ = ["register", "unregister", "registered", "ENTRY_POINTS"]
 #: The entry-point group a package registers its effects under.
 ENTRY_POINTS = "torchtea.effects"
 
-KINDS = ("state", "measurement", "filter", "mean", "modifier")
+#: The kinds of a user's effect that the filters and fits run generically; a ``filter`` (the low-pass) and a
+#: ``modifier`` (the temperature-driven order) are built into the state-space assembly and cannot be added.
+KINDS = ("state", "measurement", "mean")
 _BUILT_IN = frozenset(COMPONENTS)
 _loaded_entry_points = False
 
@@ -61,7 +63,8 @@ def register(effect, *, replace: bool = False):
     if name[-1].isdigit():
         raise ValueError(f"{where}: name {name!r} must not end in a digit (a second copy is labelled {name}2)")
     if comp.kind not in KINDS:
-        raise ValueError(f"{where}: kind {comp.kind!r} must be one of {', '.join(KINDS)}")
+        raise ValueError(f"{where}: kind {comp.kind!r} must be one of {', '.join(KINDS)} (a filter or a modifier "
+                         "is built into the state-space assembly: only the built-in ones run)")
     if not comp.params or not all(isinstance(p, ParamSpec) for p in comp.params):
         raise ValueError(f"{where}: params must be a non-empty tuple of ParamSpec")
     if comp.kind == "mean" and type(comp).mean is Component.mean:

@@ -152,16 +152,22 @@ class CheckResult:
     @property
     def unexplained(self) -> list[dict]:
         """The failed diagnostics that no suggestion repairs: where each fails, and which kind of effect would fit
-        that signature (:meth:`~.diagnostics.Diagnostic.signature`; ``in_library``: those of its effects that are
-        registered, ``not_in_library``: the others)."""
+        that signature (:meth:`~.diagnostics.Diagnostic.signature`): ``in_library`` the screened candidates among
+        them (screened here, so they did not pass or did not lower BIC), ``add_by_hand`` those registered but not
+        screened (``--add`` them), ``not_in_library`` the others; effects the model has already are left out."""
         repaired = set().union(*(s.repairs for s in self.suggestions)) if self.suggestions else set()
         out = []
         for d in self.diagnostics:
             if d.passed is not False or d.name in repaired:
                 continue
             words, names = d.signature()
+            have = {c.name for _, c in self.model.components}
             out.append({"diagnostic": d.name, "where": d.summary, "ranges": d.ranges, "unit": d.unit,
-                        "would_fit": words, "in_library": [n for n in names if n in COMPONENTS],
+                        "would_fit": words,
+                        "in_library": [n for n in names if n in COMPONENTS and COMPONENTS[n].candidate and (
+                            n not in have or COMPONENTS[n].add_again)],
+                        "add_by_hand": [n for n in names if n in COMPONENTS and not COMPONENTS[n].candidate
+                                        and n not in have],
                         "not_in_library": [n for n in names if n not in COMPONENTS]})
         return out
 
@@ -331,11 +337,12 @@ def _whittle_screens(model, base, rows_alts, y, h, inputs, cache: dict):
         # the grid as well: a model that lacks a random walk (or a low-pass) may have bent its fractional order to
         # ≈ 1 to mimic it, and the extended model's optimum is then far from the model's. Both searches are run to
         # convergence and the better kept: after a few iterations the bent start can look better and is not
-        wf = max((whittle_fit(alt, [yy], h, inputs=inp, fractions=(0.5,)),
-                  whittle_fit(alt, [yy], h, inputs=inp, grid=False,
-                              starts=[[{**base_values, **o} for o in dict(alt.components)[label].strengths(
-                                  label, model, base_values, h, len(y))]])),
-                 key=lambda w: float(w.loglik[0]) if bool(torch.isfinite(w.loglik[0])) else -math.inf)
+        strengths = dict(alt.components)[label].strengths(label, model, base_values, h, len(y))
+        fits = [whittle_fit(alt, [yy], h, inputs=inp, fractions=(0.5,))]
+        if strengths:  # (a user's component may give none: the grid alone)
+            fits.append(whittle_fit(alt, [yy], h, inputs=inp, grid=False,
+                                    starts=[[{**base_values, **o} for o in strengths]]))
+        wf = max(fits, key=lambda w: float(w.loglik[0]) if bool(torch.isfinite(w.loglik[0])) else -math.inf)
         lr = max(0.0, 2.0 * float(wf.loglik[0] - base.loglik[0]))
         logp = math.log(0.5) + stats.chi2.logsf(lr, 1) if lr > 0 else 0.0
         vals = dict(zip(alt.names, wf.values[0].tolist()))
@@ -470,7 +477,7 @@ def check(y, h: float, model="fractional+white", inputs: dict | None = None, *, 
         label = _new_label(model, alt)
         # what the components hold (a temperature reference; the new line's frequency at the refined periodogram
         # peak, which still counts as an estimated parameter in BIC)
-        estimates = _held(alt, label)
+        estimates = {**_held(alt, label), **_located(alt)}
         fixed = [n for n in alt.names if n in _held(alt, None) or n in estimates]
         metric = row.pop("metric", None)
         start = row["start"]
@@ -492,9 +499,7 @@ def check(y, h: float, model="fractional+white", inputs: dict | None = None, *, 
         if not f2.loglik >= fit.loglik - NESTED_SLACK:
             f2 = _nested_refit(model, alt, label, fit, f2, row, y, h, inputs, fixed, cache)
         refits.append(f2)
-        for n, words in estimates.items():
-            f2.free.append(n)
-            f2.ci95_method[n] = words
+        _counted(f2, estimates)
         gain = _bic(fit) - _bic(f2)
         if gain <= 0:
             _add_note(row, f"passed the screen but the exact refit does not lower BIC (gain {gain:.1f}): "
@@ -525,9 +530,7 @@ def check(y, h: float, model="fractional+white", inputs: dict | None = None, *, 
         held = _held(f.model, "*")
         fixed = [n for n in f.model.names if n not in f.free or n in held]
         top.fit = refine_exact(f.model, y, h, f.values, inputs=inputs, fixed=fixed, metric=f.hessian, intervals=True)
-        for n in _held(f.model, top.label):
-            top.fit.free.append(n)
-            top.fit.ci95_method[n] = f.ci95_method[n]
+        _counted(top.fit, {n: f.ci95_method[n] for n in held if n in f.free})
     clock("intervals")
     return CheckResult(y, h, inputs, fit, inn, diags, mets, screens, suggestions, level, screen_level,
                        time.perf_counter() - t0, notes, timings=clock.laps)
@@ -543,6 +546,20 @@ def _held(model: NoiseModel, label: str | None) -> dict:
             if (label is None and words is None) or (words is not None and label in ("*", lb)):
                 out[f"{lb}.{p}"] = words
     return out
+
+
+def _located(model: NoiseModel) -> dict:
+    """The parameters every fit holds where the data put them (:attr:`~torchtea.noise.components.Component.located`:
+    a step's time), name → the words for its interval."""
+    return {f"{lb}.{p}": comp.held[p] for lb, comp in model.components for p in comp.located}
+
+
+def _counted(fit: Fit, held: dict) -> None:
+    """Count the ``held`` estimates (name → words for the interval) among the fit's estimated parameters (BIC)."""
+    for n, words in held.items():
+        if n not in fit.free:
+            fit.free.append(n)
+        fit.ci95_method[n] = words
 
 
 def _add_note(row: dict, text: str) -> None:
@@ -562,11 +579,13 @@ def _nested_refit(model, alt, label, fit: Fit, f2: Fit, row: dict, y, h, inputs,
     comp = dict(alt.components)[label]
     new = [n for n in alt.names if n not in model.names]
     if comp.kind in ("mean", "modifier"):
-        effect = {n: row["start"][n] for n in new if n in row["start"]}
-    else:
-        effect = comp.vanishing(label, model, dict(fit.values), h, len(y))
-    start = {**dict(fit.values), **effect}
-    if set(start) != set(alt.names):  # the effect does not say where it vanishes: nothing to refit from
+        effects = [{n: row["start"][n] for n in new if n in row["start"]}]
+    else:  # where it vanishes (ℓ = the model's: the guarantee), and at its strengths (a flat start in log σ
+        # converges at once; a strength lets the refit find the effect)
+        effects = [comp.vanishing(label, model, dict(fit.values), h, len(y))]
+        effects += comp.strengths(label, model, dict(fit.values), h, len(y))
+    starts = [{**dict(fit.values), **e} for e in effects if set({**dict(fit.values), **e}) == set(alt.names)]
+    if not starts:  # the effect does not say where it vanishes: nothing to refit from
         _add_note(row, f"the refit ended at ℓ {f2.loglik:.2f}, below the model's {fit.loglik:.2f}: an optimiser "
                        f"failure (the models are nested), and {comp.name} does not say where it vanishes")
         return f2
@@ -575,12 +594,16 @@ def _nested_refit(model, alt, label, fit: Fit, f2: Fit, row: dict, y, h, inputs,
         idx = [alt.names.index(n) for n in model.names]
         metric = torch.zeros(len(alt.names), len(alt.names), dtype=torch.float64)
         metric[np.ix_(idx, idx)] = fit.hessian.to(torch.float64)
-    key = ("nested refit", alt.spec, tuple(sorted((k, float(v)) for k, v in start.items())))
-    if key not in cache:
-        cache[key] = refine_exact(alt, y, h, start, inputs=inputs, fixed=fixed, metric=metric, intervals=False)
-    f3 = copy.deepcopy(cache[key])
+    runs = []
+    for start in starts:
+        key = ("nested refit", alt.spec, tuple(sorted((k, float(v)) for k, v in start.items())))
+        if key not in cache:
+            cache[key] = refine_exact(alt, y, h, start, inputs=inputs, fixed=fixed, metric=metric, intervals=False)
+        runs.append(cache[key])
+    f3 = copy.deepcopy(max(runs, key=lambda f: f.loglik if math.isfinite(f.loglik) else -math.inf))
     better = f3 if f3.loglik > f2.loglik or not math.isfinite(f2.loglik) else f2
-    how = "at the screen's estimate" if comp.kind in ("mean", "modifier") else "vanishing"
+    how = ("at the screen's estimate" if comp.kind in ("mean", "modifier") else
+           "vanishing and at its starting strengths, the best kept")
     _add_note(row, f"the first refit ended at ℓ {f2.loglik:.2f}, below the model's {fit.loglik:.2f} — an optimiser "
                    "failure, not evidence (the extended model contains the model); refitted from the model's fit "
                    f"with {comp.name} {how}: ℓ {f3.loglik:.2f}")
@@ -597,8 +620,10 @@ def _better_model_fit(model, fit: Fit, refits: list, y, h, inputs, intervals: bo
     best = int(np.argmax(ll))
     if not ll[best] > fit.loglik + 0.5:
         return None
-    fixed = [n for n in model.names if n not in fit.free]
+    located = _located(model)
+    fixed = [n for n in model.names if n not in fit.free or n in located]
     new = refine_exact(model, y, h, points[best], inputs=inputs, fixed=fixed, metric=fit.hessian, intervals=intervals)
+    _counted(new, located)
     return new if new.loglik > fit.loglik + 0.5 else None
 
 

@@ -39,7 +39,8 @@ MEANING = {
              "diagnostics; from the second on the effect added, its BIC gain, what it repaired and broke",
     "loop_end": "why --auto stopped: the model adequate, no effect passing its screen, or the step limit",
     "unexplained": "failed diagnostics that no suggestion repairs: where, what kind of effect would fit that "
-                   "signature, and which of those effects the library has (in_library) or lacks (not_in_library)",
+                   "signature, and which of those effects check screened (in_library), the library has but does not "
+                   "screen (add_by_hand: --add them) or lacks (not_in_library)",
 }
 
 
@@ -285,9 +286,12 @@ def write_report(out: Path, results: dict, meta: dict, plots: bool = True) -> di
         if r.unexplained:
             lines += ["", "What no suggestion repairs — where the model fails, and what kind of effect would fit:", ""]
             for u in r.unexplained:
-                lib = f" In the library: {', '.join(u['in_library'])}." if u["in_library"] else ""
+                lib = (f" Screened, not passing or not lowering BIC: {', '.join(u['in_library'])}."
+                       if u["in_library"] else "")
+                hand = (f" In the library, not screened (`--add`): {', '.join(u['add_by_hand'])}."
+                        if u["add_by_hand"] else "")
                 new = f" Not in the library: {', '.join(u['not_in_library'])}." if u["not_in_library"] else ""
-                lines.append(f"- **{u['diagnostic']}** ({u['where']}): {u['would_fit']}.{lib}{new}")
+                lines.append(f"- **{u['diagnostic']}** ({u['where']}): {u['would_fit']}.{lib}{hand}{new}")
         lines += ["", "Screens: " + "; ".join(
             f"{s['effect']} {('p ' + _fmt(s['p_value'], '.2g')) if s['p_value'] is not None else s['note']}"
             for s in r.screens), ""]

@@ -778,14 +778,14 @@ class ThermalLag(Component):
 
 class Step(Component):
     r"""A level step at an unknown time (a knock, a mounting shift): ``size`` added from ``t_step`` (s from the first
-    sample) on. The time is found where the cumulative sum of the residual is largest (its least-squares location
-    for a step in white noise) and held in the exact fit, which estimates the size; the time counts as an estimated
-    parameter (in BIC) and has no interval yet."""
+    sample) on. The time is the least-squares location of one step in the residual (the split k that maximises
+    c_k²/(k(N−k)), c the cumulative sum: the location for white noise), held in every fit, which estimates the
+    size; the time counts as an estimated parameter (in BIC) and has no interval yet."""
 
     name = "step"
     kind = "mean"
     params = (ParamSpec("size", "free", "units"), ParamSpec("t_step", "free", "t₀ (s from the first sample)"))
-    held = {"t_step": "the cumulative sum's extremum (held in the fits): no interval"}
+    held = {"t_step": "least-squares location of one step (held in the fits): no interval"}
     located = ("t_step",)
     candidate = False  # not screened by check yet: its study first (issue 30)
     add_again = True
@@ -798,8 +798,13 @@ class Step(Component):
 
     def fit_residual(self, label, resid, t, ok, h, start, inputs):
         r = np.where(ok, resid - resid[ok].mean(), 0.0)
-        c = np.cumsum(r)
-        k = int(np.argmax(np.abs(c[:-1]))) + 1  # the step is between samples k−1 and k
+        c = np.cumsum(r)[:-1]
+        m = np.cumsum(ok)[:-1].astype(np.float64)  # observed samples up to and including each index
+        n = float(ok.sum())
+        # least squares for one step in white noise: the split k that maximises c_k² / (m_k (n − m_k)) (the raw
+        # |c_k| is pulled towards the middle of the record)
+        score = np.where((m > 0) & (m < n), c * c / np.maximum(m * (n - m), 1.0), -np.inf)
+        k = int(np.argmax(score)) + 1  # the step is between samples k−1 and k
         before, after = ok[:k], ok[k:]
         size = float(resid[k:][after].mean() - resid[:k][before].mean()) if before.any() and after.any() else 0.0
         resid[ok & (np.arange(len(resid)) >= k)] -= size
@@ -823,7 +828,10 @@ class TemperatureOrder(Component):
 
     def validate(self, components, spec):
         names = [c.name for _, c in components]
-        if names.count(self.name) > 1 or names.count("fractional") != 1 or "low-pass" in names:
+        if names.count(self.name) > 1 or names.count("fractional") != 1:
+            raise ValueError(f"model {spec!r}: temperature-order drives the order of exactly one fractional "
+                             "component, and a model holds one temperature-order")
+        if "low-pass" in names:
             raise ValueError(f"model {spec!r}: temperature-order drives the order of one fractional component and "
                              "cannot be combined with a low-pass")
 

@@ -84,24 +84,23 @@ _nonneg_float = _float_arg(lambda v: v >= 0, "a non-negative number")
 _finite_float = _float_arg(lambda v: True, "finite")
 
 
-def _steps(text):
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
-    if v < 1:
-        raise argparse.ArgumentTypeError(f"must be at least 1, got {v}")
-    return v
+def _int_at_least(low: int):
+    """An argparse type: a whole number of at least ``low``, else one message saying so."""
+
+    def parse(text):
+        try:
+            v = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
+        if v < low:
+            raise argparse.ArgumentTypeError(f"must be at least {low}, got {v}")
+        return v
+
+    return parse
 
 
-def _count(text):
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
-    if v < 2:
-        raise argparse.ArgumentTypeError(f"must be at least 2, got {v}")
-    return v
+_count = _int_at_least(2)
+_steps = _int_at_least(1)
 
 
 #: A Monte Carlo NEES/NIS whose per-step average lies inside its 95 % band at fewer steps than this is warned about.

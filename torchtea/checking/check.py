@@ -477,8 +477,8 @@ def check(y, h: float, model="fractional+white", inputs: dict | None = None, *, 
         label = _new_label(model, alt)
         # what the components hold (a temperature reference; the new line's frequency at the refined periodogram
         # peak, which still counts as an estimated parameter in BIC)
-        estimates = {**_held(alt, label), **_located(alt)}
-        fixed = [n for n in alt.names if n in _held(alt, None) or n in estimates]
+        estimates = {**_held(alt, label), **alt.located()}
+        fixed = [n for n in alt.names if n in alt.references() or n in estimates]
         metric = row.pop("metric", None)
         start = row["start"]
         if metric is None:  # a mean or modifier effect: the noise parameters from the extended model's Whittle
@@ -536,22 +536,12 @@ def check(y, h: float, model="fractional+white", inputs: dict | None = None, *, 
                        time.perf_counter() - t0, notes, timings=clock.laps)
 
 
-def _held(model: NoiseModel, label: str | None) -> dict:
-    """The parameters ``model``'s components hold (:attr:`~torchtea.noise.components.Component.held`): with
-    ``label`` None every reference (not an estimate); with a label, that component's held estimates; with
-    ``"*"`` every component's held estimates. Name → the words for its interval."""
-    out = {}
-    for lb, comp in model.components:
-        for p, words in comp.held.items():
-            if (label is None and words is None) or (words is not None and label in ("*", lb)):
-                out[f"{lb}.{p}"] = words
-    return out
-
-
-def _located(model: NoiseModel) -> dict:
-    """The parameters every fit holds where the data put them (:attr:`~torchtea.noise.components.Component.located`:
-    a step's time), name → the words for its interval."""
-    return {f"{lb}.{p}": comp.held[p] for lb, comp in model.components for p in comp.located}
+def _held(model: NoiseModel, label: str) -> dict:
+    """The estimates ``model``'s components hold (:attr:`~torchtea.noise.components.Component.held` entries with
+    words, not the references): those of the component ``label``, or of every component with ``"*"``. Name → the
+    words for its interval."""
+    return {f"{lb}.{p}": words for lb, comp in model.components for p, words in comp.held.items()
+            if words is not None and label in ("*", lb)}
 
 
 def _counted(fit: Fit, held: dict) -> None:
@@ -620,7 +610,7 @@ def _better_model_fit(model, fit: Fit, refits: list, y, h, inputs, intervals: bo
     best = int(np.argmax(ll))
     if not ll[best] > fit.loglik + 0.5:
         return None
-    located = _located(model)
+    located = model.located()
     fixed = [n for n in model.names if n not in fit.free or n in located]
     new = refine_exact(model, y, h, points[best], inputs=inputs, fixed=fixed, metric=fit.hessian, intervals=intervals)
     _counted(new, located)

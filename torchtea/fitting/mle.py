@@ -107,6 +107,18 @@ def refine_frequency(y: np.ndarray, f0: float, h: float) -> float:
     return float(res.x)
 
 
+def remove_regressors(resid: np.ndarray, ok: np.ndarray, columns: list) -> dict:
+    """Least squares of ``resid`` (its ``ok`` samples) on the centred regressor ``columns`` (``[(name, (N,)), …]``):
+    removes the fit from ``resid`` in place and returns ``{name: coefficient}`` (empty without columns)."""
+    if not columns:
+        return {}
+    X = np.stack([c for _, c in columns], 1)[ok]
+    X = X - X.mean(0)
+    coef, *_ = np.linalg.lstsq(X, resid[ok], rcond=None)
+    resid[ok] -= X @ coef
+    return dict(zip((n for n, _ in columns), coef.tolist()))
+
+
 def regress_mean(model: NoiseModel, y, h: float, inputs: dict | None = None) -> tuple[dict, np.ndarray]:
     """Least-squares values of the mean components of one series and the residual series.
 
@@ -119,20 +131,13 @@ def regress_mean(model: NoiseModel, y, h: float, inputs: dict | None = None) -> 
     ok = ~np.isnan(y)
     resid = y.copy()
     resid[ok] -= resid[ok].mean()
-    cols, names = [], []
+    columns = []
     model.check_inputs(inputs)
     for label, comp in model.components:
-        fixed, columns = comp.regressors(label, t, inputs, ok)
+        fixed, cols = comp.regressors(label, t, inputs, ok)
         vals.update(fixed)
-        for name, col in columns:
-            cols.append(col)
-            names.append(name)
-    if cols:
-        X = np.stack(cols, 1)[ok]
-        X = X - X.mean(0)
-        coef, *_ = np.linalg.lstsq(X, resid[ok], rcond=None)
-        resid[ok] -= X @ coef
-        vals.update(dict(zip(names, coef.tolist())))
+        columns += cols
+    vals.update(remove_regressors(resid, ok, columns))
     start = None
     for label, comp in model.components:  # what the residual shows (a line), one component after the other
         if comp.kind == "mean" and start is None:
@@ -692,8 +697,8 @@ def fit_series(model, series: list, h: float, *, method: str = "exact", inputs: 
         notes = []
         # the references the components hold (a temperature's t_ref) join `fixed` for the exact stage
         fx = dict(fixed)
-        refs = {f"{lb}.{p}" for lb, c in model.components for p, words in c.held.items() if words is None}
-        located = {f"{lb}.{p}": c.held[p] for lb, c in model.components for p in c.located if f"{lb}.{p}" not in fx}
+        refs = model.references()
+        located = {n: words for n, words in model.located().items() if n not in fx}
         for n, x in wf.means[s].items():
             if n in refs or n in located:
                 fx.setdefault(n, x)

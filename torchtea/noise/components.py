@@ -152,7 +152,7 @@ class Component:
             raise NotScreened(f"{self.name} has no screen")
         from scipy import stats
 
-        from ..fitting.mle import centred, exact_loglik
+        from ..fitting.mle import centred, exact_loglik, remove_regressors
 
         y, t, ok = ctx.y, ctx.t, ~np.isnan(ctx.y)
         inp = None if ctx.inputs is None else {k: torch.as_tensor(v, dtype=torch.float64)
@@ -162,12 +162,7 @@ class Component:
         resid[ok] -= resid[ok].mean()
         start = ctx.alt.initial_values(torch.as_tensor(np.where(ok, y, np.nanmean(y))), ctx.h)
         values, columns = self.regressors(ctx.label, t, ctx.inputs, ok)
-        if columns:
-            X = np.stack([c for _, c in columns], 1)[ok]
-            X = X - X.mean(0)
-            coef, *_ = np.linalg.lstsq(X, resid[ok], rcond=None)
-            resid[ok] -= X @ coef
-            values.update({n: float(b) for (n, _), b in zip(columns, coef)})
+        values.update(remove_regressors(resid, ok, columns))
         values.update(self.fit_residual(ctx.label, resid, t, ok, ctx.h, start, ctx.inputs))
         values = {n: values.get(n, start[n]) for n in ctx.alt.names if n not in ctx.model.names}
         ll = float(exact_loglik(ctx.alt, {**ctx.fit.values, **values}, centred(ctx.alt, y), ctx.h,

@@ -189,6 +189,15 @@ class NoiseModel:
         """A component carries the series' constant level (an ``offset``): the fits do not centre the series."""
         return any(comp.level for _, comp in self.components)
 
+    def references(self) -> set:
+        """The parameters the components hold as references, not estimates (a temperature's ``t_ref``)."""
+        return {f"{lb}.{p}" for lb, c in self.components for p, words in c.held.items() if words is None}
+
+    def located(self) -> dict:
+        """The parameters every fit holds where the data put them (a step's time: the likelihood is not smooth in
+        it), name → the words for its interval (:attr:`~torchtea.noise.components.Component.located`)."""
+        return {f"{lb}.{p}": c.held[p] for lb, c in self.components for p in c.located}
+
     def labels(self, kind: str | None = None) -> list[str]:
         return [label for label, comp in self.components if kind is None or comp.kind == kind]
 

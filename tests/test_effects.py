@@ -1,5 +1,6 @@
 """Effects as one class each (issue 30, item 1): a user's effect, written here outside the package, is registered,
 simulated, fitted, checked and reported like a built-in one; the registry refuses what it cannot use."""
+import inspect
 import json
 import sys
 import textwrap
@@ -145,26 +146,10 @@ def test_the_command_line_takes_a_users_effects_module(tmp_path, capsys):
     from torchtea.cli import main
 
     mod = tmp_path / "my_effects.py"
-    mod.write_text(textwrap.dedent('''
-        import torch
-        from torchtea.effects import register
-        from torchtea.noise.components import Component, ParamSpec
-
-        @register
-        class WarmUp(Component):
-            name = "warm-up"
-            kind = "mean"
-            params = (ParamSpec("amplitude", "free", "units"), ParamSpec("tau_s", "positive", "τ (s)"))
-
-            def mean(self, v, t, inputs):
-                return v["amplitude"].unsqueeze(-1) * torch.exp(-t / v["tau_s"].unsqueeze(-1))
-
-            def typical(self, param, h, t_ref):
-                return {"amplitude": 0.3, "tau_s": 8.0}[param]
-
-            def start(self, param, data):
-                return {"amplitude": 0.0, "tau_s": 10.0}[param]
-        '''))
+    # the same class as this module's, written to a file of its own as a user would
+    mod.write_text("import torch\nfrom torchtea.effects import register\n"
+                   "from torchtea.noise.components import Component, ParamSpec\n\n\n@register\n"
+                   + inspect.getsource(WarmUp))
     spec = "fractional+white+warm-up"
     try:
         assert main(["--effects", str(mod), "simulate", "--model", spec, "--n", "4000", "--h", str(H), "--seed", "7",

@@ -9,12 +9,14 @@ deviation, temperature) on 30 000 samples at 100 Hz, too weak to see in the raw 
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import torch
 
 from ..noise import default_values, parse_model, simulate_model, temperature_profile
 
-__all__ = ["HIDDEN_STRENGTH", "BASE_MODEL", "hidden_model", "hidden_case"]
+__all__ = ["HIDDEN_STRENGTH", "BASE_MODEL", "hidden_model", "hidden_case", "DRAWS", "random_case"]
 
 BASE_MODEL = "fractional+white"
 #: Each hidden effect's parameters (the others are :func:`~torchtea.noise.default_values`'), ``"none"``: clean.
@@ -46,5 +48,65 @@ def hidden_case(effect: str, seed: int, n: int = 30_000, h: float = 0.01, streng
     T = temperature_profile(n, h, generator=gen)
     values = default_values(model, h, T)
     values.update(HIDDEN_STRENGTH[effect] if strength is None else strength)
+    y = simulate_model(model, values, n_steps=n, h=h, inputs={"temperature": T}, generator=gen)[0, 0].numpy()
+    return y, np.asarray(T.numpy()), values
+
+
+def _log_uniform(rng, lo, hi):
+    return float(math.exp(rng.uniform(math.log(lo), math.log(hi))))
+
+
+def _sign(rng):
+    return float(rng.choice((-1.0, 1.0)))
+
+
+#: How a randomised study draws each effect's parameters: a function of (random generator, white-noise standard
+#: deviation σ_w (units), sample time h (s), record length (s), the temperature's warm-up (°C)) → values. The ranges
+#: centre on :data:`HIDDEN_STRENGTH`'s settings relative to σ_w and reach a factor of about 2 either way: from an
+#: effect the check should just find to one it finds easily.
+DRAWS = {
+    "random-walk": lambda g, s, h, span, dT: {"random-walk.sigma": s * _log_uniform(g, 0.015, 0.05)},
+    "sinusoid": lambda g, s, h, span, dT: {"sinusoid.frequency_hz": g.uniform(0.02, 0.45) / h,
+                                           "sinusoid.amplitude": s * _log_uniform(g, 0.08, 0.3),
+                                           "sinusoid.phase": g.uniform(-math.pi, math.pi)},
+    "temperature-bias": lambda g, s, h, span, dT: {
+        "temperature-bias.bias_per_degC": _sign(g) * s * _log_uniform(g, 0.2, 0.6) / dT},
+    "temperature-order": lambda g, s, h, span, dT: {
+        "temperature-order.order_per_degC": _sign(g) * _log_uniform(g, 0.04, 0.1) / dT},
+    "low-pass": lambda g, s, h, span, dT: {"low-pass.cutoff_hz": g.uniform(0.08, 0.25) / h},
+    "gauss-markov": lambda g, s, h, span, dT: {"gauss-markov.sigma": s * _log_uniform(g, 0.15, 0.5),
+                                               "gauss-markov.tau_s": span * _log_uniform(g, 0.01, 0.1)},
+    "thermal-lag": lambda g, s, h, span, dT: {"thermal-lag.bias_per_degC": _sign(g) * s * _log_uniform(g, 0.4, 1.2) / dT,
+                                              "thermal-lag.tau_s": _log_uniform(g, 20.0, 200.0)},
+    "step": lambda g, s, h, span, dT: {"step.size": _sign(g) * s * _log_uniform(g, 0.3, 0.8),
+                                       "step.t_step": round(g.uniform(0.15, 0.85) * span / h) * h},
+}
+
+
+def random_case(effects, seed: int, n: int = 30_000, h: float = 0.01):
+    """``(y, temperature, truth)`` — a recording with ``effects`` (a list of names, empty: clean) hidden in it, where
+    everything is drawn at random for each seed: the base noise (order U(0.15, 0.6), pole at U(0.2, 0.7) of its
+    stability limit, white variance r log-uniform in [3·10⁻⁴, 3·10⁻³] (units²), drive q = r/h^{2α}), the
+    temperature (start U(20, 35) °C, a warm-up of U(1.5, 5) °C with a time constant U(30, 150) s, a wander of
+    U(0.1, 0.3) °C with U(50, 200) s) and each effect's parameters (:data:`DRAWS`). The seed stream is the set's
+    own: seed 0 of two sets are different draws."""
+    effects = list(effects)
+    unknown = [e for e in effects if e not in DRAWS]
+    if unknown:
+        raise ValueError(f"no random draw for {', '.join(unknown)}; choose from: {', '.join(DRAWS)}")
+    key = sum((list(DRAWS).index(e) + 1) * 16 ** i for i, e in enumerate(sorted(effects)))
+    g = np.random.default_rng([seed, key])
+    gen = torch.Generator().manual_seed(int(g.integers(2 ** 62)))
+    span = n * h
+    dT = g.uniform(1.5, 5.0)
+    T = temperature_profile(n, h, start=g.uniform(20.0, 35.0), warmup=dT, tau_s=g.uniform(30.0, 150.0),
+                            wander=g.uniform(0.1, 0.3), wander_tau_s=g.uniform(50.0, 200.0), generator=gen)
+    model = parse_model("+".join([BASE_MODEL, *effects]))
+    values = default_values(model, h, T)
+    alpha, r = g.uniform(0.15, 0.6), _log_uniform(g, 3e-4, 3e-3)
+    values.update({"fractional.order": alpha, "fractional.pole": -g.uniform(0.2, 0.7) * 2 ** alpha / h ** alpha,
+                   "fractional.q": r / h ** (2 * alpha), "white.r": r})
+    for e in effects:
+        values.update(DRAWS[e](g, math.sqrt(r), h, span, dT))
     y = simulate_model(model, values, n_steps=n, h=h, inputs={"temperature": T}, generator=gen)[0, 0].numpy()
     return y, np.asarray(T.numpy()), values

@@ -387,7 +387,8 @@ def cmd_check(args) -> int:
             print(f"  {mark} {d.name:12s} {d.summary}")
         for s in r.suggestions:
             pars = ", ".join(f"{k} {v:.4g}" for k, v in s.parameters.items())
-            print(f"  suggest {s.effect}: gain {s.gain:.1f} (ΔBIC), {pars}; repairs {', '.join(s.repairs) or '—'}")
+            print(f"  suggest {s.effect}: gain {s.gain:.1f} (ΔBIC), {pars}; repairs {', '.join(s.repairs) or '—'}"
+                  + (f" — {s.note}" if s.note else ""))
         if not r.suggestions:
             print("  no suggestion: no effect of the library passes its screen")
         for u in r.unexplained:

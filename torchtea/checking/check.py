@@ -13,8 +13,13 @@ r"""``check``: fit a noise model, test it against the measurements, and rank the
      parameters are orthogonal in a Gaussian model, so holding the latter is asymptotically exact);
    - ``sinusoid``: the ``lines`` diagnostic — the largest innovation periodogram ordinate against its
      neighbours, over all frequencies;
-   - stochastic components (``random-walk``, ``low-pass``, ``quantisation``): the Whittle likelihood-ratio of
-     the model with and without the component (the null value is on the boundary: ½χ²₀ + ½χ²₁);
+   - ``thermal-lag``: the largest exact likelihood-ratio over a grid of lags (whitened lagged temperatures), its
+     p-value that of the maximum of the grid's correlated statistics (simulated; :func:`.diagnostics.scan_lr`);
+   - ``step``: the exact likelihood-ratio at the best of a few candidate times (least-squares splits, the largest
+     innovations), Bonferroni over the N − 1 splits;
+   - stochastic components (``random-walk``, ``gauss-markov``, ``low-pass``, ``quantisation``): the Whittle
+     likelihood-ratio of the model with and without the component (the null value is on the boundary: ½χ²₀ + ½χ²₁,
+     ½χ²₁ + ½χ²₂ for the two parameters of a Gauss–Markov bias);
    - ``temperature-order``: the exact likelihood-ratio over its slope alone, the other parameters held
      at the fit (χ²₁; holding them makes the test conservative);
    - a user's mean effect without a screen of its own: the exact likelihood-ratio at its least-squares values
@@ -24,7 +29,8 @@ r"""``check``: fit a noise model, test it against the measurements, and rank the
    from the model the chance of any suggestion is at most ``screen_level``.
 4. **Refit** each passing effect by exact maximum likelihood, started from the model's estimate, and score it
    by the fall of BIC (``gain`` = BIC before − BIC after, in units of −2 log-likelihood); re-run the
-   diagnostics, and say which ones it repairs. Suggestions are sorted by gain.
+   diagnostics, and say which ones it repairs. Suggestions are sorted by gain, except that one repairing a failed
+   diagnostic its effect explains comes first unless another gains more than :data:`EXPLAIN_WINDOW` (:func:`rank`).
 """
 from __future__ import annotations
 
@@ -35,15 +41,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import torch
-from scipy import stats
 
 from ..fitting.mle import Fit, centred, exact_loglik, fit_series, refine_exact, refine_frequency, whittle_fit
-from ..noise.components import COMPONENTS, Component, NotScreened
+from ..noise.components import COMPONENTS, Component, NotScreened, boundary_logsf
 from ..noise.components import candidates as candidates_all
 from ..noise.model import NoiseModel, parse_model
 from .diagnostics import LEVEL, Diagnostic, Innovations, innovations, linear_lr, metrics, run_diagnostics
 
-__all__ = ["check", "CheckResult", "Suggestion", "CANDIDATES", "extend", "SCREENS", "effect_parameters"]
+__all__ = ["check", "CheckResult", "Suggestion", "CANDIDATES", "extend", "SCREENS", "effect_parameters", "rank",
+           "EXPLAIN_WINDOW"]
 
 #: The built-in effects check screens, in the order of its table; :func:`~torchtea.noise.components.candidates` gives
 #: every registered one (a user's too) at call time.
@@ -87,6 +93,8 @@ class Suggestion:
     metrics: dict
     repairs: list
     label: str
+    #: why it is ranked where it is when that is not by its gain alone
+    note: str = ""
 
     @property
     def parameters(self) -> dict:
@@ -98,7 +106,7 @@ class Suggestion:
         return {"effect": self.effect, "gain": self.gain, "p_value": self.p_value, "screen": self.screen,
                 "model": self.fit.model.spec, "parameters": self.parameters, "ci95": ci,
                 "after": dict(self.metrics, failed=[d.name for d in self.diagnostics if d.passed is False]),
-                "repairs": self.repairs}
+                "repairs": self.repairs, "note": self.note}
 
 
 @dataclass
@@ -344,7 +352,7 @@ def _whittle_screens(model, base, rows_alts, y, h, inputs, cache: dict):
                                     starts=[[{**base_values, **o} for o in strengths]]))
         wf = max(fits, key=lambda w: float(w.loglik[0]) if bool(torch.isfinite(w.loglik[0])) else -math.inf)
         lr = max(0.0, 2.0 * float(wf.loglik[0] - base.loglik[0]))
-        logp = math.log(0.5) + stats.chi2.logsf(lr, 1) if lr > 0 else 0.0
+        logp = boundary_logsf(lr, dict(alt.components)[label].screen_df)
         vals = dict(zip(alt.names, wf.values[0].tolist()))
         vals.update(wf.means[0])
         found = dict(statistic=lr, p_value=float(math.exp(logp)), log10_p=float(logp / math.log(10)),
@@ -523,7 +531,7 @@ def check(y, h: float, model="fractional+white", inputs: dict | None = None, *, 
                                 f"{better.loglik:.2f} after refining), and the check was run from there")
             res.seconds = time.perf_counter() - t0
             return res
-    suggestions.sort(key=lambda s: -s.gain)
+    suggestions = rank(suggestions, failed_before)
     if intervals and suggestions:  # the best suggestion's intervals (a finite-difference Hessian: 1 + 2k² fits)
         top = suggestions[0]
         f = top.fit
@@ -534,6 +542,37 @@ def check(y, h: float, model="fractional+white", inputs: dict | None = None, *, 
     clock("intervals")
     return CheckResult(y, h, inputs, fit, inn, diags, mets, screens, suggestions, level, screen_level,
                        time.perf_counter() - t0, notes, timings=clock.laps)
+
+
+#: A suggestion that repairs a failed diagnostic its effect explains (``Component.explains``: a temperature effect
+#: the temperature diagnostic, a line the lines test, a step the change test) is ranked before the others unless one
+#: of them gains more than this much BIC (2 nats of likelihood ≈ a factor 150 of evidence at 10): where the data
+#: cannot tell a lagged temperature from a drift, the effect that names the failure comes first. Chosen by replaying
+#: the rule on the studies' saved cases (experiments/check/ranking.py).
+EXPLAIN_WINDOW = 10.0
+
+
+def rank(suggestions: list, failed: set, window: float = EXPLAIN_WINDOW) -> list:
+    """The suggestions in the order check gives them: by BIC gain, except that one repairing a failed diagnostic its
+    effect explains comes first where no other gains more than ``window`` above it (:data:`EXPLAIN_WINDOW`); such a
+    one gets a note saying so."""
+    if not suggestions:
+        return []
+    best = max(s.gain for s in suggestions)
+
+    def explained(s):
+        return sorted(set(COMPONENTS[s.effect].explains) & set(failed) & set(s.repairs))
+
+    def key(s):
+        return bool(explained(s)) and s.gain >= best - window, s.gain
+
+    out = sorted(suggestions, key=key, reverse=True)
+    by_gain = max(suggestions, key=lambda s: s.gain)
+    if out[0] is not by_gain:
+        out[0].note = (f"ranked first: it repairs the failed {', '.join(explained(out[0]))} diagnostic its effect "
+                       f"explains; {by_gain.effect} gains {by_gain.gain - out[0].gain:.1f} more BIC (within "
+                       f"{window:g}: the data do not tell them apart clearly)")
+    return out
 
 
 def _held(model: NoiseModel, label: str) -> dict:

@@ -14,6 +14,8 @@ name       domain         statistic (null distribution)
 ========== ============== =====================================================================================
 nis        time           Σ z² in each of W windows (χ²_n per window, two-sided): the failing time ranges
 change     time           CUSUM of z and of z² − 1 (sup of a Brownian bridge, Kolmogorov): a drift or a step
+extremes   time           the largest |z| (exact: P(max > m) = 1 − (1 − 2Φ(−m))ⁿ): isolated outliers, shocks,
+                          each listed with its time
 ljung-box  lag            Ljung–Box Q on the first L lags of z (χ²_L)
 spectrum   frequency      band means of 2π·periodogram(z) in log-spaced bands (Gamma(m)/m, two-sided): the
                           bands where the model's spectrum is too low (ratio > 1) or too high (< 1)
@@ -105,6 +107,11 @@ def _sig_change(d):
     return f"the noise variance changes near t = {_where(d)}: a noise level that varies in time", []
 
 
+def _sig_extremes(d):
+    return (f"isolated innovations beyond what the record's length allows, at {_where(d)}: shocks (spikes), or a "
+            "level step where the model has a random walk (it shows as one large innovation)", ["spikes", "step"])
+
+
 def _sig_ljung_box(d):
     lags = (f"at lags {', '.join(str(a) for a, _ in d.ranges[:6])}" if d.ranges else
             "over the first lags together, none alone beyond its bound")
@@ -161,7 +168,8 @@ def _sig_temperature(d):
 
 #: What kind of effect fits a failed diagnostic, by its name: a function of the diagnostic (where and which way
 #: it fails) returning words and the names of effects that would fit (some may not be in the library).
-SIGNATURES = {"nis": _sig_nis, "change": _sig_change, "ljung-box": _sig_ljung_box, "spectrum": _sig_spectrum,
+SIGNATURES = {"nis": _sig_nis, "change": _sig_change, "extremes": _sig_extremes, "ljung-box": _sig_ljung_box,
+              "spectrum": _sig_spectrum,
               "lines": _sig_lines, "allan": _sig_allan, "temperature": _sig_temperature}
 
 
@@ -221,6 +229,37 @@ def linear_lr(inn: Innovations, columns: np.ndarray) -> tuple[float, np.ndarray]
     filter's start-up from the wrong level."""
     w = _whiten_with_level(inn, columns)
     return gls_statistic(inn.z, w[:-1], w[-1:])
+
+
+def scan_lr(inn: Innovations, columns: np.ndarray, *, draws: int = 20_000, seed: int = 0
+            ) -> tuple[np.ndarray, np.ndarray, float]:
+    """Exact likelihood-ratio statistics of each linear mean term of ``columns`` ``(G, N)`` alone (at the filter's
+    noise parameters, the level free), their GLS coefficients, and the log p-value of their maximum under the
+    model. Under the model the innovations are independent standard normal, so the G statistics are the squares
+    of jointly normal scores whose correlation is the (level-projected) whitened columns' — the maximum's tail by
+    ``draws`` seeded draws of them, never above the Bonferroni bound G·P(χ²₁ > max) (which takes over where no
+    draw exceeds it)."""
+    w = _whiten_with_level(inn, columns)
+    ok = np.isfinite(inn.z) & np.isfinite(w).all(0)
+    c, W, z = w[-1, ok], w[:-1, ok], inn.z[ok]
+    cc = float(c @ c)
+    Wp = W - np.outer(W @ c, c) / cc
+    zp = z - (z @ c) / cc * c
+    nn = np.einsum("ij,ij->i", Wp, Wp)
+    good = nn > 1e-12 * max(float(nn.max()), 1e-300)
+    score = np.where(good, Wp @ zp, 0.0)
+    lr = np.where(good, score ** 2 / np.where(good, nn, 1.0), 0.0)
+    beta = np.where(good, score / np.where(good, nn, 1.0), 0.0)
+    top = float(lr.max())
+    logp = math.log(max(1, int(good.sum()))) + float(stats.chi2.logsf(top, 1))
+    if good.sum() > 1:
+        U = Wp[good] / np.sqrt(nn[good])[:, None]
+        lam, V = np.linalg.eigh(U @ U.T)
+        L = V * np.sqrt(np.clip(lam, 0.0, None))
+        u = np.random.default_rng(seed).standard_normal((draws, L.shape[0])) @ L.T
+        hits = int(np.sum((u * u).max(1) >= top))
+        logp = min(logp, math.log((hits + 1) / (draws + 1)))
+    return lr, beta, min(0.0, logp)
 
 
 def _whiten_with_level(inn: Innovations, columns: np.ndarray) -> np.ndarray:
@@ -293,6 +332,34 @@ def change(z: np.ndarray, h: float, level: float = LEVEL) -> Diagnostic:
     return Diagnostic("change", "time", max(stats_), pmin, level, summary, "s",
                       [[where[which], where[which]]] if pmin < level else [], [kind] if pmin < level else [],
                       {"cusum_mean": stats_[0], "cusum_variance": stats_[1], "change_at_s": where})
+
+
+def extremes(z: np.ndarray, h: float, level: float = LEVEL, listed: int = 20) -> Diagnostic:
+    """The largest standardised innovation against its extreme-value law: under the model the n innovations are
+    independent N(0, 1), so P(max |z| > m) = 1 − (1 − 2Φ(−m))ⁿ exactly. Fails where one is beyond what n samples
+    allow — a shock, an isolated outlier (no other diagnostic looks at single samples: a few spikes barely move the
+    windowed NIS or the Allan deviation). Lists every sample beyond the bound c with P(max |z| > c) = ``level``
+    (the first ``listed`` by size, with their times and z)."""
+    k = np.nonzero(np.isfinite(z))[0]
+    a = np.abs(z[k])
+    n = len(a)
+    j = int(np.argmax(a))
+    m = float(a[j])
+    p = float(-np.expm1(n * np.log1p(-2.0 * stats.norm.sf(m))))
+    bound = float(stats.norm.isf(-np.expm1(np.log1p(-level) / n) / 2.0))
+    beyond = np.nonzero(a > bound)[0]
+    beyond = beyond[np.argsort(-a[beyond])][:listed]
+    times = [float(k[i] * h) for i in beyond]
+    if p < level:
+        where = ", ".join(f"{t:.2f} s (z {z[k[i]]:+.1f})" for t, i in zip(times[:6], beyond[:6]))
+        more = f" and {len(beyond) - 6} more" if len(beyond) > 6 else ""
+        summary = (f"{len(beyond)} innovation(s) beyond |z| {bound:.2f}, what {n} samples allow: at {where}{more}")
+    else:
+        summary = f"largest |z| {m:.2f} at {k[j] * h:.2f} s, within what {n} samples allow ({bound:.2f})"
+    return Diagnostic("extremes", "time", m, p, level, summary, "s",
+                      [[t, t] for t in times] if p < level else [],
+                      ["high" for _ in times] if p < level else [],
+                      {"bound": bound, "max_abs_z": m, "at_s": times, "z": [float(z[k[i]]) for i in beyond]})
 
 
 # --------------------------------------------------------------------------- lag
@@ -514,7 +581,8 @@ def temperature_view(inn: Innovations, T, h: float, level: float = LEVEL, max_la
 def run_diagnostics(model, values: dict, inn: Innovations, h: float, temperature=None,
                     level: float = LEVEL) -> list[Diagnostic]:
     z = inn.z
-    return [nis_windows(z, h, level), change(z, h, level), ljung_box(z, level), spectrum_bands(z, h, level),
+    return [nis_windows(z, h, level), change(z, h, level), extremes(z, h, level), ljung_box(z, level),
+            spectrum_bands(z, h, level),
             lines(z, h, level), allan_view(model, values, inn, h, level, temperature), temperature_view(inn, temperature, h, level)]
 
 

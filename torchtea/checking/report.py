@@ -278,6 +278,7 @@ def write_report(out: Path, results: dict, meta: dict, plots: bool = True) -> di
                              f"{', '.join(d.name for d in s.diagnostics if d.passed is False) or 'none'} | "
                              f"{', '.join(s.repairs) or '—'} |")
             lines.append("")
+            lines += [f"{s.effect}: {s.note}." for s in r.suggestions if s.note]
             lines.append(f"Add the best with `--add {r.suggestions[0].effect}`.")
         else:
             lines.append("No effect of the library passes its screen: "

@@ -34,7 +34,7 @@ from torch import Tensor
 from ..core.gl import gl_tail_coefficients
 
 __all__ = ["ParamSpec", "Component", "StartData", "NotScreened", "COMPONENTS", "ORDER_BOUNDS", "logit", "candidates",
-           "WHITTLE_SCREEN", "MEAN_SCREEN"]
+           "WHITTLE_SCREEN", "WHITTLE_SCREEN_2", "MEAN_SCREEN", "boundary_logsf"]
 
 #: Orders the ``fractional`` component may take: open interval, the kernel is designed on it.
 ORDER_BOUNDS = (0.0, 1.0)
@@ -81,6 +81,22 @@ class NotScreened(Exception):
 #: The screen of a stochastic component (a state, measurement or filter): the Whittle likelihood-ratio of the model
 #: with and without it; the null value is on the boundary of the parameter space, hence the mixture.
 WHITTLE_SCREEN = "Whittle LR, ½χ²₀+½χ²₁"
+#: The same for a stochastic component of two parameters (a Gauss–Markov bias's σ and τ: τ is not identified where σ
+#: vanishes, so the mixture is an approximation; its false-alarm rate is measured in experiments/check)
+WHITTLE_SCREEN_2 = "Whittle LR, ½χ²₁+½χ²₂"
+
+
+def boundary_logsf(lr: float, k: int) -> float:
+    """log P(LR > ``lr``) for a likelihood-ratio whose null puts one parameter of ``k`` on its boundary (a variance
+    at 0): the mixture ½χ²_{k−1} + ½χ²_k (Self & Liang 1987), χ²₀ a point mass at 0."""
+    from scipy import stats
+
+    if lr <= 0:
+        return 0.0
+    hi = stats.chi2.logsf(lr, k)
+    if k == 1:
+        return math.log(0.5) + hi
+    return math.log(0.5) + float(np.logaddexp(stats.chi2.logsf(lr, k - 1), hi))
 #: The default screen of a user's mean effect: the exact likelihood-ratio at the effect's least-squares values (on
 #: the model's residual) with the model's parameters held — a lower bound of the refit's, so conservative.
 MEAN_SCREEN = "exact LR at the effect's least-squares values, the model's held (χ²ₖ, conservative)"
@@ -125,14 +141,24 @@ class Component:
     candidate: bool = True
     #: the order of the screens in check's table (the built-in ones 10 … 70; a user's effect after them)
     screen_order: int = 100
+    #: the diagnostics whose failure this effect explains physically (a temperature effect the ``temperature``
+    #: diagnostic, a line the ``lines`` one): where it repairs such a failed diagnostic, ``check`` ranks it before a
+    #: suggestion that only soaks up slow variance, unless that one gains clearly more (``EXPLAIN_WINDOW``)
+    explains: tuple = ()
 
     @property
     def screen_test(self) -> str | None:
         """What the screen computes, named in check's table: a stochastic component's Whittle LR, a mean's exact LR
         at its least-squares values (:meth:`screen`); None: not screened (a modifier without a screen)."""
         if self.kind in ("state", "measurement", "filter"):
-            return WHITTLE_SCREEN
+            return WHITTLE_SCREEN if self.screen_df == 1 else WHITTLE_SCREEN_2 if self.screen_df == 2 else \
+                f"Whittle LR, ½χ²{self.screen_df - 1}+½χ²{self.screen_df}"
         return MEAN_SCREEN if self.kind == "mean" else None
+
+    @property
+    def screen_df(self) -> int:
+        """The Whittle screen's degrees of freedom: the parameters the fits estimate (not those held)."""
+        return max(1, len([p for p in self.params if p.name not in self.held]))
 
     def not_screened(self, model) -> str | None:
         """Why ``model`` cannot be screened for it (None: it can); ``check`` skips it with this note."""
@@ -418,9 +444,6 @@ class GaussMarkov(Component):
     kind = "state"
     params = (ParamSpec("sigma", "positive", "σ (units), stationary standard deviation"),
               ParamSpec("tau_s", "positive", "τ (s), correlation time"))
-    # not screened by check yet: a new candidate changes every check's family-wise threshold, and its hidden-effect
-    # and false-alarm rates are to be measured first (issue 30); in models, --add, simulate and fit it is complete
-    candidate = False
     screen_order = 15
 
     def coefficient(self, v, h):
@@ -645,6 +668,7 @@ class Sinusoid(Component):
 
     screen_test = "largest innovation periodogram line (F(2,200), max over frequencies)"
     screen_order = 20
+    explains = ("lines",)
     # the frequency at the refined periodogram peak (asymptotically efficient in coloured noise, Hannan 1973)
     held = {"frequency_hz": "refined periodogram peak (held in the exact refit): no interval"}
 
@@ -706,6 +730,7 @@ class TemperatureBias(Component):
 
     screen_test = "exact LR (whitened regressor), χ²₁"
     screen_order = 30
+    explains = ("temperature",)
 
     def screen(self, ctx):
         """The temperature diagnostic's score test, which is this likelihood-ratio (the whitened temperature)."""
@@ -730,7 +755,28 @@ class ThermalLag(Component):
     params = (ParamSpec("bias_per_degC", "free", "units/°C"), ParamSpec("tau_s", "positive", "τ (s), thermal lag"),
               ParamSpec("t_ref", "free", "T_ref (°C)"))
     held = {"t_ref": None}
-    candidate = False  # not screened by check yet: its study first (issue 30)
+    screen_test = "exact LR, largest over a grid of lags (whitened; its maximum's null by simulation)"
+    screen_order = 35
+    explains = ("temperature",)
+
+    @staticmethod
+    def lags(h: float, n: int) -> np.ndarray:
+        """The grid of lags (s) its start and screen search: one sample (≈ ``temperature-bias``) to the record."""
+        return np.geomspace(h, max(n * h, 2 * h), 20)
+
+    def screen(self, ctx):
+        """The exact likelihood-ratio of β at each lag of :meth:`lags` (the model held; the whitened lagged
+        temperature), the largest kept; its p-value is that of the maximum of the grid's correlated statistics
+        under the model (:func:`~torchtea.checking.diagnostics.scan_lr`), so the search over τ is paid for."""
+        from ..checking.diagnostics import scan_lr
+
+        T = np.asarray(ctx.inputs["temperature"], dtype=np.float64)
+        taus = self.lags(ctx.h, len(ctx.y))
+        X = self.lagged(T, torch.as_tensor(taus), ctx.h).numpy()
+        lr, beta, logp = scan_lr(ctx.inn, X - X.mean(1, keepdims=True))
+        g = int(np.argmax(lr))
+        return float(lr[g]), logp, {f"{ctx.label}.bias_per_degC": float(beta[g]), f"{ctx.label}.tau_s": float(taus[g]),
+                                    f"{ctx.label}.t_ref": float(np.mean(T))}, ""
 
     @staticmethod
     def lagged(T: Tensor, tau: Tensor, h: float) -> Tensor:
@@ -756,9 +802,8 @@ class ThermalLag(Component):
     def fit_residual(self, label, resid, t, ok, h, start, inputs):
         T = np.asarray(inputs["temperature"], dtype=np.float64)
         t_ref = float(np.nanmean(T))
-        span = max(len(resid) * h, 2.0)
         best = None
-        for tau in np.geomspace(1.0, span, 24):
+        for tau in self.lags(h, len(resid)):
             x = self.lagged(T, torch.tensor([tau]), h)[0].numpy()[ok]
             x = x - x.mean()
             beta = float(x @ resid[ok] / (x @ x)) if x @ x > 0 else 0.0
@@ -782,8 +827,56 @@ class Step(Component):
     params = (ParamSpec("size", "free", "units"), ParamSpec("t_step", "free", "t₀ (s from the first sample)"))
     held = {"t_step": "least-squares location of one step (held in the fits): no interval"}
     located = ("t_step",)
-    candidate = False  # not screened by check yet: its study first (issue 30)
     add_again = True
+    screen_test = "exact LR at the best candidate time, Bonferroni over the N−1 splits"
+    screen_order = 65
+    explains = ("change",)
+
+    @staticmethod
+    def _split_scores(resid, ok):
+        """c_k² / (m_k (n − m_k)) for the split before each sample k = 1 … N−1 (c the cumulative sum of the centred
+        residual, m_k the observed samples before k): one step's least-squares score in white noise."""
+        r = np.where(ok, resid - resid[ok].mean(), 0.0)
+        c = np.cumsum(r)[:-1]
+        m = np.cumsum(ok)[:-1].astype(np.float64)
+        n = float(ok.sum())
+        return np.where((m > 0) & (m < n), c * c / np.maximum(m * (n - m), 1.0), -np.inf)
+
+    @staticmethod
+    def _tops(score, k: int, gap: int) -> list:
+        """The indices of the ``k`` largest finite scores at least ``gap`` apart."""
+        score = np.array(score, dtype=np.float64)
+        out = []
+        for _ in range(k):
+            i = int(np.argmax(score))
+            if not np.isfinite(score[i]):
+                break
+            out.append(i)
+            score[max(0, i - gap):i + gap + 1] = -np.inf
+        return out
+
+    def screen(self, ctx):
+        """A step's time is searched among a few candidates — the least-squares splits of the model's residual
+        (where a step shows in a model without a slow part) and the largest innovations (where it shows in a model
+        with a random walk, which absorbs it after one sample) — and its exact likelihood-ratio (the model held,
+        the whitened step) taken at the best. The p-value pays for a search over every split: Bonferroni over the
+        N−1 of them (a bound, whatever the model's correlation)."""
+        from scipy import stats
+
+        from ..checking.diagnostics import scan_lr
+
+        y, N = ctx.y, len(ctx.y)
+        ok = ~np.isnan(y)
+        resid = np.where(ok, ctx.inn.y - ctx.inn.mean, 0.0)
+        ks = [k + 1 for k in self._tops(self._split_scores(resid, ok), 4, max(1, N // 50))]  # starts at sample k
+        z = np.where(np.isfinite(ctx.inn.z), np.abs(ctx.inn.z), -np.inf)
+        z[0] = -np.inf  # a step at the first sample is the level
+        ks = sorted(set(ks) | set(self._tops(z, 4, 10)))
+        X = (np.arange(N)[None, :] >= np.asarray(ks)[:, None]).astype(np.float64)
+        lr, beta, _ = scan_lr(ctx.inn, X)
+        g = int(np.argmax(lr))
+        logp = min(0.0, math.log(N - 1) + float(stats.chi2.logsf(lr[g], 1)))
+        return float(lr[g]), logp, {f"{ctx.label}.size": float(beta[g]), f"{ctx.label}.t_step": float(ctx.t[ks[g]])}, ""
 
     def mean(self, v, t, inputs):
         return v["size"].unsqueeze(-1) * (t >= v["t_step"].unsqueeze(-1)).to(t.dtype)
@@ -792,14 +885,8 @@ class Step(Component):
         return {"size": 0.02, "t_step": 100.0}[param]
 
     def fit_residual(self, label, resid, t, ok, h, start, inputs):
-        r = np.where(ok, resid - resid[ok].mean(), 0.0)
-        c = np.cumsum(r)[:-1]
-        m = np.cumsum(ok)[:-1].astype(np.float64)  # observed samples up to and including each index
-        n = float(ok.sum())
-        # least squares for one step in white noise: the split k that maximises c_k² / (m_k (n − m_k)) (the raw
-        # |c_k| is pulled towards the middle of the record)
-        score = np.where((m > 0) & (m < n), c * c / np.maximum(m * (n - m), 1.0), -np.inf)
-        k = int(np.argmax(score)) + 1  # the step is between samples k−1 and k
+        # least squares for one step in white noise (the raw |c_k| would be pulled towards the middle)
+        k = int(np.argmax(self._split_scores(resid, ok))) + 1  # the step is between samples k−1 and k
         before, after = ok[:k], ok[k:]
         size = float(resid[k:][after].mean() - resid[:k][before].mean()) if before.any() and after.any() else 0.0
         resid[ok & (np.arange(len(resid)) >= k)] -= size
@@ -845,6 +932,7 @@ class TemperatureOrder(Component):
 
     screen_test = "exact LR over the slope, others held (χ²₁, conservative)"
     screen_order = 40
+    explains = ("temperature",)
 
     def screen(self, ctx):
         """The exact likelihood-ratio over the slope alone, the other parameters held at the fit (a scan:

@@ -474,4 +474,5 @@ def test_an_effect_that_explains_a_failed_diagnostic_comes_first_within_the_wind
     assert [x.effect for x in rank([s("ramp", 100.0, ["allan"]), s("thermal-lag", 95.0, ["allan"])], {"allan"})] == \
         ["ramp", "thermal-lag"]
     rw = s("random-walk", 95.0, ["change"])
-    assert rank([s("ramp", 100.0, []), rw], {"change"})[0].effect == "ramp"
+    out = rank([s("ramp", 100.0, []), rw, s("step", 80.0, [])], {"change"})
+    assert out[0].effect == "ramp" and out[0].close == ["random-walk"] and "random-walk (gain 95.0)" in out[0].note

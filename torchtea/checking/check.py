@@ -49,7 +49,7 @@ from ..noise.model import NoiseModel, parse_model
 from .diagnostics import LEVEL, Diagnostic, Innovations, innovations, linear_lr, metrics, run_diagnostics
 
 __all__ = ["check", "CheckResult", "Suggestion", "CANDIDATES", "extend", "SCREENS", "effect_parameters", "rank",
-           "EXPLAIN_WINDOW"]
+           "EXPLAIN_WINDOW", "CLOSE_BIC"]
 
 #: The built-in effects check screens, in the order of its table; :func:`~torchtea.noise.components.candidates` gives
 #: every registered one (a user's too) at call time.
@@ -93,8 +93,11 @@ class Suggestion:
     metrics: dict
     repairs: list
     label: str
-    #: why it is ranked where it is when that is not by its gain alone
+    #: why it is ranked where it is when that is not by its gain alone, and the effects that fit about as well
     note: str = ""
+    #: (the first suggestion) the other suggestions whose gain is within :data:`CLOSE_BIC` of its own or above it:
+    #: the record does not tell them apart clearly
+    close: list = field(default_factory=list)
 
     @property
     def parameters(self) -> dict:
@@ -106,7 +109,7 @@ class Suggestion:
         return {"effect": self.effect, "gain": self.gain, "p_value": self.p_value, "screen": self.screen,
                 "model": self.fit.model.spec, "parameters": self.parameters, "ci95": ci,
                 "after": dict(self.metrics, failed=[d.name for d in self.diagnostics if d.passed is False]),
-                "repairs": self.repairs, "note": self.note}
+                "repairs": self.repairs, "note": self.note, "close": self.close}
 
 
 @dataclass
@@ -552,10 +555,16 @@ def check(y, h: float, model="fractional+white", inputs: dict | None = None, *, 
 EXPLAIN_WINDOW = 10.0
 
 
+#: Suggestions whose BIC gains differ by less than this are told apart by the record only weakly (a difference of
+#: 2–6 is "positive", not "strong", evidence: Kass & Raftery 1995): the first one's note names the others.
+CLOSE_BIC = 6.0
+
+
 def rank(suggestions: list, failed: set, window: float = EXPLAIN_WINDOW) -> list:
     """The suggestions in the order check gives them: by BIC gain, except that one repairing a failed diagnostic its
     effect explains comes first where no other gains more than ``window`` above it (:data:`EXPLAIN_WINDOW`); such a
-    one gets a note saying so."""
+    one gets a note saying so. The first one's note also names the suggestions within :data:`CLOSE_BIC` of it
+    (:attr:`Suggestion.close`)."""
     if not suggestions:
         return []
     best = max(s.gain for s in suggestions)
@@ -568,10 +577,19 @@ def rank(suggestions: list, failed: set, window: float = EXPLAIN_WINDOW) -> list
 
     out = sorted(suggestions, key=key, reverse=True)
     by_gain = max(suggestions, key=lambda s: s.gain)
-    if out[0] is not by_gain:
-        out[0].note = (f"ranked first: it repairs the failed {', '.join(explained(out[0]))} diagnostic its effect "
-                       f"explains; {by_gain.effect} gains {by_gain.gain - out[0].gain:.1f} more BIC (within "
-                       f"{window:g}: the data do not tell them apart clearly)")
+    first = out[0]
+    notes = []
+    if first is not by_gain:
+        notes.append(f"ranked first: it repairs the failed {', '.join(explained(first))} diagnostic its effect "
+                     f"explains; {by_gain.effect} gains {by_gain.gain - first.gain:.1f} more BIC (within {window:g}: "
+                     "the data do not tell them apart clearly)")
+    first.close = [s.effect for s in out[1:] if s.gain >= first.gain - CLOSE_BIC]
+    others = [s for s in out[1:] if s.gain >= first.gain - CLOSE_BIC and s is not by_gain]
+    if others:
+        notes.append("about as good on this record (BIC within " f"{CLOSE_BIC:g}): " +
+                     ", ".join(f"{s.effect} (gain {s.gain:.1f})" for s in others) +
+                     " — a longer record or another temperature history tells them apart")
+    first.note = "; ".join(notes)
     return out
 
 

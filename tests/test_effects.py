@@ -273,15 +273,18 @@ def test_a_level_step_near_either_end_is_located_there(t_step):
 
 def test_a_level_step_is_located_and_its_size_fitted():
     """step: a level jump of 0.02 m/s² (two thirds of the white noise's σ) at 123.455 s in 30 000 samples: the
-    fit locates it within 0.1 s (the least-squares split, held in the fits, counted in BIC, no interval — and says
-    so) and finds its size within 4 standard errors."""
+    fit locates it within 0.1 s (the least-squares split, held in the fits, counted in BIC), its time's profile-
+    likelihood set holds the truth and is a few seconds wide at most, and the size is within 4 standard errors."""
     m = "fractional+white+step"
     v = default_values(m, H)
     v.update({"step.size": 0.02, "step.t_step": 123.455})
     y = simulate_model(m, v, n_steps=30000, h=H, generator=torch.Generator().manual_seed(3))[0, 0].numpy()
     f = fit_series(m, [y], H)[0]
     assert f.converged and abs(f.values["step.t_step"] - 123.455) < 0.1
-    assert "step.t_step" in f.free and f.se["step.t_step"] is None and "no interval" in f.ci95_method["step.t_step"]
+    assert "step.t_step" in f.free and f.se["step.t_step"] is None
+    lo, hi = f.ci95["step.t_step"]  # the profile-likelihood set's hull holds the fitted time and the truth
+    assert f.ci95_method["step.t_step"].startswith("profile likelihood") and lo <= f.values["step.t_step"] <= hi
+    assert lo <= 123.455 <= hi and hi - lo < 5.0
     assert abs(f.values["step.size"] - 0.02) < 4 * f.se["step.size"]
 
 

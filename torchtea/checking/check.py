@@ -42,7 +42,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from ..fitting.mle import Fit, centred, exact_loglik, fit_series, refine_exact, refine_frequency, whittle_fit
+from ..fitting.mle import (Fit, centred, exact_loglik, fit_series, located_intervals, refine_exact, refine_frequency,
+                           whittle_fit)
 from ..noise.components import COMPONENTS, Component, NotScreened, boundary_logsf
 from ..noise.components import candidates as candidates_all
 from ..noise.model import NoiseModel, parse_model
@@ -542,6 +543,9 @@ def check(y, h: float, model="fractional+white", inputs: dict | None = None, *, 
         fixed = [n for n in f.model.names if n not in f.free or n in held]
         top.fit = refine_exact(f.model, y, h, f.values, inputs=inputs, fixed=fixed, metric=f.hessian, intervals=True)
         _counted(top.fit, {n: f.ci95_method[n] for n in held if n in f.free})
+        for n, (c, words) in located_intervals(f.model, top.fit.values, y, h, inputs).items():
+            if n in top.fit.free:
+                top.fit.ci95[n], top.fit.ci95_method[n] = c, words
     clock("intervals")
     return CheckResult(y, h, inputs, fit, inn, diags, mets, screens, suggestions, level, screen_level,
                        time.perf_counter() - t0, notes, timings=clock.laps)

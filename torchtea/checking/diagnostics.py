@@ -252,7 +252,7 @@ def scan_lr(inn: Innovations, columns: np.ndarray, *, draws: int = 20_000, seed:
     beta = np.where(good, score / np.where(good, nn, 1.0), 0.0)
     top = float(lr.max())
     logp = math.log(max(1, int(good.sum()))) + float(stats.chi2.logsf(top, 1))
-    if good.sum() > 1:
+    if good.sum() > 1 and draws > 0:  # (draws = 0: the statistics alone, the p-value by Bonferroni)
         U = Wp[good] / np.sqrt(nn[good])[:, None]
         lam, V = np.linalg.eigh(U @ U.T)
         L = V * np.sqrt(np.clip(lam, 0.0, None))

@@ -34,7 +34,7 @@ from ..likelihood.whittle import RESOLUTION, WhittleData, periodogram, whittle_d
 from ..noise.model import NoiseModel, StateSpace, parse_model, state_memory
 from .optimize import newton
 
-__all__ = ["Fit", "WhittleFit", "fit_series", "refine_exact", "regress_mean", "whittle_fit", "exact_loglik", "profile_order", "METHODS",
+__all__ = ["Fit", "WhittleFit", "fit_series", "located_intervals", "refine_exact", "regress_mean", "whittle_fit", "exact_loglik", "profile_order", "METHODS",
            "Z95", "CHI2_95"]
 
 METHODS = ("whittle", "exact")
@@ -651,6 +651,17 @@ def exact_pass(model, values: dict, y, h: float, *, inputs: dict | None = None, 
     return ExactPass(y, ss, mean, float(ll[0]), e[0], S[0])
 
 
+def located_intervals(model, values: dict, y, h: float, inputs: dict | None = None) -> dict:
+    """The 95 % intervals the components make for their located parameters (a step's time) at the fit ``values``:
+    name → ``((lo, hi), words)`` (:meth:`~torchtea.noise.components.Component.located_intervals`)."""
+    model = parse_model(model)
+    out = {}
+    for label, comp in model.components:
+        if comp.located:
+            out.update(comp.located_intervals(label, model, dict(values), np.asarray(y, dtype=np.float64), h, inputs))
+    return out
+
+
 def fit_series(model, series: list, h: float, *, method: str = "exact", inputs: list | None = None,
                fixed: dict | None = None, memory=FIT_MEMORY, profile: bool | None = None,
                whittle: WhittleFit | None = None, intervals: bool = True) -> list[Fit]:
@@ -719,9 +730,13 @@ def fit_series(model, series: list, h: float, *, method: str = "exact", inputs: 
             vals, se, ci, how = _estimates(model, u, H, free, h)
             ll_exact = ll
         kfree = [n for n, f in zip(model.names, free.tolist()) if f]
-        for n, words in located.items():  # held where the data put them, but estimated: counted, no interval
+        for n, words in located.items():  # held where the data put them, but estimated: counted in BIC
             kfree.append(n)
             how[n] = words
+        if intervals and method == "exact":  # their own intervals, where the component makes one
+            for n, (c, words) in located_intervals(model, vals, y, h, inp).items():
+                if n in located:
+                    ci[n], how[n] = c, words
         if not model.has_level:
             notes.append(f"mean {float(np.nanmean(y)):.6g} removed before fitting; the model has no offset, so the "
                          "exact likelihood integrates the unknown level out")

@@ -13,6 +13,8 @@ r"""``check``: fit a noise model, test it against the measurements, and rank the
      parameters are orthogonal in a Gaussian model, so holding the latter is asymptotically exact);
    - ``sinusoid``: the ``lines`` diagnostic — the largest innovation periodogram ordinate against its
      neighbours, over all frequencies;
+   - ``drifting-line``: the same after dechirping the innovations at each rate of a grid
+     (:func:`.diagnostics.chirp_search`), Bonferroni over frequencies and rates;
    - ``thermal-lag``: the largest exact likelihood-ratio over a grid of lags (whitened lagged temperatures), its
      p-value that of the maximum of the grid's correlated statistics (simulated; :func:`.diagnostics.scan_lr`);
    - ``step``: the exact likelihood-ratio at the best of a few candidate times (least-squares splits, the largest

@@ -437,19 +437,12 @@ def spectrum_bands(z: np.ndarray, h: float, level: float = LEVEL, bands: int = 2
                       {"band_lo_hz": lo_hz, "band_hi_hz": hi_hz, "ratio": ratio, "ordinates": m, "p": p.tolist()})
 
 
-def lines(z: np.ndarray, h: float, level: float = LEVEL, neighbours: int = 50, guard: int = 2) -> Diagnostic:
-    """Each ordinate against the mean of ``neighbours`` ordinates on each side (skipping ``guard`` next to it):
-    u_j / ū ~ F(2, 2K) for independent exponentials, so broad misfit (a wrong slope) does not count as a line.
-    Only ordinates with their full ``neighbours`` on both sides are tested (from ``guard + neighbours + 1``
-    cycles per record up): at the lowest frequencies a drift the model lacks (random walk, ramp) stands out
-    against neighbours on one side only, and a "line" of a cycle or two per record cannot be told from drift."""
-    j, u = _innovation_periodogram(z)
-    N = len(z)
+def _against_neighbours(u: np.ndarray, neighbours: int = 50, guard: int = 2):
+    """Each periodogram ordinate ``u`` (Exp(1) under the model) with its full ``neighbours`` on both sides (skipping
+    ``guard`` next to it) against their mean: ``(indices, ratio, log p)``, ratio ~ F(2, 2K) for independent
+    exponentials."""
     c = np.concatenate([[0.0], np.cumsum(u)])
     idx = np.arange(guard + neighbours, len(u) - guard - neighbours)
-    if len(idx) == 0:
-        raise ValueError(f"the lines diagnostic needs more than {4 * (guard + neighbours)} samples, got {N}")
-    M = len(idx)
     Mu = len(u)
 
     def seg(lo, hi):  # sum and count of u[lo:hi], clipped to the array
@@ -460,7 +453,71 @@ def lines(z: np.ndarray, h: float, level: float = LEVEL, neighbours: int = 50, g
     s2, n2 = seg(idx + guard + 1, idx + guard + 1 + neighbours)
     K = n1 + n2
     ratio = u[idx] / ((s1 + s2) / K)
-    logp = stats.f.logsf(ratio, 2, 2 * K)
+    return idx, ratio, stats.f.logsf(ratio, 2, 2 * K)
+
+
+def chirp_search(x: np.ndarray, h: float, *, max_rates: int = 801, neighbours: int = 50, guard: int = 2) -> dict:
+    """The strongest line of linearly drifting frequency in ``x`` (NaN = missing): for each drift rate f₁ of a grid
+    (step 2/T², T the record's length — a phase error of at most π/2 at its ends —, ``max_rates`` rates centred on
+    0), ``x`` is multiplied by exp(−iπ f₁ (t − t̄)²), which turns a line of frequency f₀ + f₁ (t − t̄) into a tone at
+    f₀, and each positive-frequency ordinate is tested against its neighbours as :func:`lines` does (F(2, 2K)).
+    Returns the best's ``f0_hz`` (at the record's middle t̄), ``rate_hz_per_s``, ``ratio``, its ``log_p`` with
+    Bonferroni over every ordinate and rate tested, and ``tests`` (their number)."""
+    ok = np.isfinite(x)
+    N = len(x)
+    xx = np.where(ok, x, 0.0)
+    n_obs = int(ok.sum())
+    t = (np.arange(N) - (N - 1) / 2.0) * h
+    T = N * h
+    R = max(41, min(max_rates, int(2.4e7 / N))) // 2 * 2 + 1  # fewer rates on long records (FFT work ≈ 2.4·10⁷)
+    rates = (np.arange(R) - R // 2) * 2.0 / T ** 2
+    best = None
+    tests = 0
+    for f1 in rates:
+        d = np.fft.fft(xx * np.exp(-1j * np.pi * f1 * t * t))
+        u = np.abs(d[1:(N - 1) // 2 + 1]) ** 2 / n_obs
+        idx, ratio, logp = _against_neighbours(u, neighbours, guard)
+        tests += len(idx)
+        i = int(np.argmin(logp))
+        if best is None or logp[i] < best[0]:
+            best = (float(logp[i]), float(f1), int(idx[i]) + 1, float(ratio[i]))
+    logp, f1, j, ratio = best
+    return {"f0_hz": j / T, "rate_hz_per_s": f1, "ratio": ratio, "log_p": min(0.0, logp + math.log(tests)),
+            "tests": tests}
+
+
+def refine_chirp(x: np.ndarray, f0: float, f1: float, h: float) -> tuple[float, float]:
+    """``(f₀, f₁)`` maximising |Σ x_k exp(−i(2π f₀ τ_k + π f₁ τ_k²))|² (τ the time from the record's middle) near
+    the grid's ``(f0, f1)`` — within one frequency bin and one rate step (Nelder–Mead)."""
+    from scipy.optimize import minimize
+
+    N = len(x)
+    xx = np.where(np.isfinite(x), x, 0.0)
+    tau = (np.arange(N) - (N - 1) / 2.0) * h
+    T = N * h
+    sf, sr = 1.0 / T, 2.0 / T ** 2
+
+    def neg(p):
+        a, b = f0 + np.clip(p[0], -1, 1) * sf, f1 + np.clip(p[1], -1, 1) * sr
+        return -abs(np.dot(xx, np.exp(-1j * (2 * np.pi * a * tau + np.pi * b * tau * tau)))) ** 2
+
+    res = minimize(neg, [0.0, 0.0], method="Nelder-Mead", options={"xatol": 1e-4, "fatol": 1e-10})
+    p = np.clip(res.x, -1, 1)
+    return float(f0 + p[0] * sf), float(f1 + p[1] * sr)
+
+
+def lines(z: np.ndarray, h: float, level: float = LEVEL, neighbours: int = 50, guard: int = 2) -> Diagnostic:
+    """Each ordinate against the mean of ``neighbours`` ordinates on each side (skipping ``guard`` next to it):
+    u_j / ū ~ F(2, 2K) for independent exponentials, so broad misfit (a wrong slope) does not count as a line.
+    Only ordinates with their full ``neighbours`` on both sides are tested (from ``guard + neighbours + 1``
+    cycles per record up): at the lowest frequencies a drift the model lacks (random walk, ramp) stands out
+    against neighbours on one side only, and a "line" of a cycle or two per record cannot be told from drift."""
+    j, u = _innovation_periodogram(z)
+    N = len(z)
+    idx, ratio, logp = _against_neighbours(u, neighbours, guard)
+    if len(idx) == 0:
+        raise ValueError(f"the lines diagnostic needs more than {4 * (guard + neighbours)} samples, got {N}")
+    M = len(idx)
     i = int(np.argmin(logp))
     # P(min over M of p_j ≤ p) = 1 − (1 − p)^M, computed in logs
     p_any = float(-np.expm1(M * np.log1p(-math.exp(logp[i]))))

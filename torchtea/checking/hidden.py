@@ -78,6 +78,10 @@ DRAWS = {
                                                "gauss-markov.tau_s": span * _log_uniform(g, 0.01, 0.1)},
     "thermal-lag": lambda g, s, h, span, dT: {"thermal-lag.bias_per_degC": _sign(g) * s * _log_uniform(g, 0.4, 1.2) / dT,
                                               "thermal-lag.tau_s": _log_uniform(g, 20.0, 200.0)},
+    "drifting-line": lambda g, s, h, span, dT: {"drifting-line.frequency_hz": g.uniform(0.05, 0.4) / h,
+                                                "drifting-line.rate_hz_per_s": _sign(g) * g.uniform(0.3, 3.0) / span,
+                                                "drifting-line.amplitude": s * _log_uniform(g, 0.15, 0.4),
+                                                "drifting-line.phase": g.uniform(-math.pi, math.pi)},
     "step": lambda g, s, h, span, dT: {"step.size": _sign(g) * s * _log_uniform(g, 0.3, 0.8),
                                        "step.t_step": round(g.uniform(0.15, 0.85) * span / h) * h},
 }

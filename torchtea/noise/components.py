@@ -711,6 +711,74 @@ class Sinusoid(Component):
                 f"{label}.phase": float(math.atan2(coef[1], coef[0]))}
 
 
+class DriftingLine(Component):
+    r"""A vibration line whose frequency moves linearly in time (a fan or a motor speeding up or slowing down):
+    :math:`A \sin(2\pi (f_0 \tau + \tfrac12 f_1 \tau^2) + \varphi)`, τ = t − t̄ the time from the record's
+    middle, so f₀ is the frequency there and f₁ its rate (Hz/s). Its power is spread over |f₁| T Hz, so the line
+    test, which looks for one frequency, misses it once that is more than a few bins. Found by a chirp search
+    (:func:`~torchtea.checking.diagnostics.chirp_search`: dechirp at each rate of a grid, then the line test), f₀ and
+    f₁ refined and held (counted in BIC), the amplitude and phase by least squares."""
+
+    name = "drifting-line"
+    kind = "mean"
+    params = (ParamSpec("frequency_hz", "positive", "f₀ (Hz), at the record's middle"),
+              ParamSpec("rate_hz_per_s", "free", "f₁ (Hz/s)"),
+              ParamSpec("amplitude", "positive", "A (units)"), ParamSpec("phase", "free", "φ (rad)"))
+    held = {"frequency_hz": "chirp search, refined (held in the exact refit): no interval",
+            "rate_hz_per_s": "chirp search, refined (held in the exact refit): no interval"}
+    add_again = True
+    screen_test = "largest dechirped innovation periodogram line (F(2,200), Bonferroni over frequencies and rates)"
+    screen_order = 25
+    explains = ("spectrum",)
+
+    def mean(self, v, t, inputs):
+        tau = t - t.mean()
+        f0, f1 = v["frequency_hz"].unsqueeze(-1), v["rate_hz_per_s"].unsqueeze(-1)
+        return v["amplitude"].unsqueeze(-1) * torch.sin(2.0 * math.pi * (f0 * tau + 0.5 * f1 * tau * tau)
+                                                        + v["phase"].unsqueeze(-1))
+
+    def typical(self, param, h, t_ref):
+        return {"frequency_hz": 12.45, "rate_hz_per_s": -4e-3, "amplitude": 0.01, "phase": 0.0}[param]
+
+    def start(self, param, data):
+        return {"frequency_hz": 0.1 / data.h, "rate_hz_per_s": 0.0, "amplitude": math.sqrt(data.var) / 10.0,
+                "phase": 0.0}[param]
+
+    @staticmethod
+    def columns(f0: float, f1: float, t) -> np.ndarray:
+        tau = np.asarray(t) - np.mean(t)
+        w = 2 * np.pi * (f0 * tau + 0.5 * f1 * tau * tau)
+        return np.stack([np.sin(w), np.cos(w)])
+
+    def screen(self, ctx):
+        """The chirp search on the model's standardised innovations (its p-value, Bonferroni over every frequency
+        and rate tested); the statistic and the start: the whitened chirp's sine and cosine at the refined
+        (f₀, f₁)."""
+        from ..checking.diagnostics import chirp_search, linear_lr, refine_chirp
+
+        inn, t = ctx.inn, ctx.t
+        found = chirp_search(inn.z, ctx.h)
+        r = np.where(inn.observed, inn.y - inn.mean, np.nan)
+        f0, f1 = refine_chirp(r, found["f0_hz"], found["rate_hz_per_s"], ctx.h)
+        lr, beta = linear_lr(inn, self.columns(f0, f1, t))
+        return lr, found["log_p"], {f"{ctx.label}.frequency_hz": f0, f"{ctx.label}.rate_hz_per_s": f1,
+                                    f"{ctx.label}.amplitude": float(math.hypot(*beta)),
+                                    f"{ctx.label}.phase": float(math.atan2(beta[1], beta[0]))}, ""
+
+    def fit_residual(self, label, resid, t, ok, h, start, inputs):
+        """The chirp search on the residual, refined; amplitude and phase by least squares."""
+        from ..checking.diagnostics import chirp_search, refine_chirp
+
+        r = np.where(ok, resid, np.nan)
+        found = chirp_search(r, h)
+        f0, f1 = refine_chirp(r, found["f0_hz"], found["rate_hz_per_s"], h)
+        X = self.columns(f0, f1, t).T
+        coef, *_ = np.linalg.lstsq(X[ok], resid[ok], rcond=None)
+        resid[ok] -= X[ok] @ coef
+        return {f"{label}.frequency_hz": f0, f"{label}.rate_hz_per_s": f1,
+                f"{label}.amplitude": float(math.hypot(*coef)), f"{label}.phase": float(math.atan2(coef[1], coef[0]))}
+
+
 class TemperatureBias(Component):
     """β (T_k − T_ref) added to the output; T the measured ``temperature`` input (°C), T_ref its mean
     unless fixed."""
@@ -1002,7 +1070,7 @@ class TemperatureOrder(Component):
 
 COMPONENTS = {c.name: c for c in (Fractional(), White(), Quantisation(), RandomWalk(), LowPass(), Offset(), Ramp(),
                                   Sinusoid(), TemperatureBias(), TemperatureOrder(), GaussMarkov(), ThermalLag(),
-                                  Step())}
+                                  Step(), DriftingLine())}
 
 
 def candidates() -> tuple:

@@ -10,7 +10,7 @@ model*, and each is checked exactly as a user's recording would be — the model
 at the refitted values, every effect screened — with a temperature channel that warms up by 3 °C (the bundled
 recording has none; the series does not depend on it, so the temperature diagnostic and screens are under their
 null too). Counted: how often each diagnostic fails (nominal level 1 % each), how often the model is called
-inadequate (any of the seven), and how often any effect is suggested (nominal: at most ``screen_level`` = 5 %).
+inadequate (any of the eight), and how often any effect is suggested (nominal: at most ``screen_level`` = 5 %).
 The 100 clean cases of ``hidden.py`` give the same on MEMS-like data of 30 000 samples.
 """
 from __future__ import annotations
@@ -24,7 +24,7 @@ from pathlib import Path
 import torch
 
 from torchtea.checking import check
-from torchtea.checking.diagnostics import LEVEL
+from torchtea.checking.diagnostics import LEVEL, SIGNATURES
 from torchtea.noise import parse_model, simulate_model, temperature_profile
 from torchtea.sensors.io import read_recording
 
@@ -77,7 +77,7 @@ def tables(d: Path) -> str:
         sets.append(("MEMS-like defaults (hidden.py, none), N = 30000",
                      [{"failed": r["failed"], "suggestions": [s["effect"] for s in r["suggestions"]],
                        "ran": None} for r in hidden]))
-    names = ["nis", "change", "ljung-box", "spectrum", "lines", "allan", "temperature"]
+    names = list(SIGNATURES)  # every diagnostic, in the order check runs them
     lines = [f"Rejection rates (± binomial se) on data drawn from the fitted model; each diagnostic's nominal "
              f"level is {LEVEL:.0%}, a suggestion's (any effect) 5 %.", "",
              "| data | series | " + " | ".join(names) + " | inadequate (any) | any suggestion |",

@@ -63,7 +63,8 @@ def _sign(rng):
 #: How a randomised study draws each effect's parameters: a function of (random generator, white-noise standard
 #: deviation σ_w (units), sample time h (s), record length (s), the temperature's warm-up (°C)) → values. The ranges
 #: centre on :data:`HIDDEN_STRENGTH`'s settings relative to σ_w and reach a factor of about 2 either way: from an
-#: effect the check should just find to one it finds easily.
+#: effect the check should just find to one it finds easily. A set's seed stream is keyed by the positions of its
+#: effects here: a new effect goes at the end, so that the studies' saved cases can be drawn again.
 DRAWS = {
     "random-walk": lambda g, s, h, span, dT: {"random-walk.sigma": s * _log_uniform(g, 0.015, 0.05)},
     "sinusoid": lambda g, s, h, span, dT: {"sinusoid.frequency_hz": g.uniform(0.02, 0.45) / h,
@@ -78,12 +79,12 @@ DRAWS = {
                                                "gauss-markov.tau_s": span * _log_uniform(g, 0.01, 0.1)},
     "thermal-lag": lambda g, s, h, span, dT: {"thermal-lag.bias_per_degC": _sign(g) * s * _log_uniform(g, 0.4, 1.2) / dT,
                                               "thermal-lag.tau_s": _log_uniform(g, 20.0, 200.0)},
+    "step": lambda g, s, h, span, dT: {"step.size": _sign(g) * s * _log_uniform(g, 0.3, 0.8),
+                                       "step.t_step": round(g.uniform(0.15, 0.85) * span / h) * h},
     "drifting-line": lambda g, s, h, span, dT: {"drifting-line.frequency_hz": g.uniform(0.05, 0.4) / h,
                                                 "drifting-line.rate_hz_per_s": _sign(g) * g.uniform(0.3, 3.0) / span,
                                                 "drifting-line.amplitude": s * _log_uniform(g, 0.15, 0.4),
                                                 "drifting-line.phase": g.uniform(-math.pi, math.pi)},
-    "step": lambda g, s, h, span, dT: {"step.size": _sign(g) * s * _log_uniform(g, 0.3, 0.8),
-                                       "step.t_step": round(g.uniform(0.15, 0.85) * span / h) * h},
 }
 
 

@@ -905,6 +905,8 @@ class Step(Component):
     #: W(s) − |s|/2 on either side; Hinkley 1970, Siegmund 1988), whose 95 % point is −2 ln(1 − √0.95) = 7.35 —
     #: χ²₁'s 3.84 covered 16 of 24 step cases of the random study
     INTERVAL_BOUND = -2.0 * math.log(1.0 - math.sqrt(0.95))
+    #: the widest window (samples either side of the fitted time) the interval's search reaches
+    INTERVAL_HALF = 800
     #: how its time's interval is made (:meth:`located_intervals`)
     INTERVAL = ("profile likelihood over the step's time, the other parameters held (2Δℓ ≤ 7.35, the change-point "
                 "limit's 95 % point; hull)")
@@ -969,8 +971,8 @@ class Step(Component):
         """The time's 95 % set by profile likelihood: the exact likelihood-ratio of a step at each sample near the
         fitted time, its size at its GLS value and every other parameter held (the model's innovations without this
         step, the whitened step columns: :func:`~torchtea.checking.diagnostics.scan_lr`), and the samples within
-        :attr:`INTERVAL_BOUND` of the best; the window doubles (±50 samples to ±3200) until the set ends inside it. The
-        hull is reported (the set can have holes). Its coverage is measured in experiments/check (random study)."""
+        :attr:`INTERVAL_BOUND` of the best; the window doubles (±50 samples to ±:attr:`INTERVAL_HALF`) until the
+        set ends inside it. The hull is reported (the set can have holes). Its coverage is measured in experiments/check (random study)."""
         from ..checking.diagnostics import innovations, scan_lr
         from ..fitting.mle import centred
 
@@ -981,16 +983,22 @@ class Step(Component):
         inn = innovations(model, without, centred(model, y), h, inputs=inputs)
         crit = self.INTERVAL_BOUND
         half = 50
+        lrs = {}
         while True:
             ks = np.arange(max(1, k0 - half), min(len(y) - 1, k0 + half) + 1)
-            X = (np.arange(len(y))[None, :] >= ks[:, None]).astype(np.float64)
-            lr, _, _ = scan_lr(inn, X, draws=0)
+            todo = np.array([k for k in ks if k not in lrs])
+            for i in range(0, len(todo), 200):  # 200 whitened columns at a time (memory)
+                part = todo[i:i + 200]
+                X = (np.arange(len(y))[None, :] >= part[:, None]).astype(np.float64)
+                lrs.update(zip(part.tolist(), scan_lr(inn, X, draws=0)[0].tolist()))
+            lr = np.array([lrs[k] for k in ks])
             inside = ks[lr >= lr.max() - crit]
             edge = inside.min() == ks[0] and ks[0] > 1 or inside.max() == ks[-1] and ks[-1] < len(y) - 1
-            if not edge or half >= 3200:
+            if not edge or half >= self.INTERVAL_HALF:
                 break
             half *= 2
-        words = self.INTERVAL + (" — reaches the ±3200-sample window: wider than shown" if edge else "")
+        words = self.INTERVAL + (f" — reaches the ±{self.INTERVAL_HALF}-sample window searched: wider than shown"
+                                 if edge else "")
         return {name: ((float(t[inside.min()]), float(t[inside.max()])), words)}
 
     def fit_residual(self, label, resid, t, ok, h, start, inputs):

@@ -9,7 +9,7 @@ diagnostics, so a rule can be replayed without refitting. Rules:
 
 * ``gain`` — today's: the largest BIC gain first;
 * ``explains`` — a suggestion that repairs a failed diagnostic its effect explains (each component's ``explains``:
-  temperature → temperature-bias, thermal-lag, temperature-order; lines → sinusoid; change → step) first, then
+  temperature → temperature-bias, thermal-lag, temperature-order; lines → sinusoid; spectrum → drifting-line) first, then
   by gain;
 * ``explains-within-W`` — the same, only for suggestions within W of the best gain (W = 2, 6, 10, 15, 20); check
   uses ``explains-within-{EXPLAIN_WINDOW}``.

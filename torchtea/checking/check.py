@@ -554,7 +554,7 @@ def check(y, h: float, model="fractional+white", inputs: dict | None = None, *, 
 
 
 #: A suggestion that repairs a failed diagnostic its effect explains (``Component.explains``: a temperature effect
-#: the temperature diagnostic, a line the lines test, a step the change test) is ranked before the others unless one
+#: the temperature diagnostic, a line the lines test) is ranked before the others unless one
 #: of them gains more than this much BIC (2 nats of likelihood ≈ a factor 150 of evidence at 10): where the data
 #: cannot tell a lagged temperature from a drift, the effect that names the failure comes first. Chosen by replaying
 #: the rule on the studies' saved cases (experiments/check/ranking.py).

@@ -460,3 +460,37 @@ def test_time_varying_row_draws_its_own_noise_in_every_parameter_set():
     rw_steps = torch.diff(z1[:, 0])
     corr = float(torch.corrcoef(torch.stack([drive, rw_steps]))[0, 1])
     assert abs(corr) < 4 / math.sqrt(N), corr  # independent draws: |corr| ~ 1/√N
+
+
+def test_digital_filter_is_two_stages_against_dense_gaussian():
+    """fractional+white+digital-filter+white: two first-order stages of the same cut-off in cascade, each from rest
+    before the first sample (the dense covariance built with the one-stage matrix applied twice); its spectrum is
+    the one-stage gain squared times what it filters; the first stage alone is the low-pass, bit for bit."""
+    N = 100
+    m = parse_model("fractional+white+digital-filter+white")
+    v = dict(FW, **{"white.r": 2e-3, "digital-filter.cutoff_hz": 6.0, "white2.r": 1e-4})
+    y = simulate_model(m, v, n_steps=N, h=H, generator=torch.Generator().manual_seed(5))[0, 0]
+    Mx = _gl_operator(0.4, -2.0, H, N) * math.sqrt(0.02)
+    a = math.exp(-2 * math.pi * 6.0 * H)
+    Lp = torch.zeros(N, N, dtype=torch.float64)
+    for k in range(N):
+        Lp[k, : k + 1] = (1 - a) * a ** torch.arange(k, -1, -1, dtype=torch.float64)
+    L2 = Lp @ Lp
+    A = torch.cat([L2 @ Mx, L2 * math.sqrt(2e-3)], dim=1)
+    cov = A @ A.T + 1e-4 * torch.eye(N, dtype=torch.float64)
+    ref = torch.distributions.MultivariateNormal(torch.zeros(N, dtype=torch.float64), cov).log_prob(y)
+    ss = m.state_space(v, H, N, "exact")
+    assert float(kalman_filter(ss, y).loglik[0]) == pytest.approx(float(ref), abs=1e-8)
+    assert float(loglik_fast(ss, y)[0]) == pytest.approx(float(ref), abs=1e-8)
+    w = torch.linspace(0.01, math.pi, 9, dtype=torch.float64)
+    inner = parse_model("fractional+white").spectrum(v, w, H)[0]
+    g1 = (1 - a) ** 2 / (1 - 2 * a * torch.cos(w) + a * a)
+    torch.testing.assert_close(m.spectrum(v, w, H)[0], inner * g1 ** 2 + 1e-4 / (2 * math.pi), rtol=1e-12, atol=0)
+    one = parse_model("fractional+white+low-pass+white")
+    v1 = {k.replace("digital-filter", "low-pass"): x for k, x in v.items()}
+    ss1 = one.state_space(v1, H, N, "exact")
+    assert ss.n == ss1.n + 1
+    with pytest.raises(ValueError, match="one sensor filter at most"):
+        parse_model("fractional+white+low-pass+digital-filter")
+    with pytest.raises(ValueError, match="sensor filter"):
+        parse_model("fractional+white+digital-filter+temperature-order")

@@ -68,10 +68,29 @@ def _relative_errors(rows: list) -> dict:
             comp = name.split(".", 1)[0]
             if comp not in r["effects"] or name.endswith("t_ref") or name.endswith("phase") or name not in fitted:
                 continue
+            if COMPONENTS[comp.rstrip("0123456789")].needs_argument:  # spikes: a set of times (_spike_rows)
+                continue
             if name.split(".", 1)[1] in COMPONENTS[comp.rstrip("0123456789")].located:  # a time: in samples
                 out.setdefault(f"{name} (samples)", []).append((fitted[name] - true) / r["h"])
             elif true != 0:
                 out.setdefault(name, []).append((fitted[name] - true) / abs(true))
+    return out
+
+
+def _spike_rows(rows: list) -> list:
+    """Per case with hidden spikes: how many there were, how many of them the loop's end has at their sample, and
+    how many it has at a sample where there was none (sizes: the median |fitted − true| / |true| of those found)."""
+    out = []
+    for r in rows:
+        if "spikes" not in r["effects"]:
+            continue
+        true = {round(v / r["h"]): r["truth"][k.replace(".t", ".size")] for k, v in r["truth"].items()
+                if k.startswith("spikes.t")}
+        fitted = {round(v / r["h"]): r["final_parameters"][k.replace(".t", ".size")]
+                  for k, v in r["final_parameters"].items() if k.startswith("spikes") and ".t" in k}
+        hit = set(true) & set(fitted)
+        out.append({"true": len(true), "found": len(hit), "false": len(set(fitted) - set(true)),
+                    "size_err": [abs(fitted[k] - true[k]) / abs(true[k]) for k in hit]})
     return out
 
 
@@ -136,6 +155,17 @@ def tables(d: Path) -> str:
     for (effects, n, h), rs in sorted(groups.items()):
         for name, errs in sorted(_relative_errors(rs).items()):
             out.append(f"| {'+'.join(effects)} | {name} | {len(errs)} | {_iqr(errs)} |")
+    spikes = [(effects, n, h, _spike_rows(rs)) for (effects, n, h), rs in sorted(groups.items())]
+    spikes = [x for x in spikes if x[3]]
+    if spikes:
+        out += ["", "**Spikes at the loop's end against the truth** (a spike found: one at its sample; false: one where "
+                    "there was none):", "", "| hidden | seeds | spikes | found | false | size error median [quartiles] |",
+                "|---|---|---|---|---|---|"]
+        for effects, n, h, sr in spikes:
+            errs = [e for x in sr for e in x["size_err"]]
+            out.append(f"| {'+'.join(effects)} | {len(sr)} | {sum(x['true'] for x in sr)} | "
+                       f"{_pct(sum(x['found'] for x in sr), sum(x['true'] for x in sr))} | {sum(x['false'] for x in sr)} "
+                       f"| {_iqr(errs) if errs else '—'} |")
     return "\n".join(out)
 
 

@@ -19,7 +19,10 @@ r"""``check``: fit a noise model, test it against the measurements, and rank the
      p-value that of the maximum of the grid's correlated statistics (simulated; :func:`.diagnostics.scan_lr`);
    - ``step``: the exact likelihood-ratio at the best of a few candidate times (least-squares splits, the largest
      innovations), Bonferroni over the N − 1 splits;
-   - stochastic components (``random-walk``, ``gauss-markov``, ``low-pass``, ``quantisation``): the Whittle
+   - ``spikes``: the ``extremes`` diagnostic's exact law of the largest |z|; the spikes are every innovation beyond
+     its bound, set aside and the filter rerun until none is new, and the statistic their joint exact LR (GLS sizes)
+     — the count decides the component's spec token ``spikes:K`` (:meth:`~torchtea.noise.components.Component.configure`);
+   - stochastic components (``random-walk``, ``gauss-markov``, ``low-pass``, ``digital-filter``, ``quantisation``): the Whittle
      likelihood-ratio of the model with and without the component (the null value is on the boundary: ½χ²₀ + ½χ²₁,
      ½χ²₁ + ½χ²₂ for the two parameters of a Gauss–Markov bias);
    - ``temperature-order``: the exact likelihood-ratio over its slope alone, the other parameters held
@@ -63,16 +66,19 @@ SCREENS = {name: COMPONENTS[name].screen_test for name in CANDIDATES}
 
 def extend(model: NoiseModel, effect: str) -> NoiseModel:
     """``model`` with one more component, where the component's :meth:`~torchtea.noise.components.Component.position`
-    puts it (a ``low-pass`` right after the last stochastic component, anything else at the end)."""
+    puts it (a ``low-pass`` right after the last stochastic component, anything else at the end). ``effect``: a name,
+    or a spec token ``name:argument`` (``spikes:3``)."""
     model = parse_model(model)
-    if effect not in COMPONENTS:
+    name = effect.partition(":")[0]
+    if name not in COMPONENTS:
         raise ValueError(f"unknown effect {effect!r}; choose from: {', '.join(candidates_all())}")
-    comp = COMPONENTS[effect]
+    comp = COMPONENTS[name]
     names = [c.name for _, c in model.components]
-    if effect in names and not comp.add_again:
-        raise ValueError(f"model {model.spec!r} already has {effect!r}")
-    names.insert(comp.position(model), effect)
-    return parse_model("+".join(names))
+    if name in names and not comp.add_again:
+        raise ValueError(f"model {model.spec!r} already has {name!r}")
+    tokens = [c.token for _, c in model.components]
+    tokens.insert(comp.position(model), effect)
+    return parse_model("+".join(tokens))
 
 
 def _new_label(base: NoiseModel, alt: NoiseModel) -> str:
@@ -186,8 +192,21 @@ class CheckResult:
         return out
 
     def add(self, effect: str, **kw) -> "CheckResult":
-        """Check the model with ``effect`` added (reusing the suggestion's fit when there is one)."""
-        alt = extend(self.model, effect)
+        """Check the model with ``effect`` added (reusing the suggestion's fit when there is one): a name, the
+        suggestion's model when it suggested that effect, else the component configured on these data
+        (:meth:`~torchtea.noise.components.Component.configure`: how many spikes); or a token ``name:argument``."""
+        sug = next((s for s in self.suggestions if s.effect == effect), None)
+        if sug is not None:
+            alt = sug.fit.model
+        elif ":" in effect or effect not in COMPONENTS:
+            alt = extend(self.model, effect)
+        else:
+            ctx = ScreenContext(self.model, None, "", self.fit, self.innovations, self.diagnostics, self.y,
+                                np.arange(len(self.y)) * self.h, self.h, self.inputs)
+            try:
+                alt = extend(self.model, COMPONENTS[effect].configure(ctx))
+            except NotScreened as exc:
+                raise ValueError(f"cannot add {effect}: {exc}") from None
         start = next((s.fit for s in self.suggestions if s.fit.model.spec == alt.spec), None)
         res = check(self.y, self.h, model=alt, inputs=self.inputs, level=self.level,
                     screen_level=self.screen_level, fit=start, **kw)
@@ -288,6 +307,8 @@ class ScreenContext:
     t: np.ndarray
     h: float
     inputs: dict | None
+    #: what a component's :meth:`~torchtea.noise.components.Component.configure` found, for its screen to reuse
+    memo: dict = field(default_factory=dict)
 
     def diagnostic(self, name: str) -> Diagnostic:
         return next(d for d in self.diags if d.name == name)
@@ -306,12 +327,15 @@ def _screen(model: NoiseModel, fit: Fit, wf, inn: Innovations, diags, y, h, inpu
         row = {"effect": effect, "test": comp.screen_test, "statistic": None, "p_value": None, "log10_p": None,
                "start": None, "note": ""}
         out.append(row)
+        ctx = ScreenContext(model, None, "", fit, inn, diags, y, t, h, inputs)
         try:
-            alt = extend(model, effect)
-        except ValueError as exc:
+            row["token"] = comp.configure(ctx)
+            alt = extend(model, row["token"])
+        except (ValueError, NotScreened) as exc:
             row["note"] = f"not screened: {exc}"
             continue
         label = _new_label(model, alt)
+        ctx.alt, ctx.label = alt, label
         missing = [k for k in comp.inputs if inputs is None or inputs.get(k) is None]
         reason = f"needs the {' and '.join(missing)} channel" if missing else comp.not_screened(model)
         if reason:
@@ -321,7 +345,7 @@ def _screen(model: NoiseModel, fit: Fit, wf, inn: Innovations, diags, y, h, inpu
             stochastic.append((row, alt))
             continue
         try:
-            lr, logp, values, note = comp.screen(ScreenContext(model, alt, label, fit, inn, diags, y, t, h, inputs))
+            lr, logp, values, note = comp.screen(ctx)
         except NotScreened as exc:
             row["note"] = f"not screened: {exc}"
             continue
@@ -487,7 +511,7 @@ def check(y, h: float, model="fractional+white", inputs: dict | None = None, *, 
         row["threshold"] = threshold
         if not row["passed"]:
             continue
-        alt = extend(model, row["effect"])
+        alt = extend(model, row["token"])
         label = _new_label(model, alt)
         # what the components hold (a temperature reference; the new line's frequency at the refined periodogram
         # peak, which still counts as an estimated parameter in BIC)
@@ -504,7 +528,8 @@ def check(y, h: float, model="fractional+white", inputs: dict | None = None, *, 
                 cache[key] = whittle_fit(alt, [filled], h, inputs=inp_list,
                                          starts=[[dict(zip(model.names, wf.values[0].tolist()))]], fractions=(0.5,))
             wfa = cache[key]
-            noise = {n: x for n, x in zip(alt.names, wfa.values[0].tolist()) if n in model.names}
+            held = model.located()  # (a step's time, spikes: held where the model's fit has them)
+            noise = {n: x for n, x in zip(alt.names, wfa.values[0].tolist()) if n in model.names and n not in held}
             start, metric = {**start, **noise}, wfa.hessian[0]
         key = ("refit", alt.spec, tuple(sorted((k, float(v)) for k, v in start.items())))
         if key not in cache:

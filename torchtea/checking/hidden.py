@@ -15,6 +15,7 @@ import numpy as np
 import torch
 
 from ..noise import default_values, parse_model, simulate_model, temperature_profile
+from ..noise.components import COMPONENTS
 
 __all__ = ["HIDDEN_STRENGTH", "BASE_MODEL", "hidden_model", "hidden_case", "DRAWS", "random_case"]
 
@@ -85,7 +86,20 @@ DRAWS = {
                                                 "drifting-line.rate_hz_per_s": _sign(g) * g.uniform(0.3, 3.0) / span,
                                                 "drifting-line.amplitude": s * _log_uniform(g, 0.15, 0.4),
                                                 "drifting-line.phase": g.uniform(-math.pi, math.pi)},
+    "spikes": lambda g, s, h, span, dT: _spikes(g, s, h, span),
+    "digital-filter": lambda g, s, h, span, dT: {"digital-filter.cutoff_hz": g.uniform(0.08, 0.25) / h},
 }
+
+
+def _spikes(g, s, h, span) -> dict:
+    """3–15 spikes at distinct random samples, each of σ_w·[6, 12] (log-uniform) with a random sign."""
+    count = int(g.integers(3, 16))
+    ks = np.sort(g.choice(int(round(span / h)), size=count, replace=False))
+    out = {}
+    for j, k in enumerate(ks, start=1):
+        out[f"spikes.size{j}"] = _sign(g) * s * _log_uniform(g, 6.0, 12.0)
+        out[f"spikes.t{j}"] = float(k * h)
+    return out
 
 
 def random_case(effects, seed: int, n: int = 30_000, h: float = 0.01):
@@ -106,12 +120,15 @@ def random_case(effects, seed: int, n: int = 30_000, h: float = 0.01):
     dT = g.uniform(1.5, 5.0)
     T = temperature_profile(n, h, start=g.uniform(20.0, 35.0), warmup=dT, tau_s=g.uniform(30.0, 150.0),
                             wander=g.uniform(0.1, 0.3), wander_tau_s=g.uniform(50.0, 200.0), generator=gen)
-    model = parse_model("+".join([BASE_MODEL, *effects]))
-    values = default_values(model, h, T)
     alpha, r = g.uniform(0.15, 0.6), _log_uniform(g, 3e-4, 3e-3)
-    values.update({"fractional.order": alpha, "fractional.pole": -g.uniform(0.2, 0.7) * 2 ** alpha / h ** alpha,
-                   "fractional.q": r / h ** (2 * alpha), "white.r": r})
+    base = {"fractional.order": alpha, "fractional.pole": -g.uniform(0.2, 0.7) * 2 ** alpha / h ** alpha,
+            "fractional.q": r / h ** (2 * alpha), "white.r": r}
+    drawn = {}
     for e in effects:
-        values.update(DRAWS[e](g, math.sqrt(r), h, span, dT))
+        drawn.update(DRAWS[e](g, math.sqrt(r), h, span, dT))
+    model = parse_model("+".join([BASE_MODEL, *(COMPONENTS[e].token_for(e, drawn) for e in effects)]))
+    values = default_values(model, h, T)
+    values.update(base)
+    values.update(drawn)
     y = simulate_model(model, values, n_steps=n, h=h, inputs={"temperature": T}, generator=gen)[0, 0].numpy()
     return y, np.asarray(T.numpy()), values

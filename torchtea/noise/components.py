@@ -204,6 +204,31 @@ class Component:
     #: move them): at the value the least-squares start found (:meth:`fit_residual`), counted as estimated in BIC.
     located: tuple = ()
 
+    # ---- its spec token ----------------------------------------------------------------------------------
+    @property
+    def token(self) -> str:
+        """How the component is written in a model's spec: its name, or ``name:argument`` for one configured by an
+        argument (``spikes:13``, :meth:`configured`)."""
+        return self.name
+
+    def configured(self, argument: str) -> "Component":
+        """The component configured by the spec's ``name:argument`` (a spikes component's count); raises
+        ``ValueError`` for a component that takes no argument."""
+        raise ValueError(f"component {self.name!r} takes no argument (got {self.name}:{argument})")
+
+    #: it needs an argument in a spec (``spikes:K``): the bare name is refused, with these words
+    needs_argument: str = ""
+
+    def configure(self, ctx) -> str:
+        """The token with which ``check`` adds it to ``ctx.model``, given the model's fit and innovations (a
+        :class:`~torchtea.checking.check.ScreenContext` whose ``alt`` and ``label`` are not set yet): its name, or
+        ``name:argument`` where the data decide the argument (how many spikes). May raise :class:`NotScreened`."""
+        return self.name
+
+    def token_for(self, label: str, values: dict) -> str:
+        """The token of the component ``label`` whose parameter values are ``values`` (a simulation's truth)."""
+        return self.name
+
     # ---- how a model holds it ---------------------------------------------------------------------------
     #: at most one in a model (``parse_model`` refuses a second)
     single: bool = False
@@ -503,15 +528,40 @@ class LowPass(Component):
     kind = "filter"
     screen_order = 50
     params = (ParamSpec("cutoff_hz", "positive", "f_c (Hz)"),)
+    #: first-order stages in cascade, each with the cut-off ``cutoff_hz``
+    stages = 1
 
     def gain(self, v, omega, h):
         a = self.coefficient(v, h).unsqueeze(-1)
-        return (1.0 - a) ** 2 / (1.0 - 2.0 * a * torch.cos(omega) + a * a)
+        return ((1.0 - a) ** 2 / (1.0 - 2.0 * a * torch.cos(omega) + a * a)) ** self.stages
 
     def coefficient(self, v, h):
         return torch.exp(-2.0 * math.pi * v["cutoff_hz"] * h)
 
+    def filter_block(self, v, h) -> tuple[Tensor, Tensor]:
+        r"""The filter as the state space the model's assembly stacks after the components it filters:
+        :math:`x_{k+1} = A x_k + b\, u_{k+1}` with ``u`` its input (the sum of what it filters) and its output the
+        last state; ``A`` ``(B, m, m)``, ``b`` ``(B, m)``, ``m`` = :attr:`stages`. Stage j filters stage j − 1:
+        :math:`x^{(j)}_{k+1} = a x^{(j)}_k + (1-a) x^{(j-1)}_{k+1}`, so A's row j is (1 − a) × row j − 1 plus a on
+        the diagonal and :math:`b_j = (1-a)^{j+1}`."""
+        a = self.coefficient(v, h)
+        B, m = a.shape[0], self.stages
+        A = a.new_zeros(B, m, m)
+        b = a.new_zeros(B, m)
+        A[:, 0, 0] = a
+        b[:, 0] = 1.0 - a
+        for j in range(1, m):
+            A[:, j] = (1.0 - a).unsqueeze(-1) * A[:, j - 1]
+            A[:, j, j] = a
+            b[:, j] = (1.0 - a) * b[:, j - 1]
+        return A, b
+
     single = True
+
+    def validate(self, components, spec):
+        filters = [c.name for _, c in components if c.kind == "filter"]
+        if len(filters) > 1:
+            raise ValueError(f"model {spec!r}: one sensor filter at most ({', '.join(filters)})")
 
     def position(self, model):
         """Right after the last stochastic component: a sensor's digital filter filters its whole signal, white
@@ -519,8 +569,12 @@ class LowPass(Component):
         last = max((i for i, (_, c) in enumerate(model.components) if c.kind in ("state", "measurement")),
                    default=None)
         if last is None:
-            raise ValueError(f"a low-pass filters stochastic components; {model.spec!r} has none")
+            raise ValueError(f"a {self.name} filters stochastic components; {model.spec!r} has none")
         return last + 1
+
+    def not_screened(self, model):
+        other = [c.name for _, c in model.components if c.kind == "filter"]
+        return f"the model has a sensor filter already ({other[0]})" if other else None
 
     def typical(self, param, h, t_ref):
         return 5.0
@@ -533,6 +587,26 @@ class LowPass(Component):
 
     def vanishing(self, label, model, values, h, n):
         return {f"{label}.cutoff_hz": 10.0 / h}  # a = e^{−20π}: the filter passes every frequency unchanged
+
+
+class DigitalFilter(LowPass):
+    r"""A sensor's digital low-pass of second order: two first-order stages in cascade, each
+    :math:`l_k = a l_{k-1} + (1-a) u_k` with :math:`a = e^{-2\pi f_c h}` (the critically damped second-order
+    filter, both poles at a), of everything before it, white noise included, started from rest before the first
+    sample. MEMS parts filter in two or more stages (a decimation filter after the converter, then the
+    user-selected DLPF), and a cascade falls off twice as fast above its cut-off as one stage:
+    :math:`|H(\omega)|^2 = \big((1-a)^2/(1 - 2a\cos\omega + a^2)\big)^2`, −12 dB per octave well above f_c. Its
+    half-power frequency is ≈ 0.64 f_c (:math:`\sqrt{\sqrt2 - 1}` f_c for the continuous-time cascade), so a DLPF
+    specified as "21 Hz bandwidth" is a cut-off f_c near 33 Hz here. One filter per model: it and ``low-pass``
+    exclude each other."""
+
+    name = "digital-filter"
+    stages = 2
+    screen_order = 55
+    params = (ParamSpec("cutoff_hz", "positive", "f_c (Hz), each of the two stages"),)
+
+    def typical(self, param, h, t_ref):
+        return 8.0
 
 
 class White(Component):
@@ -1011,6 +1085,155 @@ class Step(Component):
         return {f"{label}.size": size, f"{label}.t_step": float(t[k])}
 
 
+class Spikes(Component):
+    r"""Isolated spikes (shocks, a knock on the bench, a corrupted sample): ``count`` additive outliers, spike j of
+    size :math:`s_j` at sample :math:`k_j` (time :math:`t_j`), :math:`\mu_k = \sum_j s_j [k = k_j]` — the additive
+    outlier of time-series analysis (Box & Tiao 1975; Chen & Liu 1993). Written ``spikes:K`` in a spec (K its count).
+    A handful of 6–10 σ spikes moves no averaged diagnostic (NIS windows, Allan deviation, spectrum) but wrecks a
+    fit: the white level absorbs them, and an Allan line fit breaks on them. ``check`` finds them with the
+    ``extremes`` diagnostic's law: every standardised innovation beyond the bound that n samples allow at the
+    diagnostic's level, the samples found set aside (missing) and the model's filter run again until no new one
+    appears (a spike's neighbours are disturbed through the filter's gains; so is the bound, by the spike's own
+    weight). Sizes are GLS at the model's noise parameters (whitened impulses), times the samples found; both are
+    held in every fit (a time is not a smooth parameter, and a size with its time fixed is a linear mean term,
+    orthogonal to the noise parameters) and both count as estimated in BIC (2K parameters)."""
+
+    name = "spikes"
+    kind = "mean"
+    add_again = True
+    screen_test = "largest |z| against its exact law, P(max > m) = 1 − (1 − 2Φ(−m))ⁿ; the outliers set aside until none is left"
+    screen_order = 60
+    explains = ("extremes",)
+    needs_argument = "spikes need their count: spikes:K (check finds the spikes and their count itself)"
+    #: more outliers than this are not isolated spikes but heavy-tailed noise, which no mean term describes
+    MAX_SPIKES = 50
+    #: how many times the filter is rerun with the spikes found set aside
+    ROUNDS = 6
+    WORDS = "the sample of an outlier beyond the extremes bound (held): no interval"
+    SIZE_WORDS = "GLS at the noise parameters of the fit that found it (held in the fits): no interval"
+
+    def __init__(self, count: int = 0):
+        self.count = int(count)
+        self.params = tuple(p for j in range(1, self.count + 1)
+                            for p in (ParamSpec(f"size{j}", "free", "units"),
+                                      ParamSpec(f"t{j}", "free", "t (s from the first sample)")))
+        self.held = {p.name: self.WORDS if p.name.startswith("t") else self.SIZE_WORDS for p in self.params}
+        self.located = tuple(p.name for p in self.params)
+
+    @property
+    def token(self):
+        return f"{self.name}:{self.count}"
+
+    def configured(self, argument):
+        try:
+            count = int(argument)
+        except ValueError:
+            count = 0
+        if not 1 <= count <= self.MAX_SPIKES:
+            raise ValueError(f"spikes:{argument}: the count must be a whole number from 1 to {self.MAX_SPIKES}")
+        return Spikes(count)
+
+    def token_for(self, label, values):
+        return f"{self.name}:{sum(1 for n in values if n.startswith(f'{label}.t'))}"
+
+    def mean(self, v, t, inputs):
+        h = float(t[1] - t[0]) if t.shape[-1] > 1 else 1.0
+        B = v[f"size1"].shape[0]
+        out = t.new_zeros(B, t.shape[-1])
+        for j in range(1, self.count + 1):
+            at = (torch.abs(t - v[f"t{j}"].unsqueeze(-1)) < 0.5 * h).to(t.dtype)  # (B, N): the spike's sample
+            out = out + v[f"size{j}"].unsqueeze(-1) * at
+        return out
+
+    def typical(self, param, h, t_ref):
+        j = int(param[4:] if param.startswith("size") else param[1:])
+        return 0.05 * (-1) ** j if param.startswith("size") else round((5.0 + 10.0 * (j - 1)) / h) * h
+
+    @classmethod
+    def find(cls, model, values, y, h, inputs, inn, level: float) -> tuple[list, float]:
+        """The samples of the spikes (sorted) and the log p-value of the largest |z| of ``inn`` under the model: every
+        standardised innovation beyond the bound c with P(max |z| > c) = ``level`` over the n observed samples, the
+        samples found set aside (missing) and the filter run again, :attr:`ROUNDS` times at most, until no new one is
+        beyond the bound. Raises :class:`NotScreened` for more than :attr:`MAX_SPIKES`."""
+        from scipy import stats
+
+        from ..checking.diagnostics import innovations
+
+        z = inn.z
+        ok = np.isfinite(z)
+        n = int(ok.sum())
+        m = float(np.max(np.abs(z[ok]))) if n else 0.0
+        tail = 2.0 * stats.norm.sf(m)
+        p = -math.expm1(n * math.log1p(-tail)) if tail < 1 else 1.0
+        logp = math.log(p) if p > 1e-12 else math.log(n) + math.log(2.0) + float(stats.norm.logsf(m))
+        found: list = []
+        y = np.asarray(y, dtype=np.float64)
+        for _ in range(cls.ROUNDS):
+            ok = np.isfinite(z)
+            n = int(ok.sum())
+            bound = float(stats.norm.isf(-math.expm1(math.log1p(-level) / n) / 2.0))
+            new = [int(k) for k in np.nonzero(ok & (np.abs(np.where(ok, z, 0.0)) > bound))[0] if k not in found]
+            if not new:
+                break
+            found += new
+            if len(found) > cls.MAX_SPIKES:
+                raise NotScreened(f"{len(found)} or more innovations beyond the extremes bound: heavy-tailed noise, "
+                                  f"not isolated spikes (at most {cls.MAX_SPIKES})")
+            y2 = y.copy()
+            y2[found] = np.nan
+            z = innovations(model, values, y2, h, inputs).z
+        if not found:  # nothing beyond the bound: the largest, so that the screen has a statistic (and fails)
+            found = [int(np.nanargmax(np.abs(inn.z)))]
+        return sorted(found), logp
+
+    def configure(self, ctx):
+        from ..checking.diagnostics import LEVEL
+
+        key = ("spikes", ctx.model.spec)
+        if key not in ctx.memo:
+            ctx.memo[key] = self.find(ctx.model, dict(ctx.fit.values), ctx.y, ctx.h, ctx.inputs, ctx.inn, LEVEL)
+        return f"{self.name}:{len(ctx.memo[key][0])}"
+
+    def screen(self, ctx):
+        """The spikes :meth:`find` gives, their sizes by GLS (the whitened impulses, jointly, the model held): the
+        statistic is their exact likelihood-ratio, the p-value that of the largest |z| under the model (the
+        extremes diagnostic's exact law: it is what decides whether there is any spike)."""
+        from ..checking.diagnostics import LEVEL, linear_lr
+
+        key = ("spikes", ctx.model.spec)
+        ks, logp = ctx.memo.get(key) or self.find(ctx.model, dict(ctx.fit.values), ctx.y, ctx.h, ctx.inputs, ctx.inn,
+                                                  LEVEL)
+        comp = dict(ctx.alt.components)[ctx.label]
+        if comp.count != len(ks):
+            raise NotScreened(f"the model was extended by {comp.count} spikes, {len(ks)} were found")
+        X = np.zeros((len(ks), len(ctx.y)))
+        X[np.arange(len(ks)), ks] = 1.0
+        lr, beta = linear_lr(ctx.inn, X)
+        values = {}
+        for j, (k, b) in enumerate(zip(ks, np.atleast_1d(beta)), start=1):
+            values[f"{ctx.label}.size{j}"] = float(b)
+            values[f"{ctx.label}.t{j}"] = float(ctx.t[k])
+        times = ", ".join(f"{ctx.t[k]:.2f} s" for k in ks[:8]) + (f" and {len(ks) - 8} more" if len(ks) > 8 else "")
+        return float(lr), float(logp), values, f"{len(ks)} spike(s) at {times}"
+
+    def fit_residual(self, label, resid, t, ok, h, start, inputs):
+        """The ``count`` samples farthest from the residual's median in units of its median absolute deviation (a
+        scale the spikes do not inflate), each spike's size its excess over the median of its ±5 neighbours."""
+        r = np.where(ok, resid, np.nan)
+        med = float(np.nanmedian(r))
+        mad = float(np.nanmedian(np.abs(r - med))) or 1.0
+        score = np.where(ok, np.abs(r - med) / mad, -np.inf)
+        ks = sorted(int(k) for k in np.argsort(-score)[:self.count])
+        out = {}
+        for j, k in enumerate(ks, start=1):
+            near = np.r_[r[max(0, k - 5):k], r[k + 1:k + 6]]
+            size = float(r[k] - np.nanmedian(near)) if np.isfinite(near).any() else float(r[k] - med)
+            resid[k] -= size
+            out[f"{label}.size{j}"] = size
+            out[f"{label}.t{j}"] = float(t[k])
+        return out
+
+
 class TemperatureOrder(Component):
     r"""The fractional component's order driven by temperature: :math:`\alpha_k = \alpha_0 + \gamma (T_k - T_\mathrm{ref})`,
     α₀ the fractional component's ``order`` (its value at T_ref, the mean temperature unless fixed), T the
@@ -1031,9 +1254,9 @@ class TemperatureOrder(Component):
         if names.count(self.name) > 1 or names.count("fractional") != 1:
             raise ValueError(f"model {spec!r}: temperature-order drives the order of exactly one fractional "
                              "component, and a model holds one temperature-order")
-        if "low-pass" in names:
+        if any(c.kind == "filter" for _, c in components):
             raise ValueError(f"model {spec!r}: temperature-order drives the order of one fractional component and "
-                             "cannot be combined with a low-pass")
+                             "cannot be combined with a sensor filter (low-pass, digital-filter)")
 
     def position(self, model):
         if not model.has("fractional"):
@@ -1079,7 +1302,7 @@ class TemperatureOrder(Component):
 
 COMPONENTS = {c.name: c for c in (Fractional(), White(), Quantisation(), RandomWalk(), LowPass(), Offset(), Ramp(),
                                   Sinusoid(), TemperatureBias(), TemperatureOrder(), GaussMarkov(), ThermalLag(),
-                                  Step(), DriftingLine())}
+                                  Step(), DriftingLine(), DigitalFilter(), Spikes())}
 
 
 def candidates() -> tuple:

@@ -27,7 +27,7 @@ from torch import Tensor
 
 from ..core.gl import broadcast_shapes
 from ..core.memory import MemoryConfig, SOEKernel, kernel_for, parse_memory
-from .components import COMPONENTS, ORDER_BOUNDS, Component, LowPass, StartData, logit
+from .components import COMPONENTS, ORDER_BOUNDS, Component, StartData, logit
 
 __all__ = ["NoiseModel", "parse_model", "StateSpace", "VaryingRow", "StateMemory", "state_memory",
            "EXACT_MEMORY_LIMIT", "ROW_TABLE"]
@@ -129,8 +129,8 @@ class StateSpace:
     r"""``z_{k+1} = F z_k + ε_k``, ε ~ N(0, Q); ``y_k = μ_k + C z_k + ν_k``, ν ~ N(0, R); ``z_0 = 0``.
 
     F ``(B, n, n)``; ``ε_k = G ξ_k`` with G ``(B, n, m)`` and ξ standard normal, so ``Q = G Gᵀ``;
-    C ``(B, n)``; R ``(B,)``; ``blocks`` maps each state component to its slice of z (its output is the
-    slice's first state)."""
+    C ``(B, n)``; R ``(B,)``; ``blocks`` maps each state component to its slice of z (its output is the slice's first
+    state; a filter's is its last)."""
 
     F: Tensor
     G: Tensor
@@ -206,7 +206,7 @@ class NoiseModel:
 
     def without(self, name: str) -> "NoiseModel":
         """The same model without every component called ``name`` (the null of a presence test)."""
-        kept = [c.name for _, c in self.components if c.name != name]
+        kept = [c.token for _, c in self.components if c.name != name]
         if not kept:
             raise ValueError(f"the model {self.spec!r} has nothing left without {name!r}")
         return parse_model("+".join(kept))
@@ -374,27 +374,30 @@ class NoiseModel:
         g0 = None
         if lowpass is not None:
             if not outs_before and not bool((r_before > 0).any()):
-                raise ValueError(f"model {self.spec!r}: a low-pass needs components before it to filter")
-            a = LowPass().coefficient(byc[lowpass], h)  # (B,)
-            s = torch.zeros(B, n + 1, dtype=torch.float64)  # selects the sum of the components before it
+                raise ValueError(f"model {self.spec!r}: a {lowpass} needs components before it to filter")
+            # the filter's own states x_{k+1} = A x_k + b u_{k+1} (its output the last), driven by the sum of the
+            # components before it, u_{k+1} = s·(F z_k + ε_k) + ν_{k+1}: m more states, their noise correlated with
+            # the others' and, with white noise before the filter, one more noise column ν of variance r_before
+            A, b = dict(self.components)[lowpass].filter_block(byc[lowpass], h)  # (B, m, m), (B, m)
+            A, b = A.expand(B, -1, -1), b.expand(B, -1)
+            m_f = A.shape[-1]
+            s = torch.zeros(B, n, dtype=torch.float64)  # selects the sum of the components before it
             s[:, outs_before] = 1.0
-            # l_{k+1} = a l_k + (1 − a) (s·(F z_k + ε_k) + ν_{k+1}): one more state, its noise correlated with the
-            # others' and, with white noise before the filter, one more noise column ν of variance r_before
             T = torch.cat([torch.eye(n, dtype=torch.float64).expand(B, n, n),
-                           ((1.0 - a).unsqueeze(-1) * s[:, :n]).unsqueeze(1)], dim=1)  # (B, n+1, n)
-            F2 = torch.zeros(B, n + 1, n + 1, dtype=torch.float64)
+                           b.unsqueeze(-1) * s.unsqueeze(1)], dim=1)  # (B, n+m, n)
+            F2 = torch.zeros(B, n + m_f, n + m_f, dtype=torch.float64)
             F2[:, :, :n] = T @ F
-            F2[:, n, n] = a
+            F2[:, n:, n:] = A
             F, G = F2, T @ G
             if bool((r_before > 0).any()):
-                nu = torch.zeros(B, n + 1, 1, dtype=torch.float64)
-                nu[:, n, 0] = (1.0 - a) * torch.sqrt(r_before)
+                nu = torch.zeros(B, n + m_f, 1, dtype=torch.float64)
+                nu[:, n:, 0] = b * torch.sqrt(r_before).unsqueeze(-1)
                 G = torch.cat([G, nu], dim=-1)
-                # the filter starts from rest before the first sample: l_0 = (1 − a) ν_0 (the states start at 0)
+                # the filter starts from rest before the first sample: x_0 = b ν_0 (the states start at 0)
                 g0 = nu[..., 0].clone()
-            blocks[lowpass] = slice(n, n + 1)
-            C = torch.zeros(B, n + 1, dtype=torch.float64)
-            C[:, n] = 1.0
+            blocks[lowpass] = slice(n, n + m_f)
+            C = torch.zeros(B, n + m_f, dtype=torch.float64)
+            C[:, n + m_f - 1] = 1.0
             C[:, outs_after] = 1.0
         else:
             C[:, outs_before] = 1.0
@@ -408,7 +411,7 @@ class NoiseModel:
         fracs = [label for label, c in self.components if c.name == "fractional"]
         if len(mods) > 1 or len(fracs) != 1 or lowpass is not None:
             raise ValueError(f"model {self.spec!r}: temperature-order drives the order of one fractional component "
-                             "and cannot be combined with a low-pass")
+                             "and cannot be combined with a sensor filter (low-pass, digital-filter)")
         self.check_inputs(inputs, ("modifier",))
         T = torch.as_tensor(inputs["temperature"], dtype=torch.float64).reshape(-1)
         if T.shape[0] < n_steps or not bool(torch.isfinite(T[:n_steps]).all()):
@@ -455,7 +458,9 @@ class NoiseModel:
 
 def parse_model(spec) -> NoiseModel:
     """``"fractional+white"`` → :class:`NoiseModel`. Components are joined by ``+``; a component named twice
-    gets labels ``name``, ``name2`` … . Raises ``ValueError`` naming the spec and the choices."""
+    gets labels ``name``, ``name2`` … ; ``name:argument`` configures one that takes an argument (``spikes:13``,
+    :meth:`~torchtea.noise.components.Component.configured`). Raises ``ValueError`` naming the spec and the
+    choices."""
     if isinstance(spec, NoiseModel):
         return spec
     text = str(spec).strip().lower().replace(" ", "")
@@ -463,16 +468,22 @@ def parse_model(spec) -> NoiseModel:
     if not text or any(not p for p in parts):
         raise ValueError(f"bad model spec {spec!r}: components joined by '+', e.g. fractional+white")
     comps, seen = [], {}
-    for p in parts:
+    for token in parts:
+        p, _, argument = token.partition(":")
         if p not in COMPONENTS:  # an installed package's effect, registered on first use
             from ..effects import load_entry_points
 
             load_entry_points()
         if p not in COMPONENTS:
             raise ValueError(f"unknown component {p!r} in model {spec!r}; choose from: {', '.join(COMPONENTS)}")
+        comp = COMPONENTS[p]
+        if argument:
+            comp = comp.configured(argument)
+        elif comp.needs_argument:
+            raise ValueError(f"model {spec!r}: {comp.needs_argument}")
         seen[p] = seen.get(p, 0) + 1
         label = p if seen[p] == 1 else f"{p}{seen[p]}"
-        comps.append((label, COMPONENTS[p]))
+        comps.append((label, comp))
     for p, count in seen.items():
         if count > 1 and COMPONENTS[p].single:
             raise ValueError(f"model {spec!r}: at most one {p}")
@@ -480,4 +491,4 @@ def parse_model(spec) -> NoiseModel:
         raise ValueError(f"model {spec!r} has no stochastic component (fractional, white, random-walk …)")
     for _, comp in comps:
         comp.validate(comps, spec)
-    return NoiseModel(comps, "+".join(parts))
+    return NoiseModel(comps, "+".join(c.token for _, c in comps))

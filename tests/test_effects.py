@@ -372,7 +372,8 @@ def test_a_scan_over_regressors_is_each_ones_exact_lr_and_its_maximum_is_calibra
 
 @pytest.mark.parametrize("effect", ["step", pytest.param("gauss-markov", marks=pytest.mark.slow),
                                     pytest.param("thermal-lag", marks=pytest.mark.slow),
-                                    pytest.param("drifting-line", marks=pytest.mark.slow)])
+                                    pytest.param("drifting-line", marks=pytest.mark.slow),
+                                    pytest.param("digital-filter", marks=pytest.mark.slow)])
 def test_check_names_each_new_effect_first_on_a_recording_of_the_random_study(effect):
     """One case of each new effect from the randomised study's draws (:func:`~torchtea.checking.hidden.random_case`,
     a seed where it is well inside its range): check screens it, suggests it first, and its refitted parameters are
@@ -380,7 +381,7 @@ def test_check_names_each_new_effect_first_on_a_recording_of_the_random_study(ef
     experiments/check/random_study.md)."""
     from torchtea.checking.hidden import random_case
 
-    seed = {"step": 0, "gauss-markov": 2, "thermal-lag": 4, "drifting-line": 0}[effect]
+    seed = {"step": 0, "gauss-markov": 2, "thermal-lag": 4, "drifting-line": 0, "digital-filter": 0}[effect]
     y, T, truth = random_case([effect], seed)
     r = check(y, 0.01, inputs={"temperature": T}, intervals=False)
     row = next(s for s in r.screens if s["effect"] == effect)
@@ -486,3 +487,36 @@ def test_check_finds_isolated_spikes_lists_their_times_and_ends_adequate():
     assert last.fit.values["white.r"] == pytest.approx(c.fit.values["white.r"], rel=0.05)
     # the spikes had pulled the white level up; with them in the model it is back nearer the clean recording's
     assert abs(last.fit.values["white.r"] - c.fit.values["white.r"]) < r.fit.values["white.r"] - c.fit.values["white.r"]
+
+
+def test_spikes_and_the_digital_filter_on_the_command_line(tmp_path, capsys):
+    """``simulate --model fractional+white+spikes:3`` puts three spikes at their typical samples; ``check --add
+    spikes`` finds them (the count from the data) and writes their times in check.json and report.md; ``fit --model
+    …+digital-filter`` fits the cut-off within 4 standard errors of the truth; ``--model …+spikes`` (no count) is one
+    clear error naming the way to write it, exit 2."""
+    from torchtea.cli import main
+
+    spec = "fractional+white+spikes:3"
+    sets = ["--set", "spikes.size1=0.5", "--set", "spikes.size2=-0.4", "--set", "spikes.size3=0.6"]
+    assert main(["simulate", "--model", spec, "--n", "4000", "--h", str(H), "--seed", "7", *sets,
+                 "--out", str(tmp_path / "s.csv")]) == 0
+    truth = json.loads((tmp_path / "s.csv.truth.json").read_text())
+    times = sorted(v for k, v in (truth.get("values") or truth).items() if k.startswith("spikes.t"))
+    assert main(["check", str(tmp_path / "s.csv"), "--column", "y", "--add", "spikes", "--no-plots", "--no-intervals",
+                 "--out", str(tmp_path / "c")]) == 0
+    doc = json.loads((tmp_path / "c" / "check.json").read_text())
+    ch = doc  # one channel: its result at the top level
+    assert ch["model"] == "fractional+white+spikes:3" and ch["adequate"]
+    fitted = sorted(v for k, v in ch["base"]["parameters"].items() if k.startswith("spikes.t"))
+    assert fitted == pytest.approx(times)
+    assert "spikes.t2" in (tmp_path / "c" / "report.md").read_text()
+    capsys.readouterr()
+    assert main(["check", str(tmp_path / "s.csv"), "--column", "y", "--model", "fractional+white+spikes",
+                 "--no-plots", "--out", str(tmp_path / "d")]) == 2
+    assert "spikes:K" in capsys.readouterr().err
+    m = "fractional+white+digital-filter"
+    v = default_values(m, H)
+    v["digital-filter.cutoff_hz"] = 12.0
+    y = simulate_model(m, v, n_steps=10000, h=H, generator=torch.Generator().manual_seed(4))[0, 0].numpy()
+    f = fit_series(m, [y], H)[0]
+    assert f.converged and abs(f.values["digital-filter.cutoff_hz"] - 12.0) < 4 * f.se["digital-filter.cutoff_hz"]

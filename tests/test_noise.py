@@ -31,6 +31,14 @@ def _gl_operator(alpha, f, h, N):
     return M
 
 
+def _low_pass_matrix(a, N):
+    """l = L s for one first-order stage l_k = a l_{k−1} + (1 − a) s_k from rest (l_{−1} = 0)."""
+    L = torch.zeros(N, N, dtype=torch.float64)
+    for k in range(N):
+        L[k, : k + 1] = (1 - a) * a ** torch.arange(k, -1, -1, dtype=torch.float64)
+    return L
+
+
 @pytest.mark.parametrize("memory", ["exact", "soe", "soe:1e-4"])
 def test_exact_filter_is_the_dense_gaussian_density(memory):
     N = 200
@@ -57,9 +65,7 @@ def test_composite_model_against_dense_gaussian_with_missing_samples():
     Mx = _gl_operator(0.4, -2.0, H, N) * math.sqrt(0.02)
     Mb = torch.tril(torch.ones(N, N, dtype=torch.float64), -1) * 0.05 * math.sqrt(H)  # b_k = Σ_{i<k} σ√h ξ_i
     a = math.exp(-2 * math.pi * 8.0 * H)
-    Lp = torch.zeros(N, N, dtype=torch.float64)  # l_k = a l_{k-1} + (1-a) s_k, l_{-1} = 0
-    for k in range(N):
-        Lp[k, : k + 1] = (1 - a) * a ** torch.arange(k, -1, -1, dtype=torch.float64)
+    Lp = _low_pass_matrix(a, N)
     A = torch.cat([Lp @ Mx, Lp @ Mb], dim=1)
     cov = A @ A.T + 1e-3 * torch.eye(N, dtype=torch.float64)
     ok = ~torch.isnan(y)
@@ -75,18 +81,18 @@ def test_composite_model_against_dense_gaussian_with_missing_samples():
     np.testing.assert_allclose(S[0], r.variance[0].numpy(), rtol=1e-10)
 
 
-def test_low_pass_of_white_noise_against_dense_gaussian():
+@pytest.mark.parametrize("filt, stages", [("low-pass", 1), ("digital-filter", 2)])
+def test_low_pass_of_white_noise_against_dense_gaussian(filt, stages):
     """fractional+white+low-pass+white: the first white noise is filtered with the fractional part (a sensor's
-    digital filter), the second is not; the filter starts from rest before the first sample."""
+    digital filter), the second is not; the filter starts from rest before the first sample. The digital filter is
+    two such stages of one cut-off in cascade (the dense covariance built with the one-stage matrix applied twice)."""
     N = 100
-    m = parse_model("fractional+white+low-pass+white")
-    v = dict(FW, **{"white.r": 2e-3, "low-pass.cutoff_hz": 6.0, "white2.r": 1e-4})
+    m = parse_model(f"fractional+white+{filt}+white")
+    v = dict(FW, **{"white.r": 2e-3, f"{filt}.cutoff_hz": 6.0, "white2.r": 1e-4})
     y = simulate_model(m, v, n_steps=N, h=H, generator=torch.Generator().manual_seed(5))[0, 0]
     Mx = _gl_operator(0.4, -2.0, H, N) * math.sqrt(0.02)
     a = math.exp(-2 * math.pi * 6.0 * H)
-    Lp = torch.zeros(N, N, dtype=torch.float64)
-    for k in range(N):
-        Lp[k, : k + 1] = (1 - a) * a ** torch.arange(k, -1, -1, dtype=torch.float64)
+    Lp = torch.linalg.matrix_power(_low_pass_matrix(a, N), stages)
     A = torch.cat([Lp @ Mx, Lp * math.sqrt(2e-3)], dim=1)
     cov = A @ A.T + 1e-4 * torch.eye(N, dtype=torch.float64)
     ref = torch.distributions.MultivariateNormal(torch.zeros(N, dtype=torch.float64), cov).log_prob(y)
@@ -95,7 +101,7 @@ def test_low_pass_of_white_noise_against_dense_gaussian():
     assert float(kalman_filter(ss, y).loglik[0]) == pytest.approx(float(ref), abs=1e-8)
     assert float(loglik_fast(ss, y)[0]) == pytest.approx(float(ref), abs=1e-8)
     # nothing after the filter: R = 0, the first sample's variance comes from the filter's start
-    m0 = parse_model("fractional+white+low-pass")
+    m0 = parse_model(f"fractional+white+{filt}")
     v0 = {k: x for k, x in v.items() if k != "white2.r"}
     cov0 = A @ A.T
     y0 = simulate_model(m0, v0, n_steps=N, h=H, generator=torch.Generator().manual_seed(6))[0, 0]
@@ -462,34 +468,20 @@ def test_time_varying_row_draws_its_own_noise_in_every_parameter_set():
     assert abs(corr) < 4 / math.sqrt(N), corr  # independent draws: |corr| ~ 1/√N
 
 
-def test_digital_filter_is_two_stages_against_dense_gaussian():
-    """fractional+white+digital-filter+white: two first-order stages of the same cut-off in cascade, each from rest
-    before the first sample (the dense covariance built with the one-stage matrix applied twice); its spectrum is
-    the one-stage gain squared times what it filters; the first stage alone is the low-pass, bit for bit."""
-    N = 100
+def test_digital_filter_spectrum_is_the_one_stage_gain_squared():
+    """The digital filter's spectrum is the one-stage gain squared times what it filters (white noise after it
+    unfiltered); its state is one longer than the low-pass's; one sensor filter per model, none beside a
+    temperature-driven order."""
     m = parse_model("fractional+white+digital-filter+white")
     v = dict(FW, **{"white.r": 2e-3, "digital-filter.cutoff_hz": 6.0, "white2.r": 1e-4})
-    y = simulate_model(m, v, n_steps=N, h=H, generator=torch.Generator().manual_seed(5))[0, 0]
-    Mx = _gl_operator(0.4, -2.0, H, N) * math.sqrt(0.02)
     a = math.exp(-2 * math.pi * 6.0 * H)
-    Lp = torch.zeros(N, N, dtype=torch.float64)
-    for k in range(N):
-        Lp[k, : k + 1] = (1 - a) * a ** torch.arange(k, -1, -1, dtype=torch.float64)
-    L2 = Lp @ Lp
-    A = torch.cat([L2 @ Mx, L2 * math.sqrt(2e-3)], dim=1)
-    cov = A @ A.T + 1e-4 * torch.eye(N, dtype=torch.float64)
-    ref = torch.distributions.MultivariateNormal(torch.zeros(N, dtype=torch.float64), cov).log_prob(y)
-    ss = m.state_space(v, H, N, "exact")
-    assert float(kalman_filter(ss, y).loglik[0]) == pytest.approx(float(ref), abs=1e-8)
-    assert float(loglik_fast(ss, y)[0]) == pytest.approx(float(ref), abs=1e-8)
     w = torch.linspace(0.01, math.pi, 9, dtype=torch.float64)
     inner = parse_model("fractional+white").spectrum(v, w, H)[0]
     g1 = (1 - a) ** 2 / (1 - 2 * a * torch.cos(w) + a * a)
     torch.testing.assert_close(m.spectrum(v, w, H)[0], inner * g1 ** 2 + 1e-4 / (2 * math.pi), rtol=1e-12, atol=0)
-    one = parse_model("fractional+white+low-pass+white")
     v1 = {k.replace("digital-filter", "low-pass"): x for k, x in v.items()}
-    ss1 = one.state_space(v1, H, N, "exact")
-    assert ss.n == ss1.n + 1
+    assert m.state_space(v, H, 100, "exact").n == parse_model("fractional+white+low-pass+white").state_space(
+        v1, H, 100, "exact").n + 1
     with pytest.raises(ValueError, match="one sensor filter at most"):
         parse_model("fractional+white+low-pass+digital-filter")
     with pytest.raises(ValueError, match="sensor filter"):

@@ -194,12 +194,24 @@ def test_check_screens_and_suggests_a_users_effect(warm_up):
     assert row0["p_value"] is not None and not row0["passed"] and not r0.suggestions
 
 
+def _assert_dense_density(m, v, y, cov):
+    """The exact filter's ℓ (torch and compiled) of ``y`` (NaN = missing) under ``m`` at ``v`` is the Gaussian density
+    of the observed samples under the dense covariance ``cov``, to 1e-8."""
+    from torchtea.likelihood import kalman_filter, loglik_fast
+
+    ok = ~torch.isnan(y)
+    ref = float(torch.distributions.MultivariateNormal(torch.zeros(int(ok.sum()), dtype=torch.float64),
+                                                       cov[ok][:, ok]).log_prob(y[ok]))
+    ss = m.state_space(v, H, len(y), "exact")
+    assert float(kalman_filter(ss, y).loglik[0]) == pytest.approx(ref, abs=1e-8)
+    assert float(loglik_fast(ss, y)[0]) == pytest.approx(ref, abs=1e-8)
+
+
 def test_gauss_markov_is_the_dense_gaussian_and_its_fit_finds_sigma_and_tau():
     """gauss-markov (IEEE 952's exponentially correlated noise, started at 0): the exact filter's ℓ (compiled and
     torch) equals the Gaussian density of the covariance σ² a^|i−j| (1 − a^{2 min(i,j)}) + r I, with gaps; its spectrum
     is the AR(1)'s; and on 60 000 samples of gauss-markov+white the exact fit finds σ and τ within 4 standard
     errors."""
-    from torchtea.likelihood import kalman_filter, loglik_fast
 
     m = parse_model("gauss-markov+white")
     v = {"gauss-markov.sigma": 0.05, "gauss-markov.tau_s": 0.3, "white.r": 1e-3}
@@ -209,13 +221,7 @@ def test_gauss_markov_is_the_dense_gaussian_and_its_fit_finds_sigma_and_tau():
     a = np.exp(-H / 0.3)
     i = np.arange(n)
     cov = 0.05 ** 2 * a ** np.abs(i[:, None] - i[None, :]) * (1 - a ** (2 * np.minimum(i[:, None], i[None, :])))
-    cov = torch.as_tensor(cov + 1e-3 * np.eye(n))
-    ok = ~torch.isnan(y)
-    ref = float(torch.distributions.MultivariateNormal(torch.zeros(int(ok.sum()), dtype=torch.float64),
-                                                       cov[ok][:, ok]).log_prob(y[ok]))
-    ss = m.state_space(v, H, n, "exact")
-    assert float(kalman_filter(ss, y).loglik[0]) == pytest.approx(ref, abs=1e-8)
-    assert float(loglik_fast(ss, y)[0]) == pytest.approx(ref, abs=1e-8)
+    _assert_dense_density(m, v, y, torch.as_tensor(cov + 1e-3 * np.eye(n)))
     w = torch.linspace(0.01, np.pi, 7, dtype=torch.float64)
     S = m.spectrum(v, w, H)[0] - 1e-3 / (2 * np.pi)
     expect = 0.05 ** 2 * (1 - a * a) / (2 * np.pi * (1 - 2 * a * torch.cos(w) + a * a))
@@ -520,3 +526,56 @@ def test_spikes_and_the_digital_filter_on_the_command_line(tmp_path, capsys):
     y = simulate_model(m, v, n_steps=10000, h=H, generator=torch.Generator().manual_seed(4))[0, 0].numpy()
     f = fit_series(m, [y], H)[0]
     assert f.converged and abs(f.values["digital-filter.cutoff_hz"] - 12.0) < 4 * f.se["digital-filter.cutoff_hz"]
+
+
+def test_a_resonance_is_the_dense_gaussian_and_its_fit_finds_the_band():
+    """resonance (a vibration band: white noise through a damped second-order resonator, AR(2) with poles
+    ρe^{±iθ}, started at rest): the exact filter's ℓ (compiled and torch) equals the Gaussian density of the
+    covariance built from the recursion, with gaps; its spectrum integrates to σ²; on 30 000 samples of
+    resonance+white the exact fit, started where the data's spectrum stands highest above its trend, finds f_r, B and
+    σ within 4 standard errors. Not screened by check (its null law is not yet measured): listed to add by hand."""
+    from torchtea.noise.components import Resonance
+
+    m = parse_model("resonance+white")
+    v = {"resonance.frequency_hz": 25.0, "resonance.bandwidth_hz": 2.0, "resonance.sigma": 0.05, "white.r": 1e-3}
+    n = 150
+    y = simulate_model(m, v, n_steps=n, h=H, generator=torch.Generator().manual_seed(1))[0, 0].clone()
+    y[[20, 21, 90]] = float("nan")
+    rho = math.exp(-math.pi * 2.0 * H)
+    a1, a2 = 2 * rho * math.cos(2 * math.pi * 25.0 * H), -rho * rho
+    g = 0.05 * math.sqrt((1 + a2) * ((1 - a2) ** 2 - a1 * a1) / (1 - a2))
+    M = torch.zeros(n, n, dtype=torch.float64)  # x = M ξ, x_0 = 0
+    for k in range(1, n):
+        M[k] = a1 * M[k - 1] + (a2 * M[k - 2] if k >= 2 else 0.0)
+        M[k, k - 1] += g
+    _assert_dense_density(m, v, y, M @ M.T + 1e-3 * torch.eye(n, dtype=torch.float64))
+    w = torch.linspace(-math.pi, math.pi, 200001, dtype=torch.float64)
+    var = float(torch.trapezoid(parse_model("resonance").spectrum(v, w, H)[0], w))
+    assert var == pytest.approx(0.05 ** 2, rel=1e-6)
+    truth = {"resonance.frequency_hz": 29.0, "resonance.bandwidth_hz": 4.0, "resonance.sigma": 0.03, "white.r": 1e-3}
+    y = simulate_model(m, truth, n_steps=30000, h=H, generator=torch.Generator().manual_seed(2))[0, 0].numpy()
+    assert abs(Resonance.band(y, H)[0] - 29.0) < 2.0
+    f = fit_series(m, [y], H)[0]
+    assert f.converged
+    for name, x in truth.items():
+        assert abs(f.values[name] - x) < 4 * f.se[name], (name, f.values[name], f.se[name])
+    assert COMPONENTS["resonance"].candidate
+
+
+def test_the_band_search_holds_its_level_on_noise_and_check_names_a_hidden_resonance():
+    """``band_search`` (the resonance's screen): on 200 seeded white series its p-value is below 5 % in at most
+    5 % + 3 binomial standard deviations of them (Bonferroni over positions and widths: conservative); on a recording
+    of the random study with a vibration band hidden (the draws of ``DRAWS["resonance"]``), check suggests the
+    resonance first, with its centre within two bandwidths of the truth, and the loop ends adequate."""
+    from torchtea.checking.diagnostics import band_search
+    from torchtea.checking.hidden import random_case
+
+    small = sum(band_search(np.random.default_rng(i).standard_normal(4000), H)["log_p"] < math.log(0.05)
+                for i in range(200))
+    assert small / 200 <= 0.05 + 3 * math.sqrt(0.05 * 0.95 / 200)
+    y, T, truth = random_case(["resonance"], 0)
+    r = check(y, H, inputs={"temperature": T}, intervals=False)
+    top = r.suggestions[0]
+    assert top.effect == "resonance"
+    assert abs(top.parameters["frequency_hz"] - truth["resonance.frequency_hz"]) < 2 * truth["resonance.bandwidth_hz"]
+    assert r.auto(intervals=False).adequate

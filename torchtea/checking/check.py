@@ -19,6 +19,8 @@ r"""``check``: fit a noise model, test it against the measurements, and rank the
      p-value that of the maximum of the grid's correlated statistics (simulated; :func:`.diagnostics.scan_lr`);
    - ``step``: the exact likelihood-ratio at the best of a few candidate times (least-squares splits, the largest
      innovations), Bonferroni over the N − 1 splits;
+   - ``resonance``: the band of the innovations' periodogram with the most power against the model (sums of 4–256
+     ordinates, Gamma under the model; Bonferroni over positions and widths: :func:`.diagnostics.band_search`);
    - ``spikes``: the ``extremes`` diagnostic's exact law of the largest |z|; the spikes are every innovation beyond
      its bound, set aside and the filter rerun until none is new, and the statistic their joint exact LR (GLS sizes)
      — the count decides the component's spec token ``spikes:K`` (:meth:`~torchtea.noise.components.Component.configure`);
@@ -524,12 +526,17 @@ def check(y, h: float, model="fractional+white", inputs: dict | None = None, *, 
             # (from the grid too: a mean the model lacked can have pushed its fit to the other mode of the
             # order–pole ridge, and the extended model's optimum is then on the first)
             key = ("whittle", alt.spec)
-            if key not in cache:
-                cache[key] = whittle_fit(alt, [filled], h, inputs=inp_list,
-                                         starts=[[dict(zip(model.names, wf.values[0].tolist()))]], fractions=(0.5,))
+            if key not in cache:  # (a mean's own values are its least squares there; a stochastic effect with a
+                # screen of its own — a resonance — starts from the screen's)
+                new = {n: start[n] for n in alt.names if n not in model.names}
+                cache[key] = whittle_fit(alt, [filled], h, inputs=inp_list, fractions=(0.5,),
+                                         starts=[[{**new, **dict(zip(model.names, wf.values[0].tolist()))}]])
             wfa = cache[key]
             held = model.located()  # (a step's time, spikes: held where the model's fit has them)
-            noise = {n: x for n, x in zip(alt.names, wfa.values[0].tolist()) if n in model.names and n not in held}
+            stochastic = {n for lb, c in alt.components if c.kind in ("state", "measurement", "filter")
+                          for n in alt.names if n.startswith(f"{lb}.")}
+            noise = {n: x for n, x in zip(alt.names, wfa.values[0].tolist())
+                     if (n in model.names or n in stochastic) and n not in held}
             start, metric = {**start, **noise}, wfa.hessian[0]
         key = ("refit", alt.spec, tuple(sorted((k, float(v)) for k, v in start.items())))
         if key not in cache:

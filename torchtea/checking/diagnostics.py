@@ -116,8 +116,8 @@ def _sig_ljung_box(d):
     lags = (f"at lags {', '.join(str(a) for a, _ in d.ranges[:6])}" if d.ranges else
             "over the first lags together, none alone beyond its bound")
     return (f"the innovations are correlated ({lags}): a filter the model lacks (a sensor's digital filter, "
-            "of higher order than one) or a line whose frequency wanders", ["low-pass", "digital-filter",
-                                                                            "drifting-line"])
+            "of higher order than one), a vibration band, or a line whose frequency wanders",
+            ["low-pass", "digital-filter", "resonance", "drifting-line"])
 
 
 def _sig_spectrum(d):
@@ -130,7 +130,7 @@ def _sig_spectrum(d):
             names += ["gauss-markov", "random-walk", "thermal-lag"]
         elif way == "high":
             words.append(f"more power than the model at {a:.3g}–{b:.3g} Hz: a vibration band or a line that wanders")
-            names += ["drifting-line", "sinusoid"]
+            names += ["resonance", "drifting-line", "sinusoid"]
         elif a >= 0.2 * top:
             words.append(f"less power than the model at {a:.3g}–{b:.3g} Hz: the sensor's own filter")
             names += ["low-pass", "digital-filter"]
@@ -396,6 +396,34 @@ def _innovation_periodogram(z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     d = np.fft.rfft(x)
     j = np.arange(1, (N - 1) // 2 + 1)
     return j, np.abs(d[j]) ** 2 / n_obs  # 2π·I: Exp(1) per ordinate under the model
+
+
+#: the widths (in Fourier ordinates) :func:`band_search` tries
+BAND_WIDTHS = (4, 16, 64, 256)
+
+
+def band_search(z: np.ndarray, h: float, widths=BAND_WIDTHS) -> dict:
+    """The band of the standardised innovations' periodogram with the most power against the model: for each width
+    m of ``widths`` (up to an eighth of the ordinates) the sum of every m adjacent ordinates, each Exp(1) under the
+    model, so the sum is Gamma(m, 1); the smallest upper-tail p-value, Bonferroni over the positions and the widths
+    (a bound: the overlapping windows are correlated, so the test is conservative). Returns the band's centre and
+    width (Hz), its power against the model (the mean ordinate) and the log p-value."""
+    from scipy import stats
+
+    j, u = _innovation_periodogram(z)
+    N = len(z)
+    best = None
+    widths = [m for m in widths if m <= len(u) // 8] or [max(1, len(u) // 8)]
+    for m in widths:
+        c = np.concatenate([[0.0], np.cumsum(u)])
+        sums = c[m:] - c[:-m]
+        k = int(np.argmax(sums))
+        logp = float(stats.gamma.logsf(sums[k], m)) + math.log(len(sums)) + math.log(len(widths))
+        if best is None or logp < best["log_p"]:
+            lo, hi = j[k], j[k + m - 1]
+            best = {"centre_hz": float((lo + hi) / 2 / (N * h)), "width_hz": float(m / (N * h)),
+                    "ratio": float(sums[k] / m), "log_p": min(0.0, logp), "ordinates": m}
+    return best
 
 
 def spectrum_bands(z: np.ndarray, h: float, level: float = LEVEL, bands: int = 24,

@@ -88,6 +88,9 @@ DRAWS = {
                                                 "drifting-line.phase": g.uniform(-math.pi, math.pi)},
     "spikes": lambda g, s, h, span, dT: _spikes(g, s, h, span),
     "digital-filter": lambda g, s, h, span, dT: {"digital-filter.cutoff_hz": g.uniform(0.08, 0.25) / h},
+    "resonance": lambda g, s, h, span, dT: {"resonance.frequency_hz": g.uniform(0.05, 0.45) / h,
+                                            "resonance.bandwidth_hz": _log_uniform(g, 0.002, 0.03) / h,
+                                            "resonance.sigma": s * _log_uniform(g, 0.15, 0.5)},
 }
 
 

@@ -533,7 +533,7 @@ def test_a_resonance_is_the_dense_gaussian_and_its_fit_finds_the_band():
     ρe^{±iθ}, started at rest): the exact filter's ℓ (compiled and torch) equals the Gaussian density of the
     covariance built from the recursion, with gaps; its spectrum integrates to σ²; on 30 000 samples of
     resonance+white the exact fit, started where the data's spectrum stands highest above its trend, finds f_r, B and
-    σ within 4 standard errors. Not screened by check (its null law is not yet measured): listed to add by hand."""
+    σ within 4 standard errors; check screens it."""
     from torchtea.noise.components import Resonance
 
     m = parse_model("resonance+white")

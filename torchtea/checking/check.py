@@ -533,10 +533,9 @@ def check(y, h: float, model="fractional+white", inputs: dict | None = None, *, 
                                          starts=[[{**new, **dict(zip(model.names, wf.values[0].tolist()))}]])
             wfa = cache[key]
             held = model.located()  # (a step's time, spikes: held where the model's fit has them)
-            stochastic = {n for lb, c in alt.components if c.kind in ("state", "measurement", "filter")
-                          for n in alt.names if n.startswith(f"{lb}.")}
-            noise = {n: x for n, x in zip(alt.names, wfa.values[0].tolist())
-                     if (n in model.names or n in stochastic) and n not in held}
+            # (the new component's own values stay the screen's: a resonance's Whittle fit can narrow its band onto
+            # one periodogram ordinate, which the exact likelihood does not follow)
+            noise = {n: x for n, x in zip(alt.names, wfa.values[0].tolist()) if n in model.names and n not in held}
             start, metric = {**start, **noise}, wfa.hessian[0]
         key = ("refit", alt.spec, tuple(sorted((k, float(v)) for k, v in start.items())))
         if key not in cache:

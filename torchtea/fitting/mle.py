@@ -530,13 +530,14 @@ def _intervals(model: NoiseModel, u: Tensor, H: Tensor, free: Tensor, h: float):
         sd_u = float(torch.sqrt(cov_u[k, k]))
         se[n] = float(torch.sqrt(cov[i, i].clamp(min=0)))
         spec = model.param_spec(n)
-        if spec.kind in ("positive", "bounded"):
+        if spec.kind in ("positive", "bounded", "nyquist"):
             lo_u, hi_u = u.clone(), u.clone()
             lo_u[i] -= Z95 * sd_u
             hi_u[i] += Z95 * sd_u
             a, b = float(natural(lo_u)[i]), float(natural(hi_u)[i])
             ci[n] = [min(a, b), max(a, b)]
             how[n] = "Wald on the log scale" if spec.kind == "positive" else "Wald on the logit scale"
+            # (a frequency bounded by the Nyquist frequency: the logit of its share of it)
         else:
             ci[n] = [values[n] - Z95 * se[n], values[n] + Z95 * se[n]]
             how[n] = "Wald"

@@ -47,8 +47,9 @@ class ParamSpec:
     """One parameter of a component.
 
     ``kind``: ``"positive"`` (log transform), ``"bounded"`` (logit on ``bounds``), ``"free"`` (identity),
-    ``"fraction"`` (logit on (0, 1): the fractional pole's stability fraction, see the module docstring).
-    ``unit`` is what the value means, written next to it in reports.
+    ``"fraction"`` (logit on (0, 1): the fractional pole's stability fraction, see the module docstring),
+    ``"nyquist"`` (a frequency in Hz below the Nyquist frequency 1/(2h): logit of f·2h — above it a resonance aliases
+    to the same model, so the fit must not go there). ``unit`` is what the value means, written next to it in reports.
     """
 
     name: str
@@ -262,6 +263,8 @@ class Component:
             return 1.0
         if spec.kind == "fraction":
             return 0.5
+        if spec.kind == "nyquist":
+            return 0.25 / data.h
         if spec.kind == "bounded":
             lo, hi = spec.bounds
             return 0.5 * (lo + hi) if math.isfinite(lo) and math.isfinite(hi) else 0.0
@@ -561,7 +564,7 @@ class Resonance(Component):
             f"{lab}.sigma": sigma}, (f"band {found['centre_hz'] - found['width_hz'] / 2:.3g}–"
                                      f"{found['centre_hz'] + found['width_hz'] / 2:.3g} Hz at {found['ratio']:.2f}× "
                                      "the model")
-    params = (ParamSpec("frequency_hz", "positive", "f_r (Hz), centre of the band"),
+    params = (ParamSpec("frequency_hz", "nyquist", "f_r (Hz), centre of the band"),
               ParamSpec("bandwidth_hz", "positive", "B (Hz), half-power width"),
               ParamSpec("sigma", "positive", "σ (units), stationary standard deviation"))
 

@@ -237,7 +237,8 @@ class NoiseModel:
         return out
 
     def to_unconstrained(self, values, h: float) -> Tensor:
-        """Values → unconstrained ``(B, P)`` (log for positive, logit for bounded and for the pole's fraction)."""
+        """Values → unconstrained ``(B, P)`` (log for positive, logit for bounded, for a frequency's share of the Nyquist
+        frequency and for the pole's fraction)."""
         v = self.as_dict(values)
         cols = []
         for n in self.names:
@@ -247,6 +248,8 @@ class NoiseModel:
                 cols.append(torch.log(x))
             elif spec.kind == "bounded":
                 cols.append(spec.bounded_to_unconstrained(x))
+            elif spec.kind == "nyquist":  # a frequency (Hz) in (0, 1/(2h)): logit of its share of Nyquist
+                cols.append(logit(x * 2.0 * h))
             elif spec.kind == "fraction":
                 alpha = v[n.rsplit(".", 1)[0] + ".order"]
                 cols.append(logit(-x * h ** alpha / 2.0 ** alpha))
@@ -265,6 +268,8 @@ class NoiseModel:
             elif spec.kind == "bounded":
                 lo, hi = spec.bounds
                 v[n] = lo + (hi - lo) * torch.sigmoid(u[:, i])
+            elif spec.kind == "nyquist":
+                v[n] = torch.sigmoid(u[:, i]) / (2.0 * h)
             elif spec.kind == "free":
                 v[n] = u[:, i]
         for i, n in enumerate(self.names):

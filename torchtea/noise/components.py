@@ -1248,7 +1248,7 @@ class Spikes(Component):
 
     def mean(self, v, t, inputs):
         h = float(t[1] - t[0]) if t.shape[-1] > 1 else 1.0
-        B = v[f"size1"].shape[0]
+        B = v["size1"].shape[0]
         out = t.new_zeros(B, t.shape[-1])
         for j in range(1, self.count + 1):
             at = (torch.abs(t - v[f"t{j}"].unsqueeze(-1)) < 0.5 * h).to(t.dtype)  # (B, N): the spike's sample

@@ -1020,8 +1020,9 @@ def build_parser() -> argparse.ArgumentParser:
                                       "recording: temp)", samples_default="all",
                      samples_help="use the first N samples (default all)")
     fp.add_argument("--model", default="fractional+white",
-                    help="components joined by '+': fractional, white, quantisation, random-walk, low-pass, "
-                         "offset, ramp, sinusoid, temperature-bias, temperature-order (default fractional+white)")
+                    help="components joined by '+': fractional, white, quantisation, random-walk, gauss-markov, "
+                         "resonance, low-pass, digital-filter, offset, ramp, step, spikes:K, sinusoid, drifting-line, "
+                         "temperature-bias, thermal-lag, temperature-order (default fractional+white)")
     fp.add_argument("--method", choices=("whittle", "exact"), default="exact",
                     help="likelihood of the final answer (default exact; Whittle always gives the start)")
     fp.add_argument("--profile", action="store_true",

@@ -1,7 +1,9 @@
 """The registry of model components (effects): one class per effect, found by name everywhere.
 
-Every part of a noise model — the built-in ``fractional``, ``white``, ``random-walk``, ``low-pass``, ``offset``,
-``ramp``, ``sinusoid``, ``temperature-bias``, ``temperature-order``, ``quantisation`` and any a user writes — is a
+Every part of a noise model — the built-in ones (``torchtea.noise.components.COMPONENTS``: ``fractional``, ``white``,
+``random-walk``, ``gauss-markov``, ``resonance``, ``low-pass``, ``digital-filter``, ``offset``, ``ramp``, ``step``,
+``spikes``, ``sinusoid``, ``drifting-line``, ``temperature-bias``, ``thermal-lag``, ``temperature-order``,
+``quantisation``) and any a user writes — is a
 :class:`~torchtea.noise.components.Component` subclass that carries its own knowledge: its parameters with units
 and transforms, its spectrum or state block or mean, its typical values (``torchtea simulate``), its data-based
 start, its part of the least-squares start, and where ``check`` inserts it. :func:`parse_model` finds it here by

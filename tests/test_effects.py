@@ -533,7 +533,7 @@ def test_a_resonance_is_the_dense_gaussian_and_its_fit_finds_the_band():
     ρe^{±iθ}, started at rest): the exact filter's ℓ (compiled and torch) equals the Gaussian density of the
     covariance built from the recursion, with gaps; its spectrum integrates to σ²; on 30 000 samples of
     resonance+white the exact fit, started where the data's spectrum stands highest above its trend, finds f_r, B and
-    σ within 4 standard errors; check screens it."""
+    σ within 4 standard errors; it is a candidate check screens."""
     from torchtea.noise.components import Resonance
 
     m = parse_model("resonance+white")
@@ -579,3 +579,40 @@ def test_the_band_search_holds_its_level_on_noise_and_check_names_a_hidden_reson
     assert top.effect == "resonance"
     assert abs(top.parameters["frequency_hz"] - truth["resonance.frequency_hz"]) < 2 * truth["resonance.bandwidth_hz"]
     assert r.auto(intervals=False).adequate
+
+
+def test_spikes_next_to_each_other_and_on_a_wander_are_located_where_they_are():
+    """Where the filter's gain is large (a random walk under little white noise) the innovation after a spike is
+    about −spike, beyond the bound too: ``Spikes.find`` takes only the largest exceedance within ±3 samples per
+    round and reruns the filter, so a spike's neighbour is not a spike; the least-squares start of a model written
+    by hand scores each sample against its neighbours' median, so the peaks of a wander or the edge of a step are not
+    taken for spikes. A bare ``spikes:3`` token names its component in ``without``; a resonance frequency at or above
+    the Nyquist frequency is one clear error."""
+    from torchtea.checking.diagnostics import innovations
+    from torchtea.noise.components import Spikes
+
+    m = parse_model("random-walk+white")
+    v = {"random-walk.sigma": 0.05, "white.r": 1e-6}
+    y = simulate_model(m, v, n_steps=3000, h=H, generator=torch.Generator().manual_seed(1))[0, 0].numpy().copy()
+    ks = [500, 1500, 2500]
+    y[ks] += 10 * 0.05 * math.sqrt(H)
+    ks_found, _ = Spikes.find(m, v, y, H, None, innovations(m, v, y, H), 0.01)
+    assert ks_found == ks
+    for spec, extra in (("random-walk+white+spikes:3", {}), ("white+step+spikes:3", {"step.size": 0.6,
+                                                                                     "step.t_step": 12.0})):
+        mm = parse_model(spec)
+        vv = default_values(mm, H)
+        vv.update(extra)
+        vv.update({f"spikes.t{j}": k * H for j, k in enumerate(ks, start=1)})
+        vv.update({f"spikes.size{j}": 0.5 for j in range(1, 4)})
+        yy = simulate_model(mm, vv, n_steps=3000, h=H, generator=torch.Generator().manual_seed(2))[0, 0].numpy()
+        start = mm.initial_values(torch.as_tensor(yy), H)
+        from torchtea.fitting.mle import regress_mean
+
+        means, _ = regress_mean(mm, yy, H)
+        assert sorted(round(means[f"spikes.t{j}"] / H) for j in range(1, 4)) == ks, (spec, means)
+        assert start is not None
+    assert parse_model("fractional+white+spikes:3").without("spikes:3").spec == "fractional+white"
+    with pytest.raises(ValueError, match="Nyquist"):
+        parse_model("resonance+white").to_unconstrained({"resonance.frequency_hz": 50.0, "resonance.bandwidth_hz": 1.0,
+                                                        "resonance.sigma": 0.1, "white.r": 1e-3}, H)

@@ -1167,7 +1167,7 @@ def cmd_fit(args) -> int:
                 # with the order constant (a temperature-driven order is not part of the test)
                 import torch
 
-                tested = parse_model("+".join(c.name for _, c in model.components if not c.inputs))
+                tested = parse_model("+".join(c.token for _, c in model.components if not c.inputs))
                 t = torch.arange(m.samples, dtype=torch.float64) * m.h
                 test_series = [y - model.mean(f.values, t, inp).numpy()[0] for y, f, inp in zip(series, fits, inputs)]
             tests = fractional_test(tested, test_series, m.h, n_boot=n_boot, seed=args.seed)

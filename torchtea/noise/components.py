@@ -610,7 +610,7 @@ class Resonance(Component):
         f, p = welch(x - x.mean(), fs=1.0 / h, nperseg=min(512, len(x)))
         lp = np.log(np.maximum(p, 1e-300))
         trend = median_filter(lp, size=max(5, len(lp) // 8) | 1, mode="nearest")
-        ok = f > 0.02 * f[-1]
+        ok = (f > 0.02 * f[-1]) & (f < f[-1])  # (not the Nyquist bin itself: the frequency is below it)
         k = int(np.argmax(np.where(ok, lp - trend, -np.inf)))
         return float(f[k]), float(np.exp(lp[k] - trend[k]))
 
@@ -1218,9 +1218,12 @@ class Spikes(Component):
     #: more outliers than this are not isolated spikes but heavy-tailed noise, which no mean term describes
     MAX_SPIKES = 50
     #: how many times the filter is rerun with the spikes found set aside
-    ROUNDS = 6
+    ROUNDS = 10
+    #: in one round, an exceedance counts only where it is the largest within this many samples either side
+    NEAR = 3
     WORDS = "the sample of an outlier beyond the extremes bound (held): no interval"
-    SIZE_WORDS = "GLS at the noise parameters of the fit that found it (held in the fits): no interval"
+    SIZE_WORDS = ("GLS at the noise parameters of the check that found it, or by hand the excess over its neighbours' "
+                  "median (held in the fits): no interval")
 
     def __init__(self, count: int = 0):
         self.count = int(count)
@@ -1266,6 +1269,7 @@ class Spikes(Component):
         samples found set aside (missing) and the filter run again, :attr:`ROUNDS` times at most, until no new one is
         beyond the bound. Raises :class:`NotScreened` for more than :attr:`MAX_SPIKES`."""
         from scipy import stats
+        from scipy.ndimage import maximum_filter1d
 
         from ..checking.diagnostics import innovations
 
@@ -1282,7 +1286,11 @@ class Spikes(Component):
             ok = np.isfinite(z)
             n = int(ok.sum())
             bound = float(stats.norm.isf(-math.expm1(math.log1p(-level) / n) / 2.0))
-            new = [int(k) for k in np.nonzero(ok & (np.abs(np.where(ok, z, 0.0)) > bound))[0] if k not in found]
+            a = np.abs(np.where(ok, z, 0.0))
+            # only the largest within ±NEAR samples: the innovation after a spike carries −gain × spike and can be
+            # beyond the bound too; the filter rerun without the spike tells whether it is one
+            peak = a >= maximum_filter1d(a, 2 * cls.NEAR + 1, mode="constant")
+            new = [int(k) for k in np.nonzero((a > bound) & peak)[0] if k not in found]
             if not new:
                 break
             found += new
@@ -1327,17 +1335,22 @@ class Spikes(Component):
         return float(lr), float(logp), values, f"{len(ks)} spike(s) at {times}"
 
     def fit_residual(self, label, resid, t, ok, h, start, inputs):
-        """The ``count`` samples farthest from the residual's median in units of its median absolute deviation (a
-        scale the spikes do not inflate), each spike's size its excess over the median of its ±5 neighbours."""
+        """The ``count`` samples farthest from the median of their ±5 neighbours (a local level: a wander or a step
+        does not count), in units of the median absolute deviation of those excesses (a scale the spikes do not
+        inflate); each spike's size its excess. A start for a model written by hand: ``check`` finds the spikes by
+        the extremes law and their sizes by GLS (:meth:`screen`)."""
+        from scipy.ndimage import generic_filter
+
         r = np.where(ok, resid, np.nan)
-        med = float(np.nanmedian(r))
-        mad = float(np.nanmedian(np.abs(r - med))) or 1.0
-        score = np.where(ok, np.abs(r - med) / mad, -np.inf)
+        fill = np.where(ok, resid, np.nanmedian(r))
+        local = generic_filter(fill, lambda w: np.median(np.r_[w[:5], w[6:]]), size=11, mode="nearest")
+        ex = np.where(ok, fill - local, 0.0)
+        mad = float(np.median(np.abs(ex[ok]))) or 1.0
+        score = np.where(ok, np.abs(ex) / mad, -np.inf)
         ks = sorted(int(k) for k in np.argsort(-score)[:self.count])
         out = {}
         for j, k in enumerate(ks, start=1):
-            near = np.r_[r[max(0, k - 5):k], r[k + 1:k + 6]]
-            size = float(r[k] - np.nanmedian(near)) if np.isfinite(near).any() else float(r[k] - med)
+            size = float(ex[k])
             resid[k] -= size
             out[f"{label}.size{j}"] = size
             out[f"{label}.t{j}"] = float(t[k])

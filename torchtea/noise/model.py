@@ -206,6 +206,7 @@ class NoiseModel:
 
     def without(self, name: str) -> "NoiseModel":
         """The same model without every component called ``name`` (the null of a presence test)."""
+        name = name.partition(":")[0]  # (a token, spikes:3, names its component)
         kept = [c.token for _, c in self.components if c.name != name]
         if not kept:
             raise ValueError(f"the model {self.spec!r} has nothing left without {name!r}")
@@ -249,6 +250,9 @@ class NoiseModel:
             elif spec.kind == "bounded":
                 cols.append(spec.bounded_to_unconstrained(x))
             elif spec.kind == "nyquist":  # a frequency (Hz) in (0, 1/(2h)): logit of its share of Nyquist
+                if not bool(((x > 0) & (x * 2.0 * h < 1)).all()):
+                    raise ValueError(f"{n} must lie between 0 and the Nyquist frequency {0.5 / h:g} Hz, got "
+                                     f"{x.tolist()}")
                 cols.append(logit(x * 2.0 * h))
             elif spec.kind == "fraction":
                 alpha = v[n.rsplit(".", 1)[0] + ".order"]
@@ -331,8 +335,9 @@ class NoiseModel:
         return r
 
     def state_space(self, values, h: float, n_steps: int, memory="soe", inputs: dict | None = None) -> StateSpace:
-        """Assemble the stacked state: blocks of the state components on the diagonal, the low-pass (if
-        any) as one more state fed by the sum of the state components before it, white noise in R; with a
+        """Assemble the stacked state: blocks of the state components on the diagonal, the sensor filter (if
+        any: a low-pass, one state; a digital filter, one state per stage) fed by the sum of the stochastic components
+        before it (:meth:`~torchtea.noise.components.LowPass.filter_block`), white noise after it in R; with a
         ``temperature-order`` component the fractional block's first row per step (``StateSpace.varying``,
         from ``inputs["temperature"]``)."""
         v = self.as_dict(values)

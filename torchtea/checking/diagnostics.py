@@ -334,6 +334,22 @@ def change(z: np.ndarray, h: float, level: float = LEVEL) -> Diagnostic:
                       {"cusum_mean": stats_[0], "cusum_variance": stats_[1], "change_at_s": where})
 
 
+def max_abs_p(m: float, n: int) -> float:
+    """P(max |z| > m) for n independent N(0, 1): 1 − (1 − 2Φ(−m))ⁿ, exactly."""
+    return float(-np.expm1(n * np.log1p(-2.0 * stats.norm.sf(m))))
+
+
+def max_abs_logp(m: float, n: int) -> float:
+    """log :func:`max_abs_p`, by its first-order bound n·2Φ(−m) in logs where the probability is below 10⁻¹²."""
+    p = max_abs_p(m, n)
+    return math.log(p) if p > 1e-12 else math.log(n) + math.log(2.0) + float(stats.norm.logsf(m))
+
+
+def max_abs_bound(n: int, level: float) -> float:
+    """The c with P(max |z| > c) = ``level`` for n independent N(0, 1)."""
+    return float(stats.norm.isf(-np.expm1(np.log1p(-level) / n) / 2.0))
+
+
 def extremes(z: np.ndarray, h: float, level: float = LEVEL, listed: int = 20) -> Diagnostic:
     """The largest standardised innovation against its extreme-value law: under the model the n innovations are
     independent N(0, 1), so P(max |z| > m) = 1 − (1 − 2Φ(−m))ⁿ exactly. Fails where one is beyond what n samples
@@ -345,8 +361,8 @@ def extremes(z: np.ndarray, h: float, level: float = LEVEL, listed: int = 20) ->
     n = len(a)
     j = int(np.argmax(a))
     m = float(a[j])
-    p = float(-np.expm1(n * np.log1p(-2.0 * stats.norm.sf(m))))
-    bound = float(stats.norm.isf(-np.expm1(np.log1p(-level) / n) / 2.0))
+    p = max_abs_p(m, n)
+    bound = max_abs_bound(n, level)
     beyond = np.nonzero(a > bound)[0]
     beyond = beyond[np.argsort(-a[beyond])][:listed]
     times = [float(k[i] * h) for i in beyond]

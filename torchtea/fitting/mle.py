@@ -536,8 +536,8 @@ def _intervals(model: NoiseModel, u: Tensor, H: Tensor, free: Tensor, h: float):
             hi_u[i] += Z95 * sd_u
             a, b = float(natural(lo_u)[i]), float(natural(hi_u)[i])
             ci[n] = [min(a, b), max(a, b)]
+            # (a frequency below the Nyquist frequency: the logit of its share of it)
             how[n] = "Wald on the log scale" if spec.kind == "positive" else "Wald on the logit scale"
-            # (a frequency bounded by the Nyquist frequency: the logit of its share of it)
         else:
             ci[n] = [values[n] - Z95 * se[n], values[n] + Z95 * se[n]]
             how[n] = "Wald"

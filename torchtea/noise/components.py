@@ -547,6 +547,9 @@ class Resonance(Component):
     screen_test = "largest band of the innovation periodogram (Gamma sums of 4–256 ordinates, Bonferroni over positions and widths)"
     screen_order = 27
     explains = ("spectrum",)
+    params = (ParamSpec("frequency_hz", "nyquist", "f_r (Hz), centre of the band"),
+              ParamSpec("bandwidth_hz", "positive", "B (Hz), half-power width"),
+              ParamSpec("sigma", "positive", "σ (units), stationary standard deviation"))
 
     def screen(self, ctx):
         """The band search on the model's standardised innovations; the start: f_r at the band's centre, B its width,
@@ -564,9 +567,6 @@ class Resonance(Component):
             f"{lab}.sigma": sigma}, (f"band {found['centre_hz'] - found['width_hz'] / 2:.3g}–"
                                      f"{found['centre_hz'] + found['width_hz'] / 2:.3g} Hz at {found['ratio']:.2f}× "
                                      "the model")
-    params = (ParamSpec("frequency_hz", "nyquist", "f_r (Hz), centre of the band"),
-              ParamSpec("bandwidth_hz", "positive", "B (Hz), half-power width"),
-              ParamSpec("sigma", "positive", "σ (units), stationary standard deviation"))
 
     @staticmethod
     def coefficients(v, h):
@@ -681,10 +681,6 @@ class LowPass(Component):
         if last is None:
             raise ValueError(f"a {self.name} filters stochastic components; {model.spec!r} has none")
         return last + 1
-
-    def not_screened(self, model):
-        other = [c.name for _, c in model.components if c.kind == "filter"]
-        return f"the model has a sensor filter already ({other[0]})" if other else None
 
     def typical(self, param, h, t_ref):
         return 5.0
@@ -1268,24 +1264,19 @@ class Spikes(Component):
         standardised innovation beyond the bound c with P(max |z| > c) = ``level`` over the n observed samples, the
         samples found set aside (missing) and the filter run again, :attr:`ROUNDS` times at most, until no new one is
         beyond the bound. Raises :class:`NotScreened` for more than :attr:`MAX_SPIKES`."""
-        from scipy import stats
         from scipy.ndimage import maximum_filter1d
 
-        from ..checking.diagnostics import innovations
+        from ..checking.diagnostics import innovations, max_abs_bound, max_abs_logp
 
         z = inn.z
         ok = np.isfinite(z)
         n = int(ok.sum())
-        m = float(np.max(np.abs(z[ok]))) if n else 0.0
-        tail = 2.0 * stats.norm.sf(m)
-        p = -math.expm1(n * math.log1p(-tail)) if tail < 1 else 1.0
-        logp = math.log(p) if p > 1e-12 else math.log(n) + math.log(2.0) + float(stats.norm.logsf(m))
+        logp = max_abs_logp(float(np.max(np.abs(z[ok]))) if n else 0.0, n)
         found: list = []
         y = np.asarray(y, dtype=np.float64)
         for _ in range(cls.ROUNDS):
             ok = np.isfinite(z)
-            n = int(ok.sum())
-            bound = float(stats.norm.isf(-math.expm1(math.log1p(-level) / n) / 2.0))
+            bound = max_abs_bound(int(ok.sum()), level)
             a = np.abs(np.where(ok, z, 0.0))
             # only the largest within ±NEAR samples: the innovation after a spike carries −gain × spike and can be
             # beyond the bound too; the filter rerun without the spike tells whether it is one
@@ -1304,23 +1295,25 @@ class Spikes(Component):
             found = [int(np.nanargmax(np.abs(inn.z)))]
         return sorted(found), logp
 
-    def configure(self, ctx):
+    def _found(self, ctx) -> tuple[list, float]:
+        """:meth:`find` on the check's model and innovations, once per check (kept in ``ctx.memo``)."""
         from ..checking.diagnostics import LEVEL
 
         key = ("spikes", ctx.model.spec)
         if key not in ctx.memo:
             ctx.memo[key] = self.find(ctx.model, dict(ctx.fit.values), ctx.y, ctx.h, ctx.inputs, ctx.inn, LEVEL)
-        return f"{self.name}:{len(ctx.memo[key][0])}"
+        return ctx.memo[key]
+
+    def configure(self, ctx):
+        return f"{self.name}:{len(self._found(ctx)[0])}"
 
     def screen(self, ctx):
         """The spikes :meth:`find` gives, their sizes by GLS (the whitened impulses, jointly, the model held): the
         statistic is their exact likelihood-ratio, the p-value that of the largest |z| under the model (the
         extremes diagnostic's exact law: it is what decides whether there is any spike)."""
-        from ..checking.diagnostics import LEVEL, linear_lr
+        from ..checking.diagnostics import linear_lr
 
-        key = ("spikes", ctx.model.spec)
-        ks, logp = ctx.memo.get(key) or self.find(ctx.model, dict(ctx.fit.values), ctx.y, ctx.h, ctx.inputs, ctx.inn,
-                                                  LEVEL)
+        ks, logp = self._found(ctx)
         comp = dict(ctx.alt.components)[ctx.label]
         if comp.count != len(ks):
             raise NotScreened(f"the model was extended by {comp.count} spikes, {len(ks)} were found")

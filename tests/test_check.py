@@ -11,6 +11,7 @@ import pytest
 import torch
 
 from torchtea.checking import allan, check, extend
+from torchtea.checking.check import STRONG_BIC
 from torchtea.checking.hidden import HIDDEN_STRENGTH, hidden_case
 from torchtea.checking.diagnostics import (LEVEL, _stochastic_avar, change, innovations, linear_lr, lines, ljung_box, nis_windows,
                                            run_diagnostics, spectrum_bands, temperature_view)
@@ -377,6 +378,21 @@ def test_the_loop_runs_to_an_adequate_model_and_the_error_falls_at_each_step():
     assert {"lines", "temperature"} <= repaired and not rows[-1]["failed"]
     assert abs(r.fit.values["sinusoid.frequency_hz"] - 3.37) < 0.01
     assert r.as_dict()["steps"] == rows
+
+
+def test_the_loop_goes_on_past_an_adequate_model_while_a_suggestion_gains_strongly():
+    """An effect the omnibus diagnostics do not see (here: a ramp of 0.15 σ over the record, with the diagnostics
+    at a level of 1e-12) but whose screen does is still added by ``auto`` when it gains at least ``strong`` BIC;
+    with ``strong`` out of reach the loop ends at the adequate model and says what it left."""
+    rng = np.random.default_rng(3)
+    y = rng.standard_normal(20000) + 0.15 * np.linspace(-0.5, 0.5, 20000)
+    first = check(y, H, model="white", intervals=False, candidates=("ramp", "step", "random-walk"), level=1e-12)
+    assert first.adequate and first.suggestions[0].effect == "ramp" and first.suggestions[0].gain > STRONG_BIC
+    r = first.auto(intervals=False)
+    assert r.model.spec == "white+ramp" and r.loop_end.startswith("adequate after 1 effect(s) added")
+    assert abs(r.fit.values["ramp.slope"] * 20000 * H - 0.15) < 3 * math.sqrt(12 / 20000)  # the rise's SE, σ = 1
+    kept = first.auto(intervals=False, strong=first.suggestions[0].gain + 1)
+    assert kept is first and kept.loop_end.startswith("adequate after 0 effect(s) added (ramp would still gain")
 
 
 def test_the_loop_on_the_command_line(tmp_path, capsys):

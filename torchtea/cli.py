@@ -350,7 +350,7 @@ def cmd_check(args) -> int:
         for effect in args.add:
             r = r.add(effect, intervals=not args.no_intervals)
         if args.auto:
-            r = r.auto(max_steps=args.max_steps, intervals=not args.no_intervals)
+            r = r.auto(max_steps=args.max_steps, strong=args.strong, intervals=not args.no_intervals)
         results[c.label] = r
         step(i + 1, len(m.channels))
     close()
@@ -1046,9 +1046,12 @@ def build_parser() -> argparse.ArgumentParser:
     ck.add_argument("--add", action="append", default=[], metavar="EFFECT",
                     help="add an effect and check again, before/after (repeatable)")
     ck.add_argument("--auto", action="store_true",
-                    help="run the loop to its end: add the best suggestion and check again until the model is "
-                         "adequate or no effect passes its screen (after any --add)")
+                    help="run the loop to its end: add the best suggestion and check again until no effect passes "
+                         "its screen, or the model is adequate and no suggestion gains --strong BIC (after any --add)")
     ck.add_argument("--max-steps", type=_steps, default=6, help="--auto adds at most this many effects (default 6)")
+    ck.add_argument("--strong", type=float, default=None, metavar="BIC",
+                    help="--auto goes on past an adequate model while the best suggestion gains at least this much "
+                         "BIC (default 10, checking.check.STRONG_BIC: very strong evidence; inf stops at adequacy)")
     ck.add_argument("--level", type=float, default=0.01, help="level of each diagnostic (default 0.01)")
     ck.add_argument("--screen-level", type=float, default=0.05,
                     help="family level of the effect screens (default 0.05: on data from the model, at most "

@@ -333,33 +333,48 @@ def _measurements(args, command: str, *, min_samples: int = 1, sensors=None):
     return m
 
 
-def cmd_check(args) -> int:
+def _check_channels(args, m, inputs, *, auto: bool, intervals: bool) -> dict:
+    """``check`` each channel of ``m`` (then ``--add``, then the loop with ``auto``) → label → result."""
     from .checking import check
+
+    model = getattr(args, "model", None) or "fractional+white"
+    results = {}
+    step, close = _progress(len(m.channels), "check", "channel", bar=not getattr(args, "json", False))
+    for i, c in enumerate(m.channels):
+        print(f"torchtea: checking {c.label}, {c.title} ({m.samples} samples, model {model}) …", file=sys.stderr)
+        r = check(c.values, m.h, model=model, inputs=inputs, level=getattr(args, "level", 0.01),
+                  screen_level=getattr(args, "screen_level", 0.05), intervals=intervals)
+        for effect in getattr(args, "add", []):
+            r = r.add(effect, intervals=intervals)
+        if auto:
+            r = r.auto(max_steps=getattr(args, "max_steps", 6), strong=getattr(args, "strong", None),
+                       intervals=intervals)
+        results[c.label] = r
+        step(i + 1, len(m.channels))
+    close()
+    return results
+
+
+def cmd_check(args) -> int:
     from .checking.report import write_report
     from .reports.strictjson import dumps
 
     m = _measurements(args, "check", min_samples=1000)
+    plan = _export_plan(args, m, args.export)
+    if plan and args.no_intervals:
+        raise CLIError("--export needs the intervals: drop --no-intervals")
     inputs = None if args.temperature is None else {"temperature": m.temperature_input()}
-    results = {}
     t0 = time.perf_counter()
-    step, close = _progress(len(m.channels), "check", "channel", bar=not args.json)
-    for i, c in enumerate(m.channels):
-        print(f"torchtea: checking {c.label}, {c.title} ({m.samples} samples, model {args.model}) …", file=sys.stderr)
-        r = check(c.values, m.h, model=args.model, inputs=inputs, level=args.level, screen_level=args.screen_level,
-                  intervals=not args.no_intervals)
-        for effect in args.add:
-            r = r.add(effect, intervals=not args.no_intervals)
-        if args.auto:
-            r = r.auto(max_steps=args.max_steps, strong=args.strong, intervals=not args.no_intervals)
-        results[c.label] = r
-        step(i + 1, len(m.channels))
-    close()
+    results = _check_channels(args, m, inputs, auto=args.auto, intervals=not args.no_intervals)
     name = Path(m.recording.path).stem
     out = Path(args.out or f"check-{name}")
     meta = m.describe()
     meta.update(command="torchtea " + " ".join(sys.argv[1:]), seconds=time.perf_counter() - t0,
                 warnings=m.notes())
     doc = write_report(out, results, meta, plots=not args.no_plots)
+    if plan:
+        _export(args, m, plan, {a: r.fit for a, r in results.items()}, inputs, meta, out / "export",
+                quiet=args.json, plots=not args.no_plots)
     if args.json:
         print(dumps(doc))
         return 0
@@ -398,6 +413,107 @@ def cmd_check(args) -> int:
     print(f"units: {'; '.join(f'{k}: {v}' for k, v in _units_of(m).items())}")
     print(f"report: {out / 'report.md'}; JSON: {out / 'check.json'}")
     return 0
+
+
+def _export_plan(args, m, names) -> dict | None:
+    """Check what an export asks for before any fitting: the formats (an unknown one, or one that needs a sensor
+    the recording lacks, is one clear line), the horizon within the recording, SI sensor channels. None: no
+    export asked for."""
+    if not names:
+        return None
+    from .export.formats import FORMATS
+    from .export.run import resolve_formats
+    from .export.terms import parse_horizon
+
+    formats = resolve_formats(names)
+    horizon, note = parse_horizon(args.horizon, m.h, m.samples)
+    signals = [c.name for c in m.channels if c.sensor == "signal"]
+    if signals:
+        raise CLIError(f"cannot export column(s) {', '.join(signals)}: not an accelerometer or gyroscope axis in SI "
+                       "units (the formats take m/s^2 and rad/s); name the sensor columns with --columns and --units")
+    have = {c.sensor for c in m.channels}
+    named = [n for x in names for n in str(x).split(",")]
+    for f in formats:
+        missing = [s for s in FORMATS[f].needs if s not in have]
+        if missing and f in named:
+            raise CLIError(f"export format {f}: the file needs {' and '.join(FORMATS[f].needs)} noise; "
+                           f"{Path(m.recording.path).name} has no {' or '.join(missing)} channel analysed "
+                           f"(--format ieee952 takes any axis)")
+    if note:
+        print(f"torchtea: note: {note}", file=sys.stderr)
+    return {"formats": formats, "horizon": horizon, "horizon_note": note}
+
+
+def _export(args, m, plan: dict, fits: dict, inputs, meta: dict, out: Path, *, quiet: bool, plots: bool) -> dict:
+    from .export.run import export_axes, write_export
+
+    print(f"torchtea: exporting {', '.join(plan['formats'])} (cover over τ {plan['horizon'][0]:g}–"
+          f"{plan['horizon'][1]:g} s; NEES study: {args.nees} realisations) …", file=sys.stderr)
+    axes = export_axes(fits, m.series(), {c.label: c.sensor for c in m.channels}, m.h, plan["horizon"],
+                       inputs=inputs, nees=args.nees, seed=args.export_seed)
+    meta = dict(meta, horizon_note=plan["horizon_note"])
+    doc = write_export(out, axes, plan["formats"], meta, which=args.values, plots=plots)
+    if not quiet:
+        for name, path in doc["files"].items():
+            print(f"export {name}: {path}")
+        for name, why in doc["skipped"].items():
+            print(f"export {name}: not written: {why}")
+        for a in axes:
+            print(f"  {a.label}: N {a.bare['N'].value:.4g} → {a.covered['N'].value:.4g}, K {a.bare['K'].value:.4g} → "
+                  f"{a.covered['K'].value:.4g} {a.bare['K'].unit} (bare → covered)"
+                  + "".join(f"; {t} forced by {v['component']} at τ {v['tau_s']:.3g} s"
+                            for t, v in a.forced_by.items()))
+        print(f"export report: {out / 'export.md'}")
+    return doc
+
+
+def cmd_export(args) -> int:
+    """``torchtea export``: check each axis to the end (as ``check --auto``) or fit ``--model``, then export."""
+    from .fitting import fit_series
+
+    m = _measurements(args, "an export", min_samples=1000)
+    plan = _export_plan(args, m, args.format)
+    inputs = None if args.temperature is None else {"temperature": m.temperature_input()}
+    meta = m.describe()
+    meta.update(command="torchtea " + " ".join(sys.argv[1:]), warnings=m.notes())
+    if args.model:
+        from .noise import parse_model
+
+        model = parse_model(args.model)
+        if any(c.inputs for _, c in model.components) and inputs is None:
+            raise CLIError(f"model {model.spec!r} reads the temperature: give --temperature COL")
+        fits = {}
+        for c in m.channels:
+            print(f"torchtea: fitting {model.spec} to {c.label} …", file=sys.stderr)
+            fits[c.label] = fit_series(model, [c.values], m.h, method="exact",
+                                       inputs=None if inputs is None else [inputs])[0]
+    else:
+        results = _check_channels(args, m, inputs, auto=True, intervals=True)
+        fits = {a: r.fit for a, r in results.items()}
+        meta["loop_end"] = {a: r.loop_end for a, r in results.items()}
+    out = Path(args.out or f"export-{Path(m.recording.path).stem}")
+    _export(args, m, plan, fits, inputs, meta, out, quiet=False, plots=not args.no_plots)
+    return 0
+
+
+def _export_flags(parser, *, standalone: bool) -> None:
+    """The flags of an export, the same on ``export``, ``fit --export`` and ``check --export``."""
+    from_what = "" if standalone else " (with --export)"
+    if not standalone:
+        parser.add_argument("--export", action="append", default=[], metavar="FORMAT",
+                            help="also export the models the command ends with: kalibr, vins, orbslam3, ieee952 or "
+                                 "all (repeatable; files in OUT/export)")
+    parser.add_argument("--horizon", metavar="LO:HI",
+                        help="time scales (s) the exported white noise + random walk must cover" + from_what
+                             + " (default 0.005:100, clipped to the recording: one sample to half its length)")
+    parser.add_argument("--values", choices=("covered", "bare"), default="covered",
+                        help="the value each format's field takes" + from_what + ": covered (default: the least "
+                             "values that cover the fitted model's Allan deviation) or bare (the fitted white noise "
+                             "and random walk); the other is in a comment")
+    parser.add_argument("--nees", type=int, default=64, metavar="M",
+                        help="realisations of the filter NEES study of the bare and covered values" + from_what
+                             + " (default 64; 0: not run)")
+    parser.add_argument("--export-seed", type=int, default=0, help="seed of the NEES study and the intervals' draws")
 
 
 def _units_of(m) -> dict:
@@ -1034,6 +1150,7 @@ def build_parser() -> argparse.ArgumentParser:
     fp.add_argument("--seed", type=int, default=0, help="seed of the bootstrap")
     fp.add_argument("--out", help="write the JSON document to this file")
     fp.add_argument("--json", action="store_true", help="print the JSON document")
+    _export_flags(fp, standalone=False)
     fp.set_defaults(func=cmd_fit)
 
     ck = sub.add_parser("check", help="test a noise model against a recording and rank the effects it is missing")
@@ -1060,7 +1177,24 @@ def build_parser() -> argparse.ArgumentParser:
     ck.add_argument("--out", help="output directory (default check-<recording name>)")
     ck.add_argument("--no-plots", action="store_true")
     ck.add_argument("--json", action="store_true", help="print the JSON document")
+    _export_flags(ck, standalone=False)
     ck.set_defaults(func=cmd_check)
+
+    ex = sub.add_parser("export", help="the noise numbers in a navigation filter's format (Kalibr, VINS, ORB-SLAM3, "
+                                       "IEEE 952), with intervals and a cover")
+    _recording_flags(ex, columns_help="the columns to export (default: every accelerometer and gyroscope axis)",
+                     temperature_help="temperature column (°C) for the temperature effects", samples_default="all",
+                     samples_help="use the first N samples (default all)")
+    ex.add_argument("--format", action="append", required=True, metavar="FORMAT",
+                    help="kalibr (imu.yaml), vins, orbslam3, ieee952 (CSV) or all; repeatable or comma-separated")
+    ex.add_argument("--model", help="fit this model SPEC to every axis (default: check each axis to the end, as "
+                                    "check --auto, and export the model it ends with)")
+    ex.add_argument("--strong", type=float, default=None, metavar="BIC", help="as check --strong")
+    ex.add_argument("--max-steps", type=_steps, default=6, help="as check --max-steps")
+    ex.add_argument("--out", help="output directory (default export-<recording name>)")
+    ex.add_argument("--no-plots", action="store_true")
+    _export_flags(ex, standalone=True)
+    ex.set_defaults(func=cmd_export)
 
     rc = sub.add_parser("record", help="record a protocol-v1 IMU from a serial port (docs/protocol.md)")
     rc.add_argument("--port", required=True, help="serial device (/dev/ttyACM0, COM3) or pyserial URL")
@@ -1138,6 +1272,7 @@ def cmd_fit(args) -> int:
 
     model = parse_model(args.model)
     m = _measurements(args, "a fit", min_samples=100)
+    plan = _export_plan(args, m, args.export)
     series = [c.values for c in m.channels]
     inputs = None
     needs = sorted({name for _, c in model.components for name in c.inputs})
@@ -1189,6 +1324,10 @@ def cmd_fit(args) -> int:
            "command": "torchtea " + " ".join(sys.argv[1:]) if sys.argv[1:] else ""}
     if args.out:
         write(Path(args.out), doc)
+    if plan:  # (files beside --out, else in export-<recording>)
+        out = Path(args.out).parent / "export" if args.out else Path(f"export-{Path(m.recording.path).stem}")
+        _export(args, m, plan, {c.label: f for c, f in zip(m.channels, fits)},
+                None if inputs is None else inputs[0], m.describe(), out, quiet=args.json, plots=True)
     if args.json:
         print(dumps(doc))
         return 0

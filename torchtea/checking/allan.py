@@ -39,11 +39,15 @@ def _kernel(m: np.ndarray, omega: torch.Tensor) -> torch.Tensor:
     return 2.0 * torch.sin(m * omega / 2.0) ** 4 / (m * m * torch.sin(omega / 2.0) ** 2)
 
 
-def model_avar(model, values, h: float, m: np.ndarray, grid: int = GRID) -> np.ndarray:
-    """Overlapping AVAR of the model's stochastic part at cluster sizes ``m`` → ``(B, len(m))``."""
+def model_avar(model, values, h: float, m: np.ndarray, grid: int = GRID, by_component: bool = False):
+    """Overlapping AVAR of the model's stochastic part at cluster sizes ``m`` → ``(B, len(m))``; with
+    ``by_component`` each stochastic component's share, label → ``(B, len(m))`` (they sum to the total)."""
     omega = (torch.arange(grid, dtype=torch.float64) + 0.5) * (math.pi / grid)
-    S = model.spectrum(values, omega, h)  # (B, W)
     K = _kernel(np.asarray(m), omega)  # (M, W)
+    if by_component:
+        return {k: (2.0 * (math.pi / grid) * (S @ K.mT)).numpy()
+                for k, S in model.component_spectra(values, omega, h).items()}
+    S = model.spectrum(values, omega, h)  # (B, W)
     return (2.0 * (math.pi / grid) * (S @ K.mT)).numpy()
 
 

@@ -139,6 +139,18 @@ class Component:
     def measurement_variance(self, v: dict) -> Tensor:
         raise NotImplementedError
 
+    # ---- how a navigation filter's noise model sees it (torchtea.export) ----------------------------------
+    #: the IEEE Std 952 term it is: ``"N"`` (white rate noise: a noise density), ``"K"`` (rate random walk: a bias
+    #: random walk), ``"R"`` (rate ramp), ``"bias"`` (a constant level: a filter's bias state holds it), or None.
+    #: Kalibr, VINS and ORB-SLAM3 know N and K only: export names every other component and covers it.
+    nav_term: str | None = None
+
+    def nav_note(self, label: str, v: dict, h: float) -> str:
+        """What a white-noise + random-walk filter misses of this component (export's list); ``v``: its values
+        (floats)."""
+        shown = ", ".join(f"{p.name} {v[p.name]:.4g}" for p in self.params if p.name in v)
+        return f"{label}: no term in a white-noise + random-walk model ({shown}); covered by raising N or K"
+
     # ---- how check screens it -----------------------------------------------------------------------------
     #: ``check`` screens it when the model lacks it (the base parts — fractional, white, offset — are not)
     candidate: bool = True
@@ -427,6 +439,7 @@ class RandomWalk(Component):
 
     name = "random-walk"
     kind = "state"
+    nav_term = "K"
     screen_order = 10
     params = (ParamSpec("sigma", "positive", "K (units/√s)"),)
 
@@ -641,6 +654,13 @@ class LowPass(Component):
     #: first-order stages in cascade, each with the cut-off ``cutoff_hz``
     stages = 1
 
+    def nav_note(self, label, v, h):
+        fc = v["cutoff_hz"]
+        return (f"{label}: the sensor filters its output at {fc:.4g} Hz ({self.stages} stage(s); Nyquist "
+                f"{0.5 / h:g} Hz): above the cut-off the noise is not white, so σ_d = N/√Δt at the IMU rate "
+                f"overstates the noise of one sample and ignores that neighbouring samples are correlated "
+                f"(over about {1 / (2 * math.pi * fc):.3g} s); the density N holds below the cut-off")
+
     def gain(self, v, omega, h):
         a = self.coefficient(v, h).unsqueeze(-1)
         return ((1.0 - a) ** 2 / (1.0 - 2.0 * a * torch.cos(omega) + a * a)) ** self.stages
@@ -720,6 +740,7 @@ class White(Component):
 
     name = "white"
     kind = "measurement"
+    nav_term = "N"
     candidate = False
     params = (ParamSpec("r", "positive", "variance (units²)"),)
 
@@ -744,6 +765,7 @@ class Quantisation(Component):
 
     name = "quantisation"
     kind = "measurement"
+    nav_term = "N"  # (white: Δ²/12 adds to the white variance)
     screen_order = 70
     params = (ParamSpec("step", "positive", "Δ (units)"),)
 
@@ -785,6 +807,7 @@ class Quantisation(Component):
 class Offset(Component):
     name = "offset"
     kind = "mean"
+    nav_term = "bias"
     candidate = False
     params = (ParamSpec("value", "free", "units"),)
     level = True
@@ -805,6 +828,7 @@ class Ramp(Component):
 
     name = "ramp"
     kind = "mean"
+    nav_term = "R"
     params = (ParamSpec("slope", "free", "units/s"),)
 
     def mean(self, v, t, inputs):

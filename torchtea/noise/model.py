@@ -299,6 +299,19 @@ class NoiseModel:
             raise ValueError(f"model {self.spec!r} has no stochastic component")
         return total
 
+    def component_spectra(self, values, omega: Tensor, h: float) -> dict:
+        """Each stochastic component's share of :meth:`spectrum` (label → ``(B, W)``, through the sensor filter
+        after it; they sum to it: the components are independent)."""
+        byc = self._by_component(self.as_dict(values))
+        out = {}
+        for label, comp in self.components:
+            if comp.kind == "filter":
+                g = comp.gain(byc[label], omega, h)
+                out = {k: s * g for k, s in out.items()}
+            elif comp.kind in ("state", "measurement"):
+                out[label] = comp.spectrum(byc[label], omega, h)
+        return out
+
     def check_inputs(self, inputs: dict | None, kinds=("mean", "modifier")) -> None:
         """Raise ``ValueError`` naming the first component of ``kinds`` whose input channel (e.g. the
         temperature) is not in ``inputs``."""

@@ -1,0 +1,198 @@
+"""The files navigation filters read, written from the axes' :class:`~.terms.AxisTerms`.
+
+A format is one class in :data:`FORMATS`: its name, file name, the sensors it needs, and :meth:`Format.render`.
+Kalibr's ``imu.yaml`` (YAML), VINS-Mono/Fusion's and ORB-SLAM3's settings (OpenCV FileStorage YAML, ``%YAML:1.0``)
+take one number per sensor: the largest axis's, said so in a comment with its 95 % interval, the bare and the
+covered value and the cover's factor; the IEEE Std 952 table (CSV) has every axis. Comments carry the convention:
+continuous time, a filter at Δt uses σ_d = N/√Δt for the white noise and σ_bd = K·√Δt for the walk.
+"""
+from __future__ import annotations
+
+import csv
+import io
+
+__all__ = ["Format", "FORMATS", "register_format", "sensor_values", "FormatError"]
+
+
+class FormatError(ValueError):
+    """The recording cannot fill the format (a sensor it needs is missing)."""
+
+
+def _fmt(x: float | None) -> str:
+    return "null" if x is None else f"{x:.6e}"
+
+
+def sensor_values(axes: list, sensor: str, term: str, which: str) -> dict:
+    """The format's one number for ``sensor``'s ``term`` (N or K): the largest axis's ``which`` value (bare or
+    covered) → ``{"value", "axis", "ci95", "bare", "covered", "factor", "forced_by", "unit"}``."""
+    rows = [a for a in axes if a.sensor == sensor]
+    if not rows:
+        raise FormatError(f"no {sensor} axis")
+    pick = max(rows, key=lambda a: getattr(a, which)[term].value)
+    num = getattr(pick, which)[term]
+    f = pick.factor[term]
+    return {"value": num.value, "axis": pick.label, "ci95": num.ci95, "bare": pick.bare[term].value,
+            "bare_ci95": pick.bare[term].ci95, "covered": pick.covered[term].value,
+            "covered_ci95": pick.covered[term].ci95, "factor": None if f is None else f.value,
+            "forced_by": pick.forced_by.get(term), "unit": num.unit,
+            "axes": {a.label: getattr(a, which)[term].value for a in rows}}
+
+
+def _ci(c) -> str:
+    return "no interval" if c is None else f"95 % [{c[0]:.4g}, {c[1]:.4g}]"
+
+
+def _comment(v: dict, which: str) -> list[str]:
+    """Comment lines for one field."""
+    other = "covered" if which == "bare" else "bare"
+    lines = [f"#   {v['unit']}, the largest of the axes ({', '.join(f'{k} {x:.4g}' for k, x in v['axes'].items())}): "
+             f"{v['axis']}, {which} value, {_ci(v['ci95'])}",
+             f"#   {other}: {v[other]:.4g} ({_ci(v[other + '_ci95'])})"]
+    if v["factor"] is not None and v["factor"] > 1 + 1e-6:
+        fb = v["forced_by"] or {}
+        lines.append(f"#   the cover raises the bare value × {v['factor']:.3g}, forced at τ {fb.get('tau_s', 0):.3g} s "
+                     f"by {fb.get('component')}")
+    elif v["bare"] == 0 and v["covered"] > 0:
+        fb = v["forced_by"] or {}
+        lines.append(f"#   the model has none; the cover needs it at τ {fb.get('tau_s', 0):.3g} s "
+                     f"for {fb.get('component')}")
+    return lines
+
+
+class Format:
+    """One file format. ``needs``: the sensors it must have; ``filename``; :meth:`render` writes the text."""
+
+    name = ""
+    filename = ""
+    needs: tuple = ("accelerometer", "gyroscope")
+    #: (sensor, term) → the format's key, in the file's order
+    keys: dict = {}
+    header = ""
+
+    def check(self, axes: list) -> None:
+        have = {a.sensor for a in axes}
+        missing = [s for s in self.needs if s not in have]
+        if missing:
+            raise FormatError(f"{self.name}: the file needs {' and '.join(self.needs)} noise; the recording has no "
+                              f"{' or '.join(missing)} channel analysed")
+
+    def fields(self, axes: list, which: str) -> list:
+        return [(key, sensor_values(axes, sensor, term, which)) for (sensor, term), key in self.keys.items()]
+
+    def preamble(self, axes: list, meta: dict, which: str) -> list[str]:
+        models = "; ".join(f"{a.label}: {a.model}" for a in axes)
+        lines = [f"# torchtea export ({self.name}) of {meta.get('recording', '?')}",
+                 f"# models fitted per axis: {models}",
+                 "# continuous time: N is a white noise density (unit/sqrt(Hz)), K a bias random walk "
+                 "(unit/s/sqrt(Hz));",
+                 "# a filter at sample time dt uses sigma_d = N/sqrt(dt) for the white noise and "
+                 "sigma_bd = K*sqrt(dt) for the bias walk.",
+                 f"# values: {which} ('bare': the fitted white noise and random walk; 'covered': the least values "
+                 f"whose Allan deviation",
+                 f"# covers the fitted model's over tau {axes[0].horizon[0]:g}-{axes[0].horizon[1]:g} s; see "
+                 "export.md for what the format leaves out)"]
+        for a in axes:
+            for c in a.components:
+                if c["term"] is None:
+                    lines.append(f"# not in the format ({a.label}): {c['words']}")
+        return lines
+
+    def render(self, axes: list, meta: dict, which: str = "covered") -> str:
+        self.check(axes)
+        lines = [self.header] if self.header else []
+        lines += self.preamble(axes, meta, which)
+        lines += self.extra(axes, meta, before=True)
+        for key, v in self.fields(axes, which):
+            lines += [f"{key}: {_fmt(v['value'])}"] + _comment(v, which)
+        lines += self.extra(axes, meta, before=False)
+        return "\n".join(lines) + "\n"
+
+    def extra(self, axes: list, meta: dict, before: bool) -> list[str]:
+        return []
+
+
+class Kalibr(Format):
+    """Kalibr's IMU configuration (``imu.yaml``: its wiki's "IMU Noise Model" page names the four densities)."""
+
+    name = "kalibr"
+    filename = "imu.yaml"
+    keys = {("accelerometer", "N"): "accelerometer_noise_density", ("accelerometer", "K"): "accelerometer_random_walk",
+            ("gyroscope", "N"): "gyroscope_noise_density", ("gyroscope", "K"): "gyroscope_random_walk"}
+
+    def extra(self, axes, meta, before):
+        if not before:
+            return []
+        return [f"rostopic: {meta.get('rostopic', '/imu0')}",
+                f"update_rate: {1.0 / axes[0].h:.6g}  # Hz, the recording's sample rate"]
+
+
+class Vins(Format):
+    """VINS-Mono / VINS-Fusion settings (OpenCV FileStorage YAML): ``acc_n``, ``gyr_n``, ``acc_w``, ``gyr_w``."""
+
+    name = "vins"
+    filename = "vins_imu.yaml"
+    header = "%YAML:1.0"
+    keys = {("accelerometer", "N"): "acc_n", ("gyroscope", "N"): "gyr_n", ("accelerometer", "K"): "acc_w",
+            ("gyroscope", "K"): "gyr_w"}
+
+    def extra(self, axes, meta, before):
+        if before:
+            return ["# the fields take Kalibr's continuous-time numbers (how VINS discretises them: VINS-Mono issue "
+                    "#102); VINS's example settings inflate them",
+                    "# by hand for what the white noise + random walk leaves out, which the covered values do with a "
+                    "reason (export.md)"]
+        return []
+
+
+class OrbSlam3(Format):
+    """ORB-SLAM3 settings (OpenCV FileStorage YAML): ``IMU.NoiseGyro``, ``IMU.NoiseAcc``, ``IMU.GyroWalk``,
+    ``IMU.AccWalk``, ``IMU.Frequency`` (continuous-time densities; ORB-SLAM3 multiplies the noise by √f and
+    divides the walk by it)."""
+
+    name = "orbslam3"
+    filename = "orbslam3_imu.yaml"
+    header = "%YAML:1.0"
+    keys = {("gyroscope", "N"): "IMU.NoiseGyro", ("accelerometer", "N"): "IMU.NoiseAcc",
+            ("gyroscope", "K"): "IMU.GyroWalk", ("accelerometer", "K"): "IMU.AccWalk"}
+
+    def extra(self, axes, meta, before):
+        if before:
+            return []
+        return [f"IMU.Frequency: {1.0 / axes[0].h:.6g}", "#   Hz, the recording's sample rate"]
+
+
+class Ieee952(Format):
+    """The IEEE Std 952 coefficient table, one row per axis and coefficient (CSV): Q, N, B, K, R with units,
+    95 % intervals and how each was made."""
+
+    name = "ieee952"
+    filename = "ieee952.csv"
+    needs = ()
+    columns = ("axis", "sensor", "coefficient", "value", "ci95_low", "ci95_high", "unit", "how")
+
+    def render(self, axes: list, meta: dict, which: str = "covered") -> str:
+        out = io.StringIO()
+        w = csv.writer(out, lineterminator="\n")
+        w.writerow(self.columns)
+        for a in axes:
+            for sym in ("Q", "N", "B", "K", "R"):
+                num = a.ieee[sym]
+                c = num.ci95
+                w.writerow([a.label, a.sensor, sym, "" if num.value is None else f"{num.value:.6e}",
+                            "" if c is None else f"{c[0]:.6e}", "" if c is None else f"{c[1]:.6e}", num.unit, num.how])
+        return out.getvalue()
+
+
+#: The formats by name (a user's: :func:`register_format`).
+FORMATS: dict = {}
+
+
+def register_format(cls) -> type:
+    if not cls.name or not cls.filename:
+        raise ValueError(f"{cls.__name__}: a format needs a name and a filename")
+    FORMATS[cls.name] = cls()
+    return cls
+
+
+for _cls in (Kalibr, Vins, OrbSlam3, Ieee952):
+    register_format(_cls)

@@ -1,0 +1,359 @@
+r"""A fitted model in the terms navigation filters take: noise density N and bias random walk K, the IEEE Std 952
+coefficients, and the cover (ALGORITHMS.md §7: Allan variance from a spectrum).
+
+Conventions (continuous time, as Kalibr's IMU noise model states them):
+
+* **N**, the white noise density (unit/√Hz; for a gyroscope rad/s/√Hz = rad/√s, IEEE 952's angle random walk):
+  a white component of variance r per sample of Δt has :math:`N = \sqrt{r\,\Delta t}`, and a filter running at
+  Δt uses :math:`\sigma_d = N/\sqrt{\Delta t}` per sample. Quantisation (Δ²/12, white) adds to r.
+* **K**, the bias random walk (unit·√Hz⁻¹/s; rad/s²/√Hz, IEEE 952's rate random walk): the model's
+  ``random-walk.sigma``; the filter's per-step bias increment has :math:`\sigma_{bd} = K\sqrt{\Delta t}`.
+* **B**, bias instability: the model's Allan deviation at its minimum divided by 0.664 (the flicker floor's
+  ADEV is :math:`B\sqrt{2\ln 2/\pi} \approx 0.664 B`, IEEE Std 952-1997 annex C); where the minimum lies at the
+  end of the τ range the ADEV still falls, and B is an upper bound (said so).
+* **R**, rate ramp: a ``ramp`` component's slope (AVAR :math:`R^2\tau^2/2`). **Q**, angle quantisation (AVAR
+  :math:`3Q^2/\tau^2`): no component has that τ⁻² law (a rate's quantisation is white and counts in N).
+
+**The cover.** The formats know N and K only. The fitted model's AVAR (its stochastic part from its spectrum, its
+means' on the recording's samples) is compared with the AVAR of the format's model, white noise plus a random walk
+sampled at Δt — linear in :math:`(N^2, K^2)`: :math:`N^2/\tau + K^2 (2m^2+1)\Delta t/(6m)`, m = τ/Δt — over the
+time scales of the horizon. The covered values are the smallest pair, not below the bare ones, whose AVAR is
+nowhere below the model's there, "smallest" meaning the least :math:`N^2/N_s^2 + K^2/K_s^2`, where N_s alone
+covers the shortest τ and K_s alone the longest (a linear programme). A white + random-walk model's cover is its
+own values. Each raised value names the τ that forced it and the component that contributes most there.
+
+**Intervals.** N and K carry the fit's 95 % intervals (its method named). Derived numbers (B, the covered values,
+the factors) get theirs from draws of the parameters' asymptotic normal law on the optimisers' scale (the fit's
+Hessian), each draw taken through the same computation: the 2.5 and 97.5 % points.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+
+from ..checking import allan
+
+__all__ = ["AxisTerms", "axis_terms", "parse_horizon", "DEFAULT_HORIZON", "UNITS", "BIAS_INSTABILITY_FACTOR"]
+
+#: The time scales a navigation filter works on, by default (s): from 200 Hz updates to 100 s without aiding.
+DEFAULT_HORIZON = (0.005, 100.0)
+
+#: ADEV of flicker (bias instability) noise at its floor, over B: √(2 ln 2 / π) (IEEE Std 952-1997, C.1.4).
+BIAS_INSTABILITY_FACTOR = math.sqrt(2.0 * math.log(2.0) / math.pi)
+
+#: Units of N, K, B, R (and the rate) per sensor (SI; the formats' documented units).
+UNITS = {"accelerometer": {"rate": "m/s^2", "N": "m/s^2/sqrt(Hz)", "K": "m/s^3/sqrt(Hz)", "B": "m/s^2",
+                           "R": "m/s^3", "Q": "m/s"},
+         "gyroscope": {"rate": "rad/s", "N": "rad/s/sqrt(Hz)", "K": "rad/s^2/sqrt(Hz)", "B": "rad/s",
+                       "R": "rad/s^2", "Q": "rad"}}
+
+#: Parameter draws for the derived numbers' intervals.
+DRAWS = 200
+
+#: τ points of the cover per decade of the horizon.
+PER_DECADE = 24
+
+
+def parse_horizon(text: str | None, h: float, n: int) -> tuple[tuple[float, float], str]:
+    """``"LO:HI"`` (s) → the horizon and a note. It must lie within what the recording shows: τ from one sample
+    (Δt) to half the record (two clusters). ``None``: :data:`DEFAULT_HORIZON` clipped to that span (the note says
+    where). Raises ``ValueError`` naming the input otherwise."""
+    lo_ok, hi_ok = h, (n // 2) * h
+    if text is None:
+        lo, hi = max(DEFAULT_HORIZON[0], lo_ok), min(DEFAULT_HORIZON[1], hi_ok)
+        note = ""
+        if (lo, hi) != DEFAULT_HORIZON:
+            note = (f"horizon {lo:g}–{hi:g} s: the default {DEFAULT_HORIZON[0]:g}–{DEFAULT_HORIZON[1]:g} s clipped "
+                    f"to what the recording shows (one sample, {h:g} s, to half its {n * h:g} s)")
+        return (lo, hi), note
+    try:
+        a, b = (float(x) for x in text.split(":"))
+    except ValueError:
+        raise ValueError(f"--horizon {text!r}: expected LO:HI in seconds, e.g. 0.01:100") from None
+    if not (0 < a < b) or not all(map(math.isfinite, (a, b))):
+        raise ValueError(f"--horizon {text!r}: needs 0 < LO < HI")
+    if a < lo_ok * (1 - 1e-9) or b > hi_ok * (1 + 1e-9):
+        raise ValueError(f"--horizon {text!r} lies outside what the recording shows: τ from its sample time "
+                         f"{lo_ok:g} s to half its length, {hi_ok:g} s")
+    return (a, b), ""
+
+
+@dataclass
+class Number:
+    """One exported number: value, 95 % interval (None when there is none) and how it was made."""
+
+    value: float | None
+    ci95: tuple | None
+    unit: str
+    how: str
+
+    def as_dict(self) -> dict:
+        return {"value": self.value, "ci95": None if self.ci95 is None else list(self.ci95), "unit": self.unit,
+                "how": self.how}
+
+
+@dataclass
+class AxisTerms:
+    """One axis's exported numbers. ``bare``: N and K as the model has them; ``covered``: the cover's; ``factor``:
+    covered/bare per term (None where the bare value is 0); ``forced_by``: per raised term, the τ and component
+    that forced it; ``ieee``: Q N B K R; ``components``: each component with its term or what the formats miss;
+    ``curves``: τ and the ADEVs (data, model, components, bare, covered) for the report."""
+
+    label: str
+    sensor: str
+    h: float
+    model: str
+    horizon: tuple
+    bare: dict
+    covered: dict
+    factor: dict
+    forced_by: dict
+    ieee: dict
+    components: list
+    curves: dict
+    notes: list = field(default_factory=list)
+    #: the NEES study (:func:`~.nees.nees_study`), when run
+    nees: dict | None = None
+
+    def as_dict(self) -> dict:
+        num = lambda d: {k: (v.as_dict() if isinstance(v, Number) else v) for k, v in d.items()}  # noqa: E731
+        return {"sensor": self.sensor, "model": self.model, "sample_time_s": self.h, "horizon_s": list(self.horizon),
+                "bare": num(self.bare), "covered": num(self.covered), "factor": num(self.factor),
+                "forced_by": self.forced_by, "ieee952": num(self.ieee), "components": self.components,
+                "notes": self.notes}
+
+
+# --------------------------------------------------------------------------- the format's model
+
+def format_avar(m: np.ndarray, h: float) -> np.ndarray:
+    """AVAR of the format's model per unit of (r, K²) at cluster sizes ``m``: columns white (r = 1: 1/m) and
+    random walk (K = 1: (2m²+1)h/(6m)), the closed forms of the discrete model (``(len(m), 2)``)."""
+    m = np.asarray(m, dtype=np.float64)
+    return np.stack([1.0 / m, (2.0 * m * m + 1.0) * h / (6.0 * m)], axis=1)
+
+
+def cover(avar: np.ndarray, basis: np.ndarray, r0: float, k0: float) -> tuple[float, float, np.ndarray]:
+    """The least (r, K²) ≥ (r0, K0²), weighted as the module says, with ``basis @ (r, K²) ≥ avar`` at every τ.
+    Returns r, K² and the τ indices where the cover touches the model (the binding ones)."""
+    from scipy.optimize import linprog
+
+    a_s = avar[0] / basis[0, 0]
+    b_s = avar[-1] / basis[-1, 1]
+    # in units of (a_s, b_s) and rows divided by the model's AVAR: well conditioned whatever the scales
+    A = np.stack([basis[:, 0] * a_s, basis[:, 1] * b_s], 1) / avar[:, None]
+    res = linprog(c=[1.0, 1.0], A_ub=-A, b_ub=-np.ones(len(avar)),
+                  bounds=[(r0 / a_s, None), (k0 * k0 / b_s, None)], method="highs")
+    if res.status != 0:
+        raise RuntimeError(f"the cover's linear programme failed: {res.message}")
+    x, y = res.x
+    ratio = A @ res.x
+    binding = np.nonzero(ratio <= 1.0 + 1e-7)[0]
+    return float(x * a_s), float(y * b_s), binding
+
+
+# --------------------------------------------------------------------------- one axis
+
+def _taus(horizon, h: float) -> np.ndarray:
+    lo, hi = horizon
+    k = max(8, int(math.ceil(PER_DECADE * math.log10(hi / lo))))
+    m = np.unique(np.rint(np.logspace(math.log10(lo / h), math.log10(hi / h), k)).astype(int))
+    return m[m >= 1]
+
+
+def _draws(fit, h: float, n: int, seed: int):
+    """Parameter sets drawn from the fit's asymptotic normal law (on the optimisers' scale): a dict of ``(n,)``
+    tensors, or None with the reason."""
+    if fit.u is None or fit.hessian is None:
+        return None, "no Hessian (the fit ran without intervals)"
+    H = fit.hessian.detach().to(torch.float64)
+    free = torch.nonzero(H.abs().sum(1) > 0).flatten()
+    if len(free) == 0:
+        return None, "no free parameter"
+    Hf = H[free][:, free]
+    w, V = torch.linalg.eigh(0.5 * (Hf + Hf.T))
+    if bool((w <= 0).any()):
+        return None, "the Hessian is not positive definite at the estimate"
+    L = V * w.rsqrt()  # cov = V diag(1/w) Vᵀ = L Lᵀ
+    g = torch.Generator().manual_seed(seed)
+    z = torch.randn(n, len(free), generator=g, dtype=torch.float64)
+    U = fit.u.detach().to(torch.float64).reshape(1, -1).repeat(n, 1)
+    U[:, free] += z @ L.T
+    return fit.model.from_unconstrained(U, h), ""
+
+
+def _ci(samples: np.ndarray):
+    ok = np.isfinite(samples)
+    if ok.sum() < 0.9 * len(samples):
+        return None
+    return (float(np.quantile(samples[ok], 0.025)), float(np.quantile(samples[ok], 0.975)))
+
+
+def axis_terms(fit, y: np.ndarray, h: float, sensor: str, label: str, horizon, inputs: dict | None = None,
+               draws: int = DRAWS, seed: int = 0) -> AxisTerms:
+    """The exported numbers of one axis from its ``fit`` (:class:`~torchtea.fitting.mle.Fit`) to ``y`` (sample
+    time ``h``; ``inputs`` the temperature when the model reads it) — see the module docstring."""
+    if sensor not in UNITS:
+        raise ValueError(f"{label}: a {sensor} channel has no navigation-filter units (accelerometer or gyroscope)")
+    model, values = fit.model, dict(fit.values)
+    units = UNITS[sensor]
+    notes = []
+    n = len(y)
+    m = _taus(horizon, h)
+    tau = m * h
+    t = torch.arange(n, dtype=torch.float64) * h
+    inp = None if inputs is None else {k: torch.as_tensor(v, dtype=torch.float64) for k, v in inputs.items()}
+    temperature = None if inputs is None else inputs.get("temperature")
+    from ..checking.diagnostics import _stochastic_avar
+
+    parts = allan.model_avar(model, values, h, m, by_component=True)
+    parts = {k: v[0] for k, v in parts.items()}
+    mean_labels = [lb for lb, c in model.components if c.kind == "mean"]
+    for lb in mean_labels:  # each mean's AVAR on the recording's samples (for the attribution)
+        sub = {k: v for k, v in values.items() if k.startswith(lb + ".")}
+        comp = dict(model.components)[lb]
+        vv = {p.name: torch.tensor([float(sub[f"{lb}.{p.name}"])], dtype=torch.float64) for p in comp.params}
+        d = comp.mean(vv, t, inp or {})[0].numpy()
+        parts[lb] = allan.deterministic_avar(d - d.mean(), m)
+    det = model.mean(values, t, inp).numpy()[0] if mean_labels else np.zeros(n)
+    det_avar = allan.deterministic_avar(det - det.mean(), m)
+    stoch = _stochastic_avar(model, values, h, m, temperature)
+    total = stoch + det_avar
+
+    # bare values: N from the white measurement variance (white + quantisation), K from a random walk
+    r0 = float(model.measurement_variance(values)[0])
+    k_label = next((lb for lb, c in model.components if c.nav_term == "K"), None)
+    k0 = float(values[f"{k_label}.sigma"]) if k_label else 0.0
+    w_labels = [lb for lb, c in model.components if c.nav_term == "N"]
+    N0 = math.sqrt(r0 * h)
+    bare = {"N": Number(N0, _white_ci(fit, w_labels, h), units["N"],
+                        _how(fit, [f"{lb}.{p.name}" for lb in w_labels for p in dict(model.components)[lb].params],
+                             "√(r Δt), r the white variance per sample") if w_labels else
+                        "the model has no white noise: 0"),
+            "K": Number(k0, tuple(fit.ci95[f"{k_label}.sigma"]) if k_label and fit.ci95.get(f"{k_label}.sigma")
+                        else None, units["K"],
+                        _how(fit, [f"{k_label}.sigma"], "random-walk.sigma") if k_label else
+                        "the model has no random walk: 0")}
+
+    basis = format_avar(m, h)
+    rc, kc2, binding = cover(total, basis, r0, k0)
+    Nc, Kc = math.sqrt(rc * h), math.sqrt(kc2)
+    forced = {}
+    other = {lb: parts[lb] for lb, c in model.components if c.nav_term not in ("N", "K", "bias") and lb in parts}
+    if rc > r0 * (1 + 1e-6) and len(binding):
+        i = int(binding.min())
+        forced["N"] = {"tau_s": float(tau[i]), "component": _largest(other, i)}
+    if kc2 > k0 * k0 * (1 + 1e-6) and len(binding):
+        i = int(binding.max())
+        forced["K"] = {"tau_s": float(tau[i]), "component": _largest(other, i)}
+    fac = {"N": Nc / N0 if N0 > 0 else None, "K": Kc / k0 if k0 > 0 else None}
+
+    # B: the stochastic ADEV's minimum over all τ the recording shows
+    mb = np.unique(np.rint(np.logspace(0, math.log10(max(1, n // 2)), 64)).astype(int))
+    adev_b = np.sqrt(_stochastic_avar(model, values, h, mb, temperature))
+    ib = int(np.argmin(adev_b))
+    B = float(adev_b[ib] / BIAS_INSTABILITY_FACTOR)
+    b_how = (f"ADEV minimum {adev_b[ib]:.4g} at τ {mb[ib] * h:.4g} s / 0.664 (the model's stochastic part, τ from "
+             f"{h:g} s to {mb[-1] * h:.4g} s)")
+    if ib == len(mb) - 1:
+        b_how += "; the ADEV still falls at the longest τ the recording shows: B is an upper bound"
+
+    # intervals of the derived numbers from parameter draws
+    ci = {"B": None, "Nc": None, "Kc": None, "fN": None, "fK": None}
+    V, why = _draws(fit, h, draws, seed)
+    if V is None:
+        notes.append(f"no intervals for B and the covered values: {why}")
+    else:
+        vb = {k: v for k, v in V.items()}
+        st = np.array([_stochastic_avar(model, {k: float(v[j]) for k, v in vb.items()}, h, m, temperature)
+                       for j in range(draws)]) if temperature is not None and model.has("temperature-order") else \
+            allan.model_avar(model, vb, h, m)
+        sb = np.sqrt(allan.model_avar(model, vb, h, mb)).min(axis=1) / BIAS_INSTABILITY_FACTOR
+        r_d = model.measurement_variance(vb).numpy()
+        k_d = vb[f"{k_label}.sigma"].numpy() if k_label else np.zeros(draws)
+        nc, kc = np.full(draws, np.nan), np.full(draws, np.nan)
+        for j in range(draws):
+            try:
+                a, b2, _ = cover(st[j] + det_avar, basis, float(r_d[j]), float(k_d[j]))
+            except (RuntimeError, ValueError):
+                continue
+            nc[j], kc[j] = math.sqrt(a * h), math.sqrt(b2)
+        ci = {"B": _ci(sb), "Nc": _ci(nc), "Kc": _ci(kc),
+              "fN": _ci(nc / np.sqrt(r_d * h)) if N0 > 0 else None, "fK": _ci(kc / k_d) if k0 > 0 else None}
+    draw_how = f"95 % interval from {draws} draws of the parameters' asymptotic normal law"
+    covered = {"N": Number(Nc, ci["Nc"], units["N"], "the cover (module docstring); " + draw_how),
+               "K": Number(Kc, ci["Kc"], units["K"], "the cover (module docstring); " + draw_how)}
+    factor = {"N": None if fac["N"] is None else Number(fac["N"], ci["fN"], "", "covered / bare"),
+              "K": None if fac["K"] is None else Number(fac["K"], ci["fK"], "", "covered / bare")}
+
+    ramp = next((lb for lb, c in model.components if c.nav_term == "R"), None)
+    ieee = {"Q": Number(None, None, units["Q"], "not in the model: no component has the τ⁻¹ ADEV slope of angle "
+                                                "quantisation (a rate's quantisation is white and counts in N)"),
+            "N": bare["N"], "B": Number(B, ci["B"], units["B"], b_how + "; " + draw_how),
+            "K": bare["K"],
+            "R": Number(abs(float(values[f"{ramp}.slope"])) if ramp else 0.0,
+                        None if not ramp or not fit.ci95.get(f"{ramp}.slope") else
+                        _abs_ci(fit.ci95[f"{ramp}.slope"]), units["R"],
+                        _how(fit, [f"{ramp}.slope"], "|ramp.slope|") if ramp else "the model has no ramp: 0")}
+
+    comps = []
+    for lb, c in model.components:
+        v = {p.name: float(values[f"{lb}.{p.name}"]) for p in c.params if f"{lb}.{p.name}" in values}
+        if c.nav_term in ("N", "K"):
+            words = f"{lb}: the format's {'white noise density N' if c.nav_term == 'N' else 'bias random walk K'}"
+        elif c.nav_term == "bias":
+            words = f"{lb}: a constant level, which the filter's bias state holds"
+        else:
+            words = c.nav_note(lb, v, h)
+        comps.append({"label": lb, "effect": c.name, "term": c.nav_term, "words": words})
+    if any(c.kind == "filter" for _, c in model.components):
+        notes.append(next(cc["words"] for cc, (_, c) in zip(comps, model.components) if c.kind == "filter"))
+
+    fmt = basis @ np.array([r0, k0 * k0])
+    fmt_c = basis @ np.array([rc, kc2])
+    curves = {"tau_s": tau.tolist(), "adev_model": np.sqrt(total).tolist(),
+              "adev_components": {k: np.sqrt(np.maximum(v, 0)).tolist() for k, v in parts.items()},
+              "adev_bare": np.sqrt(fmt).tolist(), "adev_covered": np.sqrt(fmt_c).tolist()}
+    if np.isfinite(y).all():  # (the data's ADEV where a quarter of the record holds at least its cluster)
+        ok = m <= n // 4
+        ad = np.full(len(m), np.nan)
+        if ok.any():
+            ad[ok] = allan.data_adev(y, h, m[ok])
+        curves["adev_data"] = ad.tolist()
+    return AxisTerms(label, sensor, h, model.spec, tuple(horizon), bare, covered, factor, forced, ieee, comps,
+                     curves, notes)
+
+
+def _largest(parts: dict, i: int) -> str | None:
+    if not parts:
+        return None
+    return max(parts, key=lambda k: float(parts[k][i]))
+
+
+def _how(fit, names: list, words: str) -> str:
+    methods = sorted({str(fit.ci95_method.get(n)) for n in names if fit.ci95_method.get(n)})
+    return words + (f"; 95 % interval: {', '.join(methods)}" if methods else "")
+
+
+def _abs_ci(c):
+    lo, hi = c
+    if lo <= 0 <= hi:
+        return (0.0, max(abs(lo), abs(hi)))
+    return tuple(sorted((abs(lo), abs(hi))))
+
+
+def _white_ci(fit, labels: list, h: float):
+    """N's interval from the white component's (a monotone map); with quantisation beside it, none."""
+    if len(labels) != 1:
+        return None
+    lb = labels[0]
+    comp = dict(fit.model.components)[lb]
+    name = f"{lb}.{comp.params[0].name}"
+    c = fit.ci95.get(name)
+    if not c:
+        return None
+    r = [comp.measurement_variance({comp.params[0].name: torch.tensor([float(x)], dtype=torch.float64)})
+         for x in c]
+    return tuple(math.sqrt(max(float(x[0]), 0.0) * h) for x in r)

@@ -266,3 +266,36 @@ def test_the_model_spectrum_is_the_sum_of_its_components():
     parts = m.component_spectra(v, w, H)
     assert set(parts) == {"fractional", "white", "random-walk"}
     assert torch.allclose(sum(parts.values()), m.spectrum(v, w, H), rtol=1e-12)
+
+
+def test_fit_and_check_export_the_model_they_end_with(tmp_path, capsys):
+    """``fit --export`` writes beside its JSON; ``check --export`` into OUT/export, from the model the loop ends
+    with (here one gyroscope axis of white noise + random walk, checked from white + random-walk)."""
+    path, units = _six_csv(tmp_path, n=4000)
+    assert main(["fit", str(path), "--units", units, "--model", "white+random-walk", "--out", str(tmp_path / "f" / "fit.json"),
+                 "--export", "ieee952", "--nees", "0"]) == 0
+    rows = list(csv.DictReader(io.StringIO((tmp_path / "f" / "export" / "ieee952.csv").read_text())))
+    fit = json.loads((tmp_path / "f" / "fit.json").read_text())
+    n_ax = next(float(r["value"]) for r in rows if r["axis"] == "ax" and r["coefficient"] == "N")
+    assert n_ax == pytest.approx(fit["axes"]["ax"]["white_noise_density"], rel=1e-6)
+    assert main(["check", str(path), "--units", "rad/s", "--columns", "gyr_x", "--model", "white+random-walk",
+                 "--no-plots", "--out", str(tmp_path / "c"), "--export", "ieee952", "--nees", "8"]) == 0
+    doc = json.loads((tmp_path / "c" / "export" / "export.json").read_text())
+    assert list(doc["axes"]) == ["gx"] and doc["axes"]["gx"]["model"] == json.loads(
+        (tmp_path / "c" / "check.json").read_text())["axes"]["gx"]["model"]
+    assert main(["check", str(path), "--units", "rad/s", "--columns", "gyr_x", "--no-intervals", "--export", "ieee952",
+                 "--out", str(tmp_path / "c2")]) == 2
+    assert "drop --no-intervals" in capsys.readouterr().err
+
+
+def test_a_ramp_is_ieee952s_r_and_named_as_outside_the_filter_formats(tmp_path):
+    n = 6000
+    y = _series("gx", n, 7) + 2e-4 * (np.arange(n) * H)  # a rate ramp of 2e-4 rad/s² on white + walk
+    fit = fit_series("white+random-walk+ramp", [y], H, method="exact")[0]
+    a = export_axes({"gx": fit}, {"gx": y}, {"gx": "gyroscope"}, H, (0.01, 20.0), nees=0, draws=40)[0]
+    assert a.ieee["R"].value == pytest.approx(abs(fit.values["ramp.slope"])) and a.ieee["R"].unit == "rad/s^2"
+    lo, hi = a.ieee["R"].ci95
+    assert lo <= 2e-4 <= hi
+    assert any(c["term"] == "R" and "no term for it" in c["words"] for c in a.components)
+    text = FORMATS["ieee952"].render([a], {}) + FORMATS["kalibr"].preamble([a], {}, "covered")[-1]
+    assert "# not in the format (gx): ramp: a rate ramp" in text

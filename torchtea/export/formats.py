@@ -11,6 +11,8 @@ from __future__ import annotations
 import csv
 import io
 
+from .terms import IN_FORMATS
+
 __all__ = ["Format", "FORMATS", "register_format", "sensor_values", "FormatError"]
 
 
@@ -93,7 +95,7 @@ class Format:
                  "export.md for what the format leaves out)"]
         for a in axes:
             for c in a.components:
-                if c["term"] is None:
+                if c["term"] not in IN_FORMATS:
                     lines.append(f"# not in the format ({a.label}): {c['words']}")
         return lines
 

@@ -8,7 +8,7 @@ import numpy as np
 
 from .formats import FORMATS, FormatError
 from .nees import nees_study
-from .terms import DRAWS, axis_terms
+from .terms import DRAWS, IN_FORMATS, axis_terms
 
 __all__ = ["export_axes", "write_export", "resolve_formats", "NEES_TAUS"]
 
@@ -120,7 +120,7 @@ def markdown(axes: list, doc: dict) -> str:
         lines.append(f"| {a.label} | " + " | ".join(cells) + " |")
     lines += ["", "B is the model's ADEV minimum / 0.664; Q is not in any model (a rate's quantisation is white and "
                   "counts in N).", "", "## What the formats leave out", ""]
-    left = [f"- {a.label}: {c['words']}" for a in axes for c in a.components if c["term"] is None]
+    left = [f"- {a.label}: {c['words']}" for a in axes for c in a.components if c["term"] not in IN_FORMATS]
     left += [f"- {a.label}: note: {x}" for a in axes for x in a.notes]
     lines += left or ["Nothing: every component is white noise, a random walk, a ramp or a constant level."]
     study = [a for a in axes if a.nees]

@@ -44,6 +44,9 @@ DEFAULT_HORIZON = (0.005, 100.0)
 #: ADEV of flicker (bias instability) noise at its floor, over B: √(2 ln 2 / π) (IEEE Std 952-1997, C.1.4).
 BIAS_INSTABILITY_FACTOR = math.sqrt(2.0 * math.log(2.0) / math.pi)
 
+#: The terms Kalibr, VINS and ORB-SLAM3 hold (a constant level is their bias state's start).
+IN_FORMATS = ("N", "K", "bias")
+
 #: Units of N, K, B, R (and the rate) per sensor (SI; the formats' documented units).
 UNITS = {"accelerometer": {"rate": "m/s^2", "N": "m/s^2/sqrt(Hz)", "K": "m/s^3/sqrt(Hz)", "B": "m/s^2",
                            "R": "m/s^3", "Q": "m/s"},
@@ -305,6 +308,9 @@ def axis_terms(fit, y: np.ndarray, h: float, sensor: str, label: str, horizon, i
             words = f"{lb}: the format's {'white noise density N' if c.nav_term == 'N' else 'bias random walk K'}"
         elif c.nav_term == "bias":
             words = f"{lb}: a constant level, which the filter's bias state holds"
+        elif c.nav_term == "R":
+            words = (f"{lb}: a rate ramp, IEEE 952's R (slope {v['slope']:.4g}); Kalibr, VINS and ORB-SLAM3 have no "
+                     "term for it: covered by raising K")
         else:
             words = c.nav_note(lb, v, h)
         comps.append({"label": lb, "effect": c.name, "term": c.nav_term, "words": words})

@@ -43,7 +43,7 @@ def six_axes():
     fits = {a: fit_series("white+random-walk", [y], H, method="exact")[0] for a, y in series.items()}
     sensors = {a: "accelerometer" if a[0] == "a" else "gyroscope" for a in series}
     horizon, _ = parse_horizon(None, H, 20_000)
-    axes = export_axes(fits, series, sensors, H, horizon, nees=0, draws=60)
+    axes = export_axes(fits, series, sensors, H, horizon, nees=0)
     return series, fits, axes
 
 
@@ -138,7 +138,7 @@ def fractional_axis():
     y = simulate_model(m, default_values(m, H), n_steps=30_000, h=H,
                        generator=torch.Generator().manual_seed(1))[0, 0].numpy()
     fit = fit_series(m, [y], H, method="exact")[0]
-    a = export_axes({"ax": fit}, {"ax": y}, {"ax": "accelerometer"}, H, (0.01, 100.0), nees=0, draws=60)[0]
+    a = export_axes({"ax": fit}, {"ax": y}, {"ax": "accelerometer"}, H, (0.01, 100.0), nees=0)[0]
     return fit, a
 
 
@@ -292,7 +292,7 @@ def test_a_ramp_is_ieee952s_r_and_named_as_outside_the_filter_formats(tmp_path):
     n = 6000
     y = _series("gx", n, 7) + 2e-4 * (np.arange(n) * H)  # a rate ramp of 2e-4 rad/s² on white + walk
     fit = fit_series("white+random-walk+ramp", [y], H, method="exact")[0]
-    a = export_axes({"gx": fit}, {"gx": y}, {"gx": "gyroscope"}, H, (0.01, 20.0), nees=0, draws=40)[0]
+    a = export_axes({"gx": fit}, {"gx": y}, {"gx": "gyroscope"}, H, (0.01, 20.0), nees=0)[0]
     assert a.ieee["R"].value == pytest.approx(abs(fit.values["ramp.slope"])) and a.ieee["R"].unit == "rad/s^2"
     lo, hi = a.ieee["R"].ci95
     assert lo <= 2e-4 <= hi

@@ -8,7 +8,7 @@ import numpy as np
 
 from .formats import FORMATS, FormatError
 from .nees import nees_study
-from .terms import DRAWS, IN_FORMATS, axis_terms
+from .terms import IN_FORMATS, axis_terms
 
 __all__ = ["export_axes", "write_export", "resolve_formats", "NEES_TAUS"]
 
@@ -35,14 +35,14 @@ def resolve_formats(names) -> list:
 
 
 def export_axes(fits: dict, series: dict, sensors: dict, h: float, horizon, inputs: dict | None = None,
-                nees: int = 64, seed: int = 0, draws: int = DRAWS) -> list:
+                nees: int = 64, seed: int = 0) -> list:
     """``fits``/``series``/``sensors``: per axis label, its :class:`~torchtea.fitting.mle.Fit`, samples and sensor.
     Returns the :class:`~.terms.AxisTerms`, each with ``nees`` (the study with that many realisations; 0: none)."""
     out = []
     for label, fit in fits.items():
         y = np.asarray(series[label], dtype=np.float64)
         inp = inputs if inputs is not None and any(c.inputs for _, c in fit.model.components) else None
-        a = axis_terms(fit, y, h, sensors[label], label, horizon, inputs=inp, seed=seed, draws=draws)
+        a = axis_terms(fit, y, h, sensors[label], label, horizon, inputs=inp, seed=seed)
         if nees:
             n = min(len(y), NEES_SAMPLES)
             sets = {"bare": (a.bare["N"].value, a.bare["K"].value),

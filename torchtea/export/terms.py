@@ -23,8 +23,12 @@ covers the shortest τ and K_s alone the longest (a linear programme). A white +
 own values. Each raised value names the τ that forced it and the component that contributes most there.
 
 **Intervals.** N and K carry the fit's 95 % intervals (its method named). Derived numbers (B, the covered values,
-the factors) get theirs from draws of the parameters' asymptotic normal law on the optimisers' scale (the fit's
-Hessian), each draw taken through the same computation: the 2.5 and 97.5 % points.
+the factors) get theirs by the delta method on the log scale: central differences of the whole computation on the
+optimisers' unconstrained scale, with the inverse of the fit's observed information there. (Draws from that
+normal law were tried first: along the order–pole ridge of a fractional fit a draw leaves the ridge and its Allan
+deviation explodes — upper bounds of 10¹⁷ on real axes — while the ADEV, what the cover reads, is well
+determined; the local, linear propagation follows the ridge.) Where the observed information is not positive
+definite (an order at its bound) there is no interval, and the notes say so.
 """
 from __future__ import annotations
 
@@ -52,9 +56,6 @@ UNITS = {"accelerometer": {"rate": "m/s^2", "N": "m/s^2/sqrt(Hz)", "K": "m/s^3/s
                            "R": "m/s^3", "Q": "m/s"},
          "gyroscope": {"rate": "rad/s", "N": "rad/s/sqrt(Hz)", "K": "rad/s^2/sqrt(Hz)", "B": "rad/s",
                        "R": "rad/s^2", "Q": "rad"}}
-
-#: Parameter draws for the derived numbers' intervals.
-DRAWS = 200
 
 #: τ points of the cover per decade of the horizon.
 PER_DECADE = 24
@@ -166,36 +167,62 @@ def _taus(horizon, h: float) -> np.ndarray:
     return m[m >= 1]
 
 
-def _draws(fit, h: float, n: int, seed: int):
-    """Parameter sets drawn from the fit's asymptotic normal law (on the optimisers' scale): a dict of ``(n,)``
-    tensors, or None with the reason."""
+def _delta_intervals(fit, h: float, fn, keys: tuple) -> tuple[dict, str]:
+    """95 % intervals of the derived numbers ``fn(values) -> {key: value}`` by the delta method on the log scale:
+    central differences on the optimisers' unconstrained scale, the covariance the inverse of the fit's Hessian
+    there (its free parameters). A number that is 0 gets the linear-scale interval clipped at 0. Returns
+    ``({key: (lo, hi) or None}, why-none)``."""
+    none = {k: None for k in keys}
     if fit.u is None or fit.hessian is None:
-        return None, "no Hessian (the fit ran without intervals)"
+        return none, "no Hessian (the fit ran without intervals)"
     H = fit.hessian.detach().to(torch.float64)
-    free = torch.nonzero(H.abs().sum(1) > 0).flatten()
-    if len(free) == 0:
-        return None, "no free parameter"
+    free = torch.nonzero(H.abs().sum(1) > 0).flatten().tolist()
+    if not free:
+        return none, "no free parameter"
     Hf = H[free][:, free]
     w, V = torch.linalg.eigh(0.5 * (Hf + Hf.T))
     if bool((w <= 0).any()):
-        return None, "the Hessian is not positive definite at the estimate"
-    L = V * w.rsqrt()  # cov = V diag(1/w) Vᵀ = L Lᵀ
-    g = torch.Generator().manual_seed(seed)
-    z = torch.randn(n, len(free), generator=g, dtype=torch.float64)
-    U = fit.u.detach().to(torch.float64).reshape(1, -1).repeat(n, 1)
-    U[:, free] += z @ L.T
-    return fit.model.from_unconstrained(U, h), ""
+        return none, "the observed information is not positive definite at the estimate"
+    cov = (V / w) @ V.T
+    u0 = fit.u.detach().to(torch.float64).reshape(-1)
 
+    def at(u):
+        v = fit.model.from_unconstrained(u.reshape(1, -1), h)
+        return fn({k: float(x[0]) for k, x in v.items()})
 
-def _ci(samples: np.ndarray):
-    ok = np.isfinite(samples)
-    if ok.sum() < 0.9 * len(samples):
-        return None
-    return (float(np.quantile(samples[ok], 0.025)), float(np.quantile(samples[ok], 0.975)))
+    g0 = at(u0)
+    grads = {k: np.zeros(len(free)) for k in keys}
+    lin = {k: not (g0[k] is not None and g0[k] > 0) for k in keys}
+    for a, i in enumerate(free):
+        d = 1e-4 * max(1.0, abs(float(u0[i])))
+        up, dn = u0.clone(), u0.clone()
+        up[i] += d
+        dn[i] -= d
+        gu, gd = at(up), at(dn)
+        for k in keys:
+            if g0[k] is None or gu[k] is None or gd[k] is None:
+                continue
+            if lin[k] or gu[k] <= 0 or gd[k] <= 0:
+                lin[k] = True
+                grads[k][a] = (gu[k] - gd[k]) / (2 * d)
+            else:
+                grads[k][a] = (math.log(gu[k]) - math.log(gd[k])) / (2 * d)
+    C = cov.numpy()
+    out = {}
+    for k in keys:
+        if g0[k] is None:
+            out[k] = None
+            continue
+        sd = math.sqrt(max(float(grads[k] @ C @ grads[k]), 0.0))
+        if lin[k]:
+            out[k] = (max(0.0, g0[k] - 1.96 * sd), g0[k] + 1.96 * sd)
+        else:
+            out[k] = (g0[k] * math.exp(-1.96 * sd), g0[k] * math.exp(1.96 * sd))
+    return out, ""
 
 
 def axis_terms(fit, y: np.ndarray, h: float, sensor: str, label: str, horizon, inputs: dict | None = None,
-               draws: int = DRAWS, seed: int = 0) -> AxisTerms:
+               seed: int = 0) -> AxisTerms:
     """The exported numbers of one axis from its ``fit`` (:class:`~torchtea.fitting.mle.Fit`) to ``y`` (sample
     time ``h``; ``inputs`` the temperature when the model reads it) — see the module docstring."""
     if sensor not in UNITS:
@@ -244,57 +271,46 @@ def axis_terms(fit, y: np.ndarray, h: float, sensor: str, label: str, horizon, i
     rc, kc2, binding = cover(total, basis, r0, k0)
     Nc, Kc = math.sqrt(rc * h), math.sqrt(kc2)
     forced = {}
-    other = {lb: parts[lb] for lb, c in model.components if c.nav_term not in ("N", "K", "bias") and lb in parts}
+    other = {lb: parts[lb] for lb, c in model.components if c.nav_term not in IN_FORMATS and lb in parts}
     if rc > r0 * (1 + 1e-6) and len(binding):
         i = int(binding.min())
         forced["N"] = {"tau_s": float(tau[i]), "component": _largest(other, i)}
     if kc2 > k0 * k0 * (1 + 1e-6) and len(binding):
         i = int(binding.max())
         forced["K"] = {"tau_s": float(tau[i]), "component": _largest(other, i)}
-    fac = {"N": Nc / N0 if N0 > 0 else None, "K": Kc / k0 if k0 > 0 else None}
 
     # B: the stochastic ADEV's minimum over all τ the recording shows
     mb = np.unique(np.rint(np.logspace(0, math.log10(max(1, n // 2)), 64)).astype(int))
     adev_b = np.sqrt(_stochastic_avar(model, values, h, mb, temperature))
     ib = int(np.argmin(adev_b))
-    B = float(adev_b[ib] / BIAS_INSTABILITY_FACTOR)
     b_how = (f"ADEV minimum {adev_b[ib]:.4g} at τ {mb[ib] * h:.4g} s / 0.664 (the model's stochastic part, τ from "
              f"{h:g} s to {mb[-1] * h:.4g} s)")
     if ib == len(mb) - 1:
         b_how += "; the ADEV still falls at the longest τ the recording shows: B is an upper bound"
 
-    # intervals of the derived numbers from parameter draws
-    ci = {"B": None, "Nc": None, "Kc": None, "fN": None, "fK": None}
-    V, why = _draws(fit, h, draws, seed)
-    if V is None:
+    def derived(v: dict) -> dict:
+        """B, the covered values and their factors at parameter values ``v`` (the deterministic part held)."""
+        r, k = float(model.measurement_variance(v)[0]), float(v[f"{k_label}.sigma"]) if k_label else 0.0
+        a, b2, _ = cover(_stochastic_avar(model, v, h, m, temperature) + det_avar, basis, r, k)
+        nc, kc = math.sqrt(a * h), math.sqrt(b2)
+        return {"B": float(np.sqrt(_stochastic_avar(model, v, h, mb, temperature)).min() / BIAS_INSTABILITY_FACTOR),
+                "Nc": nc, "Kc": kc, "fN": nc / math.sqrt(r * h) if r > 0 else None, "fK": kc / k if k > 0 else None}
+
+    point = derived(values)
+    ci, why = _delta_intervals(fit, h, derived, tuple(point))
+    if why:
         notes.append(f"no intervals for B and the covered values: {why}")
-    else:
-        vb = {k: v for k, v in V.items()}
-        st = np.array([_stochastic_avar(model, {k: float(v[j]) for k, v in vb.items()}, h, m, temperature)
-                       for j in range(draws)]) if temperature is not None and model.has("temperature-order") else \
-            allan.model_avar(model, vb, h, m)
-        sb = np.sqrt(allan.model_avar(model, vb, h, mb)).min(axis=1) / BIAS_INSTABILITY_FACTOR
-        r_d = model.measurement_variance(vb).numpy()
-        k_d = vb[f"{k_label}.sigma"].numpy() if k_label else np.zeros(draws)
-        nc, kc = np.full(draws, np.nan), np.full(draws, np.nan)
-        for j in range(draws):
-            try:
-                a, b2, _ = cover(st[j] + det_avar, basis, float(r_d[j]), float(k_d[j]))
-            except (RuntimeError, ValueError):
-                continue
-            nc[j], kc[j] = math.sqrt(a * h), math.sqrt(b2)
-        ci = {"B": _ci(sb), "Nc": _ci(nc), "Kc": _ci(kc),
-              "fN": _ci(nc / np.sqrt(r_d * h)) if N0 > 0 else None, "fK": _ci(kc / k_d) if k0 > 0 else None}
-    draw_how = f"95 % interval from {draws} draws of the parameters' asymptotic normal law"
-    covered = {"N": Number(Nc, ci["Nc"], units["N"], "the cover (module docstring); " + draw_how),
-               "K": Number(Kc, ci["Kc"], units["K"], "the cover (module docstring); " + draw_how)}
-    factor = {"N": None if fac["N"] is None else Number(fac["N"], ci["fN"], "", "covered / bare"),
-              "K": None if fac["K"] is None else Number(fac["K"], ci["fK"], "", "covered / bare")}
+    how = "95 % interval by the delta method (log scale) from the fit's observed information"
+    covered = {"N": Number(point["Nc"], ci["Nc"], units["N"], "the cover (module docstring); " + how),
+               "K": Number(point["Kc"], ci["Kc"], units["K"], "the cover (module docstring); " + how)}
+    factor = {t: None if point["f" + t] is None else Number(point["f" + t], ci["f" + t], "", "covered / bare; " + how)
+              for t in ("N", "K")}
+    B = point["B"]
 
     ramp = next((lb for lb, c in model.components if c.nav_term == "R"), None)
     ieee = {"Q": Number(None, None, units["Q"], "not in the model: no component has the τ⁻¹ ADEV slope of angle "
                                                 "quantisation (a rate's quantisation is white and counts in N)"),
-            "N": bare["N"], "B": Number(B, ci["B"], units["B"], b_how + "; " + draw_how),
+            "N": bare["N"], "B": Number(B, ci["B"], units["B"], b_how + "; " + how),
             "K": bare["K"],
             "R": Number(abs(float(values[f"{ramp}.slope"])) if ramp else 0.0,
                         None if not ramp or not fit.ci95.get(f"{ramp}.slope") else

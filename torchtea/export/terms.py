@@ -51,6 +51,9 @@ BIAS_INSTABILITY_FACTOR = math.sqrt(2.0 * math.log(2.0) / math.pi)
 #: The terms Kalibr, VINS and ORB-SLAM3 hold (a constant level is their bias state's start).
 IN_FORMATS = ("N", "K", "bias")
 
+#: |logit| beyond which a bounded parameter is at its bound for the intervals (held there).
+AT_BOUND = 8.0
+
 #: Units of N, K, B, R (and the rate) per sensor (SI; the formats' documented units).
 UNITS = {"accelerometer": {"rate": "m/s^2", "N": "m/s^2/sqrt(Hz)", "K": "m/s^3/sqrt(Hz)", "B": "m/s^2",
                            "R": "m/s^3", "Q": "m/s"},
@@ -171,20 +174,26 @@ def _delta_intervals(fit, h: float, fn, keys: tuple) -> tuple[dict, str]:
     """95 % intervals of the derived numbers ``fn(values) -> {key: value}`` by the delta method on the log scale:
     central differences on the optimisers' unconstrained scale, the covariance the inverse of the fit's Hessian
     there (its free parameters). A number that is 0 gets the linear-scale interval clipped at 0. Returns
-    ``({key: (lo, hi) or None}, why-none)``."""
+    ``({key: (lo, hi) or None}, why-none, the parameters held at a bound)``."""
     none = {k: None for k in keys}
     if fit.u is None or fit.hessian is None:
-        return none, "no Hessian (the fit ran without intervals)"
+        return none, "no Hessian (the fit ran without intervals)", []
     H = fit.hessian.detach().to(torch.float64)
+    u0 = fit.u.detach().to(torch.float64).reshape(-1)
+    names = fit.model.names
     free = torch.nonzero(H.abs().sum(1) > 0).flatten().tolist()
+    # a parameter at a bound of its range (an order at 1, a logit beyond ±8: within 3e-4 of the end) carries no
+    # information there; it is held at its estimate and the others' law taken given it (said so)
+    held = [names[i] for i in free if fit.model.param_spec(names[i]).kind in ("bounded", "fraction", "nyquist")
+            and abs(float(u0[i])) > AT_BOUND]
+    free = [i for i in free if names[i] not in held]
     if not free:
-        return none, "no free parameter"
+        return none, "no free parameter", held
     Hf = H[free][:, free]
     w, V = torch.linalg.eigh(0.5 * (Hf + Hf.T))
     if bool((w <= 0).any()):
-        return none, "the observed information is not positive definite at the estimate"
+        return none, "the observed information is not positive definite at the estimate", held
     cov = (V / w) @ V.T
-    u0 = fit.u.detach().to(torch.float64).reshape(-1)
 
     def at(u):
         v = fit.model.from_unconstrained(u.reshape(1, -1), h)
@@ -218,7 +227,7 @@ def _delta_intervals(fit, h: float, fn, keys: tuple) -> tuple[dict, str]:
             out[k] = (max(0.0, g0[k] - 1.96 * sd), g0[k] + 1.96 * sd)
         else:
             out[k] = (g0[k] * math.exp(-1.96 * sd), g0[k] * math.exp(1.96 * sd))
-    return out, ""
+    return out, "", held
 
 
 def axis_terms(fit, y: np.ndarray, h: float, sensor: str, label: str, horizon, inputs: dict | None = None,
@@ -293,18 +302,26 @@ def axis_terms(fit, y: np.ndarray, h: float, sensor: str, label: str, horizon, i
         r, k = float(model.measurement_variance(v)[0]), float(v[f"{k_label}.sigma"]) if k_label else 0.0
         a, b2, _ = cover(_stochastic_avar(model, v, h, m, temperature) + det_avar, basis, r, k)
         nc, kc = math.sqrt(a * h), math.sqrt(b2)
-        return {"B": float(np.sqrt(_stochastic_avar(model, v, h, mb, temperature)).min() / BIAS_INSTABILITY_FACTOR),
+        return {"N0": math.sqrt(r * h), "K0": k,
+                "B": float(np.sqrt(_stochastic_avar(model, v, h, mb, temperature)).min() / BIAS_INSTABILITY_FACTOR),
                 "Nc": nc, "Kc": kc, "fN": nc / math.sqrt(r * h) if r > 0 else None, "fK": kc / k if k > 0 else None}
 
     point = derived(values)
-    ci, why = _delta_intervals(fit, h, derived, tuple(point))
+    ci, why, held = _delta_intervals(fit, h, derived, tuple(point))
     if why:
         notes.append(f"no intervals for B and the covered values: {why}")
-    how = "95 % interval by the delta method (log scale) from the fit's observed information"
+    if held:
+        notes.append(f"{', '.join(held)} at the bound of its range: the intervals are those given it held there")
+    how = "95 % interval by the delta method (log scale) from the fit's observed information" + (
+        f", {', '.join(held)} held at its bound" if held else "")
+    for t, key in (("N", "N0"), ("K", "K0")):  # the fit's own interval, else the delta method's
+        if bare[t].ci95 is None and ci.get(key) is not None and bare[t].value > 0:
+            bare[t] = Number(bare[t].value, ci[key], bare[t].unit, bare[t].how.split("; 95 %")[0] + "; " + how)
     covered = {"N": Number(point["Nc"], ci["Nc"], units["N"], "the cover (module docstring); " + how),
                "K": Number(point["Kc"], ci["Kc"], units["K"], "the cover (module docstring); " + how)}
-    factor = {t: None if point["f" + t] is None else Number(point["f" + t], ci["f" + t], "", "covered / bare; " + how)
-              for t in ("N", "K")}
+    factor = {t: None if point["f" + t] is None else  # (≥ 1 by construction: its interval is clipped there)
+              Number(point["f" + t], None if ci["f" + t] is None else (max(1.0, ci["f" + t][0]), ci["f" + t][1]), "",
+                     "covered / bare; " + how) for t in ("N", "K")}
     B = point["B"]
 
     ramp = next((lb for lb, c in model.components if c.nav_term == "R"), None)

@@ -299,3 +299,20 @@ def test_a_ramp_is_ieee952s_r_and_named_as_outside_the_filter_formats(tmp_path):
     assert any(c["term"] == "R" and "no term for it" in c["words"] for c in a.components)
     text = FORMATS["ieee952"].render([a], {}) + FORMATS["kalibr"].preamble([a], {}, "covered")[-1]
     assert "# not in the format (gx): ramp: a rate ramp" in text
+
+
+def test_the_delta_interval_takes_one_scale_per_number(six_axes):
+    """A number that is positive at the estimate but not at every perturbation gets the linear-scale interval
+    throughout (a regression: log-scale gradients of earlier parameters were mixed into a linear one)."""
+    from torchtea.export.terms import _delta_intervals
+
+    _, fits, _ = six_axes
+    fit = fits["ax"]
+    r = fit.values["white.r"]
+    fn = lambda v: {"r": v["white.r"], "mixed": v["white.r"] - r * (1 - 1e-9)}  # noqa: E731 (≈ 0 at the estimate)
+    ci, why, held = _delta_intervals(fit, H, fn, ("r", "mixed"))
+    assert not why and not held
+    half_log = math.log(ci["r"][1] / ci["r"][0]) / 2  # 1.96 × the SE of log r
+    assert ci["mixed"][0] == 0.0  # (clipped at 0: the number is ≈ 0 at the estimate)
+    half_lin = ci["mixed"][1] - r * 1e-9  # 1.96 × the SE of r: r × that of log r
+    assert half_lin == pytest.approx(r * half_log, rel=1e-3)

@@ -513,7 +513,7 @@ def _export_flags(parser, *, standalone: bool) -> None:
     parser.add_argument("--nees", type=int, default=64, metavar="M",
                         help="realisations of the filter NEES study of the bare and covered values" + from_what
                              + " (default 64; 0: not run)")
-    parser.add_argument("--export-seed", type=int, default=0, help="seed of the NEES study and the intervals' draws")
+    parser.add_argument("--export-seed", type=int, default=0, help="seed of the NEES study's simulated series")
 
 
 def _units_of(m) -> dict:

@@ -50,14 +50,13 @@ def _comment(v: dict, which: str) -> list[str]:
     lines = [f"#   {v['unit']}, the largest of the axes ({', '.join(f'{k} {x:.4g}' for k, x in v['axes'].items())}): "
              f"{v['axis']}, {which} value, {_ci(v['ci95'])}",
              f"#   {other}: {v[other]:.4g} ({_ci(v[other + '_ci95'])})"]
+    fb = v["forced_by"] or {}
+    where = (f", forced at τ {fb['tau_s']:.3g} s by {fb['component']}" if fb.get("component") else
+             f", forced at τ {fb['tau_s']:.3g} s" if fb else "")
     if v["factor"] is not None and v["factor"] > 1 + 1e-6:
-        fb = v["forced_by"] or {}
-        lines.append(f"#   the cover raises the bare value × {v['factor']:.3g}, forced at τ {fb.get('tau_s', 0):.3g} s "
-                     f"by {fb.get('component')}")
+        lines.append(f"#   the cover raises the bare value × {v['factor']:.3g}{where}")
     elif v["bare"] == 0 and v["covered"] > 0:
-        fb = v["forced_by"] or {}
-        lines.append(f"#   the model has none; the cover needs it at τ {fb.get('tau_s', 0):.3g} s "
-                     f"for {fb.get('component')}")
+        lines.append(f"#   the model has none; the cover needs it{where}")
     return lines
 
 

@@ -42,12 +42,12 @@ def bias_filter(y: np.ndarray, h: float, N: float, K: float) -> tuple[np.ndarray
     return b, P
 
 
-def outage_nees(y: np.ndarray, h: float, N: float, K: float, L: int) -> tuple[np.ndarray, np.ndarray]:
+def outage_nees(y: np.ndarray, h: float, N: float, K: float, L: int, filtered=None) -> tuple[np.ndarray, np.ndarray]:
     """NEES of the outages of ``L`` samples: those starting at k = n/2, n/2 + L, … → ``(M, W)``; and the one ending
-    at the last sample ``(M,)``."""
+    at the last sample ``(M,)``. ``filtered``: :func:`bias_filter`'s output for these (N, K), when already run."""
     y = np.atleast_2d(np.asarray(y, dtype=np.float64))
     M, n = y.shape
-    b, P = bias_filter(y, h, N, K)
+    b, P = bias_filter(y, h, N, K) if filtered is None else filtered
     c = np.concatenate([np.zeros((M, 1)), np.cumsum(y, axis=1)], axis=1)  # c[:, j] = Σ_{i<j} y_i
 
     def nees(k):
@@ -84,14 +84,19 @@ def nees_study(model, values: dict, h: float, n: int, values_sets: dict, taus, r
                       "realisations, 95 % band 'band'; 'nees_mean': every outage of the second half"}
     for name, (N, K) in values_sets.items():
         rows = []
+        ok = N > 0 and math.isfinite(N) and math.isfinite(K)
+        filtered = bias_filter(y, h, N, K) if ok else None  # (the same filter for every outage)
         for L in Ls:
-            if not (N > 0 and math.isfinite(N)):
+            if not ok:
                 rows.append({"tau_s": L * h, "nees_end": None, "nees_mean": None,
                              "verdict": "not run: N is 0 (the filter needs a measurement noise)"})
                 continue
-            every, end = outage_nees(y, h, N, K, L)
+            every, end = outage_nees(y, h, N, K, L, filtered)
             e = float(end.mean())
-            rows.append({"tau_s": L * h, "nees_end": e, "nees_mean": float(every.mean()) if every.size else None,
-                         "verdict": "overconfident" if e > hi else "conservative" if e < lo else "consistent"})
+            verdict = ("not computed (a non-finite error: the simulated series or the filter diverged)"
+                       if not math.isfinite(e) else
+                       "overconfident" if e > hi else "conservative" if e < lo else "consistent")
+            rows.append({"tau_s": L * h, "nees_end": e if math.isfinite(e) else None,
+                         "nees_mean": float(every.mean()) if every.size else None, "verdict": verdict})
         out[name] = {"N": N, "K": K, "outages": rows}
     return out

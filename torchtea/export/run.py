@@ -42,7 +42,7 @@ def export_axes(fits: dict, series: dict, sensors: dict, h: float, horizon, inpu
     for label, fit in fits.items():
         y = np.asarray(series[label], dtype=np.float64)
         inp = inputs if inputs is not None and any(c.inputs for _, c in fit.model.components) else None
-        a = axis_terms(fit, y, h, sensors[label], label, horizon, inputs=inp, seed=seed)
+        a = axis_terms(fit, y, h, sensors[label], label, horizon, inputs=inp)
         if nees:
             n = min(len(y), NEES_SAMPLES)
             sets = {"bare": (a.bare["N"].value, a.bare["K"].value),

@@ -170,7 +170,7 @@ def _taus(horizon, h: float) -> np.ndarray:
     return m[m >= 1]
 
 
-def _delta_intervals(fit, h: float, fn, keys: tuple) -> tuple[dict, str]:
+def _delta_intervals(fit, h: float, fn, keys: tuple) -> tuple[dict, str, list]:
     """95 % intervals of the derived numbers ``fn(values) -> {key: value}`` by the delta method on the log scale:
     central differences on the optimisers' unconstrained scale, the covariance the inverse of the fit's Hessian
     there (its free parameters). A number that is 0 gets the linear-scale interval clipped at 0. Returns
@@ -188,7 +188,7 @@ def _delta_intervals(fit, h: float, fn, keys: tuple) -> tuple[dict, str]:
             and abs(float(u0[i])) > AT_BOUND]
     free = [i for i in free if names[i] not in held]
     if not free:
-        return none, "no free parameter", held
+        return none, "the fit's Hessian is zero: no parameter's information", held
     Hf = H[free][:, free]
     w, V = torch.linalg.eigh(0.5 * (Hf + Hf.T))
     if bool((w <= 0).any()):
@@ -200,26 +200,24 @@ def _delta_intervals(fit, h: float, fn, keys: tuple) -> tuple[dict, str]:
         return fn({k: float(x[0]) for k, x in v.items()})
 
     g0 = at(u0)
-    grads = {k: np.zeros(len(free)) for k in keys}
-    lin = {k: not (g0[k] is not None and g0[k] > 0) for k in keys}
-    for a, i in enumerate(free):
+    pairs = []  # every (step, value up, value down) first: log or linear scale is then decided once per number
+    for i in free:
         d = 1e-4 * max(1.0, abs(float(u0[i])))
         up, dn = u0.clone(), u0.clone()
         up[i] += d
         dn[i] -= d
-        gu, gd = at(up), at(dn)
-        for k in keys:
-            if g0[k] is None or gu[k] is None or gd[k] is None:
-                continue
-            if lin[k] or gu[k] <= 0 or gd[k] <= 0:
-                lin[k] = True
-                grads[k][a] = (gu[k] - gd[k]) / (2 * d)
-            else:
-                grads[k][a] = (math.log(gu[k]) - math.log(gd[k])) / (2 * d)
+        pairs.append((d, at(up), at(dn)))
+    grads, lin = {}, {}
+    for k in keys:
+        if g0[k] is None or any(gu[k] is None or gd[k] is None for _, gu, gd in pairs):
+            continue
+        lin[k] = not (g0[k] > 0 and all(gu[k] > 0 and gd[k] > 0 for _, gu, gd in pairs))
+        grads[k] = np.array([(gu[k] - gd[k]) / (2 * d) if lin[k] else
+                             (math.log(gu[k]) - math.log(gd[k])) / (2 * d) for d, gu, gd in pairs])
     C = cov.numpy()
     out = {}
     for k in keys:
-        if g0[k] is None:
+        if k not in grads:
             out[k] = None
             continue
         sd = math.sqrt(max(float(grads[k] @ C @ grads[k]), 0.0))
@@ -230,8 +228,8 @@ def _delta_intervals(fit, h: float, fn, keys: tuple) -> tuple[dict, str]:
     return out, "", held
 
 
-def axis_terms(fit, y: np.ndarray, h: float, sensor: str, label: str, horizon, inputs: dict | None = None,
-               seed: int = 0) -> AxisTerms:
+def axis_terms(fit, y: np.ndarray, h: float, sensor: str, label: str, horizon,
+               inputs: dict | None = None) -> AxisTerms:
     """The exported numbers of one axis from its ``fit`` (:class:`~torchtea.fitting.mle.Fit`) to ``y`` (sample
     time ``h``; ``inputs`` the temperature when the model reads it) — see the module docstring."""
     if sensor not in UNITS:

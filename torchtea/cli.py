@@ -337,18 +337,17 @@ def _check_channels(args, m, inputs, *, auto: bool, intervals: bool) -> dict:
     """``check`` each channel of ``m`` (then ``--add``, then the loop with ``auto``) → label → result."""
     from .checking import check
 
-    model = getattr(args, "model", None) or "fractional+white"
+    model = args.model or "fractional+white"  # (export without --model: check's start)
+    levels = {k: getattr(args, k) for k in ("level", "screen_level") if hasattr(args, k)}  # (else check's own)
     results = {}
     step, close = _progress(len(m.channels), "check", "channel", bar=not getattr(args, "json", False))
     for i, c in enumerate(m.channels):
         print(f"torchtea: checking {c.label}, {c.title} ({m.samples} samples, model {model}) …", file=sys.stderr)
-        r = check(c.values, m.h, model=model, inputs=inputs, level=getattr(args, "level", 0.01),
-                  screen_level=getattr(args, "screen_level", 0.05), intervals=intervals)
+        r = check(c.values, m.h, model=model, inputs=inputs, intervals=intervals, **levels)
         for effect in getattr(args, "add", []):
             r = r.add(effect, intervals=intervals)
         if auto:
-            r = r.auto(max_steps=getattr(args, "max_steps", 6), strong=getattr(args, "strong", None),
-                       intervals=intervals)
+            r = r.auto(max_steps=args.max_steps, strong=args.strong, intervals=intervals)
         results[c.label] = r
         step(i + 1, len(m.channels))
     close()

@@ -248,11 +248,9 @@ def axis_terms(fit, y: np.ndarray, h: float, sensor: str, label: str, horizon,
     parts = allan.model_avar(model, values, h, m, by_component=True)
     parts = {k: v[0] for k, v in parts.items()}
     mean_labels = [lb for lb, c in model.components if c.kind == "mean"]
+    byc = model._by_component(model.as_dict(values))
     for lb in mean_labels:  # each mean's AVAR on the recording's samples (for the attribution)
-        sub = {k: v for k, v in values.items() if k.startswith(lb + ".")}
-        comp = dict(model.components)[lb]
-        vv = {p.name: torch.tensor([float(sub[f"{lb}.{p.name}"])], dtype=torch.float64) for p in comp.params}
-        d = comp.mean(vv, t, inp or {})[0].numpy()
+        d = dict(model.components)[lb].mean(byc[lb], t, inp or {})[0].numpy()
         parts[lb] = allan.deterministic_avar(d - d.mean(), m)
     det = model.mean(values, t, inp).numpy()[0] if mean_labels else np.zeros(n)
     det_avar = allan.deterministic_avar(det - det.mean(), m)
@@ -276,7 +274,6 @@ def axis_terms(fit, y: np.ndarray, h: float, sensor: str, label: str, horizon,
 
     basis = format_avar(m, h)
     rc, kc2, binding = cover(total, basis, r0, k0)
-    Nc, Kc = math.sqrt(rc * h), math.sqrt(kc2)
     forced = {}
     other = {lb: parts[lb] for lb, c in model.components if c.nav_term not in IN_FORMATS and lb in parts}
     if rc > r0 * (1 + 1e-6) and len(binding):
@@ -288,23 +285,26 @@ def axis_terms(fit, y: np.ndarray, h: float, sensor: str, label: str, horizon,
 
     # B: the stochastic ADEV's minimum over all τ the recording shows
     mb = np.unique(np.rint(np.logspace(0, math.log10(max(1, n // 2)), 64)).astype(int))
-    adev_b = np.sqrt(_stochastic_avar(model, values, h, mb, temperature))
+    avar_b = _stochastic_avar(model, values, h, mb, temperature)
+    adev_b = np.sqrt(avar_b)
     ib = int(np.argmin(adev_b))
     b_how = (f"ADEV minimum {adev_b[ib]:.4g} at τ {mb[ib] * h:.4g} s / 0.664 (the model's stochastic part, τ from "
              f"{h:g} s to {mb[-1] * h:.4g} s)")
     if ib == len(mb) - 1:
         b_how += "; the ADEV still falls at the longest τ the recording shows: B is an upper bound"
 
-    def derived(v: dict) -> dict:
-        """B, the covered values and their factors at parameter values ``v`` (the deterministic part held)."""
+    def derived(v: dict, avar_m=None, avar_mb=None) -> dict:
+        """B, the covered values and their factors at parameter values ``v`` (the deterministic part held);
+        ``avar_m``, ``avar_mb``: the stochastic AVAR at ``m`` and ``mb`` when already computed for ``v``."""
+        avar_m = _stochastic_avar(model, v, h, m, temperature) if avar_m is None else avar_m
+        avar_mb = _stochastic_avar(model, v, h, mb, temperature) if avar_mb is None else avar_mb
         r, k = float(model.measurement_variance(v)[0]), float(v[f"{k_label}.sigma"]) if k_label else 0.0
-        a, b2, _ = cover(_stochastic_avar(model, v, h, m, temperature) + det_avar, basis, r, k)
+        a, b2, _ = cover(avar_m + det_avar, basis, r, k)
         nc, kc = math.sqrt(a * h), math.sqrt(b2)
-        return {"N0": math.sqrt(r * h), "K0": k,
-                "B": float(np.sqrt(_stochastic_avar(model, v, h, mb, temperature)).min() / BIAS_INSTABILITY_FACTOR),
+        return {"N0": math.sqrt(r * h), "K0": k, "B": float(np.sqrt(avar_mb).min() / BIAS_INSTABILITY_FACTOR),
                 "Nc": nc, "Kc": kc, "fN": nc / math.sqrt(r * h) if r > 0 else None, "fK": kc / k if k > 0 else None}
 
-    point = derived(values)
+    point = derived(values, stoch, avar_b)  # (the point's AVARs, computed above)
     ci, why, held = _delta_intervals(fit, h, derived, tuple(point))
     if why:
         notes.append(f"no intervals for B and the covered values: {why}")

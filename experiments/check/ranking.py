@@ -1,6 +1,6 @@
 """Ranking rules for check's suggestions, evaluated offline on a hidden-effect study's saved cases (issue 30, item 5).
 
-    python experiments/check/ranking.py                      # the committed study, experiments/check/hidden/
+    python experiments/check/ranking.py                      # the study's cases, experiments/check/hidden/ (hidden.py)
     python experiments/check/ranking.py --dir /tmp/hid
     python experiments/check/ranking.py --dir /tmp/rs        # a randomised study's cases (random_study.py)
 

@@ -2,8 +2,8 @@
 
     python experiments/montecarlo/run_studies.py [--only NAME ...] [--sweep-realisations 100]
 
-Each study runs through `torchtea montecarlo` into experiments/montecarlo/runs/<name>/ (event files are not
-committed; study.toml, estimator.toml, summary.json and final_estimates.csv are). Then results.json and the
+Each study runs through `torchtea montecarlo` into experiments/montecarlo/runs/<name>/ (regenerated, not in git:
+event files, study.toml, estimator.toml, summary.json, final_estimates.csv). Then results.json (in git) and the
 Markdown table of README.md are written from the summaries.
 """
 from __future__ import annotations

@@ -32,6 +32,6 @@ def machine() -> dict:
 
 def write_json(path: Path, data) -> Path:
     """Strict JSON (NaN → null), as every torchtea output."""
-    from torchtea.reports import strictjson
+    from torchtea.render import strictjson
 
     return strictjson.write(path, data)

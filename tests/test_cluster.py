@@ -10,7 +10,8 @@ import pytest
 import torch
 
 from torchtea.engines.presets import get_preset
-from torchtea.studies.montecarlo import Study, StudyResult, Truth, run_study, summarise
+from torchtea.studies.montecarlo import Study, StudyResult, Truth, summarise
+from torchtea.studies.cluster import run_study
 
 distributed = pytest.importorskip("distributed")
 

@@ -4,7 +4,8 @@ import math
 import pytest
 import torch
 
-from torchtea.studies.montecarlo import Study, Truth, draw_realisation, realisation_seed, run_study, summarise
+from torchtea.studies.montecarlo import Study, Truth, draw_realisation, realisation_seed, summarise
+from torchtea.studies.cluster import run_study
 from torchtea.engines.presets import get_preset
 from torchtea.core.stats import over_realisations
 

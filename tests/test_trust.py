@@ -13,7 +13,7 @@ from torchtea.cli import main
 from torchtea.sensors.datacheck import check_timing, find_missing
 from torchtea.sensors.io import read_recording
 from torchtea.sensors.measurements import prepare
-from torchtea.reports.strictjson import dumps, strict
+from torchtea.render.strictjson import dumps, strict
 
 SHARED_TEMP = Path(__file__).resolve().parents[2] / "shared" / "data" / "mpu6050_sensor_fusion_temperature"
 

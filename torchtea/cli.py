@@ -7,7 +7,7 @@ import sys
 import time
 from pathlib import Path
 
-from .reports import strictjson
+from .render import strictjson
 
 __all__ = ["main"]
 
@@ -356,7 +356,7 @@ def _check_channels(args, m, inputs, *, auto: bool, intervals: bool) -> dict:
 
 def cmd_check(args) -> int:
     from .checking.report import write_report
-    from .reports.strictjson import dumps
+    from .render.strictjson import dumps
 
     m = _measurements(args, "check", min_samples=1000)
     plan = _export_plan(args, m, args.export)
@@ -896,7 +896,8 @@ def _print_study(result, summary, elapsed) -> None:
 def cmd_montecarlo(args) -> int:
     import datetime
 
-    from .studies.montecarlo import run_study, save_study, summarise
+    from .studies.montecarlo import save_study, summarise
+    from .studies.cluster import run_study
 
     if args.workers is not None and args.scheduler:
         raise CLIError("--workers and --scheduler: give one (a local cluster, or the address of a running one)")
@@ -1267,7 +1268,7 @@ def cmd_fit(args) -> int:
     from .fitting.presence import fractional_test
     from .fitting.summary import MEANING, axis_summary, fit_nis
     from .noise import parse_model
-    from .reports.strictjson import dumps, write
+    from .render.strictjson import dumps, write
 
     model = parse_model(args.model)
     m = _measurements(args, "a fit", min_samples=100)

@@ -41,7 +41,8 @@ from experiments.common import machine, write_json  # noqa: E402
 from torchtea.core.memory import MemoryConfig  # noqa: E402
 from torchtea.engines.presets import get_preset  # noqa: E402
 from torchtea.studies.cluster import local_cluster, plan_shards  # noqa: E402
-from torchtea.studies.montecarlo import Study, Truth, run_range, run_study, summarise  # noqa: E402
+from torchtea.studies.montecarlo import Study, Truth, run_range, summarise  # noqa: E402
+from torchtea.studies.cluster import run_study  # noqa: E402
 
 MEMS = Truth(h=0.01, n_steps=3000, order="0.4", param=-4.0, q=0.01, r=4e-4)
 

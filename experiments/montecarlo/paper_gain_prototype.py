@@ -31,7 +31,8 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 from tests.reference_tea import settings_from_config, tea_reference  # noqa: E402
 from torchtea.engines.presets import get_preset  # noqa: E402
-from torchtea.studies.montecarlo import Study, Truth, draw_realisation, run_study  # noqa: E402
+from torchtea.studies.montecarlo import Study, Truth, draw_realisation  # noqa: E402
+from torchtea.studies.cluster import run_study  # noqa: E402
 from torchtea.engines.simulate import simulate  # noqa: E402
 from torchtea.engines.structure import Structure  # noqa: E402
 

@@ -27,7 +27,7 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 from experiments.common import machine, simulate_seeds, write_json  # noqa: E402
 from torchtea import SCENARIOS, Structure, TEAConfig, get_preset, make_params, run_tea  # noqa: E402
-from torchtea.reports.plots import estimation_figure, fan_figure  # noqa: E402
+from torchtea.render.plots import estimation_figure, fan_figure  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 

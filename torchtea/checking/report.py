@@ -17,8 +17,8 @@ from scipy import stats
 
 from ..noise.model import parse_model
 from ..likelihood.whittle import periodogram
-from ..reports.plots import pyplot, save_figure
-from ..reports.strictjson import write
+from ..render.plots import pyplot, save_figure
+from ..render.strictjson import write
 from . import allan
 from .check import CheckResult
 

@@ -20,6 +20,8 @@ import math
 import numpy as np
 import torch
 
+from .results import Carry, TEAResult, ut_weights
+
 __all__ = ["fast_path_reason", "use_compiled", "run_tea_fast", "BLOCK"]
 
 #: Steps per compiled call (progress and Ctrl-C are handled between calls).
@@ -87,7 +89,6 @@ class FastTEA:
 
     def __init__(self, *, h: float, params, batch, memory, horizon: int, carry, has_u: bool):
         from .settings import KFX_UNCERTAINTIES
-        from .tea import ut_weights
 
         cfg = params.config
         self.batch = tuple(batch)
@@ -162,8 +163,6 @@ class FastTEA:
 
     def carry(self):
         """The current carry as torch tensors of :class:`~.tea.Carry`'s shapes."""
-        from .tea import Carry
-
         t = lambda a: torch.from_numpy(a.copy()).reshape(self.batch)  # noqa: E731
         x, P, al, Po, Qo, w, Pw, Qw = (t(a) for a in self.state)
         v, m = (lambda a: a.unsqueeze(-1)), (lambda a: a.unsqueeze(-1).unsqueeze(-1))
@@ -184,8 +183,6 @@ def run_tea_fast(y, *, h: float, params, inputs=None, progress=None, record_ever
                  batch=None, memory=None, first=None):
     """:func:`~.tea.run_tea` for the scalar structure on the CPU (module docstring). Called by ``run_tea``,
     which has checked the shapes and built ``batch``, the memory strategy and the first step's carry."""
-    from .tea import TEAResult
-
     N = y.shape[-2]
     every = int(record_every)
     carry, out0 = first

@@ -35,6 +35,7 @@ from torch import Tensor
 
 from ..core.gl import broadcast_shapes, gl_tail_coefficients, history_sum
 from ..core.memory import BoundedHistory, MemoryConfig, cov_tail_mass, gl_coefficients_at, kernel_for
+from .results import STEP_OUTPUTS, Carry, StepOutput, TEAResult, ut_weights
 from .settings import TEAConfig
 from .structure import Structure
 
@@ -46,6 +47,7 @@ __all__ = [
     "run_tea",
     "TEAStream",
     "ut_weights",
+    "STEP_OUTPUTS",
 ]
 
 
@@ -149,24 +151,6 @@ def stack_params(params: Sequence[TEAParams]) -> TEAParams:
 
 
 # --------------------------------------------------------------------------- unscented pieces
-
-
-def ut_weights(L: int, ut_alpha: float, ut_beta: float, kappa: float | None, *, dtype=torch.float64, device=None):
-    """Unscented weights, paper (26)–(28).
-
-    ``λ = 𝔄²(L+κ) − L``; ``W₀ᵐ = λ/(L+λ)``, ``W₀ᶜ = W₀ᵐ + 1 − 𝔄² + 𝔅``,
-    ``Wᵢᵐ = Wᵢᶜ = 1/(2(L+λ))``. Returns ``(Wm, Wc, L+λ)`` with weights of shape ``(2L+1,)``.
-    """
-    k = 3.0 - L if kappa is None else kappa
-    lam = ut_alpha**2 * (L + k) - L
-    if L + lam <= 0:
-        raise ValueError(f"L + λ = {L + lam} must be positive (check ut_alpha and kappa)")
-    wi = 1.0 / (2.0 * (L + lam))
-    wm = torch.full((2 * L + 1,), wi, dtype=dtype, device=device)
-    wc = wm.clone()
-    wm[0] = lam / (L + lam)
-    wc[0] = lam / (L + lam) + (1.0 - ut_alpha**2 + ut_beta)
-    return wm, wc, L + lam
 
 
 #: Devices where :func:`_mm` calls the matrix product (elsewhere: a broadcast product and sum).
@@ -279,42 +263,6 @@ def _adapt_q(Q, K, e, delta: float, q_max: Tensor, observed):
 
 
 # --------------------------------------------------------------------------- one step
-
-
-class Carry(NamedTuple):
-    """Filter state between steps (all at time ``k−1``)."""
-
-    x: Tensor  # (*B, n)
-    P: Tensor  # (*B, n, n)
-    alpha: Tensor  # (*B, L)
-    Po: Tensor  # (*B, L, L)
-    Qo: Tensor  # (*B, L, L)
-    w: Tensor  # (*B, m)
-    Pw: Tensor  # (*B, m, m)
-    Qw: Tensor  # (*B, m, m)
-    diverged: Tensor  # (*B,) bool
-    #: ``kfx_uncertainty = "paper-gain"`` only: the paper's KFx covariance, which sets the gain (``P`` is then the
-    #: covariance of that filter's error with the order's and parameter's uncertainty included); else None
-    Pg: Tensor | None = None
-    #: ``estimate_uncertainty = "constant-truth"`` only: KFo's and KFw's own covariances, which set their gains
-    #: (``Po`` and ``Pw`` are then the covariances of their errors for a constant truth); else None
-    Pog: Tensor | None = None
-    Pwg: Tensor | None = None
-
-    @property
-    def Po_own(self) -> Tensor:
-        """KFo's own covariance, the one its sigma points and gain come from."""
-        return self.Po if self.Pog is None else self.Pog
-
-    @property
-    def Pw_own(self) -> Tensor:
-        """KFw's own covariance, the one its sigma points and gain come from."""
-        return self.Pw if self.Pwg is None else self.Pwg
-
-
-class StepOutput(NamedTuple):
-    innovation: Tensor  # (*B, p), KFx: y_k − C x̃_k (0 where missing)
-    innovation_cov: Tensor  # (*B, p, p), C P̃ Cᵀ + R
 
 
 @dataclass(frozen=True)
@@ -599,55 +547,6 @@ def _guard(new: Carry, old: Carry, limit: float, branchless: bool = False) -> Ca
 # --------------------------------------------------------------------------- the loop
 
 
-@dataclass(frozen=True)
-class TEAResult:
-    """Per-step TEA outputs; time is dimension ``-2`` (``-3`` for covariances).
-
-    Attributes
-    ----------
-    x, P : state estimates ``(*B, T, n)`` and covariances ``(*B, T, n, n)`` (KFx).
-    alpha, P_alpha, Q_alpha : order estimates ``(*B, T, L)`` and their covariance and
-        adapted noise ``(*B, T, L, L)`` (KFo).
-    w, P_w, Q_w : parameter estimates ``(*B, T, m)``, covariances ``(*B, T, m, m)`` (KFw).
-    innovation, innovation_cov : KFx innovations ``(*B, T, p)`` and their predicted
-        covariance ``(*B, T, p, p)``; zero innovation where ``y`` was missing.
-    diverged : ``(*B,)`` bool; diverged_at : ``(*B,)`` first step flagged, −1 if never.
-    steps : ``(T,)`` the sample index of each stored row (``0, every, 2·every, …``; all ``N`` by default).
-    memory_clamped : ``(*B,)`` ``soe`` only: steps at which a KFo sigma order may have left the
-        exponential-sum kernel's range (by default one order beyond ``order_bounds``, but not below −0.95,
-        where (★) stops holding); there the tail of the memory sum used the clamped order, so the run
-        departs from ``exact``. ``None`` otherwise.
-    interrupted : True when :func:`run_tea` was stopped by Ctrl-C with ``partial=True``: the rows hold the
-        steps that finished (``steps`` says which), nothing after them.
-    """
-
-    x: Tensor
-    P: Tensor
-    alpha: Tensor
-    P_alpha: Tensor
-    Q_alpha: Tensor
-    w: Tensor
-    P_w: Tensor
-    Q_w: Tensor
-    innovation: Tensor
-    innovation_cov: Tensor
-    diverged: Tensor
-    diverged_at: Tensor
-    steps: Tensor | None = None
-    memory_clamped: Tensor | None = None
-    interrupted: bool = False
-
-    def to(self, device) -> "TEAResult":
-        """The same result with every tensor on ``device`` (e.g. back to the CPU for a report)."""
-        from dataclasses import fields
-
-        return replace(self, **{f.name: getattr(self, f.name).to(device) for f in fields(self)
-                                if isinstance(getattr(self, f.name), Tensor)})
-
-
-_OUTPUT_NAMES = ("x", "P", "alpha", "P_alpha", "Q_alpha", "w", "P_w", "Q_w", "innovation", "innovation_cov")
-
-
 def _outputs(c: Carry, o: StepOutput):
     return (c.x, c.P, c.alpha, c.Po, c.Qo, c.w, c.Pw, c.Qw, o.innovation, o.innovation_cov)
 
@@ -848,13 +747,13 @@ def run_tea(
     # per-step outputs, preallocated (rows k = 0, every, 2·every, …)
     n_out = (N - 1) // every + 1
     events = ((n,), (n, n), (L,), (L, L), (L, L), (m,), (m, m), (m, m), (p,), (p, p))
-    out = {name: torch.empty(batch + (n_out,) + ev, dtype=dtype, device=device) for name, ev in zip(_OUTPUT_NAMES, events)}
+    out = {name: torch.empty(batch + (n_out,) + ev, dtype=dtype, device=device) for name, ev in zip(STEP_OUTPUTS, events)}
 
     def record_block(k0: int, tensors, stacked: bool):
         """Store outputs of steps k0 … (one step, or a block stacked along dim nb)."""
         if not stacked:
             if k0 % every == 0:
-                for name, t in zip(_OUTPUT_NAMES, tensors):
+                for name, t in zip(STEP_OUTPUTS, tensors):
                     out[name].select(nb, k0 // every).copy_(t)
             return
         T = tensors[0].shape[nb]
@@ -863,7 +762,7 @@ def run_tea(
             return
         rows = torch.arange(first, T, every, device=device)
         i0 = (k0 + first) // every
-        for name, t in zip(_OUTPUT_NAMES, tensors):
+        for name, t in zip(STEP_OUTPUTS, tensors):
             out[name].narrow(nb, i0, rows.shape[0]).copy_(t.index_select(nb, rows))
 
     record_block(0, _outputs(carry, first), False)

@@ -57,7 +57,7 @@ def write_export(out: Path, axes: list, formats: list, meta: dict, which: str = 
                  plots: bool = True) -> dict:
     """Write each format's file (a format the recording cannot fill: its line in ``skipped``), ``export.json``,
     ``export.md`` and ``allan.png`` into ``out``. Returns the JSON document."""
-    from ..reports.strictjson import write
+    from ..render.strictjson import write
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -140,7 +140,7 @@ def markdown(axes: list, doc: dict) -> str:
 def allan_figure(path: Path, axes: list) -> Path:
     """Per sensor: the data's ADEV per axis, the model, its components, the bare and covered white + random-walk
     lines, and the IEEE slopes −1/2, 0, +1/2."""
-    from ..reports.plots import pyplot, save_figure
+    from ..render.plots import pyplot, save_figure
 
     plt = pyplot()
     fig, panels = plt.subplots(len(axes), 1, figsize=(8, 3.2 * len(axes)), squeeze=False)

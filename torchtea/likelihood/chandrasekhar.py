@@ -35,7 +35,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["initial_factor", "compiled"]
+__all__ = ["initial_factor", "DROP"]
 
 #: Weights of the factor below this fraction of the largest are dropped when it is compressed (after a gap).
 DROP = 1e-13
@@ -68,9 +68,3 @@ def initial_factor(F: np.ndarray, G: np.ndarray, C: np.ndarray, R: np.ndarray, g
         M0[b] = np.diag(np.where(keep[b, idx], lam[b, idx], 0.0))
     return L0, M0, b0, S0
 
-
-def compiled():
-    """The compiled batch kernel (numba; compiled on first use, then loaded from numba's on-disk cache)."""
-    from ._kernels import chandrasekhar_batch
-
-    return chandrasekhar_batch

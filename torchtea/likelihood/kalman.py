@@ -26,6 +26,7 @@ import torch
 from torch import Tensor
 
 from ..noise.model import StateSpace, varying_kernel_args
+from ..noise._simulate_kernel import csr
 
 __all__ = ["FilterResult", "kalman_filter", "loglik_fast", "filter_fast"]
 
@@ -177,17 +178,6 @@ def _compiled():
     return riccati_batch
 
 
-def _csr(F: np.ndarray):
-    """One sparsity pattern for the batch (the union of the non-zeros), values per parameter set."""
-    mask = (F != 0).any(axis=0)
-    n = mask.shape[0]
-    rows, cols = np.nonzero(mask)
-    indptr = np.zeros(n + 1, dtype=np.int64)
-    np.add.at(indptr, rows + 1, 1)
-    indptr = np.cumsum(indptr)
-    return indptr, cols.astype(np.int64), np.ascontiguousarray(F[:, rows, cols])
-
-
 #: The compiled exact filter's engines: ``"chandrasekhar"`` (:mod:`.chandrasekhar`, O(n r) per sample, for a
 #: time-invariant model) and ``"riccati"`` (the textbook covariance update, O(n²) per sample, any model); ``"auto"``
 #: takes the first where it applies.
@@ -227,21 +217,22 @@ def _fast(ss: StateSpace, y, mean, keep: bool, level: bool = False, engine: str 
     mu = np.zeros((1, N)) if mean is None else _rows(mean, B)
     C = ss.C.detach().cpu().numpy()
     cidx = np.nonzero((C != 0).any(axis=0))[0].astype(np.int64)
-    indptr, indices, fvals = _csr(F)
+    indptr, indices, fvals = csr(F)
     e_out = np.zeros((B, N) if keep else (B, 1))
     s_out = np.zeros_like(e_out)
     w_out = np.zeros((B, N) if (keep and level) else (B, 1))
     R = np.ascontiguousarray(ss.R.detach().cpu().numpy(), dtype=np.float64)
     if _engine(ss, engine) == "chandrasekhar":
-        from .chandrasekhar import compiled, initial_factor
+        from ._kernels import chandrasekhar_batch
+        from .chandrasekhar import initial_factor
 
         G = ss.G.detach().cpu().numpy()
         g0 = None if ss.g0 is None else ss.g0.detach().cpu().numpy()
         first = np.broadcast_to(~np.isnan(ya[:, 0] - mu[:, 0]), (B,))  # whether sample 0 is observed, per set
         L0, M0, b0, S0 = initial_factor(F, G, C, R, g0, first)
-        ll = compiled()(indptr, indices, fvals, np.ascontiguousarray(L0), np.ascontiguousarray(M0),
-                        np.ascontiguousarray(b0), np.ascontiguousarray(S0), np.ascontiguousarray(C), cidx, R, ya, mu,
-                        e_out, s_out, w_out, keep, bool(level))
+        ll = chandrasekhar_batch(indptr, indices, fvals, np.ascontiguousarray(L0), np.ascontiguousarray(M0),
+                                 np.ascontiguousarray(b0), np.ascontiguousarray(S0), np.ascontiguousarray(C), cidx, R,
+                                 ya, mu, e_out, s_out, w_out, keep, bool(level))
         return ll, e_out, s_out
     tv_i, tv_T, tv_g, tv_j, tv_w, _ = varying_kernel_args(ss.varying, B, F.shape[-1])
     g0 = np.ascontiguousarray(ss.initial.detach().cpu().numpy(), dtype=np.float64)

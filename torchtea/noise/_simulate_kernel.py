@@ -69,3 +69,14 @@ def simulate_batch(indptr, indices, fvals, Gs, Cs, z0s, xis, outs, states, keep,
         r = p % R
         simulate_one(indptr, indices, fvals[b], Gs[b], Cs[b], z0s[b, r], xis[b, r], outs[b, r],
                      states[b, r] if keep else states[0, 0], keep, tv_i, tv_Ts[b], tv_gs[b], tv_js[b], tv_ws[b], tv_col)
+
+
+def csr(F: np.ndarray):
+    """One sparsity pattern for the batch (the union of the non-zeros), values per parameter set."""
+    mask = (F != 0).any(axis=0)
+    n = mask.shape[0]
+    rows, cols = np.nonzero(mask)
+    indptr = np.zeros(n + 1, dtype=np.int64)
+    np.add.at(indptr, rows + 1, 1)
+    indptr = np.cumsum(indptr)
+    return indptr, cols.astype(np.int64), np.ascontiguousarray(F[:, rows, cols])

@@ -50,13 +50,13 @@ def _run(ss, z0: torch.Tensor, xi: torch.Tensor, keep: bool):
     no O(N n) noise array, so a three-hour recording's six channels take seconds and little memory."""
     import numpy as np
 
-    from ..likelihood.kalman import _csr
+    from ._simulate_kernel import csr
     from ._simulate_kernel import simulate_batch
 
     F = ss.F.detach().cpu().numpy()
     B, R_, N, _ = xi.shape
     n = F.shape[-1]
-    indptr, indices, fvals = _csr(F)
+    indptr, indices, fvals = csr(F)
     out = np.empty((B, R_, N))
     states = np.empty((B, R_, N, n)) if keep else np.empty((1, 1, 1, 1))
     tv = varying_kernel_args(ss.varying, B, n)

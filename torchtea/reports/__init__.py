@@ -1,2 +1,2 @@
-"""What a user reads: the identification of a recording (:mod:`.identify`), its report (:mod:`.report`),
-plots (:mod:`.plots`) and strict JSON (:mod:`.strictjson`). The command line is :mod:`torchtea.cli`."""
+"""What a user reads: the identification of a recording (:mod:`.identify`) and its report (:mod:`.report`); the
+strict JSON and figure helpers they use are :mod:`torchtea.render`. The command line is :mod:`torchtea.cli`."""

@@ -21,6 +21,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .errors import InputError
+
 __all__ = ["MISSING_POLICY", "RATE_TOLERANCE", "IRREGULAR_TOLERANCE", "Missing", "find_missing",
            "missing_error", "check_missing", "Timing", "check_timing", "stamp_rate"]
 
@@ -119,8 +121,6 @@ def _units_hint(stamp_rate_hz: float, rate_hz: float | None = None) -> str:
 def check_missing(source, values: np.ndarray, names, *, allow: bool, per: str = "column") -> Missing:
     """The missing-sample policy in one place: the :class:`Missing` of ``values`` ``(N, k)``, or an
     :class:`~torchtea.sensors.io.InputError` (:func:`missing_error`) if any is missing and ``allow`` is False."""
-    from .io import InputError
-
     missing = find_missing(values, names)
     if missing.count and not allow:
         raise InputError(missing_error(source, missing, per=per))

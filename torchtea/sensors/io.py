@@ -28,6 +28,9 @@ from typing import Sequence
 
 import numpy as np
 
+from .datacheck import stamp_rate
+from .errors import InputError
+
 __all__ = ["RECORDER_COLUMNS", "InputError", "Channel", "Recording", "bundled_recording", "read_recording",
            "read_series", "write_columns", "STANDARD_GRAVITY", "BUNDLED", "TIME_COLUMNS", "UNITS", "SI_UNITS",
            "sensor_of", "parse_units"]
@@ -60,15 +63,6 @@ _SENSOR_PATTERNS = (
     ("gyroscope", re.compile(r"^(?:.*[._])?(?:g|gyr|gyro|gyroscope|w|omega|angular_velocity|ang_vel|rate)[._ ]?([xyz])"
                              r"(?:[._ ]?(?:dps|rads|rad_s|deg_s))?$")),
 )
-
-
-class InputError(ValueError):
-    """Bad user input: an unreadable file, a missing column, a non-numeric value …; ``column`` names the
-    column of a bad value (None when the error is not about one column's values)."""
-
-    def __init__(self, message: str, column: str | None = None):
-        super().__init__(message)
-        self.column = column
 
 
 @dataclass(frozen=True)
@@ -520,8 +514,6 @@ def read_recording(path=None, *, columns: Sequence[str] | None = None, units=Non
         if unit_note:
             meta["time_unit"] = unit_note
     if rate_hz is None:
-        from .datacheck import stamp_rate
-
         rate_hz = stamp_rate(t) if t is not None else math.nan
         if not math.isfinite(rate_hz):
             raise InputError(f"{path}: no sample rate in the file: no 'Fs,<Hz>' line, and time column {tcol!r} "

@@ -27,7 +27,7 @@ from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
 
-from ..reports import strictjson
+from ..render import strictjson
 from .io import RECORDER_COLUMNS as FILE_COLUMNS
 from .io import RECORDING_MAGIC, STANDARD_GRAVITY
 from .protocol import Assembler, Parser, Row

@@ -21,7 +21,7 @@ import os
 
 from .montecarlo import Study, StudyResult, auto_chunk, run_range
 
-__all__ = ["run_studies", "plan_studies", "plan_shards", "local_cluster", "StudyFailed", "shard_task"]
+__all__ = ["run_study", "run_studies", "plan_studies", "plan_shards", "local_cluster", "StudyFailed", "shard_task"]
 
 
 class StudyFailed(RuntimeError):
@@ -176,3 +176,22 @@ def local_cluster(workers: int, *, threads_per_worker: int | None = None, quiet:
     with dask.config.set({"distributed.nanny.pre-spawn-environ": env}):
         cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=":0")
     return cluster, Client(cluster)
+
+
+def run_study(study: Study, *, progress=None, device=None, client=None, shard: int | None = None,
+              trajectories: bool = False) -> StudyResult:
+    """Run a study; Ctrl-C keeps the finished chunks (or shards).
+
+    Without ``client``, in this process chunk by chunk (:func:`run_range`); ``progress(done, total)`` counts
+    realisations. With a Dask ``client`` (``distributed.Client``), as shards of ``shard`` realisations on its
+    workers (:func:`run_studies`); ``progress(done, total)`` counts shards. ``device``:
+    where the truths are simulated and the TEA runs (default the CPU, where the TEA is the compiled engine; on a
+    cluster, each worker's device of that name); each realisation's draws come from its own CPU generator
+    whatever the device, and the results come back to the CPU. ``trajectories``: also keep every realisation's
+    full trajectories (``R × N`` × 7 float64 values; not with a client).
+    """
+    if client is not None:
+        if trajectories:
+            raise ValueError("run_study: full trajectories are not sent back from a cluster; run without client")
+        return run_studies([study], client, shard=shard, device=device, progress=progress)[0]
+    return run_range(study, 0, study.realisations, device=device, progress=progress, trajectories=trajectories)

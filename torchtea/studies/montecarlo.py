@@ -22,8 +22,7 @@ from ..core.stats import chi2_band, convergence_time, coverage, nees, nis, over_
 from ..engines.tea import make_params, run_tea
 from ..engines.settings import TEAConfig
 
-__all__ = ["Truth", "Study", "StudyResult", "realisation_seed", "draw_realisation", "draw_prior", "run_study",
-           "run_range", "auto_chunk", "logged_steps", "summarise", "build_study", "save_study", "STUDY_KEYS", "PRIORS"]
+__all__ = ["Truth", "Study", "StudyResult", "realisation_seed", "draw_realisation", "draw_prior", "run_range", "auto_chunk", "logged_steps", "summarise", "build_study", "save_study", "STUDY_KEYS", "PRIORS"]
 
 #: The top-level keys of a study's TOML table.
 STUDY_KEYS = ("realisations", "seed", "chunk", "log_points", "prior", "truth", "estimator", "sweep")
@@ -325,27 +324,6 @@ def _prior_params(study: Study, params, rows: range, sim):
     x0, alpha0, w0 = draw_prior(params, study.seed, rows, cpu(sim.x[:, 0]), cpu(sim.alpha[:, 0, :params.alpha0.shape[-1]]),
                                 w_true)
     return params._replace(x0=x0.to(params.x0), alpha0=alpha0.to(params.x0), w0=w0.to(params.x0))
-
-
-def run_study(study: Study, *, progress=None, device=None, client=None, shard: int | None = None,
-              trajectories: bool = False) -> StudyResult:
-    """Run a study; Ctrl-C keeps the finished chunks (or shards).
-
-    Without ``client``, in this process chunk by chunk (:func:`run_range`); ``progress(done, total)`` counts
-    realisations. With a Dask ``client`` (``distributed.Client``), as shards of ``shard`` realisations on its
-    workers (:func:`torchtea.studies.cluster.run_studies`); ``progress(done, total)`` counts shards. ``device``:
-    where the truths are simulated and the TEA runs (default the CPU, where the TEA is the compiled engine; on a
-    cluster, each worker's device of that name); each realisation's draws come from its own CPU generator
-    whatever the device, and the results come back to the CPU. ``trajectories``: also keep every realisation's
-    full trajectories (``R × N`` × 7 float64 values; not with a client).
-    """
-    if client is not None:
-        if trajectories:
-            raise ValueError("run_study: full trajectories are not sent back from a cluster; run without client")
-        from .cluster import run_studies
-
-        return run_studies([study], client, shard=shard, device=device, progress=progress)[0]
-    return run_range(study, 0, study.realisations, device=device, progress=progress, trajectories=trajectories)
 
 
 def summarise(result: StudyResult) -> dict:

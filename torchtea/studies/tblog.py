@@ -49,7 +49,7 @@ def log_study(logdir, result, summary: dict, hparams: dict, *, figures: bool = F
             if st["count"]:
                 w.add_histogram(f"final/{name}", result.final[fkey][keep], 0)
             if st["count"] and figures:
-                from ..reports.plots import fan_figure
+                from ..render.plots import fan_figure
 
                 label = "order α̂" if name == "order" else "parameter ŵ"
                 w.add_figure(f"figures/{name}_fan", fan_figure(

@@ -1,0 +1,148 @@
+"""The package's layering, read from its source (every import: at module level, inside functions, and
+``importlib.import_module("torchtea…")``): no module imports one of a higher layer, and the module graph has no
+circle. Lowest first:
+
+0. ``core``, ``render`` (strict JSON, figure helpers) and the reading of recordings (``sensors.io``, ``datacheck``,
+   ``faults``, ``measurements``, ``protocol``): they use no estimation;
+1. ``engines``: the TEA, its structure and settings;
+2. ``noise`` and ``effects``: the model (its TEA view reads ``engines``);
+3. ``likelihood``; 4. ``fitting``; 5. ``checking``; 6. ``export``;
+7. the applications: ``reports``, ``studies``, the recorder, live mode and the fake device;
+8. the command line and the package's own ``__init__``.
+
+``KNOWN`` lists the upward imports that remain (issue 32 names them; each is a component's screen reaching the
+checking and fitting layers for its statistics). The test fails on a new one, and on one of ``KNOWN`` that is gone
+(take it off the list, so the list only shrinks)."""
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import torchtea
+
+ROOT = Path(torchtea.__file__).parent
+
+LAYERS = (
+    ("torchtea.core", "torchtea.render", "torchtea.sensors.io", "torchtea.sensors.datacheck", "torchtea.sensors.faults",
+     "torchtea.sensors.measurements", "torchtea.sensors.protocol", "torchtea.sensors"),
+    ("torchtea.engines",),
+    ("torchtea.noise", "torchtea.effects"),
+    ("torchtea.likelihood",),
+    ("torchtea.fitting",),
+    ("torchtea.checking",),
+    ("torchtea.export",),
+    ("torchtea.reports", "torchtea.studies", "torchtea.sensors.recorder", "torchtea.sensors.live",
+     "torchtea.sensors.fakeimu"),
+    ("torchtea.cli", "torchtea"),
+)
+
+#: (importer, imported) pairs allowed to point upward for now.
+KNOWN = {
+    ("torchtea.noise.components", "torchtea.fitting.mle"),
+    ("torchtea.noise.components", "torchtea.checking.diagnostics"),
+    ("torchtea.noise.components", "torchtea.checking.check"),
+}
+
+
+def layer(module: str) -> int:
+    """The layer of a module: that of the longest prefix listed."""
+    best, where = -1, None
+    for i, names in enumerate(LAYERS):
+        for name in names:
+            if (module == name or module.startswith(name + ".")) and len(name) > best:
+                best, where = len(name), i
+    assert where is not None, f"{module} is in no layer: add it to LAYERS"
+    return where
+
+
+def module_name(path: Path) -> str:
+    parts = ["torchtea", *path.relative_to(ROOT).with_suffix("").parts]
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def imports() -> dict:
+    """module → the torchtea modules it imports (a ``from package import name`` counts the submodule ``name`` when
+    there is one)."""
+    modules = {module_name(p): p for p in ROOT.rglob("*.py")}
+    graph = {}
+    for mod, path in modules.items():
+        package = mod if path.name == "__init__.py" else mod.rsplit(".", 1)[0]
+        found = set()
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            targets = []
+            if isinstance(node, ast.ImportFrom):
+                base = node.module or ""
+                if node.level:
+                    parts = package.split(".")
+                    parts = parts[:len(parts) - (node.level - 1)]
+                    base = ".".join(parts + ([node.module] if node.module else []))
+                targets = [f"{base}.{a.name}" if f"{base}.{a.name}" in modules else base for a in node.names]
+            elif isinstance(node, ast.Import):
+                targets = [a.name for a in node.names]
+            elif (isinstance(node, ast.Call) and getattr(node.func, "attr", getattr(node.func, "id", "")) ==
+                  "import_module" and node.args and isinstance(node.args[0], ast.Constant)):
+                targets = [str(node.args[0].value)]
+            found.update(t for t in targets if t == "torchtea" or t.startswith("torchtea."))
+        graph[mod] = found - {mod}
+    return graph
+
+
+def test_every_module_has_a_layer_and_imports_exist():
+    graph = imports()
+    for mod, targets in graph.items():
+        layer(mod)
+        for t in targets:
+            assert t in graph, f"{mod} imports {t}, which is not a module of the package"
+
+
+def test_no_module_imports_a_higher_layer():
+    graph = imports()
+    upward = {(m, t) for m, ts in graph.items() for t in ts if layer(t) > layer(m)}
+    new = upward - KNOWN
+    assert not new, "imports of a higher layer: " + "; ".join(f"{m} → {t}" for m, t in sorted(new))
+    gone = KNOWN - upward
+    assert not gone, f"no longer imported upward, take them off KNOWN: {sorted(gone)}"
+
+
+def test_the_module_graph_has_no_circle():
+    """Tarjan's strongly connected components over the import graph without the ``KNOWN`` edges (each of which
+    closes a circle through its layer's own imports) and without the package ``__init__`` files' re-exports of
+    their own modules (``torchtea.noise`` importing ``torchtea.noise.model`` is no circle)."""
+    graph = imports()
+    edges = {m: {t for t in ts if (m, t) not in KNOWN and not t.startswith(m + ".")} for m, ts in graph.items()}
+    index, low, stack, on, circles = {}, {}, [], set(), []
+
+    def visit(v):
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on.add(v)
+        for w in edges[v]:
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            comp = []
+            while True:
+                w = stack.pop()
+                on.discard(w)
+                comp.append(w)
+                if w == v:
+                    break
+            if len(comp) > 1:
+                circles.append(sorted(comp))
+
+    for v in sorted(edges):
+        if v not in index:
+            visit(v)
+    assert not circles, f"import circles: {circles}"
+
+
+def test_the_checker_sees_what_it_must():
+    """The reader finds a function-level import, a relative ``from . import x`` and an ``import_module`` call."""
+    graph = imports()
+    assert "torchtea.checking.diagnostics" in graph["torchtea.noise.components"]  # inside a method
+    assert "torchtea.checking.check" in graph["torchtea.noise.components"]  # importlib.import_module
+    assert "torchtea.noise.model" in graph["torchtea.noise.tea"]
+    assert layer("torchtea.sensors.live") > layer("torchtea.reports.identify") - 1 > layer("torchtea.sensors.io")

@@ -204,6 +204,38 @@ def test_identify_bundled_json_contract(tmp_path, capsys):
         assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
+def test_identify_runs_a_check_grown_model(tmp_path, capsys):
+    """``identify --model``: the model is fitted per channel, its random walk joins KFx's state (two states) and a
+    ramp leaves the series at its fitted slope; the report says where each component went. A filter the TEA cannot
+    hold is refused by name, and a grown model with the paper's R rule too."""
+    spec = "fractional+white+random-walk+ramp"
+    assert run("identify", "--json", "--samples", 600, "--model", spec, "--out", tmp_path / "id") == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["model"] == spec and "order 1" in out["tea_model"]["random-walk"]
+    assert "removed" in out["tea_model"]["ramp"]
+    for axis in AXES:
+        fit = out["fit"][axis]["parameters"]
+        assert set(fit) >= {"random-walk.sigma", "ramp.slope"}
+        assert out["axes"][axis]["R"] == pytest.approx(fit["white.r"]["value"], rel=1e-12)
+        assert math.isfinite(out["axes"][axis]["alpha"]) and not out["axes"][axis]["diverged"]
+    d = np.genfromtxt(tmp_path / "id" / "trajectories.csv", delimiter=",", names=True)
+    t = np.arange(600) * 0.01
+    slope = out["fit"]["az"]["parameters"]["ramp.slope"]["value"]
+    # the TEA saw the channel without its fitted ramp (and, the model having no offset, without its mean)
+    from torchtea.sensors.io import read_recording
+    from torchtea.sensors.measurements import prepare
+
+    raw = next(c.values for c in prepare(read_recording(columns=AXES), samples=600).channels if c.label == "az")
+    expected = raw - slope * t
+    np.testing.assert_allclose(d["y_az"], expected - expected.mean(), rtol=0, atol=1e-9)
+    assert abs(slope) * t[-1] > 1e-3 * np.std(raw)  # a ramp that matters
+    assert "How the TEA runs this model" in (tmp_path / "id" / "report.md").read_text()
+    assert run("identify", "--samples", 600, "--model", "fractional+white+low-pass", "--out", tmp_path / "b") == 2
+    assert "low-pass" in capsys.readouterr().err
+    assert run("identify", "--samples", 600, "--model", spec, "--r", "paper", "--out", tmp_path / "c") == 2
+    assert "--r fitted" in capsys.readouterr().err
+
+
 def test_identify_report_and_tensorboard(tmp_path, capsys):
     """report.md carries the numbers of summary.json; the TensorBoard events read back to the trajectories."""
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator

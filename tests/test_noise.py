@@ -313,14 +313,14 @@ def test_cli_fit_json(capsys):
 
 
 def test_tea_reads_the_simulators_model():
-    """The TEA built from the model (``tea_config``) predicts the simulated data's innovation variance; read
+    """The TEA built from the model (``tea_view``) predicts the simulated data's innovation variance; read
     with the drive unscaled by h^α (the paper's printed (31)) it overstates it ~15-fold. The TEA's own KFx
     neglects cross-covariances of the history (issue 15), so its NIS sits near 1.2 rather than 1: seeded,
     16 realisations × the last third of 2000 steps, NIS sd across realisations ≈ 0.3."""
     from dataclasses import replace
 
     from torchtea.engines.structure import Structure
-    from torchtea.noise.tea import tea_config
+    from torchtea.noise.tea import tea_view
     from torchtea.core.stats import last_third, mean_nis
     from torchtea.engines.tea import make_params, run_tea
 
@@ -334,12 +334,12 @@ def test_tea_reads_the_simulators_model():
         res = run_tea(y.unsqueeze(-1), h=H, params=make_params(cfg, Structure()))
         return float(mean_nis(res.innovation[:, sl], res.innovation_cov[:, sl], observed).mean())
 
-    cfg = tea_config(m, FW)
+    cfg = tea_view(m, FW, H).config
     assert cfg.kfx.R == FW["white.r"] and cfg.kfx.Q0 == FW["fractional.q"] and cfg.kfo.x0 == 0.4
     assert 0.8 < nis(cfg) < 1.6
     assert nis(replace(cfg, noise_scaling="unscaled")) < 0.3
-    with pytest.raises(ValueError, match="random-walk"):
-        tea_config("fractional+random-walk+white", dict(FW, **{"random-walk.sigma": 0.01}))
+    with pytest.raises(ValueError, match="low-pass"):
+        tea_view("fractional+white+low-pass", dict(FW, **{"low-pass.cutoff_hz": 5.0}), H)
 
 
 def test_observed_information_is_converged_in_its_step():

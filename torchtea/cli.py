@@ -701,8 +701,14 @@ def cmd_identify(args) -> int:
     from .reports.identify import LONG_INPUT, MIN_SAMPLES, identify
     from .reports.report import save_identification
 
+    from .noise import parse_model
+
     dev = _device(args.device)  # before any work
+    model = parse_model(args.model)
+    if model.spec != "fractional+white" and args.r != "fitted":
+        raise CLIError(f"--model {model.spec}: its noise levels come from its fit (--r fitted)")
     m = _measurements(args, "identify", min_samples=MIN_SAMPLES, sensors=("accelerometer",))
+    inputs = _model_inputs(args, model, m)
     overrides, config_source, memory_kind = _identify_overrides(args)
     total = m.samples
     memory_kind = memory_kind or ("soe" if total >= LONG_INPUT else "exact")  # identify's choice by the length
@@ -715,8 +721,12 @@ def cmd_identify(args) -> int:
               "sums, O(N²))", file=sys.stderr)
     step, close = _progress(total - 1, "TEA " + ",".join(m.labels), bar=not args.json)
     t0 = time.perf_counter()
-    ident = identify(m, r_mode=args.r, overrides=overrides, progress=step, compile=args.compile, partial=True,
-                     device=dev)
+    try:
+        ident = identify(m, model=model, r_mode=args.r, overrides=overrides, progress=step, compile=args.compile,
+                         partial=True, device=dev, inputs=inputs)
+    except ValueError as exc:  # a model the TEA cannot run (tea_view names the component)
+        close()
+        raise CLIError(f"--model {model.spec}: {exc}") from None
     if ident.changes and config_source is None:
         config_source = f"the recording's length (soe memory from {LONG_INPUT} samples; --memory exact for the full sums)"
     elapsed = time.perf_counter() - t0
@@ -732,17 +742,21 @@ def cmd_identify(args) -> int:
         used = "the paper's §5.1 MEMS settings" + (f" changed by {config_source}" if ident.changes else "")
         print(f"{Path(rec.path).name}: {summary['samples']} samples at {rec.rate_hz:g} Hz (rate from {rec.rate_source}), "
               f"mean removed per channel, TEA with {used}, R = " + {"measured": "measured variance",
-                                                                    "fitted": "fitted r̂ and Q = fitted q̂ (fractional+white, exact likelihood)"}.get(args.r, "paper values"))
+                                                                    "fitted": f"fitted r̂ and Q = fitted q̂ ({model.spec}, exact likelihood)"}.get(args.r, "paper values"))
+        if model.spec != "fractional+white":
+            notes = ident.views[0].notes
+            print("the model in the TEA: " + "; ".join(f"{lb}: {notes[lb]}" for lb in notes))
         print("channels: " + "; ".join(f"{c.label} = {c.title}" for c in m.channels))
         for a, fs in summary.get("fit", {}).items():
             p_ = fs["parameters"]
             c = p_["fractional.order"]["ci95"]
             unit = summary["axes"][a]["unit"]
+            others = ", ".join(f"{n} {p_[n]['value']:.3g}" for n in p_ if not n.startswith("fractional."))
             print(f"fit {a}: α̂ {p_['fractional.order']['value']:.3f} "
                   + (f"({p_['fractional.order']['ci95_method']})" if c is None else f"[{c[0]:.3f}, {c[1]:.3f}] 95 % CI")
-                  + f", f̂ {p_['fractional.pole']['value']:.3g}, q̂ {p_['fractional.q']['value']:.3g}, "
-                  f"r̂ {p_['white.r']['value']:.3g} ({unit})², white-noise density "
-                  f"{math.sqrt(p_['white.r']['value'] * ident.h):.3g} {unit}/√Hz, NIS of the fit {fs['nis']:.3f}")
+                  + f", f̂ {p_['fractional.pole']['value']:.3g}, q̂ {p_['fractional.q']['value']:.3g}, {others}"
+                  + (f" (white-noise density {math.sqrt(p_['white.r']['value'] * ident.h):.3g} {unit}/√Hz)"
+                     if "white.r" in p_ else "") + f", NIS of the fit {fs['nis']:.3f}")
         print(f"missing samples: {ident.missing.describe()}")
         print(f"{'chan':>4} {'R [unit²]':>12} {'α̂ last⅓':>9} {'sd last⅓':>9} {'α̂ final':>9} "
               f"{'ŵ last⅓':>9} {'sd last⅓':>9} {'ŵ final':>9} {'NIS last⅓':>9}")
@@ -1112,12 +1126,18 @@ def build_parser() -> argparse.ArgumentParser:
     i = sub.add_parser("identify", help="identify the noise model of an IMU recording's channels with the TEA")
     _recording_flags(i, columns_help="the columns to identify, any number (default: the accelerometer's x, y, z; "
                                      "e.g. gx,gy,gz for the gyroscope)",
-                     temperature_help=None, samples_default="all",
+                     temperature_help="temperature column (°C) for a --model with temperature components",
+                     samples_default="all",
                      samples_help="use the first N samples (at least 100; the paper used 3000, 30 s), or 'all' "
                                   "(default; from 20 000 samples on the TEA runs with soe memory, O(N))")
     i.add_argument("--r", choices=("fitted", "measured", "paper"), default="fitted",
                    help="R, Rᵒ, Rʷ per channel: fitted by likelihood with Q (default), the channel's measured "
                         "variance (the paper's rule) or the paper's printed values")
+    i.add_argument("--model", default="fractional+white", metavar="SPEC",
+                   help="the noise model the TEA runs (default the paper's fractional+white), e.g. the one check "
+                        "ended with: fractional+white+random-walk+sinusoid. It is fitted to each channel first; "
+                        "its other states join KFx's state, its means are removed at their fitted values; a "
+                        "sensor filter (low-pass, digital-filter) is refused")
     i.add_argument("--config", help="TOML settings applied on top of the paper's MEMS settings")
     i.add_argument("--out", help="output directory (default identify-<recording name>)")
     i.add_argument("--no-plots", action="store_true")
@@ -1261,6 +1281,19 @@ def build_parser() -> argparse.ArgumentParser:
 # --------------------------------------------------------------------------- fit
 
 
+def _model_inputs(args, model, m):
+    """The input channels ``model`` reads (``{"temperature": (N,)}``) from ``--temperature``, or None; a model that
+    needs one without the flag is an error, the flag without such a model a note."""
+    needs = sorted({name for _, c in model.components for name in c.inputs})
+    if needs and args.temperature is None:
+        raise CLIError(f"model {model.spec!r} needs the input channel(s) {', '.join(needs)}: give --temperature COL")
+    if args.temperature is not None and not needs:
+        print(f"torchtea: note: model {model.spec!r} has no temperature component; --temperature is not used "
+              "(add temperature-bias or temperature-order)", file=sys.stderr)
+        return None
+    return None if args.temperature is None else {"temperature": m.temperature_input()}
+
+
 def cmd_fit(args) -> int:
     import math as _math
 
@@ -1274,15 +1307,8 @@ def cmd_fit(args) -> int:
     m = _measurements(args, "a fit", min_samples=100)
     plan = _export_plan(args, m, args.export)
     series = [c.values for c in m.channels]
-    inputs = None
-    needs = sorted({name for _, c in model.components for name in c.inputs})
-    if needs and args.temperature is None:
-        raise CLIError(f"model {model.spec!r} needs the input channel(s) {', '.join(needs)}: give --temperature COL")
-    if args.temperature is not None and not needs:
-        print(f"torchtea: note: model {model.spec!r} has no temperature component; --temperature is not used "
-              "(add temperature-bias or temperature-order)", file=sys.stderr)
-    elif args.temperature is not None:
-        inputs = [{"temperature": m.temperature_input()}] * len(series)
+    inp = _model_inputs(args, model, m)
+    inputs = None if inp is None else [inp] * len(series)
     n_boot = args.bootstrap if args.bootstrap is not None else (99 if m.samples <= BOOTSTRAP_LIMIT else 0)
     if args.bootstrap is None and n_boot == 0 and model.has("fractional"):
         print(f"torchtea: note: {m.samples} samples: the fractional-presence bootstrap is not run (--bootstrap 99 "

@@ -47,7 +47,7 @@ from torchtea.fitting import fit_series
 from torchtea.fitting.presence import fractional_test
 from torchtea.engines.structure import Structure
 from torchtea.noise import parse_model, simulate_model
-from torchtea.noise.tea import tea_config
+from torchtea.noise.tea import tea_view
 from torchtea.engines.presets import get_preset
 from torchtea.core.stats import last_third
 from torchtea.engines.tea import make_params, run_tea
@@ -129,7 +129,7 @@ def run_exact_round(ys, path: Path, chunk: int, target: int) -> bool:
 def run_tea_rows(ys, alpha: float) -> list:
     v = truth(alpha)
     base = get_preset("paper-mems-x")
-    cfg = tea_config(MODEL, v, base)
+    cfg = tea_view(MODEL, v, H, base).config
     cfg = replace(cfg, kfo=replace(cfg.kfo, x0=base.kfo.x0), kfw=replace(cfg.kfw, x0=base.kfw.x0),
                   memory=replace(base.memory, kind="soe"))
     t = time.perf_counter()

@@ -35,7 +35,7 @@ from torch import Tensor
 
 from ..core.gl import gl_tail_coefficients
 
-__all__ = ["ParamSpec", "Component", "StartData", "NotScreened", "COMPONENTS", "ORDER_BOUNDS", "logit", "candidates",
+__all__ = ["ParamSpec", "Component", "StartData", "NotScreened", "TEAPart", "TEAUnsupported", "COMPONENTS", "ORDER_BOUNDS", "logit", "candidates",
            "WHITTLE_SCREEN", "WHITTLE_SCREEN_2", "MEAN_SCREEN", "boundary_logsf"]
 
 #: Orders the ``fractional`` component may take: open interval, the kernel is designed on it.
@@ -74,6 +74,32 @@ class StartData(NamedTuple):
     n_state: int
     h: float
     order: float
+
+
+@dataclass(frozen=True)
+class TEAPart:
+    r"""A state component's place in the TEA's A-type model (paper (9)–(10)): its ``n`` states follow
+    :math:`x_{k+1} = h^{\alpha}(A x_k + \omega_k) - \sum_{j\ge1} c_j(\alpha) x_{k+1-j}` with
+    :math:`\omega_k \sim N(0, Q_0)` — KFx's ``Q0`` in the TEA's ``"scaled"`` convention, where the drive enters
+    as :math:`h^\alpha Q_0 h^\alpha` — and its output is its state 0.
+
+    ``order``: the states' order (a number; every state of the part has it). ``estimated``: KFo estimates it (from
+    ``order``). ``pole``: the value KFw estimates as ``A[0, 0]``'s parameter (``A`` then holds 0 there), or None.
+    An integer-order part (``order`` 1) is exact whatever the memory: ``c_1(1) = −1`` and ``c_j(1) = 0`` for j ≥ 2."""
+
+    A: Tensor  # (n, n)
+    Q0: Tensor  # (n, n)
+    order: float = 1.0
+    estimated: bool = False
+    pole: float | None = None
+
+    @property
+    def n(self) -> int:
+        return self.A.shape[0]
+
+
+class TEAUnsupported(ValueError):
+    """Raised by :meth:`Component.tea_part` when the TEA's A-type model has no place for the component."""
 
 
 class NotScreened(Exception):
@@ -138,6 +164,33 @@ class Component:
 
     def measurement_variance(self, v: dict) -> Tensor:
         raise NotImplementedError
+
+    # ---- how the TEA runs it (torchtea.noise.tea) ----------------------------------------------------------
+    def tea_part(self, label: str, v: dict, h: float) -> "TEAPart | None":
+        """Its place in the TEA's model for one parameter set ``v`` (each ``(1,)``). A state of integer order:
+        its block ``z_{k+1} = F z_k + G ξ_k`` is the A-type model's order-1 form ``x_{k+1} = h(A x_k + ω_k) + x_k``
+        with ``A = (F − I)/h`` and ``Q0 = G Gᵀ/h²`` — exactly (the same transition and drive). A measurement
+        noise is KFx's R, a mean is taken from the series before the TEA runs (None for both). A filter or a
+        modifier has no general place: refused (a subclass that has one overrides this)."""
+        if self.kind in ("measurement", "mean"):
+            return None
+        if self.kind == "state":
+            F, G = self.block(v, h, None)
+            F, G = F[0], G[0]
+            eye = torch.eye(F.shape[-1], dtype=F.dtype)
+            return TEAPart((F - eye) / h, G @ G.mT / h ** 2)
+        raise TEAUnsupported(f"{self.name} ({self.kind}) has no place in the TEA's A-type model "
+                             f"x_(k+1) = h^a (A x_k + w_k) - sum c_j x_(k+1-j): {self.tea_refusal}")
+
+    #: why the TEA refuses it (the default :meth:`tea_part` of a filter or a modifier says this)
+    tea_refusal = "no state-space form of this kind"
+
+    @property
+    def tea_note(self) -> str:
+        """What the TEA does with it, in the identification's report."""
+        return {"measurement": "in KFx's R (and KFo's, KFw's)", "mean": "removed from the series at its fitted values",
+                "state": "a KFx state of order 1 (its transition and drive as the exact filter has them)"
+                }.get(self.kind, "")
 
     # ---- how a navigation filter's noise model sees it (torchtea.export) ----------------------------------
     #: the IEEE Std 952 term it is: ``"N"`` (white rate noise: a noise density), ``"K"`` (rate random walk: a bias
@@ -414,6 +467,14 @@ class Fractional(Component):
         if f"{label}.q" not in fixed:
             v[f"{label}.q"] = v[f"{label}.q"] * s
 
+    tea_note = "KFx's fractional state: KFo estimates its order, KFw its pole, from the fitted values"
+
+    def tea_part(self, label, v, h):
+        """The paper's (43)–(45) itself: order and pole estimated (KFo, KFw, starting at the fitted values), its
+        drive ``Q0 = q``."""
+        return TEAPart(torch.zeros(1, 1, dtype=torch.float64), v["q"].reshape(1, 1).to(torch.float64),
+                       order=float(v["order"][0]), estimated=True, pole=float(v["pole"][0]))
+
     def block(self, v, h, memory):
         alpha, f, q = v["order"], v["pole"], v["q"]
         B = alpha.shape[0]
@@ -649,6 +710,8 @@ class LowPass(Component):
 
     name = "low-pass"
     kind = "filter"
+    tea_refusal = ("its state is driven by the next value of the states before it, whose row depends on the "
+                   "estimated order: no fixed A holds it")
     screen_order = 50
     params = (ParamSpec("cutoff_hz", "positive", "f_c (Hz)"),)
     #: first-order stages in cascade, each with the cut-off ``cutoff_hz``
@@ -1385,6 +1448,11 @@ class TemperatureOrder(Component):
 
     name = "temperature-order"
     kind = "modifier"
+    tea_note = ("not a state: KFo estimates the order's variation in time itself (its estimate can be read against "
+                "the temperature); the fitted slope per °C is not used")
+
+    def tea_part(self, label, v, h):
+        return None
     inputs = ("temperature",)
     held = {"t_ref": None}
     params = (ParamSpec("order_per_degC", "free", "1/°C"), ParamSpec("t_ref", "free", "T_ref (°C)"))

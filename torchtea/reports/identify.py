@@ -25,9 +25,9 @@ from ..sensors.measurements import Measurements
 from ..engines.structure import Structure
 from ..engines.presets import get_preset
 from ..core.stats import last_third, mean_nis
-from ..engines.tea import CLAMP_NOTE, TEAResult, make_params, run_tea, stack_params
+from ..engines.tea import CLAMP_NOTE, STEP_OUTPUTS, TEAResult, make_params, run_tea, stack_params
 from ..engines.settings import TEAConfig
-from ..noise.tea import tea_config
+from ..noise.tea import same_structure, tea_view
 
 __all__ = ["AXES", "preset_for", "LONG_INPUT", "mean_or_nan", "sd_or_nan", "MIN_SAMPLES", "NIS_TRUST_BAND", "SETTLE_BAND", "DRIFT_BAND", "ALPHA_SD_LIMIT", "Identification", "axis_configs",
            "identify", "summarise", "settle_time", "trust_warnings", "config_changes", "axis_changes"]
@@ -88,6 +88,12 @@ class Identification:
     #: The channels identified (:class:`~torchtea.sensors.io.Channel`), in batch order.
     channels: tuple = ()
     measurements: Measurements | None = None
+    #: The TEA's view of each channel's fitted model (:class:`~torchtea.noise.tea.TEAView`; empty unless
+    #: ``r_mode="fitted"``).
+    views: tuple = ()
+    #: The series the fits saw ``(C, N, 1)`` where the TEA's ``y`` differs from them (the model's means removed);
+    #: None: ``y``.
+    fitted_y: torch.Tensor | None = None
 
     @property
     def labels(self) -> tuple:
@@ -136,14 +142,15 @@ R_MODES = ("fitted", "measured", "paper")
 
 
 def axis_configs(y: torch.Tensor, r_mode: str = "measured", overrides: dict | None = None, fits=(),
-                 presets=None) -> tuple:
+                 presets=None, h: float | None = None) -> tuple:
     """The paper's §5.1 settings per channel (``presets``, default ``paper-mems-x``, ``-y``, ``-z`` for three
     accelerometer axes; see :func:`preset_for`), with ``overrides`` on top.
 
     ``r_mode="fitted"`` (:func:`identify`'s default; this function's is ``"measured"``, which the live mode
-    and the scripts use) takes the noise levels of a maximum-likelihood fit of
-    ``fractional+white`` to the channel (``fits``, :func:`torchtea.fitting.fit_series`): KFx's R = Rᵒ = Rʷ = r̂,
-    KFx's Q = q̂, and the order and parameter filters start at α̂ and f̂ — the TEA then checks whether the
+    and the scripts use) takes the noise levels of a maximum-likelihood fit of the model to the channel (``fits``,
+    :func:`torchtea.fitting.fit_series`; ``h`` its sample time) as the model's TEA view gives them
+    (:func:`torchtea.noise.tea.tea_view`): KFx's R = Rᵒ = Rʷ = r̂, KFx's Q = q̂ (and the other states' drives),
+    and the order and parameter filters start at α̂ and f̂ — the TEA then checks whether the
     order varies in time around a model whose noise levels match the data (NIS near 1).
 
     ``r_mode="paper"`` keeps the printed R, Rᵒ, Rʷ (4, 3.9, 11 ·10⁻⁴ (m/s²)²);
@@ -169,17 +176,19 @@ def axis_configs(y: torch.Tensor, r_mode: str = "measured", overrides: dict | No
             r = float(np.nanvar(y[i, :, 0].cpu().numpy()))
             cfg = replace(cfg, kfx=replace(cfg.kfx, R=r), kfo=replace(cfg.kfo, R=r), kfw=replace(cfg.kfw, R=r))
         elif r_mode == "fitted":
-            cfg = tea_config(fits[i].model, fits[i].values, cfg)
+            if h is None:
+                raise ValueError("r_mode 'fitted' needs the sample time h")
+            cfg = tea_view(fits[i].model, fits[i].values, h, cfg).config
         if overrides:
             cfg = TEAConfig.from_dict(overrides, cfg)
         out.append(cfg)
     return tuple(out)
 
 
-def identify(measurements: Measurements, *, r_mode: str = "fitted", overrides: dict | None = None, progress=None,
-             compile: bool = False, partial: bool = False, device=None) -> Identification:
-    """Run the TEA on the channels of a prepared recording (:func:`torchtea.sensors.measurements.prepare`) as one
-    batch.
+def identify(measurements: Measurements, *, model="fractional+white", r_mode: str = "fitted",
+             overrides: dict | None = None, progress=None, compile: bool = False, partial: bool = False, device=None,
+             inputs: dict | None = None) -> Identification:
+    """Run the TEA on the channels of a prepared recording (:func:`torchtea.sensors.measurements.prepare`).
 
     Parameters
     ----------
@@ -187,9 +196,14 @@ def identify(measurements: Measurements, *, r_mode: str = "fitted", overrides: d
         The channels (each in SI units; its mean is removed here), their missing samples (NaN, predicted through:
         :func:`~torchtea.sensors.measurements.prepare` has applied the missing-sample policy) and time stamps. At
         least :data:`MIN_SAMPLES` samples.
+    model : str or NoiseModel
+        The noise model the TEA runs (:func:`torchtea.noise.tea.tea_view`): the paper's ``fractional+white`` by
+        default, or the model ``check`` ended with (``fractional+white+random-walk+sinusoid`` …). It is fitted to each
+        channel by the exact likelihood first; its other states join KFx's state, its means are removed from the
+        series at their fitted values. A model other than ``fractional+white`` needs ``r_mode="fitted"``.
     r_mode : {"fitted", "measured", "paper"}
-        See :func:`axis_configs`. ``"fitted"`` first fits ``fractional+white`` to each channel by the exact
-        likelihood (:func:`torchtea.fitting.fit_series`, kept in ``Identification.fits``).
+        See :func:`axis_configs`. ``"fitted"`` first fits the model to each channel by the exact likelihood
+        (:func:`torchtea.fitting.fit_series`, kept in ``Identification.fits``).
     overrides : dict, optional
         TEA settings applied on top of the presets (as in a TOML config), e.g. ``{"memory": {"kind": "exact"}}``;
         see :func:`axis_configs`. Without a ``memory`` entry, series of :data:`LONG_INPUT` samples or more run with
@@ -202,33 +216,78 @@ def identify(measurements: Measurements, *, r_mode: str = "fitted", overrides: d
         Where the TEA runs (default the CPU, where the scalar model takes the compiled engine; elsewhere the torch
         engine). The noise-level fit of ``r_mode="fitted"`` runs on the CPU whatever the device (its exact
         Kalman filter is compiled for the CPU); the result comes back to the CPU.
+    inputs : dict, optional
+        ``{"temperature": (N,)}`` for a model with temperature components.
     """
+    from ..noise.model import parse_model
+
+    model = parse_model(model)
     m = measurements
     rec = m.recording
     N = m.samples
     if N < MIN_SAMPLES:
         raise InputError(f"{rec.path}: {N} samples; identify needs at least {MIN_SAMPLES} (its estimates are "
                          "summarised over the last third of the run)")
+    plain = model.spec == "fractional+white"
+    if not plain and r_mode != "fitted":
+        raise ValueError(f"model {model.spec!r}: its noise levels come from its fit; use r_mode 'fitted'")
     values = np.column_stack([c.values for c in m.channels])
     means = np.nanmean(values, axis=0)
     y = torch.as_tensor((values - means).T.copy(), dtype=torch.float64).unsqueeze(-1)  # (C, N, 1)
-    fits = ()
+    fits, views, fitted_y = (), (), None
+    structures = [Structure()] * len(m.channels)
     if r_mode == "fitted":
         from ..fitting import fit_series
 
-        fits = tuple(fit_series("fractional+white", [y[i, :, 0].numpy() for i in range(len(m.channels))], rec.h,
-                                method="exact", profile=True))
+        fits = tuple(fit_series(model, [y[i, :, 0].numpy() for i in range(len(m.channels))], rec.h,
+                                method="exact", profile=plain, inputs=None if inputs is None else
+                                [inputs] * len(m.channels)))
+        views = tuple(tea_view(f.model, f.values, rec.h) for f in fits)  # refuses a model the TEA cannot run
+        structures = [v.structure for v in views]
+        if not plain:  # the model's means (a ramp, a line …) at their fitted values
+            fitted_y = y
+            t = np.arange(N) * rec.h
+            y = torch.stack([v.residual(y[i, :, 0], t, inputs) for i, v in enumerate(views)]).unsqueeze(-1)
     overrides = dict(overrides or {})
     if "memory" not in overrides and N >= LONG_INPUT:
         overrides["memory"] = {"kind": "soe"}
     presets = [preset_for(c) for c in m.channels]
-    configs = axis_configs(y, r_mode, overrides or None, fits, presets)
-    changes = tuple(axis_changes(axis_configs(y, r_mode, None, fits, presets), configs,
+    configs = axis_configs(y, r_mode, overrides or None, fits, presets, h=rec.h)
+    changes = tuple(axis_changes(axis_configs(y, r_mode, None, fits, presets, h=rec.h), configs,
                                  [c.label for c in m.channels]))
-    params = stack_params([make_params(c, Structure()) for c in configs])
-    result = run_tea(y.to(device or "cpu"), h=rec.h, params=params, progress=progress, compile=compile,
-                     partial=partial).to("cpu")
-    return Identification(rec, rec.h, y, means, configs, result, m.missing, m.timing, changes, fits, m.channels, m)
+    groups: list[list[int]] = []  # channels one batch can run: the same structure
+    for i, st in enumerate(structures):
+        g = next((g for g in groups if same_structure(structures[g[0]], st)), None)
+        (g.append(i) if g is not None else groups.append([i]))
+    results = []
+    for g in groups:
+        params = stack_params([make_params(configs[i], structures[i]) for i in g])
+        results.append(run_tea(y[g].to(device or "cpu"), h=rec.h, params=params, structure=structures[g[0]],
+                               progress=progress, compile=compile, partial=partial).to("cpu"))
+    result = results[0] if len(groups) == 1 else _in_channel_order(results, groups)
+    return Identification(rec, rec.h, y, means, configs, result, m.missing, m.timing, changes, fits, m.channels, m,
+                          views, fitted_y)
+
+
+def _in_channel_order(results: list, groups: list) -> TEAResult:
+    """Results of channel groups (batch ``(len(g),)`` each) as one result in channel order; an interruption keeps
+    the steps every group finished."""
+    from dataclasses import fields
+
+    steps = min(r.alpha.shape[-2] for r in results)
+    order = torch.as_tensor(np.argsort(np.concatenate(groups), kind="stable"))
+    out = {}
+    for f in fields(TEAResult):
+        vals = [getattr(r, f.name) for r in results]
+        if f.name in STEP_OUTPUTS:
+            out[f.name] = torch.cat([v[:, :steps] for v in vals])[order]
+        elif f.name == "steps":
+            out[f.name] = None if vals[0] is None else vals[0][:steps]
+        elif f.name == "interrupted":
+            out[f.name] = any(vals)
+        else:
+            out[f.name] = None if vals[0] is None else torch.cat(vals)[order]
+    return TEAResult(**out)
 
 
 def settle_time(est: np.ndarray, t: np.ndarray, target: float, band: float = SETTLE_BAND) -> float:

@@ -122,14 +122,14 @@ def write_report(path, ident: Identification, summary: dict, figures: list, *, c
     lines += src + [""]
     if summary.get("fit"):
         lines += ["## Fitted noise model (maximum likelihood, before the TEA)", "",
-                  "`fractional+white` fitted to each channel by the exact likelihood (Kalman filter on the "
+                  f"`{summary.get('model', 'fractional+white')}` fitted to each channel by the exact likelihood (Kalman filter on the "
                   "exponential-sum state; Whittle gives the start). Changed against the paper: the paper sets "
                   "R = Rᵒ = Rʷ to the measurement noise and keeps Q = 0.01; here r and q are the values that make "
                   "the model's innovations match the data (NIS of the fitted model ≈ 1), and KFo/KFw start at the "
                   "fitted order and pole instead of 1 and 0. The TEA below then shows whether the order moves in "
                   "time around that model.", "",
-                  "| channel | unit | α̂ [95 % CI] | f̂ ± se | q̂ [95 % CI] (unit²) | r̂ [95 % CI] (unit²) | white-noise density √(r̂h) (unit/√Hz) | loglik | NIS (fit) |",
-                  "|---|---|---|---|---|---|---|---|---|"]
+                  "| channel | unit | α̂ [95 % CI] | f̂ ± se | q̂ [95 % CI] (unit²) | r̂ [95 % CI] (unit²) | white-noise density √(r̂h) (unit/√Hz) | other parameters | loglik | NIS (fit) |",
+                  "|---|---|---|---|---|---|---|---|---|---|"]
         for a, fs in summary["fit"].items():
             p_ = fs["parameters"]
 
@@ -140,9 +140,14 @@ def write_report(path, ident: Identification, summary: dict, figures: list, *, c
             lines.append(f"| {a} | {summary['axes'][a]['unit']} | {p_['fractional.order']['value']:.3f} {ci('fractional.order', '.3f')} | "
                          f"{p_['fractional.pole']['value']:.3g}" + ("" if se is None else f" ± {se:.2g}")
                          + f" | {p_['fractional.q']['value']:.3g} {ci('fractional.q', '.3g')} | "
-                         f"{p_['white.r']['value']:.3g} {ci('white.r', '.3g')} | "
-                         f"{math.sqrt(p_['white.r']['value'] * ident.h):.3g} | {fs['loglik']:.1f} | "
-                         f"{fs['nis']:.3f} |")
+                         + (f"{p_['white.r']['value']:.3g} {ci('white.r', '.3g')} | "
+                            f"{math.sqrt(p_['white.r']['value'] * ident.h):.3g} | " if "white.r" in p_ else "— | — | ")
+                         + (", ".join(f"{n} {p_[n]['value']:.3g}" for n in p_
+                                      if not n.startswith("fractional.") and n != "white.r") or "—")
+                         + f" | {fs['loglik']:.1f} | {fs['nis']:.3f} |")
+        if ident.views and summary.get("model", "fractional+white") != "fractional+white":
+            lines += ["", "How the TEA runs this model (each component's place in it):", ""]
+            lines += [f"- `{lb}`: {note}" for lb, note in ident.views[0].notes.items()]
         lines += ["", "Intervals: Wald on the logit (order) or log (q, r) scale from the exact observed information; "
                   "'no interval' where that information is not positive definite (an estimate on a boundary). "
                   "The Whittle profile interval of the order is in `summary.json` (`fit.<axis>.order_profile`); "
@@ -193,7 +198,7 @@ def write_report(path, ident: Identification, summary: dict, figures: list, *, c
 
 def orders_figure(path, ident: Identification) -> Path:
     """α̂ of every channel on one plot with ±2σ (the filter's) — convergence at a glance."""
-    from .plots import pyplot, save_figure
+    from ..render.plots import pyplot, save_figure
 
     plt = pyplot()
     t = ident.t
@@ -262,7 +267,7 @@ def save_identification(ident: Identification, out_dir, *, plots: bool = True, r
         write_config(out_dir / f"config_{a}.toml", ident.configs[i], {"h": ident.h, "channel": a})
     figures = []
     if plots:
-        from .plots import estimation_figure
+        from ..render.plots import estimation_figure
 
         for i, (a, c) in enumerate(zip(ident.labels, ident.channels)):
             figures.append(str(estimation_figure(
@@ -287,11 +292,17 @@ def save_identification(ident: Identification, out_dir, *, plots: bool = True, r
     if ident.fits:
         from ..fitting.summary import axis_summary, fit_nis
 
-        summary["fit"] = {a: axis_summary(f, nis=fit_nis(f, ident.y[i, :, 0].numpy(), ident.h))
+        fy = ident.y if ident.fitted_y is None else ident.fitted_y
+        summary["fit"] = {a: axis_summary(f, nis=fit_nis(f, fy[i, :, 0].numpy(), ident.h))
                           for i, (a, f) in enumerate(zip(ident.labels, ident.fits))}
+        summary["model"] = ident.fits[0].model.spec
+        if ident.views:
+            summary["tea_model"] = dict(ident.views[0].notes)
     summary["meaning"].update({
-        "fit": "per channel: maximum-likelihood fit of fractional+white (exact likelihood) whose r̂, q̂, α̂, f̂ set the "
-               "TEA (r_mode fitted); see torchtea fit --json for the meaning of its entries",
+        "fit": "per channel: maximum-likelihood fit of the model (exact likelihood) whose r̂, q̂, α̂, f̂ (and its other "
+               "states' drives) set the TEA (r_mode fitted); see torchtea fit --json for the meaning of its entries",
+        "model": "the noise model fitted and run by the TEA",
+        "tea_model": "each component of the model: what the TEA does with it",
         "statistics": "per channel: noise variance and std over all samples used; over the last third the mean squared "
                       "innovation, its predicted value S and the residual y − x̂ variance; settling times [s]",
         "timing": "the file's time stamps against the rate in use (null: the file has no time column)",

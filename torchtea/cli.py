@@ -825,7 +825,7 @@ def _studies_from_args(args):
             raise CLIError(f"{args.config}: estimator.{name} is swept; leave out --{name.replace('_', '-')}")
         data = dict(data, estimator={**data.get("estimator", {}), name: value})
     flags = {k: getattr(args, k) for k in ("realisations", "seed", "chunk", "log_points", "prior", "preset", "n", "h",
-                                            "order", "param", "q", "r", "input_std")}
+                                            "order", "param", "q", "r", "input_std", "estimator_model")}
     try:
         if "sweep" in data:
             return build_sweep(data, flags, memory=memory, source=args.config)
@@ -1258,6 +1258,10 @@ def build_parser() -> argparse.ArgumentParser:
     mc.add_argument("--r", type=_nonneg_float)
     mc.add_argument("--input-std", type=_nonneg_float)
     mc.add_argument("--memory", help="estimator's " + MEMORY_HELP)
+    mc.add_argument("--estimator-model", metavar="SPEC",
+                    help="the noise model the TEA runs, for a study whose [truth] is a model (model = SPEC with a "
+                         "[truth.values] table): e.g. fractional+white on a fractional+white+random-walk truth "
+                         "(default: the truth's model)")
     mc.add_argument("--prior", choices=PRIOR_CHOICES,
                     help="where each realisation's filters start: 'preset' (default), the estimator's x0 for all; "
                          "'consistent', drawn per realisation from the estimator's P0 around the truth, the condition "

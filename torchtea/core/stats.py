@@ -66,7 +66,11 @@ def nees(x_hat: Tensor, x: Tensor, P: Tensor) -> Tensor:
         e = x_hat[..., 0] - x[..., 0]
         return e * (e / P[..., 0, 0])
     e = (x_hat - x).unsqueeze(-1)
-    return (e.mT @ torch.linalg.solve(P, e)).squeeze(-1).squeeze(-1)
+    sol, info = torch.linalg.solve_ex(P, e)
+    if bool((info != 0).any()):  # a singular P (a state known exactly, e.g. a model's state at its start): the
+        bad = info != 0  # pseudo-inverse, i.e. the NEES of the directions with variance
+        sol = torch.where(bad[..., None, None], torch.linalg.pinv(P, hermitian=True) @ e, sol)
+    return (e.mT @ sol).squeeze(-1).squeeze(-1)
 
 
 def nis(innovation: Tensor, cov: Tensor) -> Tensor:

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import math
+import re
 from pathlib import Path
 
 try:  # Python ≥ 3.11
@@ -64,12 +65,18 @@ def _value(v) -> str:
     raise TypeError(f"cannot write {type(v).__name__} to TOML")
 
 
+def _key(k) -> str:
+    """A TOML key: bare where TOML allows it, else quoted (``"fractional.order"``)."""
+    k = str(k)
+    return k if re.fullmatch(r"[A-Za-z0-9_-]+", k) else '"' + k.replace("\\", "\\\\").replace('"', '\\"') + '"'
+
+
 def dumps_toml(data: dict, _prefix: str = "") -> str:
     """Minimal TOML writer for nested dicts of numbers, strings, booleans and lists (sub-dicts become tables)."""
-    out = [f"{k} = {_value(v)}" for k, v in data.items() if not isinstance(v, dict)]
+    out = [f"{_key(k)} = {_value(v)}" for k, v in data.items() if not isinstance(v, dict)]
     for name, table in data.items():
         if isinstance(table, dict):
-            header = f"{_prefix}{name}"
+            header = f"{_prefix}{_key(name)}"
             out.append("")
             out.append(f"[{header}]")
             out.append(dumps_toml(table, header + ".").rstrip("\n"))

@@ -1,7 +1,13 @@
 """Monte Carlo studies of the TEA: many simulated realisations as one (chunked) batch.
 
 Realisation ``i`` of a study with seed ``s`` draws its input and noises from its own generator, seeded by
-``numpy.random.SeedSequence(s, spawn_key=(i,))``, so a realisation is the same whatever the chunking. Under
+``numpy.random.SeedSequence(s, spawn_key=(i,))``, so a realisation is the same whatever the chunking (its truth
+exactly; its estimates bit for bit on the compiled scalar engine, to rounding on the torch engine, whose batched
+reductions are not bitwise batch-invariant — which a TEA whose KFo wanders can amplify over a long run).
+
+The truth is the paper's scalar model (``order`` … ``r``, a known input or none) or a noise model
+(``[truth] model = "fractional+white+random-walk"`` with ``[truth.values]``; :func:`simulate_model_truth`), estimated
+through the TEA's view of an estimator model (``[estimator] model``, default the truth's; :func:`estimator_view`). Under
 ``prior = "consistent"`` its filters' starting estimates come from a second stream, ``spawn_key=(i, 1)``
 (:func:`draw_prior`), so the input and noises are those of ``prior = "preset"``.
 """
@@ -17,7 +23,7 @@ from torch import Tensor
 
 from ..core.memory import parse_memory
 from ..engines.structure import OrderSchedule, Structure, parse_order_spec
-from ..engines.simulate import simulate
+from ..engines.simulate import Simulation, simulate
 from ..core.stats import chi2_band, convergence_time, coverage, nees, nis, over_realisations
 from ..engines.tea import make_params, run_tea
 from ..engines.settings import TEAConfig
@@ -49,6 +55,12 @@ class Truth:
     r: float
     input_std: float | None = None
     memory: str = "soe"
+    #: A noise model as the truth (``"fractional+white+random-walk"``, :mod:`torchtea.noise`) with its parameter
+    #: ``values`` (``{"fractional.order": 0.4, …}``), simulated by :func:`torchtea.noise.simulate_model`; ``order``,
+    #: ``param``, ``q`` and ``r`` are then its fractional state's order, pole and drive and its measurement variance
+    #: (:func:`build_study` fills them in). None: the paper's scalar model from ``order`` … ``r``.
+    model: str | None = None
+    values: dict | None = None
 
     def schedule(self) -> OrderSchedule:
         return parse_order_spec(self.order)
@@ -75,6 +87,9 @@ class Study:
     #: the estimator's own priors centred on the truth (:func:`draw_prior`), the condition under which a
     #: consistent filter's NEES averages 1 and its ±2σ intervals cover 95 % from the first step
     prior: str = "preset"
+    #: The noise model the TEA runs (its view, :func:`torchtea.noise.tea.tea_view`, at the truth's values of its
+    #: parameters); None: the truth's model (or the paper's scalar one). Only with a model truth.
+    estimator_model: str | None = None
 
     def __post_init__(self):
         if self.prior not in PRIORS:
@@ -243,7 +258,8 @@ def _digest(study: Study, rows: range, sim, res, steps: list[int], trajectories:
     tr = study.truth
     alpha_true, alpha, P_alpha = cpu(sim.alpha[..., 0]), cpu(res.alpha[..., 0]), cpu(res.P_alpha[..., 0, 0])
     w, P_w = cpu(res.w[..., 0]), cpu(res.P_w[..., 0, 0])
-    e_nees, e_nis = cpu(nees(res.x, sim.x, res.P)), cpu(nis(res.innovation, res.innovation_cov))
+    # NEES per KFx state (a consistent filter's averages 1 whatever its number of states; the paper's model has one)
+    e_nees, e_nis = cpu(nees(res.x, sim.x, res.P) / res.x.shape[-1]), cpu(nis(res.innovation, res.innovation_cov))
     diverged = res.diverged.to("cpu")
     keep = ~diverged
     converged_at, covered, covered_steps = {}, {}, {}
@@ -287,21 +303,27 @@ def run_range(study: Study, start: int, stop: int, *, device=None, progress=None
     chunk = study.chunk or auto_chunk(N, device=device)
     schedule = tr.schedule()
     steps = logged_steps(study)
-    params = make_params(study.estimator, Structure(), device=device)
+    view = estimator_view(study)
+    structure = Structure() if view is None else view.structure
+    params = make_params(study.estimator if view is None else view.config, structure, device=device)
     parts = []
     done = start
     interrupted = False
     try:
         while done < stop:
             rows = range(done, min(stop, done + chunk))
-            draws = [draw_realisation(tr, study.seed, i) for i in rows]
-            u = None if tr.input_std is None else torch.stack([d[0] for d in draws]).to(device)
-            z_w = torch.stack([d[1] for d in draws]).to(device)
-            z_v = torch.stack([d[2] for d in draws]).to(device)
-            sim = simulate(Structure(), n_steps=N, h=tr.h, order=schedule, parameters=[tr.param],
-                           process_noise=tr.q, measurement_noise=tr.r, inputs=u, standard_draws=(z_w, z_v),
-                           memory=tr.memory, device=device)
-            res = run_tea(sim.y, h=tr.h, params=_prior_params(study, params, rows, sim), inputs=u)
+            if view is None:
+                draws = [draw_realisation(tr, study.seed, i) for i in rows]
+                u = None if tr.input_std is None else torch.stack([d[0] for d in draws]).to(device)
+                z_w = torch.stack([d[1] for d in draws]).to(device)
+                z_v = torch.stack([d[2] for d in draws]).to(device)
+                sim = simulate(Structure(), n_steps=N, h=tr.h, order=schedule, parameters=[tr.param],
+                               process_noise=tr.q, measurement_noise=tr.r, inputs=u, standard_draws=(z_w, z_v),
+                               memory=tr.memory, device=device)
+            else:
+                u, sim = None, simulate_model_truth(study, view, rows, device)
+            res = run_tea(sim.y, h=tr.h, params=_prior_params(study, params, rows, sim), inputs=u,
+                          structure=structure)
             parts.append(_digest(study, rows, sim, res, steps, trajectories))
             del sim, res
             done = rows.stop
@@ -324,6 +346,59 @@ def _prior_params(study: Study, params, rows: range, sim):
     x0, alpha0, w0 = draw_prior(params, study.seed, rows, cpu(sim.x[:, 0]), cpu(sim.alpha[:, 0, :params.alpha0.shape[-1]]),
                                 w_true)
     return params._replace(x0=x0.to(params.x0), alpha0=alpha0.to(params.x0), w0=w0.to(params.x0))
+
+
+def estimator_view(study: Study):
+    """The TEA's view of the estimator's model (:func:`torchtea.noise.tea.tea_view`) on top of the study's estimator
+    settings, at the truth's values of its parameters (a known-truth study: KFx's noise levels are the truth's, KFo and
+    KFw start at the truth's order and pole); None for the paper's scalar truth."""
+    tr = study.truth
+    if tr.model is None:
+        return None
+    from ..noise import parse_model
+    from ..noise.tea import tea_view
+
+    model = parse_model(study.estimator_model or tr.model)
+    missing = [n for n in model.names if n not in tr.values]
+    if missing:
+        raise ValueError(f"the estimator's model {model.spec!r} has parameters the truth {tr.model!r} lacks: "
+                         f"{', '.join(missing)}")
+    return tea_view(model, {n: tr.values[n] for n in model.names}, tr.h, study.estimator)
+
+
+def simulate_model_truth(study: Study, view, rows: range, device=None) -> Simulation:
+    """Realisations ``rows`` of a model truth, each from its own generator (:func:`realisation_seed`), by the noise
+    simulator; as a :class:`~torchtea.engines.simulate.Simulation` for the estimator's ``view``: ``y`` without the
+    estimator's means at the truth's values, ``x`` the true values of the estimator's KFx states (a state of a
+    component the truth lacks is 0), ``alpha`` the fractional state's (constant) order."""
+    from ..noise import parse_model, simulate_model
+
+    tr = study.truth
+    N = tr.n_steps
+    truth = parse_model(tr.model)
+    blocks = truth.state_space(tr.values, tr.h, N, tr.memory).blocks
+    ys, zs = [], []
+    for i in rows:
+        g = torch.Generator().manual_seed(realisation_seed(study.seed, i))
+        y, z = simulate_model(truth, tr.values, n_steps=N, h=tr.h, memory=tr.memory, generator=g,
+                              return_states=True)
+        ys.append(y[0, 0])
+        zs.append(z[0, 0])
+    y, Z = torch.stack(ys), torch.stack(zs)  # (R, N), (R, N, n)
+    t = torch.arange(N, dtype=torch.float64) * tr.h
+    y = y - view.model.mean(view.values, t)  # the estimator's means, at the truth
+    seen: dict = {}
+    cols = []
+    for label in view.states:  # the j-th state of a component is the j-th of its block
+        j = seen[label] = seen.get(label, -1) + 1
+        sl = blocks.get(label)
+        cols.append(Z[..., sl.start + j] if sl is not None else torch.zeros_like(y))
+    x = torch.stack(cols, -1)
+    alpha = torch.full((len(rows), N, view.structure.n_estimated_orders), float(tr.order), dtype=torch.float64)
+    empty = torch.empty(len(rows), N, 0, dtype=torch.float64)
+    dev = lambda a: a.to(device or "cpu")  # noqa: E731
+    return Simulation(t=dev(t), u=dev(empty), x=dev(x), y=dev(y.unsqueeze(-1)), alpha=dev(alpha),
+                      process_noise=dev(empty), measurement_noise=dev(empty))
 
 
 def summarise(result: StudyResult) -> dict:
@@ -358,10 +433,12 @@ def summarise(result: StudyResult) -> dict:
             if kept and part.stop > part.start else math.nan for part in _thirds(N)]
         out[name] = entry
     if kept:
-        lo, hi = chi2_band(1, kept)
-        for name, total in (("nees", result.nees_sum), ("nis", result.nis_sum)):
+        view = estimator_view(st)
+        n = 1 if view is None else view.structure.n_states  # NEES per state: R·n times its mean is χ² with R·n dof
+        for name, total, dof in (("nees", result.nees_sum, n), ("nis", result.nis_sum, 1)):
+            lo, hi = (b / dof for b in chi2_band(dof, kept))
             avg = total[1:] / kept
-            out[name] = {"mean": float(avg.mean()), "band_95": [lo, hi],
+            out[name] = {"mean": float(avg.mean()), "band_95": [lo, hi], "dof": dof,
                          "fraction_of_steps_inside_band": float(((avg >= lo) & (avg <= hi)).double().mean()),
                          "mean_by_third": [float((total[part] / kept).mean()) if part.stop > part.start else math.nan
                                            for part in _thirds(N, first=1)]}
@@ -394,6 +471,8 @@ def build_study(data: dict, flags: dict | None = None, *, memory=None, source: s
     est = dict(data.get("estimator", {}))
     preset = flags.get("preset") or est.pop("preset", None) or "paper-example1"
     est.pop("preset", None)
+    estimator_model = flags.get("estimator_model") or est.pop("model", None)
+    est.pop("model", None)
     try:
         estimator = TEAConfig.from_dict(est, get_preset(preset))
     except ValueError as exc:
@@ -410,6 +489,8 @@ def build_study(data: dict, flags: dict | None = None, *, memory=None, source: s
                     input_std=sc.input_std)
     base.update(truth)
     base.update({key: flags[flag] for flag, key in TRUTH_FLAGS.items() if flag in flags})
+    if base.get("model") is not None:
+        base.update(_model_truth_fields(base, source))
     missing = [k for k in ("h", "n_steps", "order", "param", "q", "r") if k not in base]
     if missing:
         raise ValueError(f"the truth needs {', '.join(missing)} (flags --n --h --order --param --q --r, a [truth] "
@@ -426,14 +507,47 @@ def build_study(data: dict, flags: dict | None = None, *, memory=None, source: s
         study = Study(tr, estimator, realisations=int(flags.get("realisations", data.get("realisations", 100))),
                       seed=int(flags.get("seed", data.get("seed", 0))), chunk=flags.get("chunk", data.get("chunk")),
                       log_points=flags.get("log_points", data.get("log_points")),
-                      prior=flags.get("prior", data.get("prior", "preset")))
+                      prior=flags.get("prior", data.get("prior", "preset")), estimator_model=estimator_model)
     except ValueError as exc:  # the prior's check
+        raise ValueError(f"{source}: {exc}") from None
+    if estimator_model is not None and tr.model is None:
+        raise ValueError(f"{source}: an estimator model needs a model truth ([truth] model = ...)")
+    try:
+        estimator_view(study)  # the estimator's model: parameters the truth has, a place in the TEA for each part
+    except ValueError as exc:
         raise ValueError(f"{source}: {exc}") from None
     if study.realisations < 1:
         raise ValueError("--realisations must be at least 1")
     if study.log_points is not None and study.log_points < 1:
         raise ValueError(f"{source}: log_points must be at least 1")
     return study, preset
+
+
+def _model_truth_fields(base: dict, source: str) -> dict:
+    """``order``, ``param``, ``q``, ``r`` of a model truth, from its values (its TEA view's order, pole, fractional drive
+    and measurement variance); raises ``ValueError`` for an unknown model, missing or unknown values, or an input."""
+    from ..noise import parse_model
+    from ..noise.tea import tea_view
+
+    try:
+        model = parse_model(base["model"])
+        values = {str(k): float(v) for k, v in dict(base.get("values") or {}).items()}
+        missing, extra = sorted(set(model.names) - set(values)), sorted(set(values) - set(model.names))
+        if missing or extra:
+            raise ValueError(f"[truth] values for {model.spec!r} need exactly {', '.join(model.names)}"
+                             + (f"; missing {', '.join(missing)}" if missing else "")
+                             + (f"; not in the model: {', '.join(extra)}" if extra else ""))
+        if base.get("input_std") is not None:
+            raise ValueError("a model truth has no known input (input_std)")
+        if "h" not in base or "n_steps" not in base:
+            raise ValueError("a model truth needs h and n")
+        v = tea_view(model, values, float(base["h"]))
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{source}: bad truth: {exc}") from None
+    q0 = v.config.kfx.Q0
+    return {"model": model.spec, "values": values, "order": repr(float(values[f"{v.orders[0]}.order"])),
+            "param": float(values[v.params[0]]), "q": float(q0 if not isinstance(q0, list) else q0[0][0]),
+            "r": float(v.config.kfx.R)}
 
 
 def save_study(logdir, study: Study, preset: str, result: StudyResult | None = None,
@@ -456,7 +570,8 @@ def save_study(logdir, study: Study, preset: str, result: StudyResult | None = N
                       **({"log_points": study.log_points} if study.log_points else {}),
                       "prior": study.prior,
                       "truth": {k: v for k, v in vars(tr).items() if v is not None},
-                      "estimator": {"preset": preset, **study.estimator.to_dict()}}
+                      "estimator": {"preset": preset, **({"model": study.estimator_model} if study.estimator_model
+                                                         else {}), **study.estimator.to_dict()}}
         (logdir / "study.toml").write_text(dumps_toml(study_dict))
         write_config(logdir / "estimator.toml", study.estimator, {"preset": preset})
         return logdir
@@ -472,6 +587,7 @@ def save_study(logdir, study: Study, preset: str, result: StudyResult | None = N
           "input_std": tr.input_std if tr.input_std is not None else 0.0, "truth_memory": tr.memory,
           "prior": study.prior, "kfx_uncertainty": study.estimator.kfx_uncertainty,
           "estimate_uncertainty": study.estimator.estimate_uncertainty,
+          "truth_model": tr.model or "paper scalar", "estimator_model": study.estimator_model or tr.model or "paper scalar",
           **(hparams or {})}
     log_study(logdir, result, summary, hp, figures=figures)
     return logdir

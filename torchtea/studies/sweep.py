@@ -43,9 +43,12 @@ class SubStudy:
         return {f"sweep.{k}": v if isinstance(v, (bool, int, float, str)) else str(v) for k, v in self.values.items()}
 
 
-def sweep_axes(table: dict, source: str = "sweep") -> dict:
-    """The ``[sweep]`` table flattened to ``{"truth.order": [values…], "estimator.kfo.Q0": [values…], "prior": […]}``."""
+def sweep_axes(table: dict, source: str = "sweep", *, paths: dict | None = None) -> dict:
+    """The ``[sweep]`` table flattened to ``{"truth.order": [values…], "estimator.kfo.Q0": [values…], "prior": […]}``;
+    ``paths`` (a dict, filled in) gets each setting's key path, for names with a dot of their own
+    (``truth.values."random-walk.sigma"``)."""
     axes = {}
+    paths = {} if paths is None else paths
 
     def walk(node, path):
         for key, value in node.items():
@@ -56,6 +59,7 @@ def sweep_axes(table: dict, source: str = "sweep") -> dict:
                 if not value:
                     raise ValueError(f"{source}: [sweep] {'.'.join(p)} lists no values")
                 axes[".".join(p)] = value
+                paths[".".join(p)] = p
             else:
                 raise ValueError(f"{source}: [sweep] {'.'.join(p)} must be a list of values, got {value!r}")
 
@@ -75,7 +79,8 @@ def build_sweep(data: dict, flags: dict | None = None, *, memory=None, source: s
     from .montecarlo import TRUTH_FLAGS
 
     data = dict(data)
-    axes = sweep_axes(data.pop("sweep"), source)
+    paths: dict = {}
+    axes = sweep_axes(data.pop("sweep"), source, paths=paths)
     given = {TRUTH_FLAGS.get(k, k) for k, v in (flags or {}).items() if v is not None}
     clash = sorted(p for p in axes if p.split(".", 1)[0] == "truth" and _truth_key(p) in given)
     if clash:
@@ -90,7 +95,7 @@ def build_sweep(data: dict, flags: dict | None = None, *, memory=None, source: s
         table = copy.deepcopy(data)
         for path, value in values.items():
             node = table
-            *parents, leaf = path.split(".")
+            *parents, leaf = paths[path]
             for key in parents:
                 node = node.setdefault(key, {})
                 if not isinstance(node, dict):

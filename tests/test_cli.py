@@ -211,8 +211,8 @@ def test_identify_runs_a_check_grown_model(tmp_path, capsys):
     spec = "fractional+white+random-walk+ramp"
     assert run("identify", "--json", "--samples", 600, "--model", spec, "--out", tmp_path / "id") == 0
     out = json.loads(capsys.readouterr().out)
-    assert out["model"] == spec and "order 1" in out["tea_model"]["random-walk"]
-    assert "removed" in out["tea_model"]["ramp"]
+    assert out["model"] == spec and "order 1" in out["tea_model"]["az"]["random-walk"]
+    assert "removed" in out["tea_model"]["ax"]["ramp"]
     for axis in AXES:
         fit = out["fit"][axis]["parameters"]
         assert set(fit) >= {"random-walk.sigma", "ramp.slope"}
@@ -229,11 +229,48 @@ def test_identify_runs_a_check_grown_model(tmp_path, capsys):
     expected = raw - slope * t
     np.testing.assert_allclose(d["y_az"], expected - expected.mean(), rtol=0, atol=1e-9)
     assert abs(slope) * t[-1] > 1e-3 * np.std(raw)  # a ramp that matters
-    assert "How the TEA runs this model" in (tmp_path / "id" / "report.md").read_text()
+    assert "How the TEA runs these models" in (tmp_path / "id" / "report.md").read_text()
     assert run("identify", "--samples", 600, "--model", "fractional+white+low-pass", "--out", tmp_path / "b") == 2
     assert "low-pass" in capsys.readouterr().err
     assert run("identify", "--samples", 600, "--model", spec, "--r", "paper", "--out", tmp_path / "c") == 2
     assert "--r fitted" in capsys.readouterr().err
+
+
+def test_identify_from_a_checks_json(tmp_path, capsys):
+    """``identify --from-check``: each channel runs the model its check ended with, at the check's values, no refit;
+    channels of different models run as separate batches and come back in channel order (a channel's estimates are
+    those of a run of it alone, to rounding), the shorter state NaN-padded; the check's recording and samples are required."""
+    for spec, out in (("fractional+white+random-walk", "a"), ("fractional+white", "b")):
+        assert run("check", "--samples", 1000, "--columns", "ax,gy", "--model", spec, "--no-plots",
+                   "--out", tmp_path / out) == 0
+    capsys.readouterr()
+    doc = json.loads((tmp_path / "a" / "check.json").read_text())
+    doc["axes"]["gy"] = json.loads((tmp_path / "b" / "check.json").read_text())["axes"]["gy"]
+    mixed = tmp_path / "mixed.json"
+    mixed.write_text(json.dumps(doc))
+    assert run("identify", "--json", "--samples", 1000, "--from-check", mixed, "--out", tmp_path / "id") == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["model"] == "per channel"
+    assert out["models"] == {"ax": "fractional+white+random-walk", "gy": "fractional+white"}
+    for a in ("ax", "gy"):  # the check's values, not a refit
+        assert out["fit"][a]["parameters"]["white.r"]["value"] == doc["axes"][a]["base"]["parameters"]["white.r"]
+    assert run("identify", "--json", "--samples", 1000, "--from-check", mixed, "--columns", "gy",
+               "--out", tmp_path / "gy") == 0
+    alone = json.loads(capsys.readouterr().out)
+    for key in ("alpha", "param", "alpha_final", "innovation_nis"):  # to rounding: the mixed run takes the series
+        assert out["axes"]["gy"][key] == pytest.approx(alone["axes"]["gy"][key], rel=1e-10)  # mean off once more
+    d = np.genfromtxt(tmp_path / "id" / "trajectories.csv", delimiter=",", names=True)
+    assert len(d) == 1000 and np.isfinite(d["x_hat_ax"]).all() and np.isfinite(d["x_hat_gy"]).all()
+    assert run("identify", "--samples", 1100, "--from-check", mixed, "--out", tmp_path / "c") == 2
+    assert "it checked 1000 samples" in capsys.readouterr().err
+    assert run("identify", "--samples", 1000, "--from-check", mixed, "--model", "fractional+white+ramp",
+               "--out", tmp_path / "c") == 2
+    assert "leave out --model" in capsys.readouterr().err
+    assert run("identify", "--samples", 1000, "--from-check", mixed, "--columns", "az", "--out", tmp_path / "c") == 2
+    assert "no check of channel(s) az" in capsys.readouterr().err
+    (tmp_path / "bad.json").write_text("{}")
+    assert run("identify", "--from-check", tmp_path / "bad.json", "--out", tmp_path / "c") == 2
+    assert "not a check.json" in capsys.readouterr().err
 
 
 def test_identify_report_and_tensorboard(tmp_path, capsys):

@@ -697,6 +697,51 @@ def _identify_overrides(args):
     return overrides, " and ".join(where), cfg.memory.kind if "memory" in overrides else None
 
 
+def _checked_fits(args):
+    """``--from-check CHECK.json`` read (:func:`torchtea.checking.check.read_check`); with no ``--columns`` the check's
+    channels are identified, with no ``--temperature`` the check's temperature column is read."""
+    from .checking.check import read_check
+
+    if args.model != "fractional+white":
+        raise CLIError("--from-check takes each channel's model from the check; leave out --model")
+    try:
+        doc, fits = read_check(args.from_check)
+    except ValueError as exc:
+        raise CLIError(str(exc)) from None
+    if not args.columns:
+        args.columns = ",".join(doc["channels"][label]["column"] for label in fits)
+    if args.temperature is None and doc.get("temperature_column"):
+        args.temperature = doc["temperature_column"]
+    return doc, fits
+
+
+def _match_check(args, doc: dict, fits: dict, m) -> list:
+    """The check's fit of each channel of ``m``; the recording and its samples must be the check's."""
+    rec, checked = m.recording, Path(doc["recording"])
+    # a relative path is the check's own working directory's: then the file's name has to do
+    same = checked.resolve() == Path(rec.path).resolve() if checked.is_absolute() else checked.name == Path(rec.path).name
+    if not same:
+        raise CLIError(f"--from-check {args.from_check}: it checked {doc['recording']}, not {rec.path}")
+    if int(doc["samples"]) != m.samples:
+        raise CLIError(f"--from-check {args.from_check}: it checked {doc['samples']} samples, this reads {m.samples} "
+                       "(give the check's --samples and reading flags)")
+    missing = [c.label for c in m.channels if c.label not in fits]
+    if missing:
+        raise CLIError(f"--from-check {args.from_check}: no check of channel(s) {', '.join(missing)} "
+                       f"(it has {', '.join(fits)})")
+    return [fits[c.label] for c in m.channels]
+
+
+def _check_inputs(args, fits, m):
+    """The temperature input the checked models read, if any (an error without one)."""
+    needs = sorted({name for f in fits for _, c in f.model.components for name in c.inputs})
+    if not needs:
+        return None
+    if args.temperature is None:
+        raise CLIError(f"the checked models read {', '.join(needs)}: give --temperature COL")
+    return {"temperature": m.temperature_input()}
+
+
 def cmd_identify(args) -> int:
     from .reports.identify import LONG_INPUT, MIN_SAMPLES, identify
     from .reports.report import save_identification
@@ -705,10 +750,19 @@ def cmd_identify(args) -> int:
 
     dev = _device(args.device)  # before any work
     model = parse_model(args.model)
-    if model.spec != "fractional+white" and args.r != "fitted":
-        raise CLIError(f"--model {model.spec}: its noise levels come from its fit (--r fitted)")
+    checked = _checked_fits(args) if args.from_check else None
+    if (checked or model.spec != "fractional+white") and args.r != "fitted":
+        raise CLIError(f"{'--from-check' if checked else '--model ' + model.spec}: the noise levels come from the "
+                       "fit (--r fitted)")
     m = _measurements(args, "identify", min_samples=MIN_SAMPLES, sensors=("accelerometer",))
-    inputs = _model_inputs(args, model, m)
+    fits = None
+    if checked is not None:
+        doc, by_label = checked
+        fits = _match_check(args, doc, by_label, m)
+        specs = {f.model.spec for f in fits}
+        model = parse_model(specs.pop()) if len(specs) == 1 else None  # None: a model per channel
+    inputs = _model_inputs(args, model, m) if fits is None else _check_inputs(args, fits, m)
+    model = model or parse_model("fractional+white")  # with per-channel fits identify reads each fit's model
     overrides, config_source, memory_kind = _identify_overrides(args)
     total = m.samples
     memory_kind = memory_kind or ("soe" if total >= LONG_INPUT else "exact")  # identify's choice by the length
@@ -723,7 +777,7 @@ def cmd_identify(args) -> int:
     t0 = time.perf_counter()
     try:
         ident = identify(m, model=model, r_mode=args.r, overrides=overrides, progress=step, compile=args.compile,
-                         partial=True, device=dev, inputs=inputs)
+                         partial=True, device=dev, inputs=inputs, fits=fits)
     except ValueError as exc:  # a model the TEA cannot run (tea_view names the component)
         close()
         raise CLIError(f"--model {model.spec}: {exc}") from None
@@ -742,10 +796,12 @@ def cmd_identify(args) -> int:
         used = "the paper's §5.1 MEMS settings" + (f" changed by {config_source}" if ident.changes else "")
         print(f"{Path(rec.path).name}: {summary['samples']} samples at {rec.rate_hz:g} Hz (rate from {rec.rate_source}), "
               f"mean removed per channel, TEA with {used}, R = " + {"measured": "measured variance",
-                                                                    "fitted": f"fitted r̂ and Q = fitted q̂ ({model.spec}, exact likelihood)"}.get(args.r, "paper values"))
-        if model.spec != "fractional+white":
-            notes = ident.views[0].notes
-            print("the model in the TEA: " + "; ".join(f"{lb}: {notes[lb]}" for lb in notes))
+                                                                    "fitted": "fitted r̂ and Q = fitted q̂ (" + (model.spec if model else "each channel's checked model")
+                                                                    + (", check's fit" if fits else ", exact likelihood")
+                                                                    + ")"}.get(args.r, "paper values"))
+        for a, v in zip(ident.labels, ident.views):
+            if v.model.spec != "fractional+white":
+                print(f"{a}: {v.model.spec} in the TEA: " + "; ".join(f"{lb}: {v.notes[lb]}" for lb in v.notes))
         print("channels: " + "; ".join(f"{c.label} = {c.title}" for c in m.channels))
         for a, fs in summary.get("fit", {}).items():
             p_ = fs["parameters"]
@@ -1138,6 +1194,10 @@ def build_parser() -> argparse.ArgumentParser:
                         "ended with: fractional+white+random-walk+sinusoid. It is fitted to each channel first; "
                         "its other states join KFx's state, its means are removed at their fitted values; a "
                         "sensor filter (low-pass, digital-filter) is refused")
+    i.add_argument("--from-check", metavar="CHECK_JSON",
+                   help="run the TEA on the models a 'torchtea check' ended with, channel by channel, at their fitted "
+                        "values (its check.json; the same recording and samples; by default its channels and "
+                        "temperature column)")
     i.add_argument("--config", help="TOML settings applied on top of the paper's MEMS settings")
     i.add_argument("--out", help="output directory (default identify-<recording name>)")
     i.add_argument("--no-plots", action="store_true")

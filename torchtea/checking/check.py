@@ -56,7 +56,7 @@ from ..noise.components import candidates as candidates_all
 from ..noise.model import NoiseModel, parse_model
 from .diagnostics import LEVEL, Diagnostic, Innovations, innovations, linear_lr, metrics, run_diagnostics
 
-__all__ = ["check", "CheckResult", "Suggestion", "CANDIDATES", "extend", "SCREENS", "effect_parameters", "rank",
+__all__ = ["check", "CheckResult", "Suggestion", "read_check", "CANDIDATES", "extend", "SCREENS", "effect_parameters", "rank",
            "EXPLAIN_WINDOW", "CLOSE_BIC"]
 
 #: The built-in effects check screens, in the order of its table; :func:`~torchtea.noise.components.candidates` gives
@@ -294,6 +294,37 @@ def _added(before: NoiseModel, after: NoiseModel) -> str:
     effect's name."""
     old = {label for label, _ in before.components}
     return next((c.name for label, c in after.components if label not in old), "")
+
+
+def read_check(path) -> tuple[dict, dict]:
+    """A ``check.json`` read back: the document and, per channel, the :class:`~torchtea.fitting.mle.Fit` of the model
+    its loop ended with (``axes[label]["base"]``, as :meth:`CheckResult.as_dict` writes it: values, standard errors,
+    intervals and how each was made, the exact log-likelihood), for ``identify --from-check`` and ``export``.
+    Raises ``ValueError`` naming the file when it is not a check document."""
+    import json
+    from pathlib import Path
+
+    path = Path(path)
+    try:
+        doc = json.loads(path.read_text(encoding="utf-8"))
+        n = int(doc["samples"])
+        fits = {}
+        for label, axis in doc["axes"].items():
+            base = axis["base"]
+            model = parse_model(axis["model"])
+            se = {k: None if v is None else float(v) for k, v in base["se"].items()}
+            ci = {k: None if v is None else (float(v[0]), float(v[1])) for k, v in base["ci95"].items()}
+            loglik = float(base["loglik"])
+            fits[label] = Fit(model, "exact", {k: float(v) for k, v in base["parameters"].items()}, se, ci,
+                              dict(base["ci95_method"]), loglik, loglik, n,
+                              [f"{lb}.{p.name}" for lb, c in model.components for p in c.params
+                               if p.name not in c.held], True,
+                              notes=[f"read from {path.name} (check's fit of the model its loop ended with)"])
+    except FileNotFoundError:
+        raise ValueError(f"{path}: no such file") from None
+    except (json.JSONDecodeError, KeyError, TypeError, ValueError) as exc:
+        raise ValueError(f"{path}: not a check.json ({type(exc).__name__}: {exc})") from None
+    return doc, fits
 
 
 def _bic(fit: Fit) -> float:

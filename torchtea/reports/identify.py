@@ -100,6 +100,16 @@ class Identification:
         """The channels' labels (``ax`` … ``gz``), the keys of the summary's ``axes``."""
         return tuple(c.label for c in self.channels) if self.channels else AXES
 
+    def output(self, i: int) -> torch.Tensor:
+        """Channel ``i``'s KFx estimate of the measured signal without its white noise, ``C x̂`` ``(T,)``: the
+        fractional state for the paper's model, the sum of the model's state outputs for a grown one."""
+        x = self.result.x[i]
+        if not self.views or self.views[i].structure.n_states == 1:
+            return x[:, 0]
+        C = self.views[i].structure.C[0].to(x)
+        k = C.shape[0]
+        return (x[:, :k] * C).sum(-1)
+
     @property
     def steps(self) -> int:
         """Steps the TEA finished (``N`` unless interrupted)."""
@@ -187,7 +197,7 @@ def axis_configs(y: torch.Tensor, r_mode: str = "measured", overrides: dict | No
 
 def identify(measurements: Measurements, *, model="fractional+white", r_mode: str = "fitted",
              overrides: dict | None = None, progress=None, compile: bool = False, partial: bool = False, device=None,
-             inputs: dict | None = None) -> Identification:
+             inputs: dict | None = None, fits=None) -> Identification:
     """Run the TEA on the channels of a prepared recording (:func:`torchtea.sensors.measurements.prepare`).
 
     Parameters
@@ -218,6 +228,10 @@ def identify(measurements: Measurements, *, model="fractional+white", r_mode: st
         Kalman filter is compiled for the CPU); the result comes back to the CPU.
     inputs : dict, optional
         ``{"temperature": (N,)}`` for a model with temperature components.
+    fits : sequence of Fit, optional
+        One fit per channel, already made (e.g. the models ``check`` ended with,
+        :func:`torchtea.checking.check.read_check`): each channel runs its own fit's model, nothing is refitted
+        (``model`` is not used; ``r_mode`` must be ``"fitted"``).
     """
     from ..noise.model import parse_model
 
@@ -228,26 +242,33 @@ def identify(measurements: Measurements, *, model="fractional+white", r_mode: st
     if N < MIN_SAMPLES:
         raise InputError(f"{rec.path}: {N} samples; identify needs at least {MIN_SAMPLES} (its estimates are "
                          "summarised over the last third of the run)")
-    plain = model.spec == "fractional+white"
-    if not plain and r_mode != "fitted":
+    given = fits is not None
+    if given:
+        fits = tuple(fits)
+        if len(fits) != len(m.channels):
+            raise ValueError(f"{len(fits)} fits for {len(m.channels)} channels")
+    plain = all(f.model.spec == "fractional+white" for f in fits) if given else model.spec == "fractional+white"
+    if (given or not plain) and r_mode != "fitted":
         raise ValueError(f"model {model.spec!r}: its noise levels come from its fit; use r_mode 'fitted'")
     values = np.column_stack([c.values for c in m.channels])
     means = np.nanmean(values, axis=0)
     y = torch.as_tensor((values - means).T.copy(), dtype=torch.float64).unsqueeze(-1)  # (C, N, 1)
-    fits, views, fitted_y = (), (), None
+    views, fitted_y = (), None
     structures = [Structure()] * len(m.channels)
     if r_mode == "fitted":
-        from ..fitting import fit_series
+        if not given:
+            from ..fitting import fit_series
 
-        fits = tuple(fit_series(model, [y[i, :, 0].numpy() for i in range(len(m.channels))], rec.h,
-                                method="exact", profile=plain, inputs=None if inputs is None else
-                                [inputs] * len(m.channels)))
+            fits = tuple(fit_series(model, [y[i, :, 0].numpy() for i in range(len(m.channels))], rec.h,
+                                    method="exact", profile=plain, inputs=None if inputs is None else
+                                    [inputs] * len(m.channels)))
         views = tuple(tea_view(f.model, f.values, rec.h) for f in fits)  # refuses a model the TEA cannot run
         structures = [v.structure for v in views]
         if not plain:  # the model's means (a ramp, a line …) at their fitted values
             fitted_y = y
             t = np.arange(N) * rec.h
             y = torch.stack([v.residual(y[i, :, 0], t, inputs) for i, v in enumerate(views)]).unsqueeze(-1)
+    fits = fits or ()
     overrides = dict(overrides or {})
     if "memory" not in overrides and N >= LONG_INPUT:
         overrides["memory"] = {"kind": "soe"}
@@ -277,8 +298,11 @@ def _in_channel_order(results: list, groups: list) -> TEAResult:
     steps = min(r.alpha.shape[-2] for r in results)
     order = torch.as_tensor(np.argsort(np.concatenate(groups), kind="stable"))
     out = {}
+    n = max(r.x.shape[-1] for r in results)  # channels of other models may have fewer KFx states: NaN-padded
     for f in fields(TEAResult):
         vals = [getattr(r, f.name) for r in results]
+        if f.name in ("x", "P"):
+            vals = [_pad(v[:, :steps], n, f.name == "P") for v in vals]
         if f.name in STEP_OUTPUTS:
             out[f.name] = torch.cat([v[:, :steps] for v in vals])[order]
         elif f.name == "steps":
@@ -288,6 +312,20 @@ def _in_channel_order(results: list, groups: list) -> TEAResult:
         else:
             out[f.name] = None if vals[0] is None else torch.cat(vals)[order]
     return TEAResult(**out)
+
+
+def _pad(t: torch.Tensor, n: int, matrix: bool) -> torch.Tensor:
+    """KFx's states ``(B, T, k)`` (or covariances ``(B, T, k, k)``) as ``n`` states, the missing ones NaN."""
+    k = t.shape[-1]
+    if k == n:
+        return t
+    shape = t.shape[:2] + ((n, n) if matrix else (n,))
+    out = t.new_full(shape, math.nan)
+    if matrix:
+        out[..., :k, :k] = t
+    else:
+        out[..., :k] = t
+    return out
 
 
 def settle_time(est: np.ndarray, t: np.ndarray, target: float, band: float = SETTLE_BAND) -> float:

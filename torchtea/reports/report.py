@@ -38,7 +38,7 @@ def axis_statistics(ident: Identification, axes: dict) -> dict:
     out = {}
     for i, axis in enumerate(ident.labels):
         y = ident.y[i, :N, 0].numpy()
-        x = res.x[i, :, 0].numpy()
+        x = ident.output(i).numpy()
         e = res.innovation[i, :, 0].numpy()
         obs = ~np.isnan(y)
         s = axes[axis]
@@ -122,7 +122,8 @@ def write_report(path, ident: Identification, summary: dict, figures: list, *, c
     lines += src + [""]
     if summary.get("fit"):
         lines += ["## Fitted noise model (maximum likelihood, before the TEA)", "",
-                  f"`{summary.get('model', 'fractional+white')}` fitted to each channel by the exact likelihood (Kalman filter on the "
+                  (f"`{summary.get('model', 'fractional+white')}`" if summary.get("model") != "per channel" else
+                   "Each channel's model (below)") + " fitted to each channel by the exact likelihood (Kalman filter on the "
                   "exponential-sum state; Whittle gives the start). Changed against the paper: the paper sets "
                   "R = Rᵒ = Rʷ to the measurement noise and keeps Q = 0.01; here r and q are the values that make "
                   "the model's innovations match the data (NIS of the fitted model ≈ 1), and KFo/KFw start at the "
@@ -145,9 +146,11 @@ def write_report(path, ident: Identification, summary: dict, figures: list, *, c
                          + (", ".join(f"{n} {p_[n]['value']:.3g}" for n in p_
                                       if not n.startswith("fractional.") and n != "white.r") or "—")
                          + f" | {fs['loglik']:.1f} | {fs['nis']:.3f} |")
-        if ident.views and summary.get("model", "fractional+white") != "fractional+white":
-            lines += ["", "How the TEA runs this model (each component's place in it):", ""]
-            lines += [f"- `{lb}`: {note}" for lb, note in ident.views[0].notes.items()]
+        grown = [(a, v) for a, v in zip(ident.labels, ident.views) if v.model.spec != "fractional+white"]
+        if grown:
+            lines += ["", "How the TEA runs these models (each component's place in it):", ""]
+            lines += [f"- {a} (`{v.model.spec}`): " + "; ".join(f"`{lb}` {note}" for lb, note in v.notes.items())
+                      for a, v in grown]
         lines += ["", "Intervals: Wald on the logit (order) or log (q, r) scale from the exact observed information; "
                   "'no interval' where that information is not positive definite (an estimate on a boundary). "
                   "The Whittle profile interval of the order is in `summary.json` (`fit.<axis>.order_profile`); "
@@ -259,7 +262,7 @@ def save_identification(ident: Identification, out_dir, *, plots: bool = True, r
     summary = ident.summary()
     cols = {"t": t}
     for i, a in enumerate(ident.labels):
-        cols.update({f"y_{a}": ident.y[i, :N, 0], f"x_hat_{a}": res.x[i, :, 0], f"alpha_{a}": res.alpha[i, :, 0],
+        cols.update({f"y_{a}": ident.y[i, :N, 0], f"x_hat_{a}": ident.output(i), f"alpha_{a}": res.alpha[i, :, 0],
                      f"P_alpha_{a}": res.P_alpha[i, :, 0, 0], f"w_{a}": res.w[i, :, 0], f"P_w_{a}": res.P_w[i, :, 0, 0],
                      f"innovation_{a}": res.innovation[i, :, 0], f"innovation_var_{a}": res.innovation_cov[i, :, 0, 0]})
     write_columns(out_dir / "trajectories.csv", cols)
@@ -271,7 +274,7 @@ def save_identification(ident: Identification, out_dir, *, plots: bool = True, r
 
         for i, (a, c) in enumerate(zip(ident.labels, ident.channels)):
             figures.append(str(estimation_figure(
-                out_dir / f"channel_{a}.png", t, y=ident.y[i, :N, 0].numpy(), x_hat=res.x[i, :, 0].numpy(),
+                out_dir / f"channel_{a}.png", t, y=ident.y[i, :N, 0].numpy(), x_hat=ident.output(i).numpy(),
                 alpha_hat=res.alpha[i, :, 0].numpy(), alpha_sd=res.P_alpha[i, :, 0, 0].clamp(min=0).sqrt().numpy(),
                 w_hat=res.w[i, :, 0].numpy(), w_sd=res.P_w[i, :, 0, 0].clamp(min=0).sqrt().numpy(),
                 title=f"{Path(rec.path).name}: {c.title} noise"
@@ -295,14 +298,17 @@ def save_identification(ident: Identification, out_dir, *, plots: bool = True, r
         fy = ident.y if ident.fitted_y is None else ident.fitted_y
         summary["fit"] = {a: axis_summary(f, nis=fit_nis(f, fy[i, :, 0].numpy(), ident.h))
                           for i, (a, f) in enumerate(zip(ident.labels, ident.fits))}
-        summary["model"] = ident.fits[0].model.spec
+        specs = {a: f.model.spec for a, f in zip(ident.labels, ident.fits)}
+        summary["model"] = next(iter(specs.values())) if len(set(specs.values())) == 1 else "per channel"
+        summary["models"] = specs
         if ident.views:
-            summary["tea_model"] = dict(ident.views[0].notes)
+            summary["tea_model"] = {a: dict(v.notes) for a, v in zip(ident.labels, ident.views)}
     summary["meaning"].update({
         "fit": "per channel: maximum-likelihood fit of the model (exact likelihood) whose r̂, q̂, α̂, f̂ (and its other "
                "states' drives) set the TEA (r_mode fitted); see torchtea fit --json for the meaning of its entries",
-        "model": "the noise model fitted and run by the TEA",
-        "tea_model": "each component of the model: what the TEA does with it",
+        "model": "the noise model fitted and run by the TEA ('per channel' when the channels' models differ: models)",
+        "models": "each channel's model",
+        "tea_model": "per channel, each component of its model: what the TEA does with it",
         "statistics": "per channel: noise variance and std over all samples used; over the last third the mean squared "
                       "innovation, its predicted value S and the residual y − x̂ variance; settling times [s]",
         "timing": "the file's time stamps against the rate in use (null: the file has no time column)",

@@ -18,6 +18,7 @@ from torchtea.checking.diagnostics import (LEVEL, _stochastic_avar, change, inno
 from torchtea.cli import main
 from torchtea.fitting.mle import exact_loglik, refine_exact
 from torchtea.noise import default_values, parse_model, simulate_model, temperature_profile
+from torchtea.noise.components import TemperatureOrder
 
 H = 0.01
 
@@ -211,7 +212,6 @@ def test_a_quiet_temperature_order_scan_stops_early_and_says_so(monkeypatch):
     """Clean data: where the parabola through γ = 0, ±δ peaks under SCAN_QUIET nats the scan stops there, the row
     says so, and its statistic is a lower bound of the full two-stage scan's (both small); where it peaks higher
     (seed 3, LR ≈ 3) the scan goes on and no note is written."""
-    ck = importlib.import_module("torchtea.checking.check")  # the module (the package's ``check`` is the function)
 
     model = parse_model("fractional+white")
     v = default_values(model, H)
@@ -223,9 +223,9 @@ def test_a_quiet_temperature_order_scan_stops_early_and_says_so(monkeypatch):
         return r.screens[0]
 
     quiet, loud = row(1), row(3)
-    assert "scan stopped" in quiet["note"] and quiet["statistic"] < 2 * ck.SCAN_QUIET
-    assert loud["note"] == "" and loud["statistic"] > 2 * ck.SCAN_QUIET
-    monkeypatch.setattr(ck, "SCAN_QUIET", -math.inf)  # never quiet: both stages run
+    assert "scan stopped" in quiet["note"] and quiet["statistic"] < 2 * TemperatureOrder.SCAN_QUIET
+    assert loud["note"] == "" and loud["statistic"] > 2 * TemperatureOrder.SCAN_QUIET
+    monkeypatch.setattr(TemperatureOrder, "SCAN_QUIET", -math.inf)  # never quiet: both stages run
     full = row(1)
     assert full["note"] == "" and quiet["statistic"] <= full["statistic"] < 2.0
 

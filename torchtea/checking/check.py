@@ -357,9 +357,18 @@ class ScreenContext:
     inputs: dict | None
     #: what a component's :meth:`~torchtea.noise.components.Component.configure` found, for its screen to reuse
     memo: dict = field(default_factory=dict)
+    #: the level of the extremes diagnostic, whose bound decides what an isolated outlier is (spikes)
+    extremes_level: float = LEVEL
 
     def diagnostic(self, name: str) -> Diagnostic:
         return next(d for d in self.diags if d.name == name)
+
+    def exact_loglik(self, model, values, inputs: dict | None = None):
+        """The exact log-likelihood ``(B,)`` of ``model`` at ``values`` (a batch) on this series as the likelihood sees
+        it (:func:`~torchtea.fitting.exact.centred`), with this check's inputs unless ``inputs`` are given: what a
+        component's screen evaluates, so that it needs nothing of the fitting layer."""
+        return exact_loglik(model, values, centred(model, self.y), self.h,
+                            inputs=self.inputs if inputs is None else inputs)
 
 
 def _screen(model: NoiseModel, fit: Fit, wf, inn: Innovations, diags, y, h, inputs, effects,
@@ -437,69 +446,6 @@ def _whittle_screens(model, base, rows_alts, y, h, inputs, cache: dict):
                      start=vals, metric=wf.hessian[0])
         cache[key] = found
         row.update(found)
-
-
-#: The temperature-order scan stops after its first stage when the parabola through γ = 0, ±δ peaks less than this
-#: many nats above the model's ℓ (its LR below 1; passing the screen at 0.05 / 6 effects needs an LR of about 7).
-SCAN_QUIET = 0.5
-
-
-def _scan_order_slope(model, alt, label, fit, inn, y, h, inputs) -> tuple[float | None, float | None, bool]:
-    """2·max Δℓ over the temperature-order slope γ with the other parameters at the fit, the best γ, and whether
-    the scan stopped after its first stage (None, None, False when the fitted order is within 10⁻⁶ of its bound 0
-    or 1, where no slope keeps it inside).
-
-    ℓ(γ) is sharply peaked (its width is the slope's standard error, often 1 % of the range of slopes that keep
-    the order inside (0, 1)), so a coarse grid misses it. Two Newton-like stages, three points each in one
-    batched evaluation: a parabola through γ = 0, ±δ (δ = γ_max / 40, γ_max = 0.9 × the largest |γ| that keeps
-    the order inside (0, 1) at the recording's temperatures) gives the first step; a parabola
-    through the step's ½×, 1×, 2× refines it — unless the first parabola peaks below :data:`SCAN_QUIET` (no
-    signal to refine). The best γ evaluated is kept — the statistic is a lower bound of the full maximisation,
-    which only makes the test conservative."""
-    T = np.asarray(inputs["temperature"], dtype=np.float64)
-    frac = next(lb for lb, c in model.components if c.name == "fractional")
-    a0 = fit.values[f"{frac}.order"]
-    span = max(float(np.max(np.abs(T - T.mean()))), 1e-9)
-    if min(a0, 1 - a0) < 1e-6:  # the order at its bound: no slope keeps it inside (0, 1)
-        return None, None, False
-    g_max = 0.9 * min(a0, 1 - a0) / span
-    yc = centred(model, y)
-
-    def ll(gs):
-        gs = np.clip(np.asarray(gs, dtype=np.float64), -g_max, g_max)
-        vals = {n: [fit.values[n]] * len(gs) for n in model.names}
-        vals[f"{label}.order_per_degC"] = list(gs)
-        vals[f"{label}.t_ref"] = [float(T.mean())] * len(gs)
-        return gs, exact_loglik(alt, vals, yc, h, inputs={"temperature": T})
-
-    def parabola(g3, l3):
-        """The maximiser of the parabola through three points and its value (None, None when it is not concave)."""
-        if len(set(np.asarray(g3).tolist())) < 3:  # points that coincide (clipped at ±g_max): no parabola
-            return None, None
-        c2, c1, c0 = np.linalg.solve(np.vander(g3, 3), l3)
-        return (None, None) if c2 >= 0 else (-c1 / (2 * c2), c0 - c1 * c1 / (4 * c2))
-
-    d = g_max / 40
-    g2_, l2_ = ll([-d, d])  # γ = 0 is the model itself: its ℓ is the fit's, no need to filter again
-    g3, l3 = np.array([g2_[0], 0.0, g2_[1]]), np.array([l2_[0], inn.loglik, l2_[1]])
-    g1, top = parabola(g3, l3)
-    if g1 is None:  # not concave at 0: head up the slope
-        g1 = math.copysign(g_max / 4, l3[2] - l3[0])
-    gs, ls = [*g3], [*l3]
-    # a concave parabola whose peak is less than ½ nat above the fit (an LR below 1, a seventh of what the screen
-    # needs) sees no signal, and the refinement, which starts at that peak, would not find one: it is skipped
-    quiet = top is not None and top - inn.loglik < SCAN_QUIET
-    if abs(g1) > 1e-12 and not quiet:
-        g3b, l3b = ll([0.5 * g1, g1, 2.0 * g1])
-        gs += [*g3b]
-        ls += [*l3b]
-        g2, _ = parabola(g3b, l3b)
-        if g2 is not None and abs(g2) > 1e-12:
-            gc, lc = ll([g2])
-            gs += [*gc]
-            ls += [*lc]
-    k = int(np.argmax(ls))
-    return max(0.0, 2.0 * float(ls[k] - inn.loglik)), float(gs[k]), quiet
 
 
 def check(y, h: float, model="fractional+white", inputs: dict | None = None, *, level: float = LEVEL,

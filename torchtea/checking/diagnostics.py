@@ -42,13 +42,17 @@ import numpy as np
 import torch
 from scipy import stats
 
-from ..fitting.mle import FIT_MEMORY, exact_pass
-from ..likelihood.kalman import filter_fast
-from ..noise.model import StateSpace
+from ..core.search import (BAND_WIDTHS, against_neighbours, band_search, chirp_search, innovation_periodogram,
+                           max_abs_bound, max_abs_logp, max_abs_p, refine_chirp)
+from ..fitting.innovations import (Innovations, gls_statistic, innovations, linear_lr, scan_lr, whiten,
+                                   _whiten_with_level)
 from . import allan
 
 __all__ = ["Diagnostic", "Innovations", "innovations", "whiten", "run_diagnostics", "metrics", "DIAGNOSTICS",
-           "LEVEL"]
+           "LEVEL",
+           # defined in fitting.innovations and core.search, imported from here too
+           "gls_statistic", "linear_lr", "scan_lr", "BAND_WIDTHS", "band_search", "chirp_search", "refine_chirp",
+           "max_abs_p", "max_abs_logp", "max_abs_bound"]
 
 #: Default level of each diagnostic.
 LEVEL = 0.01
@@ -173,101 +177,6 @@ SIGNATURES = {"nis": _sig_nis, "change": _sig_change, "extremes": _sig_extremes,
               "lines": _sig_lines, "allan": _sig_allan, "temperature": _sig_temperature}
 
 
-@dataclass
-class Innovations:
-    """The exact filter at the fitted values: standardised innovations ``z`` (NaN where missing), the state
-    space (to whiten regressors with the same gains), the fitted mean, and the exact log-likelihood."""
-
-    z: np.ndarray
-    ss: StateSpace
-    mean: np.ndarray
-    loglik: float
-    observed: np.ndarray
-    y: np.ndarray  # the series the filter saw (centred unless the model has an offset)
-
-
-def innovations(model, values: dict, y, h: float, inputs: dict | None = None, memory=FIT_MEMORY) -> Innovations:
-    p = exact_pass(model, values, y, h, inputs=inputs, memory=memory)
-    return Innovations(p.innovation / np.sqrt(p.variance), p.ss, p.mean.numpy()[0], p.loglik, ~np.isnan(p.y), p.y)
-
-
-def whiten(inn: Innovations, columns: np.ndarray) -> np.ndarray:
-    """Standardised innovations ``(m, N)`` of regressor columns ``(m, N)`` through the same filter (the gains do
-    not depend on the data): ``z(y − Xβ) = z(y) − Σ β_i w_i``, so GLS of ``y`` on ``X`` is least squares of ``z``
-    on ``w`` — an exact likelihood-ratio for linear mean terms at the fitted noise parameters."""
-    X = np.atleast_2d(np.asarray(columns, dtype=np.float64)).copy()
-    X[:, ~inn.observed] = np.nan
-    _, e, S = filter_fast(inn.ss.expand(X.shape[0]), X)
-    return e / np.sqrt(S)
-
-
-def gls_statistic(z: np.ndarray, w: np.ndarray, nuisance: np.ndarray | None = None) -> tuple[float, np.ndarray]:
-    """2Δℓ of adding the linear terms whose whitened regressors are ``w`` ``(m, N)`` (least squares of z on w),
-    and their coefficients. With ``nuisance`` ``(k, N)`` (whitened regressors free under both hypotheses, e.g. the
-    constant): the fall of the residual sum of squares from z on ``nuisance`` to z on both; the coefficients are
-    ``w``'s in the joint fit."""
-    nu = np.zeros((0, z.shape[-1])) if nuisance is None else np.atleast_2d(nuisance)
-    ok = np.isfinite(z) & np.isfinite(w).all(0) & np.isfinite(nu).all(0)
-
-    def explained(X):
-        if X.shape[1] == 0:
-            return 0.0, np.zeros(0)
-        b, *_ = np.linalg.lstsq(X, z[ok], rcond=None)
-        f = X @ b
-        return float(2.0 * z[ok] @ f - f @ f), b
-
-    full, b = explained(np.concatenate([w[:, ok], nu[:, ok]]).T)
-    base, _ = explained(nu[:, ok].T)
-    return full - base, b[:w.shape[0]]
-
-
-def linear_lr(inn: Innovations, columns: np.ndarray) -> tuple[float, np.ndarray]:
-    """Exact likelihood-ratio statistic (at the filter's noise parameters) of adding linear mean terms with
-    regressors ``columns`` ``(m, N)``, the level free under both hypotheses (the whitened constant as nuisance),
-    and their GLS coefficients. The level matters where the model's own mean, the sample mean, is not its GLS
-    estimate — a random walk, an order near 1 — and a slow regressor (a warm-up) would otherwise pick up the
-    filter's start-up from the wrong level."""
-    w = _whiten_with_level(inn, columns)
-    return gls_statistic(inn.z, w[:-1], w[-1:])
-
-
-def scan_lr(inn: Innovations, columns: np.ndarray, *, draws: int = 20_000, seed: int = 0
-            ) -> tuple[np.ndarray, np.ndarray, float]:
-    """Exact likelihood-ratio statistics of each linear mean term of ``columns`` ``(G, N)`` alone (at the filter's
-    noise parameters, the level free), their GLS coefficients, and the log p-value of their maximum under the
-    model. Under the model the innovations are independent standard normal, so the G statistics are the squares
-    of jointly normal scores whose correlation is the (level-projected) whitened columns' — the maximum's tail by
-    ``draws`` seeded draws of them, never above the Bonferroni bound G·P(χ²₁ > max) (which takes over where no
-    draw exceeds it)."""
-    w = _whiten_with_level(inn, columns)
-    ok = np.isfinite(inn.z) & np.isfinite(w).all(0)
-    c, W, z = w[-1, ok], w[:-1, ok], inn.z[ok]
-    cc = float(c @ c)
-    Wp = W - np.outer(W @ c, c) / cc
-    zp = z - (z @ c) / cc * c
-    nn = np.einsum("ij,ij->i", Wp, Wp)
-    good = nn > 1e-12 * max(float(nn.max()), 1e-300)
-    score = np.where(good, Wp @ zp, 0.0)
-    lr = np.where(good, score ** 2 / np.where(good, nn, 1.0), 0.0)
-    beta = np.where(good, score / np.where(good, nn, 1.0), 0.0)
-    top = float(lr.max())
-    logp = math.log(max(1, int(good.sum()))) + float(stats.chi2.logsf(top, 1))
-    if good.sum() > 1 and draws > 0:  # (draws = 0: the statistics alone, the p-value by Bonferroni)
-        U = Wp[good] / np.sqrt(nn[good])[:, None]
-        lam, V = np.linalg.eigh(U @ U.T)
-        L = V * np.sqrt(np.clip(lam, 0.0, None))
-        u = np.random.default_rng(seed).standard_normal((draws, L.shape[0])) @ L.T
-        hits = int(np.sum((u * u).max(1) >= top))
-        logp = min(logp, math.log((hits + 1) / (draws + 1)))
-    return lr, beta, min(0.0, logp)
-
-
-def _whiten_with_level(inn: Innovations, columns: np.ndarray) -> np.ndarray:
-    """The whitened regressors ``columns`` ``(m, N)`` and, as the last row, the whitened constant (one filter pass)."""
-    X = np.atleast_2d(np.asarray(columns, dtype=np.float64))
-    return whiten(inn, np.concatenate([X, np.ones((1, X.shape[1]))]))
-
-
 def _merge(intervals: list[tuple[float, float, str]]) -> tuple[list, list]:
     """Merge touching intervals of the same direction."""
     out, dirs = [], []
@@ -334,22 +243,6 @@ def change(z: np.ndarray, h: float, level: float = LEVEL) -> Diagnostic:
                       {"cusum_mean": stats_[0], "cusum_variance": stats_[1], "change_at_s": where})
 
 
-def max_abs_p(m: float, n: int) -> float:
-    """P(max |z| > m) for n independent N(0, 1): 1 − (1 − 2Φ(−m))ⁿ, exactly."""
-    return float(-np.expm1(n * np.log1p(-2.0 * stats.norm.sf(m))))
-
-
-def max_abs_logp(m: float, n: int) -> float:
-    """log :func:`max_abs_p`, by its first-order bound n·2Φ(−m) in logs where the probability is below 10⁻¹²."""
-    p = max_abs_p(m, n)
-    return math.log(p) if p > 1e-12 else math.log(n) + math.log(2.0) + float(stats.norm.logsf(m))
-
-
-def max_abs_bound(n: int, level: float) -> float:
-    """The c with P(max |z| > c) = ``level`` for n independent N(0, 1)."""
-    return float(stats.norm.isf(-np.expm1(np.log1p(-level) / n) / 2.0))
-
-
 def extremes(z: np.ndarray, h: float, level: float = LEVEL, listed: int = 20) -> Diagnostic:
     """The largest standardised innovation against its extreme-value law: under the model the n innovations are
     independent N(0, 1), so P(max |z| > m) = 1 − (1 − 2Φ(−m))ⁿ exactly. Fails where one is beyond what n samples
@@ -405,46 +298,10 @@ def ljung_box(z: np.ndarray, level: float = LEVEL, lags: int = 20) -> Diagnostic
 
 # --------------------------------------------------------------------------- frequency
 
-def _innovation_periodogram(z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    x = np.where(np.isfinite(z), z, 0.0)
-    N = len(x)
-    n_obs = int(np.isfinite(z).sum())
-    d = np.fft.rfft(x)
-    j = np.arange(1, (N - 1) // 2 + 1)
-    return j, np.abs(d[j]) ** 2 / n_obs  # 2π·I: Exp(1) per ordinate under the model
-
-
-#: the widths (in Fourier ordinates) :func:`band_search` tries
-BAND_WIDTHS = (4, 16, 64, 256)
-
-
-def band_search(z: np.ndarray, h: float, widths=BAND_WIDTHS) -> dict:
-    """The band of the standardised innovations' periodogram with the most power against the model: for each width
-    m of ``widths`` (up to an eighth of the ordinates) the sum of every m adjacent ordinates, each Exp(1) under the
-    model, so the sum is Gamma(m, 1); the smallest upper-tail p-value, Bonferroni over the positions and the widths
-    (a bound: the overlapping windows are correlated, so the test is conservative). Returns the band's centre and
-    width (Hz), its power against the model (the mean ordinate) and the log p-value."""
-    from scipy import stats
-
-    j, u = _innovation_periodogram(z)
-    N = len(z)
-    best = None
-    widths = [m for m in widths if m <= len(u) // 8] or [max(1, len(u) // 8)]
-    for m in widths:
-        c = np.concatenate([[0.0], np.cumsum(u)])
-        sums = c[m:] - c[:-m]
-        k = int(np.argmax(sums))
-        logp = float(stats.gamma.logsf(sums[k], m)) + math.log(len(sums)) + math.log(len(widths))
-        if best is None or logp < best["log_p"]:
-            lo, hi = j[k], j[k + m - 1]
-            best = {"centre_hz": float((lo + hi) / 2 / (N * h)), "width_hz": float(m / (N * h)),
-                    "ratio": float(sums[k] / m), "log_p": min(0.0, logp), "ordinates": m}
-    return best
-
 
 def spectrum_bands(z: np.ndarray, h: float, level: float = LEVEL, bands: int = 24,
                    min_ordinates: int = 8) -> Diagnostic:
-    j, u = _innovation_periodogram(z)
+    j, u = innovation_periodogram(z)
     N = len(z)
     edges = np.unique(np.rint(np.geomspace(1, j[-1] + 1, bands + 1)).astype(int))
     merged = [edges[0]]
@@ -481,84 +338,15 @@ def spectrum_bands(z: np.ndarray, h: float, level: float = LEVEL, bands: int = 2
                       {"band_lo_hz": lo_hz, "band_hi_hz": hi_hz, "ratio": ratio, "ordinates": m, "p": p.tolist()})
 
 
-def _against_neighbours(u: np.ndarray, neighbours: int = 50, guard: int = 2):
-    """Each periodogram ordinate ``u`` (Exp(1) under the model) with its full ``neighbours`` on both sides (skipping
-    ``guard`` next to it) against their mean: ``(indices, ratio, log p)``, ratio ~ F(2, 2K) for independent
-    exponentials."""
-    c = np.concatenate([[0.0], np.cumsum(u)])
-    idx = np.arange(guard + neighbours, len(u) - guard - neighbours)
-    Mu = len(u)
-
-    def seg(lo, hi):  # sum and count of u[lo:hi], clipped to the array
-        lo, hi = np.clip(lo, 0, Mu), np.clip(hi, 0, Mu)
-        return c[hi] - c[lo], hi - lo
-
-    s1, n1 = seg(idx - guard - neighbours, idx - guard)
-    s2, n2 = seg(idx + guard + 1, idx + guard + 1 + neighbours)
-    K = n1 + n2
-    ratio = u[idx] / ((s1 + s2) / K)
-    return idx, ratio, stats.f.logsf(ratio, 2, 2 * K)
-
-
-def chirp_search(x: np.ndarray, h: float, *, max_rates: int = 801, neighbours: int = 50, guard: int = 2) -> dict:
-    """The strongest line of linearly drifting frequency in ``x`` (NaN = missing): for each drift rate f₁ of a grid
-    (step 2/T², T the record's length — a phase error of at most π/2 at its ends —, ``max_rates`` rates centred on
-    0), ``x`` is multiplied by exp(−iπ f₁ (t − t̄)²), which turns a line of frequency f₀ + f₁ (t − t̄) into a tone at
-    f₀, and each positive-frequency ordinate is tested against its neighbours as :func:`lines` does (F(2, 2K)).
-    Returns the best's ``f0_hz`` (at the record's middle t̄), ``rate_hz_per_s``, ``ratio``, its ``log_p`` with
-    Bonferroni over every ordinate and rate tested, and ``tests`` (their number)."""
-    ok = np.isfinite(x)
-    N = len(x)
-    xx = np.where(ok, x, 0.0)
-    n_obs = int(ok.sum())
-    t = (np.arange(N) - (N - 1) / 2.0) * h
-    T = N * h
-    R = max(41, min(max_rates, int(2.4e7 / N))) // 2 * 2 + 1  # fewer rates on long records (FFT work ≈ 2.4·10⁷)
-    rates = (np.arange(R) - R // 2) * 2.0 / T ** 2
-    best = None
-    tests = 0
-    for f1 in rates:
-        d = np.fft.fft(xx * np.exp(-1j * np.pi * f1 * t * t))
-        u = np.abs(d[1:(N - 1) // 2 + 1]) ** 2 / n_obs
-        idx, ratio, logp = _against_neighbours(u, neighbours, guard)
-        tests += len(idx)
-        i = int(np.argmin(logp))
-        if best is None or logp[i] < best[0]:
-            best = (float(logp[i]), float(f1), int(idx[i]) + 1, float(ratio[i]))
-    logp, f1, j, ratio = best
-    return {"f0_hz": j / T, "rate_hz_per_s": f1, "ratio": ratio, "log_p": min(0.0, logp + math.log(tests)),
-            "tests": tests}
-
-
-def refine_chirp(x: np.ndarray, f0: float, f1: float, h: float) -> tuple[float, float]:
-    """``(f₀, f₁)`` maximising |Σ x_k exp(−i(2π f₀ τ_k + π f₁ τ_k²))|² (τ the time from the record's middle) near
-    the grid's ``(f0, f1)`` — within one frequency bin and one rate step (Nelder–Mead)."""
-    from scipy.optimize import minimize
-
-    N = len(x)
-    xx = np.where(np.isfinite(x), x, 0.0)
-    tau = (np.arange(N) - (N - 1) / 2.0) * h
-    T = N * h
-    sf, sr = 1.0 / T, 2.0 / T ** 2
-
-    def neg(p):
-        a, b = f0 + np.clip(p[0], -1, 1) * sf, f1 + np.clip(p[1], -1, 1) * sr
-        return -abs(np.dot(xx, np.exp(-1j * (2 * np.pi * a * tau + np.pi * b * tau * tau)))) ** 2
-
-    res = minimize(neg, [0.0, 0.0], method="Nelder-Mead", options={"xatol": 1e-4, "fatol": 1e-10})
-    p = np.clip(res.x, -1, 1)
-    return float(f0 + p[0] * sf), float(f1 + p[1] * sr)
-
-
 def lines(z: np.ndarray, h: float, level: float = LEVEL, neighbours: int = 50, guard: int = 2) -> Diagnostic:
     """Each ordinate against the mean of ``neighbours`` ordinates on each side (skipping ``guard`` next to it):
     u_j / ū ~ F(2, 2K) for independent exponentials, so broad misfit (a wrong slope) does not count as a line.
     Only ordinates with their full ``neighbours`` on both sides are tested (from ``guard + neighbours + 1``
     cycles per record up): at the lowest frequencies a drift the model lacks (random walk, ramp) stands out
     against neighbours on one side only, and a "line" of a cycle or two per record cannot be told from drift."""
-    j, u = _innovation_periodogram(z)
+    j, u = innovation_periodogram(z)
     N = len(z)
-    idx, ratio, logp = _against_neighbours(u, neighbours, guard)
+    idx, ratio, logp = against_neighbours(u, neighbours, guard)
     if len(idx) == 0:
         raise ValueError(f"the lines diagnostic needs more than {4 * (guard + neighbours)} samples, got {N}")
     M = len(idx)

@@ -28,14 +28,18 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from ..likelihood.kalman import filter_fast, loglik_fast
+from ..core.search import refine_frequency, remove_regressors
+from .exact import FIT_MEMORY, ExactPass, centred, exact_loglik, exact_pass, unknown_level
+from .innovations import located_intervals
 from ..likelihood.settings import current as likelihood_settings
 from ..likelihood.whittle import RESOLUTION, WhittleData, periodogram, whittle_data
-from ..noise.model import NoiseModel, StateSpace, parse_model, state_memory
+from ..noise.model import NoiseModel, parse_model
 from .optimize import newton
 
 __all__ = ["Fit", "WhittleFit", "fit_series", "located_intervals", "refine_exact", "regress_mean", "whittle_fit", "exact_loglik", "profile_order", "METHODS",
-           "Z95", "CHI2_95"]
+           "Z95", "CHI2_95",
+           # defined in .exact, .innovations and core.search, imported from here too
+           "FIT_MEMORY", "ExactPass", "exact_pass", "centred", "unknown_level", "refine_frequency", "remove_regressors"]
 
 METHODS = ("whittle", "exact")
 Z95 = 1.959963984540054
@@ -43,9 +47,6 @@ CHI2_95 = 3.841458820694124
 #: Starting orders and pole fractions ρ = −f h^α / 2^α of the multi-start.
 START_ORDERS = (0.1, 0.3, 0.5, 0.7, 0.9)
 START_FRACTIONS = (0.05, 0.5)
-#: The exact likelihood's memory while fitting (``soe`` to this relative coefficient error; the
-#: log-likelihood moves by < 1e-6 nats against 1e-8 on 30 000 MEMS-like samples).
-FIT_MEMORY = "soe:1e-4"
 #: Central-difference step of the exact gradient in the unconstrained coordinates. 10⁻³: on 2.16·10⁶ samples the
 #: step 10⁻⁴ left gradients dominated by ℓ's rounding noise, and the refinement stopped 0.0015 nats (5 % of a
 #: standard error) short of the maximum that 10⁻³ reached in six iterations; on 30 000 samples (five hidden-effect
@@ -92,31 +93,6 @@ class Fit:
 
 
 # --------------------------------------------------------------------------- deterministic part
-
-def refine_frequency(y: np.ndarray, f0: float, h: float) -> float:
-    from scipy.optimize import minimize_scalar
-    k = np.arange(len(y))
-    df = 1.0 / (len(y) * h)
-
-    def neg_power(f):
-        w = 2 * np.pi * f * h
-        return -abs(np.dot(y, np.exp(-1j * w * k))) ** 2
-
-    res = minimize_scalar(neg_power, bounds=(max(f0 - df, df / 2), f0 + df), method="bounded",
-                          options={"xatol": df * 1e-4})
-    return float(res.x)
-
-
-def remove_regressors(resid: np.ndarray, ok: np.ndarray, columns: list) -> dict:
-    """Least squares of ``resid`` (its ``ok`` samples) on the centred regressor ``columns`` (``[(name, (N,)), …]``):
-    removes the fit from ``resid`` in place and returns ``{name: coefficient}`` (empty without columns)."""
-    if not columns:
-        return {}
-    X = np.stack([c for _, c in columns], 1)[ok]
-    X = X - X.mean(0)
-    coef, *_ = np.linalg.lstsq(X, resid[ok], rcond=None)
-    resid[ok] -= X @ coef
-    return dict(zip((n for n, _ in columns), coef.tolist()))
 
 
 def regress_mean(model: NoiseModel, y, h: float, inputs: dict | None = None) -> tuple[dict, np.ndarray]:
@@ -289,17 +265,6 @@ def whittle_fit(model, series: list, h: float, *, inputs: list | None = None, fi
 
 
 # --------------------------------------------------------------------------- exact
-
-def exact_loglik(model, values, y, h: float, *, inputs: dict | None = None, memory=FIT_MEMORY) -> np.ndarray:
-    """Exact log-likelihood ``(B,)`` of one series for ``B`` parameter sets (compiled filter)."""
-    model = parse_model(model)
-    y = torch.as_tensor(np.asarray(y, dtype=np.float64))
-    N = y.shape[-1]
-    v = model.as_dict(values)
-    ss = model.state_space(v, h, N, state_memory(memory, N), inputs=inputs)
-    t = torch.arange(N, dtype=torch.float64) * h
-    mean = model.mean(v, t, inputs)
-    return loglik_fast(ss, y, mean, level=unknown_level(model))
 
 
 def _exact_refine(model, y, h, u0: Tensor, free: Tensor, inputs, memory, metric: Tensor | None = None,
@@ -612,55 +577,6 @@ def profile_order(model, wf: WhittleFit, h: float, *, grid: int = 21, fixed: dic
 
 
 # --------------------------------------------------------------------------- the whole fit
-
-def centred(model: NoiseModel, y) -> np.ndarray:
-    """The series the exact likelihood sees: its mean removed unless the model has an ``offset`` to fit it (the
-    likelihood then integrates the level out, :func:`unknown_level`, so removing the mean only keeps the numbers
-    small)."""
-    y = np.asarray(y, dtype=np.float64)
-    return y if model.has_level else y - np.nanmean(y)
-
-
-def unknown_level(model: NoiseModel) -> bool:
-    """Whether the exact likelihood of ``model`` treats the level as an unknown constant and integrates it out
-    (``level=True`` of :func:`~torchtea.likelihood.kalman.kalman_filter`, the diffuse likelihood): always, unless
-    the model has an ``offset`` that fits it as a parameter. A random walk's path then need not start at the
-    series' mean."""
-    return not model.has_level
-
-
-class ExactPass(NamedTuple):
-    """One pass of the exact filter at one parameter set, as the exact likelihood sees the series."""
-
-    y: np.ndarray  # the series the filter saw (:func:`centred`)
-    ss: StateSpace
-    mean: Tensor  # the deterministic part (1, N)
-    loglik: float
-    innovation: np.ndarray  # (N,), of y minus the integrated level where :func:`unknown_level`
-    variance: np.ndarray  # (N,)
-
-
-def exact_pass(model, values: dict, y, h: float, *, inputs: dict | None = None, memory=FIT_MEMORY) -> ExactPass:
-    """The compiled exact filter at ``values`` on :func:`centred` ``y``, the level integrated out where
-    :func:`unknown_level` — the innovations the diagnostics and the NIS read."""
-    model = parse_model(model)
-    y = centred(model, y)
-    N = len(y)
-    ss = model.state_space(values, h, N, state_memory(memory, N), inputs=inputs)
-    mean = model.mean(values, torch.arange(N, dtype=torch.float64) * h, inputs)
-    ll, e, S = filter_fast(ss, y, mean, level=unknown_level(model))
-    return ExactPass(y, ss, mean, float(ll[0]), e[0], S[0])
-
-
-def located_intervals(model, values: dict, y, h: float, inputs: dict | None = None) -> dict:
-    """The 95 % intervals the components make for their located parameters (a step's time) at the fit ``values``:
-    name → ``((lo, hi), words)`` (:meth:`~torchtea.noise.components.Component.located_intervals`)."""
-    model = parse_model(model)
-    out = {}
-    for label, comp in model.components:
-        if comp.located:
-            out.update(comp.located_intervals(label, model, dict(values), np.asarray(y, dtype=np.float64), h, inputs))
-    return out
 
 
 def fit_series(model, series: list, h: float, *, method: str = "exact", inputs: list | None = None,

@@ -34,6 +34,8 @@ import torch
 from torch import Tensor
 
 from ..core.gl import gl_tail_coefficients
+from ..core.search import (band_search, chirp_search, max_abs_bound, max_abs_logp, refine_chirp, refine_frequency,
+                           remove_regressors)
 
 __all__ = ["ParamSpec", "Component", "StartData", "NotScreened", "TEAPart", "TEAUnsupported", "COMPONENTS", "ORDER_BOUNDS", "logit", "candidates",
            "WHITTLE_SCREEN", "WHITTLE_SCREEN_2", "MEAN_SCREEN", "boundary_logsf"]
@@ -246,7 +248,6 @@ class Component:
             raise NotScreened(f"{self.name} has no screen")
         from scipy import stats
 
-        from ..fitting.mle import centred, exact_loglik, remove_regressors
 
         y, t, ok = ctx.y, ctx.t, ~np.isnan(ctx.y)
         inp = None if ctx.inputs is None else {k: torch.as_tensor(v, dtype=torch.float64)
@@ -259,8 +260,7 @@ class Component:
         values.update(remove_regressors(resid, ok, columns))
         values.update(self.fit_residual(ctx.label, resid, t, ok, ctx.h, start, ctx.inputs))
         values = {n: values.get(n, start[n]) for n in ctx.alt.names if n not in ctx.model.names}
-        ll = float(exact_loglik(ctx.alt, {**ctx.fit.values, **values}, centred(ctx.alt, y), ctx.h,
-                                inputs=ctx.inputs)[0])
+        ll = float(ctx.exact_loglik(ctx.alt, {**ctx.fit.values, **values})[0])
         lr = max(0.0, 2.0 * (ll - ctx.inn.loglik)) if math.isfinite(ll) else 0.0
         return lr, float(stats.chi2.logsf(lr, len(values))), values, ""
 
@@ -344,9 +344,12 @@ class Component:
         """Scale this component's drive (in place) when a grid start's spectrum is scaled by ``s`` to meet the
         periodogram on the lower half of the band (names in ``fixed`` are kept)."""
 
-    def located_intervals(self, label: str, model, values: dict, y, h: float, inputs: dict | None) -> dict:
+    def located_intervals(self, label: str, model, values: dict, y, h: float, inputs: dict | None,
+                          innovations=None) -> dict:
         """95 % intervals of this component's :attr:`located` parameters at the fit ``values`` of ``model`` to ``y``:
-        name → ``((lo, hi), words)``; default none (they are reported without)."""
+        name → ``((lo, hi), words)``; default none (they are reported without). ``innovations(values)``: the model's
+        :class:`~torchtea.fitting.innovations.Innovations` on ``y`` at other values (given by the caller, so that a
+        component needs nothing of the fitting layer)."""
         return {}
 
     def strengths(self, label: str, model, values: dict, h: float, n: int) -> list[dict]:
@@ -628,7 +631,6 @@ class Resonance(Component):
     def screen(self, ctx):
         """The band search on the model's standardised innovations; the start: f_r at the band's centre, B its width,
         σ² the band's excess power over the model there, (ratio − 1) S(ω) × 2 × the band's width in rad/sample."""
-        from ..checking.diagnostics import band_search
 
         found = band_search(ctx.inn.z, ctx.h)
         w = torch.tensor([2.0 * math.pi * found["centre_hz"] * ctx.h], dtype=torch.float64)
@@ -912,9 +914,8 @@ class Ramp(Component):
         asymptotically exact)."""
         from scipy import stats
 
-        from ..checking.diagnostics import linear_lr
 
-        lr, beta = linear_lr(ctx.inn, ctx.t - ctx.t.mean())
+        lr, beta = ctx.inn.linear_lr(ctx.t - ctx.t.mean())
         return lr, stats.chi2.logsf(lr, 1), {f"{ctx.label}.slope": float(beta[0])}, ""
 
 
@@ -947,14 +948,12 @@ class Sinusoid(Component):
     def screen(self, ctx):
         """The ``lines`` diagnostic's p-value (the largest innovation periodogram ordinate against its neighbours,
         over all frequencies); the statistic and the start: the whitened sine and cosine at the refined peak."""
-        from ..checking.diagnostics import linear_lr
-        from ..fitting.mle import refine_frequency
 
         ln = ctx.diagnostic("lines")
         inn, t = ctx.inn, ctx.t
         r = inn.y - inn.mean
         f0 = refine_frequency(np.where(inn.observed, r, 0.0), ln.detail["peak_hz"], ctx.h)
-        lr, beta = linear_lr(inn, np.stack([np.sin(2 * np.pi * f0 * t), np.cos(2 * np.pi * f0 * t)]))
+        lr, beta = inn.linear_lr(np.stack([np.sin(2 * np.pi * f0 * t), np.cos(2 * np.pi * f0 * t)]))
         return lr, ln.detail["log_p"], {f"{ctx.label}.frequency_hz": f0,
                                         f"{ctx.label}.amplitude": float(math.hypot(*beta)),
                                         f"{ctx.label}.phase": float(math.atan2(beta[1], beta[0]))}, ""
@@ -962,7 +961,6 @@ class Sinusoid(Component):
     def fit_residual(self, label, resid, t, ok, h, start, inputs):
         """The residual periodogram's highest peak (not the trend's three lowest bins), its frequency refined,
         amplitude and phase by least squares."""
-        from ..fitting.mle import refine_frequency
 
         N = len(resid)
         r = np.where(ok, resid, 0.0)
@@ -1021,20 +1019,18 @@ class DriftingLine(Component):
         """The chirp search on the model's standardised innovations (its p-value, Bonferroni over every frequency
         and rate tested); the statistic and the start: the whitened chirp's sine and cosine at the refined
         (f₀, f₁)."""
-        from ..checking.diagnostics import chirp_search, linear_lr, refine_chirp
 
         inn, t = ctx.inn, ctx.t
         found = chirp_search(inn.z, ctx.h)
         r = np.where(inn.observed, inn.y - inn.mean, np.nan)
         f0, f1 = refine_chirp(r, found["f0_hz"], found["rate_hz_per_s"], ctx.h)
-        lr, beta = linear_lr(inn, self.columns(f0, f1, t))
+        lr, beta = inn.linear_lr(self.columns(f0, f1, t))
         return lr, found["log_p"], {f"{ctx.label}.frequency_hz": f0, f"{ctx.label}.rate_hz_per_s": f1,
                                     f"{ctx.label}.amplitude": float(math.hypot(*beta)),
                                     f"{ctx.label}.phase": float(math.atan2(beta[1], beta[0]))}, ""
 
     def fit_residual(self, label, resid, t, ok, h, start, inputs):
         """The chirp search on the residual, refined; amplitude and phase by least squares."""
-        from ..checking.diagnostics import chirp_search, refine_chirp
 
         r = np.where(ok, resid, np.nan)
         found = chirp_search(r, h)
@@ -1108,12 +1104,11 @@ class ThermalLag(Component):
         """The exact likelihood-ratio of β at each lag of :meth:`lags` (the model held; the whitened lagged
         temperature), the largest kept; its p-value is that of the maximum of the grid's correlated statistics
         under the model (:func:`~torchtea.checking.diagnostics.scan_lr`), so the search over τ is paid for."""
-        from ..checking.diagnostics import scan_lr
 
         T = np.asarray(ctx.inputs["temperature"], dtype=np.float64)
         taus = self.lags(ctx.h, len(ctx.y))
         X = self.lagged(T, torch.as_tensor(taus), ctx.h).numpy()
-        lr, beta, logp = scan_lr(ctx.inn, X - X.mean(1, keepdims=True))
+        lr, beta, logp = ctx.inn.scan_lr(X - X.mean(1, keepdims=True))
         g = int(np.argmax(lr))
         return float(lr[g]), logp, {f"{ctx.label}.bias_per_degC": float(beta[g]), f"{ctx.label}.tau_s": float(taus[g]),
                                     f"{ctx.label}.t_ref": float(np.mean(T))}, ""
@@ -1214,7 +1209,6 @@ class Step(Component):
         N−1 of them (a bound, whatever the model's correlation)."""
         from scipy import stats
 
-        from ..checking.diagnostics import scan_lr
 
         y, N = ctx.y, len(ctx.y)
         ok = ~np.isnan(y)
@@ -1224,7 +1218,7 @@ class Step(Component):
         z[0] = -np.inf  # a step at the first sample is the level
         ks = sorted(set(ks) | set(self._tops(z, 4, 10)))
         X = (np.arange(N)[None, :] >= np.asarray(ks)[:, None]).astype(np.float64)
-        lr, beta, _ = scan_lr(ctx.inn, X)
+        lr, beta, _ = ctx.inn.scan_lr(X)
         g = int(np.argmax(lr))
         logp = min(0.0, math.log(N - 1) + float(stats.chi2.logsf(lr[g], 1)))
         return float(lr[g]), logp, {f"{ctx.label}.size": float(beta[g]), f"{ctx.label}.t_step": float(ctx.t[ks[g]])}, ""
@@ -1235,20 +1229,18 @@ class Step(Component):
     def typical(self, param, h, t_ref):
         return {"size": 0.02, "t_step": 100.0}[param]
 
-    def located_intervals(self, label, model, values, y, h, inputs):
+    def located_intervals(self, label, model, values, y, h, inputs, innovations=None):
         """The time's 95 % set by profile likelihood: the exact likelihood-ratio of a step at each sample near the
         fitted time, its size at its GLS value and every other parameter held (the model's innovations without this
         step, the whitened step columns: :func:`~torchtea.checking.diagnostics.scan_lr`), and the samples within
         :attr:`INTERVAL_BOUND` of the best; the window doubles (±50 samples to ±:attr:`INTERVAL_HALF`) until the
         set ends inside it. The hull is reported (the set can have holes). Its coverage is measured in experiments/check (random study)."""
-        from ..checking.diagnostics import innovations, scan_lr
-        from ..fitting.mle import centred
 
         name = f"{label}.t_step"
         t = np.arange(len(y)) * h
         k0 = int(round(values[name] / h))
         without = {**values, f"{label}.size": 0.0}
-        inn = innovations(model, without, centred(model, y), h, inputs=inputs)
+        inn = innovations(without)
         crit = self.INTERVAL_BOUND
         half = 50
         lrs = {}
@@ -1258,7 +1250,7 @@ class Step(Component):
             for i in range(0, len(todo), 200):  # 200 whitened columns at a time (memory)
                 part = todo[i:i + 200]
                 X = (np.arange(len(y))[None, :] >= part[:, None]).astype(np.float64)
-                lrs.update(zip(part.tolist(), scan_lr(inn, X, draws=0)[0].tolist()))
+                lrs.update(zip(part.tolist(), inn.scan_lr(X, draws=0)[0].tolist()))
             lr = np.array([lrs[k] for k in ks])
             inside = ks[lr >= lr.max() - crit]
             edge = inside.min() == ks[0] and ks[0] > 1 or inside.max() == ks[-1] and ks[-1] < len(y) - 1
@@ -1353,7 +1345,6 @@ class Spikes(Component):
         beyond the bound. Raises :class:`NotScreened` for more than :attr:`MAX_SPIKES`."""
         from scipy.ndimage import maximum_filter1d
 
-        from ..checking.diagnostics import innovations, max_abs_bound, max_abs_logp
 
         z = inn.z
         ok = np.isfinite(z)
@@ -1377,18 +1368,17 @@ class Spikes(Component):
                                   f"not isolated spikes (at most {cls.MAX_SPIKES})")
             y2 = y.copy()
             y2[found] = np.nan
-            z = innovations(model, values, y2, h, inputs).z
+            z = inn.again(y2).z
         if not found:  # nothing beyond the bound: the largest, so that the screen has a statistic (and fails)
             found = [int(np.nanargmax(np.abs(inn.z)))]
         return sorted(found), logp
 
     def _found(self, ctx) -> tuple[list, float]:
         """:meth:`find` on the check's model and innovations, once per check (kept in ``ctx.memo``)."""
-        from ..checking.diagnostics import LEVEL
-
         key = ("spikes", ctx.model.spec)
         if key not in ctx.memo:
-            ctx.memo[key] = self.find(ctx.model, dict(ctx.fit.values), ctx.y, ctx.h, ctx.inputs, ctx.inn, LEVEL)
+            ctx.memo[key] = self.find(ctx.model, dict(ctx.fit.values), ctx.y, ctx.h, ctx.inputs, ctx.inn,
+                                      ctx.extremes_level)
         return ctx.memo[key]
 
     def configure(self, ctx):
@@ -1398,7 +1388,6 @@ class Spikes(Component):
         """The spikes :meth:`find` gives, their sizes by GLS (the whitened impulses, jointly, the model held): the
         statistic is their exact likelihood-ratio, the p-value that of the largest |z| under the model (the
         extremes diagnostic's exact law: it is what decides whether there is any spike)."""
-        from ..checking.diagnostics import linear_lr
 
         ks, logp = self._found(ctx)
         comp = dict(ctx.alt.components)[ctx.label]
@@ -1406,7 +1395,7 @@ class Spikes(Component):
             raise NotScreened(f"the model was extended by {comp.count} spikes, {len(ks)} were found")
         X = np.zeros((len(ks), len(ctx.y)))
         X[np.arange(len(ks)), ks] = 1.0
-        lr, beta = linear_lr(ctx.inn, X)
+        lr, beta = ctx.inn.linear_lr(X)
         values = {}
         for j, (k, b) in enumerate(zip(ks, np.atleast_1d(beta)), start=1):
             values[f"{ctx.label}.size{j}"] = float(b)
@@ -1484,23 +1473,79 @@ class TemperatureOrder(Component):
     explains = ("temperature",)
 
     def screen(self, ctx):
-        """The exact likelihood-ratio over the slope alone, the other parameters held at the fit (a scan:
-        :func:`~torchtea.checking.check._scan_order_slope`)."""
-        import importlib
-
+        """The exact likelihood-ratio over the slope alone, the other parameters held at the fit (:meth:`scan`)."""
         from scipy import stats
 
-        ck = importlib.import_module("torchtea.checking.check")
-        lr, g, quiet = ck._scan_order_slope(ctx.model, ctx.alt, ctx.label, ctx.fit, ctx.inn, ctx.y, ctx.h,
-                                            ctx.inputs)
+        lr, g, quiet = self.scan(ctx)
         if lr is None:
-            frac = next(lb for lb, c in ctx.model.components if c.name == "fractional")
+            frac = next(lb for lb, c in ctx.model.components if isinstance(c, Fractional))
             raise NotScreened(f"the fitted order {ctx.fit.values[f'{frac}.order']:.3g} is at its bound, and no "
                               "slope per °C keeps it inside (0, 1)")
-        note = (f"the scan stopped after γ = 0, ±δ: their parabola peaks less than {ck.SCAN_QUIET:g} nat above the "
+        note = (f"the scan stopped after γ = 0, ±δ: their parabola peaks less than {self.SCAN_QUIET:g} nat above the "
                 "model (a lower bound of the statistic)") if quiet else ""
         return lr, stats.chi2.logsf(lr, 1), {f"{ctx.label}.order_per_degC": g,
                                              f"{ctx.label}.t_ref": float(np.mean(ctx.inputs["temperature"]))}, note
+
+    #: The temperature-order scan stops after its first stage when the parabola through γ = 0, ±δ peaks less than this
+    #: many nats above the model's ℓ (its LR below 1; passing the screen at 0.05 / 6 effects needs an LR of about 7).
+    SCAN_QUIET = 0.5
+
+    def scan(self, ctx) -> tuple[float | None, float | None, bool]:
+        """2·max Δℓ over the temperature-order slope γ with the other parameters at the fit, the best γ, and whether
+        the scan stopped after its first stage (None, None, False when the fitted order is within 10⁻⁶ of its bound 0
+        or 1, where no slope keeps it inside).
+
+        ℓ(γ) is sharply peaked (its width is the slope's standard error, often 1 % of the range of slopes that keep
+        the order inside (0, 1)), so a coarse grid misses it. Two Newton-like stages, three points each in one
+        batched evaluation: a parabola through γ = 0, ±δ (δ = γ_max / 40, γ_max = 0.9 × the largest |γ| that keeps
+        the order inside (0, 1) at the recording's temperatures) gives the first step; a parabola
+        through the step's ½×, 1×, 2× refines it — unless the first parabola peaks below :attr:`SCAN_QUIET` (no
+        signal to refine). The best γ evaluated is kept — the statistic is a lower bound of the full maximisation,
+        which only makes the test conservative."""
+        model, alt, label, fit, inn = ctx.model, ctx.alt, ctx.label, ctx.fit, ctx.inn
+        T = np.asarray(ctx.inputs["temperature"], dtype=np.float64)
+        frac = next(lb for lb, c in model.components if isinstance(c, Fractional))
+        a0 = fit.values[f"{frac}.order"]
+        span = max(float(np.max(np.abs(T - T.mean()))), 1e-9)
+        if min(a0, 1 - a0) < 1e-6:  # the order at its bound: no slope keeps it inside (0, 1)
+            return None, None, False
+        g_max = 0.9 * min(a0, 1 - a0) / span
+
+        def ll(gs):
+            gs = np.clip(np.asarray(gs, dtype=np.float64), -g_max, g_max)
+            vals = {n: [fit.values[n]] * len(gs) for n in model.names}
+            vals[f"{label}.order_per_degC"] = list(gs)
+            vals[f"{label}.t_ref"] = [float(T.mean())] * len(gs)
+            return gs, ctx.exact_loglik(alt, vals, inputs={"temperature": T})
+
+        def parabola(g3, l3):
+            """The maximiser of the parabola through three points and its value (None, None when it is not concave)."""
+            if len(set(np.asarray(g3).tolist())) < 3:  # points that coincide (clipped at ±g_max): no parabola
+                return None, None
+            c2, c1, c0 = np.linalg.solve(np.vander(g3, 3), l3)
+            return (None, None) if c2 >= 0 else (-c1 / (2 * c2), c0 - c1 * c1 / (4 * c2))
+
+        d = g_max / 40
+        g2_, l2_ = ll([-d, d])  # γ = 0 is the model itself: its ℓ is the fit's, no need to filter again
+        g3, l3 = np.array([g2_[0], 0.0, g2_[1]]), np.array([l2_[0], inn.loglik, l2_[1]])
+        g1, top = parabola(g3, l3)
+        if g1 is None:  # not concave at 0: head up the slope
+            g1 = math.copysign(g_max / 4, l3[2] - l3[0])
+        gs, ls = [*g3], [*l3]
+        # a concave parabola whose peak is less than ½ nat above the fit (an LR below 1, a seventh of what the screen
+        # needs) sees no signal, and the refinement, which starts at that peak, would not find one: it is skipped
+        quiet = top is not None and top - inn.loglik < self.SCAN_QUIET
+        if abs(g1) > 1e-12 and not quiet:
+            g3b, l3b = ll([0.5 * g1, g1, 2.0 * g1])
+            gs += [*g3b]
+            ls += [*l3b]
+            g2, _ = parabola(g3b, l3b)
+            if g2 is not None and abs(g2) > 1e-12:
+                gc, lc = ll([g2])
+                gs += [*gc]
+                ls += [*lc]
+        k = int(np.argmax(ls))
+        return max(0.0, 2.0 * float(ls[k] - inn.loglik)), float(gs[k]), quiet
 
     def orders(self, v: dict, alpha0: Tensor, T: Tensor) -> Tensor:
         """``(B, N)`` orders α_k for ``(B,)`` α₀ and the temperature ``(N,)``."""

@@ -1,0 +1,163 @@
+"""Searches and exact laws on a series, used by ``check``'s diagnostics and by the components' own screens (which is
+why they live in the lowest layer: a component in :mod:`torchtea.noise` reads them without reaching up to
+:mod:`torchtea.checking`): the largest |z| of n standard normals (:func:`max_abs_p`, :func:`max_abs_bound`), the band
+of a periodogram with the most power (:func:`band_search`), a line of drifting frequency (:func:`chirp_search`,
+:func:`refine_chirp`), a tone's frequency (:func:`refine_frequency`) and least squares on regressors
+(:func:`remove_regressors`). NumPy and SciPy only."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from scipy import stats
+
+__all__ = ["max_abs_p", "max_abs_logp", "max_abs_bound", "innovation_periodogram", "BAND_WIDTHS", "band_search",
+           "against_neighbours", "chirp_search", "refine_chirp", "refine_frequency", "remove_regressors"]
+
+
+def max_abs_p(m: float, n: int) -> float:
+    """P(max |z| > m) for n independent N(0, 1): 1 − (1 − 2Φ(−m))ⁿ, exactly."""
+    return float(-np.expm1(n * np.log1p(-2.0 * stats.norm.sf(m))))
+
+
+def max_abs_logp(m: float, n: int) -> float:
+    """log :func:`max_abs_p`, by its first-order bound n·2Φ(−m) in logs where the probability is below 10⁻¹²."""
+    p = max_abs_p(m, n)
+    return math.log(p) if p > 1e-12 else math.log(n) + math.log(2.0) + float(stats.norm.logsf(m))
+
+
+def max_abs_bound(n: int, level: float) -> float:
+    """The c with P(max |z| > c) = ``level`` for n independent N(0, 1)."""
+    return float(stats.norm.isf(-np.expm1(np.log1p(-level) / n) / 2.0))
+
+
+def innovation_periodogram(z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    x = np.where(np.isfinite(z), z, 0.0)
+    N = len(x)
+    n_obs = int(np.isfinite(z).sum())
+    d = np.fft.rfft(x)
+    j = np.arange(1, (N - 1) // 2 + 1)
+    return j, np.abs(d[j]) ** 2 / n_obs  # 2π·I: Exp(1) per ordinate under the model
+
+
+#: the widths (in Fourier ordinates) :func:`band_search` tries
+BAND_WIDTHS = (4, 16, 64, 256)
+
+
+def band_search(z: np.ndarray, h: float, widths=BAND_WIDTHS) -> dict:
+    """The band of the standardised innovations' periodogram with the most power against the model: for each width
+    m of ``widths`` (up to an eighth of the ordinates) the sum of every m adjacent ordinates, each Exp(1) under the
+    model, so the sum is Gamma(m, 1); the smallest upper-tail p-value, Bonferroni over the positions and the widths
+    (a bound: the overlapping windows are correlated, so the test is conservative). Returns the band's centre and
+    width (Hz), its power against the model (the mean ordinate) and the log p-value."""
+    from scipy import stats
+
+    j, u = innovation_periodogram(z)
+    N = len(z)
+    best = None
+    widths = [m for m in widths if m <= len(u) // 8] or [max(1, len(u) // 8)]
+    for m in widths:
+        c = np.concatenate([[0.0], np.cumsum(u)])
+        sums = c[m:] - c[:-m]
+        k = int(np.argmax(sums))
+        logp = float(stats.gamma.logsf(sums[k], m)) + math.log(len(sums)) + math.log(len(widths))
+        if best is None or logp < best["log_p"]:
+            lo, hi = j[k], j[k + m - 1]
+            best = {"centre_hz": float((lo + hi) / 2 / (N * h)), "width_hz": float(m / (N * h)),
+                    "ratio": float(sums[k] / m), "log_p": min(0.0, logp), "ordinates": m}
+    return best
+
+
+def against_neighbours(u: np.ndarray, neighbours: int = 50, guard: int = 2):
+    """Each periodogram ordinate ``u`` (Exp(1) under the model) with its full ``neighbours`` on both sides (skipping
+    ``guard`` next to it) against their mean: ``(indices, ratio, log p)``, ratio ~ F(2, 2K) for independent
+    exponentials."""
+    c = np.concatenate([[0.0], np.cumsum(u)])
+    idx = np.arange(guard + neighbours, len(u) - guard - neighbours)
+    Mu = len(u)
+
+    def seg(lo, hi):  # sum and count of u[lo:hi], clipped to the array
+        lo, hi = np.clip(lo, 0, Mu), np.clip(hi, 0, Mu)
+        return c[hi] - c[lo], hi - lo
+
+    s1, n1 = seg(idx - guard - neighbours, idx - guard)
+    s2, n2 = seg(idx + guard + 1, idx + guard + 1 + neighbours)
+    K = n1 + n2
+    ratio = u[idx] / ((s1 + s2) / K)
+    return idx, ratio, stats.f.logsf(ratio, 2, 2 * K)
+
+
+def chirp_search(x: np.ndarray, h: float, *, max_rates: int = 801, neighbours: int = 50, guard: int = 2) -> dict:
+    """The strongest line of linearly drifting frequency in ``x`` (NaN = missing): for each drift rate f₁ of a grid
+    (step 2/T², T the record's length — a phase error of at most π/2 at its ends —, ``max_rates`` rates centred on
+    0), ``x`` is multiplied by exp(−iπ f₁ (t − t̄)²), which turns a line of frequency f₀ + f₁ (t − t̄) into a tone at
+    f₀, and each positive-frequency ordinate is tested against its neighbours as :func:`lines` does (F(2, 2K)).
+    Returns the best's ``f0_hz`` (at the record's middle t̄), ``rate_hz_per_s``, ``ratio``, its ``log_p`` with
+    Bonferroni over every ordinate and rate tested, and ``tests`` (their number)."""
+    ok = np.isfinite(x)
+    N = len(x)
+    xx = np.where(ok, x, 0.0)
+    n_obs = int(ok.sum())
+    t = (np.arange(N) - (N - 1) / 2.0) * h
+    T = N * h
+    R = max(41, min(max_rates, int(2.4e7 / N))) // 2 * 2 + 1  # fewer rates on long records (FFT work ≈ 2.4·10⁷)
+    rates = (np.arange(R) - R // 2) * 2.0 / T ** 2
+    best = None
+    tests = 0
+    for f1 in rates:
+        d = np.fft.fft(xx * np.exp(-1j * np.pi * f1 * t * t))
+        u = np.abs(d[1:(N - 1) // 2 + 1]) ** 2 / n_obs
+        idx, ratio, logp = against_neighbours(u, neighbours, guard)
+        tests += len(idx)
+        i = int(np.argmin(logp))
+        if best is None or logp[i] < best[0]:
+            best = (float(logp[i]), float(f1), int(idx[i]) + 1, float(ratio[i]))
+    logp, f1, j, ratio = best
+    return {"f0_hz": j / T, "rate_hz_per_s": f1, "ratio": ratio, "log_p": min(0.0, logp + math.log(tests)),
+            "tests": tests}
+
+
+def refine_chirp(x: np.ndarray, f0: float, f1: float, h: float) -> tuple[float, float]:
+    """``(f₀, f₁)`` maximising |Σ x_k exp(−i(2π f₀ τ_k + π f₁ τ_k²))|² (τ the time from the record's middle) near
+    the grid's ``(f0, f1)`` — within one frequency bin and one rate step (Nelder–Mead)."""
+    from scipy.optimize import minimize
+
+    N = len(x)
+    xx = np.where(np.isfinite(x), x, 0.0)
+    tau = (np.arange(N) - (N - 1) / 2.0) * h
+    T = N * h
+    sf, sr = 1.0 / T, 2.0 / T ** 2
+
+    def neg(p):
+        a, b = f0 + np.clip(p[0], -1, 1) * sf, f1 + np.clip(p[1], -1, 1) * sr
+        return -abs(np.dot(xx, np.exp(-1j * (2 * np.pi * a * tau + np.pi * b * tau * tau)))) ** 2
+
+    res = minimize(neg, [0.0, 0.0], method="Nelder-Mead", options={"xatol": 1e-4, "fatol": 1e-10})
+    p = np.clip(res.x, -1, 1)
+    return float(f0 + p[0] * sf), float(f1 + p[1] * sr)
+
+
+def refine_frequency(y: np.ndarray, f0: float, h: float) -> float:
+    from scipy.optimize import minimize_scalar
+    k = np.arange(len(y))
+    df = 1.0 / (len(y) * h)
+
+    def neg_power(f):
+        w = 2 * np.pi * f * h
+        return -abs(np.dot(y, np.exp(-1j * w * k))) ** 2
+
+    res = minimize_scalar(neg_power, bounds=(max(f0 - df, df / 2), f0 + df), method="bounded",
+                          options={"xatol": df * 1e-4})
+    return float(res.x)
+
+
+def remove_regressors(resid: np.ndarray, ok: np.ndarray, columns: list) -> dict:
+    """Least squares of ``resid`` (its ``ok`` samples) on the centred regressor ``columns`` (``[(name, (N,)), …]``):
+    removes the fit from ``resid`` in place and returns ``{name: coefficient}`` (empty without columns)."""
+    if not columns:
+        return {}
+    X = np.stack([c for _, c in columns], 1)[ok]
+    X = X - X.mean(0)
+    coef, *_ = np.linalg.lstsq(X, resid[ok], rcond=None)
+    resid[ok] -= X @ coef
+    return dict(zip((n for n, _ in columns), coef.tolist()))

@@ -111,3 +111,19 @@ def test_the_grown_model_makes_kfx_consistent_where_the_plain_one_is_not():
 
     assert 0.8 < nis("fractional+white+random-walk", truth) < 1.25
     assert nis("fractional+white", FW) > 5
+
+
+def test_what_the_engines_ask_of_a_component_is_its_own_attribute():
+    """The order, stationarity and order-driving are the components' attributes (no engine switches on a name):
+    the model's order name, whether the Whittle likelihood can fit it, and the fixed-parameter rule of the pole."""
+    from torchtea.fitting.mle import fit_series
+
+    assert parse_model("fractional+white").order_name == "fractional.order"
+    assert parse_model("white+random-walk").order_name is None
+    m = parse_model("fractional+white+temperature-order")
+    assert not m.stationary and parse_model("fractional+white+ramp").stationary
+    y = simulate_model("fractional+white", FW, n_steps=300, h=H, generator=torch.Generator().manual_seed(2))[0, 0]
+    with pytest.raises(ValueError, match="temperature-order makes the model non-stationary"):
+        fit_series(m, [y.numpy()], H, method="whittle", inputs=[{"temperature": torch.zeros(300)}])
+    with pytest.raises(ValueError, match="pole cannot be fixed while fractional.order is free"):
+        fit_series("fractional+white", [y.numpy()], H, fixed={"fractional.pole": -2.0})

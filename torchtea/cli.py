@@ -716,11 +716,11 @@ def _checked_fits(args):
 
 
 def _match_check(args, doc: dict, fits: dict, m) -> list:
-    """The check's fit of each channel of ``m``; the recording and its samples must be the check's."""
+    """The check's fit of each channel of ``m``; the recording (by its file's name) and its samples must be the
+    check's."""
     rec, checked = m.recording, Path(doc["recording"])
-    # a relative path is the check's own working directory's: then the file's name has to do
-    same = checked.resolve() == Path(rec.path).resolve() if checked.is_absolute() else checked.name == Path(rec.path).name
-    if not same:
+    # by the file's name: the check's path is its own working directory's or clone's (with the samples checked below)
+    if checked.name != Path(rec.path).name:
         raise CLIError(f"--from-check {args.from_check}: it checked {doc['recording']}, not {rec.path}")
     if int(doc["samples"]) != m.samples:
         raise CLIError(f"--from-check {args.from_check}: it checked {doc['samples']} samples, this reads {m.samples} "
@@ -1374,7 +1374,7 @@ def cmd_fit(args) -> int:
     inp = _model_inputs(args, model, m)
     inputs = None if inp is None else [inp] * len(series)
     n_boot = args.bootstrap if args.bootstrap is not None else (99 if m.samples <= BOOTSTRAP_LIMIT else 0)
-    if args.bootstrap is None and n_boot == 0 and model.has("fractional"):
+    if args.bootstrap is None and n_boot == 0 and model.order_name is not None:
         print(f"torchtea: note: {m.samples} samples: the fractional-presence bootstrap is not run (--bootstrap 99 "
               "runs it: 99 simulated replicates, each fitted twice)", file=sys.stderr)
     t0 = time.perf_counter()
@@ -1386,7 +1386,7 @@ def cmd_fit(args) -> int:
         step(i + 1, len(series))
     close()
     tests = [None] * len(series)
-    if model.has("fractional") and n_boot > 0:
+    if model.order_name is not None and n_boot > 0:
         if m.missing.count:
             print("torchtea: note: the fractional test needs complete series (Whittle): not run", file=sys.stderr)
         else:

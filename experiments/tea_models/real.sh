@@ -13,6 +13,6 @@ for f in unmoved_x_forward unmoved_z_front_x_up; do              # EUPL, read fr
     REC=../../../shared/data/mpu6050_sensor_fusion_temperature/$f.csv
     torchtea identify $REC --units g,g,g,deg/s,deg/s,deg/s --rate 100 --from-check $CHECKS/$f/check.json \
         --out real/$f --no-plots --json > real/$f.json
-    torchtea identify $REC --units g,g,g,deg/s,deg/s,deg/s --rate 100 --columns ax,ay,az,gx,gy,gz \
+    torchtea identify $REC --units g,g,g,deg/s,deg/s,deg/s --rate 100 --columns acc_x,acc_y,acc_z,gyro_x,gyro_y,gyro_z \
         --out real/${f}_plain --no-plots --json > real/${f}_plain.json
 done

@@ -371,19 +371,19 @@ def _stochastic_avar(model, values: dict, h: float, m, temperature=None, n_order
     """The model's AVAR at cluster sizes ``m``. A temperature-driven order makes the model non-stationary: its
     AVAR is then the average of the stationary AVARs at ``n_orders`` quantiles of the orders α_k the temperature
     gave (locally stationary — exact for τ short against the time the order takes to change)."""
-    mod = next((lb for lb, c in model.components if c.name == "temperature-order"), None)
+    mod = next((lb for lb, c in model.components if c.varies_order), None)
     if mod is None or temperature is None:
         return allan.model_avar(model, values, h, m)[0]
-    frac = next(lb for lb, c in model.components if c.name == "fractional")
+    order = model.order_name
     comp = dict(model.components)[mod]
-    v = {p: torch.tensor([float(values[f"{mod}.{p}"])], dtype=torch.float64) for p in ("order_per_degC", "t_ref")}
-    a = comp.orders(v, torch.tensor([float(values[f"{frac}.order"])], dtype=torch.float64),
+    v = {p.name: torch.tensor([float(values[f"{mod}.{p.name}"])], dtype=torch.float64) for p in comp.params}
+    a = comp.orders(v, torch.tensor([float(values[order])], dtype=torch.float64),
                     torch.as_tensor(np.asarray(temperature, dtype=np.float64)))[0].numpy()
     qs = np.quantile(a, (np.arange(n_orders) + 0.5) / n_orders)
-    batch = {k: [float(x)] * n_orders for k, x in values.items()}
-    batch[f"{frac}.order"] = qs.tolist()
-    batch[f"{mod}.order_per_degC"] = [0.0] * n_orders
-    return allan.model_avar(model, batch, h, m).mean(axis=0)
+    still = model.without(comp.name)  # the model at each of those orders held constant
+    batch = {k: [float(values[k])] * n_orders for k in still.names}
+    batch[order] = qs.tolist()
+    return allan.model_avar(still, batch, h, m).mean(axis=0)
 
 
 def allan_view(model, values: dict, inn: Innovations, h: float, level: float = LEVEL,

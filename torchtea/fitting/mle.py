@@ -138,7 +138,7 @@ def _starts(model: NoiseModel, y: np.ndarray, h: float, omega: Tensor, I: Tensor
             fixed: dict, orders=START_ORDERS, fractions=START_FRACTIONS) -> list[dict]:
     """Starting values: a grid of orders × pole fractions (one start without a fractional part), the
     drive variances scaled so that the model's mean spectrum meets the periodogram's."""
-    has_frac = model.has("fractional")
+    has_frac = model.order_name is not None
     orders = orders if has_frac else (None,)
     fracs = fractions if has_frac else (None,)
     base = model.initial_values(torch.as_tensor(y), h)
@@ -524,7 +524,9 @@ def profile_order(model, wf: WhittleFit, h: float, *, grid: int = 21, fixed: dic
     read off by linear interpolation — a union of pieces when the profile has two modes, reported as its
     hull with ``pieces``."""
     model = parse_model(model)
-    name = next(f"{label}.order" for label, c in model.components if c.name == "fractional")
+    name = model.order_name
+    if name is None:
+        raise ValueError(f"model {model.spec!r} has no fractional order to profile")
     io = model.names.index(name)
     alphas = torch.linspace(0.0125, 0.9875, grid, dtype=torch.float64)
     ua = model.param_spec(name).bounded_to_unconstrained(alphas)
@@ -601,21 +603,19 @@ def fit_series(model, series: list, h: float, *, method: str = "exact", inputs: 
     if unknown:
         raise ValueError(f"fixed parameters {sorted(unknown)} are not in model {model.spec!r} ({model.names})")
     for label, comp in model.components:
-        if comp.name == "fractional" and f"{label}.pole" in fixed and f"{label}.order" not in fixed:
-            raise ValueError(f"{label}.pole cannot be fixed while {label}.order is free: the pole is fitted as a "
-                             "fraction of its stability limit −2^α/h^α, which moves with the order; fix the order "
-                             "too, or leave the pole free")
+        comp.check_fixed(label, fixed)
     series = [np.asarray(y, dtype=np.float64) for y in series]
     gaps = [bool(np.isnan(y).any()) for y in series]
-    if method == "whittle" and model.has("temperature-order"):
-        raise ValueError("temperature-order makes the model non-stationary: its γ is fitted by the exact likelihood "
-                         "only (--method exact)")
+    if method == "whittle" and not model.stationary:
+        moving = ", ".join(c.name for _, c in model.components if not c.stationary)
+        raise ValueError(f"{moving} makes the model non-stationary: it is fitted by the exact likelihood only "
+                         "(--method exact)")
     if method == "whittle" and any(gaps):
         raise ValueError("the Whittle method needs complete series; use --method exact for recordings with "
                          "missing samples")
     filled = [np.where(np.isnan(y), np.nanmean(y), y) for y in series]
     wf = whittle_fit(model, filled, h, inputs=inputs, fixed=fixed) if whittle is None else whittle
-    name = next((f"{label}.order" for label, c in model.components if c.name == "fractional"), None)
+    name = model.order_name
     profiles = [None] * len(series)
     if profile and name is not None and name not in fixed:
         profiles = profile_order(model, wf, h, fixed=fixed)

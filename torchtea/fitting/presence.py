@@ -44,9 +44,9 @@ def fractional_test(model, series: list, h: float, *, n_boot: int = 99, seed: in
     keeps the white-null bootstrap distributions (keyed by model, N, h and ``n_boot``) for later calls — pass
     the same dict to test more series of the same length without simulating the null again."""
     model = parse_model(model)
-    if not model.has("fractional"):
+    if model.order_name is None:
         raise ValueError(f"model {model.spec!r} has no fractional component to test")
-    null = model.without("fractional")
+    null = model.without(dict(model.components)[model.order_labels[0]].name)
     series = [np.asarray(y, dtype=np.float64) - np.mean(y) for y in series]
     lr, V0 = _lr(model, null, series, h)
     gen = torch.Generator().manual_seed(seed)

@@ -144,6 +144,18 @@ class Component:
     kind: str = ""  # "state", "measurement", "filter", "mean", "modifier" (changes another component)
     params: tuple = ()
     inputs: tuple = ()  # input channels the component reads (e.g. "temperature")
+    #: the parameter that is a fractional order — the memory the TEA's KFo estimates, over which the Whittle profile
+    #: and the fractional-presence test run (:attr:`NoiseModel.order_name`); None: it has none
+    order_param: str | None = None
+    #: False for a component that makes the model's dynamics change in time: the model then has no spectrum that
+    #: defines its likelihood, and only the exact likelihood fits it
+    stationary: bool = True
+    #: True for a modifier that drives the order of the model's fractional component in time (``orders(v, α₀, T)``)
+    varies_order: bool = False
+
+    def check_fixed(self, label: str, fixed) -> None:
+        """Raise ``ValueError`` when the parameter names ``fixed`` hold some of this component's parameters in a way
+        its fit cannot (default: any is fine)."""
 
     # ---- spectra (stationary parts) -------------------------------------------------------------
     def spectrum(self, v: dict, omega: Tensor, h: float) -> Tensor:
@@ -425,6 +437,13 @@ class Fractional(Component):
     name = "fractional"
     kind = "state"
     candidate = False
+    order_param = "order"
+
+    def check_fixed(self, label, fixed):
+        if f"{label}.pole" in fixed and f"{label}.order" not in fixed:
+            raise ValueError(f"{label}.pole cannot be fixed while {label}.order is free: the pole is fitted as a "
+                             "fraction of its stability limit −2^α/h^α, which moves with the order; fix the order "
+                             "too, or leave the pole free")
     params = (ParamSpec("order", "bounded", "α (dimensionless)", ORDER_BOUNDS),
               ParamSpec("pole", "fraction", "f (1/s^α), stable for −2^α < f h^α < 0"),
               ParamSpec("q", "positive", "drive variance (units²)"))
@@ -847,7 +866,7 @@ class Quantisation(Component):
         v[f"{label}.step"] = math.sqrt(12 * white * 0.5)
 
     def not_screened(self, model):
-        if model.has("white"):
+        if any(c.kind == "measurement" and type(c) is not type(self) for _, c in model.components):
             return "quantisation noise is white, indistinguishable from the white component"
         return None
 
@@ -1437,6 +1456,8 @@ class TemperatureOrder(Component):
 
     name = "temperature-order"
     kind = "modifier"
+    stationary = False
+    varies_order = True
     tea_note = ("not a state: KFo estimates the order's variation in time itself (its estimate can be read against "
                 "the temperature); the fitted slope per °C is not used")
 
@@ -1448,7 +1469,7 @@ class TemperatureOrder(Component):
 
     def validate(self, components, spec):
         names = [c.name for _, c in components]
-        if names.count(self.name) > 1 or names.count("fractional") != 1:
+        if names.count(self.name) > 1 or sum(c.order_param is not None for _, c in components) != 1:
             raise ValueError(f"model {spec!r}: temperature-order drives the order of exactly one fractional "
                              "component, and a model holds one temperature-order")
         if any(c.kind == "filter" for _, c in components):
@@ -1456,7 +1477,7 @@ class TemperatureOrder(Component):
                              "cannot be combined with a sensor filter (low-pass, digital-filter)")
 
     def position(self, model):
-        if not model.has("fractional"):
+        if model.order_name is None:
             raise ValueError(f"temperature-order drives a fractional component's order; {model.spec!r} has none")
         return len(model.components)
 
@@ -1478,7 +1499,7 @@ class TemperatureOrder(Component):
 
         lr, g, quiet = self.scan(ctx)
         if lr is None:
-            frac = next(lb for lb, c in ctx.model.components if isinstance(c, Fractional))
+            frac = ctx.model.order_labels[0]
             raise NotScreened(f"the fitted order {ctx.fit.values[f'{frac}.order']:.3g} is at its bound, and no "
                               "slope per °C keeps it inside (0, 1)")
         note = (f"the scan stopped after γ = 0, ±δ: their parabola peaks less than {self.SCAN_QUIET:g} nat above the "
@@ -1504,7 +1525,7 @@ class TemperatureOrder(Component):
         which only makes the test conservative."""
         model, alt, label, fit, inn = ctx.model, ctx.alt, ctx.label, ctx.fit, ctx.inn
         T = np.asarray(ctx.inputs["temperature"], dtype=np.float64)
-        frac = next(lb for lb, c in model.components if isinstance(c, Fractional))
+        frac = model.order_labels[0]
         a0 = fit.values[f"{frac}.order"]
         span = max(float(np.max(np.abs(T - T.mean()))), 1e-9)
         if min(a0, 1 - a0) < 1e-6:  # the order at its bound: no slope keeps it inside (0, 1)

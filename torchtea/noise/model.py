@@ -185,6 +185,22 @@ class NoiseModel:
         return any(comp.name == name for _, comp in self.components)
 
     @property
+    def order_labels(self) -> list[str]:
+        """The labels of the components with a fractional order (:attr:`Component.order_param`)."""
+        return [label for label, c in self.components if c.order_param is not None]
+
+    @property
+    def order_name(self) -> str | None:
+        """The parameter name of the model's fractional order (``fractional.order``), None without one."""
+        labels = self.order_labels
+        return None if not labels else f"{labels[0]}.{dict(self.components)[labels[0]].order_param}"
+
+    @property
+    def stationary(self) -> bool:
+        """Whether the model's dynamics are the same at every time (its spectrum defines its likelihood)."""
+        return all(c.stationary for _, c in self.components)
+
+    @property
     def has_level(self) -> bool:
         """A component carries the series' constant level (an ``offset``): the fits do not centre the series."""
         return any(comp.level for _, comp in self.components)
@@ -428,10 +444,10 @@ class NoiseModel:
         return StateSpace(F, G, C, (r_before + r_after if lowpass is None else r_after).clone(), blocks, varying, g0)
 
     def _varying_order(self, byc, blocks, noise_cols, lowpass, h, n_steps, mem, inputs, B, n):
-        mods = [label for label, c in self.components if c.name == "temperature-order"]
+        mods = [label for label, c in self.components if c.varies_order]
         if not mods:
             return None
-        fracs = [label for label, c in self.components if c.name == "fractional"]
+        fracs = self.order_labels
         if len(mods) > 1 or len(fracs) != 1 or lowpass is not None:
             raise ValueError(f"model {self.spec!r}: temperature-order drives the order of one fractional component "
                              "and cannot be combined with a sensor filter (low-pass, digital-filter)")
@@ -441,7 +457,8 @@ class NoiseModel:
             raise ValueError(f"the temperature input must have {n_steps} finite values, got {T.shape[0]} "
                              f"({int((~torch.isfinite(T)).sum())} not finite)")
         frac = byc[fracs[0]]
-        alpha = COMPONENTS["temperature-order"].orders(byc[mods[0]], frac["order"], T[:n_steps])  # (B, N): α_k
+        comps = dict(self.components)
+        alpha = comps[mods[0]].orders(byc[mods[0]], frac[comps[fracs[0]].order_param], T[:n_steps])  # (B, N): α_k
         a_next = torch.cat([alpha[:, 1:], alpha[:, -1:]], dim=1)  # step k → k+1 uses α_{k+1}
         grids, index, weight = [], [], []
         for b in range(B):
@@ -460,7 +477,7 @@ class NoiseModel:
                 weight.append(pos - j)
         G_ = max(len(g_) for g_ in grids)
         orders = torch.stack([torch.cat([g_, g_[-1:].expand(G_ - len(g_))]) for g_ in grids])  # (B, G)
-        row, g = COMPONENTS["fractional"].first_row(orders, frac["pole"].unsqueeze(-1), frac["q"].unsqueeze(-1), h,
+        row, g = comps[fracs[0]].first_row(orders, frac["pole"].unsqueeze(-1), frac["q"].unsqueeze(-1), h,
                                                     mem)
         sl = blocks[fracs[0]]
         table = row.new_zeros(B, G_, n)

@@ -319,3 +319,30 @@ def test_stream_equals_run_tea_with_bounded_memory():
     torch.testing.assert_close(torch.stack(x, 1), ref.x, rtol=0, atol=0)
     with pytest.raises(ValueError, match="bounded memory"):
         TEAStream(h=0.01, params=make_params(cfgs[0].__class__(), Structure()))
+
+
+def test_one_memory_dispatch():
+    """core.memory.memory_plan is where memory kinds become lags, modes and a kernel: its fields per kind, and no
+    module outside core/memory.py compares a memory's kind (the engines read the plan)."""
+    import re
+    from pathlib import Path
+
+    import torchtea
+    from torchtea.core.memory import kernel_for, memory_plan, parse_memory
+
+    exact = memory_plan("exact", 500)
+    assert (exact.bounded, exact.x_lags, exact.kernel, exact.code) == (False, 500, None, 0)
+    window = memory_plan("window:40", 500)
+    assert (window.bounded, window.x_lags, window.p_lags, window.n_modes, window.code) == (True, 40, 40, 0, 2)
+    soe = memory_plan("soe", 5000, (0.0, 1.5))
+    cfg = parse_memory("soe")
+    assert (soe.bounded, soe.x_lags, soe.p_lags, soe.head, soe.code) == (True, cfg.exact_lags, cfg.cov_lags,
+                                                                          cfg.cov_head, 1)
+    assert soe.n_modes == kernel_for(cfg, 5000, 0.0, 1.5).n_modes > 0
+    with pytest.raises(ValueError, match="needs the orders"):
+        memory_plan("soe", 100)
+    pattern = re.compile(r"""\.kind\s*[!=]=\s*["'](exact|soe|window)["']|\{"exact":\s*0""")
+    root = Path(torchtea.__file__).parent
+    readers = [str(p.relative_to(root)) for p in root.rglob("*.py")
+               if p.name != "memory.py" and pattern.search(p.read_text(encoding="utf-8"))]
+    assert readers == [], readers

@@ -41,7 +41,7 @@ from torch import Tensor
 from .gl import gl_tail_coefficients
 
 __all__ = ["MemoryConfig", "SOEKernel", "design_kernel", "kernel_for", "BoundedHistory", "cov_tail_mass", "gl_coefficients_at",
-           "MEMORY_KINDS", "parse_memory"]
+           "MEMORY_KINDS", "parse_memory", "MemoryPlan", "memory_plan"]
 
 MEMORY_KINDS = ("exact", "soe", "window")
 
@@ -88,6 +88,11 @@ class MemoryConfig:
             lo, hi = self.order_range
             if not -1.0 < lo < hi < self.exact_lags:
                 raise ValueError(f"memory order_range must satisfy -1 < low < high < exact_lags, got {self.order_range}")
+
+    @property
+    def bounded(self) -> bool:
+        """Constant work and state per step (``soe``, ``window``); ``exact`` keeps the whole past."""
+        return self.kind != "exact"
 
     def spec(self) -> str:
         if self.kind == "soe":
@@ -276,6 +281,52 @@ def kernel_for(cfg: MemoryConfig, horizon: int, low: float, high: float) -> SOEK
     the range kept inside ``(−0.95, exact_lags − 1)`` where (★) and the check hold."""
     lo, hi = cfg.order_range or (max(low, -0.95), min(high, cfg.exact_lags - 1.0))
     return design_kernel(cfg.tol, int(horizon), (float(lo), float(hi)), cfg.exact_lags)
+
+
+# --------------------------------------------------------------------------- the one dispatch
+
+
+@dataclass(frozen=True)
+class MemoryPlan:
+    """What a memory setting is for a run of ``horizon`` samples: the one place where the kinds become lags, modes
+    and a kernel. Every engine — the TEA (torch and compiled), the paper-model simulator, the noise model's state
+    space, the live estimator — reads this, none reads ``kind``.
+
+    ``bounded``: constant work per step (``soe``, ``window``); ``x_lags`` / ``p_lags``: lags of the mean and of the
+    covariance sums kept exactly (the horizon for ``exact``); ``head``: start-up covariances kept exactly (``soe``);
+    ``kernel``: the exponential sum of the older lags (``soe``), else None."""
+
+    config: MemoryConfig
+    bounded: bool
+    x_lags: int
+    p_lags: int
+    head: int
+    kernel: SOEKernel | None
+
+    @property
+    def n_modes(self) -> int:
+        return 0 if self.kernel is None else self.kernel.n_modes
+
+    @property
+    def code(self) -> int:
+        """The compiled kernels' switch: 0 the whole past, 1 exponential sums, 2 a window."""
+        return 0 if not self.bounded else 1 if self.kernel is not None else 2
+
+
+def memory_plan(memory, horizon: int, order_range: tuple | None = None) -> MemoryPlan:
+    """The :class:`MemoryPlan` of ``memory`` (a spec, dict or :class:`MemoryConfig`) for ``horizon`` samples;
+    ``order_range`` ``(low, high)``: the orders a ``soe`` kernel must serve (:func:`kernel_for`; the config's own
+    ``order_range`` wins), needed only for ``soe``."""
+    cfg = parse_memory(memory)
+    if cfg.kind == "exact":
+        return MemoryPlan(cfg, False, int(horizon), int(horizon), 0, None)
+    if cfg.kind == "window":
+        return MemoryPlan(cfg, True, cfg.window, cfg.window, 0, None)
+    if order_range is None and cfg.order_range is None:
+        raise ValueError("a soe memory plan needs the orders its kernel serves")
+    lo, hi = order_range if order_range is not None else cfg.order_range
+    kernel = kernel_for(cfg, horizon, lo, hi)
+    return MemoryPlan(cfg, True, cfg.exact_lags, max(cfg.cov_lags, cfg.exact_lags), cfg.cov_head, kernel)
 
 
 # --------------------------------------------------------------------------- bounded histories

@@ -108,7 +108,7 @@ class FastTEA:
                 ut_weights(1, cfg.kfw.ut_alpha, cfg.kfw.ut_beta, cfg.kfw.kappa))]
         lo, hi = (float(v) for v in cfg.order_bounds)
         zeros = lambda *s: np.zeros((B,) + s)  # noqa: E731
-        kind = self.kind = {"exact": 0, "soe": 1, "window": 2}[cfg.memory.kind]
+        kind = self.kind = memory.code  # the one dispatch: core.memory.MemoryPlan.code
         ka = kb = decay = inject = np.zeros(0)
         eta, klo, khi = 1.0, -math.inf, math.inf
         gain = cfg.kfx_uncertainty == "paper-gain"  # the gain's covariance kept apart: its history too

@@ -8,7 +8,7 @@ import torch
 from torch import Tensor
 
 from ..core.gl import broadcast_shapes, gl_tail_coefficients
-from ..core.memory import BoundedHistory, kernel_for, parse_memory
+from ..core.memory import BoundedHistory, memory_plan
 from .fast import fast_path_reason
 from .structure import OrderSchedule, Structure
 
@@ -150,12 +150,13 @@ def simulate(
     x[..., 0, :] = 0.0 if x0 is None else torch.as_tensor(x0).to(ref)
     hpow = torch.as_tensor(h, dtype=dtype, device=device) ** alpha
     constant = bool(torch.all(alpha == alpha[..., :1, :]))
-    mem = parse_memory(memory)
+    # the one dispatch (core.memory): a soe kernel serves the simulated orders
+    plan = memory_plan(memory, n_steps, (float(alpha.min()) - 0.01, float(alpha.max()) + 0.01))
 
     def drive(k):
         return (A @ x[..., k, :, None]).squeeze(-1) + u[..., k, :] @ B.mT + omega[..., k, :]
 
-    if mem.kind == "exact":
+    if not plan.bounded:
         # Past states newest first: hist[..., i] = x_{k-i}; kept time-reversed so
         # that every step reads one contiguous slice (no flip copies).
         hist = torch.zeros(batch + (n, n_steps), dtype=dtype, device=device)
@@ -169,12 +170,9 @@ def simulate(
             x[..., k + 1, :] = hpow[..., k + 1, :] * drive(k) - (c * past).sum(-1)
             hist[..., n_steps - 2 - k] = x[..., k + 1, :]
     else:
-        if mem.kind == "soe":
-            kernel = kernel_for(mem, n_steps, float(alpha.min()) - 0.01, float(alpha.max()) + 0.01)
+        kernel, decay, inject, lags, modes = plan.kernel, None, None, plan.x_lags, plan.n_modes
+        if kernel is not None:
             _, _, decay, inject = kernel.tensors(dtype, device)
-            lags, modes = mem.exact_lags, kernel.n_modes
-        else:
-            kernel, decay, inject, lags, modes = None, None, None, mem.window, 0
         coeff = weights = None
         if constant:
             coeff = gl_tail_coefficients(alpha[..., 0, :], lags).unsqueeze(-3)  # (*B, 1, n, J)

@@ -34,7 +34,7 @@ import torch
 from torch import Tensor
 
 from ..core.gl import broadcast_shapes, gl_tail_coefficients, history_sum
-from ..core.memory import BoundedHistory, MemoryConfig, cov_tail_mass, gl_coefficients_at, kernel_for
+from ..core.memory import BoundedHistory, MemoryConfig, cov_tail_mass, gl_coefficients_at, memory_plan
 from .results import STEP_OUTPUTS, Carry, StepOutput, TEAResult, ut_weights
 from .settings import TEAConfig
 from .structure import Structure
@@ -323,6 +323,7 @@ class _ExactMemory:
     "paper-gain"`` a third entry, the gain's covariances ``Pg`` in the same form."""
 
     bounded = False
+    code = 0  # the compiled engine's switch (core.memory.MemoryPlan.code)
 
     def mean_sums(self, hist, orders):
         return history_sum(orders, hist[0])
@@ -353,17 +354,14 @@ class _BoundedMemory:
     bounded = True
 
     def __init__(self, cfg: MemoryConfig, order_bounds, horizon: int, dtype, device):
-        if cfg.kind == "soe":
-            # sigma points leave the order bounds (by ±√(3 P̃ᵒ), ~0.9 on the MEMS settings): serve one order
-            # beyond them on both sides (down to −0.95 at most, where (★) stops)
-            self.kernel = kernel_for(cfg, horizon, order_bounds[0] - 1.0, order_bounds[1] + 1.0)
+        # sigma points leave the order bounds (by ±√(3 P̃ᵒ), ~0.9 on the MEMS settings): a soe kernel serves one
+        # order beyond them on both sides (down to −0.95 at most, where (★) stops)
+        plan = memory_plan(cfg, horizon, (order_bounds[0] - 1.0, order_bounds[1] + 1.0))
+        self.kernel, self.code = plan.kernel, plan.code
+        self.decay = self.inject = None
+        if self.kernel is not None:
             _, _, self.decay, self.inject = self.kernel.tensors(dtype, device)
-            self.x_lags, self.p_lags, self.n_modes = cfg.exact_lags, max(cfg.cov_lags, cfg.exact_lags), self.kernel.n_modes
-            self.head = cfg.cov_head
-        else:
-            self.kernel, self.decay, self.inject = None, None, None
-            self.x_lags = self.p_lags = cfg.window
-            self.n_modes = self.head = 0
+        self.x_lags, self.p_lags, self.n_modes, self.head = plan.x_lags, plan.p_lags, plan.n_modes, plan.head
         self.head_index = torch.arange(self.head, dtype=dtype, device=device)
 
     def init(self, batch, n: int, dtype, device, gain: bool = False):
@@ -418,7 +416,7 @@ class _BoundedMemory:
 
 
 def _make_memory(cfg: TEAConfig, horizon: int, dtype, device):
-    if cfg.memory.kind == "exact":
+    if not cfg.memory.bounded:
         return _ExactMemory()
     return _BoundedMemory(cfg.memory, cfg.order_bounds, horizon, dtype, device)
 
@@ -602,7 +600,7 @@ class TEAStream:
                  horizon: int = 10**6, dtype=torch.float64, device=None, engine: str = "auto"):
         self.structure = structure or Structure.scalar_noise()
         cfg = params.config
-        if cfg.memory.kind == "exact":
+        if not cfg.memory.bounded:
             raise ValueError("TEAStream needs bounded memory: set config.memory to soe or window")
         self.params = TEAParams(*[t.to(device=device, dtype=dtype) for t in params[:-1]], config=cfg)
         self.batch = broadcast_shapes(tuple(batch), self.params.x0.shape[:-1], self.params.R.shape[:-2])

@@ -26,7 +26,7 @@ import torch
 from torch import Tensor
 
 from ..core.gl import broadcast_shapes
-from ..core.memory import MemoryConfig, SOEKernel, kernel_for, parse_memory
+from ..core.memory import MemoryConfig, SOEKernel, memory_plan, parse_memory
 from .components import COMPONENTS, ORDER_BOUNDS, Component, StartData, logit
 
 __all__ = ["NoiseModel", "parse_model", "StateSpace", "VaryingRow", "StateMemory", "state_memory",
@@ -52,15 +52,13 @@ def state_memory(memory, n_steps: int) -> StateMemory:
     """The state-space form of a memory setting (``"soe"``, ``"soe:1e-8"``, ``"exact"``, ``"window:L"``)
     for series of ``n_steps`` samples. The single place where memory kinds become states."""
     cfg = parse_memory(memory)
-    if cfg.kind == "exact":
+    if not cfg.bounded:
         if n_steps > EXACT_MEMORY_LIMIT:
             raise ValueError(f"exact memory keeps all {n_steps} past samples in the state; use soe for more than "
                              f"{EXACT_MEMORY_LIMIT} samples")
         return StateMemory(max(n_steps - 1, 1))
-    if cfg.kind == "window":
-        return StateMemory(cfg.window)
-    lo, hi = cfg.order_range or (ORDER_BOUNDS[0], ORDER_BOUNDS[1] - 1e-3)
-    return StateMemory(cfg.exact_lags, kernel_for(cfg, max(n_steps, cfg.exact_lags + 2), lo, hi))
+    plan = memory_plan(cfg, max(n_steps, cfg.exact_lags + 2), (ORDER_BOUNDS[0], ORDER_BOUNDS[1] - 1e-3))
+    return StateMemory(plan.x_lags, plan.kernel)
 
 
 #: A time-varying order's first rows are tabulated: exactly at each distinct order when there are at most this many,

@@ -41,7 +41,7 @@ class LiveEstimator:
         self._clock = clock
         self.logdir = Path(logdir)
         self.memory = parse_memory(memory)
-        if self.memory.kind == "exact":
+        if not self.memory.bounded:
             raise ValueError("live estimation needs bounded memory: --memory soe or window:L")
         self.warmup_s, self.log_every_s, self.horizon = warmup_s, log_every_s, horizon
         self._q: queue.Queue = queue.Queue()

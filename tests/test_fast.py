@@ -158,3 +158,16 @@ def test_data_with_gradients_take_the_torch_engine():
     torch.testing.assert_close(res.alpha.detach(), plain.alpha, rtol=1e-10, atol=1e-12)
     with pytest.raises(ValueError, match="gradients"):
         run_tea(y, h=0.01, params=make_params(get_preset("paper-mems-x"), Structure()), engine="numba")
+
+
+def test_the_compiled_kernel_takes_its_arguments_by_name():
+    """FastTEA passes the kernel's arguments by name (Settings, State, History, the outputs by TEAResult field): the
+    names, in the order the compiled function declares them, are the kernel's own parameters."""
+    import inspect
+
+    from torchtea.engines import _fast_kernel
+    from torchtea.engines.fast import OUTPUTS, kernel_arguments
+    from torchtea.engines.results import STEP_OUTPUTS
+
+    assert list(inspect.signature(_fast_kernel.advance.py_func).parameters) == list(kernel_arguments())
+    assert tuple(OUTPUTS) == STEP_OUTPUTS

@@ -16,11 +16,12 @@ does not): float64 on the CPU, the scalar structure, no ``compile``. Steps run i
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 import torch
 
-from .results import Carry, TEAResult, ut_weights
+from .results import STEP_OUTPUTS, Carry, TEAResult, ut_weights
 
 __all__ = ["fast_path_reason", "use_compiled", "run_tea_fast", "BLOCK"]
 
@@ -61,6 +62,98 @@ def use_compiled(engine: str, structure, dtype, device, compile: bool = False, r
     if engine == "numba" and reason is not None:
         raise ValueError(f"engine='numba' cannot run this problem: {reason}")
     return reason is None
+
+
+class Settings(NamedTuple):
+    """The kernel's settings, by name (the compiled kernel :func:`~._fast_kernel.advance` takes them in this order;
+    tests/test_fast.py checks the names against its signature)."""
+
+    h: float
+    Q: np.ndarray
+    R: np.ndarray
+    Ro: np.ndarray
+    Rw: np.ndarray
+    qmax_o: np.ndarray
+    qmax_w: np.ndarray
+    scaled: bool  # noise_scaling == "scaled"
+    start: int  # sigma_sum_start
+    lo: float  # order_bounds
+    hi: float
+    limit: float  # divergence_limit
+    delta_o: float
+    delta_w: float
+    mode: int  # kfx_uncertainty: KFX_UNCERTAINTIES.index
+    const: bool  # estimate_uncertainty == "constant-truth"
+    wm_o: np.ndarray  # KFo's unscented weights and scale
+    wc_o: np.ndarray
+    scale_o: float
+    wm_w: np.ndarray  # KFw's
+    wc_w: np.ndarray
+    scale_w: float
+    kind: int  # the memory plan's code (core.memory.MemoryPlan.code)
+    xl: int  # lags of the mean sum, of the covariance sum, start-up covariances kept
+    pl: int
+    H: int
+    ka: np.ndarray  # the soe kernel (empty otherwise)
+    kb: np.ndarray
+    kbig: float
+    decay: np.ndarray
+    inject: np.ndarray
+    eta: float
+    klo: float
+    khi: float
+    count_lo: float  # the range outside which a sigma order counts as clamped
+    count_hi: float
+    la: np.ndarray  # the lag tables of the GL coefficients
+    lb: np.ndarray
+
+
+class State(NamedTuple):
+    """The carry per realisation (``(B,)`` arrays, advanced in place): KFx's x̂ and P, KFo's α̂, P, Q, KFw's ŵ, P, Q,
+    the divergence flag and step, the clamp count, the gain's covariance and KFo's and KFw's own covariances."""
+
+    X: np.ndarray
+    P: np.ndarray
+    AL: np.ndarray
+    PO: np.ndarray
+    QO: np.ndarray
+    W: np.ndarray
+    PW: np.ndarray
+    QW: np.ndarray
+    DIV: np.ndarray
+    DAT: np.ndarray
+    CLAMP: np.ndarray
+    PG: np.ndarray
+    POG: np.ndarray
+    PWG: np.ndarray
+
+
+class History(NamedTuple):
+    """KFx's history as the memory keeps it (``exact``: ``xh``, ``Ph``, ``Pgh`` the whole past; bounded: the
+    windows, the modes and the start-up covariances), in place."""
+
+    xh: np.ndarray
+    Ph: np.ndarray
+    win: np.ndarray
+    modes: np.ndarray
+    Pwin: np.ndarray
+    Phead: np.ndarray
+    Pgh: np.ndarray
+    Pwin_g: np.ndarray
+    Phead_g: np.ndarray
+
+
+#: The kernel's output arrays by the :class:`~.results.TEAResult` field each fills (``STEP_OUTPUTS`` order).
+OUTPUTS = {"x": "o_x", "P": "o_P", "alpha": "o_a", "P_alpha": "o_Po", "Q_alpha": "o_Qo", "w": "o_w", "P_w": "o_Pw",
+           "Q_w": "o_Qw", "innovation": "o_e", "innovation_cov": "o_S"}
+
+#: The kernel's leading arguments (the steps and the data), before the named groups.
+LEADING = ("k0", "k1", "yoff", "ooff", "every", "y", "u", "has_u")
+
+
+def kernel_arguments() -> tuple:
+    """The names of the compiled kernel's arguments as :class:`FastTEA` passes them."""
+    return LEADING + Settings._fields + State._fields + History._fields + tuple(OUTPUTS.values())
 
 
 def _kernel():
@@ -114,61 +207,70 @@ class FastTEA:
         gain = cfg.kfx_uncertainty == "paper-gain"  # the gain's covariance kept apart: its history too
         if kind == 0:
             xl = pl = H = 0
-            self.hist = [zeros(horizon), zeros(horizon), zeros(1), zeros(0), zeros(1), zeros(0),
-                         zeros(horizon if gain else 1), zeros(1), zeros(0)]
+            hist = History(xh=zeros(horizon), Ph=zeros(horizon), win=zeros(1), modes=zeros(0), Pwin=zeros(1),
+                           Phead=zeros(0), Pgh=zeros(horizon if gain else 1), Pwin_g=zeros(1), Phead_g=zeros(0))
         else:
             xl, pl, H = memory.x_lags, memory.p_lags, memory.head
             if kind == 1:
                 ka, kb, decay, inject = (t.numpy() for t in memory.kernel.tensors(torch.float64, torch.device("cpu")))
                 eta = float(memory.kernel.eta)
                 klo, khi = (float(v) for v in memory.kernel.order_range)
-            self.hist = [zeros(1), zeros(1), zeros(xl), zeros(ka.shape[0]), zeros(pl), zeros(H),
-                         zeros(1), zeros(pl if gain else 1), zeros(H if gain else 0)]
-        self.settings = (float(h), Q, R, Ro, Rw, qmax_o, qmax_w, cfg.noise_scaling == "scaled", int(cfg.sigma_sum_start),
-                         lo, hi, float(cfg.divergence_limit), float(cfg.kfo.delta), float(cfg.kfw.delta),
-                         KFX_UNCERTAINTIES.index(cfg.kfx_uncertainty),
-                         cfg.estimate_uncertainty == "constant-truth",
-                         wm_o, wc_o, sc_o, wm_w, wc_w, sc_w,
-                         kind, xl, pl, H, ka, kb, float(np.abs(kb[:-1]).max(initial=0.0)), decay, inject, eta, klo, khi,
-                         klo if kind == 1 else -math.inf, khi if kind == 1 else math.inf, *_lag_tables(horizon if kind == 0 else max(xl, pl)))
+            hist = History(xh=zeros(1), Ph=zeros(1), win=zeros(xl), modes=zeros(ka.shape[0]), Pwin=zeros(pl),
+                           Phead=zeros(H), Pgh=zeros(1), Pwin_g=zeros(pl if gain else 1), Phead_g=zeros(H if gain else 0))
+        la, lb = _lag_tables(horizon if kind == 0 else max(xl, pl))
+        self.settings = Settings(
+            h=float(h), Q=Q, R=R, Ro=Ro, Rw=Rw, qmax_o=qmax_o, qmax_w=qmax_w, scaled=cfg.noise_scaling == "scaled",
+            start=int(cfg.sigma_sum_start), lo=lo, hi=hi, limit=float(cfg.divergence_limit),
+            delta_o=float(cfg.kfo.delta), delta_w=float(cfg.kfw.delta),
+            mode=KFX_UNCERTAINTIES.index(cfg.kfx_uncertainty), const=cfg.estimate_uncertainty == "constant-truth",
+            wm_o=wm_o, wc_o=wc_o, scale_o=sc_o, wm_w=wm_w, wc_w=wc_w, scale_w=sc_w,
+            kind=kind, xl=xl, pl=pl, H=H, ka=ka, kb=kb, kbig=float(np.abs(kb[:-1]).max(initial=0.0)), decay=decay,
+            inject=inject, eta=eta, klo=klo, khi=khi, count_lo=klo if kind == 1 else -math.inf,
+            count_hi=khi if kind == 1 else math.inf, la=la, lb=lb)
         # the carry after step 0 (tea._first_step) and its history
-        self.state = [np.array(t.reshape(B, -1)[:, 0].numpy(), dtype=np.float64) for t in carry[:8]]
+        col = lambda t: np.array(t.reshape(B, -1)[:, 0].numpy(), dtype=np.float64)  # noqa: E731
         self.gain = gain
-        self.pg = np.array(carry.Pg.reshape(B).numpy(), dtype=np.float64) if gain else zeros()
         # KFo's and KFw's own covariances, which set their gains (equal to Po, Pw unless "constant-truth")
         self.constant = carry.Pog is not None
-        self.pog, self.pwg = (np.array(t.reshape(B).numpy(), dtype=np.float64) for t in (carry.Po_own, carry.Pw_own))
-        self.div = np.array(carry.diverged.reshape(B).numpy(), dtype=np.bool_)
-        self.dat = np.where(self.div, 0, -1).astype(np.int64)
-        self.clamp = np.zeros(B, dtype=np.int64)
-        xh, Ph, win, modes, Pwin, Phead, Pgh, Pwin_g, Phead_g = self.hist
-        x0, P0 = self.state[0], self.state[1]
+        div = np.array(carry.diverged.reshape(B).numpy(), dtype=np.bool_)
+        self.state = State(X=col(carry.x), P=col(carry.P), AL=col(carry.alpha), PO=col(carry.Po), QO=col(carry.Qo),
+                           W=col(carry.w), PW=col(carry.Pw), QW=col(carry.Qw), DIV=div,
+                           DAT=np.where(div, 0, -1).astype(np.int64), CLAMP=np.zeros(B, dtype=np.int64),
+                           PG=np.array(carry.Pg.reshape(B).numpy(), dtype=np.float64) if gain else zeros(),
+                           POG=np.array(carry.Po_own.reshape(B).numpy(), dtype=np.float64),
+                           PWG=np.array(carry.Pw_own.reshape(B).numpy(), dtype=np.float64))
+        self.hist = hist
+        self._groups = (*self.settings, *self.state, *self.hist)
+        s = self.state
         if kind == 0:
-            xh[:, 0], Ph[:, 0], Pgh[:, 0] = x0, P0, self.pg
+            hist.xh[:, 0], hist.Ph[:, 0], hist.Pgh[:, 0] = s.X, s.P, s.PG
         else:
-            win[:, 0], Pwin[:, 0], Pwin_g[:, 0] = x0, P0, self.pg
+            hist.win[:, 0], hist.Pwin[:, 0], hist.Pwin_g[:, 0] = s.X, s.P, s.PG
             if H > 0:
-                Phead[:, 0] += P0
+                hist.Phead[:, 0] += s.P
                 if gain:
-                    Phead_g[:, 0] += self.pg
+                    hist.Phead_g[:, 0] += s.PG
         self._advance = _kernel()
 
-    def advance(self, k0: int, k1: int, y: np.ndarray, u: np.ndarray | None, outs, *, yoff: int = 0, ooff: int = 0,
-                every: int = 1):
+    def advance(self, k0: int, k1: int, y: np.ndarray, u: np.ndarray | None, outs: dict, *, yoff: int = 0,
+                ooff: int = 0, every: int = 1):
         """Steps ``k0 … k1−1``: ``y[:, k − yoff]``, ``u[:, k − 1 − yoff]``; outputs of the steps ``k`` with
-        ``k % every == 0`` into row ``k // every − ooff`` of the ten arrays ``outs``."""
+        ``k % every == 0`` into row ``k // every − ooff`` of ``outs`` (a ``(B, rows)`` array per
+        :data:`~.results.STEP_OUTPUTS` name). The arguments go by name (:func:`kernel_arguments`)."""
+        # in kernel_arguments() order: the leading ones, then the named groups (their arrays change in place only,
+        # so they are put together once), then the outputs by TEAResult field
         self._advance(k0, k1, yoff, ooff, every, y, np.zeros((1, 1)) if u is None else u, u is not None,
-                      *self.settings, *self.state, self.div, self.dat, self.clamp, self.pg, self.pog, self.pwg, *self.hist,
-                      *outs)
+                      *self._groups, *(outs[name] for name in OUTPUTS))
 
     def carry(self):
         """The current carry as torch tensors of :class:`~.tea.Carry`'s shapes."""
         t = lambda a: torch.from_numpy(a.copy()).reshape(self.batch)  # noqa: E731
-        x, P, al, Po, Qo, w, Pw, Qw = (t(a) for a in self.state)
-        v, m = (lambda a: a.unsqueeze(-1)), (lambda a: a.unsqueeze(-1).unsqueeze(-1))
-        own = (m(t(self.pog)), m(t(self.pwg))) if self.constant else (None, None)
-        return Carry(v(x), m(P), v(al), m(Po), m(Qo), v(w), m(Pw), m(Qw), t(self.div), m(t(self.pg)) if self.gain else None,
-                     *own)
+        v = lambda a: t(a).unsqueeze(-1)  # noqa: E731
+        m = lambda a: t(a).unsqueeze(-1).unsqueeze(-1)  # noqa: E731
+        s = self.state
+        return Carry(x=v(s.X), P=m(s.P), alpha=v(s.AL), Po=m(s.PO), Qo=m(s.QO), w=v(s.W), Pw=m(s.PW), Qw=m(s.QW),
+                     diverged=t(s.DIV), Pg=m(s.PG) if self.gain else None,
+                     Pog=m(s.POG) if self.constant else None, Pwg=m(s.PWG) if self.constant else None)
 
 
 def block_steps(eng: "FastTEA", k: int, B: int) -> int:
@@ -191,11 +293,14 @@ def run_tea_fast(y, *, h: float, params, inputs=None, progress=None, record_ever
     yv = np.ascontiguousarray(y.reshape(B, N).cpu().numpy())
     uv = None if inputs is None else np.ascontiguousarray(inputs.reshape(B, N).cpu().numpy())
     n_out = (N - 1) // every + 1
-    outs = [np.empty((B, n_out)) for _ in range(10)]
-    for o, v in zip(outs, [*eng.state, out0.innovation.reshape(B).numpy(), out0.innovation_cov.reshape(B).numpy()]):
-        o[:, 0] = v
+    outs = {name: np.empty((B, n_out)) for name in STEP_OUTPUTS}
+    s = eng.state
+    first_row = dict(x=s.X, P=s.P, alpha=s.AL, P_alpha=s.PO, Q_alpha=s.QO, w=s.W, P_w=s.PW, Q_w=s.QW,
+                     innovation=out0.innovation.reshape(B).numpy(), innovation_cov=out0.innovation_cov.reshape(B).numpy())
+    for name in STEP_OUTPUTS:
+        outs[name][:, 0] = first_row[name]
     completed = 1
-    clamp = eng.clamp.copy()  # the clamp count of the finished blocks (a Ctrl-C drops the block it interrupts)
+    clamp = s.CLAMP.copy()  # the clamp count of the finished blocks (a Ctrl-C drops the block it interrupts)
     try:
         if progress is not None:
             progress(0, N)  # the work starts (a progress clock starts with it)
@@ -204,7 +309,7 @@ def run_tea_fast(y, *, h: float, params, inputs=None, progress=None, record_ever
             k1 = min(N, k + block_steps(eng, k, B))
             eng.advance(k, k1, yv, uv, outs, every=every)
             k = completed = k1
-            clamp = eng.clamp.copy()
+            clamp = eng.state.CLAMP.copy()
             if progress is not None:
                 progress(k - 1, N)
     except KeyboardInterrupt:
@@ -214,11 +319,12 @@ def run_tea_fast(y, *, h: float, params, inputs=None, progress=None, record_ever
     t = lambda a: torch.from_numpy(a[:, :rows]).reshape(tuple(batch) + (rows,))  # noqa: E731
     vec = lambda a: t(a).unsqueeze(-1)  # noqa: E731
     mat = lambda a: t(a).unsqueeze(-1).unsqueeze(-1)  # noqa: E731
-    ox, oP, oa, oPo, oQo, ow, oPw, oQw, oe, oS = outs
-    diverged = (eng.dat >= 0) & (eng.dat < completed)
-    return TEAResult(vec(ox), mat(oP), vec(oa), mat(oPo), mat(oQo), vec(ow), mat(oPw), mat(oQw), vec(oe), mat(oS),
+    covariances = {"P", "P_alpha", "Q_alpha", "P_w", "Q_w", "innovation_cov"}
+    dat = eng.state.DAT
+    diverged = (dat >= 0) & (dat < completed)
+    return TEAResult(**{name: (mat if name in covariances else vec)(outs[name]) for name in STEP_OUTPUTS},
                      diverged=torch.from_numpy(diverged).reshape(batch),
-                     diverged_at=torch.from_numpy(np.where(diverged, eng.dat, -1)).reshape(batch),
+                     diverged_at=torch.from_numpy(np.where(diverged, dat, -1)).reshape(batch),
                      steps=torch.arange(0, completed, every),
                      memory_clamped=torch.from_numpy(clamp).reshape(batch) if eng.kind == 1 else None,
                      interrupted=completed < N)

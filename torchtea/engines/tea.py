@@ -647,11 +647,12 @@ class TEAStream:
         if u_prev is not None:
             u = np.zeros((B, 2))
             u[:, 0] = torch.as_tensor(u_prev, dtype=self.dtype).expand(self.batch + (1,)).reshape(B).numpy()
-        outs = [np.empty((B, 1)) for _ in range(10)]
+        outs = {name: np.empty((B, 1)) for name in STEP_OUTPUTS}
         eng.advance(k, k + 1, y, u, outs, yoff=k - 1, ooff=k)
         self.carry = eng.carry()
         t = lambda a: torch.from_numpy(a[:, 0]).reshape(self.batch)  # noqa: E731
-        out = StepOutput(t(outs[8]).unsqueeze(-1), t(outs[9]).unsqueeze(-1).unsqueeze(-1))
+        out = StepOutput(innovation=t(outs["innovation"]).unsqueeze(-1),
+                         innovation_cov=t(outs["innovation_cov"]).unsqueeze(-1).unsqueeze(-1))
         self.k += 1
         return self.carry, out
 

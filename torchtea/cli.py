@@ -103,9 +103,6 @@ _count = _int_at_least(2)
 _steps = _int_at_least(1)
 
 
-#: A Monte Carlo NEES/NIS whose per-step average lies inside its 95 % band at fewer steps than this is warned about.
-CONSISTENT_STEPS = 0.8
-
 #: Off a terminal, progress is a line on stderr at most this often (and none for runs shorter than that).
 PROGRESS_EVERY_S = 10.0
 
@@ -716,20 +713,12 @@ def _checked_fits(args):
 
 
 def _match_check(args, doc: dict, fits: dict, m) -> list:
-    """The check's fit of each channel of ``m``; the recording (by its file's name) and its samples must be the
-    check's."""
-    rec, checked = m.recording, Path(doc["recording"])
-    # by the file's name: the check's path is its own working directory's or clone's (with the samples checked below)
-    if checked.name != Path(rec.path).name:
-        raise CLIError(f"--from-check {args.from_check}: it checked {doc['recording']}, not {rec.path}")
-    if int(doc["samples"]) != m.samples:
-        raise CLIError(f"--from-check {args.from_check}: it checked {doc['samples']} samples, this reads {m.samples} "
-                       "(give the check's --samples and reading flags)")
-    missing = [c.label for c in m.channels if c.label not in fits]
-    if missing:
-        raise CLIError(f"--from-check {args.from_check}: no check of channel(s) {', '.join(missing)} "
-                       f"(it has {', '.join(fits)})")
-    return [fits[c.label] for c in m.channels]
+    from .reports.identify import fits_for
+
+    try:
+        return fits_for(doc, fits, m)
+    except ValueError as exc:
+        raise CLIError(f"--from-check {args.from_check}: {exc}") from None
 
 
 def _check_inputs(args, fits, m):
@@ -929,26 +918,6 @@ def _cluster(args):
     return None, lambda: None
 
 
-def _study_warnings(summary: dict, result, logdir) -> list[str]:
-    warnings = []
-    if result.interrupted:
-        warnings.append(f"interrupted: kept {result.finished} of {result.study.realisations} realisations in {logdir}")
-    if summary["diverged"]:
-        warnings.append(f"warning: {summary['diverged']} realisation(s) diverged; excluded from the statistics")
-    for name, what in (("nees", "NEES (state error against KFx's P)"), ("nis", "NIS (innovations against KFx's S)")):
-        c = summary.get(name)
-        if c is None:
-            continue
-        lo, hi = c["band_95"]
-        inside = c["fraction_of_steps_inside_band"]
-        if not lo <= c["mean"] <= hi or inside < CONSISTENT_STEPS:
-            warnings.append(f"warning: {what}: its mean over realisations lies inside the per-step 95 % band "
-                            f"[{lo:.3g}, {hi:.3g}] at {inside * 100:.0f} % of the steps (about 95 % for a consistent "
-                            f"filter; warned below {CONSISTENT_STEPS * 100:.0f} %), and averages {c['mean']:.3g} over "
-                            "all steps (1 when the filter's covariance matches its errors): the filter is not consistent")
-    return warnings
-
-
 def _print_study(result, summary, elapsed) -> None:
     print(f"{result.finished} realisations, {summary['diverged']} diverged, {elapsed:.1f} s")
     for name in ("order", "param"):
@@ -966,8 +935,7 @@ def _print_study(result, summary, elapsed) -> None:
 def cmd_montecarlo(args) -> int:
     import datetime
 
-    from .studies.montecarlo import save_study, summarise
-    from .studies.cluster import run_study
+    from .studies.run import run_sweep
 
     if args.workers is not None and args.scheduler:
         raise CLIError("--workers and --scheduler: give one (a local cluster, or the address of a running one)")
@@ -985,78 +953,43 @@ def cmd_montecarlo(args) -> int:
     studies = _studies_from_args(args)
     sweep = studies[0].name is not None
     logdir = Path(args.logdir) if args.logdir else Path("runs") / datetime.datetime.now().strftime("mc-%Y%m%d-%H%M%S")
-    logdir.mkdir(parents=True, exist_ok=True)
-    dirs = [logdir / s.name if sweep else logdir for s in studies]
-    for d, s in zip(dirs, studies):
-        save_study(d, s.study, s.preset)  # before the run: an interrupted run still says what it was
-    if sweep:
-        (logdir / "sweep.toml").write_text(Path(args.config).read_text())
-    client, close = _cluster(args)
-    failure = None
-    seconds = []  # per study, where they run one after another
-    t0 = time.perf_counter()
-    try:
-        if client is not None:
-            from .studies.cluster import StudyFailed, plan_studies, run_studies
 
-            dev = None if args.device is None else str(device)
-            plans = plan_studies([s.study for s in studies], client, args.shard, dev)
-            step, close_bar = _progress(sum(map(len, plans)), "montecarlo", "shard", bar=not args.json)
-            try:
-                results = run_studies([s.study for s in studies], client, shard=args.shard, device=dev, plans=plans,
-                                      progress=_progress_to_file(step, args.progress_file, "shard"),
-                                      names=[f"sub-study {s.name}" if sweep else "the study" for s in studies])
-            except StudyFailed as exc:
-                results, failure = exc.partial, str(exc)
-            close_bar()
-        else:
-            results = []
-            for s in studies:
-                step, close_bar = _progress(s.study.realisations, "montecarlo", "realisation", bar=not args.json)
-                t1 = time.perf_counter()
-                results.append(run_study(s.study, progress=_progress_to_file(step, args.progress_file, "realisation"),
-                                         device=device))
-                seconds.append(time.perf_counter() - t1)
-                close_bar()
-                if results[-1].interrupted:
-                    break
+    def progress(total, unit):
+        step, close_bar = _progress(total, "montecarlo", unit, bar=not args.json)
+        return _progress_to_file(step, args.progress_file, unit), close_bar
+
+    client, close = _cluster(args)
+    try:
+        run = run_sweep(studies, logdir, client=client, shard=args.shard,
+                        device=None if client is not None and args.device is None else device, progress=progress,
+                        figures=args.figures, sweep_source=Path(args.config).read_text() if sweep else None)
     finally:
         close()
-    elapsed = time.perf_counter() - t0
-    if not any(r.finished for r in results):
-        if failure:
-            raise CLIError(failure)
+    if not any(r is not None and r.finished for r in run.results):
+        if run.failure:
+            raise CLIError(run.failure)
         raise CLIError("interrupted before any realisation finished; nothing to summarise")
-    rows = []
-    for i, (d, s, result) in enumerate(zip(dirs, studies, results)):
-        if not result.finished:
+    for s, result, summary, said, d in zip(studies, run.results, run.summaries, run.warnings, run.dirs):
+        if summary is None:
             continue
-        summary = summarise(result)
-        summary.update({"logdir": str(d), "preset": s.preset})
-        if not sweep:
-            summary["seconds"] = round(elapsed, 2)
-        else:
-            if i < len(seconds):  # sub-studies scheduled together have no time of their own, only the sweep's
-                summary["seconds"] = round(seconds[i], 2)
-            summary.update(sweep_seconds=round(elapsed, 2), sweep={"name": s.name, "values": s.values})
-        save_study(d, s.study, s.preset, result, summary, figures=args.figures, hparams=s.hparams())
-        warnings = _study_warnings(summary, result, d)
         if sweep:
-            strictjson.write(d / "summary.json", {**summary, "warnings": [w.removeprefix("warning: ") for w in warnings]})
-            for w in warnings:
+            for w in said:
                 print(f"torchtea: [{s.name}] {w}", file=sys.stderr)
-            rows.append(summary)
-        elif not _report(d, summary, warnings, args.json):
-            _print_study(result, summary, elapsed)
+            continue
+        for w in said:
+            print(f"torchtea: {w}", file=sys.stderr)
+        if args.json:
+            print(strictjson.dumps(summary))
+        else:
+            _print_study(result, summary, run.seconds)
             print(f"run directory: {d}   (tensorboard --logdir {d.parent})")
     if sweep:
-        not_run = [s.name for s, r in zip(studies, results + [None] * len(studies)) if r is None or not r.finished]
-        table = {"logdir": str(logdir), "seconds": round(elapsed, 2), "studies": rows, "not_run": not_run}
-        strictjson.write(logdir / "sweep.json", table)
+        table, rows = run.table, run.table["studies"]
         if args.json:
             print(strictjson.dumps(table))
         else:
-            print(f"{len(rows)} sub-studies in {elapsed:.1f} s" + (f"; not run: {', '.join(not_run)}" if not_run else ""))
+            not_run = table["not_run"]
+            print(f"{len(rows)} sub-studies in {run.seconds:.1f} s" + (f"; not run: {', '.join(not_run)}" if not_run else ""))
             print(f"{'sub-study':<40} {'R':>6} {'order bias':>11} {'order RMSE':>11} {'param bias':>11} "
                   f"{'param RMSE':>11} {'NEES':>9}")
             for s in rows:
@@ -1065,10 +998,10 @@ def cmd_montecarlo(args) -> int:
                       f"{_num(s.get('nees', {}).get('mean', math.nan), '9.4g')}")
             print(f"run directories: {logdir}/<sub-study>   (tensorboard --logdir {logdir}: the HParams tab "
                   "compares them)")
-    if failure:
-        print(f"torchtea: error: {failure}; the finished shards are kept in {logdir}", file=sys.stderr)
+    if run.failure:
+        print(f"torchtea: error: {run.failure}; the finished shards are kept in {logdir}", file=sys.stderr)
         return 1
-    return 130 if any(r.interrupted for r in results) else 0
+    return 130 if run.interrupted else 0
 
 
 def _progress_to_file(step, path, unit):

@@ -30,7 +30,7 @@ from ..engines.settings import TEAConfig
 from ..noise.tea import same_structure, tea_view
 
 __all__ = ["AXES", "preset_for", "LONG_INPUT", "mean_or_nan", "sd_or_nan", "MIN_SAMPLES", "NIS_TRUST_BAND", "SETTLE_BAND", "DRIFT_BAND", "ALPHA_SD_LIMIT", "Identification", "axis_configs",
-           "identify", "summarise", "settle_time", "trust_warnings", "config_changes", "axis_changes"]
+           "identify", "fits_for", "summarise", "settle_time", "trust_warnings", "config_changes", "axis_changes"]
 
 AXES = ("x", "y", "z")
 
@@ -288,6 +288,25 @@ def identify(measurements: Measurements, *, model="fractional+white", r_mode: st
     result = results[0] if len(groups) == 1 else _in_channel_order(results, groups)
     return Identification(rec, rec.h, y, means, configs, result, m.missing, m.timing, changes, fits, m.channels, m,
                           views, fitted_y)
+
+
+def fits_for(doc: dict, fits: dict, measurements: Measurements) -> list:
+    """The fits a check made (``fits`` by channel label, from its ``check.json`` ``doc``:
+    :func:`torchtea.checking.check.read_check`) for the channels of ``measurements``, in their order; raises
+    ``ValueError`` when the check read another recording (by its file's name: the check's path is its own working
+    directory's or clone's), another number of samples, or lacks a channel."""
+    from pathlib import Path
+
+    rec, checked = measurements.recording, Path(doc["recording"])
+    if checked.name != Path(rec.path).name:
+        raise ValueError(f"it checked {doc['recording']}, not {rec.path}")
+    if int(doc["samples"]) != measurements.samples:
+        raise ValueError(f"it checked {doc['samples']} samples, this reads {measurements.samples} (give the check's "
+                         "--samples and reading flags)")
+    missing = [c.label for c in measurements.channels if c.label not in fits]
+    if missing:
+        raise ValueError(f"no check of channel(s) {', '.join(missing)} (it has {', '.join(fits)})")
+    return [fits[c.label] for c in measurements.channels]
 
 
 def _in_channel_order(results: list, groups: list) -> TEAResult:

@@ -157,3 +157,19 @@ def f():
     assert "torchtea.fitting" in graph["torchtea.reports.identify"]  # inside identify()
     assert "torchtea.noise.model" in graph["torchtea.noise.tea"]
     assert layer("torchtea.sensors.live") > layer("torchtea.reports.identify") - 1 > layer("torchtea.sensors.io")
+
+
+def test_no_engine_switches_on_a_components_name():
+    """Outside noise/components.py no module asks a component for its name to decide what to do
+    (``c.name == "fractional"``, ``model.has("temperature-order")``, ``COMPONENTS["white"]``): the engines ask the
+    component's own attributes (``order_param``, ``stationary``, ``varies_order``, ``tea_part`` …)."""
+    import re
+
+    from torchtea.noise.components import COMPONENTS
+
+    names = "|".join(re.escape(n) for n in COMPONENTS)
+    pattern = re.compile(rf"""(\.name\s*[!=]=\s*|\.has\(|COMPONENTS\[|names\.count\()["']({names})["']""")
+    hits = [f"{p.relative_to(ROOT)}:{i}" for p in ROOT.rglob("*.py") if p.name != "components.py"
+            for i, line in enumerate(p.read_text(encoding="utf-8").splitlines(), 1) if pattern.search(line)]
+    assert hits == [], hits
+    assert pattern.search('if comp.name == "fractional":') and pattern.search("model.has('temperature-order')")

@@ -9,6 +9,8 @@ refactor touched:
 * ``compiled_tea`` — the compiled TEA (named arguments, the memory plan): paper-mems-x settings, soe memory,
   200 realisations × 3000 steps of fractional+white (noise simulator, seed 1);
 * ``torch_tea`` — the torch engine (shared types moved, the memory plan): the same settings and data, 20 realisations;
+* ``paper_example1`` — the paper reproduction's setting: Example 1 (known input, exact memory, the compiled engine),
+  20 realisations × 6000 steps;
 * ``simulate_paper`` — the paper-model simulator (the memory plan): Example 1, 200 realisations, soe;
 * ``exact_loglik`` — the exact likelihood (moved to fitting/exact.py): fractional+white+random-walk on 30 000 samples,
   16 parameter sets;
@@ -63,6 +65,20 @@ if case == "compiled_tea":
     dt, digest = tea(200, "numba")
 elif case == "torch_tea":
     dt, digest = tea(20, "torch")
+elif case == "paper_example1":
+    from torchtea import SCENARIOS, Structure, gaussian_input, get_preset, make_params, run_tea, simulate
+    sc = SCENARIOS["paper-example1"]
+    g = torch.Generator().manual_seed(11)
+    u = gaussian_input((20,), sc.n_steps, 1, sc.input_std, generator=g)
+    s = simulate(Structure(), n_steps=sc.n_steps, h=sc.h, order=sc.order, parameters=[sc.param], process_noise=sc.q,
+                 measurement_noise=sc.r, inputs=u, generator=torch.Generator().manual_seed(12))
+    p = make_params(get_preset("paper-example1"), Structure())
+    run_tea(s.y[:1, :100], h=sc.h, params=p, inputs=u[:1, :100])
+    t = time.perf_counter()
+    r = run_tea(s.y, h=sc.h, params=p, inputs=u)
+    dt = time.perf_counter() - t
+    digest = {"alpha_sum": float(r.alpha[:, -1].sum()), "w_sum": float(r.w[:, -1].sum()),
+              "P_sum": float(r.P[:, -1].sum()), "x_sum": float(s.x.sum())}
 elif case == "simulate_paper":
     from torchtea import SCENARIOS, Structure, gaussian_input, simulate
     sc = SCENARIOS["paper-example1"]
@@ -101,7 +117,7 @@ elif case == "check":
 print(json.dumps({"seconds": dt, "digest": digest}))
 '''
 
-CASES = ("compiled_tea", "torch_tea", "simulate_paper", "exact_loglik", "check")
+CASES = ("compiled_tea", "torch_tea", "paper_example1", "simulate_paper", "exact_loglik", "check")
 
 
 def run(tree: Path, case: str) -> dict:

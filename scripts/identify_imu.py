@@ -18,7 +18,7 @@ import torch
 from torchtea.core.memory import parse_memory
 from torchtea.engines.structure import Structure
 from torchtea.engines.tea import make_params, run_tea, stack_params
-from torchtea.reports.identify import Identification, axis_configs, preset_for
+from torchtea.identification import Identification, axis_configs, preset_for
 from torchtea.reports.report import save_identification
 from torchtea.sensors.io import read_recording
 from torchtea.sensors.measurements import prepare

@@ -181,7 +181,7 @@ def test_identify_bundled_json_contract(tmp_path, capsys):
     assert set(out["axes"]) == {"ax", "ay", "az"}
     assert all(out["axes"][a]["unit"] == "m/s²" and out["channels"][a]["sensor"] == "accelerometer" for a in out["axes"])
     # the CLI's numbers are the library's: identify() on the same recording and settings
-    from torchtea.reports.identify import identify
+    from torchtea.identification import identify
     from torchtea.sensors.io import read_recording
     from torchtea.sensors.measurements import prepare
 

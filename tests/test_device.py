@@ -148,7 +148,7 @@ def test_cli_device_options(tmp_path, capsys):
 @pytest.mark.parametrize("device", DEVICES)
 def test_identify_on_the_device(device):
     """identify's TEA on the device gives the CPU's estimates (the report reads them back on the CPU)."""
-    from torchtea.reports.identify import identify
+    from torchtea.identification import identify
     from torchtea.sensors.io import read_recording
     from torchtea.sensors.measurements import prepare
 

@@ -7,7 +7,7 @@ circle. Lowest first:
 1. ``engines``: the TEA, its structure and settings;
 2. ``noise`` and ``effects``: the model (its TEA view reads ``engines``);
 3. ``likelihood``; 4. ``fitting``; 5. ``checking``; 6. ``export``;
-7. the applications: ``reports``, ``studies``, the recorder, live mode and the fake device;
+7. the applications: ``identification``, ``reports``, ``studies``, the recorder, live mode and the fake device;
 8. the command line and the package's own ``__init__``.
 
 A component's screen (in ``noise``) gets what it needs of the layers above through what it is given — the check's
@@ -32,8 +32,8 @@ LAYERS = (
     ("torchtea.fitting",),
     ("torchtea.checking",),
     ("torchtea.export",),
-    ("torchtea.reports", "torchtea.studies", "torchtea.sensors.recorder", "torchtea.sensors.live",
-     "torchtea.sensors.fakeimu"),
+    ("torchtea.reports", "torchtea.studies", "torchtea.identification", "torchtea.sensors.recorder",
+     "torchtea.sensors.live", "torchtea.sensors.fakeimu"),
     ("torchtea.cli", "torchtea"),
 )
 
@@ -154,7 +154,7 @@ def f():
     assert found == {"torchtea.checking.allan", "torchtea.fitting.mle", "torchtea.reports.identify"}
     assert layer("torchtea.reports.identify") > layer("torchtea.checking.check") > layer("torchtea.fitting.mle")
     graph = imports()
-    assert "torchtea.fitting" in graph["torchtea.reports.identify"]  # inside identify()
+    assert "torchtea.fitting" in graph["torchtea.identification"]  # inside identify()
     assert "torchtea.noise.model" in graph["torchtea.noise.tea"]
     assert layer("torchtea.sensors.live") > layer("torchtea.reports.identify") - 1 > layer("torchtea.sensors.io")
 

@@ -298,7 +298,7 @@ def test_stream_equals_run_tea_with_bounded_memory():
     """TEAStream fed sample by sample (with a missing sample) gives run_tea's trajectories exactly."""
     from dataclasses import replace
 
-    from torchtea.reports.identify import axis_configs
+    from torchtea.identification import axis_configs
     from torchtea.sensors.io import read_recording
     from torchtea.engines.structure import Structure
     from torchtea.engines.tea import TEAStream, make_params, run_tea, stack_params

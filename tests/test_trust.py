@@ -219,7 +219,7 @@ def test_time_stamps_in_other_units_or_as_text(tmp_path, capsys):
 
 
 def test_recorder_file_device_clock_is_checked(tmp_path):
-    from torchtea.reports.identify import identify
+    from torchtea.identification import identify
 
     rows = ["# torchtea-recording 1", "# units", "segment,counter,t_s,ax,ay,az,gx,gy,gz,temp",
             '# segment 0: {"rate_hz": "100", "accel_lsb_per_g": "4096", "gyro_lsb_per_dps": "131"}']
@@ -428,7 +428,7 @@ def ctrl_c_at_step(monkeypatch, step):
     """Make identify's TEA see a Ctrl-C when it reaches ``step`` (as a user pressing it would); the compiled
     engine runs blocks of one step so that the Ctrl-C lands there."""
     import torchtea.engines.fast as fast
-    import torchtea.reports.identify as ident_mod
+    import torchtea.identification as ident_mod
 
     monkeypatch.setattr(fast, "BLOCK", 1)
 

@@ -669,7 +669,7 @@ def _identify_overrides(args):
     """The settings table of ``--config`` (partial, merged onto each axis's MEMS preset) and ``--memory``;
     returns ``(overrides or None, where they came from or None, the memory kind they give)``."""
     from .engines.config import read_toml
-    from .reports.identify import axis_configs
+    from .identification import axis_configs
 
     overrides, where = {}, []
     if args.config:
@@ -713,7 +713,7 @@ def _checked_fits(args):
 
 
 def _match_check(args, doc: dict, fits: dict, m) -> list:
-    from .reports.identify import fits_for
+    from .identification import fits_for
 
     try:
         return fits_for(doc, fits, m)
@@ -732,7 +732,8 @@ def _check_inputs(args, fits, m):
 
 
 def cmd_identify(args) -> int:
-    from .reports.identify import LONG_INPUT, MIN_SAMPLES, identify
+    from .identification import LONG_INPUT, identify
+    from .reports.identify import MIN_SAMPLES
     from .reports.report import save_identification
 
     from .noise import parse_model

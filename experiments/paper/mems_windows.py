@@ -20,7 +20,8 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 from experiments.common import machine, write_json  # noqa: E402
 from torchtea import Structure, make_params, run_tea, stack_params  # noqa: E402
-from torchtea.reports.identify import AXES, axis_configs  # noqa: E402
+from torchtea.identification import axis_configs  # noqa: E402
+from torchtea.reports.identify import AXES  # noqa: E402
 from torchtea.sensors.io import bundled_recording, read_recording  # noqa: E402
 
 HERE = Path(__file__).resolve().parent

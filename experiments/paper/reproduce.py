@@ -122,7 +122,7 @@ def run_examples(examples, seeds, fig_dir: Path) -> dict:
 
 
 def run_mems(fig_dir: Path) -> dict:
-    from torchtea.reports.identify import identify
+    from torchtea.identification import identify
     from torchtea.sensors.io import read_recording
 
     rec = read_recording()

@@ -20,7 +20,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ..reports.identify import AXES, axis_configs
+from ..identification import axis_configs
+from ..reports.identify import AXES
 from ..core.memory import parse_memory
 from ..engines.structure import Structure
 from .recorder import physical_row

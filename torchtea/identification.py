@@ -1,0 +1,324 @@
+"""Identification of a static IMU's noise with the TEA (paper §5), as one library function (:func:`identify`).
+
+Steps (paper §5.1): the channels in SI units (m/s², rad/s); each channel's mean removed; the noise model fitted per
+channel by the exact likelihood (or taken from a check, :func:`fits_for`) and read by the TEA
+(:func:`torchtea.noise.tea.tea_view`); the TEA with the paper's MEMS settings on the channels (one batch per model
+structure); the numbers and their trust warnings by :mod:`torchtea.reports.identify`, the report by
+:mod:`torchtea.reports.report`. The paper's settings are for its accelerometer's axes (``paper-mems-x`` … ``-z``);
+a gyroscope axis or another column takes ``paper-mems-x``'s, whose noise levels and starts the fit replaces.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+
+import numpy as np
+import torch
+
+from .engines.presets import get_preset
+from .engines.settings import TEAConfig
+from .engines.structure import Structure
+from .engines.tea import STEP_OUTPUTS, TEAResult, make_params, run_tea, stack_params
+from .noise.tea import same_structure, tea_view
+from .reports.identify import AXES, MIN_SAMPLES, summarise
+from .sensors.datacheck import Missing, Timing
+from .sensors.io import InputError, Recording
+from .sensors.measurements import Measurements
+
+__all__ = ["Identification", "identify", "axis_configs", "fits_for", "preset_for", "config_changes", "axis_changes",
+           "LONG_INPUT", "R_MODES"]
+
+
+#: From this many samples on, ``identify`` runs the TEA with ``soe`` memory unless the settings say otherwise: the
+#: exact GL sums cost O(N²) per series (the whole 449 s bundled recording: 2.5 minutes; an hour at 200 Hz: days).
+LONG_INPUT = 20000
+
+
+def preset_for(channel) -> str:
+    """The paper's §5.1 settings for a channel (a :class:`~torchtea.sensors.io.Channel`, or an axis name ``"x"``):
+    its accelerometer axis's, ``paper-mems-x``'s for anything else."""
+    sensor, axis = ("accelerometer", channel) if isinstance(channel, str) else (channel.sensor, channel.axis)
+    return f"paper-mems-{axis}" if sensor == "accelerometer" and axis in AXES else "paper-mems-x"
+
+
+@dataclass(frozen=True)
+class Identification:
+    """Result of :func:`identify`.
+
+    ``y`` is ``(3, N, 1)`` (mean-removed, m/s², NaN where missing); ``result`` has batch ``(3,)`` and, when
+    the run was stopped early (``result.interrupted``), fewer than ``N`` steps. ``missing`` counts the
+    missing samples of the part used; ``timing`` is the check of the file's time stamps (None without
+    them); ``changes`` lists the settings that differ from the paper's §5.1 MEMS settings (and where the
+    difference came from).
+    """
+
+    recording: Recording
+    h: float
+    y: torch.Tensor
+    means: np.ndarray
+    configs: tuple
+    result: TEAResult
+    missing: Missing | None = None
+    timing: Timing | None = None
+    changes: tuple = ()
+    fits: tuple = ()
+    #: The channels identified (:class:`~torchtea.sensors.io.Channel`), in batch order.
+    channels: tuple = ()
+    measurements: Measurements | None = None
+    #: The TEA's view of each channel's fitted model (:class:`~torchtea.noise.tea.TEAView`; empty unless
+    #: ``r_mode="fitted"``).
+    views: tuple = ()
+    #: The series the fits saw ``(C, N, 1)`` where the TEA's ``y`` differs from them (the model's means removed);
+    #: None: ``y``.
+    fitted_y: torch.Tensor | None = None
+
+    @property
+    def labels(self) -> tuple:
+        """The channels' labels (``ax`` … ``gz``), the keys of the summary's ``axes``."""
+        return tuple(c.label for c in self.channels) if self.channels else AXES
+
+    def output(self, i: int) -> torch.Tensor:
+        """Channel ``i``'s KFx estimate of the measured signal without its white noise, ``C x̂`` ``(T,)``: the
+        fractional state for the paper's model, the sum of the model's state outputs for a grown one."""
+        x = self.result.x[i]
+        if not self.views or self.views[i].structure.n_states == 1:
+            return x[:, 0]
+        C = self.views[i].structure.C[0].to(x)
+        k = C.shape[0]
+        return (x[:, :k] * C).sum(-1)
+
+    @property
+    def steps(self) -> int:
+        """Steps the TEA finished (``N`` unless interrupted)."""
+        return int(self.result.alpha.shape[-2])
+
+    @property
+    def t(self) -> np.ndarray:
+        return np.arange(self.steps) * self.h
+
+    def summary(self) -> dict:
+        return summarise(self.result, self.configs, self.means, y=self.y, h=self.h, names=self.labels,
+                         label="channel {}")
+
+
+def _flat(d: dict, prefix: str = "") -> dict:
+    out = {}
+    for k, v in d.items():
+        if isinstance(v, dict):
+            out.update(_flat(v, f"{prefix}{k}."))
+        else:
+            out[f"{prefix}{k}"] = v
+    return out
+
+
+def config_changes(base: TEAConfig, used: TEAConfig) -> list[str]:
+    """``key: base → used`` for every setting that differs (dotted keys as in TOML)."""
+    a, b = _flat(base.to_dict()), _flat(used.to_dict())
+    return [f"{k}: {a.get(k)!r} → {b.get(k)!r}" for k in sorted(set(a) | set(b)) if a.get(k) != b.get(k)]
+
+
+def axis_changes(base, used, names=AXES) -> list[str]:
+    """:func:`config_changes` of every axis: a change that is the same on every axis once, the others prefixed
+    with their axis (``"axis y: kfx.R: 0.00085 → 0.004"``)."""
+    per = [config_changes(b, u) for b, u in zip(base, used)]
+    common = [c for c in per[0] if all(c in p for p in per[1:])]
+    return common + [f"channel {a}: {c}" for a, p in zip(names, per) for c in p if c not in common]
+
+
+R_MODES = ("fitted", "measured", "paper")
+
+
+def axis_configs(y: torch.Tensor, r_mode: str = "measured", overrides: dict | None = None, fits=(),
+                 presets=None, h: float | None = None) -> tuple:
+    """The paper's §5.1 settings per channel (``presets``, default ``paper-mems-x``, ``-y``, ``-z`` for three
+    accelerometer axes; see :func:`preset_for`), with ``overrides`` on top.
+
+    ``r_mode="fitted"`` (:func:`identify`'s default; this function's is ``"measured"``, which the live mode
+    and the scripts use) takes the noise levels of a maximum-likelihood fit of the model to the channel (``fits``,
+    :func:`torchtea.fitting.fit_series`; ``h`` its sample time) as the model's TEA view gives them
+    (:func:`torchtea.noise.tea.tea_view`): KFx's R = Rᵒ = Rʷ = r̂, KFx's Q = q̂ (and the other states' drives),
+    and the order and parameter filters start at α̂ and f̂ — the TEA then checks whether the
+    order varies in time around a model whose noise levels match the data (NIS near 1).
+
+    ``r_mode="paper"`` keeps the printed R, Rᵒ, Rʷ (4, 3.9, 11 ·10⁻⁴ (m/s²)²);
+    ``"measured"`` sets all three to each channel's sample variance — the paper's
+    rule ("adjusted according to noise measurement corresponding to each axis"),
+    which its printed values follow for the MPU-9250.
+
+    ``overrides`` is a settings table as in a TOML config (a partial nested dict): a ``preset`` key
+    replaces the MEMS preset as the base of every channel, and every other key overrides that base — an
+    ``R`` given there wins over the measured one.
+    """
+    presets = list(presets) if presets is not None else [f"paper-mems-{a}" for a in AXES]
+    if r_mode not in R_MODES:
+        raise ValueError(f"r_mode must be one of {R_MODES}, got {r_mode!r}")
+    if r_mode == "fitted" and len(fits) != len(presets):
+        raise ValueError("r_mode 'fitted' needs one fit per channel")
+    overrides = dict(overrides or {})
+    preset = overrides.pop("preset", None)
+    out = []
+    for i, name in enumerate(presets):
+        cfg = get_preset(preset or name)
+        if r_mode == "measured":
+            r = float(np.nanvar(y[i, :, 0].cpu().numpy()))
+            cfg = replace(cfg, kfx=replace(cfg.kfx, R=r), kfo=replace(cfg.kfo, R=r), kfw=replace(cfg.kfw, R=r))
+        elif r_mode == "fitted":
+            if h is None:
+                raise ValueError("r_mode 'fitted' needs the sample time h")
+            cfg = tea_view(fits[i].model, fits[i].values, h, cfg).config
+        if overrides:
+            cfg = TEAConfig.from_dict(overrides, cfg)
+        out.append(cfg)
+    return tuple(out)
+
+
+def identify(measurements: Measurements, *, model="fractional+white", r_mode: str = "fitted",
+             overrides: dict | None = None, progress=None, compile: bool = False, partial: bool = False, device=None,
+             inputs: dict | None = None, fits=None) -> Identification:
+    """Run the TEA on the channels of a prepared recording (:func:`torchtea.sensors.measurements.prepare`).
+
+    Parameters
+    ----------
+    measurements : Measurements
+        The channels (each in SI units; its mean is removed here), their missing samples (NaN, predicted through:
+        :func:`~torchtea.sensors.measurements.prepare` has applied the missing-sample policy) and time stamps. At
+        least :data:`MIN_SAMPLES` samples.
+    model : str or NoiseModel
+        The noise model the TEA runs (:func:`torchtea.noise.tea.tea_view`): the paper's ``fractional+white`` by
+        default, or the model ``check`` ended with (``fractional+white+random-walk+sinusoid`` …). It is fitted to each
+        channel by the exact likelihood first; its other states join KFx's state, its means are removed from the
+        series at their fitted values. A model other than ``fractional+white`` needs ``r_mode="fitted"``.
+    r_mode : {"fitted", "measured", "paper"}
+        See :func:`axis_configs`. ``"fitted"`` first fits the model to each channel by the exact likelihood
+        (:func:`torchtea.fitting.fit_series`, kept in ``Identification.fits``).
+    overrides : dict, optional
+        TEA settings applied on top of the presets (as in a TOML config), e.g. ``{"memory": {"kind": "exact"}}``;
+        see :func:`axis_configs`. Without a ``memory`` entry, series of :data:`LONG_INPUT` samples or more run with
+        ``soe`` memory (O(N) instead of O(N²)).
+    compile : bool
+        Passed to :func:`torchtea.engines.tea.run_tea`.
+    partial : bool
+        On Ctrl-C keep the steps that finished (``result.interrupted``) instead of raising.
+    device : torch device, optional
+        Where the TEA runs (default the CPU, where the scalar model takes the compiled engine; elsewhere the torch
+        engine). The noise-level fit of ``r_mode="fitted"`` runs on the CPU whatever the device (its exact
+        Kalman filter is compiled for the CPU); the result comes back to the CPU.
+    inputs : dict, optional
+        ``{"temperature": (N,)}`` for a model with temperature components.
+    fits : sequence of Fit, optional
+        One fit per channel, already made (e.g. the models ``check`` ended with,
+        :func:`torchtea.checking.check.read_check`): each channel runs its own fit's model, nothing is refitted
+        (``model`` is not used; ``r_mode`` must be ``"fitted"``).
+    """
+    from .noise.model import parse_model
+
+    model = parse_model(model)
+    m = measurements
+    rec = m.recording
+    N = m.samples
+    if N < MIN_SAMPLES:
+        raise InputError(f"{rec.path}: {N} samples; identify needs at least {MIN_SAMPLES} (its estimates are "
+                         "summarised over the last third of the run)")
+    given = fits is not None
+    if given:
+        fits = tuple(fits)
+        if len(fits) != len(m.channels):
+            raise ValueError(f"{len(fits)} fits for {len(m.channels)} channels")
+    plain = all(f.model.spec == "fractional+white" for f in fits) if given else model.spec == "fractional+white"
+    if (given or not plain) and r_mode != "fitted":
+        raise ValueError(f"model {model.spec!r}: its noise levels come from its fit; use r_mode 'fitted'")
+    values = np.column_stack([c.values for c in m.channels])
+    means = np.nanmean(values, axis=0)
+    y = torch.as_tensor((values - means).T.copy(), dtype=torch.float64).unsqueeze(-1)  # (C, N, 1)
+    views, fitted_y = (), None
+    structures = [Structure()] * len(m.channels)
+    if r_mode == "fitted":
+        if not given:
+            from .fitting import fit_series
+
+            fits = tuple(fit_series(model, [y[i, :, 0].numpy() for i in range(len(m.channels))], rec.h,
+                                    method="exact", profile=plain, inputs=None if inputs is None else
+                                    [inputs] * len(m.channels)))
+        views = tuple(tea_view(f.model, f.values, rec.h) for f in fits)  # refuses a model the TEA cannot run
+        structures = [v.structure for v in views]
+        if not plain:  # the model's means (a ramp, a line …) at their fitted values
+            fitted_y = y
+            t = np.arange(N) * rec.h
+            y = torch.stack([v.residual(y[i, :, 0], t, inputs) for i, v in enumerate(views)]).unsqueeze(-1)
+    fits = fits or ()
+    overrides = dict(overrides or {})
+    if "memory" not in overrides and N >= LONG_INPUT:
+        overrides["memory"] = {"kind": "soe"}
+    presets = [preset_for(c) for c in m.channels]
+    configs = axis_configs(y, r_mode, overrides or None, fits, presets, h=rec.h)
+    changes = tuple(axis_changes(axis_configs(y, r_mode, None, fits, presets, h=rec.h), configs,
+                                 [c.label for c in m.channels]))
+    groups: list[list[int]] = []  # channels one batch can run: the same structure
+    for i, st in enumerate(structures):
+        g = next((g for g in groups if same_structure(structures[g[0]], st)), None)
+        (g.append(i) if g is not None else groups.append([i]))
+    results = []
+    for g in groups:
+        params = stack_params([make_params(configs[i], structures[i]) for i in g])
+        results.append(run_tea(y[g].to(device or "cpu"), h=rec.h, params=params, structure=structures[g[0]],
+                               progress=progress, compile=compile, partial=partial).to("cpu"))
+    result = results[0] if len(groups) == 1 else _in_channel_order(results, groups)
+    return Identification(rec, rec.h, y, means, configs, result, m.missing, m.timing, changes, fits, m.channels, m,
+                          views, fitted_y)
+
+
+def fits_for(doc: dict, fits: dict, measurements: Measurements) -> list:
+    """The fits a check made (``fits`` by channel label, from its ``check.json`` ``doc``:
+    :func:`torchtea.checking.check.read_check`) for the channels of ``measurements``, in their order; raises
+    ``ValueError`` when the check read another recording (by its file's name: the check's path is its own working
+    directory's or clone's), another number of samples, or lacks a channel."""
+    from pathlib import Path
+
+    rec, checked = measurements.recording, Path(doc["recording"])
+    if checked.name != Path(rec.path).name:
+        raise ValueError(f"it checked {doc['recording']}, not {rec.path}")
+    if int(doc["samples"]) != measurements.samples:
+        raise ValueError(f"it checked {doc['samples']} samples, this reads {measurements.samples} (give the check's "
+                         "--samples and reading flags)")
+    missing = [c.label for c in measurements.channels if c.label not in fits]
+    if missing:
+        raise ValueError(f"no check of channel(s) {', '.join(missing)} (it has {', '.join(fits)})")
+    return [fits[c.label] for c in measurements.channels]
+
+
+def _in_channel_order(results: list, groups: list) -> TEAResult:
+    """Results of channel groups (batch ``(len(g),)`` each) as one result in channel order; an interruption keeps
+    the steps every group finished."""
+    from dataclasses import fields
+
+    steps = min(r.alpha.shape[-2] for r in results)
+    order = torch.as_tensor(np.argsort(np.concatenate(groups), kind="stable"))
+    out = {}
+    n = max(r.x.shape[-1] for r in results)  # channels of other models may have fewer KFx states: NaN-padded
+    for f in fields(TEAResult):
+        vals = [getattr(r, f.name) for r in results]
+        if f.name in ("x", "P"):
+            vals = [_pad(v[:, :steps], n, f.name == "P") for v in vals]
+        if f.name in STEP_OUTPUTS:
+            out[f.name] = torch.cat([v[:, :steps] for v in vals])[order]
+        elif f.name == "steps":
+            out[f.name] = None if vals[0] is None else vals[0][:steps]
+        elif f.name == "interrupted":
+            out[f.name] = any(vals)
+        else:
+            out[f.name] = None if vals[0] is None else torch.cat(vals)[order]
+    return TEAResult(**out)
+
+
+def _pad(t: torch.Tensor, n: int, matrix: bool) -> torch.Tensor:
+    """KFx's states ``(B, T, k)`` (or covariances ``(B, T, k, k)``) as ``n`` states, the missing ones NaN."""
+    k = t.shape[-1]
+    if k == n:
+        return t
+    shape = t.shape[:2] + ((n, n) if matrix else (n,))
+    out = t.new_full(shape, math.nan)
+    if matrix:
+        out[..., :k, :k] = t
+    else:
+        out[..., :k] = t
+    return out

@@ -480,3 +480,15 @@ def test_compiled_bounded_loop_equals_eager(monkeypatch, kfx_uncertainty):
     torch.testing.assert_close(compiled.x, eager.x[:, ::3], rtol=0, atol=1e-12)
     torch.testing.assert_close(compiled.P, eager.P[:, ::3], rtol=1e-10, atol=0)
     assert torch.equal(compiled.memory_clamped, eager.memory_clamped)
+
+
+def test_identify_refuses_an_unscaled_drive_for_a_model_of_several_states(tmp_path):
+    """A grown model's states' drives are written for noise_scaling 'scaled': an override to 'unscaled' is refused
+    with the channel named, not run with drives h^-2α too large."""
+    from torchtea.identification import identify
+    from torchtea.sensors.io import read_recording
+    from torchtea.sensors.measurements import prepare
+
+    m = prepare(read_recording(columns=["az"]), samples=600)
+    with pytest.raises(ValueError, match="channel az: a model of several KFx states needs noise_scaling 'scaled'"):
+        identify(m, model="fractional+white+random-walk", overrides={"noise_scaling": "unscaled"})

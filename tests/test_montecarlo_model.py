@@ -177,3 +177,19 @@ def test_run_sweep_is_the_library_workflow_of_montecarlo(tmp_path):
     # the plain model's KFx misses the walk: its NEES is warned about, by the verdicts
     assert any("NEES" in w for w in run.warnings[0])
     assert seen and seen[-1][2] == "realisation"
+
+
+def test_a_model_truths_scalar_fields_and_what_it_cannot_be():
+    """The truth's q is the fractional state's drive wherever the component stands; a preset's own input does not
+    follow a model truth (paper-example1 has one); a truth reading a temperature is refused by name."""
+    data = table()
+    data["truth"]["model"] = "random-walk+fractional+white"
+    assert build_study(data)[0].truth.q == 0.02
+    data = table()
+    data["estimator"] = {"preset": "paper-example1"}
+    assert build_study(data)[0].truth.input_std is None
+    data = table()
+    data["truth"]["model"] = GROWN + "+temperature-bias"
+    data["truth"]["values"].update({"temperature-bias.bias_per_degC": 0.01, "temperature-bias.t_ref": 25.0})
+    with pytest.raises(ValueError, match="reads temperature"):
+        build_study(data)

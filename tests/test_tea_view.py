@@ -44,6 +44,7 @@ def test_other_states_are_the_exact_filters_blocks():
     assert st.n_states == 5 and v.states == ("fractional", "random-walk", "gauss-markov", "resonance", "resonance")
     assert st.estimated == (True, False, False, False, False) and st.n_params == 1
     assert torch.equal(st.C, torch.tensor([[1.0, 1.0, 1.0, 1.0, 0.0]], dtype=torch.float64))
+    assert torch.equal(st.B[:, 0], torch.tensor([1.0, 0.0, 0.0, 0.0, 0.0], dtype=torch.float64))  # input: fractional
     w = torch.tensor([FW["fractional.pole"]], dtype=torch.float64)
     A = st.A(w)
     Q0 = torch.as_tensor(v.config.kfx.Q0, dtype=torch.float64)
@@ -64,6 +65,9 @@ def test_what_the_tea_cannot_run_is_refused_by_name():
         tea_view("white+random-walk", {"white.r": 1e-3, "random-walk.sigma": 0.01}, H)
     with pytest.raises(ValueError, match="no measurement noise"):
         tea_view("fractional", {k: v for k, v in FW.items() if k != "white.r"}, H)
+    two = dict(FW, **{f"fractional2.{k.split('.')[1]}": v for k, v in FW.items() if k.startswith("fractional.")})
+    with pytest.raises(ValueError, match="2 fractional states"):
+        tea_view("fractional+white+fractional", two, H)
     with pytest.raises(ValueError, match="one parameter set"):
         tea_view("fractional+white", {k: [v, v] for k, v in FW.items()}, H)
 

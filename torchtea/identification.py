@@ -45,7 +45,7 @@ def preset_for(channel) -> str:
 class Identification:
     """Result of :func:`identify`.
 
-    ``y`` is ``(3, N, 1)`` (mean-removed, m/s², NaN where missing); ``result`` has batch ``(3,)`` and, when
+    ``y`` is ``(C, N, 1)`` for C channels (mean-removed, SI units, NaN where missing); ``result`` has batch ``(C,)`` and, when
     the run was stopped early (``result.interrupted``), fewer than ``N`` steps. ``missing`` counts the
     missing samples of the part used; ``timing`` is the check of the file's time stamps (None without
     them); ``changes`` lists the settings that differ from the paper's §5.1 MEMS settings (and where the
@@ -226,7 +226,8 @@ def identify(measurements: Measurements, *, model="fractional+white", r_mode: st
             raise ValueError(f"{len(fits)} fits for {len(m.channels)} channels")
     plain = all(f.model.spec == "fractional+white" for f in fits) if given else model.spec == "fractional+white"
     if (given or not plain) and r_mode != "fitted":
-        raise ValueError(f"model {model.spec!r}: its noise levels come from its fit; use r_mode 'fitted'")
+        what = "the given fits" if given else f"model {model.spec!r}"
+        raise ValueError(f"{what}: the noise levels come from the fit; use r_mode 'fitted'")
     values = np.column_stack([c.values for c in m.channels])
     means = np.nanmean(values, axis=0)
     y = torch.as_tensor((values - means).T.copy(), dtype=torch.float64).unsqueeze(-1)  # (C, N, 1)
@@ -253,6 +254,10 @@ def identify(measurements: Measurements, *, model="fractional+white", r_mode: st
     configs = axis_configs(y, r_mode, overrides or None, fits, presets, h=rec.h)
     changes = tuple(axis_changes(axis_configs(y, r_mode, None, fits, presets, h=rec.h), configs,
                                  [c.label for c in m.channels]))
+    for st, cfg, c in zip(structures, configs, m.channels):
+        if st.n_states > 1 and cfg.noise_scaling != "scaled":  # the states' drives are h^α Q0 h^α (tea_view)
+            raise ValueError(f"channel {c.label}: a model of several KFx states needs noise_scaling 'scaled' (its "
+                             f"states' drives are written for it), not {cfg.noise_scaling!r}")
     groups: list[list[int]] = []  # channels one batch can run: the same structure
     for i, st in enumerate(structures):
         g = next((g for g in groups if same_structure(structures[g[0]], st)), None)

@@ -89,6 +89,9 @@ def tea_view(model, values, h: float, base: TEAConfig | None = None) -> TEAView:
             parts.append((label, part))
     if not any(p.estimated for _, p in parts):
         raise ValueError(f"model {model.spec!r} has no fractional state: the TEA estimates a fractional order")
+    if sum(p.estimated for _, p in parts) > 1:
+        raise ValueError(f"model {model.spec!r} has {sum(p.estimated for _, p in parts)} fractional states: the "
+                         "TEA's view runs one (its summaries and studies read one order and one pole)")
     r = float(model.measurement_variance(v)[0])
     if not r > 0:
         raise ValueError(f"model {model.spec!r} has no measurement noise (white or quantisation): the TEA's "
@@ -103,7 +106,8 @@ def tea_view(model, values, h: float, base: TEAConfig | None = None) -> TEAView:
     i = 0
     for label, p in parts:
         C[0, i] = 1.0  # a block's output is its state 0
-        Bm[i, 0] = 1.0
+        if p.estimated:
+            Bm[i, 0] = 1.0  # a known input drives the fractional state (the paper's B), no other
         if p.pole is not None:
             b = torch.zeros(n, n, dtype=torch.float64)
             b[i, i] = 1.0

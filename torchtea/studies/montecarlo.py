@@ -300,10 +300,11 @@ def run_range(study: Study, start: int, stop: int, *, device=None, progress=None
     device = torch.device(device or "cpu")
     tr = study.truth
     N = tr.n_steps
-    chunk = study.chunk or auto_chunk(N, device=device)
+    view = estimator_view(study)
+    n_kfx = 1 if view is None else view.structure.n_states  # KFx's covariances grow as n²
+    chunk = study.chunk or max(1, auto_chunk(N, device=device) // (n_kfx * n_kfx))
     schedule = tr.schedule()
     steps = logged_steps(study)
-    view = estimator_view(study)
     structure = Structure() if view is None else view.structure
     params = make_params(study.estimator if view is None else view.config, structure, device=device)
     parts = []
@@ -377,23 +378,24 @@ def simulate_model_truth(study: Study, view, rows: range, device=None) -> Simula
     N = tr.n_steps
     truth = parse_model(tr.model)
     blocks = truth.state_space(tr.values, tr.h, N, tr.memory).blocks
-    ys, zs = [], []
+    seen: dict = {}
+    cols = []  # per KFx state of the estimator, its column in the truth's state (None: the truth lacks it)
+    for label in view.states:  # the j-th state of a component is the j-th of its block
+        j = seen[label] = seen.get(label, -1) + 1
+        sl = blocks.get(label)
+        cols.append(None if sl is None else sl.start + j)
+    ys, xs = [], []
     for i in rows:
         g = torch.Generator().manual_seed(realisation_seed(study.seed, i))
         y, z = simulate_model(truth, tr.values, n_steps=N, h=tr.h, memory=tr.memory, generator=g,
                               return_states=True)
         ys.append(y[0, 0])
-        zs.append(z[0, 0])
-    y, Z = torch.stack(ys), torch.stack(zs)  # (R, N), (R, N, n)
+        xs.append(torch.stack([z[0, 0, :, c] if c is not None else torch.zeros(N, dtype=torch.float64)
+                               for c in cols], -1))  # only the states the estimator has (not the soe modes)
+        del z
+    y, x = torch.stack(ys), torch.stack(xs)  # (R, N), (R, N, n)
     t = torch.arange(N, dtype=torch.float64) * tr.h
     y = y - view.model.mean(view.values, t)  # the estimator's means, at the truth
-    seen: dict = {}
-    cols = []
-    for label in view.states:  # the j-th state of a component is the j-th of its block
-        j = seen[label] = seen.get(label, -1) + 1
-        sl = blocks.get(label)
-        cols.append(Z[..., sl.start + j] if sl is not None else torch.zeros_like(y))
-    x = torch.stack(cols, -1)
     alpha = torch.full((len(rows), N, view.structure.n_estimated_orders), float(tr.order), dtype=torch.float64)
     empty = torch.empty(len(rows), N, 0, dtype=torch.float64)
     dev = lambda a: a.to(device or "cpu")  # noqa: E731
@@ -490,6 +492,8 @@ def build_study(data: dict, flags: dict | None = None, *, memory=None, source: s
     base.update(truth)
     base.update({key: flags[flag] for flag, key in TRUTH_FLAGS.items() if flag in flags})
     if base.get("model") is not None:
+        if "input_std" not in truth and "input_std" not in flags:  # a preset's scenario input is not the model's
+            base["input_std"] = None
         base.update(_model_truth_fields(base, source))
     missing = [k for k in ("h", "n_steps", "order", "param", "q", "r") if k not in base]
     if missing:
@@ -539,14 +543,19 @@ def _model_truth_fields(base: dict, source: str) -> dict:
                              + (f"; not in the model: {', '.join(extra)}" if extra else ""))
         if base.get("input_std") is not None:
             raise ValueError("a model truth has no known input (input_std)")
+        needs = sorted({name for _, c in model.components for name in c.inputs})
+        if needs:
+            raise ValueError(f"model {model.spec!r} reads {', '.join(needs)}: a model truth with input channels is "
+                             "not simulated by montecarlo (write the study with torchtea.noise.simulate_model)")
         if "h" not in base or "n_steps" not in base:
             raise ValueError("a model truth needs h and n")
         v = tea_view(model, values, float(base["h"]))
     except (TypeError, ValueError) as exc:
         raise ValueError(f"{source}: bad truth: {exc}") from None
     q0 = v.config.kfx.Q0
+    i = v.structure.estimated.index(True)  # the fractional state's place among KFx's states
     return {"model": model.spec, "values": values, "order": repr(float(values[f"{v.orders[0]}.order"])),
-            "param": float(values[v.params[0]]), "q": float(q0 if not isinstance(q0, list) else q0[0][0]),
+            "param": float(values[v.params[0]]), "q": float(q0 if not isinstance(q0, list) else q0[i][i]),
             "r": float(v.config.kfx.R)}
 
 

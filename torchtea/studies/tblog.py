@@ -59,8 +59,12 @@ def log_study(logdir, result, summary: dict, hparams: dict, *, figures: bool = F
             kept = result.kept
             at = steps[1:] if len(steps) > 1 else steps
             lo, hi = summary["nees"]["band_95"]
+            # NEES per state: with several KFx states its band is narrower than NIS's, which gets its own then
+            nis_band = summary.get("nis", {}).get("band_95", [lo, hi])
+            extra = {} if list(nis_band) == [lo, hi] else {"consistency/nis_band_lo": [nis_band[0]] * len(at),
+                                                           "consistency/nis_band_hi": [nis_band[1]] * len(at)}
             series.append(({"consistency/nees": result.nees_sum[at] / kept, "consistency/nis": result.nis_sum[at] / kept,
-                            "consistency/band_lo": [lo] * len(at), "consistency/band_hi": [hi] * len(at),
+                            "consistency/band_lo": [lo] * len(at), "consistency/band_hi": [hi] * len(at), **extra,
                             "consistency/order_coverage": result.covered_steps["order"][at] / kept,
                             "consistency/param_coverage": result.covered_steps["param"][at] / kept}, at))
         _scalars(w, series)

@@ -721,16 +721,6 @@ def _match_check(args, doc: dict, fits: dict, m) -> list:
         raise CLIError(f"--from-check {args.from_check}: {exc}") from None
 
 
-def _check_inputs(args, fits, m):
-    """The temperature input the checked models read, if any (an error without one)."""
-    needs = sorted({name for f in fits for _, c in f.model.components for name in c.inputs})
-    if not needs:
-        return None
-    if args.temperature is None:
-        raise CLIError(f"the checked models read {', '.join(needs)}: give --temperature COL")
-    return {"temperature": m.temperature_input()}
-
-
 def cmd_identify(args) -> int:
     from .identification import LONG_INPUT, identify
     from .reports.identify import MIN_SAMPLES
@@ -751,8 +741,9 @@ def cmd_identify(args) -> int:
         fits = _match_check(args, doc, by_label, m)
         specs = {f.model.spec for f in fits}
         model = parse_model(specs.pop()) if len(specs) == 1 else None  # None: a model per channel
-    inputs = _model_inputs(args, model, m) if fits is None else _check_inputs(args, fits, m)
-    model = model or parse_model("fractional+white")  # with per-channel fits identify reads each fit's model
+    # the checked models' temperature column came with the check: no note where they do not read it
+    inputs = _model_inputs(args, [model] if fits is None else [f.model for f in fits], m, note=fits is None)
+    source = f"--from-check {args.from_check}" if fits is not None else f"--model {model.spec}"
     overrides, config_source, memory_kind = _identify_overrides(args)
     total = m.samples
     memory_kind = memory_kind or ("soe" if total >= LONG_INPUT else "exact")  # identify's choice by the length
@@ -766,11 +757,11 @@ def cmd_identify(args) -> int:
     step, close = _progress(total - 1, "TEA " + ",".join(m.labels), bar=not args.json)
     t0 = time.perf_counter()
     try:
-        ident = identify(m, model=model, r_mode=args.r, overrides=overrides, progress=step, compile=args.compile,
+        ident = identify(m, model=model or args.model, r_mode=args.r, overrides=overrides, progress=step, compile=args.compile,
                          partial=True, device=dev, inputs=inputs, fits=fits)
     except ValueError as exc:  # a model the TEA cannot run (tea_view names the component)
         close()
-        raise CLIError(f"--model {model.spec}: {exc}") from None
+        raise CLIError(f"{source}: {exc}") from None
     if ident.changes and config_source is None:
         config_source = f"the recording's length (soe memory from {LONG_INPUT} samples; --memory exact for the full sums)"
     elapsed = time.perf_counter() - t0
@@ -1279,15 +1270,18 @@ def build_parser() -> argparse.ArgumentParser:
 # --------------------------------------------------------------------------- fit
 
 
-def _model_inputs(args, model, m):
-    """The input channels ``model`` reads (``{"temperature": (N,)}``) from ``--temperature``, or None; a model that
-    needs one without the flag is an error, the flag without such a model a note."""
-    needs = sorted({name for _, c in model.components for name in c.inputs})
+def _model_inputs(args, models, m, *, note: bool = True):
+    """The input channels ``models`` read (``{"temperature": (N,)}``) from ``--temperature``, or None; a model that
+    needs one without the flag is an error, the flag without such a model a note (unless ``note`` is False)."""
+    needs = sorted({name for model in models for _, c in model.components for name in c.inputs})
+    unique = sorted({repr(model.spec) for model in models})
+    what = f"model {unique[0]}" if len(unique) == 1 else f"the models ({', '.join(unique)})"
     if needs and args.temperature is None:
-        raise CLIError(f"model {model.spec!r} needs the input channel(s) {', '.join(needs)}: give --temperature COL")
+        raise CLIError(f"{what} needs the input channel(s) {', '.join(needs)}: give --temperature COL")
     if args.temperature is not None and not needs:
-        print(f"torchtea: note: model {model.spec!r} has no temperature component; --temperature is not used "
-              "(add temperature-bias or temperature-order)", file=sys.stderr)
+        if note:
+            print(f"torchtea: note: {what} has no temperature component; --temperature is not used "
+                  "(add temperature-bias or temperature-order)", file=sys.stderr)
         return None
     return None if args.temperature is None else {"temperature": m.temperature_input()}
 
@@ -1305,7 +1299,7 @@ def cmd_fit(args) -> int:
     m = _measurements(args, "a fit", min_samples=100)
     plan = _export_plan(args, m, args.export)
     series = [c.values for c in m.channels]
-    inp = _model_inputs(args, model, m)
+    inp = _model_inputs(args, [model], m)
     inputs = None if inp is None else [inp] * len(series)
     n_boot = args.bootstrap if args.bootstrap is not None else (99 if m.samples <= BOOTSTRAP_LIMIT else 0)
     if args.bootstrap is None and n_boot == 0 and model.order_name is not None:

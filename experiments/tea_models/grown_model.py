@@ -4,8 +4,10 @@ Data: ``fractional+white+random-walk`` simulated by the noise simulator (order 0
 random-walk σ from the list), R realisations of N steps, seeded. Each set is estimated by the TEA twice, with the
 plain model's view (``fractional+white``: blind to the walk) and with the grown model's (``+random-walk``: the walk a
 KFx state), both started at the truth (a Monte Carlo study's known-truth start), once with KFw free and once with
-the pole held at the truth. Reported per case: α̂ (mean over the last third) — bias, sd, RMSE over realisations —
-and KFx's mean NIS over the last third.
+the pole held at the truth, and under two settings: the paper's MEMS preset (KFo's and KFw's R = the white
+noise, Qᵒ = Qʷ = 0.1) and settings for a constant order and pole (``kfo.R = kfw.R = "innovation"``: KFx's
+innovation covariance of the step before; Qᵒ = Qʷ = 1e-5). Reported per case: α̂ (mean over the last third) —
+bias, sd, RMSE over realisations — and KFx's mean NIS over the last third.
 
     python experiments/tea_models/grown_model.py [--realisations 32] [--steps 6000] [--out experiments/tea_models]
 
@@ -14,6 +16,7 @@ writes grown_model.json and grown_model.md there.
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import time
 from dataclasses import replace
@@ -29,12 +32,16 @@ from torchtea.noise.tea import tea_view
 H = 0.01
 FW = {"fractional.order": 0.4, "fractional.pole": -2.0, "fractional.q": 0.02, "white.r": 1e-5}
 SIGMAS = (0.0, 0.01, 0.05)
+#: The TEA's settings: name → changes to the view's config (the paper's MEMS preset) for KFo and KFw.
+SETTINGS = {"paper": {}, "constant": {"R": "innovation", "Q0": 1e-5}}
 
 
-def case(y, spec, values, pole_held: bool) -> dict:
+def case(y, spec, values, pole_held: bool, settings: str = "paper") -> dict:
     N = y.shape[-1]
     v = tea_view(spec, values, H)
-    cfg = replace(v.config, memory=replace(v.config.memory, kind="soe"))
+    ch = SETTINGS[settings]
+    cfg = replace(v.config, memory=replace(v.config.memory, kind="soe"), kfo=replace(v.config.kfo, **ch),
+                  kfw=replace(v.config.kfw, **ch))
     if pole_held:
         cfg = replace(cfg, kfw=replace(cfg.kfw, P0=1e-12, Q0=1e-12))
     t = time.perf_counter()
@@ -45,7 +52,7 @@ def case(y, spec, values, pole_held: bool) -> dict:
     err = a - FW["fractional.order"]
     obs = torch.ones(y.shape[0], N - sl.start, dtype=torch.bool)
     nis = mean_nis(res.innovation[:, sl], res.innovation_cov[:, sl], obs)
-    return {"model": spec, "pole_held": pole_held, "states": v.structure.n_states, "alpha_mean": float(a.mean()),
+    return {"model": spec, "settings": settings, "pole_held": pole_held, "states": v.structure.n_states, "alpha_mean": float(a.mean()),
             "bias": float(err.mean()), "sd": float(a.std()), "rmse": float(err.pow(2).mean().sqrt()),
             "nis": float(nis.mean()), "diverged": int(res.diverged.sum()), "seconds": sec}
 
@@ -63,20 +70,22 @@ def main(argv=None) -> int:
         y = simulate_model("fractional+white+random-walk", truth, n_steps=args.steps, h=H,
                            realisations=args.realisations, generator=torch.Generator().manual_seed(args.seed))[0]
         y = y - y.mean(-1, keepdim=True)
-        for spec, vals in (("fractional+white", FW), ("fractional+white+random-walk", truth)):
-            for held in (False, True):
-                r = dict(case(y, spec, vals, held), sigma=sigma)
-                rows.append(r)
-                print(f"σ {sigma:<5g} {spec:30s} {'pole held' if held else 'KFw free ':9s} α̂ {r['alpha_mean']:.3f} "
-                      f"bias {r['bias']:+.3f} sd {r['sd']:.3f} NIS {r['nis']:.2f} ({r['seconds']:.0f} s)", flush=True)
+        models = (("fractional+white", FW), ("fractional+white+random-walk", truth))
+        for settings, (spec, vals), held in itertools.product(SETTINGS, models, (False, True)):
+            r = dict(case(y, spec, vals, held, settings), sigma=sigma)
+            rows.append(r)
+            print(f"σ {sigma:<5g} {settings:8s} {spec:30s} {'pole held' if held else 'KFw free ':9s} "
+                  f"α̂ {r['alpha_mean']:.3f} bias {r['bias']:+.3f} sd {r['sd']:.3f} NIS {r['nis']:.2f} "
+                  f"({r['seconds']:.0f} s)", flush=True)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    meta = {"truth": FW, "h": H, "steps": args.steps, "realisations": args.realisations, "seed": args.seed,
+    meta = {"truth": FW, "h": H, "settings": SETTINGS, "steps": args.steps, "realisations": args.realisations, "seed": args.seed,
             "meaning": "alpha_mean/bias/sd/rmse: α̂ averaged over the last third of each run, across realisations "
                        "(truth 0.4); nis: KFx's mean NIS over the last third (1: consistent)"}
     (out / "grown_model.json").write_text(json.dumps({"meta": meta, "rows": rows}, indent=1))
-    lines = ["| random-walk σ | TEA's model | KFw | α̂ mean | bias | sd | RMSE | KFx NIS |", "|---|---|---|---|---|---|---|---|"]
-    lines += [f"| {r['sigma']:g} | {r['model']} | {'pole held' if r['pole_held'] else 'free'} | {r['alpha_mean']:.3f} | "
+    lines = ["| random-walk σ | settings | TEA's model | KFw | α̂ mean | bias | sd | RMSE | KFx NIS |",
+             "|---|---|---|---|---|---|---|---|---|"]
+    lines += [f"| {r['sigma']:g} | {r['settings']} | {r['model']} | {'pole held' if r['pole_held'] else 'free'} | {r['alpha_mean']:.3f} | "
               f"{r['bias']:+.3f} | {r['sd']:.3f} | {r['rmse']:.3f} | {r['nis']:.2f} |" for r in rows]
     (out / "grown_model.md").write_text("\n".join(lines) + "\n")
     return 0

@@ -31,8 +31,12 @@ BLOCK = 256
 _KERNEL = None
 
 
-def fast_path_reason(structure, dtype, device, compile: bool = False, requires_grad: bool = False) -> str | None:
-    """``None`` when the compiled engine can run this problem, else why not (one phrase)."""
+def fast_path_reason(structure, dtype, device, compile: bool = False, requires_grad: bool = False,
+                     config=None) -> str | None:
+    """``None`` when the compiled engine can run this problem (``config``: the TEA's settings, where they matter),
+    else why not (one phrase)."""
+    if config is not None and config.innovation_r:
+        return "kfo.R or kfw.R is 'innovation' (KFx's innovation covariance), which only the torch engine takes"
     if compile:
         return "compile=True asks for the torch.compile engine"
     if torch.device(device or "cpu").type != "cpu":
@@ -51,14 +55,15 @@ def fast_path_reason(structure, dtype, device, compile: bool = False, requires_g
     return None
 
 
-def use_compiled(engine: str, structure, dtype, device, compile: bool = False, requires_grad: bool = False) -> bool:
+def use_compiled(engine: str, structure, dtype, device, compile: bool = False, requires_grad: bool = False,
+                 config=None) -> bool:
     """Whether ``engine`` (``"auto"``, ``"torch"`` or ``"numba"``, as in :func:`~.tea.run_tea`) means the compiled
     engine for this problem; ``"numba"`` where it cannot run is a ``ValueError`` saying why."""
     if engine not in ("auto", "torch", "numba"):
         raise ValueError(f"engine must be 'auto', 'torch' or 'numba', got {engine!r}")
     if engine == "torch":
         return False
-    reason = fast_path_reason(structure, dtype, device, compile, requires_grad)
+    reason = fast_path_reason(structure, dtype, device, compile, requires_grad, config)
     if engine == "numba" and reason is not None:
         raise ValueError(f"engine='numba' cannot run this problem: {reason}")
     return reason is None

@@ -50,6 +50,9 @@ class Carry(NamedTuple):
     #: (``Po`` and ``Pw`` are then the covariances of their errors for a constant truth); else None
     Pog: Tensor | None = None
     Pwg: Tensor | None = None
+    #: ``kfo.R`` or ``kfw.R`` = "innovation" only: KFx's innovation covariance ``C P̃ Cᵀ + R`` at ``k−1`` from the
+    #: ``P̃`` that set its gain (*B, p, p), the R those filters take at ``k``; else None
+    S: Tensor | None = None
 
     @property
     def Po_own(self) -> Tensor:

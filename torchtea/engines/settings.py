@@ -8,7 +8,7 @@ from typing import Any
 
 from ..core.memory import MemoryConfig, parse_memory
 
-__all__ = ["StateFilterConfig", "UnscentedConfig", "TEAConfig", "NOISE_SCALINGS"]
+__all__ = ["StateFilterConfig", "UnscentedConfig", "TEAConfig", "NOISE_SCALINGS", "INNOVATION"]
 
 
 # --------------------------------------------------------------------------- configuration
@@ -44,7 +44,14 @@ class UnscentedConfig:
     x0 : initial estimate (``α₀`` for KFo, ``w₀`` for KFw).
     P0 : initial covariance ``P₀ᵒ`` / ``P₀ʷ``.
     Q0 : initial random-walk covariance ``Q₀ᵒ`` / ``Q₀ʷ`` (adapted by (25)).
-    R : the filter's measurement covariance ``Rᵒ`` / ``Rʷ``.
+    R : the filter's measurement covariance ``Rᵒ`` / ``Rʷ``: a number, diagonal or matrix as for KFx, or
+        ``"innovation"``: at each step KFx's innovation covariance of the step before, ``S_{k−1} = C P̃ Cᵀ + R``
+        with the ``P̃`` that sets KFx's gain (:data:`INNOVATION`). The paper's ``Rᵒ = Rʷ = R`` (its presets) tells
+        the filters that a predicted output misses the measurement by the measurement noise alone, while it also
+        misses by KFx's own state error; where other states (a random walk, a bias) share the output that error is
+        far larger than ``R``, and the filters read it as a wrong order or pole. With ``"innovation"`` the
+        unscented filters weigh their innovations by what KFx predicts for them, as a dual filter's parameter
+        filter does (experiments/tea_models/README.md measures it). Runs on the torch engine only.
     ut_alpha : 𝔄, spread of the sigma points.
     ut_beta : 𝔅, prior knowledge of the distribution (2 for Gaussian).
     kappa : κ; ``None`` means ``3 − L``.
@@ -66,12 +73,17 @@ class UnscentedConfig:
     Q_max: float | str = "Q0"
 
     def __post_init__(self):
+        if isinstance(self.R, str) and self.R != INNOVATION:
+            raise ValueError(f"R must be a number, a list of numbers or {INNOVATION!r}, got {self.R!r}")
         if isinstance(self.Q_max, str):
             if self.Q_max not in ("Q0", "none"):
                 raise ValueError(f"Q_max must be a number, 'Q0' or 'none', got {self.Q_max!r}")
         elif not (float(self.Q_max) > 0):
             raise ValueError(f"Q_max must be positive, got {self.Q_max}")
 
+
+#: ``UnscentedConfig.R`` that takes KFx's innovation covariance of the step before as KFo's or KFw's R.
+INNOVATION = "innovation"
 
 NOISE_SCALINGS = ("scaled", "unscaled")
 #: How KFx's prediction sees the order and parameter estimates (TEAConfig.kfx_uncertainty).
@@ -181,6 +193,11 @@ class TEAConfig:
             return out
 
         return conv(self)
+
+    @property
+    def innovation_r(self) -> bool:
+        """Whether KFo or KFw takes KFx's innovation covariance as its R (``R = "innovation"``)."""
+        return INNOVATION in (self.kfo.R, self.kfw.R)
 
     @classmethod
     def from_dict(cls, data: dict, base: "TEAConfig | None" = None) -> "TEAConfig":

@@ -36,7 +36,7 @@ from torch import Tensor
 from ..core.gl import broadcast_shapes, gl_tail_coefficients, history_sum
 from ..core.memory import BoundedHistory, MemoryConfig, cov_tail_mass, gl_coefficients_at, memory_plan
 from .results import STEP_OUTPUTS, Carry, StepOutput, TEAResult, ut_weights
-from .settings import TEAConfig
+from .settings import INNOVATION, TEAConfig
 from .structure import Structure
 
 __all__ = [
@@ -111,13 +111,20 @@ def make_params(config: TEAConfig, structure: Structure, *, dtype=torch.float64,
         x0=_vec(x.x0, n, like, "kfx.x0"), P0=_mat(x.P0, n, like, "kfx.P0"),
         Q=_mat(x.Q0, n, like, "kfx.Q0"), R=_mat(x.R, p, like, "kfx.R"),
         alpha0=_vec(o.x0, L, like, "kfo.x0"), P0o=_mat(o.P0, L, like, "kfo.P0"),
-        Q0o=Q0o, Ro=_mat(o.R, p, like, "kfo.R"),
+        Q0o=Q0o, Ro=_r(o.R, p, like, "kfo.R"),
         w0=_vec(w.x0, m, like, "kfw.x0"), P0w=_mat(w.P0, m, like, "kfw.P0"),
-        Q0w=Q0w, Rw=_mat(w.R, p, like, "kfw.R"),
+        Q0w=Q0w, Rw=_r(w.R, p, like, "kfw.R"),
         Qmax_o=_q_cap(o.Q_max, Q0o, like),
         Qmax_w=_q_cap(w.Q_max, Q0w, like),
         config=config,
     )
+
+
+def _r(value, size: int, like: Tensor, name: str) -> Tensor:
+    """KFo's or KFw's R as a matrix; NaN for ``"innovation"`` (the step takes ``Carry.S`` then, never this)."""
+    if value == INNOVATION:
+        return torch.full((size, size), math.nan, dtype=like.dtype, device=like.device)
+    return _mat(value, size, like, name)
 
 
 def _q_cap(q_max, Q0: Tensor, like: Tensor) -> Tensor:
@@ -139,7 +146,7 @@ def stack_params(params: Sequence[TEAParams]) -> TEAParams:
     first = params[0].config
 
     def strip(c: TEAConfig):
-        keep = lambda f: replace(f, x0=0, P0=0, Q0=0, R=0)  # noqa: E731
+        keep = lambda f: replace(f, x0=0, P0=0, Q0=0, R=f.R if f.R == INNOVATION else 0)  # noqa: E731
         cap = lambda f: replace(keep(f), Q_max=1.0 if f.Q_max != "none" else "none")  # noqa: E731
         return replace(c, kfx=keep(c.kfx), kfo=cap(c.kfo), kfw=cap(c.kfw))
 
@@ -442,12 +449,14 @@ def _tea_step(model: _Model, params: TEAParams, weights, memory, carry: Carry, y
     sig_w = _sigma_points(carry.w, Pw_t, scale_w)
     Y, chi = _replica(model, memory, hist, model.full(sig_o), carry.w, sig_w, carry.x, u_prev)
     So = sig_o.shape[-2]
-    alpha, Po, Ko, eo, Pyy_o, Pxy_o = _ut_update(sig_o, Y[..., :So, :], carry.alpha, Po_t, params.Ro, y0, mask,
+    Ro = carry.S if cfg.kfo.R == INNOVATION else params.Ro
+    Rw = carry.S if cfg.kfw.R == INNOVATION else params.Rw
+    alpha, Po, Ko, eo, Pyy_o, Pxy_o = _ut_update(sig_o, Y[..., :So, :], carry.alpha, Po_t, Ro, y0, mask,
                                                  wm_o, wc_o, start)
     lo, hi = cfg.order_bounds
     alpha = alpha.clamp(lo, hi)
     Qo = _adapt_q(carry.Qo, Ko, eo, cfg.kfo.delta, params.Qmax_o, observed)
-    w, Pw, Kw, ew, Pyy_w, Pxy_w = _ut_update(sig_w, Y[..., So:, :], carry.w, Pw_t, params.Rw, y0, mask,
+    w, Pw, Kw, ew, Pyy_w, Pxy_w = _ut_update(sig_w, Y[..., So:, :], carry.w, Pw_t, Rw, y0, mask,
                                              wm_w, wc_w, start)
     Qw = _adapt_q(carry.Qw, Kw, ew, cfg.kfw.delta, params.Qmax_w, observed)
 
@@ -469,11 +478,12 @@ def _tea_step(model: _Model, params: TEAParams, weights, memory, carry: Carry, y
     if cfg.kfx_uncertainty == "paper-gain":
         # the paper's KFx sets the gain; P is the covariance of that filter's error (Joseph form)
         Pg_pred = _symmetrise(_mm(_mm(F, carry.Pg), F.mT) + Qx + mem_cov_g)
-        x, Pg, e, _, K = _kfx_update(model, params, x_pred, Pg_pred, y0, mask)
+        x, Pg, e, S_gain, K = _kfx_update(model, params, x_pred, Pg_pred, y0, mask)
         S = _mm(_mm(model.C, P_pred), model.C.mT) + params.R
         P = _symmetrise(_joseph(P_pred, K, model.C, params.R))
     else:
         x, P, e, S, _ = _kfx_update(model, params, x_pred, P_pred, y0, mask)
+        S_gain = S
 
     Pog = Pwg = None
     if cfg.estimate_uncertainty == "constant-truth":
@@ -481,7 +491,7 @@ def _tea_step(model: _Model, params: TEAParams, weights, memory, carry: Carry, y
         Pog, Pwg = Po, Pw
         Po = _constant_truth_cov(carry.Po, Po_t, Ko, Pyy_o, Pxy_o)
         Pw = _constant_truth_cov(carry.Pw, Pw_t, Kw, Pyy_w, Pxy_w)
-    new = Carry(x, P, alpha, Po, Qo, w, Pw, Qw, carry.diverged, Pg, Pog, Pwg)
+    new = Carry(x, P, alpha, Po, Qo, w, Pw, Qw, carry.diverged, Pg, Pog, Pwg, S_gain if cfg.innovation_r else None)
     return _guard(new, carry, cfg.divergence_limit, branchless), StepOutput(e, S)
 
 
@@ -579,7 +589,8 @@ def _first_step(model: _Model, params: TEAParams, y_0: Tensor, batch) -> tuple[C
     carry = Carry(x, P, ex(params.alpha0, (L,)), ex(params.P0o, (L, L)), ex(params.Q0o, (L, L)),
                   ex(params.w0, (m,)), ex(params.P0w, (m, m)), ex(params.Q0w, (m, m)),
                   torch.zeros(batch, dtype=torch.bool, device=y_0.device), P.clone() if gain else None,
-                  ex(params.P0o, (L, L)) if constant else None, ex(params.P0w, (m, m)) if constant else None)
+                  ex(params.P0o, (L, L)) if constant else None, ex(params.P0w, (m, m)) if constant else None,
+                  S if params.config.innovation_r else None)  # at k = 0 the gain's S is the prior's
     prior = carry._replace(x=ex(params.x0, (n,)), P=ex(params.P0, (n, n)), Pg=ex(params.P0, (n, n)) if gain else None)
     return _guard(carry, prior, params.config.divergence_limit), StepOutput(e, S)
 
@@ -613,7 +624,7 @@ class TEAStream:
         from .fast import use_compiled
 
         #: the compiled scalar engine (:mod:`.fast`) where it applies; ``engine`` as in :func:`run_tea`
-        self._fast = use_compiled(engine, self.structure, dtype, device)
+        self._fast = use_compiled(engine, self.structure, dtype, device, config=cfg)
         self._engine = None
 
     def step(self, y_k: Tensor, u_prev: Tensor | None = None) -> tuple[Carry, StepOutput]:
@@ -740,7 +751,7 @@ def run_tea(
     from .fast import run_tea_fast, use_compiled
 
     grad = y.requires_grad or (inputs is not None and inputs.requires_grad) or any(t.requires_grad for t in params[:-1])
-    if use_compiled(engine, structure, y.dtype, y.device, compile, grad):
+    if use_compiled(engine, structure, y.dtype, y.device, compile, grad, config=cfg):
         return run_tea_fast(y, h=h, params=params, inputs=inputs, progress=progress, record_every=every,
                             partial=partial, batch=batch, memory=memory, first=(carry, first))
     # per-step outputs, preallocated (rows k = 0, every, 2·every, …)

@@ -8,15 +8,13 @@ import time
 from pathlib import Path
 
 from .render import strictjson
+from .render.text import num as _num
 
 __all__ = ["main"]
 
 
 #: Above this many samples `identify` warns that the exact O(N²) history sums take minutes.
 LONG_RECORDING = 20000
-#: Above this many samples `fit` skips the fractional-presence bootstrap unless --bootstrap asks for it (99
-#: simulated replicates of the null, each fitted twice).
-BOOTSTRAP_LIMIT = 200_000
 
 
 class CLIError(Exception):
@@ -332,26 +330,23 @@ def _measurements(args, command: str, *, min_samples: int = 1, sensors=None):
 
 def _check_channels(args, m, inputs, *, auto: bool, intervals: bool) -> dict:
     """``check`` each channel of ``m`` (then ``--add``, then the loop with ``auto``) → label → result."""
-    from .checking import check
+    from .checking.channels import check_measurements
 
-    model = args.model or "fractional+white"  # (export without --model: check's start)
     levels = {k: getattr(args, k) for k in ("level", "screen_level") if hasattr(args, k)}  # (else check's own)
-    results = {}
     step, close = _progress(len(m.channels), "check", "channel", bar=not getattr(args, "json", False))
-    for i, c in enumerate(m.channels):
-        print(f"torchtea: checking {c.label}, {c.title} ({m.samples} samples, model {model}) …", file=sys.stderr)
-        r = check(c.values, m.h, model=model, inputs=inputs, intervals=intervals, **levels)
-        for effect in getattr(args, "add", []):
-            r = r.add(effect, intervals=intervals)
-        if auto:
-            r = r.auto(max_steps=args.max_steps, strong=args.strong, intervals=intervals)
-        results[c.label] = r
-        step(i + 1, len(m.channels))
+    results = check_measurements(m, args.model, inputs=inputs, add=getattr(args, "add", []), auto=auto,
+                                 max_steps=getattr(args, "max_steps", 6), strong=getattr(args, "strong", None),
+                                 intervals=intervals, levels=levels, progress=step, log=_note)
     close()
     return results
 
 
+def _note(line: str) -> None:
+    print(f"torchtea: {line}", file=sys.stderr)
+
+
 def cmd_check(args) -> int:
+    from .checking.channels import summary_lines
     from .checking.report import write_report
     from .render.strictjson import dumps
 
@@ -374,92 +369,32 @@ def cmd_check(args) -> int:
     if args.json:
         print(dumps(doc))
         return 0
-    for a, r in results.items():
-        c = m.channel(a)
-        head = f"{a} ({c.title}): {r.model.spec}: {'adequate' if r.adequate else 'NOT adequate'}"
-        if len(r.steps) > 2 or r.loop_end:
-            print(head)
-            for k, st in enumerate(r.step_rows()):
-                what = ("start" if k == 0 else
-                        f"+ {st['added']} (gain {st['gain']:.1f}, repaired {', '.join(st['repaired']) or '—'})")
-                print(f"  step {k}: {what}: nll/sample {st['nll_per_sample']:.5f}, psd misfit {st['psd_misfit']:.4f}, "
-                      f"adev misfit {st['adev_misfit']:.4f}, failed {', '.join(st['failed']) or 'none'}")
-            if r.loop_end:
-                print(f"  loop end: {r.loop_end}")
-            head = None
-        elif r.before is not None:
-            b = r.before
-            head += (f" (before, {b.model.spec}: nll/sample {b.metrics['nll_per_sample']:.5f}, failed "
-                     f"{', '.join(b.failed) or 'none'}; now {r.metrics['nll_per_sample']:.5f})")
-        if head is not None:
-            print(head)
-        for d in r.diagnostics:
-            mark = "   " if d.passed is None else (" ok" if d.passed else "BAD")
-            print(f"  {mark} {d.name:12s} {d.summary}")
-        for s in r.suggestions:
-            pars = ", ".join(f"{k} {v:.4g}" for k, v in s.parameters.items())
-            print(f"  suggest {s.effect}: gain {s.gain:.1f} (ΔBIC), {pars}; repairs {', '.join(s.repairs) or '—'}"
-                  + (f" — {s.note}" if s.note else ""))
-        if not r.suggestions:
-            print("  no suggestion: no effect of the library passes its screen")
-        for u in r.unexplained:
-            more = ([f"--add {', '.join(u['add_by_hand'])} by hand"] if u["add_by_hand"] else []) + (
-                [f"not in the library: {', '.join(u['not_in_library'])}"] if u["not_in_library"] else [])
-            print(f"  unexplained {u['diagnostic']}: {u['would_fit']}" + (f" ({'; '.join(more)})" if more else ""))
+    print("\n".join(summary_lines(results, {c.label: c.title for c in m.channels})))
     print(f"units: {'; '.join(f'{k}: {v}' for k, v in _units_of(m).items())}")
     print(f"report: {out / 'report.md'}; JSON: {out / 'check.json'}")
     return 0
 
 
-def _export_plan(args, m, names) -> dict | None:
-    """Check what an export asks for before any fitting: the formats (an unknown one, or one that needs a sensor
-    the recording lacks, is one clear line), the horizon within the recording, SI sensor channels. None: no
-    export asked for."""
-    if not names:
-        return None
-    from .export.formats import FORMATS
-    from .export.run import resolve_formats
-    from .export.terms import parse_horizon
+def _export_plan(args, m, names):
+    """Check what an export asks for before any fitting (:func:`torchtea.export.run.plan_export`); None: no export
+    asked for."""
+    from .export.run import plan_export
 
-    formats = resolve_formats(names)
-    horizon, note = parse_horizon(args.horizon, m.h, m.samples)
-    signals = [c.name for c in m.channels if c.sensor == "signal"]
-    if signals:
-        raise CLIError(f"cannot export column(s) {', '.join(signals)}: not an accelerometer or gyroscope axis in SI "
-                       "units (the formats take m/s^2 and rad/s); name the sensor columns with --columns and --units")
-    have = {c.sensor for c in m.channels}
-    named = [n for x in names for n in str(x).split(",")]
-    for f in formats:
-        missing = [s for s in FORMATS[f].needs if s not in have]
-        if missing and f in named:
-            raise CLIError(f"export format {f}: the file needs {' and '.join(FORMATS[f].needs)} noise; "
-                           f"{Path(m.recording.path).name} has no {' or '.join(missing)} channel analysed "
-                           f"(--format ieee952 takes any axis)")
-    if note:
-        print(f"torchtea: note: {note}", file=sys.stderr)
-    return {"formats": formats, "horizon": horizon, "horizon_note": note}
+    plan = plan_export(m, names, args.horizon)
+    if plan is not None and plan.horizon_note:
+        _note(f"note: {plan.horizon_note}")
+    return plan
 
 
-def _export(args, m, plan: dict, fits: dict, inputs, meta: dict, out: Path, *, quiet: bool, plots: bool) -> dict:
-    from .export.run import export_axes, write_export
+def _export(args, m, plan, fits: dict, inputs, meta: dict, out: Path, *, quiet: bool, plots: bool) -> dict:
+    from .export.run import export_lines, export_recording
 
-    print(f"torchtea: exporting {', '.join(plan['formats'])} (cover over τ {plan['horizon'][0]:g}–"
-          f"{plan['horizon'][1]:g} s; NEES study: {args.nees} realisations) …", file=sys.stderr)
-    axes = export_axes(fits, m.series(), {c.label: c.sensor for c in m.channels}, m.h, plan["horizon"],
-                       inputs=inputs, nees=args.nees, seed=args.export_seed)
-    meta = dict(meta, horizon_note=plan["horizon_note"])
-    doc = write_export(out, axes, plan["formats"], meta, which=args.values, plots=plots)
+    _note(f"exporting {', '.join(plan.formats)} (cover over τ {plan.horizon[0]:g}–{plan.horizon[1]:g} s; NEES "
+          f"study: {args.nees} realisations) …")
+    doc, axes = export_recording(m, plan, fits, out, inputs=inputs, meta=meta, nees=args.nees, seed=args.export_seed,
+                                 values=args.values, plots=plots)
     if not quiet:
-        for name, path in doc["files"].items():
-            print(f"export {name}: {path}")
-        for name, why in doc["skipped"].items():
-            print(f"export {name}: not written: {why}")
-        for a in axes:
-            print(f"  {a.label}: N {a.bare['N'].value:.4g} → {a.covered['N'].value:.4g}, K {a.bare['K'].value:.4g} → "
-                  f"{a.covered['K'].value:.4g} {a.bare['K'].unit} (bare → covered)"
-                  + "".join(f"; {t} forced by {v['component']} at τ {v['tau_s']:.3g} s"
-                            for t, v in a.forced_by.items()))
-        print(f"export report: {out / 'export.md'}")
+        print("\n".join(export_lines(doc, axes, out)))
     return doc
 
 
@@ -656,10 +591,6 @@ def cmd_estimate(args) -> int:
               f"whole run {_num(summary['innovation_nis'], '.3f')}; missing samples: {missing.describe()}")
         print(f"trajectories: {out}")
     return 130 if res.interrupted else 0
-
-
-def _num(v, spec: str) -> str:
-    return "n/a" if v is None or not math.isfinite(v) else format(v, spec)
 
 
 # --------------------------------------------------------------------------- identify
@@ -1151,7 +1082,7 @@ def build_parser() -> argparse.ArgumentParser:
                          "--method whittle, where it is the order's interval)")
     fp.add_argument("--bootstrap", type=int, default=None,
                     help="replicates of the fractional-presence test (0: do not test; default 99, 0 above "
-                         f"{BOOTSTRAP_LIMIT} samples)")
+                         f"{_bootstrap_limit()} samples)")
     fp.add_argument("--seed", type=int, default=0, help="seed of the bootstrap")
     fp.add_argument("--out", help="write the JSON document to this file")
     fp.add_argument("--json", action="store_true", help="print the JSON document")
@@ -1286,87 +1217,37 @@ def _model_inputs(args, models, m, *, note: bool = True):
     return None if args.temperature is None else {"temperature": m.temperature_input()}
 
 
-def cmd_fit(args) -> int:
-    import math as _math
+def _bootstrap_limit() -> int:
+    from .fitting.recording import BOOTSTRAP_LIMIT
 
-    from .fitting import fit_series
-    from .fitting.presence import fractional_test
-    from .fitting.summary import MEANING, axis_summary, fit_nis
+    return BOOTSTRAP_LIMIT
+
+
+def cmd_fit(args) -> int:
+    from .fitting.recording import fit_lines, fit_recording
     from .noise import parse_model
     from .render.strictjson import dumps, write
 
     model = parse_model(args.model)
     m = _measurements(args, "a fit", min_samples=100)
     plan = _export_plan(args, m, args.export)
-    series = [c.values for c in m.channels]
-    inp = _model_inputs(args, [model], m)
-    inputs = None if inp is None else [inp] * len(series)
-    n_boot = args.bootstrap if args.bootstrap is not None else (99 if m.samples <= BOOTSTRAP_LIMIT else 0)
-    if args.bootstrap is None and n_boot == 0 and model.order_name is not None:
-        print(f"torchtea: note: {m.samples} samples: the fractional-presence bootstrap is not run (--bootstrap 99 "
-              "runs it: 99 simulated replicates, each fitted twice)", file=sys.stderr)
-    t0 = time.perf_counter()
-    step, close = _progress(len(series), "fit " + model.spec, "channel", bar=not args.json)
-    fits = []
-    for i, y in enumerate(series):  # one channel at a time: bounded memory, progress per channel
-        fits += fit_series(model, [y], m.h, method=args.method, inputs=None if inputs is None else [inputs[i]],
-                           profile=True if args.profile else None)
-        step(i + 1, len(series))
+    inputs = _model_inputs(args, [model], m)
+    step, close = _progress(len(m.channels), "fit " + model.spec, "channel", bar=not args.json)
+    doc, fits = fit_recording(m, model, inputs=inputs, method=args.method, bootstrap=args.bootstrap, seed=args.seed,
+                              profile=args.profile, progress=step, log=lambda line: _note(f"note: {line}"))
     close()
-    tests = [None] * len(series)
-    if model.order_name is not None and n_boot > 0:
-        if m.missing.count:
-            print("torchtea: note: the fractional test needs complete series (Whittle): not run", file=sys.stderr)
-        else:
-            tested, test_series = model, series
-            if inputs is not None:  # the test's Whittle fits take no inputs: test what the fitted means leave,
-                # with the order constant (a temperature-driven order is not part of the test)
-                import torch
-
-                tested = parse_model("+".join(c.token for _, c in model.components if not c.inputs))
-                t = torch.arange(m.samples, dtype=torch.float64) * m.h
-                test_series = [y - model.mean(f.values, t, inp).numpy()[0] for y, f, inp in zip(series, fits, inputs)]
-            tests = fractional_test(tested, test_series, m.h, n_boot=n_boot, seed=args.seed)
-    axes = {}
-    for c, f, y, test in zip(m.channels, fits, series, tests):
-        a = axis_summary(f, nis=fit_nis(f, y, m.h, inputs=None if inputs is None else inputs[0]), test=test)
-        a.update(sensor=c.sensor, unit=c.unit if c.sensor != "signal" else c.source_unit, column=c.name)
-        if "white.r" in f.values:
-            a["white_noise_density"] = _math.sqrt(f.values["white.r"] * m.h)
-        axes[c.label] = a
-    meaning = dict(MEANING, unit="the channel's unit: every parameter's 'units' is this unit (variances unit²)",
-                   white_noise_density="√(r h): the white noise's density in unit/√Hz (the value σ/√(sample rate) "
-                                       "converts back to a per-sample σ)")
-    doc = {"model": model.spec, "method": args.method, **m.describe(), "bootstrap": n_boot, "axes": axes,
-           "meaning": meaning, "seconds": time.perf_counter() - t0, "warnings": m.notes(),
-           "command": "torchtea " + " ".join(sys.argv[1:]) if sys.argv[1:] else ""}
+    doc["command"] = "torchtea " + " ".join(sys.argv[1:]) if sys.argv[1:] else ""
     if args.out:
         write(Path(args.out), doc)
     if plan:  # (files beside --out, else in export-<recording>)
         out = Path(args.out).parent / "export" if args.out else Path(f"export-{Path(m.recording.path).stem}")
-        _export(args, m, plan, {c.label: f for c, f in zip(m.channels, fits)},
-                None if inputs is None else inputs[0], m.describe(), out, quiet=args.json, plots=True)
+        _export(args, m, plan, {c.label: f for c, f in zip(m.channels, fits)}, inputs, m.describe(), out,
+                quiet=args.json, plots=True)
     if args.json:
         print(dumps(doc))
         return 0
-    print(f"{Path(m.recording.path).name}: {m.samples} samples at {m.recording.rate_hz:g} Hz, model {model.spec}, "
-          f"{args.method} likelihood")
-    for c in m.channels:
-        a = axes[c.label]
-        print(f"{c.label} ({c.title}): loglik {a['loglik']:.2f}  AIC {a['aic']:.2f}  BIC {a['bic']:.2f}  "
-              f"NIS {_num(a['nis'], '.3f')}  fractional p {_num(a['fractional_p_value'], '.3f')}"
-              + (f"  white-noise density {a['white_noise_density']:.3g} {a['unit']}/√Hz"
-                 if "white_noise_density" in a else ""))
-        for pname, p in a["parameters"].items():
-            ci = (f"[{p['ci95'][0]:.4g}, {p['ci95'][1]:.4g}] ({p['ci95_method']})" if p["ci95"] is not None
-                  else "" if p["ci95_method"] in ("fixed", None) else f"({p['ci95_method']})")
-            se = "" if p["se"] is None else f"± {p['se']:.3g} (se)"
-            print(f"    {pname:22s} {p['value']:12.5g} {se:16s} {ci}")
-        for note in a["notes"]:
-            print(f"    note: {note}")
-    print("se: standard error from the observed information; NIS: mean e²/S of the exact filter, 1 when the "
-          "fitted noise levels match the data; p: bootstrap test of 'no fractional component'; units: "
-          + "; ".join(f"{k}: {v}" for k, v in _units_of(m).items()) + " ('units' in a parameter's unit)")
+    print("\n".join(fit_lines(doc, {c.label: c.title for c in m.channels}, _units_of(m), Path(m.recording.path).name,
+                              m.recording.rate_hz)))
     if args.out:
         print(f"written {args.out}")
     return 0

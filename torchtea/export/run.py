@@ -2,6 +2,7 @@
 figure (what ``torchtea export`` and ``fit``/``check --export`` write)."""
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -10,7 +11,8 @@ from .formats import FORMATS, FormatError
 from .nees import nees_study
 from .terms import IN_FORMATS, axis_terms
 
-__all__ = ["export_axes", "write_export", "resolve_formats", "NEES_TAUS"]
+__all__ = ["export_axes", "write_export", "resolve_formats", "NEES_TAUS", "ExportPlan", "plan_export",
+           "export_recording", "export_lines"]
 
 #: The outages of the NEES study (s), those within a quarter of the record.
 NEES_TAUS = (0.1, 1.0, 10.0, 60.0)
@@ -32,6 +34,71 @@ def resolve_formats(names) -> list:
             else:
                 raise ValueError(f"unknown export format {n!r}: one of {', '.join(FORMATS)} or all")
     return out
+
+
+@dataclass(frozen=True)
+class ExportPlan:
+    """What an export will write, checked before any fitting: the formats, the horizon (s) the cover spans and the
+    note that says where it was clipped to the recording (or None)."""
+
+    formats: list
+    horizon: tuple
+    horizon_note: str | None
+
+
+def plan_export(m, names, horizon: str | None) -> ExportPlan | None:
+    """Check what an export of ``m`` (:class:`~torchtea.sensors.measurements.Measurements`) asks for before any
+    fitting: the formats ``names`` (an unknown one, or one named that needs a sensor the recording lacks, is a
+    ``ValueError`` saying so), the ``horizon`` (``"LO:HI"`` or None for the default) within the recording, SI sensor
+    channels only (a plain signal column is an :class:`~torchtea.sensors.io.InputError`). None: no export asked."""
+    if not names:
+        return None
+    from ..sensors.io import InputError
+    from .terms import parse_horizon
+
+    formats = resolve_formats(names)
+    span, note = parse_horizon(horizon, m.h, m.samples)
+    signals = [c.name for c in m.channels if c.sensor == "signal"]
+    if signals:
+        raise InputError(f"cannot export column(s) {', '.join(signals)}: not an accelerometer or gyroscope axis in "
+                         "SI units (the formats take m/s^2 and rad/s); name the sensor columns with --columns and "
+                         "--units")
+    have = {c.sensor for c in m.channels}
+    named = [n for x in names for n in str(x).split(",")]
+    for f in formats:
+        missing = [s for s in FORMATS[f].needs if s not in have]
+        if missing and f in named:
+            raise ValueError(f"export format {f}: the file needs {' and '.join(FORMATS[f].needs)} noise; "
+                             f"{Path(m.recording.path).name} has no {' or '.join(missing)} channel analysed "
+                             f"(--format ieee952 takes any axis)")
+    return ExportPlan(formats, span, note)
+
+
+def export_recording(m, plan: ExportPlan, fits: dict, out: Path, *, inputs: dict | None = None,
+                     meta: dict | None = None, nees: int = 64, seed: int = 0, values: str = "covered",
+                     plots: bool = True) -> tuple[dict, list]:
+    """Export the fitted models ``fits`` (label → :class:`~torchtea.fitting.mle.Fit`) of ``m``'s channels as
+    ``plan`` says, into ``out`` (:func:`export_axes`, then :func:`write_export` with ``meta`` and the plan's horizon
+    note). Returns the JSON document and the axes' terms."""
+    axes = export_axes(fits, m.series(), {c.label: c.sensor for c in m.channels}, m.h, plan.horizon,
+                       inputs=inputs, nees=nees, seed=seed)
+    doc = write_export(out, axes, plan.formats, dict(meta or {}, horizon_note=plan.horizon_note), which=values,
+                       plots=plots)
+    return doc, axes
+
+
+def export_lines(doc: dict, axes: list, out: Path) -> list[str]:
+    """An export's text summary: the files written (and those not, why), each axis's white noise N and random walk
+    K bare → covered, and what forced them."""
+    lines = [f"export {name}: {path}" for name, path in doc["files"].items()]
+    lines += [f"export {name}: not written: {why}" for name, why in doc["skipped"].items()]
+    for a in axes:
+        lines.append(f"  {a.label}: N {a.bare['N'].value:.4g} → {a.covered['N'].value:.4g}, K {a.bare['K'].value:.4g} "
+                     f"→ {a.covered['K'].value:.4g} {a.bare['K'].unit} (bare → covered)"
+                     + "".join(f"; {t} forced by {v['component']} at τ {v['tau_s']:.3g} s"
+                               for t, v in a.forced_by.items()))
+    lines.append(f"export report: {Path(out) / 'export.md'}")
+    return lines
 
 
 def export_axes(fits: dict, series: dict, sensors: dict, h: float, horizon, inputs: dict | None = None,

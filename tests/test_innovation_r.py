@@ -67,14 +67,25 @@ def test_paper_gain_takes_the_gains_innovation_covariance():
     assert (gain.innovation_cov - paper.innovation_cov).abs().max() > 0  # the reported S differ
 
 
-def test_the_compiled_engine_says_it_does_not_take_it():
-    cfg = _innovation(get_preset("paper-mems-x"))
-    y = _series(N=60, B=1)
-    with pytest.raises(ValueError, match="innovation"):
-        run_tea(y, h=H, params=make_params(cfg, Structure()), engine="numba")
-    auto = run_tea(y, h=H, params=make_params(cfg, Structure()))
-    torch_ = run_tea(y, h=H, params=make_params(cfg, Structure()), engine="torch")
-    torch.testing.assert_close(auto.alpha, torch_.alpha, rtol=0, atol=0)
+@pytest.mark.parametrize("memory", ["exact", "soe"])
+@pytest.mark.parametrize("kfx_uncertainty", ["paper", "paper-gain"])
+@pytest.mark.parametrize("which", ["both", "kfo"])
+def test_the_compiled_engine_is_the_torch_step(memory, kfx_uncertainty, which):
+    """The compiled kernel's S carry: its estimates and covariances are the torch engine's (a missing sample, one
+    realisation frozen by the divergence guard, "constant-truth" in one case)."""
+    mems = get_preset("paper-mems-x")
+    cfg = replace(mems, kfx_uncertainty=kfx_uncertainty, memory=replace(mems.memory, kind=memory),
+                  estimate_uncertainty="constant-truth" if which == "kfo" else "paper")
+    cfg = _innovation(cfg) if which == "both" else replace(cfg, kfo=replace(cfg.kfo, R=INNOVATION))
+    y = _series(N=400, B=3)
+    y[1, 50] = float("nan")
+    y[2, 200:] *= 1e7  # a realisation the guard freezes
+    params = make_params(replace(cfg, divergence_limit=1e6), Structure())
+    fast = run_tea(y, h=H, params=params, engine="numba")
+    slow = run_tea(y, h=H, params=params, engine="torch")
+    assert bool(fast.diverged[2]) and bool(slow.diverged[2]) and int(fast.diverged_at[2]) == int(slow.diverged_at[2])
+    for f in ("alpha", "w", "x", "P", "P_alpha", "P_w", "innovation_cov"):
+        torch.testing.assert_close(getattr(fast, f), getattr(slow, f), rtol=1e-8, atol=1e-12)
 
 
 def test_settings_read_write_and_stack(tmp_path):
@@ -113,3 +124,12 @@ def test_the_grown_model_with_innovation_r_estimates_the_order_the_plain_one_mis
     grown, plain = alpha("fractional+white+random-walk", truth), alpha("fractional+white", FW)
     assert abs(float(grown.mean()) - 0.4) < 0.03
     assert float(plain.mean()) - 0.4 > 0.25
+
+
+def test_the_models_view_keeps_innovation_r_and_fills_a_number_otherwise():
+    """tea_view writes the model's measurement variance into KFo's and KFw's R, except where the base settings ask
+    for KFx's innovation covariance (so identify and montecarlo keep the setting)."""
+    base = get_preset("paper-mems-x")
+    v = tea_view("fractional+white+random-walk", dict(FW, **{"random-walk.sigma": 0.01}), H,
+                 replace(base, kfo=replace(base.kfo, R=INNOVATION)))
+    assert v.config.kfo.R == INNOVATION and v.config.kfw.R == pytest.approx(1e-5)

@@ -208,16 +208,18 @@ def adapt_q(Q, K, e, delta, qmax, obs):
 @njit(cache=True, parallel=True, error_model="numpy")
 def advance(k0, k1, yoff, ooff, every, y, u, has_u,
             h, Q, R, Ro, Rw, qmax_o, qmax_w, scaled, start, lo, hi, limit, delta_o, delta_w, mode, const,
-            wm_o, wc_o, scale_o, wm_w, wc_w, scale_w,
+            inn_o, inn_w, wm_o, wc_o, scale_o, wm_w, wc_w, scale_w,
             kind, xl, pl, H, ka, kb, kbig, decay, inject, eta, klo, khi, count_lo, count_hi, la, lb,
-            X, P, AL, PO, QO, W, PW, QW, DIV, DAT, CLAMP, PG, POG, PWG,
+            X, P, AL, PO, QO, W, PW, QW, DIV, DAT, CLAMP, PG, POG, PWG, SS,
             xh, Ph, win, modes, Pwin, Phead, Pgh, Pwin_g, Phead_g,
             o_x, o_P, o_a, o_Po, o_Qo, o_w, o_Pw, o_Qw, o_e, o_S):
     """Steps ``k0 … k1−1`` of every realisation in place (FastTEA.advance). ``mode``: ``kfx_uncertainty`` as
     0 (paper), 1 (propagated) or 2 (paper-gain: ``PG`` and the histories ``Pgh``/``Pwin_g``/``Phead_g`` hold the
     paper's covariance, which sets the gain, and ``P`` that filter's error covariance). ``const``
     (``estimate_uncertainty = "constant-truth"``): ``POG``/``PWG`` hold KFo's and KFw's own covariances, which set
-    their gains, and ``PO``/``PW`` their error covariances for a constant truth; otherwise the two are equal."""
+    their gains, and ``PO``/``PW`` their error covariances for a constant truth; otherwise the two are equal.
+    ``inn_o``/``inn_w`` (``kfo.R``/``kfw.R = "innovation"``): KFo/KFw take ``SS``, KFx's innovation covariance of the
+    step before from the covariance that sets its gain, as their R (``Ro``/``Rw`` otherwise)."""
     nB = y.shape[0]
     M = modes.shape[1]
     gain = mode == 2
@@ -225,6 +227,8 @@ def advance(k0, k1, yoff, ooff, every, y, u, has_u,
         x, Pk, al, Po, Qo, w, Pw, Qw = X[b], P[b], AL[b], PO[b], QO[b], W[b], PW[b], QW[b]
         Pg = PG[b]
         Pog, Pwg = POG[b], PWG[b]
+        Sp = SS[b]
+        inn = inn_o or inn_w
         div = DIV[b]
         dat = DAT[b]
         clamp = CLAMP[b]
@@ -274,11 +278,11 @@ def advance(k0, k1, yoff, ooff, every, y, u, has_u,
                     for jw in range(3):
                         Y[3 + jw] = hp * (sw[jw] * x + up) - ms
             # KFo update (19)–(24) with the order projected, adaptation (25); then KFw the same
-            al_n, Pog_n, K, e, Pyy, Pxy = ut_update(Y, 0, so, al, Pot, wm_o, wc_o, start, Ro[b], obs, yv)
+            al_n, Pog_n, K, e, Pyy, Pxy = ut_update(Y, 0, so, al, Pot, wm_o, wc_o, start, Sp if inn_o else Ro[b], obs, yv)
             al_n = min(max(al_n, lo), hi)
             Qo_n = adapt_q(Qo, K, e, delta_o, qmax_o[b], obs)
             Po_n = constant_truth(Po, Pot, K, Pyy, Pxy) if const else Pog_n
-            w_n, Pwg_n, K, e, Pyy, Pxy = ut_update(Y, 3, sw, w, Pwt, wm_w, wc_w, start, Rw[b], obs, yv)
+            w_n, Pwg_n, K, e, Pyy, Pxy = ut_update(Y, 3, sw, w, Pwt, wm_w, wc_w, start, Sp if inn_w else Rw[b], obs, yv)
             Qw_n = adapt_q(Qw, K, e, delta_w, qmax_w[b], obs)
             Pw_n = constant_truth(Pw, Pwt, K, Pyy, Pxy) if const else Pwg_n
             # KFx (29)–(35) with α̂_k and ŵ_{k−1}
@@ -346,10 +350,12 @@ def advance(k0, k1, yoff, ooff, every, y, u, has_u,
             S = P_pred + R[b]
             e = yv - x_pred if obs else 0.0
             Pg_n = 0.0
+            S_n = S  # the innovation covariance from the covariance that sets the gain (KFo's and KFw's next R)
             if gain:
                 # the paper's KFx sets the gain; P is the covariance of that filter's error (Joseph form)
                 Pg_pred = F * Pg * F + Qx + covg
                 Sg = Pg_pred + R[b]
+                S_n = Sg
                 Kx = Pg_pred / Sg if obs else 0.0
                 Pg_n = psd(Pg_pred - Kx * Sg * Kx)
                 P_n = joseph(P_pred, Kx, 1.0, R[b])
@@ -362,6 +368,8 @@ def advance(k0, k1, yoff, ooff, every, y, u, has_u,
             for v in (x_n, P_n, al_n, Po_n, Qo_n, w_n, Pw_n, Qw_n, Pg_n, Pog_n, Pwg_n):
                 if not (abs(v) <= limit):
                     bad = True
+            if inn and not (abs(S_n) <= limit):
+                bad = True
             if div or bad:
                 if not div:
                     dat = k
@@ -369,6 +377,7 @@ def advance(k0, k1, yoff, ooff, every, y, u, has_u,
             else:
                 x, Pk, al, Po, Qo, w, Pw, Qw, Pg = x_n, P_n, al_n, Po_n, Qo_n, w_n, Pw_n, Qw_n, Pg_n
                 Pog, Pwg = Pog_n, Pwg_n
+                Sp = S_n
             # the history
             if kind == 0:
                 xh[b, k] = x
@@ -396,6 +405,7 @@ def advance(k0, k1, yoff, ooff, every, y, u, has_u,
         X[b], P[b], AL[b], PO[b], QO[b], W[b], PW[b], QW[b] = x, Pk, al, Po, Qo, w, Pw, Qw
         PG[b] = Pg
         POG[b], PWG[b] = Pog, Pwg
+        SS[b] = Sp
         DIV[b] = div
         DAT[b] = dat
         CLAMP[b] = clamp

@@ -22,6 +22,7 @@ import numpy as np
 import torch
 
 from .results import STEP_OUTPUTS, Carry, TEAResult, ut_weights
+from .settings import INNOVATION
 
 __all__ = ["fast_path_reason", "use_compiled", "run_tea_fast", "BLOCK"]
 
@@ -31,12 +32,8 @@ BLOCK = 256
 _KERNEL = None
 
 
-def fast_path_reason(structure, dtype, device, compile: bool = False, requires_grad: bool = False,
-                     config=None) -> str | None:
-    """``None`` when the compiled engine can run this problem (``config``: the TEA's settings, where they matter),
-    else why not (one phrase)."""
-    if config is not None and config.innovation_r:
-        return "kfo.R or kfw.R is 'innovation' (KFx's innovation covariance), which only the torch engine takes"
+def fast_path_reason(structure, dtype, device, compile: bool = False, requires_grad: bool = False) -> str | None:
+    """``None`` when the compiled engine can run this problem, else why not (one phrase)."""
     if compile:
         return "compile=True asks for the torch.compile engine"
     if torch.device(device or "cpu").type != "cpu":
@@ -55,15 +52,14 @@ def fast_path_reason(structure, dtype, device, compile: bool = False, requires_g
     return None
 
 
-def use_compiled(engine: str, structure, dtype, device, compile: bool = False, requires_grad: bool = False,
-                 config=None) -> bool:
+def use_compiled(engine: str, structure, dtype, device, compile: bool = False, requires_grad: bool = False) -> bool:
     """Whether ``engine`` (``"auto"``, ``"torch"`` or ``"numba"``, as in :func:`~.tea.run_tea`) means the compiled
     engine for this problem; ``"numba"`` where it cannot run is a ``ValueError`` saying why."""
     if engine not in ("auto", "torch", "numba"):
         raise ValueError(f"engine must be 'auto', 'torch' or 'numba', got {engine!r}")
     if engine == "torch":
         return False
-    reason = fast_path_reason(structure, dtype, device, compile, requires_grad, config)
+    reason = fast_path_reason(structure, dtype, device, compile, requires_grad)
     if engine == "numba" and reason is not None:
         raise ValueError(f"engine='numba' cannot run this problem: {reason}")
     return reason is None
@@ -89,6 +85,8 @@ class Settings(NamedTuple):
     delta_w: float
     mode: int  # kfx_uncertainty: KFX_UNCERTAINTIES.index
     const: bool  # estimate_uncertainty == "constant-truth"
+    inn_o: bool  # kfo.R == "innovation"
+    inn_w: bool  # kfw.R == "innovation"
     wm_o: np.ndarray  # KFo's unscented weights and scale
     wc_o: np.ndarray
     scale_o: float
@@ -115,7 +113,8 @@ class Settings(NamedTuple):
 
 class State(NamedTuple):
     """The carry per realisation (``(B,)`` arrays, advanced in place): KFx's x̂ and P, KFo's α̂, P, Q, KFw's ŵ, P, Q,
-    the divergence flag and step, the clamp count, the gain's covariance and KFo's and KFw's own covariances."""
+    the divergence flag and step, the clamp count, the gain's covariance, KFo's and KFw's own covariances and KFx's
+    innovation covariance of the gain."""
 
     X: np.ndarray
     P: np.ndarray
@@ -131,6 +130,7 @@ class State(NamedTuple):
     PG: np.ndarray
     POG: np.ndarray
     PWG: np.ndarray
+    SS: np.ndarray  # KFx's innovation covariance of the step before (kfo.R or kfw.R = "innovation"; else zeros)
 
 
 class History(NamedTuple):
@@ -228,6 +228,7 @@ class FastTEA:
             start=int(cfg.sigma_sum_start), lo=lo, hi=hi, limit=float(cfg.divergence_limit),
             delta_o=float(cfg.kfo.delta), delta_w=float(cfg.kfw.delta),
             mode=KFX_UNCERTAINTIES.index(cfg.kfx_uncertainty), const=cfg.estimate_uncertainty == "constant-truth",
+            inn_o=cfg.kfo.R == INNOVATION, inn_w=cfg.kfw.R == INNOVATION,
             wm_o=wm_o, wc_o=wc_o, scale_o=sc_o, wm_w=wm_w, wc_w=wc_w, scale_w=sc_w,
             kind=kind, xl=xl, pl=pl, H=H, ka=ka, kb=kb, kbig=float(np.abs(kb[:-1]).max(initial=0.0)), decay=decay,
             inject=inject, eta=eta, klo=klo, khi=khi, count_lo=klo if kind == 1 else -math.inf,
@@ -237,13 +238,15 @@ class FastTEA:
         self.gain = gain
         # KFo's and KFw's own covariances, which set their gains (equal to Po, Pw unless "constant-truth")
         self.constant = carry.Pog is not None
+        self.innovation = carry.S is not None  # KFo or KFw takes KFx's innovation covariance as R
         div = np.array(carry.diverged.reshape(B).numpy(), dtype=np.bool_)
         self.state = State(X=col(carry.x), P=col(carry.P), AL=col(carry.alpha), PO=col(carry.Po), QO=col(carry.Qo),
                            W=col(carry.w), PW=col(carry.Pw), QW=col(carry.Qw), DIV=div,
                            DAT=np.where(div, 0, -1).astype(np.int64), CLAMP=np.zeros(B, dtype=np.int64),
                            PG=np.array(carry.Pg.reshape(B).numpy(), dtype=np.float64) if gain else zeros(),
                            POG=np.array(carry.Po_own.reshape(B).numpy(), dtype=np.float64),
-                           PWG=np.array(carry.Pw_own.reshape(B).numpy(), dtype=np.float64))
+                           PWG=np.array(carry.Pw_own.reshape(B).numpy(), dtype=np.float64),
+                           SS=np.array(carry.S.reshape(B).numpy(), dtype=np.float64) if self.innovation else zeros())
         self.hist = hist
         self._groups = (*self.settings, *self.state, *self.hist)
         s = self.state
@@ -275,7 +278,8 @@ class FastTEA:
         s = self.state
         return Carry(x=v(s.X), P=m(s.P), alpha=v(s.AL), Po=m(s.PO), Qo=m(s.QO), w=v(s.W), Pw=m(s.PW), Qw=m(s.QW),
                      diverged=t(s.DIV), Pg=m(s.PG) if self.gain else None,
-                     Pog=m(s.POG) if self.constant else None, Pwg=m(s.PWG) if self.constant else None)
+                     Pog=m(s.POG) if self.constant else None, Pwg=m(s.PWG) if self.constant else None,
+                     S=m(s.SS) if self.innovation else None)
 
 
 def block_steps(eng: "FastTEA", k: int, B: int) -> int:

@@ -51,7 +51,7 @@ class UnscentedConfig:
         misses by KFx's own state error; where other states (a random walk, a bias) share the output that error is
         far larger than ``R``, and the filters read it as a wrong order or pole. With ``"innovation"`` the
         unscented filters weigh their innovations by what KFx predicts for them, as a dual filter's parameter
-        filter does (experiments/tea_models/README.md measures it). Runs on the torch engine only.
+        filter does (experiments/tea_models/README.md measures it).
     ut_alpha : 𝔄, spread of the sigma points.
     ut_beta : 𝔅, prior knowledge of the distribution (2 for Gaussian).
     kappa : κ; ``None`` means ``3 − L``.

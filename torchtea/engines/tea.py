@@ -624,7 +624,7 @@ class TEAStream:
         from .fast import use_compiled
 
         #: the compiled scalar engine (:mod:`.fast`) where it applies; ``engine`` as in :func:`run_tea`
-        self._fast = use_compiled(engine, self.structure, dtype, device, config=cfg)
+        self._fast = use_compiled(engine, self.structure, dtype, device)
         self._engine = None
 
     def step(self, y_k: Tensor, u_prev: Tensor | None = None) -> tuple[Carry, StepOutput]:
@@ -751,7 +751,7 @@ def run_tea(
     from .fast import run_tea_fast, use_compiled
 
     grad = y.requires_grad or (inputs is not None and inputs.requires_grad) or any(t.requires_grad for t in params[:-1])
-    if use_compiled(engine, structure, y.dtype, y.device, compile, grad, config=cfg):
+    if use_compiled(engine, structure, y.dtype, y.device, compile, grad):
         return run_tea_fast(y, h=h, params=params, inputs=inputs, progress=progress, record_every=every,
                             partial=partial, batch=batch, memory=memory, first=(carry, first))
     # per-step outputs, preallocated (rows k = 0, every, 2·every, …)

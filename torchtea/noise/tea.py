@@ -28,7 +28,7 @@ import torch
 from torch import Tensor
 
 from ..engines.presets import get_preset
-from ..engines.settings import TEAConfig
+from ..engines.settings import INNOVATION, TEAConfig
 from ..engines.structure import ParametricMatrix, Structure
 from .components import TEAPart
 from .model import NoiseModel, parse_model
@@ -73,8 +73,9 @@ def tea_view(model, values, h: float, base: TEAConfig | None = None) -> TEAView:
     """The TEA's structure and settings for ``model`` at one parameter set ``values`` (a dict of numbers or
     ``(1,)`` tensors, as in ``Fit.values``), on top of ``base`` (default: the paper's MEMS x-axis preset): KFx's
     ``Q0`` and ``R`` from the model, KFo and KFw starting at its orders and poles (their ``R`` the model's
-    measurement variance too), ``noise_scaling = "scaled"``. Raises ``ValueError`` naming the component the TEA
-    cannot run, or a model without a fractional state or without measurement noise."""
+    measurement variance too, unless ``base`` sets it to ``"innovation"``), ``noise_scaling = "scaled"``. Raises
+    ``ValueError`` naming the component the TEA cannot run, or a model without a fractional state or without
+    measurement noise."""
     model = parse_model(model)
     v = model.as_dict(values)
     if next(iter(v.values())).shape[0] != 1:
@@ -137,9 +138,10 @@ def tea_view(model, values, h: float, base: TEAConfig | None = None) -> TEAView:
         P0 = torch.diag(torch.tensor([float(p0) if e else 0.0 for e in estimated], dtype=torch.float64))
         kfx = replace(base.kfx, R=r, Q0=Q0.tolist(), x0=[0.0] * n, P0=P0.tolist())
     one = lambda xs: xs[0] if len(xs) == 1 else list(xs)  # noqa: E731
+    own_r = lambda f: f.R if f.R == INNOVATION else r  # noqa: E731 — "innovation" stays: it is KFx's S, not a number
     config = replace(base, noise_scaling="scaled", kfx=kfx,
-                     kfo=replace(base.kfo, R=r, x0=one(starts)),
-                     kfw=replace(base.kfw, R=r, x0=one(poles)))
+                     kfo=replace(base.kfo, R=own_r(base.kfo), x0=one(starts)),
+                     kfw=replace(base.kfw, R=own_r(base.kfw), x0=one(poles)))
     return TEAView(model, {k: t.clone() for k, t in v.items()}, structure, config, tuple(states), tuple(orders),
                    tuple(params), notes)
 

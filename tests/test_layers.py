@@ -32,7 +32,7 @@ LAYERS = (
     ("torchtea.fitting",),
     ("torchtea.checking",),
     ("torchtea.export",),
-    ("torchtea.reports", "torchtea.studies", "torchtea.identification", "torchtea.sensors.recorder",
+    ("torchtea.reports", "torchtea.studies", "torchtea.identification", "torchtea.estimation", "torchtea.sensors.recorder",
      "torchtea.sensors.live", "torchtea.sensors.fakeimu"),
     ("torchtea.cli", "torchtea"),
 )

@@ -108,19 +108,23 @@ PROGRESS_EVERY_S = 10.0
 def _progress(total, desc, unit="step", *, bar=True):
     """Progress on stderr and a callback ``(done, total)``: a tqdm bar on a terminal (when ``bar``), else a
     line every :data:`PROGRESS_EVERY_S` seconds (``torchtea TEA: 12000/44930 steps (27 %), 31 s elapsed, about
-    85 s left``), so that logs of headless runs show that a long run is alive. Returns ``(step, close)``."""
+    85 s left``), so that logs of headless runs show that a long run is alive. Returns ``(step, close)``. ``total``
+    None: the callback's own ``total`` (a library workflow that knows it only once it has read its input)."""
     if bar and sys.stderr.isatty():
         from tqdm import tqdm
 
         tq = tqdm(total=total, desc=desc, unit=unit, file=sys.stderr, leave=False, mininterval=0.5)
 
         def step(done, _total):
+            if tq.total is None:
+                tq.total = _total
             tq.update(done - tq.n)
 
         return step, tq.close
     start = []  # (time, done) of the first report: the clock starts with the work, not with the command
 
     def line(done, _total):
+        total_ = total if total is not None else _total
         now = time.monotonic()
         if not start:
             start.extend([now, done, now])
@@ -129,8 +133,8 @@ def _progress(total, desc, unit="step", *, bar=True):
         if now - last < PROGRESS_EVERY_S or done <= d0:
             return
         start[2] = now
-        left = (now - t0) * (total - done) / (done - d0)
-        print(f"torchtea {desc}: {done}/{total} {unit}s ({100 * done / total:.0f} %), {now - t0:.0f} s elapsed, "
+        left = (now - t0) * (total_ - done) / (done - d0)
+        print(f"torchtea {desc}: {done}/{total_} {unit}s ({100 * done / total_:.0f} %), {now - t0:.0f} s elapsed, "
               f"about {left:.0f} s left", file=sys.stderr, flush=True)
 
     return line, lambda: None
@@ -475,18 +479,9 @@ def _tea_config(args):
 
 
 def cmd_estimate(args) -> int:
-    import numpy as np
-    import torch
-
-    from .engines.config import write_config
-    from .sensors.datacheck import check_missing, check_timing, stamp_rate
-    from .reports.identify import MIN_SAMPLES, summarise
-    from .sensors.io import InputError, read_series, write_columns
-    from .engines.structure import Structure
-    from .engines.tea import make_params, run_tea
+    from .estimation import estimate_file, estimate_lines
 
     dev = _device(args.device)  # before any work
-
     cfg, source = _tea_config(args)
     cfg = _with_memory(cfg, args.memory)
     if _uncertainty_flags(args):
@@ -496,101 +491,18 @@ def cmd_estimate(args) -> int:
     name = (args.columns or "y").strip()
     if "," in name:
         raise CLIError(f"--columns {args.columns!r}: estimate runs the TEA on one column")
-    try:
-        cols = read_series(args.file, [name], ["u", "t"], allow_missing=True)
-    except InputError as exc:
-        if exc.column != "t":
-            raise
-        # a time column that is not in seconds is not a reason to stop: read the file again without it
-        print(f"torchtea: note: column 't' is not used as time stamps ({exc})", file=sys.stderr)
-        cols = read_series(args.file, [name], ["u"], allow_missing=True)
-    cols["y"] = cols.pop(name) if name != "y" else cols["y"]
-    N = len(cols["y"])
-    if N < MIN_SAMPLES:
-        raise CLIError(f"{args.file}: {N} samples; estimate needs at least {MIN_SAMPLES} (its estimates are "
-                       "summarised over the last third of the run)")
-    missing = check_missing(args.file, cols["y"], [name], allow=args.allow_missing)
-    if missing.count >= N - 1:
-        raise CLIError(f"{args.file}: column {name!r} has {N - missing.count} observed sample(s); nothing to estimate")
-    y = torch.as_tensor(cols["y"]).unsqueeze(-1)
-    u = torch.as_tensor(cols["u"]).unsqueeze(-1) if "u" in cols else None
-    if u is not None and torch.isnan(u).any():
-        raise CLIError(f"{args.file}: column 'u' has missing values; a known input cannot be missing")
-    h, h_source = args.h, "--h"
-    if h is None:
-        rate = stamp_rate(cols["t"]) if "t" in cols else math.nan
-        if not math.isfinite(rate):
-            raise CLIError(f"{args.file}: give the sample time with --h (the file has no increasing time column 't')")
-        h, h_source = 1.0 / rate, "the mean interval of column 't'"
-    timing = check_timing(cols["t"], 1.0 / h, column="t", rate_source=h_source) if "t" in cols else None
-    step, close = _progress(N - 1, "TEA", bar=not args.json)
-    t0 = time.perf_counter()
-    res = run_tea(y.unsqueeze(0).to(dev), h=h, params=make_params(cfg, Structure()),
-                  inputs=None if u is None else u.unsqueeze(0).to(dev), progress=step, compile=args.compile, partial=True)
-    res = res.to("cpu")
-    elapsed = time.perf_counter() - t0
+    step, close = _progress(None, "TEA", bar=not args.json)
+    summary = estimate_file(args.file, cfg, column=name, h=args.h, out=args.out, source=source,
+                            allow_missing=args.allow_missing, device=dev, compile=args.compile, progress=step,
+                            log=lambda line: _note(f"note: {line}"))
     close()
-    done = int(res.alpha.shape[-2])
-    out = Path(args.out) if args.out else Path(args.file).with_suffix(".tea.csv")
-    t = np.arange(done) * h
-    cols_out = {"t": t, "y": cols["y"][:done]}
-    if u is not None:
-        cols_out["u"] = cols["u"][:done]
-    cols_out.update({
-        "x_hat": res.x[0, :, 0], "P": res.P[0, :, 0, 0], "alpha_hat": res.alpha[0, :, 0], "P_alpha": res.P_alpha[0, :, 0, 0],
-        "w_hat": res.w[0, :, 0], "P_w": res.P_w[0, :, 0, 0], "innovation": res.innovation[0, :, 0],
-        "innovation_var": res.innovation_cov[0, :, 0, 0],
-    })
-    write_columns(out, cols_out)
-    write_config(out.with_suffix(".toml"), cfg, {"h": h, "source": source})
-    stats = summarise(res, (cfg,), y=y.unsqueeze(0), h=h, names=("y",), label="column 'y'")
-    s = stats["axes"]["y"]
-    summary = {
-        "alpha_final": s["alpha_final"],
-        "alpha_mean_last_third": s["alpha"],
-        "alpha_std_last_third": s["alpha_std_last_third"],
-        "alpha_filter_sd_final": s["alpha_filter_sd_final"],
-        "param_final": s["param_final"],
-        "param_mean_last_third": s["param"],
-        "param_std_last_third": s["param_std_last_third"],
-        "param_filter_sd_final": s["param_filter_sd_final"],
-        "innovation_nis": s["innovation_nis"],
-        "innovation_nis_last_third": s["innovation_nis_last_third"],
-        "diverged": bool(res.diverged[0]),
-        "diverged_at_step": int(res.diverged_at[0]) if bool(res.diverged[0]) else None,
-        "samples": N,
-        "steps_done": done,
-        "interrupted": bool(res.interrupted),
-        "h": h,
-        "h_source": h_source,
-        "missing_samples": missing.count,
-        "missing": missing.to_dict(),
-        "timing": timing.to_dict() if timing is not None else None,
-        "settings": source,
-        "memory": cfg.memory.spec(),
-        "out": str(out),
-        "seconds": round(elapsed, 3),
-        "last_third": stats["last_third"],
-    }
-    if "memory_clamped_steps" in s:
-        summary["memory_clamped_steps"] = s["memory_clamped_steps"]
-    meaning = dict(stats["meaning"], alpha_mean_last_third=stats["meaning"]["alpha"],
-                   param_mean_last_third=stats["meaning"]["param"])
-    summary["meaning"] = {k: v for k, v in meaning.items() if k in summary}
-    warnings = (list(timing.warnings) if timing is not None else []) + stats["warnings"]
-    summary["warnings"] = warnings
-    for w in warnings:
+    for w in summary["warnings"]:
         print(f"torchtea: warning: {w}", file=sys.stderr)
     if args.json:
         print(strictjson.dumps(summary))
     else:
-        print(f"order α̂: final {summary['alpha_final']:.4f}, mean of last third {summary['alpha_mean_last_third']:.4f} "
-              f"(sd over the last third {summary['alpha_std_last_third']:.4f}: movement, not uncertainty)")
-        print(f"parameter ŵ: final {summary['param_final']:.4f}, mean of last third {summary['param_mean_last_third']:.4f}")
-        print(f"NIS (1 for a consistent filter): last third {_num(summary['innovation_nis_last_third'], '.3f')}, "
-              f"whole run {_num(summary['innovation_nis'], '.3f')}; missing samples: {missing.describe()}")
-        print(f"trajectories: {out}")
-    return 130 if res.interrupted else 0
+        print("\n".join(estimate_lines(summary)))
+    return 130 if summary["interrupted"] else 0
 
 
 # --------------------------------------------------------------------------- identify

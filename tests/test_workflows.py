@@ -63,3 +63,29 @@ def test_the_export_plan_checks_before_any_fit(accel):
         plan_export(accel, ["kalbr"], None)
     with pytest.raises(ValueError, match="needs"):
         plan_export(accel, ["kalibr"], None)  # a gyroscope's noise too: the recording's two axes are accelerometer's
+
+
+def test_estimate_file_is_run_tea_on_the_column(tmp_path):
+    """estimate_file: the TEA on the file's column with the sample time from its stamps, the trajectories written
+    beside it; the same estimates as run_tea on the same samples; too short a file is one InputError naming it."""
+    import numpy as np
+
+    from torchtea.engines.presets import get_preset
+    from torchtea.engines.structure import Structure
+    from torchtea.engines.tea import make_params, run_tea
+    from torchtea.estimation import estimate_file, estimate_lines
+    from torchtea.sensors.io import InputError, write_columns
+
+    y = torch.randn(400, generator=torch.Generator().manual_seed(4), dtype=torch.float64) * 0.02
+    f = write_columns(tmp_path / "s.csv", {"t": torch.arange(400, dtype=torch.float64) * 0.01, "v": y})
+    cfg = get_preset("paper-mems-x")
+    s = estimate_file(f, cfg, column="v", source="test")
+    assert s["h"] == pytest.approx(0.01) and s["h_source"] == "the mean interval of column 't'"
+    ref = run_tea(y.reshape(1, -1, 1), h=s["h"], params=make_params(cfg, Structure()))
+    assert s["alpha_final"] == pytest.approx(float(ref.alpha[0, -1, 0]), rel=1e-12)
+    traj = np.genfromtxt(s["out"], delimiter=",", names=True)
+    assert len(traj) == 400 and traj["alpha_hat"][-1] == pytest.approx(s["alpha_final"], rel=1e-12)
+    assert estimate_lines(s)[-1] == f"trajectories: {s['out']}"
+    short = write_columns(tmp_path / "short.csv", {"y": y[:20]})
+    with pytest.raises(InputError, match="short.csv: 20 samples"):
+        estimate_file(short, cfg, h=0.01)

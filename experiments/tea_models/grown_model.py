@@ -36,14 +36,36 @@ SIGMAS = (0.0, 0.01, 0.05)
 SETTINGS = {"paper": {}, "small-q": {"Q0": 1e-5}, "constant": {"R": "innovation", "Q0": 1e-5}}
 
 
-def case(y, spec, values, pole_held: bool, settings: str = "paper") -> dict:
-    N = y.shape[-1]
-    v = tea_view(spec, values, H)
+def arguments(doc: str, argv=None):
+    """The studies' flags: realisations, steps, seed and the output directory."""
+    ap = argparse.ArgumentParser(description=doc.splitlines()[0])
+    ap.add_argument("--realisations", type=int, default=32)
+    ap.add_argument("--steps", type=int, default=6000)
+    ap.add_argument("--seed", type=int, default=5)
+    ap.add_argument("--out", default=str(Path(__file__).parent))
+    return ap.parse_args(argv)
+
+
+def data(truth: dict, args):
+    """The study's series ``(R, N)``: the truth simulated by the noise simulator, each realisation's mean removed."""
+    y = simulate_model("fractional+white+random-walk", truth, n_steps=args.steps, h=H, realisations=args.realisations,
+                       generator=torch.Generator().manual_seed(args.seed))[0]
+    return y - y.mean(-1, keepdim=True)
+
+
+def tea_config(v, settings: str, pole_held: bool):
+    """The view's settings with ``soe`` memory, KFo's and KFw's changed as :data:`SETTINGS` says, the pole held
+    at its start (KFw's P0 = Q0 = 1e-12) if asked."""
     ch = SETTINGS[settings]
     cfg = replace(v.config, memory=replace(v.config.memory, kind="soe"), kfo=replace(v.config.kfo, **ch),
                   kfw=replace(v.config.kfw, **ch))
-    if pole_held:
-        cfg = replace(cfg, kfw=replace(cfg.kfw, P0=1e-12, Q0=1e-12))
+    return replace(cfg, kfw=replace(cfg.kfw, P0=1e-12, Q0=1e-12)) if pole_held else cfg
+
+
+def case(y, spec, values, pole_held: bool, settings: str = "paper") -> dict:
+    N = y.shape[-1]
+    v = tea_view(spec, values, H)
+    cfg = tea_config(v, settings, pole_held)
     t = time.perf_counter()
     res = run_tea(y.unsqueeze(-1), h=H, params=make_params(cfg, v.structure), structure=v.structure)
     sec = time.perf_counter() - t
@@ -60,18 +82,11 @@ def case(y, spec, values, pole_held: bool, settings: str = "paper") -> dict:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--realisations", type=int, default=32)
-    ap.add_argument("--steps", type=int, default=6000)
-    ap.add_argument("--seed", type=int, default=5)
-    ap.add_argument("--out", default=str(Path(__file__).parent))
-    args = ap.parse_args(argv)
+    args = arguments(__doc__, argv)
     rows = []
     for sigma in SIGMAS:
         truth = dict(FW, **{"random-walk.sigma": sigma if sigma > 0 else 1e-12})
-        y = simulate_model("fractional+white+random-walk", truth, n_steps=args.steps, h=H,
-                           realisations=args.realisations, generator=torch.Generator().manual_seed(args.seed))[0]
-        y = y - y.mean(-1, keepdim=True)
+        y = data(truth, args)
         models = (("fractional+white", FW), ("fractional+white+random-walk", truth))
         for settings, (spec, vals), held in itertools.product(SETTINGS, models, (False, True)):
             r = dict(case(y, spec, vals, held, settings), sigma=sigma)

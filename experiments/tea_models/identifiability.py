@@ -16,21 +16,17 @@ writes identifiability.json and identifiability.md there (about 10 min on one co
 """
 from __future__ import annotations
 
-import argparse
 import itertools
 import json
 import time
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
-import torch
 
-from grown_model import FW, H, SETTINGS
+from grown_model import FW, H, SETTINGS, arguments, data, tea_config
 from torchtea.core.stats import last_third
 from torchtea.engines.tea import make_params, run_tea
 from torchtea.fitting import fit_series
-from torchtea.noise import simulate_model
 from torchtea.noise.tea import tea_view
 
 MODEL = "fractional+white+random-walk"
@@ -46,11 +42,7 @@ def spread(a: np.ndarray, truth: float) -> dict:
 
 def tea_case(y, start: float, settings: str, held: bool) -> dict:
     v = tea_view(MODEL, dict(TRUTH, **{"fractional.order": start}), H)
-    ch = SETTINGS[settings]
-    cfg = replace(v.config, memory=replace(v.config.memory, kind="soe"), kfo=replace(v.config.kfo, **ch),
-                  kfw=replace(v.config.kfw, **ch))
-    if held:
-        cfg = replace(cfg, kfw=replace(cfg.kfw, P0=1e-12, Q0=1e-12))
+    cfg = tea_config(v, settings, held)
     res = run_tea(y.unsqueeze(-1), h=H, params=make_params(cfg, v.structure), structure=v.structure)
     sl = last_third(y.shape[-1])
     a = res.alpha[:, sl, 0].mean(-1).numpy()
@@ -60,15 +52,8 @@ def tea_case(y, start: float, settings: str, held: bool) -> dict:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--realisations", type=int, default=32)
-    ap.add_argument("--steps", type=int, default=6000)
-    ap.add_argument("--seed", type=int, default=5)
-    ap.add_argument("--out", default=str(Path(__file__).parent))
-    args = ap.parse_args(argv)
-    y = simulate_model(MODEL, TRUTH, n_steps=args.steps, h=H, realisations=args.realisations,
-                       generator=torch.Generator().manual_seed(args.seed))[0]
-    y = y - y.mean(-1, keepdim=True)
+    args = arguments(__doc__, argv)
+    y = data(TRUTH, args)
     rows = []
     for start, settings, held in itertools.product(STARTS, ("paper", "constant"), (False, True)):
         r = tea_case(y, start, settings, held)

@@ -133,3 +133,35 @@ def test_the_models_view_keeps_innovation_r_and_fills_a_number_otherwise():
     v = tea_view("fractional+white+random-walk", dict(FW, **{"random-walk.sigma": 0.01}), H,
                  replace(base, kfo=replace(base.kfo, R=INNOVATION)))
     assert v.config.kfo.R == INNOVATION and v.config.kfw.R == pytest.approx(1e-5)
+
+
+def test_the_guard_checks_the_carried_innovation_covariance():
+    """KFx's S is part of the carry under "innovation", so the divergence guard checks it as every other entry: a
+    drive Q so large that S (not x) leaves the limit freezes the realisations at the same step in both engines; with
+    a numeric R nothing is carried and nothing is flagged there."""
+    mems = get_preset("paper-mems-x")
+    cfg = replace(mems, kfx=replace(mems.kfx, Q0=1e12), divergence_limit=1e6)  # h^{2α} Q ≫ 1e6, P after an update ≈ R
+    y = _series(N=50, B=2)
+    flagged = {}
+    for engine in ("torch", "numba"):
+        on = run_tea(y, h=H, params=make_params(_innovation(cfg), Structure()), engine=engine)
+        off = run_tea(y, h=H, params=make_params(cfg, Structure()), engine=engine)
+        assert not bool(off.diverged.any())
+        flagged[engine] = on.diverged_at.tolist()
+    assert flagged["torch"] == flagged["numba"] and min(flagged["torch"]) >= 0
+
+
+@pytest.mark.parametrize("engine", ["torch", "numba"])
+def test_a_stream_with_innovation_r_is_the_run(engine):
+    """TEAStream carries S between samples: fed the series one sample at a time it gives run_tea's estimates."""
+    mems = get_preset("paper-mems-x")
+    cfg = _innovation(replace(mems, memory=replace(mems.memory, kind="soe")))
+    y = _series(N=200, B=2)
+    y[1, 30] = float("nan")
+    params = make_params(cfg, Structure())
+    ref = run_tea(y, h=H, params=params, engine=engine)
+    stream = TEAStream(h=H, params=params, batch=(2,), horizon=200, engine=engine)
+    rows = [stream.step(y[:, k])[0] for k in range(200)]
+    torch.testing.assert_close(torch.stack([c.alpha for c in rows], 1), ref.alpha, rtol=1e-12, atol=1e-14)
+    torch.testing.assert_close(torch.stack([c.w for c in rows], 1), ref.w, rtol=1e-12, atol=1e-14)
+    assert rows[-1].S is not None

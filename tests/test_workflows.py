@@ -37,8 +37,12 @@ def test_fit_recording_is_fit_series_per_channel(accel):
 
 
 def test_the_bootstrap_rule():
+    import torchtea.cli
+    import torchtea.fitting.recording
+
     assert bootstrap_replicates(1000, None) == 99 and bootstrap_replicates(10**6, None) == 0
     assert bootstrap_replicates(10**6, 5) == 5
+    assert torchtea.cli.BOOTSTRAP_LIMIT == torchtea.fitting.recording.BOOTSTRAP_LIMIT  # fit's help says it
 
 
 def test_check_measurements_is_check_per_channel_and_its_lines_name_each(accel):
@@ -85,7 +89,8 @@ def test_estimate_file_is_run_tea_on_the_column(tmp_path):
     assert s["alpha_final"] == pytest.approx(float(ref.alpha[0, -1, 0]), rel=1e-12)
     traj = np.genfromtxt(s["out"], delimiter=",", names=True)
     assert len(traj) == 400 and traj["alpha_hat"][-1] == pytest.approx(s["alpha_final"], rel=1e-12)
-    assert estimate_lines(s)[-1] == f"trajectories: {s['out']}"
+    lines = estimate_lines(s)
+    assert lines[-1] == f"trajectories: {s['out']}" and lines[2].endswith("missing samples: none of 400 samples missing")
     short = write_columns(tmp_path / "short.csv", {"y": y[:20]})
     with pytest.raises(InputError, match="short.csv: 20 samples"):
         estimate_file(short, cfg, h=0.01)

@@ -15,6 +15,9 @@ __all__ = ["main"]
 
 #: Above this many samples `identify` warns that the exact O(N²) history sums take minutes.
 LONG_RECORDING = 20000
+#: torchtea.fitting.recording.BOOTSTRAP_LIMIT, for fit's help without importing the fitting layer (which takes about
+#: a second: the help of every command is built at start-up); tests/test_workflows.py checks that the two agree.
+BOOTSTRAP_LIMIT = 200_000
 
 
 class CLIError(Exception):
@@ -113,14 +116,15 @@ def _progress(total, desc, unit="step", *, bar=True):
     if bar and sys.stderr.isatty():
         from tqdm import tqdm
 
-        tq = tqdm(total=total, desc=desc, unit=unit, file=sys.stderr, leave=False, mininterval=0.5)
+        bars = []  # opened at the first report: notes and errors before the work starts print without a bar
 
         def step(done, _total):
-            if tq.total is None:
-                tq.total = _total
-            tq.update(done - tq.n)
+            if not bars:
+                bars.append(tqdm(total=total if total is not None else _total, desc=desc, unit=unit, file=sys.stderr,
+                                 leave=False, mininterval=0.5))
+            bars[0].update(done - bars[0].n)
 
-        return step, tq.close
+        return step, lambda: bars and bars[0].close()
     start = []  # (time, done) of the first report: the clock starts with the work, not with the command
 
     def line(done, _total):
@@ -338,10 +342,12 @@ def _check_channels(args, m, inputs, *, auto: bool, intervals: bool) -> dict:
 
     levels = {k: getattr(args, k) for k in ("level", "screen_level") if hasattr(args, k)}  # (else check's own)
     step, close = _progress(len(m.channels), "check", "channel", bar=not getattr(args, "json", False))
-    results = check_measurements(m, args.model, inputs=inputs, add=getattr(args, "add", []), auto=auto,
-                                 max_steps=getattr(args, "max_steps", 6), strong=getattr(args, "strong", None),
-                                 intervals=intervals, levels=levels, progress=step, log=_note)
-    close()
+    try:
+        results = check_measurements(m, args.model, inputs=inputs, add=getattr(args, "add", []), auto=auto,
+                                     max_steps=getattr(args, "max_steps", 6), strong=getattr(args, "strong", None),
+                                     intervals=intervals, levels=levels, progress=step, log=_note)
+    finally:
+        close()
     return results
 
 
@@ -492,10 +498,13 @@ def cmd_estimate(args) -> int:
     if "," in name:
         raise CLIError(f"--columns {args.columns!r}: estimate runs the TEA on one column")
     step, close = _progress(None, "TEA", bar=not args.json)
-    summary = estimate_file(args.file, cfg, column=name, h=args.h, out=args.out, source=source,
-                            allow_missing=args.allow_missing, device=dev, compile=args.compile, progress=step,
-                            log=lambda line: _note(f"note: {line}"))
-    close()
+    try:  # the run reports (k, N) for steps k = 1 … N − 1: N − 1 steps
+        summary = estimate_file(args.file, cfg, column=name, h=args.h, out=args.out, source=source,
+                                allow_missing=args.allow_missing, device=dev, compile=args.compile,
+                                progress=lambda done, total: step(done, total - 1),
+                                log=lambda line: _note(f"note: {line}"))
+    finally:
+        close()
     for w in summary["warnings"]:
         print(f"torchtea: warning: {w}", file=sys.stderr)
     if args.json:
@@ -994,7 +1003,7 @@ def build_parser() -> argparse.ArgumentParser:
                          "--method whittle, where it is the order's interval)")
     fp.add_argument("--bootstrap", type=int, default=None,
                     help="replicates of the fractional-presence test (0: do not test; default 99, 0 above "
-                         f"{_bootstrap_limit()} samples)")
+                         f"{BOOTSTRAP_LIMIT} samples)")
     fp.add_argument("--seed", type=int, default=0, help="seed of the bootstrap")
     fp.add_argument("--out", help="write the JSON document to this file")
     fp.add_argument("--json", action="store_true", help="print the JSON document")
@@ -1129,12 +1138,6 @@ def _model_inputs(args, models, m, *, note: bool = True):
     return None if args.temperature is None else {"temperature": m.temperature_input()}
 
 
-def _bootstrap_limit() -> int:
-    from .fitting.recording import BOOTSTRAP_LIMIT
-
-    return BOOTSTRAP_LIMIT
-
-
 def cmd_fit(args) -> int:
     from .fitting.recording import fit_lines, fit_recording
     from .noise import parse_model
@@ -1145,9 +1148,12 @@ def cmd_fit(args) -> int:
     plan = _export_plan(args, m, args.export)
     inputs = _model_inputs(args, [model], m)
     step, close = _progress(len(m.channels), "fit " + model.spec, "channel", bar=not args.json)
-    doc, fits = fit_recording(m, model, inputs=inputs, method=args.method, bootstrap=args.bootstrap, seed=args.seed,
-                              profile=args.profile, progress=step, log=lambda line: _note(f"note: {line}"))
-    close()
+    try:
+        doc, fits = fit_recording(m, model, inputs=inputs, method=args.method, bootstrap=args.bootstrap,
+                                  seed=args.seed, profile=args.profile, progress=step,
+                                  log=lambda line: _note(f"note: {line}"))
+    finally:
+        close()
     doc["command"] = "torchtea " + " ".join(sys.argv[1:]) if sys.argv[1:] else ""
     if args.out:
         write(Path(args.out), doc)

@@ -98,7 +98,6 @@ def estimate_file(file, config, *, column: str = "y", h: float | None = None, ou
         "h_source": h_source,
         "missing_samples": missing.count,
         "missing": missing.to_dict(),
-        "missing_description": missing.describe(),
         "timing": timing.to_dict() if timing is not None else None,
         "settings": source,
         "memory": config.memory.spec(),
@@ -109,8 +108,7 @@ def estimate_file(file, config, *, column: str = "y", h: float | None = None, ou
     if "memory_clamped_steps" in s:
         summary["memory_clamped_steps"] = s["memory_clamped_steps"]
     meaning = dict(stats["meaning"], alpha_mean_last_third=stats["meaning"]["alpha"],
-                   param_mean_last_third=stats["meaning"]["param"],
-                   missing_description="the missing samples in words")
+                   param_mean_last_third=stats["meaning"]["param"])
     summary["meaning"] = {k: v for k, v in meaning.items() if k in summary}
     summary["warnings"] = (list(timing.warnings) if timing is not None else []) + stats["warnings"]
     return summary
@@ -119,12 +117,14 @@ def estimate_file(file, config, *, column: str = "y", h: float | None = None, ou
 def estimate_lines(summary: dict) -> list[str]:
     """The text summary of :func:`estimate_file`'s result."""
     from .render.text import num
+    from .sensors.datacheck import Missing
 
+    missing = Missing.from_dict(summary["missing"]).describe()
     return [
         f"order α̂: final {summary['alpha_final']:.4f}, mean of last third {summary['alpha_mean_last_third']:.4f} "
         f"(sd over the last third {summary['alpha_std_last_third']:.4f}: movement, not uncertainty)",
         f"parameter ŵ: final {summary['param_final']:.4f}, mean of last third {summary['param_mean_last_third']:.4f}",
         f"NIS (1 for a consistent filter): last third {num(summary['innovation_nis_last_third'], '.3f')}, "
-        f"whole run {num(summary['innovation_nis'], '.3f')}; missing samples: {summary['missing_description']}",
+        f"whole run {num(summary['innovation_nis'], '.3f')}; missing samples: {missing}",
         f"trajectories: {summary['out']}",
     ]

@@ -22,7 +22,6 @@ import numpy as np
 import torch
 
 from .results import STEP_OUTPUTS, Carry, TEAResult, ut_weights
-from .settings import INNOVATION
 
 __all__ = ["fast_path_reason", "use_compiled", "run_tea_fast", "BLOCK"]
 
@@ -228,7 +227,7 @@ class FastTEA:
             start=int(cfg.sigma_sum_start), lo=lo, hi=hi, limit=float(cfg.divergence_limit),
             delta_o=float(cfg.kfo.delta), delta_w=float(cfg.kfw.delta),
             mode=KFX_UNCERTAINTIES.index(cfg.kfx_uncertainty), const=cfg.estimate_uncertainty == "constant-truth",
-            inn_o=cfg.kfo.R == INNOVATION, inn_w=cfg.kfw.R == INNOVATION,
+            inn_o=cfg.kfo.uses_innovation, inn_w=cfg.kfw.uses_innovation,
             wm_o=wm_o, wc_o=wc_o, scale_o=sc_o, wm_w=wm_w, wc_w=wc_w, scale_w=sc_w,
             kind=kind, xl=xl, pl=pl, H=H, ka=ka, kb=kb, kbig=float(np.abs(kb[:-1]).max(initial=0.0)), decay=decay,
             inject=inject, eta=eta, klo=klo, khi=khi, count_lo=klo if kind == 1 else -math.inf,

@@ -72,6 +72,11 @@ class UnscentedConfig:
     delta: float = 0.5
     Q_max: float | str = "Q0"
 
+    @property
+    def uses_innovation(self) -> bool:
+        """Whether ``R`` is ``"innovation"`` (KFx's innovation covariance), not a number."""
+        return isinstance(self.R, str) and self.R == INNOVATION
+
     def __post_init__(self):
         if isinstance(self.R, str) and self.R != INNOVATION:
             raise ValueError(f"R must be a number, a list of numbers or {INNOVATION!r}, got {self.R!r}")
@@ -197,7 +202,7 @@ class TEAConfig:
     @property
     def innovation_r(self) -> bool:
         """Whether KFo or KFw takes KFx's innovation covariance as its R (``R = "innovation"``)."""
-        return INNOVATION in (self.kfo.R, self.kfw.R)
+        return self.kfo.uses_innovation or self.kfw.uses_innovation
 
     @classmethod
     def from_dict(cls, data: dict, base: "TEAConfig | None" = None) -> "TEAConfig":

@@ -122,7 +122,7 @@ def make_params(config: TEAConfig, structure: Structure, *, dtype=torch.float64,
 
 def _r(value, size: int, like: Tensor, name: str) -> Tensor:
     """KFo's or KFw's R as a matrix; NaN for ``"innovation"`` (the step takes ``Carry.S`` then, never this)."""
-    if value == INNOVATION:
+    if isinstance(value, str) and value == INNOVATION:
         return torch.full((size, size), math.nan, dtype=like.dtype, device=like.device)
     return _mat(value, size, like, name)
 
@@ -146,7 +146,7 @@ def stack_params(params: Sequence[TEAParams]) -> TEAParams:
     first = params[0].config
 
     def strip(c: TEAConfig):
-        keep = lambda f: replace(f, x0=0, P0=0, Q0=0, R=f.R if f.R == INNOVATION else 0)  # noqa: E731
+        keep = lambda f: replace(f, x0=0, P0=0, Q0=0, R=f.R if getattr(f, "uses_innovation", False) else 0)  # noqa: E731
         cap = lambda f: replace(keep(f), Q_max=1.0 if f.Q_max != "none" else "none")  # noqa: E731
         return replace(c, kfx=keep(c.kfx), kfo=cap(c.kfo), kfw=cap(c.kfw))
 
@@ -449,8 +449,8 @@ def _tea_step(model: _Model, params: TEAParams, weights, memory, carry: Carry, y
     sig_w = _sigma_points(carry.w, Pw_t, scale_w)
     Y, chi = _replica(model, memory, hist, model.full(sig_o), carry.w, sig_w, carry.x, u_prev)
     So = sig_o.shape[-2]
-    Ro = carry.S if cfg.kfo.R == INNOVATION else params.Ro
-    Rw = carry.S if cfg.kfw.R == INNOVATION else params.Rw
+    Ro = carry.S if cfg.kfo.uses_innovation else params.Ro
+    Rw = carry.S if cfg.kfw.uses_innovation else params.Rw
     alpha, Po, Ko, eo, Pyy_o, Pxy_o = _ut_update(sig_o, Y[..., :So, :], carry.alpha, Po_t, Ro, y0, mask,
                                                  wm_o, wc_o, start)
     lo, hi = cfg.order_bounds

@@ -28,7 +28,7 @@ import torch
 from torch import Tensor
 
 from ..engines.presets import get_preset
-from ..engines.settings import INNOVATION, TEAConfig
+from ..engines.settings import TEAConfig
 from ..engines.structure import ParametricMatrix, Structure
 from .components import TEAPart
 from .model import NoiseModel, parse_model
@@ -138,7 +138,7 @@ def tea_view(model, values, h: float, base: TEAConfig | None = None) -> TEAView:
         P0 = torch.diag(torch.tensor([float(p0) if e else 0.0 for e in estimated], dtype=torch.float64))
         kfx = replace(base.kfx, R=r, Q0=Q0.tolist(), x0=[0.0] * n, P0=P0.tolist())
     one = lambda xs: xs[0] if len(xs) == 1 else list(xs)  # noqa: E731
-    own_r = lambda f: f.R if f.R == INNOVATION else r  # noqa: E731 — "innovation" stays: it is KFx's S, not a number
+    own_r = lambda f: f.R if f.uses_innovation else r  # noqa: E731 — "innovation" stays: it is KFx's S, not a number
     config = replace(base, noise_scaling="scaled", kfx=kfx,
                      kfo=replace(base.kfo, R=own_r(base.kfo), x0=one(starts)),
                      kfw=replace(base.kfw, R=own_r(base.kfw), x0=one(poles)))

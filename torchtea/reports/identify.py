@@ -74,7 +74,9 @@ def _meaning(k0: int, N: int, h: float, config: TEAConfig) -> dict:
         "param_std_last_third": "standard deviation of ŵ over the last third (movement, not uncertainty)",
         "param_final": "ŵ at the last sample",
         "param_filter_sd_final": f"√Pʷ at the last sample: {filter_sd_label(config, 'KFw')}",
-        "R": "measurement-noise variance R given to KFx (= Rᵒ = Rʷ) [unit²]",
+        "R": "measurement-noise variance R given to KFx [unit²]; KFo's and KFw's R "
+             + ("KFx's innovation covariance of the step before where set to \"innovation\" (kfo.R/kfw.R), "
+                "else this R" if config.innovation_r else "the same"),
         "innovation_nis": "mean normalised innovation squared e²/S of KFx over the whole run (observed samples, "
                           "k ≥ 1); 1 for a consistent filter",
         "innovation_nis_last_third": f"the same over the last third, {span}",

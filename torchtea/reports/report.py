@@ -113,6 +113,8 @@ def write_report(path, ident: Identification, summary: dict, figures: list, *, c
                     summary.get("r_mode"), "the paper's printed values")
                 + f"; GL history `{summary.get('memory', 'exact')}`; each axis's mean removed"
                 + f"; {_uncertainty_note(ident.configs[0])}"
+                + ("; KFo's / KFw's R: KFx's innovation covariance of the step before where `R = \"innovation\"` "
+                   "(not in the paper)" if ident.configs[0].innovation_r else "")
                 + (" — except where listed below" if ident.changes else ""))
     src.append(settings)
     if ident.changes:

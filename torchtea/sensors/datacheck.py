@@ -73,6 +73,12 @@ class Missing:
         return {"count": self.count, "of": self.samples, "per_column": dict(self.per_column),
                 "ranges": [list(r) for r in self.ranges]}
 
+    @classmethod
+    def from_dict(cls, d: dict) -> "Missing":
+        """The inverse of :meth:`to_dict`."""
+        return cls(samples=d["of"], count=d["count"], per_column=dict(d["per_column"]),
+                   ranges=[list(r) for r in d["ranges"]])
+
 
 def find_missing(values: np.ndarray, names) -> Missing:
     """``values`` ``(N, k)`` (or ``(N,)``) with NaN for missing; ``names`` the ``k`` column names."""

@@ -36,7 +36,7 @@ from torch import Tensor
 from ..core.gl import broadcast_shapes, gl_tail_coefficients, history_sum
 from ..core.memory import BoundedHistory, MemoryConfig, cov_tail_mass, gl_coefficients_at, memory_plan
 from .results import STEP_OUTPUTS, Carry, StepOutput, TEAResult, ut_weights
-from .settings import INNOVATION, TEAConfig
+from .settings import TEAConfig
 from .structure import Structure
 
 __all__ = [
@@ -111,20 +111,21 @@ def make_params(config: TEAConfig, structure: Structure, *, dtype=torch.float64,
         x0=_vec(x.x0, n, like, "kfx.x0"), P0=_mat(x.P0, n, like, "kfx.P0"),
         Q=_mat(x.Q0, n, like, "kfx.Q0"), R=_mat(x.R, p, like, "kfx.R"),
         alpha0=_vec(o.x0, L, like, "kfo.x0"), P0o=_mat(o.P0, L, like, "kfo.P0"),
-        Q0o=Q0o, Ro=_r(o.R, p, like, "kfo.R"),
+        Q0o=Q0o, Ro=_r(o, p, like, "kfo.R"),
         w0=_vec(w.x0, m, like, "kfw.x0"), P0w=_mat(w.P0, m, like, "kfw.P0"),
-        Q0w=Q0w, Rw=_r(w.R, p, like, "kfw.R"),
+        Q0w=Q0w, Rw=_r(w, p, like, "kfw.R"),
         Qmax_o=_q_cap(o.Q_max, Q0o, like),
         Qmax_w=_q_cap(w.Q_max, Q0w, like),
         config=config,
     )
 
 
-def _r(value, size: int, like: Tensor, name: str) -> Tensor:
-    """KFo's or KFw's R as a matrix; NaN for ``"innovation"`` (the step takes ``Carry.S`` then, never this)."""
-    if isinstance(value, str) and value == INNOVATION:
+def _r(f, size: int, like: Tensor, name: str) -> Tensor:
+    """KFo's or KFw's R (``f`` its :class:`UnscentedConfig`) as a matrix; NaN for ``"innovation"`` (the step takes
+    ``Carry.S`` then, never this)."""
+    if f.uses_innovation:
         return torch.full((size, size), math.nan, dtype=like.dtype, device=like.device)
-    return _mat(value, size, like, name)
+    return _mat(f.R, size, like, name)
 
 
 def _q_cap(q_max, Q0: Tensor, like: Tensor) -> Tensor:
@@ -146,8 +147,10 @@ def stack_params(params: Sequence[TEAParams]) -> TEAParams:
     first = params[0].config
 
     def strip(c: TEAConfig):
-        keep = lambda f: replace(f, x0=0, P0=0, Q0=0, R=f.R if getattr(f, "uses_innovation", False) else 0)  # noqa: E731
-        cap = lambda f: replace(keep(f), Q_max=1.0 if f.Q_max != "none" else "none")  # noqa: E731
+        keep = lambda f: replace(f, x0=0, P0=0, Q0=0, R=0)  # noqa: E731
+        # KFo's and KFw's: the cap's kind and whether R is "innovation" must agree, not their numbers
+        cap = lambda f: replace(keep(f), Q_max=1.0 if f.Q_max != "none" else "none",  # noqa: E731
+                                R=f.R if f.uses_innovation else 0)
         return replace(c, kfx=keep(c.kfx), kfo=cap(c.kfo), kfw=cap(c.kfw))
 
     for p in params[1:]:

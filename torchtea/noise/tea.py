@@ -88,11 +88,12 @@ def tea_view(model, values, h: float, base: TEAConfig | None = None) -> TEAView:
         notes[label] = comp.tea_note
         if part is not None:
             parts.append((label, part))
-    if not any(p.estimated for _, p in parts):
+    fractional = sum(p.estimated for _, p in parts)
+    if not fractional:
         raise ValueError(f"model {model.spec!r} has no fractional state: the TEA estimates a fractional order")
-    if sum(p.estimated for _, p in parts) > 1:
-        raise ValueError(f"model {model.spec!r} has {sum(p.estimated for _, p in parts)} fractional states: the "
-                         "TEA's view runs one (its summaries and studies read one order and one pole)")
+    if fractional > 1:
+        raise ValueError(f"model {model.spec!r} has {fractional} fractional states: the TEA's view runs one (its "
+                         "summaries and studies read one order and one pole)")
     r = float(model.measurement_variance(v)[0])
     if not r > 0:
         raise ValueError(f"model {model.spec!r} has no measurement noise (white or quantisation): the TEA's "

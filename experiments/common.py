@@ -7,7 +7,7 @@ from pathlib import Path
 
 import torch
 
-from torchtea.engines.simulate import simulate_noise_model
+from torchtea.noise.simulate import simulate_noise_model
 
 ROOT = Path(__file__).resolve().parent
 

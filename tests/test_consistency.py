@@ -12,7 +12,7 @@ from torchtea.core.gl import gl_coefficients
 from torchtea.core.memory import parse_memory
 from torchtea.engines.presets import SCENARIOS, get_preset
 from torchtea.engines.settings import TEAConfig, UnscentedConfig
-from torchtea.engines.simulate import gaussian_input, simulate
+from torchtea.noise.simulate import gaussian_input, simulate
 from torchtea.engines.structure import Structure
 from torchtea.engines.tea import (_constant_truth_cov, _estimate_uncertainty, _sigma_points, _ut_update, make_params,
                                   run_tea, ut_weights)

@@ -8,7 +8,7 @@ import torch
 
 from torchtea.core.memory import parse_memory
 from torchtea.engines.presets import SCENARIOS, get_preset
-from torchtea.engines.simulate import gaussian_input, simulate
+from torchtea.noise.simulate import gaussian_input, simulate
 from torchtea.engines.structure import ConstantOrder, Structure
 from torchtea.engines.tea import TEAStream, make_params, run_tea, stack_params
 

@@ -8,7 +8,7 @@ import torch
 from torchtea.core.gl import difference
 from torchtea.engines.structure import (ConstantOrder, FunctionOrder, InputOrder, LinearOrder, ParabolicOrder, Structure,
                             parse_order_spec)
-from torchtea.engines.simulate import gaussian_input, simulate
+from torchtea.noise.simulate import gaussian_input, simulate
 
 
 @pytest.mark.parametrize("order", [ConstantOrder(0.4), LinearOrder(0.2, 0.5), ParabolicOrder(0.2, 0.3),
@@ -110,25 +110,84 @@ def test_order_spec_roundtrip():
         FunctionOrder(lambda t: t).spec()
 
 
-@pytest.mark.parametrize("memory", ["soe", "window:40"])
-# orders that keep the recursion stable (an order rising to 4 amplifies rounding by ~100 over these 800 steps)
+def _paper_values(B=1):
+    one = lambda v: torch.full((B,), v, dtype=torch.float64)  # noqa: E731
+    return {"fractional.order": one(0.4), "fractional.pole": one(-2.0), "fractional.q": one(0.01), "white.r": one(1e-3)}
+
+
+@pytest.mark.parametrize("order", [None, LinearOrder(0.2, 0.05), FunctionOrder(lambda t: 0.5 + 0.2 * torch.sin(3 * t))])
+@pytest.mark.parametrize("forced", [False, True])
+def test_exact_recursion_equals_the_state_space_with_the_whole_past(order, forced):
+    """Two recursions of one model: the fractional component's own (``run_exact``, the GL sum over the whole past) and
+    the state space's with ``exact`` memory (every past sample a state, row 0 the GL coefficients; forced here by a
+    random walk of zero drive beside it, which makes the model one of several states). Same draws, same orders and
+    forcing, x0 ≠ 0: the same series to float64 rounding (they sum in other orders)."""
+    from torchtea.noise import simulate_states
+
+    N, R = 300, 3
+    g = torch.Generator().manual_seed(8)
+    xi = torch.randn(1, R, N, 2, generator=g, dtype=torch.float64)
+    nu = torch.randn(1, R, N, generator=g, dtype=torch.float64)
+    u = 0.3 * torch.randn(1, R, N, generator=g, dtype=torch.float64) if forced else None
+    a = None if order is None else order.values(N, 0.01, 1)[:, 0]
+    kw = dict(n_steps=N, h=0.01, realisations=R, memory="exact", orders=a, forcing=u, x0=0.05, keep=[0])
+    own = simulate_states("fractional+white", _paper_values(), draws=(xi[..., :1], nu), **kw)
+    v = dict(_paper_values(), **{"random-walk.sigma": torch.zeros(1, dtype=torch.float64)})
+    stacked = simulate_states("fractional+white+random-walk", v, draws=(xi, nu), **kw)
+    scale = float(own.x.abs().max())
+    torch.testing.assert_close(own.x, stacked.x, rtol=0, atol=1e-12 * scale)
+    torch.testing.assert_close(own.y, stacked.y, rtol=0, atol=1e-12 * scale)
+    assert torch.equal(own.alpha, stacked.alpha) and own.alpha.shape == (1, R, N, 1)
+    assert float(own.x[..., 0, 0].sub(0.05).abs().max()) == 0.0
+    if order is not None:
+        torch.testing.assert_close(own.alpha[0, 0, :, 0], a)
+
+
 @pytest.mark.parametrize("order", [ConstantOrder(0.4), LinearOrder(0.2, 0.05), FunctionOrder(lambda t: 0.5 + 0.2 * torch.sin(3 * t))])
 @pytest.mark.parametrize("batch", [(), (3,), (2, 2)])
-def test_compiled_bounded_simulation_equals_the_torch_loop(monkeypatch, memory, order, batch):
-    """Fast path against the obvious one: the compiled loop (scalar model, bounded memory, CPU, float64) and the
-    torch loop give the same series to float64 rounding (they sum the window and the modes in other orders)."""
-    import torchtea.engines.simulate as sim_mod
-
-    def run():
+def test_soe_memory_against_the_whole_past(order, batch):
+    """The paper's simulator under ``soe`` memory (the model's state space, compiled) against its exact recursion,
+    same draws: within the kernel's tolerance (every coefficient to relative 1e-8, so the series to far less than
+    1e-6 of its scale). ``window:L`` against the model whose GL sum stops after L lags: tests/test_memory.py."""
+    def run(mem):
         g = torch.Generator().manual_seed(11)
         u = gaussian_input(batch, 800, 1, 0.3, generator=g)
         return simulate(Structure(), n_steps=800, h=0.01, order=order, parameters=[-2.0], process_noise=0.01,
-                        measurement_noise=1e-3, inputs=u, batch_shape=batch, generator=g, memory=memory)
+                        measurement_noise=1e-3, inputs=u, batch_shape=batch, generator=g, memory=mem)
 
-    fast = run()
-    monkeypatch.setattr(sim_mod, "fast_path_reason", lambda *a: "the torch loop, for the comparison")
-    slow = run()
-    scale = float(slow.x.abs().max())
-    assert float((fast.x - slow.x).abs().max()) <= 1e-12 * scale
-    torch.testing.assert_close(fast.y, slow.y, rtol=0, atol=1e-12 * scale)
-    assert torch.equal(fast.alpha, slow.alpha) and torch.equal(fast.process_noise, slow.process_noise)
+    bounded, exact = run("soe"), run("exact")
+    assert bounded.x.shape == exact.x.shape == batch + (800, 1)
+    assert torch.equal(bounded.alpha, exact.alpha) and torch.equal(bounded.process_noise, exact.process_noise)
+    assert torch.equal(bounded.u, exact.u)
+    scale = float(exact.x.abs().max())
+    assert 0 < float((bounded.x - exact.x).abs().max()) <= 1e-6 * scale
+
+
+def test_the_paper_simulator_refuses_what_it_does_not_run():
+    from torchtea.engines.structure import ParametricMatrix
+
+    two = Structure(A=ParametricMatrix(torch.zeros(2, 2, dtype=torch.float64), torch.eye(2, dtype=torch.float64)[None]),
+                    B=torch.ones(2, 1, dtype=torch.float64), C=torch.ones(1, 2, dtype=torch.float64),
+                    estimated=(True, False), fixed_orders=torch.ones(2, dtype=torch.float64))
+    with pytest.raises(ValueError, match="scalar structure"):
+        simulate(two, n_steps=10, h=0.01, order=ConstantOrder(0.4), parameters=[-1.0], process_noise=1.0,
+                 measurement_noise=1.0)
+    with pytest.raises(ValueError, match="does not differentiate"):
+        simulate(Structure(), n_steps=10, h=0.01, order=ConstantOrder(0.4),
+                 parameters=torch.tensor([-1.0], dtype=torch.float64, requires_grad=True), process_noise=1.0,
+                 measurement_noise=1.0)
+
+
+def test_the_model_simulator_names_what_it_cannot_take():
+    from torchtea.noise import simulate_states
+
+    with pytest.raises(ValueError, match="no fractional component"):
+        simulate_states("random-walk+white", {"random-walk.sigma": [0.1], "white.r": [1e-3]}, n_steps=10, h=0.01,
+                        forcing=torch.zeros(10))
+    with pytest.raises(ValueError, match="orders must have shape"):
+        simulate_states("fractional+white", _paper_values(), n_steps=10, h=0.01, orders=torch.full((7,), 0.3))
+    with pytest.raises(ValueError, match="draws must have shapes"):
+        simulate_states("fractional+white", _paper_values(), n_steps=10, h=0.01,
+                        draws=(torch.zeros(1, 1, 9, 1), torch.zeros(1, 1, 10)))
+    with pytest.raises(ValueError, match="keep"):
+        simulate_states("fractional+white", _paper_values(), n_steps=10, h=0.01, keep=[999])

@@ -8,7 +8,7 @@ import torch
 
 from torchtea.engines.structure import ConstantOrder, Structure
 from torchtea.engines.presets import SCENARIOS, get_preset
-from torchtea.engines.simulate import gaussian_input, simulate
+from torchtea.noise.simulate import gaussian_input, simulate
 from torchtea.engines.tea import _ExactMemory, _replica, _Model, _sigma_points, make_params, run_tea, stack_params, ut_weights
 from torchtea.engines.settings import TEAConfig
 

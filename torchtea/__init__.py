@@ -18,7 +18,7 @@ from .core.memory import MemoryConfig, parse_memory
 from .engines.structure import (ConstantOrder, FunctionOrder, InputOrder, LinearOrder, OrderSchedule, ParabolicOrder,
                     ParametricMatrix, Structure, parse_order_spec)
 from .engines.presets import PRESETS, SCENARIOS, get_preset
-from .engines.simulate import Simulation, gaussian_input, simulate
+from .noise.simulate import Simulation, gaussian_input, simulate
 from .engines.tea import TEAParams, TEAResult, make_params, run_tea, stack_params
 from .engines.settings import StateFilterConfig, TEAConfig, UnscentedConfig
 

@@ -225,7 +225,7 @@ def cmd_simulate(args) -> int:
 
     from .sensors.io import write_columns
     from .engines.structure import parse_order_spec
-    from .engines.simulate import simulate_noise_model
+    from .noise.simulate import simulate_noise_model
 
     try:
         order = parse_order_spec(args.order)

@@ -91,6 +91,34 @@ elif case == "simulate_paper":
                  measurement_noise=sc.r, inputs=u, generator=torch.Generator().manual_seed(4), memory="soe")
     dt = time.perf_counter() - t
     digest = {"x_sum": float(s.x.sum()), "y_sum": float(s.y.sum())}
+elif case == "simulate_paper_exact":
+    from torchtea import SCENARIOS, Structure, gaussian_input, simulate
+    sc = SCENARIOS["paper-example2"]  # a linear order schedule
+    g = torch.Generator().manual_seed(3)
+    u = gaussian_input((20,), sc.n_steps, 1, sc.input_std, generator=g)
+    t = time.perf_counter()
+    s = simulate(Structure(), n_steps=sc.n_steps, h=sc.h, order=sc.order, parameters=[sc.param], process_noise=sc.q,
+                 measurement_noise=sc.r, inputs=u, generator=torch.Generator().manual_seed(4))
+    dt = time.perf_counter() - t
+    digest = {"x_sum": float(s.x.sum()), "y_sum": float(s.y.sum()), "x_abs_sum": float(s.x.abs().sum())}
+elif case == "simulate_model":
+    spec = "fractional+white+random-walk"
+    v = dict(FW, **{"random-walk.sigma": 0.01})
+    simulate_model(spec, v, n_steps=200, h=H, realisations=4, generator=torch.Generator().manual_seed(5))
+    t = time.perf_counter()
+    y = simulate_model(spec, v, n_steps=3000, h=H, realisations=200, generator=torch.Generator().manual_seed(5))
+    dt = time.perf_counter() - t
+    digest = {"y_sum": float(y.sum()), "y_abs_sum": float(y.abs().sum())}
+elif case == "montecarlo_paper":
+    from torchtea.studies.montecarlo import build_study, run_range
+    study, _ = build_study({"name": "bench", "seed": 9, "realisations": 64, "estimator": {"preset": "paper-mems-x"},
+                            "truth": {"n_steps": 3000, "h": 0.01, "order": 0.3, "param": -3.0, "q": 0.1, "r": 1e-3}})
+    run_range(study, 0, 2)
+    t = time.perf_counter()
+    r = run_range(study, 0, 64)
+    dt = time.perf_counter() - t
+    digest = {"alpha_sum": float(r.final["alpha"].sum()), "w_sum": float(r.final["w"].sum()),
+              "nees_sum": float(r.nees_sum.sum())}
 elif case == "exact_loglik":
     from torchtea.fitting.mle import exact_loglik
     spec = "fractional+white+random-walk"
@@ -118,6 +146,20 @@ print(json.dumps({"seconds": dt, "digest": digest}))
 '''
 
 CASES = ("compiled_tea", "torch_tea", "paper_example1", "simulate_paper", "exact_loglik", "check")
+#: the one simulator (the paper's simulator made a view of the model's): python experiments/bench/issue32.py --old
+#: 30fb53f --cases simulate_paper_exact simulate_paper simulate_model montecarlo_paper --out experiments/bench/simulator.json
+SIMULATOR_CASES = ("simulate_paper_exact", "simulate_paper", "simulate_model", "montecarlo_paper")
+
+
+def rel_diff(a, b) -> float:
+    """The largest relative difference between the numbers of two digests (0.0 for equal ones)."""
+    if isinstance(a, dict):
+        return max((rel_diff(a[k], b[k]) for k in a), default=0.0)
+    if isinstance(a, (list, tuple)):
+        return max((rel_diff(x, y) for x, y in zip(a, b)), default=0.0)
+    if isinstance(a, (int, float)) and not isinstance(a, bool):
+        return abs(a - b) / max(abs(a), abs(b), 1e-300) if a != b else 0.0
+    return 0.0 if a == b else float("inf")
 
 
 def run(tree: Path, case: str) -> dict:
@@ -132,7 +174,7 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--old", default="ad7220d", help="the commit before issue 32's refactors")
     ap.add_argument("--repeats", type=int, default=3)
-    ap.add_argument("--cases", nargs="+", default=list(CASES))
+    ap.add_argument("--cases", nargs="+", default=list(CASES), choices=CASES + SIMULATOR_CASES)
     ap.add_argument("--out", default=str(HERE / "issue32.json"))
     args = ap.parse_args()
     tmp = Path(tempfile.mkdtemp(prefix="tt-old-"))
@@ -151,9 +193,11 @@ def main() -> int:
             same = digests["old"] == digests["new"]
             rows.append({"case": case, "old_s": best["old"], "new_s": best["new"],
                          "new_over_old": best["new"] / best["old"], "same_numbers": same,
+                         "max_relative_difference": rel_diff(digests["old"], digests["new"]),
                          "digest_old": digests["old"], "digest_new": digests["new"]})
             print(f"{case:15s} old {best['old']:8.3f} s  new {best['new']:8.3f} s  ratio {best['new'] / best['old']:.3f}"
-                  f"  same numbers: {same}", flush=True)
+                  f"  same numbers: {same} (largest relative difference {rows[-1]['max_relative_difference']:.1e})",
+                  flush=True)
     finally:
         subprocess.run(["git", "worktree", "remove", "--force", str(old)], cwd=ROOT, check=False)
     meta = {"old": args.old, "new": subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT,
@@ -161,9 +205,10 @@ def main() -> int:
             "repeats": args.repeats, "threads": 1, "when": time.strftime("%Y-%m-%d %H:%M"),
             "meaning": "best of the repeats per tree, old and new alternating; same_numbers: the digests equal"}
     Path(args.out).write_text(json.dumps({"meta": meta, "rows": rows}, indent=1))
-    print("| case | old [s] | new [s] | new/old | same numbers |\n|---|---|---|---|---|")
+    print("| case | old [s] | new [s] | new/old | same numbers | largest relative difference |\n|---|---|---|---|---|---|")
     for r in rows:
-        print(f"| {r['case']} | {r['old_s']:.3f} | {r['new_s']:.3f} | {r['new_over_old']:.3f} | {r['same_numbers']} |")
+        print(f"| {r['case']} | {r['old_s']:.3f} | {r['new_s']:.3f} | {r['new_over_old']:.3f} | {r['same_numbers']} "
+              f"| {r['max_relative_difference']:.1e} |")
     return 0 if all(r["same_numbers"] for r in rows) else 1
 
 

@@ -32,7 +32,7 @@ sys.path.insert(0, str(HERE.parents[1]))
 from consistency import MEMS_TRUTH  # noqa: E402
 
 from torchtea.engines.structure import ConstantOrder  # noqa: E402
-from torchtea.engines.simulate import simulate_noise_model  # noqa: E402
+from torchtea.noise.simulate import simulate_noise_model  # noqa: E402
 from torchtea.fitting.mle import fit_series  # noqa: E402
 
 

@@ -33,7 +33,7 @@ from tests.reference_tea import settings_from_config, tea_reference  # noqa: E40
 from torchtea.engines.presets import get_preset  # noqa: E402
 from torchtea.studies.montecarlo import Study, Truth, draw_realisation  # noqa: E402
 from torchtea.studies.cluster import run_study  # noqa: E402
-from torchtea.engines.simulate import simulate  # noqa: E402
+from torchtea.noise.simulate import simulate  # noqa: E402
 from torchtea.engines.structure import Structure  # noqa: E402
 
 

@@ -2,7 +2,7 @@
 (:mod:`.model`), their simulation (:mod:`.simulate`) and the TEA's settings read from a model (:mod:`.tea`)."""
 from .components import COMPONENTS, ORDER_BOUNDS, ParamSpec
 from .model import NoiseModel, StateSpace, parse_model, state_memory
-from .simulate import default_values, simulate_model, temperature_profile
+from .simulate import Simulation, default_values, simulate_model, simulate_states, temperature_profile
 
 __all__ = ["COMPONENTS", "ORDER_BOUNDS", "ParamSpec", "NoiseModel", "StateSpace", "parse_model", "state_memory",
-           "simulate_model", "default_values", "temperature_profile"]
+           "Simulation", "simulate_model", "simulate_states", "default_values", "temperature_profile"]

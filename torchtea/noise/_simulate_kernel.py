@@ -19,12 +19,15 @@ def varying_row(tv_T, tv_g, tv_j, tv_w, k, row):
 
 
 @njit(cache=True, error_model="numpy")
-def simulate_one(indptr, indices, fval, G, C, z0, xi, out, states, keep, tv_i, tv_T, tv_g, tv_j, tv_w, tv_col):
-    """``z_{k+1} = F z_k + G ξ_k`` from ``z_0 = z0``, ``out[k] = C z_k``, F in CSR form; row ``tv_i`` of F and its
-    noise loading from the table of a time-varying order (``tv_i < 0``: none)."""
+def simulate_one(indptr, indices, fval, G, C, z0, xi, out, states, keep, fr_i, fr, tv_i, tv_T, tv_g, tv_j, tv_w,
+                 tv_col):
+    """``z_{k+1} = F z_k + G ξ_k (+ fr_k in row fr_i)`` from ``z_0 = z0``, ``out[k] = C z_k``, F in CSR form; row
+    ``tv_i`` of F and its noise loading from the table of a time-varying order (``tv_i < 0``: none); ``fr``: a known
+    forcing of row ``fr_i`` (``fr_i < 0``: none); ``states[k]`` the states ``keep`` (indices) of step k."""
     n = z0.shape[0]
     N = out.shape[0]
     m = G.shape[1]
+    K = keep.shape[0]
     z = z0.copy()
     zn = np.zeros(n)
     rowk = np.zeros(n)
@@ -33,9 +36,8 @@ def simulate_one(indptr, indices, fval, G, C, z0, xi, out, states, keep, tv_i, t
         for i in range(n):
             acc += C[i] * z[i]
         out[k] = acc
-        if keep:
-            for i in range(n):
-                states[k, i] = z[i]
+        for j in range(K):
+            states[k, j] = z[keep[j]]
         if k + 1 == N:
             break
         gk = 0.0
@@ -52,23 +54,25 @@ def simulate_one(indptr, indices, fval, G, C, z0, xi, out, states, keep, tv_i, t
                     acc += fval[t] * z[indices[t]]
                 for c in range(m):
                     acc += G[i, c] * xi[k, c]
+            if i == fr_i:
+                acc += fr[k]
             zn[i] = acc
         for i in range(n):
             z[i] = zn[i]
 
 
 @njit(parallel=True, cache=True, error_model="numpy")
-def simulate_batch(indptr, indices, fvals, Gs, Cs, z0s, xis, outs, states, keep, tv_i, tv_Ts, tv_gs, tv_js, tv_ws,
-                   tv_col):
+def simulate_batch(indptr, indices, fvals, Gs, Cs, z0s, xis, outs, states, keep, fr_i, frs, tv_i, tv_Ts, tv_gs, tv_js,
+                   tv_ws, tv_col):
     """Every (parameter set, realisation) pair in parallel: ``fvals`` ``(B, nnz)``, ``Gs`` ``(B, n, m)``, ``Cs``
-    ``(B, n)``, ``z0s`` ``(B, R, n)``, ``xis`` ``(B, R, N, m)``, ``outs`` ``(B, R, N)``, ``states`` ``(B, R, N, n)``
-    (or a dummy when not ``keep``)."""
+    ``(B, n)``, ``z0s`` ``(B, R, n)``, ``xis`` ``(B, R, N, m)``, ``outs`` ``(B, R, N)``, ``states`` ``(B, R, N, K)``
+    for the ``K`` state indices ``keep``, the forcing ``frs`` ``(B, R, N)`` (or ``(1, 1, 1)`` when ``fr_i < 0``)."""
     B, R = outs.shape[0], outs.shape[1]
     for p in prange(B * R):
         b = p // R
         r = p % R
-        simulate_one(indptr, indices, fvals[b], Gs[b], Cs[b], z0s[b, r], xis[b, r], outs[b, r],
-                     states[b, r] if keep else states[0, 0], keep, tv_i, tv_Ts[b], tv_gs[b], tv_js[b], tv_ws[b], tv_col)
+        simulate_one(indptr, indices, fvals[b], Gs[b], Cs[b], z0s[b, r], xis[b, r], outs[b, r], states[b, r], keep,
+                     fr_i, frs[b, r] if fr_i >= 0 else frs[0, 0], tv_i, tv_Ts[b], tv_gs[b], tv_js[b], tv_ws[b], tv_col)
 
 
 def csr(F: np.ndarray):

@@ -497,6 +497,39 @@ class Fractional(Component):
         return TEAPart(torch.zeros(1, 1, dtype=torch.float64), v["q"].reshape(1, 1).to(torch.float64),
                        order=float(v["order"][0]), estimated=True, pole=float(v["pole"][0]))
 
+    def run_exact(self, v: dict, alpha: Tensor, h: float, xi: Tensor, forcing: Tensor | None = None,
+                  x0: Tensor | None = None) -> Tensor:
+        r"""The state over the whole past (exact memory, O(k) per step, any length): for ``k = 0 … N−2``
+        :math:`x_{k+1} = h^{\alpha_{k+1}}(f x_k + u_k + \sqrt{q}\,\xi_k) - \sum_{j=1}^{k+1} c_j(\alpha_{k+1}) x_{k+1-j}`,
+        ``x_0 = x0`` (zero by default) — the block's recursion with its history uncut, for the simulator (the state
+        space's ``exact`` memory holds the same past as states). ``alpha`` ``(S, N)`` the order of each step (a known
+        trajectory, or a constant), ``xi`` ``(S, N)`` standard-normal drive, ``forcing`` ``(S, N)`` a known input
+        ``u_k`` (the paper's ``B u_k``); ``v`` holds ``pole`` and ``q`` ``(S,)``. Returns x ``(S, N)``. Runs where
+        its arguments are (a GPU included) and keeps their gradients."""
+        S, N = alpha.shape
+        a3 = alpha.unsqueeze(-1)  # (S, N, 1): one state; the layout of the paper's simulator, so its sums are the same
+        f = v["pole"].to(alpha).reshape(S, 1, 1)
+        omega = xi.unsqueeze(-1) * torch.sqrt(v["q"].to(alpha)).reshape(S, 1, 1)
+        u = None if forcing is None else forcing.to(alpha).unsqueeze(-1)
+        x = alpha.new_empty(S, N, 1)
+        x[:, 0, :] = 0.0 if x0 is None else torch.as_tensor(x0).to(alpha).reshape(S, 1)
+        hpow = torch.as_tensor(h, dtype=alpha.dtype, device=alpha.device) ** a3
+        constant = bool(torch.all(a3 == a3[:, :1, :]))
+        # past states newest first, hist[..., i] = x_{k−i}: time-reversed so that every step reads one contiguous slice
+        hist = alpha.new_zeros(S, 1, N)
+        hist[..., N - 1] = x[:, 0, :]
+        if constant:
+            coeff_all = gl_tail_coefficients(a3[:, 0, :], N)  # (S, 1, N): c_1 … c_N
+        for k in range(N - 1):
+            past = hist[..., N - 1 - k:]  # x_k … x_0
+            c = coeff_all[..., :k + 1] if constant else gl_tail_coefficients(a3[:, k + 1, :], k + 1)
+            drive = torch.bmm(f, x[:, k, :, None]).squeeze(-1)
+            if u is not None:
+                drive = drive + u[:, k, :]
+            x[:, k + 1, :] = hpow[:, k + 1, :] * (drive + omega[:, k, :]) - (c * past).sum(-1)
+            hist[..., N - 2 - k] = x[:, k + 1, :]
+        return x[..., 0]
+
     def block(self, v, h, memory):
         alpha, f, q = v["order"], v["pole"], v["q"]
         B = alpha.shape[0]

@@ -361,12 +361,14 @@ class NoiseModel:
                 r = r + comp.measurement_variance(byc[label])
         return r
 
-    def state_space(self, values, h: float, n_steps: int, memory="soe", inputs: dict | None = None) -> StateSpace:
+    def state_space(self, values, h: float, n_steps: int, memory="soe", inputs: dict | None = None,
+                    orders: Tensor | None = None) -> StateSpace:
         """Assemble the stacked state: blocks of the state components on the diagonal, the sensor filter (if
         any: a low-pass, one state; a digital filter, one state per stage) fed by the sum of the stochastic components
         before it (:meth:`~torchtea.noise.components.LowPass.filter_block`), white noise after it in R; with a
         ``temperature-order`` component the fractional block's first row per step (``StateSpace.varying``,
-        from ``inputs["temperature"]``)."""
+        from ``inputs["temperature"]``). ``orders`` ``(B, N)`` or ``(N,)``: a known order trajectory of the fractional
+        component instead (the paper's variable-order examples, (9) with ``α_k`` given), its row per step alike."""
         v = self.as_dict(values)
         byc = self._by_component(v)
         B = next(iter(v.values())).shape[0]
@@ -438,25 +440,34 @@ class NoiseModel:
             C[:, outs_after] = 1.0
         else:
             C[:, outs_before] = 1.0
-        varying = self._varying_order(byc, blocks, noise_cols, lowpass, h, n_steps, mem, inputs, B, F.shape[-1])
+        varying = self._varying_order(byc, blocks, noise_cols, lowpass, h, n_steps, mem, inputs, B, F.shape[-1],
+                                      orders)
         return StateSpace(F, G, C, (r_before + r_after if lowpass is None else r_after).clone(), blocks, varying, g0)
 
-    def _varying_order(self, byc, blocks, noise_cols, lowpass, h, n_steps, mem, inputs, B, n):
+    def _varying_order(self, byc, blocks, noise_cols, lowpass, h, n_steps, mem, inputs, B, n, orders=None):
         mods = [label for label, c in self.components if c.varies_order]
-        if not mods:
+        if not mods and orders is None:
             return None
         fracs = self.order_labels
-        if len(mods) > 1 or len(fracs) != 1 or lowpass is not None:
-            raise ValueError(f"model {self.spec!r}: temperature-order drives the order of one fractional component "
-                             "and cannot be combined with a sensor filter (low-pass, digital-filter)")
-        self.check_inputs(inputs, ("modifier",))
-        T = torch.as_tensor(inputs["temperature"], dtype=torch.float64).reshape(-1)
-        if T.shape[0] < n_steps or not bool(torch.isfinite(T[:n_steps]).all()):
-            raise ValueError(f"the temperature input must have {n_steps} finite values, got {T.shape[0]} "
-                             f"({int((~torch.isfinite(T)).sum())} not finite)")
+        if len(mods) + (orders is not None) > 1 or len(fracs) != 1 or lowpass is not None:
+            raise ValueError(f"model {self.spec!r}: a time-varying order (temperature-order, or a known order "
+                             "trajectory) drives the order of one fractional component, once, and cannot be combined "
+                             "with a sensor filter (low-pass, digital-filter)")
         frac = byc[fracs[0]]
         comps = dict(self.components)
-        alpha = comps[mods[0]].orders(byc[mods[0]], frac[comps[fracs[0]].order_param], T[:n_steps])  # (B, N): α_k
+        if orders is not None:
+            alpha = torch.as_tensor(orders, dtype=torch.float64)
+            if alpha.shape[-1] != n_steps or alpha.ndim > 2 or not bool(torch.isfinite(alpha).all()):
+                raise ValueError(f"orders must be {n_steps} finite values per parameter set, got shape "
+                                 f"{tuple(alpha.shape)}")
+            alpha = alpha.reshape(-1, n_steps).expand(B, n_steps)
+        else:
+            self.check_inputs(inputs, ("modifier",))
+            T = torch.as_tensor(inputs["temperature"], dtype=torch.float64).reshape(-1)
+            if T.shape[0] < n_steps or not bool(torch.isfinite(T[:n_steps]).all()):
+                raise ValueError(f"the temperature input must have {n_steps} finite values, got {T.shape[0]} "
+                                 f"({int((~torch.isfinite(T)).sum())} not finite)")
+            alpha = comps[mods[0]].orders(byc[mods[0]], frac[comps[fracs[0]].order_param], T[:n_steps])  # (B, N): α_k
         a_next = torch.cat([alpha[:, 1:], alpha[:, -1:]], dim=1)  # step k → k+1 uses α_{k+1}
         grids, index, weight = [], [], []
         for b in range(B):

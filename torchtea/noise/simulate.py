@@ -1,53 +1,370 @@
-"""Simulation of any :class:`~torchtea.noise.model.NoiseModel`, batched over parameter sets and realisations.
+"""The simulator: realisations of any :class:`~torchtea.noise.model.NoiseModel`, batched over parameter sets and
+realisations — the one every engine's data come from.
 
-It runs the very state space the exact Kalman filter reads (:meth:`NoiseModel.state_space`), so the
-simulator and the filter cannot disagree about the model; the deterministic part comes from
-:meth:`NoiseModel.mean`. With ``soe`` memory the fractional history is exact to the kernel's tolerance
-(default 1e-8 relative per coefficient) at O(1) cost per step.
+It runs the very state space the exact Kalman filter reads (:meth:`NoiseModel.state_space`), so the simulator and
+the filter cannot disagree about the model; the deterministic part comes from :meth:`NoiseModel.mean`. With ``soe``
+memory the fractional history is exact to the kernel's tolerance (default 1e-8 relative per coefficient) at O(1) cost
+per step; with ``exact`` memory a model whose one state is the fractional component runs that component's own
+recursion over the whole past (:meth:`~torchtea.noise.components.Fractional.run_exact`, any length, on any device).
+
+One batch convention: a :class:`Simulation` holds ``(*B, N, ·)`` tensors — the batch first, time at ``-2``, channels
+last; :func:`simulate_states` gives ``*B = (parameter sets, realisations)``. :func:`simulate_model` is its series
+alone ``(B, R, N)`` (time last, the likelihood's layout), :func:`simulate` the paper's scalar A-type model (43)–(45)
+as the TEA's ``Structure`` describes it, with the paper's order schedules and known input, ``*B`` as the caller's.
 """
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import torch
+from torch import Tensor
 
+from ..core.gl import broadcast_shapes
+from ..core.memory import parse_memory
 from .model import parse_model, varying_kernel_args
 
-__all__ = ["simulate_model", "temperature_profile", "default_values"]
+__all__ = ["Simulation", "simulate_states", "simulate_model", "simulate", "gaussian_input", "simulate_noise_model",
+           "temperature_profile", "default_values"]
 
 
-def simulate_model(model, values, *, n_steps: int, h: float, realisations: int = 1, memory="soe",
-                   inputs: dict | None = None, generator: torch.Generator | None = None,
-                   return_states: bool = False):
-    """Simulate ``realisations`` series for each of the ``B`` parameter sets in ``values``.
+@dataclass(frozen=True)
+class Simulation:
+    """A batch of simulated realisations; time is dimension ``-2``.
 
-    Returns ``y`` of shape ``(B, realisations, N)`` (and the stacked states ``(B, realisations, N, n)``
-    with ``return_states``). ``inputs``: channels the mean components read (``{"temperature": (N,)}``).
-    Draw order: the state noise of every step, then the measurement noise, then (only for a state that does not
-    start at zero) the initial state — fixed, so a seed gives the same series whatever the batch.
+    Attributes
+    ----------
+    t : Tensor ``(N,)``; known inputs ``u`` ``(*B, N, d)``; states ``x`` ``(*B, N, n)``; outputs ``y`` ``(*B, N, p)``;
+    orders ``alpha`` ``(*B, N, ·)`` (the fractional state's); the draws ``process_noise`` ``(*B, N, ·)`` (drives step
+    k → k+1) and ``measurement_noise`` ν ``(*B, N, p)``. From :func:`simulate` these are the paper's: ω ~ N(0, Q) of
+    (9), ``x`` the fractional state; from :func:`simulate_states` the state space's: standard-normal ξ (loaded by its
+    G), ``x`` the states asked for.
+    """
+
+    t: Tensor
+    u: Tensor
+    x: Tensor
+    y: Tensor
+    alpha: Tensor
+    process_noise: Tensor
+    measurement_noise: Tensor
+
+    def reshape(self, batch: tuple) -> "Simulation":
+        """The same realisations with the batch dimensions ``batch`` (as many realisations in all)."""
+        def r(t):
+            return t.reshape(tuple(batch) + t.shape[-2:])
+        return Simulation(self.t, r(self.u), r(self.x), r(self.y), r(self.alpha), r(self.process_noise),
+                          r(self.measurement_noise))
+
+    def to(self, device) -> "Simulation":
+        return Simulation(*(t.to(device) for t in (self.t, self.u, self.x, self.y, self.alpha, self.process_noise,
+                                                   self.measurement_noise)))
+
+
+def simulate_states(model, values, *, n_steps: int, h: float, realisations: int = 1, memory="soe",
+                    inputs: dict | None = None, generator: torch.Generator | None = None, orders=None, forcing=None,
+                    draws: tuple | None = None, x0=None, keep=(), device=None) -> Simulation:
+    """Simulate ``realisations`` series for each of the ``B`` parameter sets in ``values``: a :class:`Simulation`
+    with ``*B = (B, realisations)``.
+
+    Parameters
+    ----------
+    model, values : the model (or its spec) and its parameter sets (``{name: (B,)}`` or a ``(B, P)`` matrix).
+    inputs : channels the components read (``{"temperature": (N,)}``).
+    orders : Tensor ``(B, N)`` or ``(N,)``, optional
+        A known trajectory of the fractional component's order (step k → k+1 uses ``orders[k+1]``), instead of its
+        constant ``order`` value.
+    forcing : Tensor ``(B, R, N)`` (broadcast), optional
+        A known input ``u_k`` driving the fractional state inside ``h^α(…)`` (the paper's ``B u_k``).
+    draws : ``(ξ (B, R, N, m), ν (B, R, N))``, optional
+        Standard-normal draws instead of the generator's (a study whose realisation i must not depend on its chunk).
+    x0 : the fractional state's value at k = 0 (zero by default; ``(B, R)`` broadcast).
+    keep : indices of the stacked state to return as ``x``, or ``"all"``.
+
+    Draw order from ``generator``: the state noise of every step, then the measurement noise, then (only for a state
+    that does not start at zero) the initial state — fixed, so a seed gives the same series whatever the batch.
     """
     model = parse_model(model)
     if n_steps < 1:
         raise ValueError("n_steps must be >= 1")
     v = model.as_dict(values)
-    ss = model.state_space(v, h, n_steps, memory, inputs=inputs)
-    B, n, m = ss.G.shape
+    B = next(iter(v.values())).shape[0]
     R_ = int(realisations)
-    xi = torch.randn(B, R_, n_steps, m, generator=generator, dtype=torch.float64)
-    nu = torch.randn(B, R_, n_steps, generator=generator, dtype=torch.float64)
-    z = torch.zeros(B, R_, n, dtype=torch.float64)
-    if ss.g0 is not None:  # a state that does not start at zero (a low-pass of white noise): drawn last
-        z = ss.g0.unsqueeze(1) * torch.randn(B, R_, 1, generator=generator, dtype=torch.float64)
-    out, states = _run(ss, z, xi, return_states)
-    t = torch.arange(n_steps, dtype=torch.float64) * h
-    y = out + torch.sqrt(ss.R).reshape(B, 1, 1) * nu + model.mean(v, t, inputs).unsqueeze(1)
-    return (y, states) if return_states else y
+    N = n_steps
+    t = torch.arange(N, dtype=torch.float64) * h
+    mean = model.mean(v, t, inputs)  # (B, N); checks the mean components' inputs first
+    frac = model.order_labels[0] if model.order_labels else None
+    if (orders is not None or forcing is not None or x0 is not None) and frac is None:
+        raise ValueError(f"model {model.spec!r} has no fractional component for orders, forcing or x0 to act on")
+    if orders is not None:
+        orders = _orders(orders, None, B, N)
+    if forcing is not None:
+        forcing = torch.as_tensor(forcing, dtype=torch.float64).expand(B, R_, N)
+    if x0 is not None:
+        x0 = torch.as_tensor(x0, dtype=torch.float64).expand(B, R_)
+    exact = not parse_memory(memory).bounded and model.labels("state") == [frac] and not model.labels("filter")
+    if exact:  # the fractional component's own recursion over the whole past
+        xi, nu = _draws(draws, generator, B, R_, N, 1)
+        rv = model.measurement_variance(v)  # (B,): no filter, so all of it is measured
+        comp = dict(model.components)[frac]
+        fv = {k.split(".", 1)[1]: x for k, x in v.items() if k.startswith(frac + ".")}
+        if orders is None and any(c.varies_order for _, c in model.components):
+            raise ValueError(f"model {model.spec!r}: a temperature-driven order needs bounded memory (soe, window)")
+        alpha = _orders(orders, fv[comp.order_param], B, N).to(device)
+        S = B * R_
+        fv = {k: x.repeat_interleave(R_).to(device) for k, x in fv.items()}
+        x = comp.run_exact(fv, alpha.repeat_interleave(R_, dim=0), h, xi.reshape(S, N).to(device),
+                           None if forcing is None else forcing.reshape(S, N).to(device),
+                           None if x0 is None else x0.reshape(S).to(device)).reshape(B, R_, N)
+        # the state space's exact memory holds x_k, x_{k-1}, ...: state i at step k is x_{k-i} (zero before the start)
+        idx = list(range(N)) if keep == "all" else [int(i) for i in keep]
+        if any(not 0 <= i < N for i in idx):
+            raise ValueError(f"keep: model {model.spec!r} has states 0 ... {N - 1} under exact memory, not {keep!r}")
+        states = (torch.stack([torch.nn.functional.pad(x, (i, 0))[..., :N] for i in idx], -1) if idx
+                  else x.new_zeros(B, R_, N, 0))
+        out = x
+        alpha = alpha.unsqueeze(1).expand(B, R_, N).unsqueeze(-1)
+    else:
+        ss = model.state_space(v, h, N, memory, inputs=inputs, orders=orders)
+        n, m = ss.n, ss.G.shape[-1]
+        xi, nu = _draws(draws, generator, B, R_, N, m)
+        rv = ss.R  # the white noise after a sensor filter (before it, it is a state's drive)
+        z = torch.zeros(B, R_, n, dtype=torch.float64)
+        if ss.g0 is not None:  # a state that does not start at zero (a low-pass of white noise): drawn last
+            z = ss.g0.unsqueeze(1) * torch.randn(B, R_, 1, generator=generator, dtype=torch.float64)
+        row = -1 if frac is None else ss.blocks[frac].start
+        if x0 is not None:
+            z[..., row] = x0
+        idx = list(range(n)) if keep == "all" else [int(i) for i in keep]
+        if any(not 0 <= i < n for i in idx):
+            raise ValueError(f"keep: model {model.spec!r} has states 0 … {n - 1} under {memory!r} memory, not {keep!r}")
+        drive = None
+        if forcing is not None:  # enters the row as h^{α_{k+1}} u_k, like the drive
+            a_next = _orders(orders, v[model.order_name], B, N)
+            a_next = torch.cat([a_next[:, 1:], a_next[:, -1:]], dim=1)
+            drive = (torch.tensor(h, dtype=torch.float64) ** a_next).unsqueeze(1) * forcing
+        out, states = _run(ss, z, xi, idx, row if drive is not None else -1, drive)
+        if frac is None:
+            alpha = torch.zeros(B, R_, N, 0, dtype=torch.float64)
+        else:
+            a = (_modified_orders(model, v, N, inputs, B) if orders is None and ss.varying is not None
+                 else _orders(orders, v[model.order_name], B, N))
+            alpha = a.unsqueeze(1).expand(B, R_, N).unsqueeze(-1)
+    dev = lambda a: a.to(device) if device is not None else a  # noqa: E731
+    meas = torch.sqrt(rv).reshape(B, 1, 1) * nu
+    y = dev(out) + dev(meas) + dev(mean).unsqueeze(1)
+    u = dev(forcing.unsqueeze(-1)) if forcing is not None else torch.zeros(B, R_, N, 0, dtype=torch.float64,
+                                                                             device=device)
+    return Simulation(t=dev(t), u=u, x=dev(states), y=y.unsqueeze(-1), alpha=dev(alpha),
+                      process_noise=dev(xi), measurement_noise=dev(meas).unsqueeze(-1))
 
 
-def _run(ss, z0: torch.Tensor, xi: torch.Tensor, keep: bool):
-    """The state recursion ``z_{k+1} = F z_k + G ξ_k`` (row i of F per step for a time-varying order) and the outputs
-    ``C z_k`` ``(B, R, N)`` (and the states ``(B, R, N, n)`` with ``keep``), compiled: O(nonzeros of F) per step and
-    no O(N n) noise array, so a three-hour recording's six channels take seconds and little memory."""
+def _draws(draws, generator, B: int, R_: int, N: int, m: int):
+    """Standard-normal ξ ``(B, R, N, m)`` and ν ``(B, R, N)``: given, or drawn in that order."""
+    if draws is None:
+        return (torch.randn(B, R_, N, m, generator=generator, dtype=torch.float64),
+                torch.randn(B, R_, N, generator=generator, dtype=torch.float64))
+    xi, nu = (torch.as_tensor(d, dtype=torch.float64) for d in draws)
+    if xi.shape[-2:] != (N, m) or nu.shape[-1] != N:
+        raise ValueError(f"draws must have shapes (B, R, {N}, {m}) and (B, R, {N}), got {tuple(xi.shape)} and "
+                         f"{tuple(nu.shape)}")
+    return xi.expand(B, R_, N, m), nu.expand(B, R_, N)
+
+
+def _orders(orders, constant: Tensor, B: int, N: int) -> Tensor:
+    """The fractional order of each step ``(B, N)``: the known trajectory, or the constant value."""
+    if orders is None:
+        return constant.reshape(B, 1).expand(B, N)
+    a = torch.as_tensor(orders, dtype=torch.float64)
+    if a.shape[-1] != N or a.ndim > 2 or a.ndim == 2 and a.shape[0] not in (1, B):
+        raise ValueError(f"orders must have shape ({N},) or (B, {N}) with B = {B}, got {tuple(a.shape)}")
+    return a.reshape(-1, N).expand(B, N)
+
+
+def _modified_orders(model, v: dict, N: int, inputs, B: int) -> Tensor:
+    """The orders a ``temperature-order`` modifier gives the fractional component ``(B, N)``."""
+    comps = dict(model.components)
+    frac = model.order_labels[0]
+    mod = next(label for label, c in model.components if c.varies_order)
+    byc = model._by_component(v)
+    T = torch.as_tensor(inputs["temperature"], dtype=torch.float64).reshape(-1)[:N]
+    return comps[mod].orders(byc[mod], byc[frac][comps[frac].order_param], T)
+
+
+def simulate_model(model, values, *, n_steps: int, h: float, realisations: int = 1, memory="soe",
+                   inputs: dict | None = None, generator: torch.Generator | None = None,
+                   return_states: bool = False):
+    """The series of :func:`simulate_states` alone: ``y`` of shape ``(B, realisations, N)`` (and every stacked
+    state ``(B, realisations, N, n)`` with ``return_states``) — time last, as the likelihood and the fits read
+    series. Same draws as :func:`simulate_states` with the same generator."""
+    sim = simulate_states(model, values, n_steps=n_steps, h=h, realisations=realisations, memory=memory,
+                          inputs=inputs, generator=generator, keep="all" if return_states else ())
+    y = sim.y[..., 0]
+    return (y, sim.x) if return_states else y
+
+
+def gaussian_input(batch_shape, n_steps: int, n_inputs: int, std: float, *, generator=None,
+                   dtype=torch.float64, device=None) -> Tensor:
+    """Known input ``u_k ~ N(0, std²)`` of shape ``(*batch_shape, N, d)``."""
+    z = torch.randn(tuple(batch_shape) + (n_steps, n_inputs), generator=generator, dtype=dtype, device=device)
+    return std * z
+
+
+#: the paper's scalar noise model (43)–(45) as a noise model: KFx's fractional state and white measurement noise
+PAPER_MODEL = "fractional+white"
+
+
+def _variance(value, name: str, like: Tensor) -> Tensor:
+    """``Q`` or ``R`` of the scalar structure: a float, or a ``(*B, 1, 1)`` / ``(1, 1)`` tensor → ``(*B,)``."""
+    c = torch.as_tensor(value, dtype=torch.float64).to(like.device)
+    if c.ndim >= 2:
+        if c.shape[-2:] != (1, 1):
+            raise ValueError(f"{name} must be 1x1 for the scalar structure, got {tuple(c.shape)}")
+        c = c[..., 0, 0]
+    if bool((c < 0).any()):
+        raise ValueError(f"{name} must not be negative, got {c}")
+    return c
+
+
+def simulate(structure, *, n_steps: int, h: float, order, parameters, process_noise, measurement_noise,
+             inputs: Tensor | None = None, x0=None, batch_shape=(), generator: torch.Generator | None = None,
+             standard_draws: tuple[Tensor, Tensor] | None = None, memory="exact", dtype=torch.float64,
+             device=None) -> Simulation:
+    r"""Simulate realisations of paper (9)–(11) for the TEA's scalar ``structure`` (43)–(45): the noise model
+    ``fractional+white`` with the paper's order schedule and known input, by :func:`simulate_states`.
+
+    ``x_0 = x0`` (zero by default) and, for ``k = 0 … N−2``,
+    ``x_{k+1} = h^{α_{k+1}} (f x_k + u_k + ω_k) − Σ_{j=1}^{k+1} c_j(α_{k+1}) x_{k+1−j}``,
+    ``y_k = x_k + ν_k`` with ``ω ~ N(0, q)``, ``ν ~ N(0, r)``.
+
+    Parameters
+    ----------
+    structure : Structure
+        The scalar structure (``Structure()``); a model of several states is simulated from its
+        :class:`~torchtea.noise.model.NoiseModel` (:func:`simulate_states`).
+    n_steps : int
+        ``N``, number of samples (including ``k = 0``).
+    h : float
+        Sample time.
+    order : OrderSchedule
+        True orders; evaluated to ``(*B, N, 1)``.
+    parameters : Tensor, shape ``(*B, 1)`` or ``(1,)``
+        True ``f``.
+    process_noise, measurement_noise : float or Tensor ``(*B, 1, 1)``
+        ``q`` and ``r``.
+    inputs : Tensor, shape ``(*B, N, 1)``, optional
+        Known inputs (zero when absent).
+    batch_shape : tuple
+        Number of realisations; broadcast with the batch shapes of the other arguments.
+    generator : torch.Generator, optional
+        Source of all random draws (ω first, then ν, each ``(*B, N, 1)``).
+    standard_draws : (Tensor ``(*B, N, 1)``, Tensor ``(*B, N, 1)``), optional
+        Standard-normal draws to use instead of the generator (scaled by ``√q`` and ``√r``) — for Monte Carlo
+        studies whose realisation i must not depend on how the batch is chunked.
+    memory : str or MemoryConfig
+        How the GL sums see the past (:mod:`torchtea.core.memory`): ``"exact"`` (default, O(k) per step, on
+        ``device``), ``"soe"``/``"soe:TOL"`` (the model's exponential sums, O(1) per step, compiled on the CPU —
+        for long series; orders within the model's bounds) or ``"window:L"``.
+    dtype : the result's floating type (computed in float64).
+
+    Returns
+    -------
+    Simulation
+        ``(*B, N, ·)``: ``x`` the fractional state, ``process_noise`` ω, ``measurement_noise`` ν.
+    """
+    from ..engines.structure import Structure
+
+    if n_steps < 1:
+        raise ValueError("n_steps must be >= 1")
+    n, p, d = structure.n_states, structure.n_outputs, structure.n_inputs
+    scalar = Structure()
+    if (n, p, d) != (1, 1, 1) or structure.n_params != 1 or not all(
+            torch.equal(a, b) for a, b in ((structure.A.base, scalar.A.base), (structure.A.basis, scalar.A.basis),
+                                           (structure.B, scalar.B), (structure.C, scalar.C))):
+        raise ValueError("simulate runs the paper's scalar structure (Structure()); simulate a model of several "
+                         "states from its noise model (torchtea.noise.simulate_states)")
+    cpu = torch.empty((), dtype=torch.float64)
+    w = torch.as_tensor(parameters, dtype=torch.float64)
+    if w.ndim == 0:
+        w = w.reshape(1)
+    alpha = order.values(n_steps, h, 1, inputs).to(cpu)  # (N, 1) or (*B, N, 1)
+    q = _variance(process_noise, "process_noise", cpu)
+    r = _variance(measurement_noise, "measurement_noise", cpu)
+    shapes = [tuple(batch_shape), w.shape[:-1], alpha.shape[:-2], q.shape, r.shape]
+    if inputs is not None:
+        inputs = torch.as_tensor(inputs).to(cpu)
+        if inputs.shape[-2:] != (n_steps, d):
+            raise ValueError(f"inputs must have shape (*B, {n_steps}, {d}), got {tuple(inputs.shape)}")
+        shapes.append(inputs.shape[:-2])
+    batch = broadcast_shapes(*shapes)
+    if standard_draws is None:
+        z_omega = torch.randn(batch + (n_steps, n), generator=generator, dtype=dtype, device=device)
+        z_nu = torch.randn(batch + (n_steps, p), generator=generator, dtype=dtype, device=device)
+    else:
+        z_omega, z_nu = (torch.as_tensor(z) for z in standard_draws)
+        if z_omega.shape[-2:] != (n_steps, n) or z_nu.shape[-2:] != (n_steps, p):
+            raise ValueError(f"standard_draws must have shapes (*B, {n_steps}, {n}) and (*B, {n_steps}, {p})")
+        batch = broadcast_shapes(batch, z_omega.shape[:-2], z_nu.shape[:-2])
+    # one parameter set for the whole batch when nothing but the draws and the input varies; else one per member
+    per_member = any(len(s) for s in shapes[1:5])
+    S = math.prod(batch)
+    B, R_ = (S, 1) if per_member else (1, S)
+    values = {"fractional.order": alpha[..., 0, 0].expand(batch).reshape(-1)[:B],
+              "fractional.pole": w[..., 0].expand(batch).reshape(-1)[:B],
+              "fractional.q": q.expand(batch).reshape(-1)[:B], "white.r": r.expand(batch).reshape(-1)[:B]}
+    a = alpha[..., 0].expand(batch + (n_steps,)).reshape(S, n_steps)[:B]
+    constant = bool(torch.all(a == a[:, :1]))
+    draws = (z_omega.to(cpu).expand(batch + (n_steps, n)).reshape(B, R_, n_steps, 1),
+             z_nu.to(cpu).expand(batch + (n_steps, p)).reshape(B, R_, n_steps))
+    forcing = None if inputs is None else inputs[..., 0].expand(batch + (n_steps,)).reshape(B, R_, n_steps)
+    grad = any(torch.is_tensor(t) and t.requires_grad for t in (parameters, inputs, x0, *(standard_draws or ())))
+    if grad:
+        raise ValueError("simulate does not differentiate: pass tensors that do not require grad")
+    sim = simulate_states(PAPER_MODEL, values, n_steps=n_steps, h=h, realisations=R_, memory=memory,
+                          orders=None if constant else a, forcing=forcing, draws=draws,
+                          x0=None if x0 is None else _initial(x0, batch, B, R_),
+                          keep=[0], device=device)
+    omega = sim.process_noise * torch.sqrt(values["fractional.q"]).to(sim.y).reshape(B, 1, 1, 1)
+    out = Simulation(t=sim.t, u=sim.u if inputs is not None else torch.zeros(B, R_, n_steps, d, device=sim.y.device,
+                                                                            dtype=torch.float64),
+                     x=sim.x, y=sim.y, alpha=sim.alpha, process_noise=omega, measurement_noise=sim.measurement_noise)
+    out = out.reshape(batch)
+    return Simulation(*(t.to(dtype) for t in (out.t, out.u, out.x, out.y, out.alpha, out.process_noise,
+                                              out.measurement_noise)))
+
+
+def _initial(x0, batch: tuple, B: int, R_: int) -> Tensor:
+    """``x0`` (a number, ``(1,)`` or ``(*B, 1)``) as ``(B, R)``."""
+    x = torch.as_tensor(x0, dtype=torch.float64)
+    if x.ndim and x.shape[-1] == 1:
+        x = x[..., 0]
+    return x.expand(batch).reshape(B, R_)
+
+
+def simulate_noise_model(*, n_steps: int, h: float, order, param: float, q: float, r: float,
+                         input_std: float | None = None, seed: int = 0, memory="exact", device=None) -> Simulation:
+    """One realisation of the paper's scalar noise model (43)–(45) from one seed.
+
+    The known input ``u ~ N(0, input_std²)`` is drawn first (none when ``input_std`` is None), then ω, then ν,
+    all from ``torch.Generator().manual_seed(seed)`` — exactly what ``torchtea simulate --seed`` writes. On another
+    ``device`` the draws are the same (made on the CPU) and the recursion runs there; the result stays there.
+    """
+    from ..engines.structure import Structure
+
+    g = torch.Generator().manual_seed(seed)
+    u = None if input_std is None else gaussian_input((), n_steps, 1, input_std, generator=g)
+    # ω, then ν, drawn on the CPU in the order simulate draws them from a generator; the recursion on ``device``
+    draws = tuple(torch.randn(n_steps, 1, generator=g, dtype=torch.float64).to(device) for _ in range(2))
+    return simulate(Structure(), n_steps=n_steps, h=h, order=order, parameters=[param], process_noise=q,
+                    measurement_noise=r, inputs=None if u is None else u.to(device), standard_draws=draws,
+                    memory=memory, device=device)
+
+
+def _run(ss, z0: torch.Tensor, xi: torch.Tensor, keep: list, fr_i: int, forcing):
+    """The state recursion ``z_{k+1} = F z_k + G ξ_k`` (row i of F per step for a time-varying order; plus a known
+    forcing of row ``fr_i``) and the outputs ``C z_k`` ``(B, R, N)`` and the states ``keep`` ``(B, R, N, K)``,
+    compiled: O(nonzeros of F) per step and no O(N n) noise array, so a three-hour recording's six channels take
+    seconds and little memory."""
     import numpy as np
 
     from ._simulate_kernel import csr
@@ -58,11 +375,13 @@ def _run(ss, z0: torch.Tensor, xi: torch.Tensor, keep: bool):
     n = F.shape[-1]
     indptr, indices, fvals = csr(F)
     out = np.empty((B, R_, N))
-    states = np.empty((B, R_, N, n)) if keep else np.empty((1, 1, 1, 1))
+    states = np.empty((B, R_, N, len(keep)))
+    fr = np.ascontiguousarray(forcing.numpy()) if fr_i >= 0 else np.zeros((1, 1, 1))
     tv = varying_kernel_args(ss.varying, B, n)
     simulate_batch(indptr, indices, fvals, np.ascontiguousarray(ss.G.numpy()), np.ascontiguousarray(ss.C.numpy()),
-                   np.ascontiguousarray(z0.numpy()), np.ascontiguousarray(xi.numpy()), out, states, keep, *tv)
-    return torch.from_numpy(out), torch.from_numpy(states) if keep else None
+                   np.ascontiguousarray(z0.numpy()), np.ascontiguousarray(xi.numpy()), out, states,
+                   np.asarray(keep, dtype=np.int64), int(fr_i), fr, *tv)
+    return torch.from_numpy(out), torch.from_numpy(states)
 
 
 def temperature_profile(n_steps: int, h: float, *, start: float = 25.0, warmup: float = 3.0, tau_s: float = 60.0,

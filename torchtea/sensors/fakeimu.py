@@ -67,7 +67,7 @@ def synthetic_counts(n: int, *, rate_hz: float = 100.0, lsb_per_g: float = 4096.
 
     from .io import STANDARD_GRAVITY
     from ..engines.structure import ConstantOrder, Structure
-    from ..engines.simulate import simulate
+    from ..noise.simulate import simulate
 
     g = torch.Generator().manual_seed(seed)
     sim = simulate(Structure(), n_steps=n, h=1.0 / rate_hz, order=ConstantOrder(order), parameters=[param],

@@ -23,7 +23,7 @@ from torch import Tensor
 
 from ..core.memory import parse_memory
 from ..engines.structure import OrderSchedule, Structure, parse_order_spec
-from ..engines.simulate import Simulation, simulate
+from ..noise.simulate import Simulation, simulate
 from ..core.stats import chi2_band, convergence_time, coverage, nees, nis, over_realisations
 from ..engines.tea import make_params, run_tea
 from ..engines.settings import TEAConfig
@@ -369,10 +369,10 @@ def estimator_view(study: Study):
 
 def simulate_model_truth(study: Study, view, rows: range, device=None) -> Simulation:
     """Realisations ``rows`` of a model truth, each from its own generator (:func:`realisation_seed`), by the noise
-    simulator; as a :class:`~torchtea.engines.simulate.Simulation` for the estimator's ``view``: ``y`` without the
+    simulator; as a :class:`~torchtea.noise.simulate.Simulation` for the estimator's ``view``: ``y`` without the
     estimator's means at the truth's values, ``x`` the true values of the estimator's KFx states (a state of a
     component the truth lacks is 0), ``alpha`` the fractional state's (constant) order."""
-    from ..noise import parse_model, simulate_model
+    from ..noise import parse_model, simulate_states
 
     tr = study.truth
     N = tr.n_steps
@@ -384,15 +384,14 @@ def simulate_model_truth(study: Study, view, rows: range, device=None) -> Simula
         j = seen[label] = seen.get(label, -1) + 1
         sl = blocks.get(label)
         cols.append(None if sl is None else sl.start + j)
+    keep = sorted({c for c in cols if c is not None})  # only the states the estimator has (not the soe modes)
     ys, xs = [], []
     for i in rows:
         g = torch.Generator().manual_seed(realisation_seed(study.seed, i))
-        y, z = simulate_model(truth, tr.values, n_steps=N, h=tr.h, memory=tr.memory, generator=g,
-                              return_states=True)
-        ys.append(y[0, 0])
-        xs.append(torch.stack([z[0, 0, :, c] if c is not None else torch.zeros(N, dtype=torch.float64)
-                               for c in cols], -1))  # only the states the estimator has (not the soe modes)
-        del z
+        sim = simulate_states(truth, tr.values, n_steps=N, h=tr.h, memory=tr.memory, generator=g, keep=keep)
+        ys.append(sim.y[0, 0, :, 0])
+        xs.append(torch.stack([sim.x[0, 0, :, keep.index(c)] if c is not None else torch.zeros(N, dtype=torch.float64)
+                               for c in cols], -1))
     y, x = torch.stack(ys), torch.stack(xs)  # (R, N), (R, N, n)
     t = torch.arange(N, dtype=torch.float64) * tr.h
     y = y - view.model.mean(view.values, t)  # the estimator's means, at the truth

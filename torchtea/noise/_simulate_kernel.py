@@ -18,61 +18,82 @@ def varying_row(tv_T, tv_g, tv_j, tv_w, k, row):
     return tv_g[j] * (1.0 - wk) + tv_g[j1] * wk
 
 
-@njit(cache=True, error_model="numpy")
-def simulate_one(indptr, indices, fval, G, C, z0, xi, out, states, keep, fr_i, fr, tv_i, tv_T, tv_g, tv_j, tv_w,
-                 tv_col):
-    """``z_{k+1} = F z_k + G ξ_k (+ fr_k in row fr_i)`` from ``z_0 = z0``, ``out[k] = C z_k``, F in CSR form; row
-    ``tv_i`` of F and its noise loading from the table of a time-varying order (``tv_i < 0``: none); ``fr``: a known
-    forcing of row ``fr_i`` (``fr_i < 0``: none); ``states[k]`` the states ``keep`` (indices) of step k."""
-    n = z0.shape[0]
-    N = out.shape[0]
-    m = G.shape[1]
-    K = keep.shape[0]
-    z = z0.copy()
-    zn = np.zeros(n)
-    rowk = np.zeros(n)
-    for k in range(N):
-        acc = 0.0
-        for i in range(n):
-            acc += C[i] * z[i]
-        out[k] = acc
-        for j in range(K):
-            states[k, j] = z[keep[j]]
-        if k + 1 == N:
-            break
-        gk = 0.0
-        if tv_i >= 0:
-            gk = varying_row(tv_T, tv_g, tv_j, tv_w, k, rowk)
-        for i in range(n):
-            acc = 0.0
-            if i == tv_i:
-                for r in range(n):
-                    acc += rowk[r] * z[r]
-                acc += gk * xi[k, tv_col]
-            else:
-                for t in range(indptr[i], indptr[i + 1]):
-                    acc += fval[t] * z[indices[t]]
-                for c in range(m):
-                    acc += G[i, c] * xi[k, c]
-            if i == fr_i:
-                acc += fr[k]
-            zn[i] = acc
-        for i in range(n):
-            z[i] = zn[i]
+#: realisations advanced together (their states side by side, so each term of F z is one contiguous loop)
+LANES = 16
 
 
 @njit(parallel=True, cache=True, error_model="numpy")
-def simulate_batch(indptr, indices, fvals, Gs, Cs, z0s, xis, outs, states, keep, fr_i, frs, tv_i, tv_Ts, tv_gs, tv_js,
-                   tv_ws, tv_col):
-    """Every (parameter set, realisation) pair in parallel: ``fvals`` ``(B, nnz)``, ``Gs`` ``(B, n, m)``, ``Cs``
-    ``(B, n)``, ``z0s`` ``(B, R, n)``, ``xis`` ``(B, R, N, m)``, ``outs`` ``(B, R, N)``, ``states`` ``(B, R, N, K)``
-    for the ``K`` state indices ``keep``, the forcing ``frs`` ``(B, R, N)`` (or ``(1, 1, 1)`` when ``fr_i < 0``)."""
-    B, R = outs.shape[0], outs.shape[1]
-    for p in prange(B * R):
-        b = p // R
-        r = p % R
-        simulate_one(indptr, indices, fvals[b], Gs[b], Cs[b], z0s[b, r], xis[b, r], outs[b, r], states[b, r], keep,
-                     fr_i, frs[b, r] if fr_i >= 0 else frs[0, 0], tv_i, tv_Ts[b], tv_gs[b], tv_js[b], tv_ws[b], tv_col)
+def simulate_batch(indptr, indices, fvals, gptr, gcol, gvals, cidx, Cs, z0s, xis, outs, states, keep, fr_i, frs,
+                   tv_i, tv_Ts, tv_gs, tv_js, tv_ws, tv_col):
+    """``z_{k+1} = F z_k + G ξ_k (+ fr_k in row fr_i)`` from ``z_0``, ``out[k] = C z_k``, for every (parameter set,
+    realisation) pair: F and G in CSR form (``indptr/indices``, ``fvals`` ``(B, nnz)``; ``gptr/gcol``, ``gvals``
+    ``(B, nnz_G)``), C's non-zero columns ``cidx`` — the zeros skipped, so each sum is the dense product's, term for
+    term in the same order; ``Cs`` ``(B, n)``, ``z0s`` ``(B, R, n)``, ``xis`` ``(B, R, N, m)``, ``outs`` ``(B, R, N)``,
+    ``states`` ``(B, R, N, K)`` for the ``K`` state indices ``keep``; row ``tv_i`` of F and its noise loading from the
+    table of a time-varying order (``tv_i < 0``: none); ``frs`` ``(B, R, N)`` a known forcing of row ``fr_i``
+    (``fr_i < 0``: none, ``(1, 1, 1)``). Realisations run :data:`LANES` at a time (each lane's arithmetic is the one
+    realisation's alone), the groups in parallel."""
+    B, R, N = outs.shape
+    n = z0s.shape[2]
+    K = keep.shape[0]
+    groups = (R + LANES - 1) // LANES
+    for p in prange(B * groups):
+        b = p // groups
+        r0 = (p % groups) * LANES
+        W = min(LANES, R - r0)
+        fval, gval, C = fvals[b], gvals[b], Cs[b]
+        z = np.zeros((n, LANES))  # lanes past W stay zero (the last group of a batch may be short)
+        for i in range(n):
+            for w in range(W):
+                z[i, w] = z0s[b, r0 + w, i]
+        zn = np.zeros((n, LANES))
+        acc = np.zeros(LANES)
+        xk = np.zeros((xis.shape[3], LANES))  # step k's draws, lane by lane
+        rowk = np.zeros(n)
+        for k in range(N):
+            for w in range(W):
+                acc[w] = 0.0
+            for t in range(cidx.shape[0]):
+                c = C[cidx[t]]
+                for w in range(W):
+                    acc[w] += c * z[cidx[t], w]
+            for w in range(W):
+                outs[b, r0 + w, k] = acc[w]
+                for j in range(K):
+                    states[b, r0 + w, k, j] = z[keep[j], w]
+            if k + 1 == N:
+                break
+            for c in range(xk.shape[0]):
+                for w in range(W):
+                    xk[c, w] = xis[b, r0 + w, k, c]
+            gk = 0.0
+            if tv_i >= 0:
+                gk = varying_row(tv_Ts[b], tv_gs[b], tv_js[b], tv_ws[b], k, rowk)
+            for i in range(n):
+                for w in range(LANES):
+                    zn[i, w] = 0.0
+                if i == tv_i:
+                    for r in range(n):
+                        f = rowk[r]
+                        for w in range(LANES):
+                            zn[i, w] += f * z[r, w]
+                    for w in range(LANES):
+                        zn[i, w] += gk * xk[tv_col, w]
+                else:
+                    for t in range(indptr[i], indptr[i + 1]):
+                        f = fval[t]
+                        col = indices[t]
+                        for w in range(LANES):
+                            zn[i, w] += f * z[col, w]
+                    for t in range(gptr[i], gptr[i + 1]):
+                        g = gval[t]
+                        col = gcol[t]
+                        for w in range(LANES):
+                            zn[i, w] += g * xk[col, w]
+                if i == fr_i:
+                    for w in range(W):
+                        zn[i, w] += frs[b, r0 + w, k]
+            z, zn = zn, z
 
 
 def csr(F: np.ndarray):

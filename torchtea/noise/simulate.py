@@ -374,12 +374,14 @@ def _run(ss, z0: torch.Tensor, xi: torch.Tensor, keep: list, fr_i: int, forcing)
     B, R_, N, _ = xi.shape
     n = F.shape[-1]
     indptr, indices, fvals = csr(F)
+    gptr, gcol, gvals = csr(ss.G.detach().cpu().numpy())
+    C = np.ascontiguousarray(ss.C.detach().cpu().numpy())
+    cidx = np.flatnonzero((C != 0).any(axis=0)).astype(np.int64)
     out = np.empty((B, R_, N))
     states = np.empty((B, R_, N, len(keep)))
     fr = np.ascontiguousarray(forcing.numpy()) if fr_i >= 0 else np.zeros((1, 1, 1))
     tv = varying_kernel_args(ss.varying, B, n)
-    simulate_batch(indptr, indices, fvals, np.ascontiguousarray(ss.G.numpy()), np.ascontiguousarray(ss.C.numpy()),
-                   np.ascontiguousarray(z0.numpy()), np.ascontiguousarray(xi.numpy()), out, states,
+    simulate_batch(indptr, indices, fvals, gptr, gcol, gvals, cidx, C, np.ascontiguousarray(z0.numpy()), np.ascontiguousarray(xi.numpy()), out, states,
                    np.asarray(keep, dtype=np.int64), int(fr_i), fr, *tv)
     return torch.from_numpy(out), torch.from_numpy(states)
 

@@ -111,11 +111,11 @@ elif case == "simulate_model":
     digest = {"y_sum": float(y.sum()), "y_abs_sum": float(y.abs().sum())}
 elif case == "montecarlo_paper":
     from torchtea.studies.montecarlo import build_study, run_range
-    study, _ = build_study({"seed": 9, "realisations": 64, "estimator": {"preset": "paper-mems-x"},
-                            "truth": {"n_steps": 3000, "h": 0.01, "order": 0.3, "param": -3.0, "q": 0.1, "r": 1e-3}})
+    study, _ = build_study({"seed": 9, "realisations": 256, "estimator": {"preset": "paper-mems-x"},
+                            "truth": {"n_steps": 3000, "h": 0.01, "order": "0.3", "param": -3.0, "q": 0.1, "r": 1e-3}})
     run_range(study, 0, 2)
     t = time.perf_counter()
-    r = run_range(study, 0, 64)
+    r = run_range(study, 0, 256)
     dt = time.perf_counter() - t
     digest = {"alpha_sum": float(r.final["alpha"].sum()), "w_sum": float(r.final["w"].sum()),
               "nees_sum": float(r.nees_sum.sum())}

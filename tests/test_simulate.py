@@ -115,15 +115,13 @@ def _paper_values(B=1):
     return {"fractional.order": one(0.4), "fractional.pole": one(-2.0), "fractional.q": one(0.01), "white.r": one(1e-3)}
 
 
-@pytest.mark.parametrize("memory", ["exact", "window:40", "soe"])
 @pytest.mark.parametrize("order", [None, LinearOrder(0.2, 0.05), FunctionOrder(lambda t: 0.5 + 0.2 * torch.sin(3 * t))])
 @pytest.mark.parametrize("forced", [False, True])
-def test_the_components_recursion_equals_the_state_space(memory, order, forced):
-    """Two recursions of one model: the fractional component's own (``Fractional.run``, the paper's simulator) and the
-    state space's (every kept past sample and mode a state, row 0 the GL coefficients; forced here by a random walk of
-    zero drive beside it, which makes the model one of several states). Same draws, same orders and forcing, x0 ≠ 0:
-    under ``exact`` and ``window:L`` (the same sums) the same series to float64 rounding; under ``soe`` within the
-    kernels' tolerance (the component's kernel serves the orders run, the state space's every order in 0 … 1)."""
+def test_exact_recursion_equals_the_state_space_with_the_whole_past(order, forced):
+    """Two recursions of one model: the fractional component's own (``run_exact``, the GL sum over the whole past) and
+    the state space's with ``exact`` memory (every past sample a state, row 0 the GL coefficients; forced here by a
+    random walk of zero drive beside it, which makes the model one of several states). Same draws, same orders and
+    forcing, x0 ≠ 0: the same series to float64 rounding (they sum in other orders)."""
     from torchtea.noise import simulate_states
 
     N, R = 300, 3
@@ -132,14 +130,13 @@ def test_the_components_recursion_equals_the_state_space(memory, order, forced):
     nu = torch.randn(1, R, N, generator=g, dtype=torch.float64)
     u = 0.3 * torch.randn(1, R, N, generator=g, dtype=torch.float64) if forced else None
     a = None if order is None else order.values(N, 0.01, 1)[:, 0]
-    kw = dict(n_steps=N, h=0.01, realisations=R, memory=memory, orders=a, forcing=u, x0=0.05, keep=[0])
+    kw = dict(n_steps=N, h=0.01, realisations=R, memory="exact", orders=a, forcing=u, x0=0.05, keep=[0])
     own = simulate_states("fractional+white", _paper_values(), draws=(xi[..., :1], nu), **kw)
     v = dict(_paper_values(), **{"random-walk.sigma": torch.zeros(1, dtype=torch.float64)})
     stacked = simulate_states("fractional+white+random-walk", v, draws=(xi, nu), **kw)
     scale = float(own.x.abs().max())
-    tol = 1e-7 if memory == "soe" else 1e-12
-    torch.testing.assert_close(own.x, stacked.x, rtol=0, atol=tol * scale)
-    torch.testing.assert_close(own.y, stacked.y, rtol=0, atol=tol * scale)
+    torch.testing.assert_close(own.x, stacked.x, rtol=0, atol=1e-12 * scale)
+    torch.testing.assert_close(own.y, stacked.y, rtol=0, atol=1e-12 * scale)
     assert torch.equal(own.alpha, stacked.alpha) and own.alpha.shape == (1, R, N, 1)
     assert float(own.x[..., 0, 0].sub(0.05).abs().max()) == 0.0
     if order is not None:

@@ -1,14 +1,7 @@
 """The compiled loop of :func:`torchtea.noise.simulate.simulate_model` (numba), imported on first use; at module level
 so that numba's on-disk cache reloads it (see :mod:`torchtea.likelihood._kernels`)."""
-import math
-
 import numpy as np
-import torch
 from numba import njit, prange
-
-from ..engines._fast_kernel import lagf, push_front, vexp
-
-pi = math.pi
 
 
 @njit(cache=True, inline="always", error_model="numpy")
@@ -112,78 +105,3 @@ def csr(F: np.ndarray):
     np.add.at(indptr, rows + 1, 1)
     indptr = np.cumsum(indptr)
     return indptr, cols.astype(np.int64), np.ascontiguousarray(F[:, rows, cols])
-
-
-@njit(cache=True, parallel=True, error_model="numpy")
-def simulate_bounded(x, hp, wv, u, om, alpha, constant, coeff, wts, J, ka, kb, eta, klo, khi, decay, inject, la, lb):
-    """The fractional component's recursion (:meth:`~torchtea.noise.components.Fractional.run`) with a bounded history: ``x (B, N)`` with ``x[:, 0]``
-    set is filled in place; ``hp = h^α``, ``wv`` the parameter, ``u``/``om`` the input and process noise (B, N).
-    The GL sum is the window of ``J`` lags plus the exponential-sum modes (``decay`` of length 0 for a plain
-    window): coefficients ``coeff (B, J)`` and mode weights ``wts (B, M)`` given for a ``constant`` order,
-    otherwise computed at every step from the lag tables and the kernel (as SOEKernel.weights)."""
-    nB, N = x.shape
-    M = decay.shape[0]
-    for b in prange(nB):
-        win = np.zeros(J)
-        modes = np.zeros(M)
-        c = np.empty(J)
-        W = np.empty(M)
-        arg = np.empty(M)
-        ib = np.empty(M, np.int64)
-        fb = ib.view(np.float64)
-        win[0] = x[b, 0]
-        for k in range(N - 1):
-            if constant:
-                for j in range(J):
-                    c[j] = coeff[b, j]
-                for n in range(M):
-                    W[n] = wts[b, n]
-            else:
-                a = alpha[b, k + 1]
-                cj = 1.0
-                for j in range(J):
-                    cj *= lagf(la[j + 1], a, lb[j + 1])
-                    c[j] = cj
-                if M > 0:
-                    al = min(max(a, klo), khi)
-                    for n in range(M):
-                        arg[n] = ka[n] + al * kb[n]
-                    vexp(arg, W, ib, fb, M)
-                    W[M - 1] *= 1.0 / math.expm1((1.0 + al) * eta)
-                    f = math.sin(pi * al) * (-1.0 / pi)
-                    for n in range(M):
-                        W[n] *= f
-            s = 0.0
-            for j in range(J):
-                s += c[j] * win[j]
-            for n in range(M):
-                s += W[n] * modes[n]
-            xn = hp[b, k + 1] * ((wv[b] * x[b, k] + u[b, k]) + om[b, k]) - s
-            x[b, k + 1] = xn
-            if M > 0:
-                dropped = win[J - 1]
-                for n in range(M):
-                    modes[n] = modes[n] * decay[n] + inject[n] * dropped
-            push_front(win, J, xn)
-
-
-def run_bounded(x, hpow, f, u, omega, alpha, constant, coeff, weights, kernel, lags):
-    """:func:`simulate_bounded` on torch tensors ``(S, N, 1)`` (``f`` ``(S, 1, 1)``; a constant order's
-    coefficients ``(S, 1, 1, J)`` and mode weights given), ``x[:, 0]`` set; fills ``x`` in place."""
-    from ..engines.fast import _lag_tables
-
-    flat = lambda t: np.ascontiguousarray(t.reshape(-1, t.shape[-2]).numpy())  # (S, N, 1) → (S, N)  # noqa: E731
-    B = x.shape[0]
-    xv = np.ascontiguousarray(x[..., 0].numpy())
-    if kernel is not None:
-        ka, kb, decay, inject = (t.numpy() for t in kernel.tensors(torch.float64, torch.device("cpu")))
-        eta, (klo, khi) = float(kernel.eta), (float(v) for v in kernel.order_range)
-    else:
-        ka = kb = decay = inject = np.zeros(0)
-        eta, klo, khi = 1.0, -math.inf, math.inf
-    M = decay.shape[0]
-    cf = np.ascontiguousarray(coeff.reshape(B, lags).numpy()) if constant else np.zeros((B, lags))
-    wt = np.ascontiguousarray(weights.reshape(B, M).numpy()) if constant and M else np.zeros((B, M))
-    simulate_bounded(xv, flat(hpow), np.ascontiguousarray(f.reshape(B).numpy()), flat(u), flat(omega), flat(alpha),
-                     bool(constant), cf, wt, int(lags), ka, kb, eta, klo, khi, decay, inject, *_lag_tables(lags))
-    x.copy_(torch.from_numpy(xv).reshape(x.shape))

@@ -497,67 +497,37 @@ class Fractional(Component):
         return TEAPart(torch.zeros(1, 1, dtype=torch.float64), v["q"].reshape(1, 1).to(torch.float64),
                        order=float(v["order"][0]), estimated=True, pole=float(v["pole"][0]))
 
-    def run(self, v: dict, alpha: Tensor, h: float, xi: Tensor, forcing: Tensor | None = None,
-            x0: Tensor | None = None, memory="exact") -> Tensor:
-        r"""The state by its own recursion, for the simulator: for ``k = 0 … N−2``
-        :math:`x_{k+1} = h^{\alpha_{k+1}}(f x_k + u_k + \sqrt{q}\,\xi_k) - \sum_{j\ge1} c_j(\alpha_{k+1}) x_{k+1-j}`,
-        ``x_0 = x0`` (zero by default), zero history before it. ``alpha`` ``(S, N)`` the order of each step (a known
+    def run_exact(self, v: dict, alpha: Tensor, h: float, xi: Tensor, forcing: Tensor | None = None,
+                  x0: Tensor | None = None) -> Tensor:
+        r"""The state over the whole past (exact memory, O(k) per step, any length): for ``k = 0 … N−2``
+        :math:`x_{k+1} = h^{\alpha_{k+1}}(f x_k + u_k + \sqrt{q}\,\xi_k) - \sum_{j=1}^{k+1} c_j(\alpha_{k+1}) x_{k+1-j}`,
+        ``x_0 = x0`` (zero by default) — the block's recursion with its history uncut, for the simulator (the state
+        space's ``exact`` memory holds the same past as states). ``alpha`` ``(S, N)`` the order of each step (a known
         trajectory, or a constant), ``xi`` ``(S, N)`` standard-normal drive, ``forcing`` ``(S, N)`` a known input
-        ``u_k`` (the paper's ``B u_k``); ``v`` holds ``pole`` and ``q`` ``(S,)``. ``memory`` (one plan,
-        :func:`~torchtea.core.memory.memory_plan`): ``exact`` sums the whole past (O(k) per step, any length);
-        ``window:L`` the last L lags; ``soe`` the first lags plus exponential modes of a kernel designed for the
-        orders run (their range ± 0.01). Bounded memories run compiled on the CPU in float64 without gradients, else
-        (and ``exact`` always) as torch steps where the arguments are. Returns x ``(S, N)``."""
-        from ..core.memory import BoundedHistory, memory_plan
-
+        ``u_k`` (the paper's ``B u_k``); ``v`` holds ``pole`` and ``q`` ``(S,)``. Returns x ``(S, N)``. Runs where
+        its arguments are (a GPU included) and keeps their gradients."""
         S, N = alpha.shape
-        a3 = alpha.unsqueeze(-1)  # (S, N, 1): one state, the layout of the paper's simulator (the same sums)
+        a3 = alpha.unsqueeze(-1)  # (S, N, 1): one state; the layout of the paper's simulator, so its sums are the same
         f = v["pole"].to(alpha).reshape(S, 1, 1)
         omega = xi.unsqueeze(-1) * torch.sqrt(v["q"].to(alpha)).reshape(S, 1, 1)
-        u = alpha.new_zeros(S, N, 1) if forcing is None else forcing.to(alpha).unsqueeze(-1)
+        u = None if forcing is None else forcing.to(alpha).unsqueeze(-1)
         x = alpha.new_empty(S, N, 1)
         x[:, 0, :] = 0.0 if x0 is None else torch.as_tensor(x0).to(alpha).reshape(S, 1)
         hpow = torch.as_tensor(h, dtype=alpha.dtype, device=alpha.device) ** a3
         constant = bool(torch.all(a3 == a3[:, :1, :]))
-        plan = memory_plan(memory, N, (float(alpha.min()) - 0.01, float(alpha.max()) + 0.01))
-
-        def drive(k):
-            return torch.bmm(f, x[:, k, :, None]).squeeze(-1) + u[:, k, :]
-
-        if not plan.bounded:
-            # past states newest first, hist[..., i] = x_{k−i}: time-reversed so that every step reads one slice
-            hist = alpha.new_zeros(S, 1, N)
-            hist[..., N - 1] = x[:, 0, :]
-            if constant:
-                coeff_all = gl_tail_coefficients(a3[:, 0, :], N)  # (S, 1, N): c_1 … c_N
-            for k in range(N - 1):
-                past = hist[..., N - 1 - k:]  # x_k … x_0
-                c = coeff_all[..., :k + 1] if constant else gl_tail_coefficients(a3[:, k + 1, :], k + 1)
-                x[:, k + 1, :] = hpow[:, k + 1, :] * (drive(k) + omega[:, k, :]) - (c * past).sum(-1)
-                hist[..., N - 2 - k] = x[:, k + 1, :]
-            return x[..., 0]
-        kernel, lags = plan.kernel, plan.x_lags
-        decay = inject = coeff = weights = None
-        if kernel is not None:
-            _, _, decay, inject = kernel.tensors(alpha.dtype, alpha.device)
+        # past states newest first, hist[..., i] = x_{k−i}: time-reversed so that every step reads one contiguous slice
+        hist = alpha.new_zeros(S, 1, N)
+        hist[..., N - 1] = x[:, 0, :]
         if constant:
-            coeff = gl_tail_coefficients(a3[:, 0, :], lags).unsqueeze(-3)  # (S, 1, 1, J)
-            if kernel is not None:  # the exponential sum's mode weights, once (issue 13)
-                weights = kernel.weights(a3[:, 0, :].unsqueeze(-2))
-        grad = any(t.requires_grad for t in (f, alpha, omega, u, x))
-        if lags >= 1 and alpha.device.type == "cpu" and alpha.dtype == torch.float64 and not grad:
-            from ._simulate_kernel import run_bounded
-
-            run_bounded(x, hpow, f, u, omega, a3, constant, coeff, weights, kernel, lags)
-            return x[..., 0]
-        past = BoundedHistory.zeros((S,), 1, lags, plan.n_modes, dtype=alpha.dtype, device=alpha.device)
-        past = past.push(x[:, 0, :], decay, inject)
+            coeff_all = gl_tail_coefficients(a3[:, 0, :], N)  # (S, 1, N): c_1 … c_N
         for k in range(N - 1):
-            a = a3[:, k + 1, :]
-            c = coeff if constant else gl_tail_coefficients(a, lags).unsqueeze(-3)
-            memory_sum = past.sum(c, a.unsqueeze(-2), kernel, weights)[..., 0, :]
-            x[:, k + 1, :] = hpow[:, k + 1, :] * (drive(k) + omega[:, k, :]) - memory_sum
-            past = past.push(x[:, k + 1, :], decay, inject)
+            past = hist[..., N - 1 - k:]  # x_k … x_0
+            c = coeff_all[..., :k + 1] if constant else gl_tail_coefficients(a3[:, k + 1, :], k + 1)
+            drive = torch.bmm(f, x[:, k, :, None]).squeeze(-1)
+            if u is not None:
+                drive = drive + u[:, k, :]
+            x[:, k + 1, :] = hpow[:, k + 1, :] * (drive + omega[:, k, :]) - (c * past).sum(-1)
+            hist[..., N - 2 - k] = x[:, k + 1, :]
         return x[..., 0]
 
     def block(self, v, h, memory):

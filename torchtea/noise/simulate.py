@@ -4,10 +4,8 @@ realisations — the one every engine's data come from.
 It runs the very state space the exact Kalman filter reads (:meth:`NoiseModel.state_space`), so the simulator and
 the filter cannot disagree about the model; the deterministic part comes from :meth:`NoiseModel.mean`. With ``soe``
 memory the fractional history is exact to the kernel's tolerance (default 1e-8 relative per coefficient) at O(1) cost
-per step. A model whose one state is the fractional component (``fractional+white``, with means or quantisation) runs
-that component's own recursion instead (:meth:`~torchtea.noise.components.Fractional.run`: the whole past for
-``exact`` memory, at any length and on any device; for ``soe`` a kernel designed for the orders run) — the paper's
-simulator, which is what ``simulate(Structure(), …)`` is.
+per step; with ``exact`` memory a model whose one state is the fractional component runs that component's own
+recursion over the whole past (:meth:`~torchtea.noise.components.Fractional.run_exact`, any length, on any device).
 
 One batch convention: a :class:`Simulation` holds ``(*B, N, ·)`` tensors — the batch first, time at ``-2``, channels
 last; :func:`simulate_states` gives ``*B = (parameter sets, realisations)``. :func:`simulate_model` is its series
@@ -23,6 +21,7 @@ import torch
 from torch import Tensor
 
 from ..core.gl import broadcast_shapes
+from ..core.memory import parse_memory
 from .model import parse_model, varying_kernel_args
 
 __all__ = ["Simulation", "simulate_states", "simulate_model", "simulate", "gaussian_input", "simulate_noise_model",
@@ -103,25 +102,26 @@ def simulate_states(model, values, *, n_steps: int, h: float, realisations: int 
         forcing = torch.as_tensor(forcing, dtype=torch.float64).expand(B, R_, N)
     if x0 is not None:
         x0 = torch.as_tensor(x0, dtype=torch.float64).expand(B, R_)
-    # a model whose one state is the fractional component (no sensor filter, no order modifier) runs the component's
-    # own recursion — the paper's simulator, its arithmetic and its memory plan; every other model its state space
-    own = (frac is not None and model.labels("state") == [frac] and not model.labels("filter")
-           and not any(c.varies_order for _, c in model.components))
-    if own:
+    exact = not parse_memory(memory).bounded and model.labels("state") == [frac] and not model.labels("filter")
+    if exact:  # the fractional component's own recursion over the whole past
         xi, nu = _draws(draws, generator, B, R_, N, 1)
         rv = model.measurement_variance(v)  # (B,): no filter, so all of it is measured
         comp = dict(model.components)[frac]
         fv = {k.split(".", 1)[1]: x for k, x in v.items() if k.startswith(frac + ".")}
+        if orders is None and any(c.varies_order for _, c in model.components):
+            raise ValueError(f"model {model.spec!r}: a temperature-driven order needs bounded memory (soe, window)")
         alpha = _orders(orders, fv[comp.order_param], B, N).to(device)
-        if keep != "all" and any(int(i) != 0 for i in keep):
-            raise ValueError(f"keep: model {model.spec!r} runs its fractional component's own recursion, whose one "
-                             f"state is x_k (index 0), not {keep!r}")
         S = B * R_
         fv = {k: x.repeat_interleave(R_).to(device) for k, x in fv.items()}
-        x = comp.run(fv, alpha.repeat_interleave(R_, dim=0), h, xi.reshape(S, N).to(device),
-                     None if forcing is None else forcing.reshape(S, N).to(device),
-                     None if x0 is None else x0.reshape(S).to(device), memory).reshape(B, R_, N)
-        states = x.unsqueeze(-1) if keep == "all" or len(keep) else x.new_zeros(B, R_, N, 0)
+        x = comp.run_exact(fv, alpha.repeat_interleave(R_, dim=0), h, xi.reshape(S, N).to(device),
+                           None if forcing is None else forcing.reshape(S, N).to(device),
+                           None if x0 is None else x0.reshape(S).to(device)).reshape(B, R_, N)
+        # the state space's exact memory holds x_k, x_{k-1}, ...: state i at step k is x_{k-i} (zero before the start)
+        idx = list(range(N)) if keep == "all" else [int(i) for i in keep]
+        if any(not 0 <= i < N for i in idx):
+            raise ValueError(f"keep: model {model.spec!r} has states 0 ... {N - 1} under exact memory, not {keep!r}")
+        states = (torch.stack([torch.nn.functional.pad(x, (i, 0))[..., :N] for i in idx], -1) if idx
+                  else x.new_zeros(B, R_, N, 0))
         out = x
         alpha = alpha.unsqueeze(1).expand(B, R_, N).unsqueeze(-1)
     else:

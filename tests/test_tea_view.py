@@ -131,3 +131,25 @@ def test_what_the_engines_ask_of_a_component_is_its_own_attribute():
         fit_series(m, [y.numpy()], H, method="whittle", inputs=[{"temperature": torch.zeros(300)}])
     with pytest.raises(ValueError, match="pole cannot be fixed while fractional.order is free"):
         fit_series("fractional+white", [y.numpy()], H, fixed={"fractional.pole": -2.0})
+
+
+def test_identify_reuses_each_channels_view_for_its_settings():
+    """identify builds each channel's view once, on the channel's preset, and axis_configs starts from its settings:
+    the same configs as building the views again (with and without overrides; a preset override builds them anew)."""
+    from torchtea.fitting.mle import fit_series
+    from torchtea.identification import axis_configs
+
+    spec = "fractional+white+random-walk"
+    vals = dict(FW, **{"random-walk.sigma": 0.02})
+    y = simulate_model(spec, vals, n_steps=400, h=H, realisations=2, generator=torch.Generator().manual_seed(5))[0]
+    fits = fit_series(spec, [y[0].numpy(), y[1].numpy()], H, method="whittle")
+    presets = ["paper-mems-x", "paper-mems-z"]
+    views = tuple(tea_view(f.model, f.values, H, get_preset(p)) for f, p in zip(fits, presets))
+    yy = y.unsqueeze(-1)
+    for overrides in (None, {"kfo": {"Q0": 1e-5}}, {"preset": "paper-example1", "kfo": {"Q0": 1e-5}}):
+        again = axis_configs(yy, "fitted", overrides, fits, presets, h=H)
+        reused = axis_configs(yy, "fitted", overrides, fits, presets, h=H, views=views)
+        assert again == reused
+    assert axis_configs(yy, "fitted", None, fits, presets, h=H, views=views)[1].kfx.P0 == views[1].config.kfx.P0
+    assert axis_configs(yy, "fitted", None, fits, presets, h=H)[0] != axis_configs(yy, "fitted", None, fits, presets,
+                                                                                   h=H)[1]

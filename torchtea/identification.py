@@ -129,7 +129,7 @@ R_MODES = ("fitted", "measured", "paper")
 
 
 def axis_configs(y: torch.Tensor, r_mode: str = "measured", overrides: dict | None = None, fits=(),
-                 presets=None, h: float | None = None) -> tuple:
+                 presets=None, h: float | None = None, views=None) -> tuple:
     """The paper's §5.1 settings per channel (``presets``, default ``paper-mems-x``, ``-y``, ``-z`` for three
     accelerometer axes; see :func:`preset_for`), with ``overrides`` on top.
 
@@ -147,7 +147,8 @@ def axis_configs(y: torch.Tensor, r_mode: str = "measured", overrides: dict | No
 
     ``overrides`` is a settings table as in a TOML config (a partial nested dict): a ``preset`` key
     replaces the MEMS preset as the base of every channel, and every other key overrides that base — an
-    ``R`` given there wins over the measured one.
+    ``R`` given there wins over the measured one. ``views``: the fits' TEA views already made on the channels'
+    ``presets`` (:func:`identify` has them), reused for ``"fitted"`` unless a ``preset`` override asks another base.
     """
     presets = list(presets) if presets is not None else [f"paper-mems-{a}" for a in AXES]
     if r_mode not in R_MODES:
@@ -165,7 +166,8 @@ def axis_configs(y: torch.Tensor, r_mode: str = "measured", overrides: dict | No
         elif r_mode == "fitted":
             if h is None:
                 raise ValueError("r_mode 'fitted' needs the sample time h")
-            cfg = tea_view(fits[i].model, fits[i].values, h, cfg).config
+            cfg = (views[i].config if views is not None and preset is None
+                   else tea_view(fits[i].model, fits[i].values, h, cfg).config)
         if overrides:
             cfg = TEAConfig.from_dict(overrides, cfg)
         out.append(cfg)
@@ -233,6 +235,7 @@ def identify(measurements: Measurements, *, model="fractional+white", r_mode: st
     y = torch.as_tensor((values - means).T.copy(), dtype=torch.float64).unsqueeze(-1)  # (C, N, 1)
     views, fitted_y = (), None
     structures = [Structure()] * len(m.channels)
+    presets = [preset_for(c) for c in m.channels]
     if r_mode == "fitted":
         if not given:
             from .fitting import fit_series
@@ -240,7 +243,9 @@ def identify(measurements: Measurements, *, model="fractional+white", r_mode: st
             fits = tuple(fit_series(model, [y[i, :, 0].numpy() for i in range(len(m.channels))], rec.h,
                                     method="exact", profile=plain, inputs=None if inputs is None else
                                     [inputs] * len(m.channels)))
-        views = tuple(tea_view(f.model, f.values, rec.h) for f in fits)  # refuses a model the TEA cannot run
+        # each channel's view on its own preset, once: its structure, and the settings axis_configs starts from
+        views = tuple(tea_view(f.model, f.values, rec.h, get_preset(p))  # refuses a model the TEA cannot run
+                      for f, p in zip(fits, presets))
         structures = [v.structure for v in views]
         if not plain:  # the model's means (a ramp, a line …) at their fitted values
             fitted_y = y
@@ -250,9 +255,8 @@ def identify(measurements: Measurements, *, model="fractional+white", r_mode: st
     overrides = dict(overrides or {})
     if "memory" not in overrides and N >= LONG_INPUT:
         overrides["memory"] = {"kind": "soe"}
-    presets = [preset_for(c) for c in m.channels]
-    configs = axis_configs(y, r_mode, overrides or None, fits, presets, h=rec.h)
-    changes = tuple(axis_changes(axis_configs(y, r_mode, None, fits, presets, h=rec.h), configs,
+    configs = axis_configs(y, r_mode, overrides or None, fits, presets, h=rec.h, views=views)
+    changes = tuple(axis_changes(axis_configs(y, r_mode, None, fits, presets, h=rec.h, views=views), configs,
                                  [c.label for c in m.channels]))
     for st, cfg, c in zip(structures, configs, m.channels):
         if st.n_states > 1 and cfg.noise_scaling != "scaled":  # the states' drives are h^α Q0 h^α (tea_view)

@@ -19,6 +19,7 @@ from .engines.presets import get_preset
 from .engines.settings import TEAConfig
 from .engines.structure import Structure
 from .engines.tea import STEP_OUTPUTS, TEAResult, make_params, run_tea, stack_params
+from .noise.model import PAPER_MODEL
 from .noise.tea import same_structure, tea_view
 from .reports.identify import AXES, MIN_SAMPLES, summarise
 from .sensors.datacheck import Missing, Timing
@@ -174,7 +175,7 @@ def axis_configs(y: torch.Tensor, r_mode: str = "measured", overrides: dict | No
     return tuple(out)
 
 
-def identify(measurements: Measurements, *, model="fractional+white", r_mode: str = "fitted",
+def identify(measurements: Measurements, *, model=PAPER_MODEL, r_mode: str = "fitted",
              overrides: dict | None = None, progress=None, compile: bool = False, partial: bool = False, device=None,
              inputs: dict | None = None, fits=None) -> Identification:
     """Run the TEA on the channels of a prepared recording (:func:`torchtea.sensors.measurements.prepare`).
@@ -226,7 +227,7 @@ def identify(measurements: Measurements, *, model="fractional+white", r_mode: st
         fits = tuple(fits)
         if len(fits) != len(m.channels):
             raise ValueError(f"{len(fits)} fits for {len(m.channels)} channels")
-    plain = all(f.model.spec == "fractional+white" for f in fits) if given else model.spec == "fractional+white"
+    plain = all(f.model.spec == PAPER_MODEL for f in fits) if given else model.spec == PAPER_MODEL
     if (given or not plain) and r_mode != "fitted":
         what = "the given fits" if given else f"model {model.spec!r}"
         raise ValueError(f"{what}: the noise levels come from the fit; use r_mode 'fitted'")

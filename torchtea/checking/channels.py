@@ -4,12 +4,10 @@ from __future__ import annotations
 
 from typing import Callable, Iterable
 
+from ..noise.model import PAPER_MODEL
 from .check import CheckResult, check
 
 __all__ = ["check_measurements", "summary_lines"]
-
-#: The model a recording's check starts from when none is named.
-START_MODEL = "fractional+white"
 
 
 def check_measurements(m, model=None, *, inputs: dict | None = None, add: Iterable[str] = (), auto: bool = False,
@@ -17,10 +15,10 @@ def check_measurements(m, model=None, *, inputs: dict | None = None, add: Iterab
                        levels: dict | None = None, progress: Callable | None = None,
                        log: Callable | None = None) -> dict:
     """Check each channel of ``m`` (:class:`~torchtea.sensors.measurements.Measurements`) with ``model`` (default
-    :data:`START_MODEL`), then add the ``add`` effects in order, then (``auto``) run the loop
+    :data:`PAPER_MODEL`), then add the ``add`` effects in order, then (``auto``) run the loop
     (:meth:`CheckResult.auto` with ``max_steps``, ``strong``). ``levels``: check's ``level``/``screen_level`` where
     given. ``progress(done, total)`` after each channel, ``log(line)`` before it. Returns label → result."""
-    model = model or START_MODEL
+    model = model or PAPER_MODEL
     results = {}
     for i, c in enumerate(m.channels):
         if log is not None:

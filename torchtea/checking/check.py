@@ -53,7 +53,7 @@ from ..fitting.mle import (Fit, centred, exact_loglik, fit_series, located_inter
                            whittle_fit)
 from ..noise.components import COMPONENTS, Component, NotScreened, boundary_logsf
 from ..noise.components import candidates as candidates_all
-from ..noise.model import NoiseModel, parse_model
+from ..noise.model import PAPER_MODEL, NoiseModel, parse_model
 from .diagnostics import LEVEL, Diagnostic, Innovations, innovations, linear_lr, metrics, run_diagnostics
 
 __all__ = ["check", "CheckResult", "Suggestion", "read_check", "CANDIDATES", "extend", "SCREENS", "effect_parameters", "rank",
@@ -448,7 +448,7 @@ def _whittle_screens(model, base, rows_alts, y, h, inputs, cache: dict):
         row.update(found)
 
 
-def check(y, h: float, model="fractional+white", inputs: dict | None = None, *, level: float = LEVEL,
+def check(y, h: float, model=PAPER_MODEL, inputs: dict | None = None, *, level: float = LEVEL,
           screen_level: float = 0.05, candidates=None, fit: Fit | None = None, intervals: bool = True,
           _restarts: int = 1, _cache: dict | None = None) -> CheckResult:
     """Fit ``model`` to the series ``y`` (NaN = missing, sample time ``h``), run the diagnostics and rank the

@@ -16,10 +16,11 @@ import torch
 
 from ..noise import default_values, parse_model, simulate_model, temperature_profile
 from ..noise.components import COMPONENTS
+from ..noise.model import PAPER_MODEL
 
 __all__ = ["HIDDEN_STRENGTH", "BASE_MODEL", "hidden_model", "hidden_case", "DRAWS", "random_case"]
 
-BASE_MODEL = "fractional+white"
+BASE_MODEL = PAPER_MODEL
 #: Each hidden effect's parameters (the others are :func:`~torchtea.noise.default_values`'), ``"none"``: clean.
 HIDDEN_STRENGTH = {
     "none": {},

@@ -29,7 +29,7 @@ from ..core.gl import broadcast_shapes
 from ..core.memory import MemoryConfig, SOEKernel, memory_plan, parse_memory
 from .components import COMPONENTS, ORDER_BOUNDS, Component, StartData, logit
 
-__all__ = ["NoiseModel", "parse_model", "StateSpace", "VaryingRow", "StateMemory", "state_memory",
+__all__ = ["NoiseModel", "PAPER_MODEL", "parse_model", "StateSpace", "VaryingRow", "StateMemory", "state_memory",
            "EXACT_MEMORY_LIMIT", "ROW_TABLE"]
 
 #: ``exact`` memory puts the whole past in the state (O(N²) per step): only for short series (tests).
@@ -503,6 +503,10 @@ class NoiseModel:
         white = max(float(d.var()) / 2.0, 1e-6 * var) if d.numel() > 1 else var / 2
         data = StartData(y, var, white, len(self.labels("state")), h, order)
         return {f"{label}.{p.name}": comp.start(p.name, data) for label, comp in self.components for p in comp.params}
+
+
+#: The paper's noise model (43)–(45): a fractional state and white measurement noise — every command's starting model.
+PAPER_MODEL = "fractional+white"
 
 
 def parse_model(spec) -> NoiseModel:

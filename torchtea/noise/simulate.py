@@ -22,7 +22,7 @@ from torch import Tensor
 
 from ..core.gl import broadcast_shapes
 from ..core.memory import parse_memory
-from .model import parse_model, varying_kernel_args
+from .model import PAPER_MODEL, parse_model, varying_kernel_args
 
 __all__ = ["Simulation", "simulate_states", "simulate_model", "simulate", "gaussian_input", "simulate_noise_model",
            "temperature_profile", "default_values"]
@@ -208,10 +208,6 @@ def gaussian_input(batch_shape, n_steps: int, n_inputs: int, std: float, *, gene
     """Known input ``u_k ~ N(0, std²)`` of shape ``(*batch_shape, N, d)``."""
     z = torch.randn(tuple(batch_shape) + (n_steps, n_inputs), generator=generator, dtype=dtype, device=device)
     return std * z
-
-
-#: the paper's scalar noise model (43)–(45) as a noise model: KFx's fractional state and white measurement noise
-PAPER_MODEL = "fractional+white"
 
 
 def _variance(value, name: str, like: Tensor) -> Tensor:

@@ -10,6 +10,7 @@ from ..sensors.datacheck import MISSING_POLICY
 from ..identification import Identification
 from .identify import NIS_TRUST_BAND, SETTLE_BAND, filter_sd_label, mean_or_nan, settle_time
 from ..core.stats import last_third
+from ..noise.model import PAPER_MODEL
 
 __all__ = ["settle_time", "axis_statistics", "write_report", "log_identification", "orders_figure",
            "save_identification"]
@@ -149,7 +150,7 @@ def write_report(path, ident: Identification, summary: dict, figures: list, *, c
                          + (", ".join(f"{n} {p_[n]['value']:.3g}" for n in p_
                                       if not n.startswith("fractional.") and n != "white.r") or "—")
                          + f" | {fs['loglik']:.1f} | {fs['nis']:.3f} |")
-        grown = [(a, v) for a, v in zip(ident.labels, ident.views) if v.model.spec != "fractional+white"]
+        grown = [(a, v) for a, v in zip(ident.labels, ident.views) if v.model.spec != PAPER_MODEL]
         if grown:
             lines += ["", "How the TEA runs these models (each component's place in it):", ""]
             lines += [f"- {a} (`{v.model.spec}`): " + "; ".join(f"`{lb}` {note}" for lb, note in v.notes.items())

@@ -94,3 +94,36 @@ def test_estimate_file_is_run_tea_on_the_column(tmp_path):
     short = write_columns(tmp_path / "short.csv", {"y": y[:20]})
     with pytest.raises(InputError, match="short.csv: 20 samples"):
         estimate_file(short, cfg, h=0.01)
+
+
+def test_simulate_columns_is_what_simulate_model_writes(tmp_path):
+    """``torchtea simulate --model`` writes simulate_columns' columns and values: the temperature drawn first from the
+    seed, then one batch, each column its defaults with its --set values on top; a name or column it lacks, refused."""
+    import json
+
+    import numpy as np
+
+    from torchtea.cli import main
+    from torchtea.noise import default_values, parse_model, simulate_model, temperature_profile
+    from torchtea.noise.simulate import simulate_columns
+
+    spec, h, n = "fractional+white+sinusoid", 0.01, 500
+    data, per = simulate_columns(spec, n_steps=n, h=h, columns=["ax", "ay"], seed=4,
+                                 values={"ay": {"sinusoid.amplitude": 0.2}, "ax": {"white.r": 1e-4}})
+    g = torch.Generator().manual_seed(4)
+    T = temperature_profile(n, h, generator=g)
+    base = default_values(spec, h, T)
+    assert per == {"ax": dict(base, **{"white.r": 1e-4}), "ay": dict(base, **{"sinusoid.amplitude": 0.2})}
+    y = simulate_model(parse_model(spec), {k: [per["ax"][k], per["ay"][k]] for k in base}, n_steps=n, h=h,
+                       inputs={"temperature": T}, generator=g)[:, 0]
+    assert torch.equal(data["ax"], y[0]) and torch.equal(data["ay"], y[1]) and torch.equal(data["temp"], T)
+    out = tmp_path / "s.csv"
+    assert main(["simulate", "--model", spec, "--n", str(n), "--h", str(h), "--seed", "4", "--columns", "ax,ay",
+                 "--set", "ay:sinusoid.amplitude=0.2", "--set", "ax:white.r=1e-4", "--out", str(out)]) == 0
+    written = np.genfromtxt(out, delimiter=",", names=True)
+    np.testing.assert_allclose(written["ay"], data["ay"].numpy(), rtol=1e-9)
+    assert json.loads((tmp_path / "s.csv.truth.json").read_text())["values"]["ay"] == per["ay"]
+    with pytest.raises(ValueError, match="not parameters of"):
+        simulate_columns(spec, n_steps=n, h=h, values={"y": {"sinusoid.nope": 1.0}})
+    with pytest.raises(ValueError, match="not among the columns"):
+        simulate_columns(spec, n_steps=n, h=h, values={"az": {"white.r": 1.0}})

@@ -216,8 +216,8 @@ def cmd_simulate(args) -> int:
 
     if args.model is not None:
         if args.device not in (None, "cpu"):
-            raise CLIError(f"--device {args.device}: --model simulations run on the CPU (the noise-model "
-                           "components are simulated by numpy); the paper's model runs on any device")
+            raise CLIError(f"--device {args.device}: --model simulations run on the CPU (the state space's compiled "
+                           "loop); the paper's model runs on any device")
         return _simulate_model(args)
     absent = [f"--{n}" for n in ("order", "param", "q", "r") if getattr(args, n) is None]
     if absent:
@@ -251,41 +251,36 @@ def cmd_simulate(args) -> int:
 def _simulate_model(args) -> int:
     import json
 
-    import torch
-
-    from .noise import default_values, parse_model, simulate_model, temperature_profile
+    from .noise import parse_model
+    from .noise.simulate import simulate_columns
     from .sensors.io import write_columns
 
     model = parse_model(args.model)
     try:
-        t0, warm, tau, wander = (float(x) for x in args.temperature_profile.split(","))
+        profile = tuple(float(x) for x in args.temperature_profile.split(","))
+        if len(profile) != 4:
+            raise ValueError
     except ValueError:
         raise CLIError(f"--temperature-profile needs four numbers T0,WARMUP,TAU_S,WANDER, got "
                        f"{args.temperature_profile!r}") from None
     columns = [c.strip() for c in (args.columns or "y").split(",")]
     if not all(columns) or len(set(columns)) != len(columns) or any(c in ("t", "temp") for c in columns):
         raise CLIError(f"--columns {args.columns!r}: distinct names, not t or temp")
-    gen = torch.Generator().manual_seed(args.seed)
-    T = temperature_profile(args.n, args.h, start=t0, warmup=warm, tau_s=tau, wander=wander, generator=gen)
-    base = default_values(model, args.h, T)
-    values = {c: dict(base) for c in columns}
+    names = model.names
+    values: dict = {c: {} for c in columns}
     for item in args.set:
         target, sep, text = item.partition("=")
         col, colon, name = target.rpartition(":")
-        cols = [col] if colon else columns
-        if not sep or name not in base or (colon and col not in columns):
+        if not sep or name not in names or (colon and col not in columns):
             raise CLIError(f"--set {item!r}: expected NAME=VALUE or COLUMN:NAME=VALUE with NAME one of "
-                           f"{', '.join(base)} and COLUMN one of {', '.join(columns)}")
-        for c in cols:
+                           f"{', '.join(names)} and COLUMN one of {', '.join(columns)}")
+        for c in [col] if colon else columns:
             values[c][name] = _finite_float(text)
-    # every column its own draw (one batch of parameter sets: the same seed gives the same series whatever the rest)
-    batch = {k: [values[c][k] for c in columns] for k in base}
-    y = simulate_model(model, batch, n_steps=args.n, h=args.h, inputs={"temperature": T}, generator=gen,
-                       memory=_memory(args.memory) or "soe")[:, 0]
-    t = torch.arange(args.n, dtype=torch.float64) * args.h
-    out = write_columns(args.out, {"t": t, **{c: y[i] for i, c in enumerate(columns)}, "temp": T})
+    data, per = simulate_columns(model, n_steps=args.n, h=args.h, columns=columns, values=values, seed=args.seed,
+                                 temperature=profile, memory=_memory(args.memory) or "soe")
+    out = write_columns(args.out, data)
     truth = Path(str(out) + ".truth.json")
-    doc = {"model": model.spec, "values": values[columns[0]] if columns == ["y"] else values, "h": args.h,
+    doc = {"model": model.spec, "values": per[columns[0]] if columns == ["y"] else per, "h": args.h,
            "n": args.n, "seed": args.seed, "temperature_profile": args.temperature_profile, "columns": columns}
     truth.write_text(json.dumps(doc, indent=1))
     print(f"wrote {args.n} samples of {model.spec} in {len(columns)} column(s) to {out} (values in {truth.name})",

@@ -25,7 +25,7 @@ from ..core.memory import parse_memory
 from .model import PAPER_MODEL, parse_model, varying_kernel_args
 
 __all__ = ["Simulation", "simulate_states", "simulate_model", "simulate", "gaussian_input", "simulate_noise_model",
-           "temperature_profile", "default_values"]
+           "simulate_columns", "temperature_profile", "default_values"]
 
 
 @dataclass(frozen=True)
@@ -380,6 +380,38 @@ def _run(ss, z0: torch.Tensor, xi: torch.Tensor, keep: list, fr_i: int, forcing)
     simulate_batch(indptr, indices, fvals, gptr, gcol, gvals, cidx, C, np.ascontiguousarray(z0.numpy()), np.ascontiguousarray(xi.numpy()), out, states,
                    np.asarray(keep, dtype=np.int64), int(fr_i), fr, *tv)
     return torch.from_numpy(out), torch.from_numpy(states)
+
+
+def simulate_columns(model, *, n_steps: int, h: float, columns=("y",), values: dict | None = None, seed: int = 0,
+                     temperature=(25.0, 3.0, 60.0, 0.2), memory="soe") -> tuple[dict, dict]:
+    """The columns of one simulated recording of ``model`` — what ``torchtea simulate --model`` writes.
+
+    One generator seeded ``seed`` draws the temperature (:func:`temperature_profile` with ``temperature`` = start °C,
+    warm-up °C, its time constant s, wander sd °C) and then every column's series, each column its own parameter set
+    (one batch, so a seed gives a column the same series whatever the other columns): the MEMS-like defaults
+    (:func:`default_values`) with ``values[column]`` (``{name: value}``) on top. Returns the columns
+    ``{"t", *columns, "temp"}`` (tensors ``(N,)``) and each column's parameter values."""
+    model = parse_model(model)
+    columns = list(columns)
+    values = values or {}
+    unknown = sorted(set(values) - set(columns))
+    if unknown:
+        raise ValueError(f"values for {', '.join(unknown)}: not among the columns {', '.join(columns)}")
+    gen = torch.Generator().manual_seed(seed)
+    start, warmup, tau_s, wander = temperature
+    T = temperature_profile(n_steps, h, start=start, warmup=warmup, tau_s=tau_s, wander=wander, generator=gen)
+    base = default_values(model, h, T)
+    per = {}
+    for c in columns:
+        bad = sorted(set(values.get(c, {})) - set(base))
+        if bad:
+            raise ValueError(f"column {c}: {', '.join(bad)} not parameters of {model.spec} ({', '.join(base)})")
+        per[c] = dict(base, **values.get(c, {}))
+    batch = {k: [per[c][k] for c in columns] for k in base}
+    y = simulate_model(model, batch, n_steps=n_steps, h=h, inputs={"temperature": T}, generator=gen,
+                       memory=memory)[:, 0]
+    t = torch.arange(n_steps, dtype=torch.float64) * h
+    return {"t": t, **{c: y[i] for i, c in enumerate(columns)}, "temp": T}, per
 
 
 def temperature_profile(n_steps: int, h: float, *, start: float = 25.0, warmup: float = 3.0, tau_s: float = 60.0,

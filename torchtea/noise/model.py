@@ -48,22 +48,30 @@ class StateMemory:
         return 0 if self.kernel is None else self.kernel.n_modes
 
 
-def state_memory(memory, n_steps: int) -> StateMemory:
+def state_memory(memory, n_steps: int, orders: tuple | None = None) -> StateMemory:
     """The state-space form of a memory setting (``"soe"``, ``"soe:1e-8"``, ``"exact"``, ``"window:L"``)
-    for series of ``n_steps`` samples. The single place where memory kinds become states."""
+    for series of ``n_steps`` samples. The single place where memory kinds become states. A ``soe`` kernel serves
+    the model's orders (:data:`ORDER_BOUNDS`); ``orders`` ``(low, high)``, the orders a simulation runs, widens it
+    when they leave them (the paper's Example 3 reaches order 2) — inside them it is the filter's kernel."""
     cfg = parse_memory(memory)
     if not cfg.bounded:
         if n_steps > EXACT_MEMORY_LIMIT:
             raise ValueError(f"exact memory keeps all {n_steps} past samples in the state; use soe for more than "
                              f"{EXACT_MEMORY_LIMIT} samples")
         return StateMemory(max(n_steps - 1, 1))
-    plan = memory_plan(cfg, max(n_steps, cfg.exact_lags + 2), (ORDER_BOUNDS[0], ORDER_BOUNDS[1] - 1e-3))
+    lo, hi = ORDER_BOUNDS[0], ORDER_BOUNDS[1] - 1e-3
+    if orders is not None:
+        lo, hi = min(lo, float(orders[0]) - 0.01), max(hi, float(orders[1]) + 0.01)
+    plan = memory_plan(cfg, max(n_steps, cfg.exact_lags + 2), (lo, hi))
     return StateMemory(plan.x_lags, plan.kernel)
 
 
 #: A time-varying order's first rows are tabulated: exactly at each distinct order when there are at most this many,
 #: else on this many equally spaced orders between the lowest and highest with linear interpolation between them.
 ROW_TABLE = 4096
+#: A known order trajectory (``state_space(..., orders=)``: the paper's schedules) is tabulated exactly at every
+#: distinct order while the table holds at most this many entries (64 MB), and like a temperature-driven order beyond.
+ROW_ENTRIES = 1 << 23
 
 
 @dataclass(frozen=True)
@@ -472,7 +480,7 @@ class NoiseModel:
         grids, index, weight = [], [], []
         for b in range(B):
             values, inverse = torch.unique(a_next[b], return_inverse=True)
-            if len(values) <= ROW_TABLE:  # exact: a row per distinct order
+            if len(values) <= (max(ROW_TABLE, ROW_ENTRIES // n) if orders is not None else ROW_TABLE):  # exact rows
                 grids.append(values)
                 index.append(inverse)
                 weight.append(torch.zeros(n_steps, dtype=torch.float64))

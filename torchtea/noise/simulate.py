@@ -22,7 +22,8 @@ from torch import Tensor
 
 from ..core.gl import broadcast_shapes
 from ..core.memory import parse_memory
-from .model import PAPER_MODEL, parse_model, varying_kernel_args
+from ..core.memory import parse_memory
+from .model import PAPER_MODEL, parse_model, state_memory, varying_kernel_args
 
 __all__ = ["Simulation", "simulate_states", "simulate_model", "simulate", "gaussian_input", "simulate_noise_model",
            "simulate_columns", "temperature_profile", "default_values"]
@@ -125,7 +126,13 @@ def simulate_states(model, values, *, n_steps: int, h: float, realisations: int 
         out = x
         alpha = alpha.unsqueeze(1).expand(B, R_, N).unsqueeze(-1)
     else:
-        ss = model.state_space(v, h, N, memory, inputs=inputs, orders=orders)
+        mem = memory
+        if frac is not None and parse_memory(memory).bounded:  # a soe kernel for every order run (Example 3: up to 2)
+            model.check_inputs(inputs, ("modifier",))
+            a = (_modified_orders(model, v, N, inputs, B) if orders is None and any(c.varies_order for _, c in
+                 model.components) else _orders(orders, v[model.order_name], B, N))
+            mem = state_memory(memory, N, (float(a.min()), float(a.max())))
+        ss = model.state_space(v, h, N, mem, inputs=inputs, orders=orders)
         n, m = ss.n, ss.G.shape[-1]
         xi, nu = _draws(draws, generator, B, R_, N, m)
         rv = ss.R  # the white noise after a sensor filter (before it, it is a state's drive)

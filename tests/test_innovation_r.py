@@ -85,10 +85,10 @@ def test_the_compiled_engine_is_the_torch_step(memory, kfx_uncertainty, which):
     slow = run_tea(y, h=H, params=params, engine="torch")
     assert bool(fast.diverged[2]) and bool(slow.diverged[2]) and int(fast.diverged_at[2]) == int(slow.diverged_at[2])
     for f in ("alpha", "w", "x", "P", "P_alpha", "P_w", "innovation_cov"):
-        # the two engines sum in other orders: 1e-12 on the running realisations (seen: ≤ 1e-12 relative); the frozen
-        # one's last steps filter data × 1e7, where the same rounding reaches 2e-8 relative (innovation_cov ~ 1e14)
+        # the two engines sum in other orders: the running realisations agree to ≤ 1e-12 relative (seen); the frozen
+        # one's last steps filter data × 1e7, where the same rounding reaches 6.5e-9 relative on these data
         torch.testing.assert_close(getattr(fast, f)[:2], getattr(slow, f)[:2], rtol=1e-10, atol=1e-12)
-        torch.testing.assert_close(getattr(fast, f)[2], getattr(slow, f)[2], rtol=1e-6, atol=1e-12)
+        torch.testing.assert_close(getattr(fast, f)[2], getattr(slow, f)[2], rtol=1e-8, atol=1e-12)
 
 
 def test_settings_read_write_and_stack(tmp_path):

@@ -223,3 +223,55 @@ def test_a_constant_order_beyond_the_bounds_under_soe():
 
     soe, exact = run("soe"), run("exact")
     assert float((soe - exact).abs().max()) <= 1e-8 * float(exact.abs().max())
+
+
+def test_forcing_follows_a_temperature_driven_order():
+    """A forcing enters as h^{α_{k+1}} u_k with the order the modifier gives that step (it once took the constant
+    order), under exact memory (a model of one fractional state with a temperature-driven order runs the state space):
+    the A-type equation holds with the orders the simulation reports."""
+    from torchtea.noise import simulate_states
+
+    N, h = 300, 0.01
+    T = 25.0 + 20.0 * (1.0 - torch.exp(-torch.arange(N, dtype=torch.float64) * h / 0.5))
+    v = {"fractional.order": [0.3], "fractional.pole": [-2.0], "fractional.q": [0.0], "white.r": [1e-6],
+         "temperature-order.order_per_degC": [0.02], "temperature-order.t_ref": [25.0]}
+    u = 0.3 * torch.randn(1, 1, N, generator=torch.Generator().manual_seed(3), dtype=torch.float64)
+    sim = simulate_states("fractional+temperature-order+white", v, n_steps=N, h=h, memory="exact",
+                          inputs={"temperature": T}, forcing=u, keep=[0], generator=torch.Generator().manual_seed(4))
+    x, a = sim.x[0, 0, :, 0], sim.alpha[0, 0, :, 0]
+    assert float(a[-1] - a[0]) > 0.3  # the order moved
+    lhs = difference(x, a, h, "A")[1:]
+    torch.testing.assert_close(lhs, (-2.0 * x + u[0, 0])[:-1], rtol=1e-9, atol=1e-9 * float(lhs.abs().max()))
+
+
+def test_every_realisation_of_a_batch_is_its_own_run():
+    """The compiled loop advances realisations 16 at a time: each of 21 (a short last group; a random walk beside the
+    fractional state, a forcing, x0) equals its run alone, bit for bit; a sensor filter's first draw comes from
+    ``draws`` when given (the third), and without it such a model refuses ``draws`` by name."""
+    from torchtea.noise import simulate_states
+
+    N, R = 400, 21
+    v = dict(_paper_values(), **{"random-walk.sigma": torch.full((1,), 0.05, dtype=torch.float64)})
+    g = torch.Generator().manual_seed(12)
+    xi, nu = torch.randn(1, R, N, 2, generator=g, dtype=torch.float64), torch.randn(1, R, N, generator=g,
+                                                                                   dtype=torch.float64)
+    u = torch.randn(1, R, N, generator=g, dtype=torch.float64)
+    kw = dict(n_steps=N, h=0.01, memory="soe", x0=0.1, keep="all")
+    batch = simulate_states("fractional+white+random-walk", v, draws=(xi, nu), forcing=u, realisations=R, **kw)
+    for r in (0, 15, 16, 20):
+        one = simulate_states("fractional+white+random-walk", v, draws=(xi[:, r:r + 1], nu[:, r:r + 1]),
+                              forcing=u[:, r:r + 1], **kw)
+        assert torch.equal(one.y[0, 0], batch.y[0, r]) and torch.equal(one.x[0, 0], batch.x[0, r])
+    lp = {"fractional.order": [0.4], "fractional.pole": [-2.0], "fractional.q": [0.01], "white.r": [1e-3],
+          "low-pass.cutoff_hz": [5.0]}
+    g = torch.Generator().manual_seed(5)
+    ref = simulate_states("fractional+white+low-pass", lp, n_steps=N, h=0.01, realisations=2, generator=g)
+    g = torch.Generator().manual_seed(5)
+    m = ref.process_noise.shape[-1]
+    d = (torch.randn(1, 2, N, m, generator=g, dtype=torch.float64), torch.randn(1, 2, N, generator=g,
+                                                                                dtype=torch.float64),
+         torch.randn(1, 2, 1, generator=g, dtype=torch.float64)[..., 0])
+    assert torch.equal(simulate_states("fractional+white+low-pass", lp, n_steps=N, h=0.01, realisations=2,
+                                       draws=d).y, ref.y)
+    with pytest.raises(ValueError, match="third of draws"):
+        simulate_states("fractional+white+low-pass", lp, n_steps=N, h=0.01, realisations=2, draws=d[:2])

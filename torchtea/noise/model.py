@@ -70,7 +70,8 @@ def state_memory(memory, n_steps: int, orders: tuple | None = None) -> StateMemo
 #: else on this many equally spaced orders between the lowest and highest with linear interpolation between them.
 ROW_TABLE = 4096
 #: A known order trajectory (``state_space(..., orders=)``: the paper's schedules) is tabulated exactly at every
-#: distinct order while the table holds at most this many entries (64 MB), and like a temperature-driven order beyond.
+#: distinct order while the tables of all parameter sets hold at most this many entries (64 MB), and like a
+#: temperature-driven order beyond (a wide batch of parameter sets under a long schedule: rows interpolated).
 ROW_ENTRIES = 1 << 23
 
 
@@ -480,7 +481,7 @@ class NoiseModel:
         grids, index, weight = [], [], []
         for b in range(B):
             values, inverse = torch.unique(a_next[b], return_inverse=True)
-            if len(values) <= (max(ROW_TABLE, ROW_ENTRIES // n) if orders is not None else ROW_TABLE):  # exact rows
+            if len(values) <= (max(ROW_TABLE, ROW_ENTRIES // (n * B)) if orders is not None else ROW_TABLE):  # exact
                 grids.append(values)
                 index.append(inverse)
                 weight.append(torch.zeros(n_steps, dtype=torch.float64))

@@ -22,7 +22,6 @@ from torch import Tensor
 
 from ..core.gl import broadcast_shapes
 from ..core.memory import parse_memory
-from ..core.memory import parse_memory
 from .model import PAPER_MODEL, parse_model, state_memory, varying_kernel_args
 
 __all__ = ["Simulation", "simulate_states", "simulate_model", "simulate", "gaussian_input", "simulate_noise_model",
@@ -78,7 +77,8 @@ def simulate_states(model, values, *, n_steps: int, h: float, realisations: int 
     forcing : Tensor ``(B, R, N)`` (broadcast), optional
         A known input ``u_k`` driving the fractional state inside ``h^α(…)`` (the paper's ``B u_k``).
     draws : ``(ξ (B, R, N, m), ν (B, R, N))``, optional
-        Standard-normal draws instead of the generator's (a study whose realisation i must not depend on its chunk).
+        Standard-normal draws instead of the generator's (a study whose realisation i must not depend on its chunk);
+        a model that starts from a draw (a sensor filter's first sample) takes a third, ``(B, R)``.
     x0 : the fractional state's value at k = 0 (zero by default; ``(B, R)`` broadcast).
     keep : indices of the stacked state to return as ``x``, or ``"all"``.
 
@@ -103,24 +103,30 @@ def simulate_states(model, values, *, n_steps: int, h: float, realisations: int 
         forcing = torch.as_tensor(forcing, dtype=torch.float64).expand(B, R_, N)
     if x0 is not None:
         x0 = torch.as_tensor(x0, dtype=torch.float64).expand(B, R_)
-    exact = not parse_memory(memory).bounded and model.labels("state") == [frac] and not model.labels("filter")
+    modified = any(c.varies_order for _, c in model.components)  # a temperature-driven order
+    run = None  # the fractional order of every step (B, N): a known trajectory, the modifier's, or the constant
+    if frac is not None:
+        model.check_inputs(inputs, ("modifier",))
+        run = (_modified_orders(model, v, N, inputs, B) if orders is None and modified
+               else _orders(orders, v[model.order_name], B, N))
+    exact = (not parse_memory(memory).bounded and model.labels("state") == [frac] and not model.labels("filter")
+             and not modified)
     if exact:  # the fractional component's own recursion over the whole past
         xi, nu = _draws(draws, generator, B, R_, N, 1)
         rv = model.measurement_variance(v)  # (B,): no filter, so all of it is measured
         comp = dict(model.components)[frac]
         fv = {k.split(".", 1)[1]: x for k, x in v.items() if k.startswith(frac + ".")}
-        if orders is None and any(c.varies_order for _, c in model.components):
-            raise ValueError(f"model {model.spec!r}: a temperature-driven order needs bounded memory (soe, window)")
-        alpha = _orders(orders, fv[comp.order_param], B, N).to(device)
+        alpha = run.to(device)
         S = B * R_
         fv = {k: x.repeat_interleave(R_).to(device) for k, x in fv.items()}
         x = comp.run_exact(fv, alpha.repeat_interleave(R_, dim=0), h, xi.reshape(S, N).to(device),
                            None if forcing is None else forcing.reshape(S, N).to(device),
                            None if x0 is None else x0.reshape(S).to(device)).reshape(B, R_, N)
-        # the state space's exact memory holds x_k, x_{k-1}, ...: state i at step k is x_{k-i} (zero before the start)
-        idx = list(range(N)) if keep == "all" else [int(i) for i in keep]
-        if any(not 0 <= i < N for i in idx):
-            raise ValueError(f"keep: model {model.spec!r} has states 0 ... {N - 1} under exact memory, not {keep!r}")
+        # the state space's exact memory holds x_k, x_{k-1}, ... (N - 1 states): state i at step k is x_{k-i}
+        lags = max(N - 1, 1)
+        idx = list(range(lags)) if keep == "all" else [int(i) for i in keep]
+        if any(not 0 <= i < lags for i in idx):
+            raise ValueError(f"keep: model {model.spec!r} has states 0 ... {lags - 1} under exact memory, not {keep!r}")
         states = (torch.stack([torch.nn.functional.pad(x, (i, 0))[..., :N] for i in idx], -1) if idx
                   else x.new_zeros(B, R_, N, 0))
         out = x
@@ -128,17 +134,19 @@ def simulate_states(model, values, *, n_steps: int, h: float, realisations: int 
     else:
         mem = memory
         if frac is not None and parse_memory(memory).bounded:  # a soe kernel for every order run (Example 3: up to 2)
-            model.check_inputs(inputs, ("modifier",))
-            a = (_modified_orders(model, v, N, inputs, B) if orders is None and any(c.varies_order for _, c in
-                 model.components) else _orders(orders, v[model.order_name], B, N))
-            mem = state_memory(memory, N, (float(a.min()), float(a.max())))
+            mem = state_memory(memory, N, (float(run.min()), float(run.max())))
         ss = model.state_space(v, h, N, mem, inputs=inputs, orders=orders)
         n, m = ss.n, ss.G.shape[-1]
         xi, nu = _draws(draws, generator, B, R_, N, m)
         rv = ss.R  # the white noise after a sensor filter (before it, it is a state's drive)
         z = torch.zeros(B, R_, n, dtype=torch.float64)
         if ss.g0 is not None:  # a state that does not start at zero (a low-pass of white noise): drawn last
-            z = ss.g0.unsqueeze(1) * torch.randn(B, R_, 1, generator=generator, dtype=torch.float64)
+            if draws is not None and len(draws) < 3:
+                raise ValueError(f"model {model.spec!r} starts from a draw (its sensor filter's first sample): give it "
+                                 "as the third of draws, (B, R), or draw from a generator")
+            z0 = (torch.as_tensor(draws[2], dtype=torch.float64).expand(B, R_).unsqueeze(-1) if draws is not None
+                  else torch.randn(B, R_, 1, generator=generator, dtype=torch.float64))
+            z = ss.g0.unsqueeze(1) * z0
         row = -1 if frac is None else ss.blocks[frac].start
         if x0 is not None:
             z[..., row] = x0
@@ -147,16 +155,11 @@ def simulate_states(model, values, *, n_steps: int, h: float, realisations: int 
             raise ValueError(f"keep: model {model.spec!r} has states 0 … {n - 1} under {memory!r} memory, not {keep!r}")
         drive = None
         if forcing is not None:  # enters the row as h^{α_{k+1}} u_k, like the drive
-            a_next = _orders(orders, v[model.order_name], B, N)
-            a_next = torch.cat([a_next[:, 1:], a_next[:, -1:]], dim=1)
+            a_next = torch.cat([run[:, 1:], run[:, -1:]], dim=1)
             drive = (torch.tensor(h, dtype=torch.float64) ** a_next).unsqueeze(1) * forcing
         out, states = _run(ss, z, xi, idx, row if drive is not None else -1, drive)
-        if frac is None:
-            alpha = torch.zeros(B, R_, N, 0, dtype=torch.float64)
-        else:
-            a = (_modified_orders(model, v, N, inputs, B) if orders is None and ss.varying is not None
-                 else _orders(orders, v[model.order_name], B, N))
-            alpha = a.unsqueeze(1).expand(B, R_, N).unsqueeze(-1)
+        alpha = (torch.zeros(B, R_, N, 0, dtype=torch.float64) if frac is None
+                 else run.unsqueeze(1).expand(B, R_, N).unsqueeze(-1))
     dev = lambda a: a.to(device) if device is not None else a  # noqa: E731
     meas = torch.sqrt(rv).reshape(B, 1, 1) * nu
     y = dev(out) + dev(meas) + dev(mean).unsqueeze(1)
@@ -171,8 +174,9 @@ def _draws(draws, generator, B: int, R_: int, N: int, m: int):
     if draws is None:
         return (torch.randn(B, R_, N, m, generator=generator, dtype=torch.float64),
                 torch.randn(B, R_, N, generator=generator, dtype=torch.float64))
-    xi, nu = (torch.as_tensor(d, dtype=torch.float64) for d in draws)
-    if xi.shape[-2:] != (N, m) or nu.shape[-1] != N:
+    xi, nu = (torch.as_tensor(d, dtype=torch.float64).cpu() for d in draws[:2])
+    if (xi.shape[-2:] != (N, m) or nu.shape[-1] != N
+            or any(a not in (1, b) for a, b in zip(xi.shape[-4:-2][::-1], (R_, B))) or xi.ndim > 4 or nu.ndim > 3):
         raise ValueError(f"draws must have shapes (B, R, {N}, {m}) and (B, R, {N}), got {tuple(xi.shape)} and "
                          f"{tuple(nu.shape)}")
     return xi.expand(B, R_, N, m), nu.expand(B, R_, N)
@@ -267,7 +271,7 @@ def simulate(structure, *, n_steps: int, h: float, order, parameters, process_no
     memory : str or MemoryConfig
         How the GL sums see the past (:mod:`torchtea.core.memory`): ``"exact"`` (default, O(k) per step, on
         ``device``), ``"soe"``/``"soe:TOL"`` (the model's exponential sums, O(1) per step, compiled on the CPU —
-        for long series; orders within the model's bounds) or ``"window:L"``.
+        for long series; the kernel serves every order run, beyond the model's 0 … 1 too) or ``"window:L"``.
     dtype : the result's floating type (computed in float64).
 
     Returns
@@ -287,7 +291,7 @@ def simulate(structure, *, n_steps: int, h: float, order, parameters, process_no
         raise ValueError("simulate runs the paper's scalar structure (Structure()); simulate a model of several "
                          "states from its noise model (torchtea.noise.simulate_states)")
     cpu = torch.empty((), dtype=torch.float64)
-    w = torch.as_tensor(parameters, dtype=torch.float64)
+    w = torch.as_tensor(parameters, dtype=torch.float64).cpu()
     if w.ndim == 0:
         w = w.reshape(1)
     alpha = order.values(n_steps, h, 1, inputs).to(cpu)  # (N, 1) or (*B, N, 1)
@@ -320,7 +324,8 @@ def simulate(structure, *, n_steps: int, h: float, order, parameters, process_no
     draws = (z_omega.to(cpu).expand(batch + (n_steps, n)).reshape(B, R_, n_steps, 1),
              z_nu.to(cpu).expand(batch + (n_steps, p)).reshape(B, R_, n_steps))
     forcing = None if inputs is None else inputs[..., 0].expand(batch + (n_steps,)).reshape(B, R_, n_steps)
-    grad = any(torch.is_tensor(t) and t.requires_grad for t in (parameters, inputs, x0, *(standard_draws or ())))
+    grad = any(torch.is_tensor(t) and t.requires_grad for t in (parameters, inputs, x0, process_noise, measurement_noise,
+                                                                *(standard_draws or ())))
     if grad:
         raise ValueError("simulate does not differentiate: pass tensors that do not require grad")
     sim = simulate_states(PAPER_MODEL, values, n_steps=n_steps, h=h, realisations=R_, memory=memory,

@@ -7,8 +7,8 @@ realisations × 6000 steps, seed 5, each realisation's mean removed):
    truth), under the ``paper`` and ``constant`` settings of grown_model.py, KFw free and the pole held: α̂ and ŵ over
    the last third — mean, median, sd across realisations and the fraction within 0.05 of the truth;
 2. the TEA's residual bias under the ``constant`` settings, pole held, started at the truth, against KFo's own
-   tuning: its Q₀ (1e-6; 0 with no adaptation), prior variance (1e-4), sigma spread (ut_alpha 0.1) and the memory
-   (exact);
+   tuning: its Q₀ (1e-6; 0, with and without adaptation), the adaptation alone off (δ 0), prior variance (1e-4),
+   sigma spread (ut_alpha 0.1) and the memory (exact);
 3. the exact-likelihood fit of the same model to each realisation (from the Whittle fit): every parameter free,
    and with q, r and the walk's σ held at the truth as the TEA's view holds them (order and pole free) — the
    reference the TEA's α̂ can be held to on these data.
@@ -46,7 +46,8 @@ def spread(a: np.ndarray, truth: float) -> dict:
 
 #: Changes to KFo's settings (and the memory) under the ``constant`` settings, pole held (part 2).
 VARIANTS = {"as in grown_model.py": {}, "Q0 1e-6": {"Q0": 1e-6}, "Q0 0, delta 0": {"Q0": 0.0, "delta": 0.0},
-            "P0 1e-4": {"P0": 1e-4}, "ut_alpha 0.1": {"ut_alpha": 0.1}, "exact memory": {"memory": "exact"}}
+            "Q0 0": {"Q0": 0.0}, "delta 0": {"delta": 0.0}, "P0 1e-4": {"P0": 1e-4}, "ut_alpha 0.1": {"ut_alpha": 0.1},
+            "exact memory": {"memory": "exact"}}
 
 
 def tea_case(y, start: float, settings: str, held: bool, variant: str | None = None) -> dict:

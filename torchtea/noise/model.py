@@ -464,24 +464,13 @@ class NoiseModel:
                              "with a sensor filter (low-pass, digital-filter)")
         frac = byc[fracs[0]]
         comps = dict(self.components)
-        if orders is not None:
-            alpha = torch.as_tensor(orders, dtype=torch.float64)
-            if alpha.shape[-1] != n_steps or alpha.ndim > 2 or not bool(torch.isfinite(alpha).all()):
-                raise ValueError(f"orders must be {n_steps} finite values per parameter set, got shape "
-                                 f"{tuple(alpha.shape)}")
-            alpha = alpha.reshape(-1, n_steps).expand(B, n_steps)
-        else:
-            self.check_inputs(inputs, ("modifier",))
-            T = torch.as_tensor(inputs["temperature"], dtype=torch.float64).reshape(-1)
-            if T.shape[0] < n_steps or not bool(torch.isfinite(T[:n_steps]).all()):
-                raise ValueError(f"the temperature input must have {n_steps} finite values, got {T.shape[0]} "
-                                 f"({int((~torch.isfinite(T)).sum())} not finite)")
-            alpha = comps[mods[0]].orders(byc[mods[0]], frac[comps[fracs[0]].order_param], T[:n_steps])  # (B, N): α_k
+        alpha = self._orders_in_time(byc, n_steps, inputs, orders, B)  # (B, N): α_k
+        exact_rows = max(ROW_TABLE, ROW_ENTRIES // (n * B)) if orders is not None else ROW_TABLE
         a_next = torch.cat([alpha[:, 1:], alpha[:, -1:]], dim=1)  # step k → k+1 uses α_{k+1}
         grids, index, weight = [], [], []
         for b in range(B):
             values, inverse = torch.unique(a_next[b], return_inverse=True)
-            if len(values) <= (max(ROW_TABLE, ROW_ENTRIES // (n * B)) if orders is not None else ROW_TABLE):  # exact
+            if len(values) <= exact_rows:  # exact: a row per distinct order
                 grids.append(values)
                 index.append(inverse)
                 weight.append(torch.zeros(n_steps, dtype=torch.float64))
@@ -494,13 +483,42 @@ class NoiseModel:
                 index.append(j.to(torch.int64))
                 weight.append(pos - j)
         G_ = max(len(g_) for g_ in grids)
-        orders = torch.stack([torch.cat([g_, g_[-1:].expand(G_ - len(g_))]) for g_ in grids])  # (B, G)
-        row, g = comps[fracs[0]].first_row(orders, frac["pole"].unsqueeze(-1), frac["q"].unsqueeze(-1), h,
-                                                    mem)
+        tabulated = torch.stack([torch.cat([g_, g_[-1:].expand(G_ - len(g_))]) for g_ in grids])  # (B, G)
+        row, g = comps[fracs[0]].first_row(tabulated, frac["pole"].unsqueeze(-1), frac["q"].unsqueeze(-1), h, mem)
         sl = blocks[fracs[0]]
         table = row.new_zeros(B, G_, n)
         table[..., sl] = row
         return VaryingRow(sl.start, table, g, torch.stack(index), torch.stack(weight), noise_cols[fracs[0]])
+
+    def orders_in_time(self, values, n_steps: int, inputs: dict | None = None, orders=None) -> Tensor | None:
+        """The fractional component's order at every step ``(B, N)``: the known trajectory ``orders`` (``(N,)`` or
+        ``(B, N)``), else the one a ``temperature-order`` modifier gives (from ``inputs["temperature"]``), else its
+        constant ``order``; None for a model without a fractional component."""
+        if not self.order_labels:
+            return None
+        v = self.as_dict(values)
+        return self._orders_in_time(self._by_component(v), n_steps, inputs, orders, next(iter(v.values())).shape[0])
+
+    def _orders_in_time(self, byc: dict, n_steps: int, inputs, orders, B: int) -> Tensor:
+        comps = dict(self.components)
+        label = self.order_labels[0]
+        alpha0 = byc[label][comps[label].order_param]
+        if orders is not None:
+            a = torch.as_tensor(orders, dtype=torch.float64)
+            if (a.shape[-1] != n_steps or a.ndim > 2 or a.ndim == 2 and a.shape[0] not in (1, B)
+                    or not bool(torch.isfinite(a).all())):
+                raise ValueError(f"orders must have shape ({n_steps},) or (B, {n_steps}) with B = {B}, finite; got "
+                                 f"shape {tuple(a.shape)}")
+            return a.reshape(-1, n_steps).expand(B, n_steps)
+        mods = [lb for lb, c in self.components if c.varies_order]
+        if not mods:
+            return alpha0.reshape(B, 1).expand(B, n_steps)
+        self.check_inputs(inputs, ("modifier",))
+        T = torch.as_tensor(inputs["temperature"], dtype=torch.float64).reshape(-1)
+        if T.shape[0] < n_steps or not bool(torch.isfinite(T[:n_steps]).all()):
+            raise ValueError(f"the temperature input must have {n_steps} finite values, got {T.shape[0]} "
+                             f"({int((~torch.isfinite(T)).sum())} not finite)")
+        return comps[mods[0]].orders(byc[mods[0]], alpha0, T[:n_steps])
 
     # ------------------------------------------------------------------ starting values
     def initial_values(self, y: Tensor, h: float, order: float = 0.3) -> dict:

@@ -97,18 +97,14 @@ def simulate_states(model, values, *, n_steps: int, h: float, realisations: int 
     frac = model.order_labels[0] if model.order_labels else None
     if (orders is not None or forcing is not None or x0 is not None) and frac is None:
         raise ValueError(f"model {model.spec!r} has no fractional component for orders, forcing or x0 to act on")
-    if orders is not None:
-        orders = _orders(orders, None, B, N)
     if forcing is not None:
         forcing = torch.as_tensor(forcing, dtype=torch.float64).expand(B, R_, N)
     if x0 is not None:
         x0 = torch.as_tensor(x0, dtype=torch.float64).expand(B, R_)
     modified = any(c.varies_order for _, c in model.components)  # a temperature-driven order
-    run = None  # the fractional order of every step (B, N): a known trajectory, the modifier's, or the constant
-    if frac is not None:
-        model.check_inputs(inputs, ("modifier",))
-        run = (_modified_orders(model, v, N, inputs, B) if orders is None and modified
-               else _orders(orders, v[model.order_name], B, N))
+    run = model.orders_in_time(v, N, inputs, orders)  # (B, N): the trajectory, the modifier's, or the constant
+    if orders is not None:
+        orders = run
     exact = (not parse_memory(memory).bounded and model.labels("state") == [frac] and not model.labels("filter")
              and not modified)
     if exact:  # the fractional component's own recursion over the whole past
@@ -180,26 +176,6 @@ def _draws(draws, generator, B: int, R_: int, N: int, m: int):
         raise ValueError(f"draws must have shapes (B, R, {N}, {m}) and (B, R, {N}), got {tuple(xi.shape)} and "
                          f"{tuple(nu.shape)}")
     return xi.expand(B, R_, N, m), nu.expand(B, R_, N)
-
-
-def _orders(orders, constant: Tensor, B: int, N: int) -> Tensor:
-    """The fractional order of each step ``(B, N)``: the known trajectory, or the constant value."""
-    if orders is None:
-        return constant.reshape(B, 1).expand(B, N)
-    a = torch.as_tensor(orders, dtype=torch.float64)
-    if a.shape[-1] != N or a.ndim > 2 or a.ndim == 2 and a.shape[0] not in (1, B):
-        raise ValueError(f"orders must have shape ({N},) or (B, {N}) with B = {B}, got {tuple(a.shape)}")
-    return a.reshape(-1, N).expand(B, N)
-
-
-def _modified_orders(model, v: dict, N: int, inputs, B: int) -> Tensor:
-    """The orders a ``temperature-order`` modifier gives the fractional component ``(B, N)``."""
-    comps = dict(model.components)
-    frac = model.order_labels[0]
-    mod = next(label for label, c in model.components if c.varies_order)
-    byc = model._by_component(v)
-    T = torch.as_tensor(inputs["temperature"], dtype=torch.float64).reshape(-1)[:N]
-    return comps[mod].orders(byc[mod], byc[frac][comps[frac].order_param], T)
 
 
 def simulate_model(model, values, *, n_steps: int, h: float, realisations: int = 1, memory="soe",
@@ -389,8 +365,8 @@ def _run(ss, z0: torch.Tensor, xi: torch.Tensor, keep: list, fr_i: int, forcing)
     states = np.empty((B, R_, N, len(keep)))
     fr = np.ascontiguousarray(forcing.numpy()) if fr_i >= 0 else np.zeros((1, 1, 1))
     tv = varying_kernel_args(ss.varying, B, n)
-    simulate_batch(indptr, indices, fvals, gptr, gcol, gvals, cidx, C, np.ascontiguousarray(z0.numpy()), np.ascontiguousarray(xi.numpy()), out, states,
-                   np.asarray(keep, dtype=np.int64), int(fr_i), fr, *tv)
+    simulate_batch(indptr, indices, fvals, gptr, gcol, gvals, cidx, C, np.ascontiguousarray(z0.numpy()),
+                   np.ascontiguousarray(xi.numpy()), out, states, np.asarray(keep, dtype=np.int64), int(fr_i), fr, *tv)
     return torch.from_numpy(out), torch.from_numpy(states)
 
 

@@ -57,7 +57,8 @@ def test_order_spec_parsing():
     assert parse_order_spec("0.35") == ConstantOrder(0.35)
     assert parse_order_spec("linear:0.2,0.1") == LinearOrder(0.2, 0.1)
     assert parse_order_spec("parabolic:0.2,0.05") == ParabolicOrder(0.2, 0.05)
-    for bad in ("", "abc", "linear:0.2", "cubic:1,2", "linear:a,b", "nan"):
+    assert parse_order_spec(0.35) == ConstantOrder(0.35) and parse_order_spec(1) == ConstantOrder(1.0)  # TOML numbers
+    for bad in ("", "abc", "linear:0.2", "cubic:1,2", "linear:a,b", "nan", float("inf"), True, None):
         with pytest.raises(ValueError, match="SPEC"):
             parse_order_spec(bad)
 

@@ -257,12 +257,16 @@ class InputOrder(OrderSchedule):
         return v.unsqueeze(-1).expand(v.shape + (n_states,)).clone()
 
 
-def parse_order_spec(spec: str) -> OrderSchedule:
-    """Parse the command-line order SPEC.
+def parse_order_spec(spec: str | float) -> OrderSchedule:
+    """Parse the command-line order SPEC (or a study table's ``order``, where TOML makes ``0.35`` a number).
 
-    ``"0.35"`` → constant; ``"linear:A0,SLOPE"`` → ``α_k = A0 + SLOPE·k·h``;
+    ``"0.35"`` or ``0.35`` → constant; ``"linear:A0,SLOPE"`` → ``α_k = A0 + SLOPE·k·h``;
     ``"parabolic:A0,C"`` → ``α_k = A0 + C·(k·h)²``.
     """
+    if isinstance(spec, (int, float)) and not isinstance(spec, bool):
+        spec = repr(float(spec))
+    if not isinstance(spec, str):
+        raise ValueError(f"bad order SPEC {spec!r}: expected a number, 'linear:A0,SLOPE' or 'parabolic:A0,C'")
     text = spec.strip()
     kind, _, rest = text.partition(":")
     try:

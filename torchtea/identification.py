@@ -254,8 +254,8 @@ def identify(measurements: Measurements, *, model=PAPER_MODEL, r_mode: str = "fi
             y = torch.stack([v.residual(y[i, :, 0], t, inputs) for i, v in enumerate(views)]).unsqueeze(-1)
     fits = fits or ()
     overrides = dict(overrides or {})
-    if "memory" not in overrides and N >= LONG_INPUT:
-        overrides["memory"] = {"kind": "soe"}
+    if "memory" not in overrides and (N >= LONG_INPUT or overrides.get("kfx_filter") == "exact"):
+        overrides["memory"] = {"kind": "soe"}  # an exact KFx carries its past in its state: soe keeps it small
     configs = axis_configs(y, r_mode, overrides or None, fits, presets, h=rec.h, views=views)
     changes = tuple(axis_changes(axis_configs(y, r_mode, None, fits, presets, h=rec.h, views=views), configs,
                                  [c.label for c in m.channels]))
@@ -263,12 +263,27 @@ def identify(measurements: Measurements, *, model=PAPER_MODEL, r_mode: str = "fi
         if st.n_states > 1 and cfg.noise_scaling != "scaled":  # the states' drives are h^α Q0 h^α (tea_view)
             raise ValueError(f"channel {c.label}: a model of several KFx states needs noise_scaling 'scaled' (its "
                              f"states' drives are written for it), not {cfg.noise_scaling!r}")
-    groups: list[list[int]] = []  # channels one batch can run: the same structure
+    exact = [cfg.kfx_filter == "exact" for cfg in configs]
+    if any(exact) and not views:
+        raise ValueError("kfx_filter 'exact' runs the exact filter of the fitted model's state space: it needs "
+                         "r_mode 'fitted'")
+    if any(exact):
+        from .noise.tea_exact import check_exact
+
+        for i in (i for i, e in enumerate(exact) if e):  # every channel's settings and model, before any runs
+            check_exact(replace(views[i], config=configs[i]))
+    groups: list[list[int]] = []  # channels one batch can run: the same structure (an exact KFx: one channel)
     for i, st in enumerate(structures):
-        g = next((g for g in groups if same_structure(structures[g[0]], st)), None)
+        g = None if exact[i] else next((g for g in groups if not exact[g[0]]
+                                        and same_structure(structures[g[0]], st)), None)
         (g.append(i) if g is not None else groups.append([i]))
     results = []
     for g in groups:
+        if exact[g[0]]:  # on the CPU, one channel at a time; no progress calls, and Ctrl-C is not caught
+            from .noise.tea_exact import run_tea_exact
+
+            results.append(run_tea_exact(replace(views[g[0]], config=configs[g[0]]), y[g[0], :, 0], h=rec.h))
+            continue
         params = stack_params([make_params(configs[i], structures[i]) for i in g])
         results.append(run_tea(y[g].to(device or "cpu"), h=rec.h, params=params, structure=structures[g[0]],
                                progress=progress, compile=compile, partial=partial).to("cpu"))

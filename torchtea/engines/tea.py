@@ -574,6 +574,9 @@ def _model_and_weights(structure: Structure, params: TEAParams, h: float, dtype,
     like = torch.empty((), dtype=dtype, device=device)
     model = _Model(structure, torch.as_tensor(h, dtype=dtype, device=device), structure.B.to(like), structure.C.to(like))
     cfg = params.config
+    if cfg.kfx_filter != "paper":
+        raise ValueError(f"kfx_filter {cfg.kfx_filter!r} runs on a noise model's state space, which this engine does "
+                         "not have: call torchtea.noise.tea_exact.run_tea_exact with the model's TEA view")
     L, m = structure.n_estimated_orders, structure.n_params
     weights = (ut_weights(L, cfg.kfo.ut_alpha, cfg.kfo.ut_beta, cfg.kfo.kappa, dtype=dtype, device=device),
                ut_weights(m, cfg.kfw.ut_alpha, cfg.kfw.ut_beta, cfg.kfw.kappa, dtype=dtype, device=device))

@@ -323,8 +323,13 @@ def run_range(study: Study, start: int, stop: int, *, device=None, progress=None
                                memory=tr.memory, device=device)
             else:
                 u, sim = None, simulate_model_truth(study, view, rows, device)
-            res = run_tea(sim.y, h=tr.h, params=_prior_params(study, params, rows, sim), inputs=u,
-                          structure=structure)
+            if study.estimator.kfx_filter == "exact":  # the model's exact filter as KFx (load checked the rest)
+                from ..noise.tea_exact import run_tea_exact
+
+                res = run_tea_exact(view, sim.y[..., 0].to("cpu", torch.float64), h=tr.h).to(device)
+            else:
+                res = run_tea(sim.y, h=tr.h, params=_prior_params(study, params, rows, sim), inputs=u,
+                              structure=structure)
             parts.append(_digest(study, rows, sim, res, steps, trajectories))
             del sim, res
             done = rows.stop
@@ -515,8 +520,16 @@ def build_study(data: dict, flags: dict | None = None, *, memory=None, source: s
         raise ValueError(f"{source}: {exc}") from None
     if estimator_model is not None and tr.model is None:
         raise ValueError(f"{source}: an estimator model needs a model truth ([truth] model = ...)")
+    if study.estimator.kfx_filter == "exact" and (tr.model is None or study.prior != "preset"):
+        raise ValueError(f"{source}: kfx_filter 'exact' runs the exact filter of a model's state space: it needs a "
+                         "model truth ([truth] model = ...) and prior 'preset' (its filters start at the view's "
+                         "values, one start for every realisation)")
     try:
-        estimator_view(study)  # the estimator's model: parameters the truth has, a place in the TEA for each part
+        view = estimator_view(study)  # the estimator's model: parameters the truth has, a place in the TEA for each part
+        if study.estimator.kfx_filter == "exact":
+            from ..noise.tea_exact import check_exact
+
+            check_exact(view)  # its settings and model, before any realisation runs
     except ValueError as exc:
         raise ValueError(f"{source}: {exc}") from None
     if study.realisations < 1:
@@ -594,7 +607,7 @@ def save_study(logdir, study: Study, preset: str, result: StudyResult | None = N
           "param": tr.param, "q": tr.q, "r": tr.r, "h": tr.h, "n": tr.n_steps,
           "input_std": tr.input_std if tr.input_std is not None else 0.0, "truth_memory": tr.memory,
           "prior": study.prior, "kfx_uncertainty": study.estimator.kfx_uncertainty,
-          "estimate_uncertainty": study.estimator.estimate_uncertainty,
+          "estimate_uncertainty": study.estimator.estimate_uncertainty, "kfx_filter": study.estimator.kfx_filter,
           "truth_model": tr.model or "paper scalar", "estimator_model": study.estimator_model or tr.model or "paper scalar",
           **(hparams or {})}
     log_study(logdir, result, summary, hp, figures=figures)

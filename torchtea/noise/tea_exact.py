@@ -1,0 +1,236 @@
+r"""The TEA with the exact filter as its KFx: KFo and KFw as the TEA has them, KFx the Kalman filter of the
+model's own state space (:meth:`~torchtea.noise.model.NoiseModel.state_space`, the one the likelihood runs).
+
+Why. The paper's KFx predicts from its filtered past, :math:`\tilde x_k = h^\alpha A \hat x_{k-1} - \sum_j c_j
+\hat x_{k-j|k-j}`, and never revises that past; its covariance drops the cross-covariances of the past errors. When
+the fractional state is nearly observed (the paper's models) this is the optimal predictor to many digits. When
+another state shares the output — a random walk, a Gauss–Markov bias that ``check`` added — each new sample revises
+how the past splits between them, and KFx's innovations at the true values stay correlated with the past (lag-1
+autocorrelation −0.03 at walk σ 0.05, experiments/tea_models/fixed_point.py). KFo settles where its innovations
+stop correlating with the order's regressor, and with such innovations that point is not the truth: α̂ −0.012
+(sd 0.006). With the exact filter, whose state holds the whole (``soe``-compressed) past and whose innovations are
+white at the truth, the same KFo gives +0.001 ± 0.001.
+
+How. Every step ``k ≥ 1``, as :func:`torchtea.engines.tea.run_tea` orders it:
+
+1. KFo's sigma orders ``αᵢ`` (with ``ŵ_{k−1}``) and KFw's sigma poles ``wᵢ`` (with ``α̂_{k−1}``) each predict
+   ``y_k = C F(αᵢ, wᵢ) ẑ_{k−1|k−1}``. Only the fractional block's first row of ``F`` depends on the order and pole
+   (:meth:`~torchtea.noise.components.Fractional.first_row`), so a replica is that row times the block's state;
+2. KFo and KFw update with the TEA's own unscented update, R (a number or ``"innovation"``: KFx's ``S_{k−1}``),
+   adaptation (25) and order bounds (:mod:`torchtea.engines.tea`'s functions, not copies);
+3. KFx: the exact filter's prediction with ``F(α̂_k, ŵ_{k−1})`` and the drive ``h^{α̂_k}√q``, then its update.
+
+At ``k = 0`` the exact filter updates from the model's initial state; KFo and KFw start at the view's starts.
+
+What it is not: the paper's KFx (its estimates differ, by design), nor a smoother. Its ``P`` is the exact filter's at
+the current estimates (``kfx_uncertainty`` and ``estimate_uncertainty`` do not apply and are refused unless at their
+defaults); the result's ``x`` and ``P`` are each view state's current value (the block's first state) and their
+covariance. The state holds ``lags + modes`` values of the fractional state (71 for 6000 samples under ``soe``), and
+each step updates a covariance of that size (``F`` applied sparse): about the TEA's torch engine's time on a batch
+of series; ``identify`` runs its channels one at a time, 3.2 times the paper's KFx's batch on the bundled recording's
+six (experiments/bench/exact_kfx.py). Torch, on the CPU. A series whose estimates leave ``divergence_limit`` (or
+become non-finite) is flagged in ``diverged``, not frozen.
+"""
+from __future__ import annotations
+
+import torch
+from torch import Tensor
+
+from ..engines.results import TEAResult, ut_weights
+from ..engines.tea import _adapt_q, _q_cap, _sigma_points, _ut_update
+from .model import state_memory
+from .tea import TEAView
+
+__all__ = ["run_tea_exact", "check_exact", "KERNEL_ORDERS"]
+
+#: The orders a ``soe`` kernel of the exact-KFx TEA serves: the model's 0 … 1 and half an order beyond on each side,
+#: where KFo's sigma points go (±√(3 P̃ᵒ)). Every state of the fractional block is in each step's dense covariance
+#: update, so the kernel is kept this narrow (63 modes at 6000 samples, against 86 for the TEA's −0.95 … 3.5).
+KERNEL_ORDERS = (-0.5, 1.5)
+
+
+def _number(R, name: str) -> float | None:
+    """A filter's R: None for ``"innovation"`` (KFx's S of the step before), else one number."""
+    if isinstance(R, str):
+        return None
+    t = torch.as_tensor(R, dtype=torch.float64)
+    if t.numel() != 1:
+        raise ValueError(f"{name}.R: the exact-KFx TEA runs one output and takes a number or 'innovation', got {R!r}")
+    return float(t.reshape(()))
+
+
+def check_exact(view: TEAView) -> None:
+    """Raise ``ValueError`` naming what :func:`run_tea_exact` cannot run in ``view`` (its settings or its model), so
+    that a workflow refuses before it starts: the two covariance settings, one order and one pole, KFo's and KFw's
+    R a number or "innovation", a bounded memory, no order modifier."""
+    cfg = view.config
+    if cfg.kfx_uncertainty not in ("paper", "paper-gain") or cfg.estimate_uncertainty != "paper":
+        raise ValueError("the exact-KFx TEA reports the exact filter's covariance: kfx_uncertainty and "
+                         "estimate_uncertainty do not apply (leave them at 'paper-gain'/'paper' and 'paper')")
+    if len(view.orders) != 1 or len(view.params) != 1:
+        raise ValueError(f"the exact-KFx TEA estimates one order and one pole; the view of {view.model.spec!r} has "
+                         f"{view.orders} and {view.params}")
+    _number(cfg.kfo.R, "kfo")
+    _number(cfg.kfw.R, "kfw")
+    if not cfg.memory.bounded:
+        raise ValueError("kfx_filter 'exact' carries the past in the filter's state: give memory 'soe' (or "
+                         "'window:L'), not 'exact', which would make every past sample a state")
+    if any(c.kind == "modifier" for _, c in view.model.components):  # tea_view drops it: KFo tracks the order
+        raise ValueError(f"model {view.model.spec!r}: its order modifier makes the state space's rows vary in time; "
+                         "the exact-KFx TEA runs the model without it (as KFo estimates the order's variation): drop it")
+
+
+def run_tea_exact(view: TEAView, y, *, h: float) -> TEAResult:
+    """Run the TEA with the exact filter of ``view.model``'s state space at ``view.values`` as KFx.
+
+    ``y`` ``(N,)`` or ``(R, N)`` (R series, e.g. realisations; NaN = missing) at the view's sample interval ``h``;
+    ``view.config`` sets KFo and KFw (starts, P0, Q0, R, sigma points, adaptation, ``order_bounds``, ``sigma_sum_start``) and, by its ``memory``, the
+    state space's (``soe``, its kernel covering :data:`KERNEL_ORDERS`, or ``window``: each lag a state; ``exact``
+    would make every past sample a state and is refused). Returns a :class:`TEAResult` with time at −2
+    (``memory_clamped``: steps at which a sigma order or α̂ left the kernel's range and its row was taken at the
+    range's end)."""
+    check_exact(view)
+    cfg = view.config
+    y = torch.as_tensor(y, dtype=torch.float64)
+    y = y.unsqueeze(0) if y.ndim == 1 else y
+    if y.ndim != 2:
+        raise ValueError(f"y must be (N,) or (R, N), got shape {tuple(y.shape)}")
+    Rn, N = y.shape
+    model, label = view.model, view.orders[0]
+    comp = dict(model.components)[label]
+    lo, hi = cfg.order_bounds
+    mem = state_memory(cfg.memory, N, orders=KERNEL_ORDERS)
+    ss = model.state_space(view.values, h, N, memory=mem)
+    sl = ss.blocks[label]
+    row0 = sl.start
+    F0, G0, C, r = ss.F[0], ss.G[0], ss.C[0], ss.R[0]
+    Q0 = G0 @ G0.mT
+    q = view.values[f"{label}.q"].reshape(())
+    D = F0.shape[-1]
+    k_lo, k_hi = (mem.kernel.order_range if mem.kernel is not None else (-torch.inf, torch.inf))
+
+    ko, kw = cfg.kfo, cfg.kfw
+    Ro_num, Rw_num = _number(ko.R, "kfo"), _number(kw.R, "kfw")
+    wm_o, wc_o, scale_o = ut_weights(1, ko.ut_alpha, ko.ut_beta, ko.kappa)
+    wm_w, wc_w, scale_w = ut_weights(1, kw.ut_alpha, kw.ut_beta, kw.kappa)
+    start = cfg.sigma_sum_start
+
+    def col(v):
+        return torch.full((Rn, 1), float(torch.as_tensor(v, dtype=torch.float64).reshape(-1)[0]), dtype=torch.float64)
+
+    def sq(v):
+        return col(v).unsqueeze(-1)
+
+    alpha, Po, Qo = col(ko.x0), sq(ko.P0), sq(ko.Q0)
+    w, Pw, Qw = col(kw.x0), sq(kw.P0), sq(kw.Q0)
+    like = torch.zeros((), dtype=torch.float64)
+    qmax = lambda u: _q_cap(u.Q_max, sq(u.Q0)[0], like).expand(Rn)  # noqa: E731 — the TEA's cap, "none" and all
+    qmax_o, qmax_w = qmax(ko), qmax(kw)
+    clamped = torch.zeros(Rn, dtype=torch.int64)
+
+    def row(a, f):
+        """The fractional block's first row ``(…, J + M)`` and noise loading under orders a and poles f."""
+        a_in = a.clamp(k_lo, k_hi)
+        return comp.first_row(a_in, f, q, h, mem)
+
+    trans = _Transition(F0, row0, sl)
+    # the exact filter from the model's initial state
+    g0 = ss.initial[0]
+    z = torch.zeros(Rn, D, dtype=torch.float64)
+    P = (g0.unsqueeze(-1) * g0.unsqueeze(-2)).expand(Rn, D, D).clone()
+    idx = _state_index(view, ss)
+    n = len(idx)
+    # the outputs, written in place step by step (small tensors kept per step would pin the freed covariance
+    # temporaries in the heap: 20 GB for 32 × 12000 steps)
+    shapes = {"x": (n,), "P": (n, n), "alpha": (1,), "P_alpha": (1, 1), "Q_alpha": (1, 1), "w": (1,), "P_w": (1, 1),
+              "Q_w": (1, 1), "innovation": (1,), "innovation_cov": (1, 1)}
+    out = {k: torch.empty((Rn, N) + sh, dtype=torch.float64) for k, sh in shapes.items()}
+    S_prev = None
+    for k in range(N):
+        yk = y[:, k:k + 1]
+        mask = ~torch.isnan(yk)
+        y0 = torch.where(mask, yk, torch.zeros_like(yk))
+        if k == 0:
+            z_pred, P_pred = z, P
+        else:
+            Po_t, Pw_t = Po + Qo, Pw + Qw
+            sig_o = _sigma_points(alpha, Po_t, scale_o)  # (R, 3, 1)
+            sig_w = _sigma_points(w, Pw_t, scale_w)
+            out_o = (sig_o[..., 0] < k_lo) | (sig_o[..., 0] > k_hi)
+            zp = z @ F0.mT  # F0 ẑ: every row but the fractional block's first is the replicas' own
+            base = zp @ C - C[row0] * zp[:, row0]  # (R,)
+            zs = z[:, None, sl]  # (R, 1, J+M)
+            ro, _ = row(sig_o[..., 0], w)  # KFo: sigma orders, ŵ_{k−1}
+            rw, _ = row(alpha.expand(-1, sig_w.shape[-2]), sig_w[..., 0])  # KFw: α̂_{k−1}, sigma poles
+            Yo = (base.unsqueeze(-1) + C[row0] * (ro * zs).sum(-1)).unsqueeze(-1)  # (R, 3, 1)
+            Yw = (base.unsqueeze(-1) + C[row0] * (rw * zs).sum(-1)).unsqueeze(-1)
+            Ro = S_prev if Ro_num is None else torch.full_like(S_prev, Ro_num)
+            Rw = S_prev if Rw_num is None else torch.full_like(S_prev, Rw_num)
+            observed = mask.any(-1)
+            alpha, Po, Ko, eo, _, _ = _ut_update(sig_o, Yo, alpha, Po_t, Ro, y0, mask, wm_o, wc_o, start)
+            alpha = alpha.clamp(lo, hi)
+            out_o = out_o | (alpha < k_lo) | (alpha > k_hi)
+            clamped += out_o.any(-1).to(torch.int64)
+            Qo = _adapt_q(Qo, Ko, eo, ko.delta, qmax_o, observed)
+            w_new, Pw, Kw, ew, _, _ = _ut_update(sig_w, Yw, w, Pw_t, Rw, y0, mask, wm_w, wc_w, start)
+            Qw = _adapt_q(Qw, Kw, ew, kw.delta, qmax_w, observed)
+            # KFx: the exact filter's prediction under α̂_k and ŵ_{k−1}
+            ra, ga = row(alpha, w)
+            z_pred = trans.apply(z.unsqueeze(-1), ra[:, 0])[..., 0]
+            P_pred = trans.apply(trans.apply(P, ra[:, 0]).mT, ra[:, 0]) + Q0  # F P Fᵀ (P symmetric) + Q
+            P_pred[:, row0, row0] += (ga * ga)[:, 0] - Q0[row0, row0]
+            w = w_new
+        Pc = P_pred @ C
+        S = ((C * Pc).sum(-1) + r).reshape(Rn, 1, 1)
+        e = torch.where(mask, yk - (z_pred @ C).unsqueeze(-1), torch.zeros_like(yk))
+        K = torch.where(mask, Pc / S[:, :, 0], torch.zeros_like(Pc))
+        z = z_pred + K * e
+        P = P_pred - K.unsqueeze(-1) * Pc.unsqueeze(-2)
+        P = 0.5 * (P + P.mT)
+        S_prev = S
+        for name, t in zip(shapes, (z[:, idx], P[:, idx][:, :, idx], alpha, Po, Qo, w, Pw, Qw, e, S)):
+            out[name][:, k] = t
+    res = out
+    lim = cfg.divergence_limit  # flagged as the TEA flags them (non-finite or beyond the limit), not frozen
+    finite = torch.stack([(res[k].reshape(Rn, N, -1).abs() <= lim).all(-1) for k in ("x", "P", "alpha", "w")]).all(0)
+    diverged = ~finite.all(-1)
+    first_bad = torch.where(~finite, torch.arange(N).expand(Rn, N), torch.full((Rn, N), N)).amin(-1)
+    return TEAResult(**res, diverged=diverged, diverged_at=torch.where(diverged, first_bad, -1),
+                     steps=torch.arange(N), memory_clamped=clamped if mem.kernel is not None else None)
+
+
+class _Transition:
+    """``F`` whose one row ``row0`` varies (over columns ``sl``): the other rows as a padded table of their non-zero
+    entries, so that ``F M`` costs ``O(D² W)`` (W their most entries in a row: 2 for a fractional block's shift and
+    modes) instead of a dense ``O(D³)`` product. The same sums as the dense product but for the order of terms."""
+
+    def __init__(self, F0: Tensor, row0: int, sl: slice):
+        Fc = F0.clone()
+        Fc[row0] = 0.0
+        nnz = (Fc != 0).sum(-1)
+        W = max(int(nnz.max()), 1)
+        self.cols = torch.zeros(F0.shape[0], W, dtype=torch.long)
+        self.vals = torch.zeros(F0.shape[0], W, dtype=F0.dtype)
+        for i in range(F0.shape[0]):
+            c = torch.nonzero(Fc[i]).reshape(-1)
+            self.cols[i, :c.numel()], self.vals[i, :c.numel()] = c, Fc[i, c]
+        self.row0, self.sl = row0, sl
+
+    def apply(self, M: Tensor, row: Tensor) -> Tensor:
+        """``F M`` for ``M`` ``(R, D, K)``, with the varying row ``row`` ``(R, |sl|)``."""
+        out = self.vals[:, 0, None] * M.index_select(1, self.cols[:, 0])
+        for j in range(1, self.cols.shape[1]):
+            out = out + self.vals[:, j, None] * M.index_select(1, self.cols[:, j])
+        out[:, self.row0, :] = (row.unsqueeze(-2) @ M[:, self.sl, :])[:, 0]
+        return out
+
+
+def _state_index(view: TEAView, ss) -> list:
+    """Each view state's index in the state space: a component's block holds its states first (the fractional block
+    its current value, then its past)."""
+    idx, seen = [], {}
+    for label in view.states:
+        i = seen.get(label, 0)
+        idx.append(ss.blocks[label].start + i)
+        seen[label] = i + 1
+    return idx

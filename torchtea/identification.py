@@ -268,10 +268,11 @@ def identify(measurements: Measurements, *, model=PAPER_MODEL, r_mode: str = "fi
         raise ValueError("kfx_filter 'exact' runs the exact filter of the fitted model's state space: it needs "
                          "r_mode 'fitted'")
     if any(exact):
-        from .noise.tea_exact import check_exact
+        from .noise.tea_exact import check_exact, run_tea_exact
 
-        for i in (i for i, e in enumerate(exact) if e):  # every channel's settings and model, before any runs
-            check_exact(replace(views[i], config=configs[i]))
+        exact_views = {i: replace(views[i], config=configs[i]) for i, e in enumerate(exact) if e}
+        for v in exact_views.values():  # every channel's settings and model, before any runs
+            check_exact(v)
     groups: list[list[int]] = []  # channels one batch can run: the same structure (an exact KFx: one channel)
     for i, st in enumerate(structures):
         g = None if exact[i] else next((g for g in groups if not exact[g[0]]
@@ -280,9 +281,7 @@ def identify(measurements: Measurements, *, model=PAPER_MODEL, r_mode: str = "fi
     results = []
     for g in groups:
         if exact[g[0]]:  # on the CPU, one channel at a time; no progress calls, and Ctrl-C is not caught
-            from .noise.tea_exact import run_tea_exact
-
-            results.append(run_tea_exact(replace(views[g[0]], config=configs[g[0]]), y[g[0], :, 0], h=rec.h))
+            results.append(run_tea_exact(exact_views[g[0]], y[g[0], :, 0], h=rec.h))
             continue
         params = stack_params([make_params(configs[i], structures[i]) for i in g])
         results.append(run_tea(y[g].to(device or "cpu"), h=rec.h, params=params, structure=structures[g[0]],

@@ -157,13 +157,13 @@ def run_tea_exact(view: TEAView, y, *, h: float) -> TEAResult:
             sig_o = _sigma_points(alpha, Po_t, scale_o)  # (R, 3, 1)
             sig_w = _sigma_points(w, Pw_t, scale_w)
             out_o = (sig_o[..., 0] < k_lo) | (sig_o[..., 0] > k_hi)
-            zp = z @ F0.mT  # F0 ẑ: every row but the fractional block's first is the replicas' own
-            base = zp @ C - C[row0] * zp[:, row0]  # (R,)
+            Fz = trans.constant(z.unsqueeze(-1))  # F ẑ but its varying row: every replica's and KFx's own
+            base = Fz[..., 0] @ C  # (R,): the output's part that no order or pole changes
             zs = z[:, None, sl]  # (R, 1, J+M)
             ro, _ = row(sig_o[..., 0], w)  # KFo: sigma orders, ŵ_{k−1}
             rw, _ = row(alpha.expand(-1, sig_w.shape[-2]), sig_w[..., 0])  # KFw: α̂_{k−1}, sigma poles
-            Yo = (base.unsqueeze(-1) + C[row0] * (ro * zs).sum(-1)).unsqueeze(-1)  # (R, 3, 1)
-            Yw = (base.unsqueeze(-1) + C[row0] * (rw * zs).sum(-1)).unsqueeze(-1)
+            replica = lambda rows: (base.unsqueeze(-1) + C[row0] * (rows * zs).sum(-1)).unsqueeze(-1)  # noqa: E731
+            Yo, Yw = replica(ro), replica(rw)  # (R, 3, 1)
             Ro = S_prev if Ro_num is None else torch.full_like(S_prev, Ro_num)
             Rw = S_prev if Rw_num is None else torch.full_like(S_prev, Rw_num)
             observed = mask.any(-1)
@@ -176,7 +176,7 @@ def run_tea_exact(view: TEAView, y, *, h: float) -> TEAResult:
             Qw = _adapt_q(Qw, Kw, ew, kw.delta, qmax_w, observed)
             # KFx: the exact filter's prediction under α̂_k and ŵ_{k−1}
             ra, ga = row(alpha, w)
-            z_pred = trans.apply(z.unsqueeze(-1), ra[:, 0])[..., 0]
+            z_pred = trans.apply(z.unsqueeze(-1), ra[:, 0], Fz)[..., 0]
             P_pred = trans.apply(trans.apply(P, ra[:, 0]).mT, ra[:, 0]) + Q0  # F P Fᵀ (P symmetric) + Q
             P_pred[:, row0, row0] += (ga * ga)[:, 0] - Q0[row0, row0]
             w = w_new
@@ -190,12 +190,11 @@ def run_tea_exact(view: TEAView, y, *, h: float) -> TEAResult:
         S_prev = S
         for name, t in zip(shapes, (z[:, idx], P[:, idx][:, :, idx], alpha, Po, Qo, w, Pw, Qw, e, S)):
             out[name][:, k] = t
-    res = out
     lim = cfg.divergence_limit  # flagged as the TEA flags them (non-finite or beyond the limit), not frozen
-    finite = torch.stack([(res[k].reshape(Rn, N, -1).abs() <= lim).all(-1) for k in ("x", "P", "alpha", "w")]).all(0)
+    finite = torch.stack([(out[k].reshape(Rn, N, -1).abs() <= lim).all(-1) for k in ("x", "P", "alpha", "w")]).all(0)
     diverged = ~finite.all(-1)
     first_bad = torch.where(~finite, torch.arange(N).expand(Rn, N), torch.full((Rn, N), N)).amin(-1)
-    return TEAResult(**res, diverged=diverged, diverged_at=torch.where(diverged, first_bad, -1),
+    return TEAResult(**out, diverged=diverged, diverged_at=torch.where(diverged, first_bad, -1),
                      steps=torch.arange(N), memory_clamped=clamped if mem.kernel is not None else None)
 
 
@@ -216,11 +215,17 @@ class _Transition:
             self.cols[i, :c.numel()], self.vals[i, :c.numel()] = c, Fc[i, c]
         self.row0, self.sl = row0, sl
 
-    def apply(self, M: Tensor, row: Tensor) -> Tensor:
-        """``F M`` for ``M`` ``(R, D, K)``, with the varying row ``row`` ``(R, |sl|)``."""
+    def constant(self, M: Tensor) -> Tensor:
+        """``F M`` for ``M`` ``(R, D, K)`` with the varying row zero: what every order and pole share."""
         out = self.vals[:, 0, None] * M.index_select(1, self.cols[:, 0])
         for j in range(1, self.cols.shape[1]):
             out = out + self.vals[:, j, None] * M.index_select(1, self.cols[:, j])
+        return out
+
+    def apply(self, M: Tensor, row: Tensor, constant: Tensor | None = None) -> Tensor:
+        """``F M`` for ``M`` ``(R, D, K)``, with the varying row ``row`` ``(R, |sl|)``; ``constant``: the product's
+        constant rows already computed (:meth:`constant` of ``M``), reused."""
+        out = self.constant(M) if constant is None else constant.clone()
         out[:, self.row0, :] = (row.unsqueeze(-2) @ M[:, self.sl, :])[:, 0]
         return out
 

@@ -18,17 +18,17 @@ __all__ = ["settle_time", "axis_statistics", "write_report", "log_identification
 
 def _uncertainty_note(cfg) -> str:
     """What KFx's P and S and KFo's/KFw's covariances mean under the settings used (TEAConfig's two uncertainty
-    settings; the defaults are not the paper's for KFx)."""
+    settings, or the exact filter as KFx; the defaults are not the paper's for KFx)."""
     if cfg.kfx_filter == "exact":
-        est = "Pᵒ and Pʷ the filters' own"
-        return ("`kfx_filter = \"exact\"` (not in the paper): KFx is the exact Kalman filter of the model's state "
-                "space, its P and S that filter's at the current order and parameter estimates; " + est)
-    kfx = {"paper": "`kfx_uncertainty = \"paper\"`: KFx's P and S as the paper computes them (the order and "
-                    "parameter taken as exact)",
-           "paper-gain": "`kfx_uncertainty = \"paper-gain\"` (default, not in the paper): the paper's estimates, with "
-                         "KFx's P and S including the order's and parameter's uncertainty",
-           "propagated": "`kfx_uncertainty = \"propagated\"` (not in the paper): the order's and parameter's "
-                         "uncertainty in KFx's prediction and gain"}[cfg.kfx_uncertainty]
+        kfx = ("`kfx_filter = \"exact\"` (not in the paper): KFx is the exact Kalman filter of the model's state "
+               "space, its P and S that filter's at the current order and parameter estimates")
+    else:
+        kfx = {"paper": "`kfx_uncertainty = \"paper\"`: KFx's P and S as the paper computes them (the order and "
+                        "parameter taken as exact)",
+               "paper-gain": "`kfx_uncertainty = \"paper-gain\"` (default, not in the paper): the paper's estimates, "
+                             "with KFx's P and S including the order's and parameter's uncertainty",
+               "propagated": "`kfx_uncertainty = \"propagated\"` (not in the paper): the order's and parameter's "
+                             "uncertainty in KFx's prediction and gain"}[cfg.kfx_uncertainty]
     est = {"paper": "Pᵒ and Pʷ the filters' own", "constant-truth": "Pᵒ and Pʷ those of a constant order and "
                                                                         "parameter (`estimate_uncertainty`)"}
     return kfx + "; " + est[cfg.estimate_uncertainty]

@@ -213,7 +213,8 @@ def _switch_cases(seed: int = 0, pool: int = 400) -> list:
 
 
 def test_every_switch_of_the_kernel_against_the_torch_step():
-    """The compiled kernel is a hand copy of the torch step; every branch it takes is checked against that step:
+    """The compiled kernel is the torch step's twin, function by function (tests/test_fast_twins.py); here every
+    branch it takes is checked against that step as a whole run:
     combinations of all its switches that contain every pair of values of every two switches (pairwise coverage,
     seeded), on the same data with a gap, every carry output of every step to float64 rounding. The switches listed are the kernel's own
     (a test below keeps the list complete). KFo and KFw start at the truth with Q₀ = 1e-3: from the MEMS preset's

@@ -1,6 +1,12 @@
-"""The compiled kernel of :mod:`.fast` (numba), imported on first use. Its functions live at module level so
-that numba's on-disk cache can reload them: a closure's cache key pickles the closure's cells, which for other
-compiled functions differ from process to process."""
+"""The compiled kernel of :mod:`.fast` (numba), imported on first use: the torch step (:func:`.tea._tea_step`)
+for the scalar structure, written as one scalar twin per function of that step (``sigma_points`` for
+``_sigma_points``, …, ``guard`` for ``_guard``; ``mean_sums``, ``kfx_sums`` and ``push`` for the memory's methods),
+which :func:`advance` calls in the torch step's order. tests/test_fast_twins.py checks each twin against its torch
+function on the same inputs and that order; the numerics inside the twins (``vexp``, ``tails3``, …) are checked
+through them.
+
+The functions live at module level so that numba's on-disk cache can reload them: a closure's cache key pickles
+the closure's cells, which for other compiled functions differ from process to process."""
 import math
 
 import numpy as np
@@ -156,9 +162,55 @@ def push_front(row, n, v):
     row[0] = v
 
 
+# --------------------------------------------------------------------------- the step's functions
+# Each function below is the scalar twin of one function of the torch step (its docstring names it; the names
+# are the torch ones without the underscore). tests/test_fast.py checks every twin against its torch function on
+# the same inputs, and that `advance` calls them in the order `tea._tea_step` calls theirs.
+
+
 @njit(cache=True, inline="always")
 def psd(v):
     return 0.0 if v < 0.0 else v  # NaN stays NaN (as torch's clamp), so the guard sees it
+
+
+@njit(cache=True, inline="always")
+def sigma_points(mean, prior_cov, scale, out):
+    """Sigma points (15)/(40) of a scalar filter (tea._sigma_points): ``mean, mean + r, mean − r`` into ``out``
+    with ``r = √(scale · prior_cov)``; returns ``r``."""
+    r = math.sqrt(psd(scale * prior_cov))
+    out[0], out[1], out[2] = mean, mean + r, mean - r
+    return r
+
+
+@njit(cache=True, inline="always")
+def mean_sums(kind, so, ro, k, xh, la, lb, win, xl, modes, ka, kb, kbig, eta, klo, khi, have, Ex, scratch, out):
+    """Σ_j c_j(σᵢ) x̂_{k−j} at KFo's three sigma orders ``so = (α, α + ro, α − ro)`` into ``out``
+    (the memory's ``mean_sums``): ``kind`` 0 the whole past ``xh`` (chronological), 1 the window ``win`` (newest
+    first, ``xl`` lags) plus the exponential sums of ``modes``, 2 the window alone. ``have``: ``Ex`` holds
+    exp(a + α b) already (:func:`tails3`); ``scratch``: (arg, E, D, Di, ib, fb) of the modes' size."""
+    if kind == 0:
+        exact_sums3(so, xh, k, la, lb, out)
+        return
+    if kind == 1:
+        arg, E, D, Di, ib, fb = scratch
+        tails3(so[0], ro, modes, ka, kb, kbig, eta, klo, khi, out, arg, E, Ex, have, D, Di, ib, fb)
+    for i in range(3):
+        s = window_sum(so[i], win, xl, la, lb)
+        out[i] = s + out[i] if kind == 1 else s
+
+
+@njit(cache=True, inline="always")
+def replica(so, ro, sw, w, x, up, h, kind, k, xh, la, lb, win, xl, modes, ka, kb, kbig, eta, klo, khi, have, Ex,
+            scratch, ms, Y):
+    """The model replica (16)–(18), (41)–(42) (tea._replica), scalar ``A(w) = w``, ``B = C = 1``: KFo's sigma orders
+    ``so`` with ŵ_{k−1} into ``Y[0:3]``, KFw's sigma parameters ``sw`` at KFo's centre order into ``Y[3:6]``;
+    the history sums by :func:`mean_sums` into ``ms``."""
+    mean_sums(kind, so, ro, k, xh, la, lb, win, xl, modes, ka, kb, kbig, eta, klo, khi, have, Ex, scratch, ms)
+    for i in range(3):
+        Y[i] = h ** so[i] * (w * x + up) - ms[i]
+    hp = h ** so[0]
+    for j in range(3):
+        Y[3 + j] = hp * (sw[j] * x + up) - ms[0]
 
 
 @njit(cache=True, inline="always")
@@ -180,21 +232,6 @@ def ut_update(Y, off, pts, mean, Pt, wm, wc, start, R, obs, yv):
 
 
 @njit(cache=True, inline="always")
-def joseph(P, K, H, R):
-    """(1 − K H) P (1 − K H) + K R K, scalar (tea._joseph)."""
-    g = 1.0 - K * H
-    return g * P * g + K * R * K
-
-
-@njit(cache=True, inline="always")
-def constant_truth(Sig, Pt, K, Pyy, Pxy):
-    """The error covariance of a scalar unscented filter for a constant truth (tea._constant_truth_cov):
-    (1 − K H)² Σ + K² (P_yy − H² P̃) with H = P_σy / P̃ (0 where P̃ is 0)."""
-    Hh = Pxy / Pt if Pt > 0 else 0.0
-    return psd(joseph(Sig, K, Hh, psd(Pyy - Hh * Pt * Hh)))
-
-
-@njit(cache=True, inline="always")
 def adapt_q(Q, K, e, delta, qmax, obs):
     """Robbins–Monro adaptation (25) with its cap (tea._adapt_q), scalar."""
     if delta == 0.0:
@@ -205,6 +242,134 @@ def adapt_q(Q, K, e, delta, qmax, obs):
     return Qn if obs else Q
 
 
+@njit(cache=True, inline="always")
+def kfx_sums(kind, gain, a, k, xh, Ph, Pgh, la, lb, win, xl, pl, Pwin, Pwin_g, H, Phead, Phead_g, modes, ka, kb, eta,
+             klo, khi, arg, Ex, ib, fb):
+    """KFx's history sums at its order ``a`` (the memory's ``kfx_sums``): ``(Σ_j c_j x̂_{k−j}, Σ_{j≥2} c_j² P_{k−j},
+    the same over the gain's covariances)``. ``kind`` as in :func:`mean_sums`; the bounded kinds keep ``pl``
+    covariances newest first (``Pwin``), and ``soe`` the start-up covariances ``Phead`` (``H``) and the coefficient
+    mass of the lags in between. ``Ex`` receives exp(a + a b), which the next step's KFo reuses."""
+    mean = 0.0
+    cov = 0.0
+    covg = 0.0
+    if kind == 0:
+        c = 1.0
+        for j in range(1, k + 1):
+            c *= lagf(la[j], a, lb[j])
+            mean += c * xh[k - j]
+            if j >= 2:
+                cov += c * c * Ph[k - j]
+                if gain:
+                    covg += c * c * Pgh[k - j]
+        return mean, cov, covg
+    c = 1.0
+    sumsq = 0.0
+    for j in range(1, pl + 1):
+        c *= lagf(la[j], a, lb[j])
+        if j <= xl:
+            mean += c * win[j - 1]
+        if j >= 2:
+            cov += c * c * Pwin[j - 1]
+            if gain:
+                covg += c * c * Pwin_g[j - 1]
+        sumsq += c * c
+    if kind == 1:
+        mean += tail(a, modes, ka, kb, eta, klo, khi, arg, Ex, ib, fb)
+        ac = max(a, max(-0.49, klo))
+        kk = k - H
+        r = rgn(ac)  # 1/Γ(−ac), shared by the two terms below
+        if kk > pl:
+            total = math.exp(math.lgamma(1.0 + 2.0 * ac) - 2.0 * math.lgamma(1.0 + ac))
+            p1 = 1.0 + 2.0 * ac
+            KK = kk + 0.5
+            g = 0.5 * (ac * (1.0 + ac) + ac * (1.0 + ac))
+            beyond = r * r * (KK ** (-p1) / p1 + g * KK ** (-p1 - 1.0) / (p1 + 1.0))
+            mass = total - (1.0 + sumsq) - beyond  # coefficient mass × the oldest windowed P
+            cov += mass * Pwin[pl - 1]
+            if gain:
+                covg += mass * Pwin_g[pl - 1]
+        j0 = max(k - H + 1, pl + 1)  # the head's lags k − i beyond the window: j0 … k
+        if H > 0 and j0 <= k:
+            # c_j(ac) at the smallest lag by log-gamma, then c_{j+1} = c_j (j − ac)/(j + 1)
+            ch = r * math.exp(math.lgamma(j0 - ac) - math.lgamma(j0 + 1.0))
+            for j in range(j0, k + 1):
+                cov += ch * ch * Phead[k - j]
+                if gain:
+                    covg += ch * ch * Phead_g[k - j]
+                ch *= (j - ac) / (j + 1.0)
+    return mean, cov, covg
+
+
+@njit(cache=True, inline="always")
+def estimate_uncertainty(Y, off, r, wc, prior_cov, cov):
+    """``J P Jᵀ`` (tea._estimate_uncertainty), scalar: ``J`` the statistical linearisation of the replica over a
+    filter's sigma points, Σᵢ Wᵢᶜ Yᵢ (σᵢ − m) / P̃ = W₁ᶜ r (Y₊ − Y₋) / P̃ (zero where P̃ is zero); ``Y[off:off+3]``
+    the replica at the points drawn with root ``r`` from ``prior_cov``; ``cov`` the estimate's covariance."""
+    J = wc[1] * r * (Y[off + 1] - Y[off + 2]) / prior_cov if prior_cov > 0 else 0.0
+    return J * J * cov
+
+
+@njit(cache=True, inline="always")
+def kfx_update(x_pred, P_pred, R, obs, yv):
+    """KFx's measurement update (33)–(35) (tea._kfx_update), ``C = 1``: returns ``(x, P, e, S, K)``."""
+    S = P_pred + R
+    e = yv - x_pred if obs else 0.0
+    K = P_pred / S if obs else 0.0
+    return x_pred + K * e, psd(P_pred - K * S * K), e, S, K
+
+
+@njit(cache=True, inline="always")
+def joseph(P, K, H, R):
+    """(1 − K H) P (1 − K H) + K R K, scalar (tea._joseph)."""
+    g = 1.0 - K * H
+    return g * P * g + K * R * K
+
+
+@njit(cache=True, inline="always")
+def constant_truth_cov(Sig, Pt, K, Pyy, Pxy):
+    """The error covariance of a scalar unscented filter for a constant truth (tea._constant_truth_cov):
+    (1 − K H)² Σ + K² (P_yy − H² P̃) with H = P_σy / P̃ (0 where P̃ is 0)."""
+    Hh = Pxy / Pt if Pt > 0 else 0.0
+    return psd(joseph(Sig, K, Hh, psd(Pyy - Hh * Pt * Hh)))
+
+
+@njit(cache=True, inline="always")
+def guard(values, limit):
+    """Whether a carry diverged (tea._guard's test): a value non-finite or beyond ``±limit``."""
+    for v in values:
+        if not (abs(v) <= limit):
+            return True
+    return False
+
+
+@njit(cache=True, inline="always")
+def push(kind, gain, k, x, P, Pg, xh, Ph, Pgh, win, xl, modes, decay, inject, Pwin, pl, Pwin_g, H, Phead, Phead_g):
+    """Append x̂_k, P_k (and the gain's P_k) to KFx's history (the memory's ``push``): the whole past in order
+    (``kind`` 0); else the windows, newest first, the dropped state into the modes, P_k into the start-up head."""
+    if kind == 0:
+        xh[k] = x
+        Ph[k] = P
+        if gain:
+            Pgh[k] = Pg
+        return
+    M = modes.shape[0]
+    if M > 0:
+        dropped = win[xl - 1]
+        for n in range(M):
+            modes[n] = modes[n] * decay[n] + inject[n] * dropped
+    push_front(win, xl, x)
+    push_front(Pwin, pl, P)
+    if k < H:
+        Phead[k] += P
+    if gain:
+        push_front(Pwin_g, pl, Pg)
+        if k < H:
+            Phead_g[k] += Pg
+
+
+# --------------------------------------------------------------------------- the loop
+
+
 @njit(cache=True, parallel=True, error_model="numpy")
 def advance(k0, k1, yoff, ooff, every, y, u, has_u,
             h, Q, R, Ro, Rw, qmax_o, qmax_w, scaled, start, lo, hi, limit, delta_o, delta_w, mode, const,
@@ -213,7 +378,8 @@ def advance(k0, k1, yoff, ooff, every, y, u, has_u,
             X, P, AL, PO, QO, W, PW, QW, DIV, DAT, CLAMP, PG, POG, PWG, SS,
             xh, Ph, win, modes, Pwin, Phead, Pgh, Pwin_g, Phead_g,
             o_x, o_P, o_a, o_Po, o_Qo, o_w, o_Pw, o_Qw, o_e, o_S):
-    """Steps ``k0 … k1−1`` of every realisation in place (FastTEA.advance). ``mode``: ``kfx_uncertainty`` as
+    """Steps ``k0 … k1−1`` of every realisation in place (FastTEA.advance): the torch step (tea._tea_step) as the
+    calls of its twins above, in its order. ``mode``: ``kfx_uncertainty`` as
     0 (paper), 1 (propagated) or 2 (paper-gain: ``PG`` and the histories ``Pgh``/``Pwin_g``/``Phead_g`` hold the
     paper's covariance, which sets the gain, and ``P`` that filter's error covariance). ``const``
     (``estimate_uncertainty = "constant-truth"``): ``POG``/``PWG`` hold KFo's and KFw's own covariances, which set
@@ -232,10 +398,13 @@ def advance(k0, k1, yoff, ooff, every, y, u, has_u,
         div = DIV[b]
         dat = DAT[b]
         clamp = CLAMP[b]
+        # this realisation's history
+        xh_b, Ph_b, Pgh_b, win_b, modes_b = xh[b], Ph[b], Pgh[b], win[b], modes[b]
+        Pwin_b, Pwin_g_b, Phead_b, Phead_g_b = Pwin[b], Pwin_g[b], Phead[b], Phead_g[b]
         so = np.empty(3)
         sw = np.empty(3)
         Y = np.empty(6)
-        t3 = np.empty(3)
+        ms = np.empty(3)
         arg = np.empty(M)  # scratch of the exponential sums (tails3, tail)
         E = np.empty(M)
         Ex = np.empty(M)  # exp(a + α b) at the order of the last KFx tail (ex_al), reused by the next KFo
@@ -244,6 +413,7 @@ def advance(k0, k1, yoff, ooff, every, y, u, has_u,
         Di = np.empty(M)
         ib = np.empty(M, np.int64)
         fb = ib.view(np.float64)
+        scratch = (arg, E, D, Di, ib, fb)
         for k in range(k0, k1):
             yk = y[b, k - yoff]
             obs = not math.isnan(yk)
@@ -253,123 +423,54 @@ def advance(k0, k1, yoff, ooff, every, y, u, has_u,
             spread = math.sqrt(psd(scale_o * (Pog + Qo)))
             if (al - spread) < count_lo or (al + spread) > count_hi:
                 clamp += 1
-            # KFo and KFw sigma points (15)/(40)
+            # KFo and KFw predictions (13)–(15), (38)–(40), from the covariances that set their gains
             Pot = Pog + Qo
             Pwt = Pwg + Qw
-            ro = math.sqrt(psd(scale_o * Pot))
-            rw = math.sqrt(psd(scale_w * Pwt))
-            so[0], so[1], so[2] = al, al + ro, al - ro
-            sw[0], sw[1], sw[2] = w, w + rw, w - rw
-            # replica (16)–(18), (41)–(42): KFw's order is KFo's centre point
-            if kind == 1:
-                tails3(al, ro, modes[b], ka, kb, kbig, eta, klo, khi, t3, arg, E, Ex, al == ex_al, D, Di, ib, fb)
-            elif kind == 0:
-                exact_sums3(so, xh[b], k, la, lb, t3)
-            for i in range(3):
-                if kind == 0:
-                    ms = t3[i]
-                else:
-                    ms = window_sum(so[i], win[b], xl, la, lb)
-                    if kind == 1:
-                        ms += t3[i]
-                hp = h ** so[i]
-                Y[i] = hp * (w * x + up) - ms
-                if i == 0:
-                    for jw in range(3):
-                        Y[3 + jw] = hp * (sw[jw] * x + up) - ms
-            # KFo update (19)–(24) with the order projected, adaptation (25); then KFw the same
-            al_n, Pog_n, K, e, Pyy, Pxy = ut_update(Y, 0, so, al, Pot, wm_o, wc_o, start, Sp if inn_o else Ro[b], obs, yv)
+            ro = sigma_points(al, Pot, scale_o, so)
+            rw = sigma_points(w, Pwt, scale_w, sw)
+            replica(so, ro, sw, w, x, up, h, kind, k, xh_b, la, lb, win_b, xl, modes_b, ka, kb, kbig, eta, klo, khi,
+                    al == ex_al, Ex, scratch, ms, Y)
+            # KFo's update (19)–(24) with the order projected, adaptation (25); then KFw's
+            al_n, Pog_n, Ko, eo, Pyy_o, Pxy_o = ut_update(Y, 0, so, al, Pot, wm_o, wc_o, start,
+                                                          Sp if inn_o else Ro[b], obs, yv)
             al_n = min(max(al_n, lo), hi)
-            Qo_n = adapt_q(Qo, K, e, delta_o, qmax_o[b], obs)
-            Po_n = constant_truth(Po, Pot, K, Pyy, Pxy) if const else Pog_n
-            w_n, Pwg_n, K, e, Pyy, Pxy = ut_update(Y, 3, sw, w, Pwt, wm_w, wc_w, start, Sp if inn_w else Rw[b], obs, yv)
-            Qw_n = adapt_q(Qw, K, e, delta_w, qmax_w[b], obs)
-            Pw_n = constant_truth(Pw, Pwt, K, Pyy, Pxy) if const else Pwg_n
+            Qo_n = adapt_q(Qo, Ko, eo, delta_o, qmax_o[b], obs)
+            w_n, Pwg_n, Kw, ew, Pyy_w, Pxy_w = ut_update(Y, 3, sw, w, Pwt, wm_w, wc_w, start,
+                                                         Sp if inn_w else Rw[b], obs, yv)
+            Qw_n = adapt_q(Qw, Kw, ew, delta_w, qmax_w[b], obs)
             # KFx (29)–(35) with α̂_k and ŵ_{k−1}
             a = al_n
-            mean = 0.0
-            cov = 0.0
-            covg = 0.0
-            if kind == 0:
-                c = 1.0
-                for j in range(1, k + 1):
-                    c *= lagf(la[j], a, lb[j])
-                    mean += c * xh[b, k - j]
-                    if j >= 2:
-                        cov += c * c * Ph[b, k - j]
-                        if gain:
-                            covg += c * c * Pgh[b, k - j]
-            else:
-                c = 1.0
-                sumsq = 0.0
-                for j in range(1, pl + 1):
-                    c *= lagf(la[j], a, lb[j])
-                    if j <= xl:
-                        mean += c * win[b, j - 1]
-                    if j >= 2:
-                        cov += c * c * Pwin[b, j - 1]
-                        if gain:
-                            covg += c * c * Pwin_g[b, j - 1]
-                    sumsq += c * c
-                if kind == 1:
-                    mean += tail(a, modes[b], ka, kb, eta, klo, khi, arg, Ex, ib, fb)
-                    ex_al = min(max(a, klo), khi)
-                    ac = max(a, max(-0.49, klo))
-                    kk = k - H
-                    r = rgn(ac)  # 1/Γ(−ac), shared by the two terms below
-                    if kk > pl:
-                        total = math.exp(math.lgamma(1.0 + 2.0 * ac) - 2.0 * math.lgamma(1.0 + ac))
-                        p1 = 1.0 + 2.0 * ac
-                        KK = kk + 0.5
-                        g = 0.5 * (ac * (1.0 + ac) + ac * (1.0 + ac))
-                        beyond = r * r * (KK ** (-p1) / p1 + g * KK ** (-p1 - 1.0) / (p1 + 1.0))
-                        mass = total - (1.0 + sumsq) - beyond  # coefficient mass × the oldest windowed P
-                        cov += mass * Pwin[b, pl - 1]
-                        if gain:
-                            covg += mass * Pwin_g[b, pl - 1]
-                    j0 = max(k - H + 1, pl + 1)  # the head's lags k − i beyond the window: j0 … k
-                    if H > 0 and j0 <= k:
-                        # c_j(ac) at the smallest lag by log-gamma, then c_{j+1} = c_j (j − ac)/(j + 1)
-                        ch = r * math.exp(math.lgamma(j0 - ac) - math.lgamma(j0 + 1.0))
-                        for j in range(j0, k + 1):
-                            cov += ch * ch * Phead[b, k - j]
-                            if gain:
-                                covg += ch * ch * Phead_g[b, k - j]
-                            ch *= (j - ac) / (j + 1.0)
+            mean, cov, covg = kfx_sums(kind, gain, a, k, xh_b, Ph_b, Pgh_b, la, lb, win_b, xl, pl, Pwin_b, Pwin_g_b,
+                                       H, Phead_b, Phead_g_b, modes_b, ka, kb, eta, klo, khi, arg, Ex, ib, fb)
+            if kind == 1:
+                ex_al = min(max(a, klo), khi)
             hp = h ** a
             x_pred = hp * (w * x + up) - mean
             F = hp * w + a
             Qx = Q[b] * (hp * hp) if scaled else Q[b]
             P_pred = F * Pk * F + Qx + cov
             if mode != 0:
-                # the order's and the parameter's uncertainty (tea._estimate_uncertainty): J P J with J the
-                # statistical linearisation of the replica over the sigma points, Σᵢ Wᵢᶜ Yᵢ (σᵢ − m) / P̃
-                Jo = wc_o[1] * ro * (Y[1] - Y[2]) / Pot if Pot > 0 else 0.0
-                Jw = wc_w[1] * rw * (Y[4] - Y[5]) / Pwt if Pwt > 0 else 0.0
-                P_pred += Jo * Jo * Pog_n + Jw * Jw * Pwg  # the filters' own covariances (tea._tea_step)
-            S = P_pred + R[b]
-            e = yv - x_pred if obs else 0.0
+                # with the filters' own covariances (tea._tea_step)
+                P_pred += estimate_uncertainty(Y, 0, ro, wc_o, Pot, Pog_n) \
+                    + estimate_uncertainty(Y, 3, rw, wc_w, Pwt, Pwg)
             Pg_n = 0.0
-            S_n = S  # the innovation covariance from the covariance that sets the gain (KFo's and KFw's next R)
             if gain:
                 # the paper's KFx sets the gain; P is the covariance of that filter's error (Joseph form)
                 Pg_pred = F * Pg * F + Qx + covg
-                Sg = Pg_pred + R[b]
-                S_n = Sg
-                Kx = Pg_pred / Sg if obs else 0.0
-                Pg_n = psd(Pg_pred - Kx * Sg * Kx)
+                x_n, Pg_n, e, S_n, Kx = kfx_update(x_pred, Pg_pred, R[b], obs, yv)
+                S = P_pred + R[b]
                 P_n = joseph(P_pred, Kx, 1.0, R[b])
             else:
-                Kx = P_pred / S if obs else 0.0
-                P_n = psd(P_pred - Kx * S * Kx)
-            x_n = x_pred + Kx * e
+                x_n, P_n, e, S, Kx = kfx_update(x_pred, P_pred, R[b], obs, yv)
+                S_n = S  # the innovation covariance from the covariance that sets the gain (KFo's and KFw's next R)
+            if const:
+                # the filters' own covariances set the gains; Po and Pw: those of their errors for a constant truth
+                Po_n = constant_truth_cov(Po, Pot, Ko, Pyy_o, Pxy_o)
+                Pw_n = constant_truth_cov(Pw, Pwt, Kw, Pyy_w, Pxy_w)
+            else:
+                Po_n, Pw_n = Pog_n, Pwg_n
             # the guard: non-finite or beyond the limit → flagged and frozen
-            bad = False
-            for v in (x_n, P_n, al_n, Po_n, Qo_n, w_n, Pw_n, Qw_n, Pg_n, Pog_n, Pwg_n):
-                if not (abs(v) <= limit):
-                    bad = True
-            if inn and not (abs(S_n) <= limit):
-                bad = True
+            bad = guard((x_n, P_n, al_n, Po_n, Qo_n, w_n, Pw_n, Qw_n, Pg_n, Pog_n, Pwg_n, S_n if inn else 0.0), limit)
             if div or bad:
                 if not div:
                     dat = k
@@ -378,25 +479,9 @@ def advance(k0, k1, yoff, ooff, every, y, u, has_u,
                 x, Pk, al, Po, Qo, w, Pw, Qw, Pg = x_n, P_n, al_n, Po_n, Qo_n, w_n, Pw_n, Qw_n, Pg_n
                 Pog, Pwg = Pog_n, Pwg_n
                 Sp = S_n
-            # the history
-            if kind == 0:
-                xh[b, k] = x
-                Ph[b, k] = Pk
-                if gain:
-                    Pgh[b, k] = Pg
-            else:
-                if M > 0:
-                    dropped = win[b, xl - 1]
-                    for n in range(M):
-                        modes[b, n] = modes[b, n] * decay[n] + inject[n] * dropped
-                push_front(win[b], xl, x)
-                push_front(Pwin[b], pl, Pk)
-                if k < H:
-                    Phead[b, k] += Pk
-                if gain:
-                    push_front(Pwin_g[b], pl, Pg)
-                    if k < H:
-                        Phead_g[b, k] += Pg
+            # the history (tea._loop: memory.push)
+            push(kind, gain, k, x, Pk, Pg, xh_b, Ph_b, Pgh_b, win_b, xl, modes_b, decay, inject, Pwin_b, pl, Pwin_g_b,
+                 H, Phead_b, Phead_g_b)
             if k % every == 0:
                 row = k // every - ooff
                 o_x[b, row], o_P[b, row], o_a[b, row], o_Po[b, row] = x, Pk, al, Po
@@ -409,4 +494,3 @@ def advance(k0, k1, yoff, ooff, every, y, u, has_u,
         DIV[b] = div
         DAT[b] = dat
         CLAMP[b] = clamp
-

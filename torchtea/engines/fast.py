@@ -180,6 +180,33 @@ def _lag_tables(n: int):
     return la, lb
 
 
+def memory_arrays(memory, horizon: int, B: int, gain: bool) -> tuple[dict, History]:
+    """The memory plan ``memory`` (``core.memory.MemoryPlan``, or the torch engine's memory) as the kernel reads it:
+    its :class:`Settings` fields from ``kind`` to ``lb`` by name, and an empty :class:`History` of ``B``
+    realisations (``horizon``: the ``exact`` history's length; ``gain``: with the gain's covariances)."""
+    zeros = lambda *s: np.zeros((B,) + s)  # noqa: E731
+    kind = memory.code  # the one dispatch: core.memory.MemoryPlan.code
+    ka = kb = decay = inject = np.zeros(0)
+    eta, klo, khi = 1.0, -math.inf, math.inf
+    if kind == 0:
+        xl = pl = H = 0
+        hist = History(xh=zeros(horizon), Ph=zeros(horizon), win=zeros(1), modes=zeros(0), Pwin=zeros(1),
+                       Phead=zeros(0), Pgh=zeros(horizon if gain else 1), Pwin_g=zeros(1), Phead_g=zeros(0))
+    else:
+        xl, pl, H = memory.x_lags, memory.p_lags, memory.head
+        if kind == 1:
+            ka, kb, decay, inject = (t.numpy() for t in memory.kernel.tensors(torch.float64, torch.device("cpu")))
+            eta = float(memory.kernel.eta)
+            klo, khi = (float(v) for v in memory.kernel.order_range)
+        hist = History(xh=zeros(1), Ph=zeros(1), win=zeros(xl), modes=zeros(ka.shape[0]), Pwin=zeros(pl),
+                       Phead=zeros(H), Pgh=zeros(1), Pwin_g=zeros(pl if gain else 1), Phead_g=zeros(H if gain else 0))
+    la, lb = _lag_tables(horizon if kind == 0 else max(xl, pl))
+    settings = dict(kind=kind, xl=xl, pl=pl, H=H, ka=ka, kb=kb, kbig=float(np.abs(kb[:-1]).max(initial=0.0)),
+                    decay=decay, inject=inject, eta=eta, klo=klo, khi=khi, count_lo=klo if kind == 1 else -math.inf,
+                    count_hi=khi if kind == 1 else math.inf, la=la, lb=lb)
+    return settings, hist
+
+
 class FastTEA:
     """The compiled engine's state for a batch of realisations (flattened to ``B``): the carry, the history and
     the settings as numpy arrays, advanced in place by the kernel. ``horizon``: the ``exact`` history's length."""
@@ -205,23 +232,9 @@ class FastTEA:
                 ut_weights(1, cfg.kfw.ut_alpha, cfg.kfw.ut_beta, cfg.kfw.kappa))]
         lo, hi = (float(v) for v in cfg.order_bounds)
         zeros = lambda *s: np.zeros((B,) + s)  # noqa: E731
-        kind = self.kind = memory.code  # the one dispatch: core.memory.MemoryPlan.code
-        ka = kb = decay = inject = np.zeros(0)
-        eta, klo, khi = 1.0, -math.inf, math.inf
         gain = cfg.kfx_uncertainty == "paper-gain"  # the gain's covariance kept apart: its history too
-        if kind == 0:
-            xl = pl = H = 0
-            hist = History(xh=zeros(horizon), Ph=zeros(horizon), win=zeros(1), modes=zeros(0), Pwin=zeros(1),
-                           Phead=zeros(0), Pgh=zeros(horizon if gain else 1), Pwin_g=zeros(1), Phead_g=zeros(0))
-        else:
-            xl, pl, H = memory.x_lags, memory.p_lags, memory.head
-            if kind == 1:
-                ka, kb, decay, inject = (t.numpy() for t in memory.kernel.tensors(torch.float64, torch.device("cpu")))
-                eta = float(memory.kernel.eta)
-                klo, khi = (float(v) for v in memory.kernel.order_range)
-            hist = History(xh=zeros(1), Ph=zeros(1), win=zeros(xl), modes=zeros(ka.shape[0]), Pwin=zeros(pl),
-                           Phead=zeros(H), Pgh=zeros(1), Pwin_g=zeros(pl if gain else 1), Phead_g=zeros(H if gain else 0))
-        la, lb = _lag_tables(horizon if kind == 0 else max(xl, pl))
+        mem, hist = memory_arrays(memory, horizon, B, gain)
+        self.kind = mem["kind"]
         self.settings = Settings(
             h=float(h), Q=Q, R=R, Ro=Ro, Rw=Rw, qmax_o=qmax_o, qmax_w=qmax_w, scaled=cfg.noise_scaling == "scaled",
             start=int(cfg.sigma_sum_start), lo=lo, hi=hi, limit=float(cfg.divergence_limit),
@@ -229,9 +242,7 @@ class FastTEA:
             mode=KFX_UNCERTAINTIES.index(cfg.kfx_uncertainty), const=cfg.estimate_uncertainty == "constant-truth",
             inn_o=cfg.kfo.uses_innovation, inn_w=cfg.kfw.uses_innovation,
             wm_o=wm_o, wc_o=wc_o, scale_o=sc_o, wm_w=wm_w, wc_w=wc_w, scale_w=sc_w,
-            kind=kind, xl=xl, pl=pl, H=H, ka=ka, kb=kb, kbig=float(np.abs(kb[:-1]).max(initial=0.0)), decay=decay,
-            inject=inject, eta=eta, klo=klo, khi=khi, count_lo=klo if kind == 1 else -math.inf,
-            count_hi=khi if kind == 1 else math.inf, la=la, lb=lb)
+            **mem)
         # the carry after step 0 (tea._first_step) and its history
         col = lambda t: np.array(t.reshape(B, -1)[:, 0].numpy(), dtype=np.float64)  # noqa: E731
         self.gain = gain
@@ -249,11 +260,11 @@ class FastTEA:
         self.hist = hist
         self._groups = (*self.settings, *self.state, *self.hist)
         s = self.state
-        if kind == 0:
+        if self.kind == 0:
             hist.xh[:, 0], hist.Ph[:, 0], hist.Pgh[:, 0] = s.X, s.P, s.PG
         else:
             hist.win[:, 0], hist.Pwin[:, 0], hist.Pwin_g[:, 0] = s.X, s.P, s.PG
-            if H > 0:
+            if mem["H"] > 0:
                 hist.Phead[:, 0] += s.P
                 if gain:
                     hist.Phead_g[:, 0] += s.PG

@@ -32,7 +32,8 @@ STEP_TWINS = {
     "constant_truth_cov": "_constant_truth_cov",
     "guard": "_guard",
 }
-#: Twins the step reaches through another: the memory's history sums inside the replica, its push in the loop.
+#: The memory's twins: its history sums (which the torch replica calls; the kernel calls them before its replica), its
+#: push (in the loop, after the step).
 MEMORY_TWINS = {"mean_sums": "mean_sums", "push": "push"}
 #: The kernel's numerics inside the twins (checked through them; vexp also in tests/test_device.py), and the loop.
 PARTS = {"lagf", "rgn", "vexp", "dot", "dot3", "tail", "tails3", "exact_sums3", "window_sum", "push_front", "psd",
@@ -82,15 +83,18 @@ def _calls_in_order(fn, names) -> list:
 
 
 def test_the_kernel_calls_the_twins_in_the_torch_steps_order():
-    torch_calls = _calls_in_order(tea._tea_step, set(STEP_TWINS.values()))
-    kernel_calls = _calls_in_order(kern.advance.py_func, set(STEP_TWINS))
-    assert [STEP_TWINS[c] for c in kernel_calls] == torch_calls
-    # every step twin is called (the list holds no function the step lost)
-    assert set(kernel_calls) == set(STEP_TWINS)
-    # the memory twins are called where the torch engine calls them: the sums inside the replica, push in the loop
-    assert _calls_in_order(kern.replica.py_func, {"mean_sums"}) == ["mean_sums"]
-    assert "mean_sums" in _calls_in_order(tea._replica, {"mean_sums"})
-    assert _calls_in_order(kern.advance.py_func, {"push"}) == ["push"]
+    """The torch step's calls of the twinned functions, in source order, are the kernel loop's calls of their twins;
+    the memory's sums, which ``_replica`` calls first, the kernel calls just before its replica."""
+    assert _calls_in_order(tea._replica, {"mean_sums"}) == ["mean_sums"]
+    expected = []
+    for c in _calls_in_order(tea._tea_step, set(STEP_TWINS.values())):
+        expected += ["mean_sums", c] if c == "_replica" else [c]
+    twins = {**STEP_TWINS, "mean_sums": "mean_sums"}
+    kernel_calls = _calls_in_order(kern.advance.py_func, set(twins))
+    assert [twins[c] for c in kernel_calls] == expected
+    assert set(kernel_calls) == set(twins)  # every twin is called: the lists hold no function the step lost
+    # push where the torch loop pushes: once per step, after the step
+    assert _calls_in_order(kern.advance.py_func, {"push", "guard"}) == ["guard", "push"]
 
 
 # --------------------------------------------------------------------------- the filters' functions
@@ -251,7 +255,7 @@ def _scratch(M):
 @pytest.mark.parametrize("K", [9, 200])
 def test_kfx_sums_mean_sums_and_the_replica(memory_spec, gain, K):
     """At step K: KFx's sums at its order, the replica's sums at KFo's sigma orders (with the exponentials the KFx
-    sums left, as the kernel reuses them, and without) and the replica's outputs."""
+    sums left, as the kernel reuses them, and without) and the replica's outputs from them."""
     memory, hist, mem, kh = _histories(memory_spec, gain, K, seed=100 + K)
     g = _rng(K)
     a = g.uniform(0.05, 0.9, size=B)
@@ -280,11 +284,10 @@ def test_kfx_sums_mean_sums_and_the_replica(memory_spec, gain, K):
                                mem["kb"], mem["eta"], mem["klo"], mem["khi"], arg, Ex, ib, fb)
         so = np.array([a[b], a[b] + ro[b], a[b] - ro[b]])
         tail = (kh.modes[b], mem["ka"], mem["kb"], mem["kbig"], mem["eta"], mem["klo"], mem["khi"])
-        kern.mean_sums(mem["kind"], so, ro[b], K, kh.xh[b], *common, *tail, False, np.empty(M), _scratch(M), ms[b])
+        kern.mean_sums(mem["kind"], so, ro[b], K, kh.xh[b], *common, *tail, False, np.empty(M), *_scratch(M), ms[b])
         have = mem["kind"] == 1 and min(max(a[b], mem["klo"]), mem["khi"]) == a[b]  # Ex holds exp(ka + a kb)
-        kern.mean_sums(mem["kind"], so, ro[b], K, kh.xh[b], *common, *tail, have, Ex, _scratch(M), ms_have[b])
-        kern.replica(so, ro[b], sw[b], w[b], x[b], up[b], h, mem["kind"], K, kh.xh[b], *common, *tail, False,
-                     np.empty(M), _scratch(M), np.empty(3), Y[b])
+        kern.mean_sums(mem["kind"], so, ro[b], K, kh.xh[b], *common, *tail, have, Ex, *_scratch(M), ms_have[b])
+        kern.replica(so, sw[b], w[b], x[b], up[b], h, ms[b], Y[b])
     _close(got[:, 0], exp_mean, "KFx mean sum", rtol=1e-12, atol=1e-13)
     _close(got[:, 1], exp_cov, "KFx covariance sum", rtol=1e-12, atol=1e-13)
     if gain:

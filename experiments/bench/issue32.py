@@ -8,6 +8,8 @@ refactor touched:
 
 * ``compiled_tea`` — the compiled TEA (named arguments, the memory plan): paper-mems-x settings, soe memory,
   200 realisations × 3000 steps of fractional+white (noise simulator, seed 1);
+* ``compiled_tea_branches`` — the same with the kernel's other branches: window:40 memory, ``paper-gain``,
+  ``constant-truth``, KFo's R from KFx's innovation covariance;
 * ``torch_tea`` — the torch engine (shared types moved, the memory plan): the same settings and data, 20 realisations;
 * ``paper_example1`` — the paper reproduction's setting: Example 1 (known input, exact memory, the compiled engine),
   20 realisations × 6000 steps;
@@ -44,8 +46,9 @@ from torchtea.noise import simulate_model
 H = 0.01
 FW = {"fractional.order": 0.4, "fractional.pole": -2.0, "fractional.q": 0.02, "white.r": 1e-3}
 
-def tea(B, engine):
+def tea(B, engine, branches=False):
     from dataclasses import replace
+    from torchtea.core.memory import parse_memory
     from torchtea.engines.presets import get_preset
     from torchtea.engines.tea import make_params, run_tea
     from torchtea.engines.structure import Structure
@@ -53,6 +56,9 @@ def tea(B, engine):
                        generator=torch.Generator().manual_seed(1))[0]
     cfg = get_preset("paper-mems-x")
     cfg = replace(cfg, memory=replace(cfg.memory, kind="soe"))
+    if branches:  # the kernel's other branches: window memory, the paper's gain, constant truth, KFo's R from KFx
+        cfg = replace(cfg, memory=parse_memory("window:40"), kfx_uncertainty="paper-gain",
+                      estimate_uncertainty="constant-truth", kfo=replace(cfg.kfo, R="innovation"))
     p = make_params(cfg, Structure())
     run_tea(y[:2].unsqueeze(-1), h=H, params=p, engine=engine)  # compile / warm up
     t = time.perf_counter()
@@ -63,6 +69,8 @@ def tea(B, engine):
 
 if case == "compiled_tea":
     dt, digest = tea(200, "numba")
+elif case == "compiled_tea_branches":
+    dt, digest = tea(200, "numba", branches=True)
 elif case == "torch_tea":
     dt, digest = tea(20, "torch")
 elif case == "paper_example1":
@@ -149,6 +157,9 @@ CASES = ("compiled_tea", "torch_tea", "paper_example1", "simulate_paper", "exact
 #: the one simulator (the paper's simulator made a view of the model's): python experiments/bench/issue32.py --old
 #: 30fb53f --cases simulate_paper_exact simulate_paper simulate_model montecarlo_paper --out experiments/bench/simulator.json
 SIMULATOR_CASES = ("simulate_paper_exact", "simulate_paper", "simulate_model", "montecarlo_paper")
+#: the compiled kernel as the torch step's twins: python experiments/bench/issue32.py --old 989a8d6 --cases
+#: compiled_tea compiled_tea_branches paper_example1 montecarlo_paper --out experiments/bench/kernel_twins.json
+KERNEL_CASES = ("compiled_tea_branches",)
 
 
 def rel_diff(a, b) -> float:
@@ -174,7 +185,7 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--old", default="ad7220d", help="the commit before issue 32's refactors")
     ap.add_argument("--repeats", type=int, default=3)
-    ap.add_argument("--cases", nargs="+", default=list(CASES), choices=CASES + SIMULATOR_CASES)
+    ap.add_argument("--cases", nargs="+", default=list(CASES), choices=CASES + SIMULATOR_CASES + KERNEL_CASES)
     ap.add_argument("--out", default=str(HERE / "issue32.json"))
     args = ap.parse_args()
     tmp = Path(tempfile.mkdtemp(prefix="tt-old-"))

@@ -183,16 +183,18 @@ def sigma_points(mean, prior_cov, scale, out):
 
 
 @njit(cache=True, inline="always")
-def mean_sums(kind, so, ro, k, xh, la, lb, win, xl, modes, ka, kb, kbig, eta, klo, khi, have, Ex, scratch, out):
-    """Σ_j c_j(σᵢ) x̂_{k−j} at KFo's three sigma orders ``so = (α, α + ro, α − ro)`` into ``out``
-    (the memory's ``mean_sums``): ``kind`` 0 the whole past ``xh`` (chronological), 1 the window ``win`` (newest
-    first, ``xl`` lags) plus the exponential sums of ``modes``, 2 the window alone. ``have``: ``Ex`` holds
-    exp(a + α b) already (:func:`tails3`); ``scratch``: (arg, E, D, Di, ib, fb) of the modes' size."""
+def mean_sums(kind, so, ro, k, xh, la, lb, win, xl, modes, ka, kb, kbig, eta, klo, khi, have, Ex, arg, E, D, Di, ib, fb,
+              out):
+    """Σ_j c_j(σᵢ) x̂_{k−j} at KFo's three sigma orders ``so = (α, α + ro, α − ro)`` into ``out`` (the memory's
+    ``mean_sums``, which tea._replica calls; here the loop calls it just before :func:`replica`): ``kind`` 0 the
+    whole past ``xh`` (chronological), 1 the window ``win`` (newest first, ``xl`` lags) plus the exponential sums of
+    ``modes``, 2 the window alone. ``have``: ``Ex`` holds exp(a + α b) already (:func:`tails3`); ``arg … fb``:
+    scratch of the modes' size. (Scratch passed as a tuple of arrays cost the loop 5 %: its arrays' reference counts
+    at every step.)"""
     if kind == 0:
         exact_sums3(so, xh, k, la, lb, out)
         return
     if kind == 1:
-        arg, E, D, Di, ib, fb = scratch
         tails3(so[0], ro, modes, ka, kb, kbig, eta, klo, khi, out, arg, E, Ex, have, D, Di, ib, fb)
     for i in range(3):
         s = window_sum(so[i], win, xl, la, lb)
@@ -200,15 +202,14 @@ def mean_sums(kind, so, ro, k, xh, la, lb, win, xl, modes, ka, kb, kbig, eta, kl
 
 
 @njit(cache=True, inline="always")
-def replica(so, ro, sw, w, x, up, h, kind, k, xh, la, lb, win, xl, modes, ka, kb, kbig, eta, klo, khi, have, Ex,
-            scratch, ms, Y):
+def replica(so, sw, w, x, up, h, ms, Y):
     """The model replica (16)–(18), (41)–(42) (tea._replica), scalar ``A(w) = w``, ``B = C = 1``: KFo's sigma orders
-    ``so`` with ŵ_{k−1} into ``Y[0:3]``, KFw's sigma parameters ``sw`` at KFo's centre order into ``Y[3:6]``;
-    the history sums by :func:`mean_sums` into ``ms``."""
-    mean_sums(kind, so, ro, k, xh, la, lb, win, xl, modes, ka, kb, kbig, eta, klo, khi, have, Ex, scratch, ms)
-    for i in range(3):
+    ``so`` with ŵ_{k−1} into ``Y[0:3]``, KFw's sigma parameters ``sw`` at KFo's centre order into ``Y[3:6]``,
+    from the history sums ``ms`` at ``so`` (:func:`mean_sums`)."""
+    hp = h ** so[0]  # the centre order's, which KFw's points share
+    Y[0] = hp * (w * x + up) - ms[0]
+    for i in range(1, 3):
         Y[i] = h ** so[i] * (w * x + up) - ms[i]
-    hp = h ** so[0]
     for j in range(3):
         Y[3 + j] = hp * (sw[j] * x + up) - ms[0]
 
@@ -413,7 +414,6 @@ def advance(k0, k1, yoff, ooff, every, y, u, has_u,
         Di = np.empty(M)
         ib = np.empty(M, np.int64)
         fb = ib.view(np.float64)
-        scratch = (arg, E, D, Di, ib, fb)
         for k in range(k0, k1):
             yk = y[b, k - yoff]
             obs = not math.isnan(yk)
@@ -428,8 +428,9 @@ def advance(k0, k1, yoff, ooff, every, y, u, has_u,
             Pwt = Pwg + Qw
             ro = sigma_points(al, Pot, scale_o, so)
             rw = sigma_points(w, Pwt, scale_w, sw)
-            replica(so, ro, sw, w, x, up, h, kind, k, xh_b, la, lb, win_b, xl, modes_b, ka, kb, kbig, eta, klo, khi,
-                    al == ex_al, Ex, scratch, ms, Y)
+            mean_sums(kind, so, ro, k, xh_b, la, lb, win_b, xl, modes_b, ka, kb, kbig, eta, klo, khi, al == ex_al, Ex,
+                      arg, E, D, Di, ib, fb, ms)
+            replica(so, sw, w, x, up, h, ms, Y)
             # KFo's update (19)–(24) with the order projected, adaptation (25); then KFw's
             al_n, Pog_n, Ko, eo, Pyy_o, Pxy_o = ut_update(Y, 0, so, al, Pot, wm_o, wc_o, start,
                                                           Sp if inn_o else Ro[b], obs, yv)

@@ -189,8 +189,7 @@ def mean_sums(kind, so, ro, k, xh, la, lb, win, xl, modes, ka, kb, kbig, eta, kl
     ``mean_sums``, which tea._replica calls; here the loop calls it just before :func:`replica`): ``kind`` 0 the
     whole past ``xh`` (chronological), 1 the window ``win`` (newest first, ``xl`` lags) plus the exponential sums of
     ``modes``, 2 the window alone. ``have``: ``Ex`` holds exp(a + α b) already (:func:`tails3`); ``arg … fb``:
-    scratch of the modes' size. (Scratch passed as a tuple of arrays cost the loop 5 %: its arrays' reference counts
-    at every step.)"""
+    scratch of the modes' size, one by one (passed as a tuple they cost the loop ~5 %, experiments/bench/README.md)."""
     if kind == 0:
         exact_sums3(so, xh, k, la, lb, out)
         return

@@ -146,6 +146,57 @@ def test_identify_runs_each_channel_through_the_exact_kfx():
         identify(m, model=GROWN, overrides=dict(over, estimate_uncertainty="constant-truth"), fits=fits)
 
 
+def test_progress_and_ctrl_c_keep_the_finished_steps():
+    """progress(k, N) as run_tea calls it; a Ctrl-C with partial=True returns the finished steps, the full run's to
+    the bit, interrupted, with the clamp count of those steps only; without partial it raises."""
+    y = grown_data(2, 400)
+    v = view_for(GROWN, VALUES, P0=1.0)  # KFo's first sigma orders leave the kernel's range: clamped steps
+    calls = []
+    full = run_tea_exact(v, y, h=H, progress=lambda k, n: calls.append((k, n)))
+    assert calls[0] == (0, 400) and calls[-1] == (399, 400) and [k for k, _ in calls] == sorted(k for k, _ in calls)
+    assert not full.interrupted and full.alpha.shape[-2] == 400
+
+    def stop(k, n):
+        if k == 128:
+            raise KeyboardInterrupt
+
+    cut = run_tea_exact(v, y, h=H, progress=stop, partial=True)
+    assert cut.interrupted and cut.alpha.shape[-2] == 129 and torch.equal(cut.steps, torch.arange(129))
+    for name in ("x", "P", "alpha", "P_alpha", "w", "innovation", "innovation_cov"):
+        assert torch.equal(getattr(cut, name), getattr(full, name)[:, :129]), name
+    assert (cut.memory_clamped > 0).all() and (cut.memory_clamped <= 128).all()
+    assert (cut.memory_clamped <= full.memory_clamped).all()
+    with pytest.raises(KeyboardInterrupt):
+        run_tea_exact(v, y, h=H, progress=stop)
+
+
+def test_identify_reports_progress_over_channels_and_keeps_a_ctrl_c():
+    """Channels run one after another under the exact KFx: progress counts the steps of all of them; a Ctrl-C in
+    the first keeps its finished steps, and the second runs those samples only (its own run of that length)."""
+    from torchtea.fitting import fit_series
+    from torchtea.identification import identify
+    from torchtea.sensors.io import read_recording
+    from torchtea.sensors.measurements import prepare
+
+    m = prepare(read_recording(columns=["ax", "az"]), samples=300)
+    y = [c.values - c.values.mean() for c in m.channels]
+    fits = fit_series(GROWN, y, m.recording.h, method="whittle")
+    over = {"kfx_filter": "exact", "kfo": CONSTANT, "kfw": CONSTANT}
+    calls = []
+    identify(m, model=GROWN, overrides=over, fits=fits, progress=lambda d, t: calls.append((d, t)))
+    assert {t for _, t in calls} == {2 * 299} and calls[-1] == (598, 598)
+    assert [d for d, _ in calls] == sorted(d for d, _ in calls)
+
+    def stop(d, t):
+        if d == 128:  # in the first channel
+            raise KeyboardInterrupt
+
+    ident = identify(m, model=GROWN, overrides=over, fits=fits, progress=stop, partial=True)
+    assert ident.result.interrupted and ident.result.alpha.shape[-2] == 129
+    second = run_tea_exact(replace(ident.views[1], config=ident.configs[1]), ident.y[1, :129, 0], h=m.recording.h)
+    assert torch.equal(ident.result.alpha[1], second.alpha[0])
+
+
 @pytest.mark.slow
 def test_the_exact_kfx_estimates_the_order_the_paper_kfx_misses():
     """Walk σ 0.05, pole held, 16 realisations × 6000 steps under the ``constant`` settings: the paper's KFx puts α̂

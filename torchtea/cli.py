@@ -601,7 +601,7 @@ def cmd_identify(args) -> int:
     elif total >= LONG_INPUT and "memory" not in (overrides or {}) and args.memory is None:
         print(f"torchtea: note: {total} samples: the TEA runs with soe memory (O(N); --memory exact for the full "
               "sums, O(N²))", file=sys.stderr)
-    step, close = _progress(total - 1, "TEA " + ",".join(m.labels), bar=not args.json)
+    step, close = _progress(None, "TEA " + ",".join(m.labels), bar=not args.json)  # identify's total: all groups
     t0 = time.perf_counter()
     try:
         ident = identify(m, model=model or args.model, r_mode=args.r, overrides=overrides, progress=step, compile=args.compile,

@@ -198,10 +198,15 @@ def identify(measurements: Measurements, *, model=PAPER_MODEL, r_mode: str = "fi
         TEA settings applied on top of the presets (as in a TOML config), e.g. ``{"memory": {"kind": "exact"}}``;
         see :func:`axis_configs`. Without a ``memory`` entry, series of :data:`LONG_INPUT` samples or more run with
         ``soe`` memory (O(N) instead of O(N²)).
+    progress : callable, optional
+        Called as ``progress(done, total)`` with the steps done and to do over all channels: channels of one
+        structure run as one batch, channels of different ones (and each channel with ``kfx_filter = "exact"``)
+        one after another.
     compile : bool
         Passed to :func:`torchtea.engines.tea.run_tea`.
     partial : bool
-        On Ctrl-C keep the steps that finished (``result.interrupted``) instead of raising.
+        On Ctrl-C keep the steps that finished (``result.interrupted``) instead of raising. Channels still to run
+        then run those steps only (each its own run of that length), so that every channel has the same steps.
     device : torch device, optional
         Where the TEA runs (default the CPU, where the scalar model takes the compiled engine; elsewhere the torch
         engine). The noise-level fit of ``r_mode="fitted"`` runs on the CPU whatever the device (its exact
@@ -279,13 +284,22 @@ def identify(measurements: Measurements, *, model=PAPER_MODEL, r_mode: str = "fi
                                         and same_structure(structures[g[0]], st)), None)
         (g.append(i) if g is not None else groups.append([i]))
     results = []
+    steps, done = N, 0  # samples each group runs (after a Ctrl-C: those the interrupted group finished); steps done
     for g in groups:
-        if exact[g[0]]:  # on the CPU, one channel at a time; no progress calls, and Ctrl-C is not caught
-            results.append(run_tea_exact(exact_views[g[0]], y[g[0], :, 0], h=rec.h))
-            continue
-        params = stack_params([make_params(configs[i], structures[i]) for i in g])
-        results.append(run_tea(y[g].to(device or "cpu"), h=rec.h, params=params, structure=structures[g[0]],
-                               progress=progress, compile=compile, partial=partial).to("cpu"))
+        # progress over all groups: (steps done in every group so far, steps of all groups)
+        prog = None if progress is None else (lambda k, _n, d=done: progress(d + k, len(groups) * (N - 1)))
+        if exact[g[0]]:  # on the CPU, one channel at a time
+            r = run_tea_exact(exact_views[g[0]], y[g[0], :steps, 0], h=rec.h, progress=prog, partial=partial)
+        else:
+            params = stack_params([make_params(configs[i], structures[i]) for i in g])
+            r = run_tea(y[g, :steps].to(device or "cpu"), h=rec.h, params=params, structure=structures[g[0]],
+                        progress=prog, compile=compile, partial=partial).to("cpu")
+        results.append(r)
+        done += steps - 1
+        if r.interrupted:  # Ctrl-C: the later groups run the samples this one finished, so that no channel waits
+            steps = r.alpha.shape[-2]
+            if steps == 0:
+                raise KeyboardInterrupt
     result = results[0] if len(groups) == 1 else _in_channel_order(results, groups)
     return Identification(rec, rec.h, y, means, configs, result, m.missing, m.timing, changes, fits, m.channels, m,
                           views, fitted_y)

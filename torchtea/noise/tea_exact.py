@@ -28,8 +28,9 @@ defaults); the result's ``x`` and ``P`` are each view state's current value (the
 covariance. The state holds ``lags + modes`` values of the fractional state (71 for 6000 samples under ``soe``), and
 each step updates a covariance of that size (``F`` applied sparse): about the TEA's torch engine's time on a batch
 of series; ``identify`` runs its channels one at a time, 3.2 times the paper's KFx's batch on the bundled recording's
-six (experiments/bench/exact_kfx.py). Torch, on the CPU. A series whose estimates leave ``divergence_limit`` (or
-become non-finite) is flagged in ``diverged``, not frozen.
+six (experiments/bench/exact_kfx.py). Torch, on the CPU; progress and Ctrl-C (``partial``) as ``run_tea`` has
+them. A series whose estimates leave ``divergence_limit`` (or become non-finite) is flagged in ``diverged``, not
+frozen.
 """
 from __future__ import annotations
 
@@ -47,6 +48,9 @@ __all__ = ["run_tea_exact", "check_exact", "KERNEL_ORDERS"]
 #: where KFo's sigma points go (±√(3 P̃ᵒ)). Every state of the fractional block is in each step's dense covariance
 #: update, so the kernel is kept this narrow (63 modes at 6000 samples, against 86 for the TEA's −0.95 … 3.5).
 KERNEL_ORDERS = (-0.5, 1.5)
+
+#: Steps between two progress calls (a step takes ~0.5 ms on the bundled recording's models).
+PROGRESS_STEPS = 64
 
 
 def _number(R, name: str) -> float | None:
@@ -80,15 +84,17 @@ def check_exact(view: TEAView) -> None:
                          "the exact-KFx TEA runs the model without it (as KFo estimates the order's variation): drop it")
 
 
-def run_tea_exact(view: TEAView, y, *, h: float) -> TEAResult:
+def run_tea_exact(view: TEAView, y, *, h: float, progress=None, partial: bool = False) -> TEAResult:
     """Run the TEA with the exact filter of ``view.model``'s state space at ``view.values`` as KFx.
 
     ``y`` ``(N,)`` or ``(R, N)`` (R series, e.g. realisations; NaN = missing) at the view's sample interval ``h``;
-    ``view.config`` sets KFo and KFw (starts, P0, Q0, R, sigma points, adaptation, ``order_bounds``, ``sigma_sum_start``) and, by its ``memory``, the
-    state space's (``soe``, its kernel covering :data:`KERNEL_ORDERS`, or ``window``: each lag a state; ``exact``
-    would make every past sample a state and is refused). Returns a :class:`TEAResult` with time at −2
-    (``memory_clamped``: steps at which a sigma order or α̂ left the kernel's range and its row was taken at the
-    range's end)."""
+    ``view.config`` sets KFo and KFw (starts, P0, Q0, R, sigma points, adaptation, ``order_bounds``,
+    ``sigma_sum_start``) and, by its ``memory``, the state space's (``soe``, its kernel covering
+    :data:`KERNEL_ORDERS`, or ``window``: each lag a state; ``exact`` would make every past sample a state and is
+    refused). ``progress``: called as ``progress(k, N)`` as steps complete, as :func:`~torchtea.engines.tea.run_tea`
+    calls it; ``partial``: on Ctrl-C return the finished steps with ``interrupted=True`` instead of raising.
+    Returns a :class:`TEAResult` with time at −2 (``memory_clamped``: steps at which a sigma order or α̂ left the
+    kernel's range and its row was taken at the range's end)."""
     check_exact(view)
     cfg = view.config
     y = torch.as_tensor(y, dtype=torch.float64)
@@ -146,56 +152,72 @@ def run_tea_exact(view: TEAView, y, *, h: float) -> TEAResult:
               "Q_w": (1, 1), "innovation": (1,), "innovation_cov": (1, 1)}
     out = {k: torch.empty((Rn, N) + sh, dtype=torch.float64) for k, sh in shapes.items()}
     S_prev = None
-    for k in range(N):
-        yk = y[:, k:k + 1]
-        mask = ~torch.isnan(yk)
-        y0 = torch.where(mask, yk, torch.zeros_like(yk))
-        if k == 0:
-            z_pred, P_pred = z, P
-        else:
-            Po_t, Pw_t = Po + Qo, Pw + Qw
-            sig_o = _sigma_points(alpha, Po_t, scale_o)  # (R, 3, 1)
-            sig_w = _sigma_points(w, Pw_t, scale_w)
-            out_o = (sig_o[..., 0] < k_lo) | (sig_o[..., 0] > k_hi)
-            Fz = trans.constant(z.unsqueeze(-1))  # F ẑ but its varying row: every replica's and KFx's own
-            base = Fz[..., 0] @ C  # (R,): the output's part that no order or pole changes
-            zs = z[:, None, sl]  # (R, 1, J+M)
-            ro, _ = row(sig_o[..., 0], w)  # KFo: sigma orders, ŵ_{k−1}
-            rw, _ = row(alpha.expand(-1, sig_w.shape[-2]), sig_w[..., 0])  # KFw: α̂_{k−1}, sigma poles
-            replica = lambda rows: (base.unsqueeze(-1) + C[row0] * (rows * zs).sum(-1)).unsqueeze(-1)  # noqa: E731
-            Yo, Yw = replica(ro), replica(rw)  # (R, 3, 1)
-            Ro = S_prev if Ro_num is None else torch.full_like(S_prev, Ro_num)
-            Rw = S_prev if Rw_num is None else torch.full_like(S_prev, Rw_num)
-            observed = mask.any(-1)
-            alpha, Po, Ko, eo, _, _ = _ut_update(sig_o, Yo, alpha, Po_t, Ro, y0, mask, wm_o, wc_o, start)
-            alpha = alpha.clamp(lo, hi)
-            out_o = out_o | (alpha < k_lo) | (alpha > k_hi)
-            clamped += out_o.any(-1).to(torch.int64)
-            Qo = _adapt_q(Qo, Ko, eo, ko.delta, qmax_o, observed)
-            w_new, Pw, Kw, ew, _, _ = _ut_update(sig_w, Yw, w, Pw_t, Rw, y0, mask, wm_w, wc_w, start)
-            Qw = _adapt_q(Qw, Kw, ew, kw.delta, qmax_w, observed)
-            # KFx: the exact filter's prediction under α̂_k and ŵ_{k−1}
-            ra, ga = row(alpha, w)
-            z_pred = trans.apply(z.unsqueeze(-1), ra[:, 0], Fz)[..., 0]
-            P_pred = trans.apply(trans.apply(P, ra[:, 0]).mT, ra[:, 0]) + Q0  # F P Fᵀ (P symmetric) + Q
-            P_pred[:, row0, row0] += (ga * ga)[:, 0] - Q0[row0, row0]
-            w = w_new
-        Pc = P_pred @ C
-        S = ((C * Pc).sum(-1) + r).reshape(Rn, 1, 1)
-        e = torch.where(mask, yk - (z_pred @ C).unsqueeze(-1), torch.zeros_like(yk))
-        K = torch.where(mask, Pc / S[:, :, 0], torch.zeros_like(Pc))
-        z = z_pred + K * e
-        P = P_pred - K.unsqueeze(-1) * Pc.unsqueeze(-2)
-        P = 0.5 * (P + P.mT)
-        S_prev = S
-        for name, t in zip(shapes, (z[:, idx], P[:, idx][:, :, idx], alpha, Po, Qo, w, Pw, Qw, e, S)):
-            out[name][:, k] = t
+    completed = 0  # steps whose outputs are stored: a Ctrl-C keeps them
+    try:
+        if progress is not None:
+            progress(0, N)  # the work starts (a progress clock starts with it)
+        for k in range(N):
+            yk = y[:, k:k + 1]
+            mask = ~torch.isnan(yk)
+            y0 = torch.where(mask, yk, torch.zeros_like(yk))
+            if k == 0:
+                z_pred, P_pred = z, P
+            else:
+                Po_t, Pw_t = Po + Qo, Pw + Qw
+                sig_o = _sigma_points(alpha, Po_t, scale_o)  # (R, 3, 1)
+                sig_w = _sigma_points(w, Pw_t, scale_w)
+                out_o = (sig_o[..., 0] < k_lo) | (sig_o[..., 0] > k_hi)
+                Fz = trans.constant(z.unsqueeze(-1))  # F ẑ but its varying row: every replica's and KFx's own
+                base = Fz[..., 0] @ C  # (R,): the output's part that no order or pole changes
+                zs = z[:, None, sl]  # (R, 1, J+M)
+                ro, _ = row(sig_o[..., 0], w)  # KFo: sigma orders, ŵ_{k−1}
+                rw, _ = row(alpha.expand(-1, sig_w.shape[-2]), sig_w[..., 0])  # KFw: α̂_{k−1}, sigma poles
+                replica = lambda rows: (base.unsqueeze(-1) + C[row0] * (rows * zs).sum(-1)).unsqueeze(-1)  # noqa: E731
+                Yo, Yw = replica(ro), replica(rw)  # (R, 3, 1)
+                Ro = S_prev if Ro_num is None else torch.full_like(S_prev, Ro_num)
+                Rw = S_prev if Rw_num is None else torch.full_like(S_prev, Rw_num)
+                observed = mask.any(-1)
+                alpha, Po, Ko, eo, _, _ = _ut_update(sig_o, Yo, alpha, Po_t, Ro, y0, mask, wm_o, wc_o, start)
+                alpha = alpha.clamp(lo, hi)
+                out_o = out_o | (alpha < k_lo) | (alpha > k_hi)
+                step_clamped = out_o.any(-1).to(torch.int64)
+                Qo = _adapt_q(Qo, Ko, eo, ko.delta, qmax_o, observed)
+                w_new, Pw, Kw, ew, _, _ = _ut_update(sig_w, Yw, w, Pw_t, Rw, y0, mask, wm_w, wc_w, start)
+                Qw = _adapt_q(Qw, Kw, ew, kw.delta, qmax_w, observed)
+                # KFx: the exact filter's prediction under α̂_k and ŵ_{k−1}
+                ra, ga = row(alpha, w)
+                z_pred = trans.apply(z.unsqueeze(-1), ra[:, 0], Fz)[..., 0]
+                P_pred = trans.apply(trans.apply(P, ra[:, 0]).mT, ra[:, 0]) + Q0  # F P Fᵀ (P symmetric) + Q
+                P_pred[:, row0, row0] += (ga * ga)[:, 0] - Q0[row0, row0]
+                w = w_new
+            Pc = P_pred @ C
+            S = ((C * Pc).sum(-1) + r).reshape(Rn, 1, 1)
+            e = torch.where(mask, yk - (z_pred @ C).unsqueeze(-1), torch.zeros_like(yk))
+            K = torch.where(mask, Pc / S[:, :, 0], torch.zeros_like(Pc))
+            z = z_pred + K * e
+            P = P_pred - K.unsqueeze(-1) * Pc.unsqueeze(-2)
+            P = 0.5 * (P + P.mT)
+            S_prev = S
+            for name, t in zip(shapes, (z[:, idx], P[:, idx][:, :, idx], alpha, Po, Qo, w, Pw, Qw, e, S)):
+                out[name][:, k] = t
+            if k:
+                clamped += step_clamped  # counted with the step's outputs (a Ctrl-C drops the step it interrupts)
+            completed = k + 1
+            if progress is not None and (k % PROGRESS_STEPS == 0 or k == N - 1):
+                progress(k, N)
+    except KeyboardInterrupt:
+        if not partial:
+            raise
+    if completed < N:
+        out = {name: t[:, :completed] for name, t in out.items()}
     lim = cfg.divergence_limit  # flagged as the TEA flags them (non-finite or beyond the limit), not frozen
-    finite = torch.stack([(out[k].reshape(Rn, N, -1).abs() <= lim).all(-1) for k in ("x", "P", "alpha", "w")]).all(0)
+    steps = torch.arange(completed)
+    finite = torch.stack([(out[k].reshape(Rn, completed, -1).abs() <= lim).all(-1)
+                          for k in ("x", "P", "alpha", "w")]).all(0)
     diverged = ~finite.all(-1)
-    first_bad = torch.where(~finite, torch.arange(N).expand(Rn, N), torch.full((Rn, N), N)).amin(-1)
-    return TEAResult(**out, diverged=diverged, diverged_at=torch.where(diverged, first_bad, -1),
-                     steps=torch.arange(N), memory_clamped=clamped if mem.kernel is not None else None)
+    first_bad = torch.where(~finite, steps, completed).amin(-1) if completed else torch.zeros(Rn, dtype=torch.long)
+    return TEAResult(**out, diverged=diverged, diverged_at=torch.where(diverged, first_bad, -1), steps=steps,
+                     memory_clamped=clamped if mem.kernel is not None else None, interrupted=completed < N)
 
 
 class _Transition:

@@ -138,8 +138,8 @@ def test_identify_runs_each_channel_through_the_exact_kfx():
     assert all(c.memory.kind == "soe" and c.kfx_filter == "exact" for c in ident.configs)
     for i in range(2):
         direct = run_tea_exact(replace(ident.views[i], config=ident.configs[i]), ident.y[i, :, 0], h=m.recording.h)
-        assert torch.equal(ident.result.alpha[i], direct.alpha[0])
-        assert torch.equal(ident.result.innovation[i], direct.innovation[0])
+        for f in ("alpha", "w", "x", "innovation", "innovation_cov"):  # one batch: products round in the last bits
+            torch.testing.assert_close(getattr(ident.result, f)[i], getattr(direct, f)[0], rtol=1e-12, atol=1e-15)
     with pytest.raises(ValueError, match="r_mode 'fitted'"):
         identify(m, r_mode="measured", overrides={"kfx_filter": "exact"})
     with pytest.raises(ValueError, match="do not apply"):
@@ -170,9 +170,11 @@ def test_progress_and_ctrl_c_keep_the_finished_steps():
         run_tea_exact(v, y, h=H, progress=stop)
 
 
-def test_identify_reports_progress_over_channels_and_keeps_a_ctrl_c():
-    """Channels run one after another under the exact KFx: progress counts the steps of all of them; a Ctrl-C in
-    the first keeps its finished steps, and the second runs those samples only (its own run of that length)."""
+def test_identify_batches_channels_of_one_model_reports_progress_and_keeps_a_ctrl_c():
+    """Channels of one model run as one batch (progress counts one channel's steps; each result that of its own run,
+    test_identify_runs_each_channel_through_the_exact_kfx); channels of two models run one after another: progress
+    counts the steps of both, and a Ctrl-C in the first keeps its finished steps while the second runs those samples
+    only (its own run of that length)."""
     from torchtea.fitting import fit_series
     from torchtea.identification import identify
     from torchtea.sensors.io import read_recording
@@ -180,21 +182,50 @@ def test_identify_reports_progress_over_channels_and_keeps_a_ctrl_c():
 
     m = prepare(read_recording(columns=["ax", "az"]), samples=300)
     y = [c.values - c.values.mean() for c in m.channels]
-    fits = fit_series(GROWN, y, m.recording.h, method="whittle")
     over = {"kfx_filter": "exact", "kfo": CONSTANT, "kfw": CONSTANT}
     calls = []
-    identify(m, model=GROWN, overrides=over, fits=fits, progress=lambda d, t: calls.append((d, t)))
-    assert {t for _, t in calls} == {2 * 299} and calls[-1] == (598, 598)
+    identify(m, model=GROWN, overrides=over, fits=fit_series(GROWN, y, m.recording.h, method="whittle"),
+             progress=lambda d, t: calls.append((d, t)))
+    assert {t for _, t in calls} == {299} and calls[-1] == (299, 299)  # one batch
+
+    fits = (fit_series(GROWN, y[:1], m.recording.h, method="whittle")
+            + fit_series("fractional+white", y[1:], m.recording.h, method="whittle"))
+    calls = []
+    identify(m, overrides=over, fits=fits, progress=lambda d, t: calls.append((d, t)))
+    assert {t for _, t in calls} == {2 * 299} and calls[-1] == (598, 598)  # two batches, one after another
     assert [d for d, _ in calls] == sorted(d for d, _ in calls)
 
     def stop(d, t):
         if d == 128:  # in the first channel
             raise KeyboardInterrupt
 
-    ident = identify(m, model=GROWN, overrides=over, fits=fits, progress=stop, partial=True)
+    ident = identify(m, overrides=over, fits=fits, progress=stop, partial=True)
     assert ident.result.interrupted and ident.result.alpha.shape[-2] == 129
     second = run_tea_exact(replace(ident.views[1], config=ident.configs[1]), ident.y[1, :129, 0], h=m.recording.h)
     assert torch.equal(ident.result.alpha[1], second.alpha[0])
+
+
+def test_a_batch_of_views_is_each_views_own_run():
+    """Views of one model with other values and settings (q, walk, order start, bounds, R numbers) run as one batch:
+    each series' estimates are its own run's (to the last bits: the batch's products may round differently); views
+    that differ in batch_key are refused by name."""
+    y = grown_data(2, 600)
+    y[1, 50:60] = float("nan")
+    v1 = view_for(GROWN, VALUES)
+    v2 = view_for(GROWN, dict(VALUES, **{"fractional.q": 0.05, "random-walk.sigma": 0.02}))
+    cfg = v2.config
+    v2 = replace(v2, config=replace(cfg, order_bounds=(0.1, 0.95), kfo=replace(cfg.kfo, x0=0.5, R=2e-3)))
+    v1 = replace(v1, config=replace(v1.config, kfo=replace(v1.config.kfo, R=1e-3)))
+    both = run_tea_exact([v1, v2], y, h=H)
+    for i, v in enumerate((v1, v2)):
+        one = run_tea_exact(v, y[i], h=H)
+        for f in ("x", "P", "alpha", "w", "innovation", "innovation_cov", "P_alpha", "Q_w"):
+            torch.testing.assert_close(getattr(both, f)[i], getattr(one, f)[0], rtol=1e-12, atol=1e-15, msg=f)
+    assert not torch.equal(both.alpha[0], both.alpha[1])
+    with pytest.raises(ValueError, match="batch_key"):
+        run_tea_exact([v1, view_for("fractional+white", VALUES)], y, h=H)
+    with pytest.raises(ValueError, match="one per series"):
+        run_tea_exact([v1, v2], grown_data(3, 100), h=H)
 
 
 @pytest.mark.slow

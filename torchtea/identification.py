@@ -200,8 +200,8 @@ def identify(measurements: Measurements, *, model=PAPER_MODEL, r_mode: str = "fi
         ``soe`` memory (O(N) instead of O(N²)).
     progress : callable, optional
         Called as ``progress(done, total)`` with the steps done and to do over all channels: channels of one
-        structure run as one batch, channels of different ones (and each channel with ``kfx_filter = "exact"``)
-        one after another.
+        structure (with ``kfx_filter = "exact"``: of one model and filters' form,
+        :func:`torchtea.noise.tea_exact.batch_key`) run as one batch, the batches one after another.
     compile : bool
         Passed to :func:`torchtea.engines.tea.run_tea`.
     partial : bool
@@ -273,23 +273,29 @@ def identify(measurements: Measurements, *, model=PAPER_MODEL, r_mode: str = "fi
         raise ValueError("kfx_filter 'exact' runs the exact filter of the fitted model's state space: it needs "
                          "r_mode 'fitted'")
     if any(exact):
-        from .noise.tea_exact import check_exact, run_tea_exact
+        from .noise.tea_exact import batch_key, check_exact, run_tea_exact
 
         exact_views = {i: replace(views[i], config=configs[i]) for i, e in enumerate(exact) if e}
         for v in exact_views.values():  # every channel's settings and model, before any runs
             check_exact(v)
-    groups: list[list[int]] = []  # channels one batch can run: the same structure (an exact KFx: one channel)
-    for i, st in enumerate(structures):
-        g = None if exact[i] else next((g for g in groups if not exact[g[0]]
-                                        and same_structure(structures[g[0]], st)), None)
+
+    def batch_with(i: int, j: int) -> bool:
+        """Whether channels i and j run as one batch: the same structure, or (an exact KFx) the same batch_key."""
+        if exact[i] or exact[j]:
+            return exact[i] and exact[j] and batch_key(exact_views[i]) == batch_key(exact_views[j])
+        return same_structure(structures[i], structures[j])
+
+    groups: list[list[int]] = []  # channels one batch can run
+    for i in range(len(structures)):
+        g = next((g for g in groups if batch_with(g[0], i)), None)
         (g.append(i) if g is not None else groups.append([i]))
     results = []
     steps, done = N, 0  # samples each group runs (after a Ctrl-C: those the interrupted group finished); steps done
     for g in groups:
         # progress over all groups: (steps done in every group so far, steps of all groups)
         prog = None if progress is None else (lambda k, _n, d=done: progress(d + k, len(groups) * (N - 1)))
-        if exact[g[0]]:  # on the CPU, one channel at a time
-            r = run_tea_exact(exact_views[g[0]], y[g[0], :steps, 0], h=rec.h, progress=prog, partial=partial)
+        if exact[g[0]]:  # on the CPU, the channels of one model and filters' form as one batch
+            r = run_tea_exact([exact_views[i] for i in g], y[g, :steps, 0], h=rec.h, progress=prog, partial=partial)
         else:
             params = stack_params([make_params(configs[i], structures[i]) for i in g])
             r = run_tea(y[g, :steps].to(device or "cpu"), h=rec.h, params=params, structure=structures[g[0]],

@@ -10,6 +10,8 @@ refactor touched:
   200 realisations × 3000 steps of fractional+white (noise simulator, seed 1);
 * ``compiled_tea_branches`` — the same with the kernel's other branches: window:40 memory, ``paper-gain``,
   ``constant-truth``, KFo's R from KFx's innovation covariance;
+* ``identify_exact`` — ``identify`` with ``kfx_filter = "exact"`` on the bundled recording's six channels (44 930
+  samples, fractional+white+random-walk fitted before the timing, the ``constant`` settings);
 * ``torch_tea`` — the torch engine (shared types moved, the memory plan): the same settings and data, 20 realisations;
 * ``paper_example1`` — the paper reproduction's setting: Example 1 (known input, exact memory, the compiled engine),
   20 realisations × 6000 steps;
@@ -127,6 +129,21 @@ elif case == "montecarlo_paper":
     dt = time.perf_counter() - t
     digest = {"alpha_sum": float(r.final["alpha"].sum()), "w_sum": float(r.final["w"].sum()),
               "nees_sum": float(r.nees_sum.sum())}
+elif case == "identify_exact":
+    from torchtea.fitting import fit_series
+    from torchtea.identification import identify
+    from torchtea.sensors.io import bundled_recording, read_recording
+    from torchtea.sensors.measurements import prepare
+    spec = "fractional+white+random-walk"
+    m = prepare(read_recording(bundled_recording()))
+    fits = fit_series(spec, [c.values - c.values.mean() for c in m.channels], m.recording.h, method="exact")
+    over = {"kfx_filter": "exact", "kfo": {"R": "innovation", "Q0": 1e-5}, "kfw": {"R": "innovation", "Q0": 1e-5}}
+    t = time.perf_counter()
+    ident = identify(m, model=spec, overrides=over, fits=fits)
+    dt = time.perf_counter() - t
+    r = ident.result
+    digest = {"alpha_last_third": [float(a) for a in r.alpha[:, -(m.samples // 3):, 0].mean(-1)],
+              "w_final": [float(w) for w in r.w[:, -1, 0]], "innovation_sum": float(r.innovation.abs().sum())}
 elif case == "exact_loglik":
     from torchtea.fitting.mle import exact_loglik
     spec = "fractional+white+random-walk"
@@ -160,6 +177,9 @@ SIMULATOR_CASES = ("simulate_paper_exact", "simulate_paper", "simulate_model", "
 #: the compiled kernel as the torch step's twins: python experiments/bench/issue32.py --old 989a8d6 --cases
 #: compiled_tea compiled_tea_branches paper_example1 montecarlo_paper --out experiments/bench/kernel_twins.json
 KERNEL_CASES = ("compiled_tea_branches",)
+#: identify's exact KFx, its channels as one batch: python experiments/bench/issue32.py --old da0789a --cases
+#: identify_exact --repeats 2 --out experiments/bench/exact_batch.json
+EXACT_CASES = ("identify_exact",)
 
 
 def rel_diff(a, b) -> float:
@@ -185,7 +205,7 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--old", default="ad7220d", help="the commit before issue 32's refactors")
     ap.add_argument("--repeats", type=int, default=3)
-    ap.add_argument("--cases", nargs="+", default=list(CASES), choices=CASES + SIMULATOR_CASES + KERNEL_CASES)
+    ap.add_argument("--cases", nargs="+", default=list(CASES), choices=CASES + SIMULATOR_CASES + KERNEL_CASES + EXACT_CASES)
     ap.add_argument("--out", default=str(HERE / "issue32.json"))
     args = ap.parse_args()
     tmp = Path(tempfile.mkdtemp(prefix="tt-old-"))

@@ -84,54 +84,90 @@ def check_exact(view: TEAView) -> None:
                          "the exact-KFx TEA runs the model without it (as KFo estimates the order's variation): drop it")
 
 
-def run_tea_exact(view: TEAView, y, *, h: float, progress=None, partial: bool = False) -> TEAResult:
+def batch_key(view: TEAView) -> tuple:
+    """What the series of one :func:`run_tea_exact` batch share: the model, the memory and the filters' form (sigma
+    points, adaptation's gain, R a number or the innovation's, the sum's start). Numbers (the model's values, starts,
+    P0, Q0, R, caps, bounds, limits) may differ from series to series."""
+    cfg = view.config
+    unscented = tuple((u.ut_alpha, u.ut_beta, u.kappa, float(u.delta), isinstance(u.R, str))
+                      for u in (cfg.kfo, cfg.kfw))
+    return (view.model.spec, view.orders, view.params, view.states, cfg.memory, cfg.sigma_sum_start, unscented)
+
+
+def run_tea_exact(view, y, *, h: float, progress=None, partial: bool = False) -> TEAResult:
     """Run the TEA with the exact filter of ``view.model``'s state space at ``view.values`` as KFx.
 
     ``y`` ``(N,)`` or ``(R, N)`` (R series, e.g. realisations; NaN = missing) at the view's sample interval ``h``;
-    ``view.config`` sets KFo and KFw (starts, P0, Q0, R, sigma points, adaptation, ``order_bounds``,
-    ``sigma_sum_start``) and, by its ``memory``, the state space's (``soe``, its kernel covering
-    :data:`KERNEL_ORDERS`, or ``window``: each lag a state; ``exact`` would make every past sample a state and is
-    refused). ``progress``: called as ``progress(k, N)`` as steps complete, as :func:`~torchtea.engines.tea.run_tea`
-    calls it; ``partial``: on Ctrl-C return the finished steps with ``interrupted=True`` instead of raising.
-    Returns a :class:`TEAResult` with time at −2 (``memory_clamped``: steps at which a sigma order or α̂ left the
-    kernel's range and its row was taken at the range's end)."""
-    check_exact(view)
+    ``view`` one :class:`TEAView` for every series, or a sequence of R (e.g. one per channel of a recording, each with
+    its fitted values and settings) that share :func:`batch_key`. A view's ``config`` sets KFo and KFw (starts, P0,
+    Q0, R, sigma points, adaptation, ``order_bounds``, ``sigma_sum_start``) and, by its ``memory``, the state space's
+    (``soe``, its kernel covering :data:`KERNEL_ORDERS`, or ``window``: each lag a state; ``exact`` would make every
+    past sample a state and is refused). ``progress``: called as ``progress(k, N)`` as steps complete, as
+    :func:`~torchtea.engines.tea.run_tea` calls it; ``partial``: on Ctrl-C return the finished steps with
+    ``interrupted=True`` instead of raising. Returns a :class:`TEAResult` with time at −2 (``memory_clamped``: steps
+    at which a sigma order or α̂ left the kernel's range and its row was taken at the range's end)."""
+    views = [view] if isinstance(view, TEAView) else list(view)
+    if not views:
+        raise ValueError("run_tea_exact needs a view")
+    for v in views:
+        check_exact(v)
+    view = views[0]
+    key = batch_key(view)
+    for i, v in enumerate(views[1:], 1):
+        if batch_key(v) != key:
+            raise ValueError(f"view {i} ({v.model.spec!r}) differs from view 0 ({view.model.spec!r}) in its model, memory "
+                             "or filters' form (batch_key): run them apart")
     cfg = view.config
     y = torch.as_tensor(y, dtype=torch.float64)
     y = y.unsqueeze(0) if y.ndim == 1 else y
     if y.ndim != 2:
         raise ValueError(f"y must be (N,) or (R, N), got shape {tuple(y.shape)}")
     Rn, N = y.shape
+    B = len(views)  # parameter sets: 1 (every series) or one per series
+    if B not in (1, Rn):
+        raise ValueError(f"{B} views for {Rn} series: give one view, or one per series")
     model, label = view.model, view.orders[0]
     comp = dict(model.components)[label]
-    lo, hi = cfg.order_bounds
     mem = state_memory(cfg.memory, N, orders=KERNEL_ORDERS)
-    ss = model.state_space(view.values, h, N, memory=mem)
+    values = {k: torch.cat([model.as_dict(v.values)[k].reshape(-1) for v in views]) for k in model.as_dict(view.values)}
+    ss = model.state_space(values, h, N, memory=mem)
     sl = ss.blocks[label]
     row0 = sl.start
-    F0, G0, C, r = ss.F[0], ss.G[0], ss.C[0], ss.R[0]
+    F0, G0, C, r = ss.F, ss.G, ss.C, ss.R  # (B, D, D), (B, D, m), (B, D), (B,)
     Q0 = G0 @ G0.mT
-    q = view.values[f"{label}.q"].reshape(())
+    q = values[f"{label}.q"].reshape(B, 1)
+    c0 = C[:, row0:row0 + 1]  # (B, 1): the fractional state's loading on the output
     D = F0.shape[-1]
     k_lo, k_hi = (mem.kernel.order_range if mem.kernel is not None else (-torch.inf, torch.inf))
 
     ko, kw = cfg.kfo, cfg.kfw
-    Ro_num, Rw_num = _number(ko.R, "kfo"), _number(kw.R, "kfw")
     wm_o, wc_o, scale_o = ut_weights(1, ko.ut_alpha, ko.ut_beta, ko.kappa)
     wm_w, wc_w, scale_w = ut_weights(1, kw.ut_alpha, kw.ut_beta, kw.kappa)
     start = cfg.sigma_sum_start
 
-    def col(v):
-        return torch.full((Rn, 1), float(torch.as_tensor(v, dtype=torch.float64).reshape(-1)[0]), dtype=torch.float64)
+    def col(get):
+        """``(R, 1)``: a number of each view's settings (``get(config)``), per series."""
+        t = torch.tensor([float(torch.as_tensor(get(v.config), dtype=torch.float64).reshape(-1)[0]) for v in views],
+                         dtype=torch.float64)
+        return t.reshape(B, 1).expand(Rn, 1).clone()
 
-    def sq(v):
-        return col(v).unsqueeze(-1)
+    def sq(get):
+        return col(get).unsqueeze(-1)
 
-    alpha, Po, Qo = col(ko.x0), sq(ko.P0), sq(ko.Q0)
-    w, Pw, Qw = col(kw.x0), sq(kw.P0), sq(kw.Q0)
+    alpha, Po, Qo = col(lambda c: c.kfo.x0), sq(lambda c: c.kfo.P0), sq(lambda c: c.kfo.Q0)
+    w, Pw, Qw = col(lambda c: c.kfw.x0), sq(lambda c: c.kfw.P0), sq(lambda c: c.kfw.Q0)
+    # KFo's and KFw's R: None for "innovation" (KFx's S of the step before), else a number per series
+    Ro_num = None if isinstance(ko.R, str) else sq(lambda c: _number(c.kfo.R, "kfo"))
+    Rw_num = None if isinstance(kw.R, str) else sq(lambda c: _number(c.kfw.R, "kfw"))
     like = torch.zeros((), dtype=torch.float64)
-    qmax = lambda u: _q_cap(u.Q_max, sq(u.Q0)[0], like).expand(Rn)  # noqa: E731 — the TEA's cap, "none" and all
-    qmax_o, qmax_w = qmax(ko), qmax(kw)
+
+    def qmax(get):  # the TEA's cap, "none" and all, per series
+        caps = [_q_cap(get(v.config).Q_max, torch.full((1, 1), float(get(v.config).Q0), dtype=torch.float64),
+                       like).reshape(()) for v in views]
+        return torch.stack(caps).expand(Rn) if B == 1 else torch.stack(caps)
+
+    qmax_o, qmax_w = qmax(lambda c: c.kfo), qmax(lambda c: c.kfw)
+    lo, hi = col(lambda c: c.order_bounds[0]), col(lambda c: c.order_bounds[1])
     clamped = torch.zeros(Rn, dtype=torch.int64)
 
     def row(a, f):
@@ -139,9 +175,13 @@ def run_tea_exact(view: TEAView, y, *, h: float, progress=None, partial: bool = 
         a_in = a.clamp(k_lo, k_hi)
         return comp.first_row(a_in, f, q, h, mem)
 
+    def dot_c(M):
+        """``C z`` for states ``M`` ``(R, D)`` (one parameter set: the product as it always was)."""
+        return M @ C[0] if B == 1 else (M.unsqueeze(-2) @ C.unsqueeze(-1))[..., 0, 0]
+
     trans = _Transition(F0, row0, sl)
     # the exact filter from the model's initial state
-    g0 = ss.initial[0]
+    g0 = ss.initial  # (B, D)
     z = torch.zeros(Rn, D, dtype=torch.float64)
     P = (g0.unsqueeze(-1) * g0.unsqueeze(-2)).expand(Rn, D, D).clone()
     idx = _state_index(view, ss)
@@ -168,14 +208,14 @@ def run_tea_exact(view: TEAView, y, *, h: float, progress=None, partial: bool = 
                 sig_w = _sigma_points(w, Pw_t, scale_w)
                 out_o = (sig_o[..., 0] < k_lo) | (sig_o[..., 0] > k_hi)
                 Fz = trans.constant(z.unsqueeze(-1))  # F ẑ but its varying row: every replica's and KFx's own
-                base = Fz[..., 0] @ C  # (R,): the output's part that no order or pole changes
+                base = dot_c(Fz[..., 0])  # (R,): the output's part that no order or pole changes
                 zs = z[:, None, sl]  # (R, 1, J+M)
                 ro, _ = row(sig_o[..., 0], w)  # KFo: sigma orders, ŵ_{k−1}
                 rw, _ = row(alpha.expand(-1, sig_w.shape[-2]), sig_w[..., 0])  # KFw: α̂_{k−1}, sigma poles
-                replica = lambda rows: (base.unsqueeze(-1) + C[row0] * (rows * zs).sum(-1)).unsqueeze(-1)  # noqa: E731
+                replica = lambda rows: (base.unsqueeze(-1) + c0 * (rows * zs).sum(-1)).unsqueeze(-1)  # noqa: E731
                 Yo, Yw = replica(ro), replica(rw)  # (R, 3, 1)
-                Ro = S_prev if Ro_num is None else torch.full_like(S_prev, Ro_num)
-                Rw = S_prev if Rw_num is None else torch.full_like(S_prev, Rw_num)
+                Ro = S_prev if Ro_num is None else Ro_num
+                Rw = S_prev if Rw_num is None else Rw_num
                 observed = mask.any(-1)
                 alpha, Po, Ko, eo, _, _ = _ut_update(sig_o, Yo, alpha, Po_t, Ro, y0, mask, wm_o, wc_o, start)
                 alpha = alpha.clamp(lo, hi)
@@ -188,11 +228,11 @@ def run_tea_exact(view: TEAView, y, *, h: float, progress=None, partial: bool = 
                 ra, ga = row(alpha, w)
                 z_pred = trans.apply(z.unsqueeze(-1), ra[:, 0], Fz)[..., 0]
                 P_pred = trans.apply(trans.apply(P, ra[:, 0]).mT, ra[:, 0]) + Q0  # F P Fᵀ (P symmetric) + Q
-                P_pred[:, row0, row0] += (ga * ga)[:, 0] - Q0[row0, row0]
+                P_pred[:, row0, row0] += (ga * ga)[:, 0] - Q0[:, row0, row0]
                 w = w_new
-            Pc = P_pred @ C
+            Pc = P_pred @ C[0] if B == 1 else (P_pred @ C.unsqueeze(-1))[..., 0]
             S = ((C * Pc).sum(-1) + r).reshape(Rn, 1, 1)
-            e = torch.where(mask, yk - (z_pred @ C).unsqueeze(-1), torch.zeros_like(yk))
+            e = torch.where(mask, yk - dot_c(z_pred).unsqueeze(-1), torch.zeros_like(yk))
             K = torch.where(mask, Pc / S[:, :, 0], torch.zeros_like(Pc))
             z = z_pred + K * e
             P = P_pred - K.unsqueeze(-1) * Pc.unsqueeze(-2)
@@ -210,7 +250,8 @@ def run_tea_exact(view: TEAView, y, *, h: float, progress=None, partial: bool = 
             raise
     if completed < N:
         out = {name: t[:, :completed] for name, t in out.items()}
-    lim = cfg.divergence_limit  # flagged as the TEA flags them (non-finite or beyond the limit), not frozen
+    # flagged as the TEA flags them (non-finite or beyond the limit), not frozen
+    lim = torch.tensor([float(v.config.divergence_limit) for v in views], dtype=torch.float64).reshape(B, 1, 1)
     steps = torch.arange(completed)
     finite = torch.stack([(out[k].reshape(Rn, completed, -1).abs() <= lim).all(-1)
                           for k in ("x", "P", "alpha", "w")]).all(0)
@@ -221,27 +262,29 @@ def run_tea_exact(view: TEAView, y, *, h: float, progress=None, partial: bool = 
 
 
 class _Transition:
-    """``F`` whose one row ``row0`` varies (over columns ``sl``): the other rows as a padded table of their non-zero
-    entries, so that ``F M`` costs ``O(D² W)`` (W their most entries in a row: 2 for a fractional block's shift and
-    modes) instead of a dense ``O(D³)`` product. The same sums as the dense product but for the order of terms."""
+    """``F`` ``(B, D, D)`` (B parameter sets) whose one row ``row0`` varies (over columns ``sl``): the other rows as a
+    padded table of their non-zero entries (the columns any set has non-zero), so that ``F M`` costs ``O(D² W)`` (W
+    their most entries in a row: 2 for a fractional block's shift and modes) instead of a dense ``O(D³)`` product.
+    The same sums as the dense product but for the order of terms."""
 
     def __init__(self, F0: Tensor, row0: int, sl: slice):
         Fc = F0.clone()
-        Fc[row0] = 0.0
-        nnz = (Fc != 0).sum(-1)
-        W = max(int(nnz.max()), 1)
-        self.cols = torch.zeros(F0.shape[0], W, dtype=torch.long)
-        self.vals = torch.zeros(F0.shape[0], W, dtype=F0.dtype)
-        for i in range(F0.shape[0]):
-            c = torch.nonzero(Fc[i]).reshape(-1)
-            self.cols[i, :c.numel()], self.vals[i, :c.numel()] = c, Fc[i, c]
+        Fc[:, row0] = 0.0
+        nz = (Fc != 0).any(0)  # (D, D): entries non-zero in some set
+        W = max(int(nz.sum(-1).max()), 1)
+        D = F0.shape[-1]
+        self.cols = torch.zeros(D, W, dtype=torch.long)
+        self.vals = torch.zeros(F0.shape[0], D, W, dtype=F0.dtype)
+        for i in range(D):
+            c = torch.nonzero(nz[i]).reshape(-1)
+            self.cols[i, :c.numel()], self.vals[:, i, :c.numel()] = c, Fc[:, i, c]
         self.row0, self.sl = row0, sl
 
     def constant(self, M: Tensor) -> Tensor:
         """``F M`` for ``M`` ``(R, D, K)`` with the varying row zero: what every order and pole share."""
-        out = self.vals[:, 0, None] * M.index_select(1, self.cols[:, 0])
+        out = self.vals[:, :, 0, None] * M.index_select(1, self.cols[:, 0])
         for j in range(1, self.cols.shape[1]):
-            out = out + self.vals[:, j, None] * M.index_select(1, self.cols[:, j])
+            out = out + self.vals[:, :, j, None] * M.index_select(1, self.cols[:, j])
         return out
 
     def apply(self, M: Tensor, row: Tensor, constant: Tensor | None = None) -> Tensor:

@@ -121,6 +121,84 @@ def test_the_first_steps_are_the_obvious_paths():
     assert float((res.w[:, steps - 1, 0] + 1.5).abs().min()) > 1e-5
 
 
+def test_the_joint_filters_first_steps_are_the_obvious_paths():
+    """kfo_kfw = "joint": one unscented filter over (order, pole), written out for five steps with the textbook weights
+    of two dimensions, a Cholesky root for the sigma points, the model's dense state space at every sigma point,
+    adaptation capped at the larger Q0, and KFx at α̂_k and ŵ_k: run_tea_exact's α̂, ŵ and innovations to rounding."""
+    N, steps = 40, 5
+    y = grown_data(2, N, seed=9)
+    start = dict(VALUES, **{"fractional.order": 0.3, "fractional.pole": -1.5})
+    v = view_for(GROWN, start, P0=2e-3)
+    cfg = replace(v.config, kfo_kfw="joint", kfw=replace(v.config.kfw, P0=0.05, Q0=1e-3))
+    res = run_tea_exact(replace(v, config=cfg), y, h=H)
+    ko, kw = cfg.kfo, cfg.kfw
+    model, mem = parse_model(GROWN), state_memory("soe", N, orders=KERNEL_ORDERS)
+    lam = 1.0 * (2 + 1) - 2  # ut_alpha² (L + κ) − L with L = 2, κ = 3 − L
+    wm = torch.tensor([lam / (2 + lam)] + [1 / (2 * (2 + lam))] * 4, dtype=torch.float64)
+    wc = wm.clone()
+    wc[0] += 1 - 1.0 + 2.0  # + 1 − ut_alpha² + β
+    q_max = max(ko.Q0, kw.Q0)
+
+    def ss(a, f):
+        s = model.state_space(dict(start, **{"fractional.order": a, "fractional.pole": f}), H, N, memory=mem)
+        return s.F[0], s.G[0] @ s.G[0].mT
+
+    C0 = model.state_space(start, H, N, memory=mem)
+    C, r = C0.C[0], float(C0.R[0])
+    for i in range(2):
+        z = torch.zeros(C.shape[0], dtype=torch.float64)
+        P = torch.zeros(C.shape[0], C.shape[0], dtype=torch.float64)
+        th = torch.tensor([0.3, -1.5], dtype=torch.float64)
+        Pt = torch.diag(torch.tensor([ko.P0, kw.P0], dtype=torch.float64))
+        Qt = torch.diag(torch.tensor([ko.Q0, kw.Q0], dtype=torch.float64))
+        S = None
+        for k in range(steps):
+            yk = float(y[i, k])
+            if k == 0:
+                zp, Pp = z, P
+            else:
+                L = torch.linalg.cholesky(3 * (Pt + Qt))  # scale L + λ = 3
+                pts = [th] + [th + L[:, j] for j in range(2)] + [th - L[:, j] for j in range(2)]
+                Y = torch.tensor([float(C @ ss(float(p[0]), float(p[1]))[0] @ z) for p in pts], dtype=torch.float64)
+                yp = float(wm @ Y)
+                Pyy = float(wc @ (Y - yp) ** 2) + S
+                Pxy = sum(wc[j] * (pts[j] - th) * (Y[j] - yp) for j in range(5))
+                K = Pxy / Pyy
+                th, Pt = th + K * (yk - yp), Pt + Qt - torch.outer(K, K) * Pyy
+                Qn = (1 - ko.delta) * Qt + ko.delta * torch.outer(K, K) * (yk - yp) ** 2
+                Qt = Qn * min(1.0, q_max / float(Qn.diagonal().max()))
+                th[0] = min(max(float(th[0]), cfg.order_bounds[0]), cfg.order_bounds[1])
+                F, Q = ss(float(th[0]), float(th[1]))  # KFx at α̂_k and ŵ_k
+                zp, Pp = F @ z, F @ P @ F.mT + Q
+            S = float(C @ Pp @ C) + r
+            e = yk - float(C @ zp)
+            Kx = Pp @ C / S
+            z, P = zp + Kx * e, Pp - torch.outer(Kx, Kx) * S
+            assert math.isclose(float(res.alpha[i, k, 0]), float(th[0]), rel_tol=1e-11), (i, k)
+            assert math.isclose(float(res.w[i, k, 0]), float(th[1]), rel_tol=1e-11), (i, k)
+            assert math.isclose(float(res.P_w[i, k, 0, 0]), float(Pt[1, 1]), rel_tol=1e-9), (i, k)
+            assert math.isclose(float(res.innovation_cov[i, k, 0, 0]), S, rel_tol=1e-11), (i, k)
+            assert math.isclose(float(res.innovation[i, k, 0]), e, rel_tol=1e-9, abs_tol=1e-15), (i, k)
+    assert float((res.alpha[:, steps - 1, 0] - 0.3).abs().min()) > 1e-5
+    assert float((res.w[:, steps - 1, 0] + 1.5).abs().min()) > 1e-5
+
+
+def test_joint_refusals():
+    """kfo_kfw 'joint' only with the exact KFx (at the settings' construction), refused by run_tea, and with KFw's
+    filter settings equal to KFo's, which the one filter takes."""
+    with pytest.raises(ValueError, match="kfx_filter 'exact' only"):
+        TEAConfig(kfo_kfw="joint")
+    with pytest.raises(ValueError, match="kfo_kfw must be"):
+        TEAConfig(kfo_kfw="both")
+    v = view_for(GROWN, VALUES)
+    cfg = replace(v.config, kfo_kfw="joint", kfw=replace(v.config.kfw, delta=0.1, R=1e-3))
+    with pytest.raises(ValueError, match="KFo's delta, R; KFw's differ"):
+        run_tea_exact(replace(v, config=cfg), grown_data(1, 50), h=H)
+    with pytest.raises(ValueError, match="kfx_filter 'exact'"):
+        run_tea(grown_data(1, 50).unsqueeze(-1), h=H, params=make_params(replace(v.config, kfo_kfw="joint"),
+                                                                        v.structure), structure=v.structure)
+
+
 def test_identify_runs_each_channel_through_the_exact_kfx():
     """identify with ``kfx_filter = "exact"`` in its overrides: soe memory chosen for it, each channel's result that
     of run_tea_exact on the channel's own view and series; refused without a model (r_mode measured) and with a

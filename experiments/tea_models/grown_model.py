@@ -42,11 +42,11 @@ SETTINGS = {"paper": {}, "small-q": {"Q0": 1e-5}, "constant": {"R": "innovation"
 EXACT_KFX = ("exact-kfx",)
 
 
-def arguments(doc: str, argv=None):
-    """The studies' flags: realisations, steps, seed and the output directory."""
+def arguments(doc: str, argv=None, steps: int = 6000):
+    """The studies' flags: realisations, steps (default ``steps``), seed and the output directory."""
     ap = argparse.ArgumentParser(description=doc.splitlines()[0])
     ap.add_argument("--realisations", type=int, default=32)
-    ap.add_argument("--steps", type=int, default=6000)
+    ap.add_argument("--steps", type=int, default=steps)
     ap.add_argument("--seed", type=int, default=5)
     ap.add_argument("--out", default=str(Path(__file__).parent))
     return ap.parse_args(argv)

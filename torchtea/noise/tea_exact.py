@@ -67,7 +67,8 @@ def _number(R, name: str) -> float | None:
 def check_exact(view: TEAView) -> None:
     """Raise ``ValueError`` naming what :func:`run_tea_exact` cannot run in ``view`` (its settings or its model), so
     that a workflow refuses before it starts: the two covariance settings, one order and one pole, KFo's and KFw's
-    R a number or "innovation", a bounded memory, no order modifier."""
+    R a number or "innovation", a bounded memory, no order modifier; with ``kfo_kfw = "joint"`` KFw's filter settings
+    those of KFo (the one filter's)."""
     cfg = view.config
     if cfg.kfx_uncertainty not in ("paper", "paper-gain") or cfg.estimate_uncertainty != "paper":
         raise ValueError("the exact-KFx TEA reports the exact filter's covariance: kfx_uncertainty and "
@@ -80,6 +81,16 @@ def check_exact(view: TEAView) -> None:
     if not cfg.memory.bounded:
         raise ValueError("kfx_filter 'exact' carries the past in the filter's state: give memory 'soe' (or "
                          "'window:L'), not 'exact', which would make every past sample a state")
+    if cfg.kfo_kfw == "joint":  # one filter with KFo's settings: KFw's own would be ignored, so they must agree
+        differ = [f for f in ("ut_alpha", "ut_beta", "kappa", "delta", "Q_max")
+                  if getattr(cfg.kfo, f) != getattr(cfg.kfw, f)]
+        if isinstance(cfg.kfo.R, str) != isinstance(cfg.kfw.R, str) or (
+                not isinstance(cfg.kfo.R, str) and _number(cfg.kfo.R, "kfo") != _number(cfg.kfw.R, "kfw")):
+            differ.append("R")
+        if differ:
+            raise ValueError(f"kfo_kfw 'joint' runs one filter with KFo's {', '.join(differ)}; KFw's differ "
+                             f"({', '.join(f'{f} {getattr(cfg.kfw, f)!r} vs {getattr(cfg.kfo, f)!r}' for f in differ)}): "
+                             "give KFw the same, or leave them at KFo's")
     if any(c.kind == "modifier" for _, c in view.model.components):  # tea_view drops it: KFo tracks the order
         raise ValueError(f"model {view.model.spec!r}: its order modifier makes the state space's rows vary in time; "
                          "the exact-KFx TEA runs the model without it (as KFo estimates the order's variation): drop it")
@@ -92,7 +103,8 @@ def batch_key(view: TEAView) -> tuple:
     cfg = view.config
     unscented = tuple((u.ut_alpha, u.ut_beta, u.kappa, float(u.delta), isinstance(u.R, str))
                       for u in (cfg.kfo, cfg.kfw))
-    return (view.model.spec, view.orders, view.params, view.states, cfg.memory, cfg.sigma_sum_start, unscented)
+    return (view.model.spec, view.orders, view.params, view.states, cfg.memory, cfg.sigma_sum_start, unscented,
+            cfg.kfo_kfw)
 
 
 def run_tea_exact(view, y, *, h: float, progress=None, partial: bool = False) -> TEAResult:
@@ -168,6 +180,17 @@ def run_tea_exact(view, y, *, h: float, progress=None, partial: bool = False) ->
         return torch.stack(caps).expand(Rn) if B == 1 else torch.stack(caps)
 
     qmax_o, qmax_w = qmax(lambda c: c.kfo), qmax(lambda c: c.kfw)
+    joint = cfg.kfo_kfw == "joint"
+    if joint:  # one filter over θ = (order, pole): KFo's settings, the two starts
+        wm_j, wc_j, scale_j = ut_weights(2, ko.ut_alpha, ko.ut_beta, ko.kappa)
+        theta = torch.cat([alpha, w], dim=-1)  # (R, 2)
+        Pj = torch.diag_embed(torch.cat([Po[..., 0], Pw[..., 0]], dim=-1))
+        Qj = torch.diag_embed(torch.cat([Qo[..., 0], Qw[..., 0]], dim=-1))
+        # KFo's cap over the 2 × 2 Q: "Q0" is the larger of the two starts' Q0
+        caps = [_q_cap(v.config.kfo.Q_max, torch.diag(torch.tensor([float(v.config.kfo.Q0), float(v.config.kfw.Q0)],
+                                                                   dtype=torch.float64)), like).reshape(())
+                for v in views]
+        qmax_o = torch.stack(caps).expand(Rn) if B == 1 else torch.stack(caps)
     lo, hi = col(lambda c: c.order_bounds[0]), col(lambda c: c.order_bounds[1])
     clamped = torch.zeros(Rn, dtype=torch.int64)
 
@@ -204,29 +227,42 @@ def run_tea_exact(view, y, *, h: float, progress=None, partial: bool = False) ->
             if k == 0:
                 z_pred, P_pred = z, P
             else:
-                Po_t, Pw_t = Po + Qo, Pw + Qw
-                sig_o = _sigma_points(alpha, Po_t, scale_o)  # (R, 3, 1)
-                sig_w = _sigma_points(w, Pw_t, scale_w)
-                out_o = (sig_o[..., 0] < k_lo) | (sig_o[..., 0] > k_hi)
                 Fz = trans.constant(z.unsqueeze(-1))  # F ẑ but its varying row: every replica's and KFx's own
                 base = dot_c(Fz[..., 0])  # (R,): the output's part that no order or pole changes
                 zs = z[:, None, sl]  # (R, 1, J+M)
-                ro, _ = row(sig_o[..., 0], w)  # KFo: sigma orders, ŵ_{k−1}
-                rw, _ = row(alpha.expand(-1, sig_w.shape[-2]), sig_w[..., 0])  # KFw: α̂_{k−1}, sigma poles
                 replica = lambda rows: (base.unsqueeze(-1) + c0 * (rows * zs).sum(-1)).unsqueeze(-1)  # noqa: E731
-                Yo, Yw = replica(ro), replica(rw)  # (R, 3, 1)
                 Ro = S_prev if Ro_num is None else Ro_num
-                Rw = S_prev if Rw_num is None else Rw_num
                 observed = mask.any(-1)
-                alpha, Po, Ko, eo, _, _ = _ut_update(sig_o, Yo, alpha, Po_t, Ro, y0, mask, wm_o, wc_o, start)
-                alpha = alpha.clamp(lo, hi)
+                if joint:  # one filter over (order, pole): sigma points (α, w)ᵢ, each a replica
+                    Pj_t = Pj + Qj
+                    sig = _sigma_points(theta, Pj_t, scale_j)  # (R, 5, 2)
+                    out_o = (sig[..., 0] < k_lo) | (sig[..., 0] > k_hi)
+                    rj, _ = row(sig[..., 0], sig[..., 1])
+                    theta, Pj, Kj, ej, _, _ = _ut_update(sig, replica(rj), theta, Pj_t, Ro, y0, mask, wm_j, wc_j, start)
+                    theta = torch.cat([theta[:, :1].clamp(lo, hi), theta[:, 1:]], dim=-1)
+                    Qj = _adapt_q(Qj, Kj, ej, ko.delta, qmax_o, observed)
+                    alpha, w_new = theta[:, :1], theta[:, 1:]
+                    w_kfx = w_new  # KFx at α̂_k and ŵ_k
+                    Po, Qo, Pw, Qw = Pj[:, :1, :1], Qj[:, :1, :1], Pj[:, 1:, 1:], Qj[:, 1:, 1:]
+                else:
+                    Po_t, Pw_t = Po + Qo, Pw + Qw
+                    sig_o = _sigma_points(alpha, Po_t, scale_o)  # (R, 3, 1)
+                    sig_w = _sigma_points(w, Pw_t, scale_w)
+                    out_o = (sig_o[..., 0] < k_lo) | (sig_o[..., 0] > k_hi)
+                    ro, _ = row(sig_o[..., 0], w)  # KFo: sigma orders, ŵ_{k−1}
+                    rw, _ = row(alpha.expand(-1, sig_w.shape[-2]), sig_w[..., 0])  # KFw: α̂_{k−1}, sigma poles
+                    Yo, Yw = replica(ro), replica(rw)  # (R, 3, 1)
+                    Rw = S_prev if Rw_num is None else Rw_num
+                    alpha, Po, Ko, eo, _, _ = _ut_update(sig_o, Yo, alpha, Po_t, Ro, y0, mask, wm_o, wc_o, start)
+                    alpha = alpha.clamp(lo, hi)
+                    Qo = _adapt_q(Qo, Ko, eo, ko.delta, qmax_o, observed)
+                    w_new, Pw, Kw, ew, _, _ = _ut_update(sig_w, Yw, w, Pw_t, Rw, y0, mask, wm_w, wc_w, start)
+                    Qw = _adapt_q(Qw, Kw, ew, kw.delta, qmax_w, observed)
+                    w_kfx = w  # KFx at α̂_k and ŵ_{k−1}, as the paper's
                 out_o = out_o | (alpha < k_lo) | (alpha > k_hi)
                 step_clamped = out_o.any(-1).to(torch.int64)
-                Qo = _adapt_q(Qo, Ko, eo, ko.delta, qmax_o, observed)
-                w_new, Pw, Kw, ew, _, _ = _ut_update(sig_w, Yw, w, Pw_t, Rw, y0, mask, wm_w, wc_w, start)
-                Qw = _adapt_q(Qw, Kw, ew, kw.delta, qmax_w, observed)
-                # KFx: the exact filter's prediction under α̂_k and ŵ_{k−1}
-                ra, ga = row(alpha, w)
+                # KFx: the exact filter's prediction under the estimates
+                ra, ga = row(alpha, w_kfx)
                 z_pred = trans.apply(z.unsqueeze(-1), ra[:, 0], Fz)[..., 0]
                 P_pred = trans.apply(trans.apply(P, ra[:, 0]).mT, ra[:, 0]) + Q0  # F P Fᵀ (P symmetric) + Q
                 P_pred[:, row0, row0] += (ga * ga)[:, 0] - Q0[:, row0, row0]

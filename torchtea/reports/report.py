@@ -31,6 +31,9 @@ def _uncertainty_note(cfg) -> str:
                              "uncertainty in KFx's prediction and gain"}[cfg.kfx_uncertainty]
     est = {"paper": "Pᵒ and Pʷ the filters' own", "constant-truth": "Pᵒ and Pʷ those of a constant order and "
                                                                         "parameter (`estimate_uncertainty`)"}
+    if cfg.kfo_kfw == "joint":
+        return (kfx + "; `kfo_kfw = \"joint\"` (not in the paper): one unscented filter over order and pole, Pᵒ and Pʷ "
+                "the diagonal of its covariance (their cross term is not reported)")
     return kfx + "; " + est[cfg.estimate_uncertainty]
 
 

@@ -608,6 +608,7 @@ def save_study(logdir, study: Study, preset: str, result: StudyResult | None = N
           "input_std": tr.input_std if tr.input_std is not None else 0.0, "truth_memory": tr.memory,
           "prior": study.prior, "kfx_uncertainty": study.estimator.kfx_uncertainty,
           "estimate_uncertainty": study.estimator.estimate_uncertainty, "kfx_filter": study.estimator.kfx_filter,
+          "kfo_kfw": study.estimator.kfo_kfw,
           "truth_model": tr.model or "paper scalar", "estimator_model": study.estimator_model or tr.model or "paper scalar",
           **(hparams or {})}
     log_study(logdir, result, summary, hp, figures=figures)

@@ -237,6 +237,7 @@ def test_push_keeps_the_history_the_torch_memory_keeps(memory_spec, K):
     memory, hist, mem, kh = _histories(memory_spec, True, K, seed=K)
     if not memory.bounded:
         assert np.array_equal(kh.xh[:, :K], hist[0][:, 0].flip(-1).numpy())
+        assert np.array_equal(kh.Ph[:, :K], hist[1][:, 0, 0].flip(-1).numpy())
         assert np.array_equal(kh.Pgh[:, :K], hist[2][:, 0, 0].flip(-1).numpy())
         return
     assert np.array_equal(kh.win, hist[0].window[:, 0].numpy())

@@ -177,6 +177,9 @@ def test_the_joint_filters_first_steps_are_the_obvious_paths():
             assert math.isclose(float(res.alpha[i, k, 0]), float(th[0]), rel_tol=1e-11), (i, k)
             assert math.isclose(float(res.w[i, k, 0]), float(th[1]), rel_tol=1e-11), (i, k)
             assert math.isclose(float(res.P_w[i, k, 0, 0]), float(Pt[1, 1]), rel_tol=1e-9), (i, k)
+            assert math.isclose(float(res.P_alpha[i, k, 0, 0]), float(Pt[0, 0]), rel_tol=1e-9), (i, k)
+            assert math.isclose(float(res.Q_alpha[i, k, 0, 0]), float(Qt[0, 0]), rel_tol=1e-9), (i, k)
+            assert math.isclose(float(res.Q_w[i, k, 0, 0]), float(Qt[1, 1]), rel_tol=1e-9), (i, k)
             assert math.isclose(float(res.innovation_cov[i, k, 0, 0]), S, rel_tol=1e-11), (i, k)
             assert math.isclose(float(res.innovation[i, k, 0]), e, rel_tol=1e-9, abs_tol=1e-15), (i, k)
     assert float((res.alpha[:, steps - 1, 0] - 0.3).abs().min()) > 1e-5
@@ -184,8 +187,8 @@ def test_the_joint_filters_first_steps_are_the_obvious_paths():
 
 
 def test_joint_refusals():
-    """kfo_kfw 'joint' only with the exact KFx (at the settings' construction), refused by run_tea, and with KFw's
-    filter settings equal to KFo's, which the one filter takes."""
+    """kfo_kfw 'joint' only with the exact KFx (at the settings' construction, so run_tea, which refuses the exact
+    KFx, never runs it), and with KFw's filter settings equal to KFo's, which the one filter takes."""
     with pytest.raises(ValueError, match="kfx_filter 'exact' only"):
         TEAConfig(kfo_kfw="joint")
     with pytest.raises(ValueError, match="kfo_kfw must be"):
@@ -242,10 +245,21 @@ def test_progress_and_ctrl_c_keep_the_finished_steps():
     assert cut.interrupted and cut.alpha.shape[-2] == 129 and torch.equal(cut.steps, torch.arange(129))
     for name in ("x", "P", "alpha", "P_alpha", "w", "innovation", "innovation_cov"):
         assert torch.equal(getattr(cut, name), getattr(full, name)[:, :129]), name
-    assert (cut.memory_clamped > 0).all() and (cut.memory_clamped <= 128).all()
-    assert (cut.memory_clamped <= full.memory_clamped).all()
+    # the clamp count of steps 1 … 128, rebuilt from the outputs: KFo's sigma orders (from step k − 1's α̂, Pᵒ, Qᵒ)
+    # or α̂_k outside the kernel's range
+    lo_k, hi_k = state_memory(v.config.memory, 400, orders=KERNEL_ORDERS).kernel.order_range
+    a, spread = full.alpha[:, :, 0], (3 * (full.P_alpha + full.Q_alpha)[:, :, 0, 0]).sqrt()  # scale L + λ = 3
+    out = ((a[:, :128] - spread[:, :128]) < lo_k) | ((a[:, :128] + spread[:, :128]) > hi_k) \
+        | (a[:, 1:129] < lo_k) | (a[:, 1:129] > hi_k)
+    assert torch.equal(cut.memory_clamped, out.sum(-1)) and int(cut.memory_clamped.min()) > 0
     with pytest.raises(KeyboardInterrupt):
         run_tea_exact(v, y, h=H, progress=stop)
+
+    def at_once(k, n):
+        raise KeyboardInterrupt
+
+    none = run_tea_exact(v, y, h=H, progress=at_once, partial=True)  # before step 0 finished: nothing kept
+    assert none.interrupted and none.alpha.shape[-2] == 0 and not none.diverged.any()
 
 
 def test_identify_batches_channels_of_one_model_reports_progress_and_keeps_a_ctrl_c():
@@ -273,12 +287,16 @@ def test_identify_batches_channels_of_one_model_reports_progress_and_keeps_a_ctr
     assert {t for _, t in calls} == {2 * 299} and calls[-1] == (598, 598)  # two batches, one after another
     assert [d for d, _ in calls] == sorted(d for d, _ in calls)
 
+    seen = []
+
     def stop(d, t):
-        if d == 128:  # in the first channel
+        seen.append(d)
+        if d == 128 and seen.count(128) == 1:  # once, in the first channel
             raise KeyboardInterrupt
 
     ident = identify(m, overrides=over, fits=fits, progress=stop, partial=True)
     assert ident.result.interrupted and ident.result.alpha.shape[-2] == 129
+    assert seen[-1] == 128 + 128  # the second batch counted on from the 128 steps the first finished
     second = run_tea_exact(replace(ident.views[1], config=ident.configs[1]), ident.y[1, :129, 0], h=m.recording.h)
     assert torch.equal(ident.result.alpha[1], second.alpha[0])
 
@@ -300,6 +318,13 @@ def test_a_batch_of_views_is_each_views_own_run():
         for f in ("x", "P", "alpha", "w", "innovation", "innovation_cov", "P_alpha", "Q_w"):
             torch.testing.assert_close(getattr(both, f)[i], getattr(one, f)[0], rtol=1e-12, atol=1e-15, msg=f)
     assert not torch.equal(both.alpha[0], both.alpha[1])
+    joint = [replace(u, config=replace(u.config, kfo_kfw="joint", kfw=replace(u.config.kfw, R=u.config.kfo.R)))
+             for u in (v1, v2)]
+    both = run_tea_exact(joint, y, h=H)
+    for i, v in enumerate(joint):
+        one = run_tea_exact(v, y[i], h=H)
+        for f in ("alpha", "w", "P_alpha", "P_w", "innovation"):
+            torch.testing.assert_close(getattr(both, f)[i], getattr(one, f)[0], rtol=1e-12, atol=1e-15, msg=f)
     with pytest.raises(ValueError, match="batch_key"):
         run_tea_exact([v1, view_for("fractional+white", VALUES)], y, h=H)
     with pytest.raises(ValueError, match="one per series"):

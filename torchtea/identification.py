@@ -301,7 +301,7 @@ def identify(measurements: Measurements, *, model=PAPER_MODEL, r_mode: str = "fi
             r = run_tea(y[g, :steps].to(device or "cpu"), h=rec.h, params=params, structure=structures[g[0]],
                         progress=prog, compile=compile, partial=partial).to("cpu")
         results.append(r)
-        done += steps - 1
+        done += r.alpha.shape[-2] - 1
         if r.interrupted:  # Ctrl-C: the later groups run the samples this one finished, so that no channel waits
             steps = r.alpha.shape[-2]
             if steps == 0:
@@ -351,6 +351,10 @@ def _in_channel_order(results: list, groups: list) -> TEAResult:
             out[f.name] = any(vals)
         else:
             out[f.name] = None if vals[0] is None else torch.cat(vals)[order]
+    # a group that ran further than the others: its divergence only where it is within the steps kept (its soe clamp
+    # count still covers all its steps)
+    out["diverged"] = out["diverged"] & (out["diverged_at"] < steps)
+    out["diverged_at"] = torch.where(out["diverged"], out["diverged_at"], -1)
     return TEAResult(**out)
 
 

@@ -169,13 +169,14 @@ class TEAConfig:
     kfo_kfw : "separate" (default) or "joint" — how the order and the parameter are estimated. "separate": the
         paper's KFo and KFw, each a scalar unscented filter that takes the other's current estimate as exact.
         "joint" (not in the paper; ``kfx_filter = "exact"`` only): one unscented filter over (order, pole) with their
-        cross-covariance, five sigma points; it takes KFo's sigma-point settings, R, adaptation and cap (over its 2×2
-        Q), KFo's start, P0 and Q0 for the order and KFw's for the pole, and KFx runs at both current estimates. On
-        long runs the filters can walk along the order–pole ridge of the likelihood (poles 0.5–2 from the truth, the
-        log-likelihood up to 3000 below the truth's, where the likelihood's own maximum is at the truth): with no
-        process noise on the order and pole the joint filter stays closer to that maximum than the two separate ones
-        (median −3 against −19, pole sd 0.18 against 0.52 over 32 runs of 18 000 steps) but 2 of 32 poles still
-        drift (experiments/tea_models/kfw_drift.py).
+        cross-covariance, five sigma points; it takes KFo's sigma-point settings, R, adaptation and cap (the largest
+        diagonal entry of its 2×2 Q under the cap, as the TEA caps a vector filter; ``"Q0"``: the larger of the two
+        Q0), KFo's start, P0 and Q0 for the order and KFw's for the pole, and KFx runs at both current estimates
+        (ŵ_k, not ŵ_{k−1}). On long runs the filters can walk along the order–pole ridge of the likelihood (poles more
+        than 0.5 from the truth, the log-likelihood 60–3160 below the truth's, where the likelihood's own maximum is
+        at the truth): with no process noise on the order and pole the joint filter's median stays closer to that
+        maximum than the two separate ones' (−3 against −19, pole sd 0.18 against 0.52 over 32 runs of 18 000
+        steps), but 2 of 32 poles still drift (experiments/tea_models/kfw_drift.py).
     """
 
     kfx: StateFilterConfig = field(default_factory=StateFilterConfig)

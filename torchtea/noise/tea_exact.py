@@ -20,7 +20,9 @@ How. Every step ``k ≥ 1``, as :func:`torchtea.engines.tea.run_tea` orders it:
    adaptation (25) and order bounds (:mod:`torchtea.engines.tea`'s functions, not copies);
 3. KFx: the exact filter's prediction with ``F(α̂_k, ŵ_{k−1})`` and the drive ``h^{α̂_k}√q``, then its update.
 
-At ``k = 0`` the exact filter updates from the model's initial state; KFo and KFw start at the view's starts.
+At ``k = 0`` the exact filter updates from the model's initial state; KFo and KFw start at the view's starts. With
+``kfo_kfw = "joint"`` steps 1–2 are one unscented filter over (order, pole) (five sigma points ``(αᵢ, wᵢ)``, each a
+replica) and KFx runs at ``α̂_k, ŵ_k``.
 
 What it is not: the paper's KFx (its estimates differ, by design), nor a smoother. Its ``P`` is the exact filter's at
 the current estimates (``kfx_uncertainty`` and ``estimate_uncertainty`` do not apply and are refused unless at their
@@ -52,6 +54,11 @@ KERNEL_ORDERS = (-0.5, 1.5)
 
 #: Steps between two progress calls (a step takes ~0.5 ms on the bundled recording's models).
 PROGRESS_STEPS = 64
+
+
+def _first(v) -> float:
+    """A setting that may be written as a number or a one-entry list (``Q0 = [1e-5]``), as a number."""
+    return float(torch.as_tensor(v, dtype=torch.float64).reshape(-1)[0])
 
 
 def _number(R, name: str) -> float | None:
@@ -160,8 +167,7 @@ def run_tea_exact(view, y, *, h: float, progress=None, partial: bool = False) ->
 
     def col(get):
         """``(R, 1)``: a number of each view's settings (``get(config)``), per series."""
-        t = torch.tensor([float(torch.as_tensor(get(v.config), dtype=torch.float64).reshape(-1)[0]) for v in views],
-                         dtype=torch.float64)
+        t = torch.tensor([_first(get(v.config)) for v in views], dtype=torch.float64)
         return t.reshape(B, 1).expand(Rn, 1).clone()
 
     def sq(get):
@@ -175,7 +181,7 @@ def run_tea_exact(view, y, *, h: float, progress=None, partial: bool = False) ->
     like = torch.zeros((), dtype=torch.float64)
 
     def qmax(get):  # the TEA's cap, "none" and all, per series
-        caps = [_q_cap(get(v.config).Q_max, torch.full((1, 1), float(get(v.config).Q0), dtype=torch.float64),
+        caps = [_q_cap(get(v.config).Q_max, torch.full((1, 1), _first(get(v.config).Q0), dtype=torch.float64),
                        like).reshape(()) for v in views]
         return torch.stack(caps).expand(Rn) if B == 1 else torch.stack(caps)
 
@@ -186,8 +192,9 @@ def run_tea_exact(view, y, *, h: float, progress=None, partial: bool = False) ->
         theta = torch.cat([alpha, w], dim=-1)  # (R, 2)
         Pj = torch.diag_embed(torch.cat([Po[..., 0], Pw[..., 0]], dim=-1))
         Qj = torch.diag_embed(torch.cat([Qo[..., 0], Qw[..., 0]], dim=-1))
-        # KFo's cap over the 2 × 2 Q: "Q0" is the larger of the two starts' Q0
-        caps = [_q_cap(v.config.kfo.Q_max, torch.diag(torch.tensor([float(v.config.kfo.Q0), float(v.config.kfw.Q0)],
+        # KFo's cap over the 2 × 2 Q, as the TEA caps a vector filter's (engines.tea._adapt_q): its largest
+        # diagonal entry stays under the cap; "Q0" is the larger of the two Q0
+        caps = [_q_cap(v.config.kfo.Q_max, torch.diag(torch.tensor([_first(v.config.kfo.Q0), _first(v.config.kfw.Q0)],
                                                                    dtype=torch.float64)), like).reshape(())
                 for v in views]
         qmax_o = torch.stack(caps).expand(Rn) if B == 1 else torch.stack(caps)
@@ -290,7 +297,7 @@ def run_tea_exact(view, y, *, h: float, progress=None, partial: bool = False) ->
     # flagged as the TEA flags them (non-finite or beyond the limit), not frozen
     lim = torch.tensor([float(v.config.divergence_limit) for v in views], dtype=torch.float64).reshape(B, 1, 1)
     steps = torch.arange(completed)
-    finite = torch.stack([(out[k].reshape(Rn, completed, -1).abs() <= lim).all(-1)
+    finite = torch.stack([(out[k].flatten(2).abs() <= lim).all(-1)  # (Rn, completed), also for none
                           for k in ("x", "P", "alpha", "w")]).all(0)
     diverged = ~finite.all(-1)
     first_bad = torch.where(~finite, steps, completed).amin(-1) if completed else torch.zeros(Rn, dtype=torch.long)

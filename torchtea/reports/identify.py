@@ -55,6 +55,9 @@ def settle_time(est: np.ndarray, t: np.ndarray, target: float, band: float = SET
 
 def filter_sd_label(config: TEAConfig, which: str = "KFo") -> str:
     """What √Pᵒ (``which="KFo"``) or √Pʷ (``"KFw"``) is under ``config.estimate_uncertainty``."""
+    if config.kfo_kfw == "joint":
+        return (f"the {'order' if which == 'KFo' else 'parameter'}'s marginal standard deviation in the joint filter "
+                "over order and pole (kfo_kfw = joint)")
     if config.estimate_uncertainty == "constant-truth":
         return (f"the standard deviation of {which}'s error if the true "
                 f"{'order' if which == 'KFo' else 'parameter'} is constant (estimate_uncertainty = constant-truth)")

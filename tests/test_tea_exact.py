@@ -41,6 +41,19 @@ def grown_data(realisations, n, seed=5):
     return y - y.mean(-1, keepdim=True)
 
 
+def dense_state_space(start, N):
+    """The obvious path's model: ``ss(a, f)`` the grown model's whole state space at ``start`` with order a and pole
+    f (dense F and Q = G Gᵀ, assembled anew by NoiseModel.state_space), and its C and R."""
+    model, mem = parse_model(GROWN), state_memory("soe", N, orders=KERNEL_ORDERS)
+
+    def ss(a, f):
+        s = model.state_space(dict(start, **{"fractional.order": a, "fractional.pole": f}), H, N, memory=mem)
+        return s.F[0], s.G[0] @ s.G[0].mT
+
+    s0 = model.state_space(start, H, N, memory=mem)
+    return ss, s0.C[0], float(s0.R[0])
+
+
 def test_with_kfo_and_kfw_frozen_kfx_is_the_likelihoods_filter():
     """P0 = Q0 = 0 for both: the order and pole stay at their starts, and KFx's innovations, their variances and the
     view states' estimates are the exact filter's (likelihood.kalman_filter on the same state space) to rounding —
@@ -73,14 +86,7 @@ def test_the_first_steps_are_the_obvious_paths():
     v = replace(v, config=replace(v.config, kfw=replace(v.config.kfw, P0=0.05, Q0=1e-3)))
     res = run_tea_exact(v, y, h=H)
     ko, kw = v.config.kfo, v.config.kfw
-    model, mem = parse_model(GROWN), state_memory("soe", N, orders=KERNEL_ORDERS)
-
-    def ss(a, f):
-        s = model.state_space(dict(start, **{"fractional.order": a, "fractional.pole": f}), H, N, memory=mem)
-        return s.F[0], s.G[0] @ s.G[0].mT
-
-    C0 = model.state_space(start, H, N, memory=mem)
-    C, r = C0.C[0], float(C0.R[0])
+    ss, C, r = dense_state_space(start, N)
     wm = [2 / 3, 1 / 6, 1 / 6]  # L = 1, ut_alpha 1, kappa 3 − L: λ = 2
     wc = [2 / 3 + 2, 1 / 6, 1 / 6]
 
@@ -132,19 +138,12 @@ def test_the_joint_filters_first_steps_are_the_obvious_paths():
     cfg = replace(v.config, kfo_kfw="joint", kfw=replace(v.config.kfw, P0=0.05, Q0=1e-3))
     res = run_tea_exact(replace(v, config=cfg), y, h=H)
     ko, kw = cfg.kfo, cfg.kfw
-    model, mem = parse_model(GROWN), state_memory("soe", N, orders=KERNEL_ORDERS)
     lam = 1.0 * (2 + 1) - 2  # ut_alpha² (L + κ) − L with L = 2, κ = 3 − L
     wm = torch.tensor([lam / (2 + lam)] + [1 / (2 * (2 + lam))] * 4, dtype=torch.float64)
     wc = wm.clone()
     wc[0] += 1 - 1.0 + 2.0  # + 1 − ut_alpha² + β
     q_max = max(ko.Q0, kw.Q0)
-
-    def ss(a, f):
-        s = model.state_space(dict(start, **{"fractional.order": a, "fractional.pole": f}), H, N, memory=mem)
-        return s.F[0], s.G[0] @ s.G[0].mT
-
-    C0 = model.state_space(start, H, N, memory=mem)
-    C, r = C0.C[0], float(C0.R[0])
+    ss, C, r = dense_state_space(start, N)
     for i in range(2):
         z = torch.zeros(C.shape[0], dtype=torch.float64)
         P = torch.zeros(C.shape[0], C.shape[0], dtype=torch.float64)

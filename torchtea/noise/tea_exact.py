@@ -149,7 +149,8 @@ def run_tea_exact(view, y, *, h: float, progress=None, partial: bool = False) ->
     model, label = view.model, view.orders[0]
     comp = dict(model.components)[label]
     mem = state_memory(cfg.memory, N, orders=KERNEL_ORDERS)
-    values = {k: torch.cat([model.as_dict(v.values)[k].reshape(-1) for v in views]) for k in model.as_dict(view.values)}
+    dicts = [model.as_dict(v.values) for v in views]
+    values = {k: torch.cat([d[k].reshape(-1) for d in dicts]) for k in dicts[0]}
     ss = model.state_space(values, h, N, memory=mem)
     sl = ss.blocks[label]
     row0 = sl.start
@@ -165,10 +166,14 @@ def run_tea_exact(view, y, *, h: float, progress=None, partial: bool = False) ->
     wm_w, wc_w, scale_w = ut_weights(1, kw.ut_alpha, kw.ut_beta, kw.kappa)
     start = cfg.sigma_sum_start
 
+    def per_series(numbers) -> Tensor:
+        """``(R,)``: one number per view, for every series (one view: the same for all)."""
+        t = torch.as_tensor(numbers, dtype=torch.float64).reshape(B)
+        return t.expand(Rn) if B == 1 else t
+
     def col(get):
         """``(R, 1)``: a number of each view's settings (``get(config)``), per series."""
-        t = torch.tensor([_first(get(v.config)) for v in views], dtype=torch.float64)
-        return t.reshape(B, 1).expand(Rn, 1).clone()
+        return per_series([_first(get(v.config)) for v in views]).reshape(Rn, 1).clone()
 
     def sq(get):
         return col(get).unsqueeze(-1)
@@ -180,24 +185,24 @@ def run_tea_exact(view, y, *, h: float, progress=None, partial: bool = False) ->
     Rw_num = None if isinstance(kw.R, str) else sq(lambda c: _number(c.kfw.R, "kfw"))
     like = torch.zeros((), dtype=torch.float64)
 
-    def qmax(get):  # the TEA's cap, "none" and all, per series
-        caps = [_q_cap(get(v.config).Q_max, torch.full((1, 1), _first(get(v.config).Q0), dtype=torch.float64),
-                       like).reshape(()) for v in views]
-        return torch.stack(caps).expand(Rn) if B == 1 else torch.stack(caps)
+    def qmax(Q_max, *Q0s):
+        """The TEA's cap (``Q_max``: "none", "Q0" or a number) per series for a filter whose Q starts at ``Q0s`` (each
+        ``get(config)``): a vector filter's caps its Q's largest diagonal entry (engines.tea._adapt_q)."""
+        return per_series([float(_q_cap(Q_max(v.config), torch.diag(torch.tensor([_first(q(v.config)) for q in Q0s],
+                                                                                dtype=torch.float64)), like))
+                           for v in views])
 
-    qmax_o, qmax_w = qmax(lambda c: c.kfo), qmax(lambda c: c.kfw)
     joint = cfg.kfo_kfw == "joint"
     if joint:  # one filter over θ = (order, pole): KFo's settings, the two starts
         wm_j, wc_j, scale_j = ut_weights(2, ko.ut_alpha, ko.ut_beta, ko.kappa)
         theta = torch.cat([alpha, w], dim=-1)  # (R, 2)
         Pj = torch.diag_embed(torch.cat([Po[..., 0], Pw[..., 0]], dim=-1))
         Qj = torch.diag_embed(torch.cat([Qo[..., 0], Qw[..., 0]], dim=-1))
-        # KFo's cap over the 2 × 2 Q, as the TEA caps a vector filter's (engines.tea._adapt_q): its largest
-        # diagonal entry stays under the cap; "Q0" is the larger of the two Q0
-        caps = [_q_cap(v.config.kfo.Q_max, torch.diag(torch.tensor([_first(v.config.kfo.Q0), _first(v.config.kfw.Q0)],
-                                                                   dtype=torch.float64)), like).reshape(())
-                for v in views]
-        qmax_o = torch.stack(caps).expand(Rn) if B == 1 else torch.stack(caps)
+        # KFo's cap over the 2 × 2 Q: its largest diagonal entry stays under it ("Q0": the larger of the two Q0)
+        qmax_o = qmax(lambda c: c.kfo.Q_max, lambda c: c.kfo.Q0, lambda c: c.kfw.Q0)
+    else:
+        qmax_o = qmax(lambda c: c.kfo.Q_max, lambda c: c.kfo.Q0)
+        qmax_w = qmax(lambda c: c.kfw.Q_max, lambda c: c.kfw.Q0)
     lo, hi = col(lambda c: c.order_bounds[0]), col(lambda c: c.order_bounds[1])
     clamped = torch.zeros(Rn, dtype=torch.int64)
 
@@ -295,7 +300,7 @@ def run_tea_exact(view, y, *, h: float, progress=None, partial: bool = False) ->
     if completed < N:
         out = {name: t[:, :completed] for name, t in out.items()}
     # flagged as the TEA flags them (non-finite or beyond the limit), not frozen
-    lim = torch.tensor([float(v.config.divergence_limit) for v in views], dtype=torch.float64).reshape(B, 1, 1)
+    lim = per_series([float(v.config.divergence_limit) for v in views]).reshape(Rn, 1, 1)
     steps = torch.arange(completed)
     finite = torch.stack([(out[k].flatten(2).abs() <= lim).all(-1)  # (Rn, completed), also for none
                           for k in ("x", "P", "alpha", "w")]).all(0)

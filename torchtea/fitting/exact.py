@@ -14,7 +14,8 @@ from torch import Tensor
 from ..likelihood.kalman import filter_fast, loglik_fast
 from ..noise.model import NoiseModel, StateSpace, parse_model, state_memory
 
-__all__ = ["FIT_MEMORY", "exact_loglik", "centred", "unknown_level", "ExactPass", "exact_pass"]
+__all__ = ["FIT_MEMORY", "exact_loglik", "centred", "unknown_level", "ExactPass", "exact_pass", "exact_loglik_grad",
+           "gradient_supported"]
 
 
 #: The exact likelihood's memory while fitting (``soe`` to this relative coefficient error; the
@@ -71,3 +72,66 @@ def exact_pass(model, values: dict, y, h: float, *, inputs: dict | None = None, 
     mean = model.mean(values, torch.arange(N, dtype=torch.float64) * h, inputs)
     ll, e, S = filter_fast(ss, y, mean, level=unknown_level(model))
     return ExactPass(y, ss, mean, float(ll[0]), e[0], S[0])
+
+
+def gradient_supported(model: NoiseModel, y) -> str | None:
+    """Why the exact likelihood's gradient of ``model`` on ``y`` is taken by central differences here (None: the
+    sensitivity filter of :mod:`torchtea.likelihood.gradient` gives it): a time-varying order or missing samples."""
+    if any(c.varies_order for _, c in model.components):
+        return "a temperature-driven order makes the transition vary"
+    if np.isnan(np.asarray(y, dtype=np.float64)).any():
+        return "the series has missing samples"
+    return None
+
+
+def exact_loglik_grad(model, U: Tensor, y, h: float, free, *, inputs: dict | None = None, memory=FIT_MEMORY):
+    """The exact log-likelihood ``(B,)`` of one series at ``B`` points ``U`` ``(B, P)`` of the unconstrained
+    coordinates (:meth:`~torchtea.noise.model.NoiseModel.from_unconstrained`), its gradient ``(B, F)`` over the
+    coordinates ``free`` (indices, F of them) and the scoring information ``(B, F, F)`` there — from the sensitivity
+    filter (:func:`torchtea.likelihood.gradient.loglik_grad`) on the state space's matrices and their derivatives by
+    forward-mode automatic differentiation (:func:`torch.func.jacfwd`) of the model's assembly. ``y`` as the likelihood
+    sees it (:func:`centred`); where :func:`gradient_supported` says why not, ``ValueError``."""
+    from ..likelihood.gradient import loglik_grad
+
+    model = parse_model(model)
+    why = gradient_supported(model, y)
+    if why is not None:
+        raise ValueError(f"no sensitivity gradient for {model.spec}: {why}")
+    y = np.asarray(y, dtype=np.float64)
+    N = len(y)
+    U = torch.as_tensor(U, dtype=torch.float64).reshape(-1, len(model.names))
+    free = torch.as_tensor(np.asarray(free, dtype=np.int64))
+    mem = state_memory(memory, N)
+    t = torch.arange(N, dtype=torch.float64) * h
+    inp = None if inputs is None else {k: torch.as_tensor(v, dtype=torch.float64) for k, v in inputs.items()}
+    kinds = {n: dict(model.components)[n.rsplit(".", 1)[0]].kind for n in model.names}
+    mean_dirs = [q for q, i in enumerate(free.tolist()) if kinds[model.names[i]] == "mean"]
+    mats, means, dmeans = [], [], []
+    for u in U:
+        def assemble(uf, u=u):
+            full = u.index_put((free,), uf)
+            ss = model.state_space(model.from_unconstrained(full, h), h, N, mem, inputs=inputs)
+            out = (ss.F[0], ss.G[0], ss.C[0], ss.R[0], ss.initial[0])
+            return out, out
+
+        jac, val = torch.func.jacfwd(assemble, has_aux=True)(u[free])
+        mats.append((val, jac))
+        means.append(model.mean(model.from_unconstrained(u, h), t, inp)[0])
+        if mean_dirs:
+            sub = free[mean_dirs]
+
+            def mean_of(um, u=u, sub=sub):
+                return model.mean(model.from_unconstrained(u.index_put((sub,), um), h), t, inp)[0]
+
+            # one forward-mode pass per direction (a mean may hold a function with its own jvp, which vmap cannot batch)
+            eye = torch.eye(len(sub), dtype=torch.float64)
+            dmeans.append(torch.stack([torch.func.jvp(mean_of, (u[sub],), (eye[d],))[1] for d in range(len(sub))]))
+    stack = lambda k: torch.stack([m[0][k] for m in mats]).detach().numpy()  # noqa: E731
+    dstack = lambda k: torch.stack([m[1][k].movedim(-1, 0) for m in mats]).detach().numpy()  # noqa: E731
+    if np.any(dstack(2)):
+        raise ValueError(f"no sensitivity gradient for {model.spec}: its measurement row C depends on the parameters")
+    row = np.full(len(free), -1, dtype=np.int64)
+    row[mean_dirs] = np.arange(len(mean_dirs))
+    dmean = torch.stack(dmeans).numpy() if mean_dirs else None
+    return loglik_grad(stack(0), dstack(0), stack(1), dstack(1), stack(2), stack(3), dstack(3), stack(4), dstack(4),
+                       y, torch.stack(means).detach().numpy(), dmean, row, level=unknown_level(model))

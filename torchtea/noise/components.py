@@ -793,15 +793,14 @@ class LowPass(Component):
         the diagonal and :math:`b_j = (1-a)^{j+1}`."""
         a = self.coefficient(v, h)
         B, m = a.shape[0], self.stages
-        A = a.new_zeros(B, m, m)
-        b = a.new_zeros(B, m)
-        A[:, 0, 0] = a
-        b[:, 0] = 1.0 - a
-        for j in range(1, m):
-            A[:, j] = (1.0 - a).unsqueeze(-1) * A[:, j - 1]
-            A[:, j, j] = a
-            b[:, j] = (1.0 - a) * b[:, j - 1]
-        return A, b
+        eye = torch.eye(m, dtype=a.dtype)
+        rows, bs = [], [1.0 - a]
+        for j in range(m):  # rows built anew, not written in place, so that the assembly has derivatives
+            before = (1.0 - a).unsqueeze(-1) * rows[-1] if rows else a.new_zeros(B, m)
+            rows.append(before + a.unsqueeze(-1) * eye[j])
+            if j:
+                bs.append((1.0 - a) * bs[-1])
+        return torch.stack(rows, dim=1), torch.stack(bs, dim=1)
 
     single = True
 
@@ -1130,6 +1129,41 @@ class TemperatureBias(Component):
                                              f"{ctx.label}.t_ref": float(np.mean(ctx.inputs["temperature"]))}, ""
 
 
+class _FirstOrderLag(torch.autograd.Function):
+    r""":math:`y_k = a y_{k-1} + (1-a) T_k`, :math:`y_0 = T_0`, for each coefficient of ``a`` ``(B,)`` (``scipy.signal.
+    lfilter``), with its derivative in ``a`` for both modes of automatic differentiation: :math:`z_k = \partial y_k /
+    \partial a` obeys :math:`z_k = a z_{k-1} + y_{k-1} - T_k`, :math:`z_0 = 0` (differentiate the recursion), filtered
+    alongside. ``T`` is data (no derivative). Returns ``(y, z)``, each ``(B, N)``."""
+
+    @staticmethod
+    def forward(a, T):
+        from scipy.signal import lfilter
+
+        Tn = T.detach().cpu().numpy()
+        ys, zs = [], []
+        for x in a.detach().numpy():
+            y, _ = lfilter([1.0 - x], [1.0, -x], Tn, zi=[x * Tn[0]])
+            ys.append(y)
+            zs.append(lfilter([1.0], [1.0, -x], np.concatenate([[0.0], y[:-1] - Tn[1:]])))
+        return torch.as_tensor(np.stack(ys)), torch.as_tensor(np.stack(zs))
+
+    @staticmethod
+    def setup_context(ctx, inputs, output):
+        ctx.mark_non_differentiable(output[1])
+        ctx.save_for_backward(output[1])
+        ctx.save_for_forward(output[1])
+
+    @staticmethod
+    def jvp(ctx, da, dT):
+        z, = ctx.saved_tensors
+        return z * da.unsqueeze(-1), None
+
+    @staticmethod
+    def backward(ctx, gy, gz):
+        z, = ctx.saved_tensors
+        return (gy * z).sum(-1), None
+
+
 class ThermalLag(Component):
     r"""A bias that follows the temperature through a first-order lag: :math:`\beta\,(T^{\tau}_k - T_\mathrm{ref})`
     with :math:`T^{\tau}_k = a\,T^{\tau}_{k-1} + (1-a)\,T_k`, :math:`a = e^{-h/\tau}`, :math:`T^{\tau}_0 = T_0` —
@@ -1167,16 +1201,11 @@ class ThermalLag(Component):
 
     @staticmethod
     def lagged(T: Tensor, tau: Tensor, h: float) -> Tensor:
-        """``(B, N)`` the temperature ``(N,)`` through the first-order lags of time constants ``tau`` ``(B,)``."""
-        from scipy.signal import lfilter
-
-        T = np.asarray(torch.as_tensor(T, dtype=torch.float64).cpu(), dtype=np.float64)
-        out = []
-        for t_ in np.atleast_1d(np.asarray(torch.as_tensor(tau, dtype=torch.float64).detach().cpu())):
-            a = math.exp(-h / float(t_))
-            y, _ = lfilter([1.0 - a], [1.0, -a], T, zi=[a * T[0]])
-            out.append(y)
-        return torch.as_tensor(np.stack(out), dtype=torch.float64)
+        """``(B, N)`` the temperature ``(N,)`` through the first-order lags of time constants ``tau`` ``(B,)``;
+        differentiable in ``tau`` (:class:`_FirstOrderLag`)."""
+        T = torch.as_tensor(T, dtype=torch.float64).reshape(-1)
+        a = torch.exp(-h / torch.as_tensor(tau, dtype=torch.float64).reshape(-1))
+        return _FirstOrderLag.apply(a, T)[0]
 
     def mean(self, v, t, inputs):
         h = float(t[1] - t[0]) if t.shape[-1] > 1 else 1.0

@@ -49,8 +49,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from ..fitting.mle import (Fit, centred, exact_loglik, fit_series, located_intervals, refine_exact, refine_frequency,
-                           whittle_fit)
+from ..fitting.mle import (Fit, centred, exact_loglik, fit_series, located_intervals, refine_best, refine_exact,
+                           refine_frequency, whittle_fit)
 from ..noise.components import COMPONENTS, Component, NotScreened, boundary_logsf
 from ..noise.components import candidates as candidates_all
 from ..noise.model import PAPER_MODEL, NoiseModel, parse_model
@@ -161,6 +161,12 @@ class CheckResult:
         return not self.failed
 
     @property
+    def failed_refits(self) -> list[str]:
+        """The effects whose screen passed but whose refit failed to find what the screen saw (an optimiser's
+        failure, not evidence against the effect)."""
+        return [r["effect"] for r in self.screens if r.get("refit_failed")]
+
+    @property
     def failing_ranges_s(self) -> list:
         out = []
         for d in self.diagnostics:
@@ -186,6 +192,8 @@ class CheckResult:
             have = {c.name for _, c in self.model.components}
             out.append({"diagnostic": d.name, "where": d.summary, "ranges": d.ranges, "unit": d.unit,
                         "would_fit": words,
+                        # a failure located in time may be a disturbance of the recording: how to leave it out
+                        "exclude": [f"--exclude {a:.4g}:{b:.4g}" for a, b in d.ranges] if d.domain == "time" else [],
                         "in_library": [n for n in names if n in COMPONENTS and COMPONENTS[n].candidate and (
                             n not in have or COMPONENTS[n].add_again)],
                         "add_by_hand": [n for n in names if n in COMPONENTS and not COMPONENTS[n].candidate
@@ -242,6 +250,10 @@ class CheckResult:
                 s = res.suggestions[0]
                 res.loop_end += (f" ({s.effect} would still gain {s.gain:.1f} BIC, under the {strong:g} an adequate "
                                  f"model's loop asks for)")
+        elif not res.suggestions and res.failed_refits:
+            res.loop_end = (f"not adequate after {added} effect(s) added: failing {', '.join(res.failed)}; the screens "
+                            f"of {', '.join(res.failed_refits)} passed, but their refits failed to find what the "
+                            "screens saw — an optimiser's failure, not evidence that nothing explains it")
         elif not res.suggestions:
             res.loop_end = (f"not adequate after {added} effect(s) added, and no effect of the library passes its "
                             f"screen and lowers BIC: failing {', '.join(res.failed)}")
@@ -267,7 +279,7 @@ class CheckResult:
         for r in self.steps:
             row = {"model": r.model.spec, "adequate": r.adequate, "nll_per_sample": r.metrics["nll_per_sample"],
                    "psd_misfit": r.metrics["psd_misfit"], "adev_misfit": r.metrics["adev_misfit"],
-                   "failed": r.failed, "bic": _bic(r.fit)}
+                   "failed": r.failed, "bic": _bic(r.fit), "seconds": r.seconds, "timings": r.timings}
             if prev is not None:
                 row.update(added=_added(prev.model, r.model), gain=_bic(prev.fit) - _bic(r.fit),
                            repaired=sorted(set(prev.failed) - set(r.failed)),
@@ -284,7 +296,8 @@ class CheckResult:
                 "diagnostics": [d.as_dict() for d in self.diagnostics],
                 "screens": self.screens,
                 "suggestions": [s.as_dict() for s in self.suggestions],
-                "level": self.level, "screen_level": self.screen_level, "seconds": self.seconds,
+                "level": self.level, "screen_level": self.screen_level,
+                "seconds": sum(r.seconds for r in self.steps), "seconds_this_step": self.seconds,
                 "notes": self.notes, "steps": self.step_rows(), "loop_end": self.loop_end,
                 "unexplained": self.unexplained}
 
@@ -442,28 +455,31 @@ def _whittle_screens(model, base, rows_alts, y, h, inputs, cache: dict):
         logp = boundary_logsf(lr, dict(alt.components)[label].screen_df)
         vals = dict(zip(alt.names, wf.values[0].tolist()))
         vals.update(wf.means[0])
+        modes = [{**{n: float(x) for n, x in zip(alt.names, alt.as_matrix(alt.from_unconstrained(u, h))[0])},
+                  **w.means[0]} for w in fits for u, _, _ in (w.modes[0] if w.modes else [])]
         found = dict(statistic=lr, p_value=float(math.exp(logp)), log10_p=float(logp / math.log(10)),
-                     start=vals, metric=wf.hessian[0])
+                     start=vals, metric=wf.hessian[0], modes=modes)
         cache[key] = found
         row.update(found)
 
 
 def check(y, h: float, model=PAPER_MODEL, inputs: dict | None = None, *, level: float = LEVEL,
           screen_level: float = 0.05, candidates=None, fit: Fit | None = None, intervals: bool = True,
-          _restarts: int = 1, _cache: dict | None = None) -> CheckResult:
+          progress=None) -> CheckResult:
     """Fit ``model`` to the series ``y`` (NaN = missing, sample time ``h``), run the diagnostics and rank the
     missing effects (module docstring). ``inputs``: ``{"temperature": (N,)}`` (°C) when there is a temperature
     channel. ``candidates``: the effects to screen (default: every registered candidate,
     :func:`~torchtea.noise.components.candidates`). ``fit``: an existing exact fit of ``model`` to ``y`` to use.
     ``intervals``: compute the intervals of
-    the model's parameters and of the best suggestion's (a finite-difference Hessian each, 1 + 2k² likelihood
-    evaluations for k parameters); the other suggestions' parameters come without.
+    the model's parameters and of the best suggestion's (the observed information, from exact gradients where the
+    sensitivity filter applies); the other suggestions' parameters come without. ``progress(line)``: called with a
+    short line as each stage starts (the CLI shows them).
 
     The model's exact likelihood can have several maxima (a fractional order bent to ≈ 1 mimics a random walk
-    or a low-pass). When a candidate's refit, with its new component taken away, is a better point of the
-    model's own likelihood, the model's fit was a local maximum: it is refined from there and the check run
-    again (``_restarts`` times at most), so that no gain is a mere escape from the model's local maximum; the
-    notes say so."""
+    or a low-pass). Every candidate's refit starts from several places (:func:`_refit`); when a refit, with its new
+    component taken away, is a better point of the model's own likelihood, the model's fit was not its maximum: the
+    model is refined from there and checked again (at most :data:`BASE_RESTARTS` times), so that no gain is a mere
+    escape from the model's local maximum; the notes say so."""
     t0 = time.perf_counter()
     model = parse_model(model)
     y = np.asarray(y, dtype=np.float64)
@@ -473,26 +489,67 @@ def check(y, h: float, model=PAPER_MODEL, inputs: dict | None = None, *, level: 
         for k, v in inputs.items():
             if len(v) != len(y):
                 raise ValueError(f"input channel {k!r} has {len(v)} values, the series {len(y)}")
-    notes = []
-    inp_list = None if inputs is None else [inputs]
-    clock = _Clock()
-    filled = np.where(np.isnan(y), np.nanmean(y), y)
-    # what a run from a better exact fit would compute again unchanged: the model's Whittle fit, the stochastic
-    # candidates' Whittle screens and the refits from the same starts
-    cache = {} if _cache is None else _cache
-    if ("whittle", model.spec) not in cache:
-        cache[("whittle", model.spec)] = whittle_fit(model, [filled], h, inputs=inp_list)
-    wf = cache[("whittle", model.spec)]
+    run = _Run(y, h, inputs, level, progress)
+    say = run.say
+    if ("whittle", model.spec) not in run.cache:
+        say(f"fitting {model.spec} (Whittle)")
+        run.cache[("whittle", model.spec)] = whittle_fit(model, [run.filled], h, inputs=run.inp_list)
+    wf = run.cache[("whittle", model.spec)]
     if fit is None or fit.model.spec != model.spec:
-        fit = fit_series(model, [y], h, method="exact", inputs=inp_list, profile=False, whittle=wf,
+        say(f"fitting {model.spec} (exact likelihood)")
+        fit = fit_series(model, [y], h, method="exact", inputs=run.inp_list, profile=False, whittle=wf,
                          intervals=intervals)[0]
+    run.clock("fit")
+    notes = []
+    for attempt in range(BASE_RESTARTS + 1):
+        res, better = _check_once(run, model, fit, wf, screen_level, candidates, intervals,
+                                  restart=attempt < BASE_RESTARTS)
+        if better is None:
+            break
+        notes.append(f"the exact fit of {model.spec} was not its maximum (ℓ {fit.loglik:.2f}): {better[1]} (ℓ "
+                     f"{better[0].loglik:.2f} after refining), and the check was run from there")
+        fit = better[0]
+    res.notes[:0] = notes
     if not fit.converged:
-        notes.append("the exact fit did not report convergence: diagnostics are at the last iterate")
-    clock("fit")
-    inn, diags, mets = _assess(model, fit.values, y, h, inputs, level)
+        res.notes.append("the exact fit did not report convergence: diagnostics are at the last iterate")
+    res.seconds = time.perf_counter() - t0
+    res.timings = run.clock.laps
+    return res
+
+
+#: How many times :func:`check` refines the model from a candidate's better point and starts again.
+BASE_RESTARTS = 2
+
+
+class _Run:
+    """What one :func:`check` keeps between its passes: the series, the filled series the Whittle likelihood reads,
+    the cache of fits that do not depend on the model's exact fit (the Whittle fits, screens and refits from the same
+    starts), the clock and the progress callback."""
+
+    def __init__(self, y, h, inputs, level, progress):
+        self.y, self.h, self.inputs, self.level = y, h, inputs, level
+        self.inp_list = None if inputs is None else [inputs]
+        self.filled = np.where(np.isnan(y), np.nanmean(y), y)
+        self.cache = {}
+        self.clock = _Clock()
+        self.progress = progress
+
+    def say(self, line: str) -> None:
+        if self.progress is not None:
+            self.progress(line)
+
+
+def _check_once(run: _Run, model, fit: Fit, wf, screen_level, candidates, intervals, restart: bool):
+    """One pass of :func:`check` from the model's exact fit ``fit``: the diagnostics, the screens, the refits, the
+    ranking and the best suggestion's intervals. Returns ``(result, None)``, or ``(None, (better fit, how))`` when
+    ``restart`` and a refit shows that ``fit`` is not the model's maximum."""
+    y, h, inputs, cache, clock = run.y, run.h, run.inputs, run.cache, run.clock
+    run.say(f"diagnostics of {model.spec}")
+    inn, diags, mets = _assess(model, fit.values, y, h, inputs, run.level)
     clock("diagnostics")
     effects = [c for c in (candidates_all() if candidates is None else candidates)
                if c in COMPONENTS and COMPONENTS[c].candidate]
+    run.say(f"screening {len(effects)} effects")
     screens = _screen(model, fit, wf, inn, diags, y, h, inputs, effects, cache)
     clock("screen")
     screened = [r for r in screens if r["p_value"] is not None]
@@ -503,77 +560,65 @@ def check(y, h: float, model=PAPER_MODEL, inputs: dict | None = None, *, level: 
     for row in screened:
         row["passed"] = bool(row["p_value"] < threshold)
         row["threshold"] = threshold
-        if not row["passed"]:
-            continue
+    passed = [r for r in screened if r["passed"]]
+    for k, row in enumerate(passed):
+        run.say(f"refitting {model.spec}+{row['effect']} ({k + 1}/{len(passed)})")
         alt = extend(model, row["token"])
         label = _new_label(model, alt)
         # what the components hold (a temperature reference; the new line's frequency at the refined periodogram
         # peak, which still counts as an estimated parameter in BIC)
         estimates = {**_held(alt, label), **alt.located()}
         fixed = [n for n in alt.names if n in alt.references() or n in estimates]
-        metric = row.pop("metric", None)
-        start = row["start"]
-        if metric is None:  # a mean or modifier effect: the noise parameters from the extended model's Whittle
-            # fit (what the effect distorted in the model's fit is undone there), the effect's from the screen
-            # (from the grid too: a mean the model lacked can have pushed its fit to the other mode of the
-            # order–pole ridge, and the extended model's optimum is then on the first)
-            key = ("whittle", alt.spec)
-            if key not in cache:  # (a mean's own values are its least squares there; a stochastic effect with a
-                # screen of its own — a resonance — starts from the screen's)
-                new = {n: start[n] for n in alt.names if n not in model.names}
-                cache[key] = whittle_fit(alt, [filled], h, inputs=inp_list, fractions=(0.5,),
-                                         starts=[[{**new, **dict(zip(model.names, wf.values[0].tolist()))}]])
-            wfa = cache[key]
-            held = model.located()  # (a step's time, spikes: held where the model's fit has them)
-            # (the new component's own values stay the screen's: a resonance's Whittle fit can narrow its band onto
-            # one periodogram ordinate, which the exact likelihood does not follow)
-            noise = {n: x for n, x in zip(alt.names, wfa.values[0].tolist()) if n in model.names and n not in held}
-            start, metric = {**start, **noise}, wfa.hessian[0]
-        key = ("refit", alt.spec, tuple(sorted((k, float(v)) for k, v in start.items())))
-        if key not in cache:
-            cache[key] = refine_exact(alt, y, h, start, inputs=inputs, fixed=fixed, metric=metric, intervals=False)
-        f2 = copy.deepcopy(cache[key])  # the frequency's bookkeeping below changes the fit
-        if not f2.loglik >= fit.loglik - NESTED_SLACK:
-            f2 = _nested_refit(model, alt, label, fit, f2, row, y, h, inputs, fixed, cache)
+        f2 = _refit(run, model, alt, label, fit, wf, row, fixed)
         refits.append(f2)
         _counted(f2, estimates)
         gain = _bic(fit) - _bic(f2)
+        lr = 2.0 * (f2.loglik_exact - fit.loglik_exact)
+        if restart:  # the effect at its null value: what the refit gained is the model's own
+            base_there = _model_at(model, f2, y, h, inputs)
+            if base_there > fit.loglik + BASE_SLACK and f2.loglik - base_there < NULL_EFFECT:
+                better = _refined_model(model, fit, f2, y, h, inputs, intervals)
+                if better is not None:
+                    return None, (better, f"{row['effect']}'s refit put {row['effect']} at its null value (its "
+                                          f"share of ℓ {f2.loglik - base_there:.2f} nats), the rest at a better "
+                                          "point of the model's own likelihood")
         if gain <= 0:
-            _add_note(row, f"passed the screen but the exact refit does not lower BIC (gain {gain:.1f}): "
-                           "not suggested")
+            if row["statistic"] is not None and lr < 0.5 * row["statistic"] - FIT_FAILED_SLACK:
+                _add_note(row, f"passed its screen (LR {row['statistic']:.1f}), but the exact refit gains only "
+                               f"{lr:.1f} in 2ℓ (BIC gain {gain:.1f}): the refit failed to find what the screen "
+                               "saw — an optimiser's failure, not evidence against the effect; not suggested")
+                row["refit_failed"] = True
+            else:
+                _add_note(row, f"passed the screen but the exact refit does not lower BIC (gain {gain:.1f}): "
+                               "not suggested")
             continue
-        _, d2, m2 = _assess(alt, f2.values, y, h, inputs, level)
+        _, d2, m2 = _assess(alt, f2.values, y, h, inputs, run.level)
         repairs = sorted(failed_before & {d.name for d in d2 if d.passed})
         suggestions.append(Suggestion(row["effect"], float(gain), row["p_value"], row["test"], f2, d2, m2, repairs,
                                       label))
     for row in screens:
-        row.pop("metric", None)
-        row.pop("start", None)
+        for k in ("metric", "start", "modes"):
+            row.pop(k, None)
     clock("refits")
-    if refits and _restarts > 0:
+    if refits and restart:
         better = _better_model_fit(model, fit, refits, y, h, inputs, intervals)
         if better is not None:
-            res = check(y, h, model=model, inputs=inputs, level=level, screen_level=screen_level,
-                        candidates=candidates, fit=better, intervals=intervals, _restarts=_restarts - 1, _cache=cache)
-            res.notes.insert(0, f"the first exact fit of {model.spec} was a local maximum (ℓ {fit.loglik:.2f}); a "
-                                f"candidate's refit without its new component was a better point (ℓ "
-                                f"{better.loglik:.2f} after refining), and the check was run from there")
-            res.seconds = time.perf_counter() - t0
-            return res
+            return None, (better, "a candidate's refit without its new component was a better point")
     suggestions = rank(suggestions, failed_before)
-    if intervals and suggestions:  # the best suggestion's intervals (a finite-difference Hessian: 1 + 2k² fits)
+    if intervals and suggestions:  # the best suggestion's intervals (the observed information)
+        run.say(f"intervals of {suggestions[0].fit.model.spec}")
         top = suggestions[0]
         f = top.fit
         held = _held(f.model, "*")
         fixed = [n for n in f.model.names if n not in f.free or n in held]
         top.fit = refine_exact(f.model, y, h, f.values, inputs=inputs, fixed=fixed, metric=f.hessian, intervals=True)
+        top.fit.notes[:0] = f.notes
         _counted(top.fit, {n: f.ci95_method[n] for n in held if n in f.free})
         for n, (c, words) in located_intervals(f.model, top.fit.values, y, h, inputs).items():
             if n in top.fit.free:
                 top.fit.ci95[n], top.fit.ci95_method[n] = c, words
     clock("intervals")
-    return CheckResult(y, h, inputs, fit, inn, diags, mets, screens, suggestions, level, screen_level,
-                       time.perf_counter() - t0, notes, timings=clock.laps)
+    return CheckResult(y, h, inputs, fit, inn, diags, mets, screens, suggestions, run.level, screen_level, 0.0, []), None
 
 
 #: A suggestion that repairs a failed diagnostic its effect explains (``Component.explains``: a temperature effect
@@ -648,64 +693,131 @@ def _add_note(row: dict, text: str) -> None:
 
 
 #: A refit of the extended model whose ℓ is more than this many nats below the model's fit has failed (the
-#: extended model contains the model, so its maximum is at least the model's): it is refitted from the model's fit.
+#: extended model contains the model, so its maximum is at least the model's).
 NESTED_SLACK = 0.5
+#: A point of the model's own likelihood better than its fit by more than this many nats shows that the fit was not
+#: the model's maximum.
+BASE_SLACK = 0.5
+#: A refit whose new component adds less than this many nats to the likelihood at its other values has put the
+#: effect at its null value (half the χ²₁ 95 % point): what it gained over the model is the model's own.
+NULL_EFFECT = 1.92
+#: A refit whose likelihood-ratio falls more than this short of half its screen's statistic, and that lowers no BIC,
+#: has failed to find what the screen saw (the screen's statistic is a likelihood-ratio too, of a cheaper likelihood
+#: or with the model held).
+FIT_FAILED_SLACK = 5.0
 
 
-def _nested_refit(model, alt, label, fit: Fit, f2: Fit, row: dict, y, h, inputs, fixed, cache: dict) -> Fit:
-    """The extended model ``alt`` refitted from the point where it is the model at its fit ``fit``: the model's
-    values, a mean or modifier effect's parameters at the screen's estimate (given the model's values), a stochastic
-    one's where it vanishes (:meth:`~torchtea.noise.components.Component.vanishing`). Returns the better of this and
-    the failed refit ``f2``; the row's note says what happened."""
+def _refit(run: _Run, model, alt, label, fit: Fit, wf, row: dict, fixed: list) -> Fit:
+    """The extended model ``alt`` (the model with the component ``label``) fitted by exact likelihood from several
+    starts (:func:`~torchtea.fitting.mle.refine_best`), the best kept:
+
+    - the screen's start: the component's values from its screen, the model's from the screen's Whittle fit (a
+      stochastic effect) or from the extended model's Whittle fit (a mean or modifier: what the effect distorted in
+      the model's fit is undone there); and, for a stochastic effect, the model's exact fit with the component at
+      the screen's values;
+    - the nested start: the model at its fit with the effect where it vanishes (a stochastic one,
+      :meth:`~torchtea.noise.components.Component.vanishing`) or at the screen's estimate given the model (a mean),
+      whose ℓ is the model's — a refit can only gain from it — and the same with the effect at its starting
+      strengths;
+    - for a stochastic effect, the extended model's own Whittle fit from its multi-start grid, each of its modes:
+      where the model's fit is degenerate (its order at a bound, a variance collapsing, the fractional part standing
+      in for the missing effect), the extended model's optimum lies elsewhere, and starting from the model's fit
+      stays on the model's mode.
+
+    The row's note says which start won when it was not the screen's."""
+    y, h, inputs, cache = run.y, run.h, run.inputs, run.cache
     comp = dict(alt.components)[label]
     new = [n for n in alt.names if n not in model.names]
+    base = dict(fit.values)
+    start = dict(row["start"])
+    row.pop("metric", None)
+    starts = []
     if comp.kind in ("mean", "modifier"):
-        effects = [{n: row["start"][n] for n in new if n in row["start"]}]
-    else:  # where it vanishes (ℓ = the model's: the guarantee), and at its strengths (a flat start in log σ
-        # converges at once; a strength lets the refit find the effect)
-        effects = [comp.vanishing(label, model, dict(fit.values), h, len(y))]
-        effects += comp.strengths(label, model, dict(fit.values), h, len(y))
-    starts = [{**dict(fit.values), **e} for e in effects if set({**dict(fit.values), **e}) == set(alt.names)]
-    if not starts:  # the effect does not say where it vanishes: nothing to refit from
-        _add_note(row, f"the refit ended at ℓ {f2.loglik:.2f}, below the model's {fit.loglik:.2f}: an optimiser "
-                       f"failure (the models are nested), and {comp.name} does not say where it vanishes")
-        return f2
-    metric = None
-    if fit.hessian is not None:  # the model's curvature; the new parameters' own is found by differences
-        idx = [alt.names.index(n) for n in model.names]
-        metric = torch.zeros(len(alt.names), len(alt.names), dtype=torch.float64)
-        metric[np.ix_(idx, idx)] = fit.hessian.to(torch.float64)
-    runs = []
-    for start in starts:
-        key = ("nested refit", alt.spec, tuple(sorted((k, float(v)) for k, v in start.items())))
-        if key not in cache:
-            cache[key] = refine_exact(alt, y, h, start, inputs=inputs, fixed=fixed, metric=metric, intervals=False)
-        runs.append(cache[key])
-    f3 = copy.deepcopy(max(runs, key=lambda f: f.loglik if math.isfinite(f.loglik) else -math.inf))
-    better = f3 if f3.loglik > f2.loglik or not math.isfinite(f2.loglik) else f2
-    how = ("at the screen's estimate" if comp.kind in ("mean", "modifier") else
-           "vanishing and at its starting strengths, the best kept")
-    _add_note(row, f"the first refit ended at ℓ {f2.loglik:.2f}, below the model's {fit.loglik:.2f} — an optimiser "
-                   "failure, not evidence (the extended model contains the model); refitted from the model's fit "
-                   f"with {comp.name} {how}: ℓ {f3.loglik:.2f}")
-    return better
+        key = ("whittle", alt.spec)
+        if key not in cache:  # (a mean's own values are its least squares there)
+            cache[key] = whittle_fit(alt, [run.filled], h, inputs=run.inp_list, fractions=(0.5,),
+                                     starts=[[{**{n: start[n] for n in new},
+                                               **dict(zip(model.names, wf.values[0].tolist()))}]])
+        wfa = cache[key]
+        held = model.located()  # (a step's time, spikes: held where the model's fit has them)
+        noise = {n: x for n, x in zip(alt.names, wfa.values[0].tolist()) if n in model.names and n not in held}
+        starts.append(("the screen's start", {**start, **noise}))
+        starts.append(("the model's fit with the effect at the screen's estimate",
+                       {**base, **{n: start[n] for n in new if n in start}}))
+        for k, (u, _, _) in enumerate(wfa.modes[0][1:] if wfa.modes else []):  # (its best is the screen's start's)
+            other = {n: float(x) for n, x in zip(alt.names, alt.as_matrix(alt.from_unconstrained(u, h))[0])
+                     if n in model.names and n not in held}
+            starts.append((f"the extended model's Whittle mode {k + 2}", {**start, **other}))
+    else:
+        starts.append(("the screen's start", start))
+        # the model's exact fit with the new component at the screen's values: the screen's Whittle fit moves the
+        # model's own components too, which the exact likelihood need not follow (a resonance narrowed onto one
+        # periodogram ordinate)
+        starts.append(("the model's fit with the effect at the screen's values",
+                       {**base, **{n: start[n] for n in new if n in start}}))
+        vanish = comp.vanishing(label, model, base, h, len(y))
+        if vanish:
+            starts.append(("the model's fit with the effect vanishing", {**base, **vanish}))
+        for k, s_ in enumerate(comp.strengths(label, model, base, h, len(y))):
+            starts.append((f"the model's fit with the effect at strength {k + 1}", {**base, **s_}))
+        modes = row.pop("modes", None)  # (the Whittle screen's fits of the extended model)
+        if modes is None and alt.stationary and not np.isnan(y).any():
+            key = ("whittle", alt.spec)
+            if key not in cache:
+                cache[key] = whittle_fit(alt, [centred(model, y)], h, inputs=run.inp_list)
+            wfa = cache[key]
+            modes = [{**{n: float(x) for n, x in zip(alt.names, alt.as_matrix(alt.from_unconstrained(u, h))[0])},
+                      **wfa.means[0]} for u, _, _ in (wfa.modes[0] if wfa.modes else [])]
+        for k, v in enumerate(modes or []):
+            starts.append((f"the extended model's Whittle mode {k + 1}", v))
+    starts = [(name, v) for name, v in starts if set(v) >= set(alt.names)]
+    key = ("refit", alt.spec, tuple((name, tuple(sorted((k, float(x)) for k, x in v.items()))) for name, v in starts))
+    if key not in cache:
+        must = [name for name, _ in starts[:3]]
+        cache[key] = refine_best(alt, y, h, starts, inputs=inputs, fixed=fixed, must=must)
+    f2, tried = cache[key]
+    f2 = copy.deepcopy(f2)
+    winner = max(tried, key=lambda t: t[2])
+    if winner[0] != starts[0][0]:
+        there = next((t[2] for t in tried if t[0] == starts[0][0]), None)
+        there = "not refined (its ℓ far below the others')" if there is None else (
+            f"{there:.2f}" if math.isfinite(there) else "−∞: no finite likelihood")
+        _add_note(row, f"refitted from {len(tried)} starts; the best from {winner[0]} (ℓ {winner[2]:.2f}; from the "
+                       f"screen's start {there})")
+    if not f2.loglik >= fit.loglik - NESTED_SLACK:
+        _add_note(row, f"every refit ended below the model's ℓ {fit.loglik:.2f} (best {f2.loglik:.2f}): an optimiser "
+                       "failure (the models are nested)")
+    return f2
+
+
+def _model_at(model, f2: Fit, y, h, inputs) -> float:
+    """The model's exact ℓ at the values a refit of an extended model gives the model's parameters."""
+    ll = exact_loglik(model, {n: [f2.values[n]] for n in model.names}, centred(model, y), h, inputs=inputs)
+    return float(ll[0]) if np.isfinite(ll[0]) else -math.inf
+
+
+def _refined_model(model, fit: Fit, f2: Fit, y, h, inputs, intervals: bool) -> Fit | None:
+    """The model refined from the values a refit gives its parameters, if that beats ``fit`` by more than
+    :data:`BASE_SLACK` (else None)."""
+    located = model.located()
+    fixed = [n for n in model.names if n not in fit.free or n in located]
+    new = refine_exact(model, y, h, {n: f2.values[n] for n in model.names}, inputs=inputs, fixed=fixed,
+                       metric=fit.hessian, intervals=intervals)
+    _counted(new, located)
+    return new if new.loglik > fit.loglik + BASE_SLACK else None
 
 
 def _better_model_fit(model, fit: Fit, refits: list, y, h, inputs, intervals: bool) -> Fit | None:
     """The model refined from the best of the refits' values of its own parameters, if that beats ``fit`` by
-    more than 0.5 nats (else None)."""
+    more than :data:`BASE_SLACK` (else None)."""
     points = [{n: f.values[n] for n in model.names} for f in refits]
     vals = {n: [p[n] for p in points] for n in model.names}
     ll = exact_loglik(model, vals, centred(model, y), h, inputs=inputs)
     ll = np.where(np.isfinite(ll), ll, -np.inf)
     best = int(np.argmax(ll))
-    if not ll[best] > fit.loglik + 0.5:
+    if not ll[best] > fit.loglik + BASE_SLACK:
         return None
-    located = model.located()
-    fixed = [n for n in model.names if n not in fit.free or n in located]
-    new = refine_exact(model, y, h, points[best], inputs=inputs, fixed=fixed, metric=fit.hessian, intervals=intervals)
-    _counted(new, located)
-    return new if new.loglik > fit.loglik + 0.5 else None
+    return _refined_model(model, fit, refits[best], y, h, inputs, intervals)
 
 
 class _Clock:

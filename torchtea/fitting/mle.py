@@ -29,14 +29,15 @@ import torch
 from torch import Tensor
 
 from ..core.search import refine_frequency, remove_regressors
-from .exact import FIT_MEMORY, ExactPass, centred, exact_loglik, exact_pass, unknown_level
+from .exact import (FIT_MEMORY, ExactPass, centred, exact_loglik, exact_loglik_grad, exact_pass, gradient_supported,
+                    unknown_level)
 from .innovations import located_intervals
 from ..likelihood.settings import current as likelihood_settings
 from ..likelihood.whittle import RESOLUTION, WhittleData, periodogram, whittle_data
 from ..noise.model import NoiseModel, parse_model
 from .optimize import newton
 
-__all__ = ["Fit", "WhittleFit", "fit_series", "located_intervals", "refine_exact", "regress_mean", "whittle_fit", "exact_loglik", "profile_order", "METHODS",
+__all__ = ["Fit", "WhittleFit", "fit_series", "located_intervals", "refine_exact", "refine_best", "regress_mean", "whittle_fit", "exact_loglik", "profile_order", "METHODS",
            "Z95", "CHI2_95",
            # defined in .exact, .innovations and core.search, imported from here too
            "FIT_MEMORY", "ExactPass", "exact_pass", "centred", "unknown_level", "refine_frequency", "remove_regressors"]
@@ -267,9 +268,224 @@ def whittle_fit(model, series: list, h: float, *, inputs: list | None = None, fi
 # --------------------------------------------------------------------------- exact
 
 
+def _scoring_objective(model, y, h, base: Tensor, idx: np.ndarray, inputs, memory):
+    """−ℓ ``(K,)``, its gradient ``(K, F)`` and the scoring information ``(K, F, F)`` at K points at once, each point the
+    free coordinates ``idx`` of ``base`` (unconstrained), by the sensitivity filter
+    (:func:`~.exact.exact_loglik_grad`); +1e300 (zero gradient and information) where ℓ is not finite."""
+    def vgi(points: np.ndarray):
+        U = base.repeat(points.shape[0], 1)
+        U[:, idx] = torch.as_tensor(points)
+        ll, gr, info = exact_loglik_grad(model, U, y, h, idx, inputs=inputs, memory=memory)
+        bad = ~(np.isfinite(ll) & np.isfinite(gr).all(-1) & np.isfinite(info).all((-1, -2)))
+        f = np.where(bad, 1e300, -ll)
+        g = np.where(bad[:, None], 0.0, -gr)
+        info = np.where(bad[:, None, None], 0.0, info)
+        return f, g, info
+    return vgi
+
+
+#: The scoring iterations' Levenberg–Marquardt damping (relative to the information's diagonal): its start, and the
+#: bound beyond which the iteration has stalled.
+SCORING_DAMPING = (1e-3, 1e8)
+#: Central-difference step (unconstrained coordinates) of the observed information from the sensitivity filter's
+#: gradients. The gradients carry no differencing error, so the step only trades truncation (O(d²)) against the
+#: gradients' rounding; standard errors agree to 0.1 % for steps 10⁻⁴–10⁻³ (tests/test_gradient.py).
+INFORMATION_STEP = 3e-4
+
+
+def _exact_score(model, y, h, u0: Tensor, free: Tensor, inputs, memory, max_iter: int = 60, hessian: bool = True):
+    """Maximise the exact likelihood over the ``free`` unconstrained coordinates from ``u0`` by the method of scoring
+    with exact gradients (:func:`_score_batch` from one start). Returns what :func:`_exact_refine` returns; the
+    Hessian is the observed information, by central differences of the exact gradients
+    (:func:`_information_from_gradients`)."""
+    X, f, ok, iterations = _score_batch(model, y, h, u0.unsqueeze(0), free, inputs, memory, max_iter)
+    u = u0.clone()
+    u[free] = torch.as_tensor(X[0])
+    H = _exact_hessian(model, y, h, u, free, inputs, memory) if hessian else None
+    return u, -float(f[0]), H, bool(ok[0]), int(iterations[0])
+
+
+#: The scoring iterations stop once this many accepted steps in a row each gained less than the decrement tolerance:
+#: the likelihood no longer moves by what its rounding can tell (a parameter running to its bound — a variance to
+#: zero, an order to 1 — keeps a constant predicted decrement along its log or logit while its real gains vanish).
+STALL_STEPS = 2
+
+
+#: Step lengths the scoring iterations try along each direction, as one batch of likelihood values (the longest that
+#: lowers −ℓ enough is taken).
+SCORING_STEPS = (1.0, 0.25, 0.0625, 0.015625)
+#: A start still running is left where it is once, at its pace over the last RACE_WINDOW iterations, it cannot come
+#: within RACE_MARGIN nats of a finished start's ℓ in its iterations left (:func:`_score_batch`).
+RACE_WINDOW, RACE_MARGIN = 5, 2.0
+#: The scoring iterations keep every logit (a bounded parameter's, the pole's fraction, a frequency's share of
+#: Nyquist) within ±this (:func:`_score_batch`).
+LOGIT_BOUND = 12.0
+#: Two full scoring steps in a row whose decrement is above this fraction of the one before: linear convergence, and
+#: the metric starts learning from the gradients (:func:`_score_batch`).
+SLOW_RATIO = 0.5
+
+
+def _score_batch(model, y, h, U0: Tensor, free: Tensor, inputs, memory, max_iter: int = 60):
+    r"""The method of scoring from K starts ``U0`` ``(K, P)`` at once (their likelihoods evaluated as one batch, the
+    finished ones left out): directions :math:`-(\mathcal I + \mu\,\mathrm{diag}\,\mathcal I)^{-1} g` on the
+    scoring information of the sensitivity filter (:func:`~.exact.exact_loglik_grad`), capped at 3 in the
+    unconstrained coordinates, and along each the longest of :data:`SCORING_STEPS` that lowers −ℓ by a tenth of what
+    the information predicts (Armijo: the full steps of all starts in one batch of likelihood values, the shorter
+    ones, in a second, only where the full one fails); each start's damping μ shrunk
+    after a full step and grown after none (Levenberg–Marquardt). A start has converged when its decrement
+    ½ gᵀ𝓘⁻¹g (the −ℓ still to gain on the information) is below :func:`decrement_tolerance`, or after
+    :data:`STALL_STEPS` steps in a row that each gained less. A start still running is left where it is once it is
+    within :data:`MODE_DISTANCE` of a finished one, below it, or once at its recent pace it cannot reach a finished
+    one's ℓ in the iterations it has left (:data:`RACE_WINDOW`, :data:`RACE_MARGIN`): the batch does not wait for a
+    start that cannot end higher.
+    Returns the free coordinates ``(K, F)``, −ℓ ``(K,)``, converged ``(K,)`` and iterations ``(K,)``."""
+    idx = free.nonzero().squeeze(-1).numpy()
+    U0 = U0.detach().to(torch.float64)
+    if not bool((U0[:, ~free] == U0[0, ~free]).all()):
+        raise ValueError("the starts of one scoring batch share their fixed coordinates")
+    vgi = _scoring_objective(model, y, h, U0[0].clone(), idx, inputs, memory)
+    values = _objective(model, y, h, U0[0].clone(), idx, inputs, memory)
+    X = U0[:, idx].numpy().copy()
+    K = len(X)
+    # a logit past ±LOGIT_BOUND is a parameter at its bound (an order within 6·10⁻⁶ of 0 or 1, a pole at its
+    # stability limit or at 0): the steps stop there instead of wandering along a flat boundary
+    bounded = np.array([model.param_spec(model.names[i]).kind in ("bounded", "fraction", "nyquist") for i in idx])
+    lim = np.where(bounded, LOGIT_BOUND, np.inf)
+    X = np.clip(X, -lim, lim)
+    f, g, info = vgi(X)
+    # the metric of each start's steps: the scoring information, until the steps converge only linearly (each full
+    # step gains what the information predicts, but the prediction shrinks slowly: the information overstates the
+    # curvature along some direction — the misspecified part of a model, a mean's second derivatives), then
+    # BFGS-updated from the exact gradients' changes, which learn that curvature (back to the information when a
+    # learnt direction fails)
+    metric = info.copy()
+    history = [[x] for x in f]
+    learning = np.zeros(K, dtype=bool)
+    slow = np.zeros(K, dtype=int)
+    last_dec = np.full(K, np.inf)
+    mu = np.full(K, SCORING_DAMPING[0])
+    ok = np.zeros(K, dtype=bool)
+    done = f >= 1e300
+    stalls = np.zeros(K, dtype=int)
+    iterations = np.zeros(K, dtype=int)
+    tol = np.array([decrement_tolerance(x) for x in f])
+    ts = np.array(SCORING_STEPS)
+    for _ in range(max_iter):
+        active = np.nonzero(~done)[0]
+        if not len(active):
+            break
+        steps, decs = [], []
+        for k in active:
+            d = np.diag(metric[k])
+            floor = 1e-12 * max(float(d.max()), 1e-300)
+            A = metric[k] + np.diag(mu[k] * np.maximum(d, floor) + floor)
+            try:
+                step = -np.linalg.solve(A, g[k])
+            except np.linalg.LinAlgError:
+                step = -g[k] / (np.maximum(d, floor) * (1 + mu[k]))
+            decs.append(-0.5 * float(g[k] @ step))
+            big = float(np.max(np.abs(step))) if len(step) else 0.0
+            steps.append(step * (3.0 / big) if big > 3.0 else step)
+        decs = np.array(decs)
+        conv = (decs < tol[active]) & (mu[active] <= SCORING_DAMPING[0])
+        ok[active[conv]] = done[active[conv]] = True
+        keep = ~conv
+        active, decs = active[keep], decs[keep]
+        steps = np.stack([st for st, c in zip(steps, keep) if c]) if len(active) else None
+        if not len(active):
+            break
+        iterations[active] += 1
+        trials = np.clip(X[active][:, None, :] + ts[None, :, None] * steps[:, None, :], -lim, lim)  # (A, T, F)
+        slope = np.einsum("af,af->a", g[active], steps)  # the directional derivative of −ℓ (negative)
+        # the full step of every start first, the shorter ones only for the starts where it fails
+        fv = np.full((len(active), len(ts)), np.inf)
+        fv[:, 0] = values(trials[:, 0])
+        retry = ~(fv[:, 0] <= f[active] + 0.1 * slope)
+        if retry.any():
+            fv[retry, 1:] = values(trials[retry, 1:].reshape(-1, X.shape[1])).reshape(int(retry.sum()), len(ts) - 1)
+        good = fv <= f[active][:, None] + 0.1 * ts[None, :] * slope[:, None]
+        moved = good.any(axis=1)
+        pick = np.argmax(good, axis=1)  # the longest step that is good enough
+        rows = active[moved]
+        if len(rows):
+            chosen = trials[moved, pick[moved]]
+            fn, gn, In = vgi(chosen)
+            for j, k in enumerate(rows):
+                if not fn[j] <= f[k]:  # (the two kernels' values differ by rounding: a tie at the noise)
+                    mu[k] *= 8.0
+                    continue
+                gained = f[k] - fn[j]
+                full = pick[moved][j] == 0
+                s_, y_ = chosen[j] - X[k], gn[j] - g[k]
+                if learning[k]:
+                    sy = float(s_ @ y_)
+                    if sy > 1e-12 * float(np.linalg.norm(s_) * np.linalg.norm(y_)):
+                        Ms = metric[k] @ s_
+                        metric[k] = metric[k] - np.outer(Ms, Ms) / float(s_ @ Ms) + np.outer(y_, y_) / sy
+                else:
+                    metric[k] = In[j]
+                    slow[k] = slow[k] + 1 if full and decs[j] > SLOW_RATIO * last_dec[k] else 0
+                    if slow[k] >= 2:
+                        learning[k] = True
+                last_dec[k] = decs[j]
+                X[k], f[k], g[k], info[k] = chosen[j], fn[j], gn[j], In[j]
+                mu[k] = max(mu[k] / 4.0, 1e-9) if full else mu[k]
+                stalls[k] = stalls[k] + 1 if gained < tol[k] else 0
+                if stalls[k] >= STALL_STEPS:
+                    ok[k] = done[k] = True
+        for j, k in enumerate(active[~moved]):
+            if decs[~moved][j] < NOISE_DECREMENTS * tol[k]:  # nothing to gain that ℓ's rounding can tell
+                ok[k] = done[k] = True
+                continue
+            if learning[k]:  # the learnt metric failed: back to the scoring information
+                learning[k], slow[k], metric[k] = False, 0, info[k]
+                continue
+            mu[k] *= 8.0
+            if mu[k] >= SCORING_DAMPING[1]:  # no step lowers −ℓ: at the rounding noise of ℓ that is convergence
+                ok[k] = decs[~moved][j] < NOISE_DECREMENTS * tol[k]
+                done[k] = True
+        # a start heading for the maximum a finished start has reached is left there: it cannot end higher. (A start
+        # far below a finished one is not: its decrement, the −ℓ it can gain where ℓ is near quadratic, says nothing
+        # of how far it climbs from far away — one 184 nats below a finished start ended 2.6 nats above it.)
+        # Nor is one that, at the pace of its last RACE_WINDOW iterations, cannot reach a finished start's ℓ within its
+        # iterations left: a start that wanders along a flat ridge far below.
+        finished = np.nonzero(done & ok)[0]
+        for k in active:
+            history[k].append(f[k])
+            if done[k] or not len(finished):
+                continue
+            top = finished[np.argmin(f[finished])]
+            near = any(f[k] >= f[j] and float(np.max(np.abs(np.clip(X[k], -8, 8) - np.clip(X[j], -8, 8))))
+                       <= MODE_DISTANCE for j in finished)
+            pace = (history[k][-RACE_WINDOW - 1] - f[k]) / RACE_WINDOW if len(history[k]) > RACE_WINDOW else np.inf
+            behind = f[k] - f[top] > RACE_MARGIN + pace * (max_iter - iterations[k])
+            if near or behind:
+                done[k] = True
+    return X, f, ok, iterations
+
+
+def _information_from_gradients(model, y, h, u: Tensor, free: Tensor, inputs, memory) -> Tensor:
+    """The observed information (the Hessian of −ℓ) at ``u`` over the ``free`` coordinates by central differences of
+    the exact gradients: 2F sensitivity passes in one batch instead of the 1 + 2F² likelihood passes of
+    :func:`_exact_hessian`; zero rows and columns for the others ``(P, P)``."""
+    idx = free.nonzero().squeeze(-1).numpy()
+    vgi = _scoring_objective(model, y, h, u.clone(), idx, inputs, memory)
+    x = u[idx].numpy()
+    p = len(idx)
+    E = np.eye(p) * INFORMATION_STEP
+    _, g, _ = vgi(np.concatenate([x + E, x - E]))
+    H = ((g[:p] - g[p:]) / (2 * INFORMATION_STEP)).T
+    H = 0.5 * (H + H.T)
+    Hfull = torch.zeros(len(u), len(u), dtype=torch.float64)
+    Hfull[np.ix_(idx, idx)] = torch.as_tensor(H)
+    return Hfull
+
+
 def _exact_refine(model, y, h, u0: Tensor, free: Tensor, inputs, memory, metric: Tensor | None = None,
                   max_iter: int = 30, hessian: bool = True):
-    """Maximise the exact likelihood over the ``free`` unconstrained coordinates from ``u0``.
+    """Maximise the exact likelihood over the ``free`` unconstrained coordinates from ``u0``: by scoring with exact
+    gradients (:func:`_exact_score`) where the sensitivity filter applies (:func:`~.exact.gradient_supported`), else
+    as follows.
 
     With a positive-definite ``metric`` (the Whittle fit's Hessian of −ℓ, which approximates the exact one
     on a long series) the steps are quasi-Newton steps on it, with central-difference gradients of the
@@ -282,6 +498,8 @@ def _exact_refine(model, y, h, u0: Tensor, free: Tensor, inputs, memory, metric:
     L-BFGS-B does the work. ``converged``: the quasi-Newton decrement on the metric fell below
     :func:`decrement_tolerance` (10⁻⁶ nats up to ~50 000 samples), else L-BFGS-B's success. Returns ``(u, ℓ, Hessian of −ℓ, converged, iterations)``; the Hessian by
     central differences (:func:`_fd_hessian`), or None with ``hessian=False``."""
+    if gradient_supported(model, y) is None:
+        return _exact_score(model, y, h, u0, free, inputs, memory, hessian=hessian)
     idx = free.nonzero().squeeze(-1).numpy()
     p = len(idx)
     base = u0.clone()
@@ -391,8 +609,11 @@ def _objective(model, y, h, base: Tensor, idx: np.ndarray, inputs, memory):
 
 
 def _exact_hessian(model, y, h, u: Tensor, free: Tensor, inputs, memory) -> Tensor:
-    """The Hessian of the exact −ℓ at ``u`` over the ``free`` coordinates by central differences
-    (:func:`_fd_hessian`), zero rows and columns for the others ``(P, P)``."""
+    """The Hessian of the exact −ℓ at ``u`` over the ``free`` coordinates: central differences of the exact gradients
+    (:func:`_information_from_gradients`) where the sensitivity filter applies, else of ℓ itself
+    (:func:`_fd_hessian`); zero rows and columns for the others ``(P, P)``."""
+    if gradient_supported(model, y) is None:
+        return _information_from_gradients(model, y, h, u, free, inputs, memory)
     idx = free.nonzero().squeeze(-1).numpy()
     H = _fd_hessian(_objective(model, y, h, u.clone(), idx, inputs, memory), u[idx].numpy().copy())
     Hfull = torch.zeros(len(u), len(u), dtype=torch.float64)
@@ -416,14 +637,18 @@ def _exact_multistart(model, y, h, modes: list, free: Tensor, inputs, memory, he
         ll0 = np.where(np.isfinite(ll0), ll0, -np.inf)
         order = [int(i) for i in np.argsort(-ll0) if ll0[i] >= ll0.max() - EXACT_MODE_MARGIN]
         modes = [modes[i] for i in order]
-    if len(modes) == 1:
-        u, ll, H, ok, _ = _exact_refine(model, y, h, modes[0][0].clone(), free, inputs, memory, modes[0][2],
-                                        hessian=hessian)
-        return u, ll, H, ok, notes
-    runs = [_exact_refine(model, y, h, m[0].clone(), free, inputs, memory, m[2], hessian=False) for m in modes]
+    if len(modes) == 1 or gradient_supported(model, y) is not None:
+        runs = [_exact_refine(model, y, h, m[0].clone(), free, inputs, memory, m[2], hessian=False) for m in modes]
+    else:  # every mode's scoring iterations as one batch
+        U0 = torch.stack([m[0] for m in modes])
+        X, f, ok, its = _score_batch(model, y, h, U0, free, inputs, memory)
+        runs = []
+        for k in range(len(modes)):
+            u = U0[k].clone()
+            u[free] = torch.as_tensor(X[k])
+            runs.append((u, -float(f[k]), None, bool(ok[k]), int(its[k])))
     best = max(range(len(runs)), key=lambda i: runs[i][1] if math.isfinite(runs[i][1]) else -math.inf)
     u, ll, _, ok, _ = runs[best]
-    lls = sorted((r[1] for r in runs), reverse=True)
     if best != 0:
         notes.append(f"the exact likelihood's best maximum (ℓ {ll:.2f}) came from the Whittle fit's mode number "
                      f"{best + 1} of {len(runs)}, not from its best one (exact ℓ there {runs[0][1]:.2f})")
@@ -506,6 +731,10 @@ def _intervals(model: NoiseModel, u: Tensor, H: Tensor, free: Tensor, h: float):
         else:
             ci[n] = [values[n] - Z95 * se[n], values[n] + Z95 * se[n]]
             how[n] = "Wald"
+        if not (math.isfinite(se[n]) and all(math.isfinite(c) for c in ci[n])):
+            se[n], ci[n] = None, None
+            how[n] = ("no interval: the likelihood is all but flat along it (an estimate at its bound — a variance "
+                      "at zero, an order at 0 or 1 — or not identified beside the others)")
     return values, se, ci, how
 
 
@@ -682,3 +911,61 @@ def refine_exact(model, y, h: float, start: dict, *, inputs: dict | None = None,
     vals, se, ci, how = _estimates(model, u, H, free, h)
     kfree = [n for n, f in zip(model.names, free.tolist()) if f]
     return Fit(model, "exact", vals, se, ci, how, ll, ll, int(np.sum(~np.isnan(y))), kfree, ok, None, [], u, H)
+
+
+#: :func:`refine_best` refines the starts whose exact ℓ is within this many nats of the best start's (besides the
+#: starts it must refine), at most :data:`MAX_MODES` of them.
+START_MARGIN = 10.0
+
+
+def refine_best(model, y, h: float, starts: list, *, inputs: dict | None = None, fixed=(), must=(),
+                memory=FIT_MEMORY, intervals: bool = False) -> tuple[Fit, list]:
+    """The exact MLE of one series from several starts, the best kept: ``starts`` a list of ``(name, values)``
+    (values of every parameter of ``model``; the names in ``fixed`` stay at the first start's values). The exact ℓ is
+    evaluated at every start in one batch; the starts within :data:`START_MARGIN` of the best (at most
+    :data:`MAX_MODES`, distinct) and those whose names are in ``must`` are refined — as one batch of scoring iterations
+    where the sensitivity filter applies (:func:`_score_batch`), else one after another — and the highest maximum
+    kept. Returns the :class:`Fit` (its notes say which start won) and per refined start ``(name, ℓ at the start,
+    ℓ at its maximum)``."""
+    model = parse_model(model)
+    y = np.asarray(y, dtype=np.float64)
+    yc = centred(model, y)
+    fixed = [n for n in model.names if n in set(fixed)]
+    first = starts[0][1]
+    points = [(name, {**v, **{n: first[n] for n in fixed}}) for name, v in starts]
+    U = torch.cat([model.to_unconstrained(v, h) for _, v in points])
+    free = torch.tensor([n not in fixed for n in model.names])
+    ll0 = exact_loglik(model, model.from_unconstrained(U, h), yc, h, inputs=inputs, memory=memory)
+    ll0 = np.where(np.isfinite(ll0), ll0, -np.inf)
+    chosen = []
+    for i in np.argsort(-ll0):
+        i = int(i)
+        forced = points[i][0] in must
+        if not forced and (ll0[i] < ll0.max() - START_MARGIN or len(chosen) >= MAX_MODES):
+            continue
+        near = any(float((U[i].clamp(-8, 8) - U[j].clamp(-8, 8))[free].abs().max()) <= MODE_DISTANCE for j in chosen)
+        if near and not forced:
+            continue
+        chosen.append(i)
+    if gradient_supported(model, yc) is None:
+        X, f, ok, _ = _score_batch(model, yc, h, U[chosen], free, inputs, memory)
+        runs = []
+        for k, i in enumerate(chosen):
+            u = U[i].clone()
+            u[free] = torch.as_tensor(X[k])
+            runs.append((u, -float(f[k]) if f[k] < 1e300 else -math.inf, bool(ok[k])))
+    else:
+        runs = [(lambda r: (r[0], r[1], r[3]))(_exact_refine(model, yc, h, U[i].clone(), free, inputs, memory,
+                                                                hessian=False)) for i in chosen]
+    lls = [r[1] if math.isfinite(r[1]) else -math.inf for r in runs]
+    b = int(np.argmax(lls))
+    u, ll, ok = runs[b]
+    H = _exact_hessian(model, yc, h, u, free, inputs, memory) if intervals else None
+    vals, se, ci, how = _estimates(model, u, H, free, h)
+    kfree = [n for n, fr in zip(model.names, free.tolist()) if fr]
+    notes = []
+    if len(runs) > 1:
+        notes.append(f"the best of {len(runs)} starts: {points[chosen[b]][0]} (ℓ {ll:.2f}; the others "
+                     + ", ".join(f"{points[i][0]} {lls[k]:.2f}" for k, i in enumerate(chosen) if k != b) + ")")
+    fit = Fit(model, "exact", vals, se, ci, how, ll, ll, int(np.sum(~np.isnan(y))), kfree, ok, None, notes, u, H)
+    return fit, [(points[i][0], float(ll0[i]), lls[k]) for k, i in enumerate(chosen)]

@@ -612,3 +612,36 @@ def test_spikes_next_to_each_other_and_on_a_wander_are_located_where_they_are():
     with pytest.raises(ValueError, match="Nyquist"):
         parse_model("resonance+white").to_unconstrained({"resonance.frequency_hz": 50.0, "resonance.bandwidth_hz": 1.0,
                                                         "resonance.sigma": 0.1, "white.r": 1e-3}, H)
+
+
+def test_the_batched_chirp_search_is_the_per_rate_loop():
+    """``chirp_search`` (rates in batches, the F(2, 2K) tail in closed form, the best ordinate of a rate its largest
+    ratio) against the obvious path: every rate's transform and :func:`against_neighbours`' SciPy p-values, the
+    smallest kept — the same rate, ordinate and ratio, the p-value to 1e-9 (issue 44)."""
+    from scipy import stats
+
+    from torchtea.core.search import against_neighbours, chirp_search
+
+    n = 4000
+    rng = np.random.default_rng(5)
+    t = np.arange(n) * H
+    x = rng.standard_normal(n) + 0.08 * np.sin(2 * math.pi * (7.0 * t + 0.02 * (t - t.mean()) ** 2))
+    x[300:340] = np.nan
+    found = chirp_search(x, H)
+    ok = np.isfinite(x)
+    xx, tc = np.where(ok, x, 0.0), (np.arange(n) - (n - 1) / 2.0) * H
+    R = max(41, min(801, int(2.4e7 / n))) // 2 * 2 + 1
+    best, tests = None, 0
+    for f1 in (np.arange(R) - R // 2) * 2.0 / (n * H) ** 2:
+        d = np.fft.fft(xx * np.exp(-1j * np.pi * f1 * tc * tc))
+        u = np.abs(d[1:(n - 1) // 2 + 1]) ** 2 / ok.sum()
+        idx, ratio, logp = against_neighbours(u)
+        tests += len(idx)
+        i = int(np.argmin(logp))
+        if best is None or logp[i] < best[0]:
+            best = (float(logp[i]), float(f1), int(idx[i]) + 1, float(ratio[i]))
+    assert found["tests"] == tests
+    assert found["rate_hz_per_s"] == best[1] and found["f0_hz"] == best[2] / (n * H)
+    assert found["ratio"] == pytest.approx(best[3], rel=1e-12)
+    assert found["log_p"] == pytest.approx(min(0.0, best[0] + math.log(tests)), rel=1e-9, abs=1e-12)
+    assert stats.f.logsf(best[3], 2, 200) == pytest.approx(-100 * math.log1p(best[3] / 100), rel=1e-9)

@@ -228,8 +228,9 @@ def test_each_fault_is_found_at_its_place(tmp_path):
     assert kinds["zero rows"].ranges == [[2280, 2999]] and kinds["zero rows"].count == 720
     assert kinds["stuck"].ranges == [[999, 1039]] and kinds["stuck"].channels == ("gx", "gy", "gz")
     assert [1700, 1700] in kinds["temperature step"].ranges and [1720, 1720] in kinds["temperature step"].ranges
-    # 3 s forward at 600; back to 0 at 2280, where the stamps then stand still
-    assert kinds["time jump"].ranges == [[600, 600], [2280, 2999]]
+    # 3 s forward at 600; the zero rows' stamps are no clock (ignored as they are read, issue 44): no second jump
+    assert kinds["time jump"].ranges == [[600, 600]]
+    assert np.isnan(rec.time_s[2280:]).all() and "2280" not in str(kinds["time jump"].ranges)
     assert "clipping" not in kinds  # g of unknown full scale: three samples are not a pile-up
     assert faults.imu_rows[2280:].all() and faults.imu_rows[999:1040].all() and not faults.imu_rows[:999].any()
     assert faults.masks["gx"][999:1040].all() and not faults.masks["ax"][999:1040].any()
@@ -295,3 +296,69 @@ def test_prepare_names_the_faults_in_its_error(tmp_path):
     assert m.faults.items[0].kind == "stuck" and np.isnan(m.channel("gx").values[199:260]).all()
     assert not np.isnan(m.channel("ax").values).any()  # the accelerometer is not stuck: its samples stay
     assert m.missing.count == 61 and m.missing.per_column["gz"] == 61 and m.missing.per_column["ay"] == 0
+
+
+# --------------------------------------------------------------------------- stretches left out (issue 44, item 6)
+
+
+def test_exclude_makes_a_stretch_missing_or_cuts_it_at_the_end(tmp_path):
+    """``prepare(exclude=…)``: the samples k with FROM ≤ k h ≤ TO become missing in every channel without
+    --allow-missing (they were asked for); a stretch that reaches the end is cut (the same likelihood, the series stays
+    complete); both are in the JSON description and the notes; a stretch outside the series is one error naming it."""
+    path = six_axis_csv(tmp_path, n=1500)
+    rec = read_recording(path, units="g,g,g,deg/s,deg/s,deg/s", temperature_column="temp")
+    m = prepare(rec, exclude=[(2.0, 3.005), (14.0, 20.0)])
+    ax = m.channel("ax").values
+    assert np.isnan(ax[200:301]).all() and np.isfinite(ax[:200]).all() and np.isfinite(ax[301:]).all()
+    assert m.samples == 1400  # 14.00 s on: cut
+    desc = m.describe()["excluded"]
+    assert [(e["first"], e["last"], e["cut"]) for e in desc] == [(200, 300, False), (1400, 1499, True)]
+    assert any("--exclude 2:3.005" in line and "made missing" in line for line in m.notes())
+    assert m.missing.count == 101
+    with pytest.raises(InputError, match=r"--exclude 30:40: no sample there"):
+        prepare(rec, exclude=[(30.0, 40.0)])
+    with pytest.raises(InputError, match="FROM < TO"):
+        prepare(rec, exclude=[(5.0, 4.0)])
+
+
+def test_exclude_on_every_command_that_reads_a_recording(tmp_path, capsys):
+    """--exclude is a flag of fit, check, export, identify and estimate; its stretch is in each command's JSON."""
+    path = six_axis_csv(tmp_path, n=3000)
+    common = ("--exclude", "5:6")
+    assert run("fit", path, "--columns", "acc_x", "--units", "g", *common, "--bootstrap", 0, "--out", tmp_path / "fit.json") == 0
+    assert json.loads((tmp_path / "fit.json").read_text())["excluded"][0]["samples"] == 101
+    assert run("check", path, "--columns", "gyro_x", "--units", "deg/s", *common, "--no-plots", "--no-intervals", "--out",
+               tmp_path / "ck") == 0
+    doc = json.loads((tmp_path / "ck" / "check.json").read_text())
+    assert doc["excluded"][0]["first"] == 500 and doc["missing_samples"] == 101
+    assert run("identify", path, "--columns", "acc_x", "--units", "g", *common, "--samples", 3000, "--no-plots", "--json", "--out",
+               tmp_path / "id") == 0
+    assert json.loads((tmp_path / "id" / "summary.json").read_text())["excluded"][0]["last"] == 600
+    assert run("export", path, "--columns", "acc_x", "--units", "g", *common, "--model", "fractional+white", "--format", "ieee952",
+               "--no-plots", "--nees", 4, "--out", tmp_path / "ex") == 0
+    sim = tmp_path / "sim.csv"
+    assert run("simulate", "--n", 2000, "--h", 0.01, "--order", 0.3, "--param", -1, "--q", 1e-4, "--r", 1e-3,
+               "--out", sim) == 0
+    capsys.readouterr()
+    assert run("estimate", sim, "--exclude", "3:4", "--json") == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["excluded"][0]["samples"] == 101
+    assert run("check", path, "--columns", "gyro_x", "--exclude", "9:8", "--out", tmp_path / "bad") == 2
+
+
+def test_zero_rows_are_found_before_the_stamps_are_read(tmp_path, capsys):
+    """A recording whose last rows are 0 in every column, its time column too (a logger's zero fill): the stamps of
+    those rows are ignored, so the rate comes from the rest, and the rows are the logging fault they are — without
+    --rate (it used to stop with "time column … does not increase; give the rate")."""
+    t, acc, gyro, T = six_axis(2000)
+    cols = [t, acc / G0, gyro * 180 / math.pi, T]
+    data = np.column_stack(cols)
+    data[-300:] = 0.0
+    path = write_csv(tmp_path / "zeros.csv", ("sec",) + SIX + ("temp",), [data[:, i] for i in range(data.shape[1])])
+    rec = read_recording(path, units="g,g,g,deg/s,deg/s,deg/s", temperature_column="temp")
+    assert rec.rate_hz == pytest.approx(100.0, rel=1e-6)
+    assert "ignored" in rec.metadata["time_zero_rows"]
+    six = ("--units", "g,g,g,deg/s,deg/s,deg/s", "--temperature", "temp", "--bootstrap", 0)
+    assert run("fit", path, *six) == 2
+    assert "zero-filled rows" in capsys.readouterr().err
+    assert run("fit", path, *six, "--exclude", "17:20", "--json") == 0

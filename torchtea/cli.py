@@ -322,10 +322,11 @@ def _measurements(args, command: str, *, min_samples: int = 1, sensors=None):
     if rec.metadata.get("segments") and len(rec.metadata["segments"]) > 1 and args.segment is None:
         print(f"torchtea: note: {Path(rec.path).name} has {len(rec.metadata['segments'])} segments (device resets); "
               f"using the longest, segment {rec.metadata['segment']} (choose with --segment)", file=sys.stderr)
-    for key in ("time_column_skipped", "time_unit"):
+    for key in ("time_column_skipped", "time_unit", "time_zero_rows"):
         if key in rec.metadata:
             print(f"torchtea: note: {rec.metadata[key]}", file=sys.stderr)
-    m = prepare(rec, samples=n, allow_missing=args.allow_missing, min_samples=min_samples, command=command)
+    m = prepare(rec, samples=n, allow_missing=args.allow_missing, min_samples=min_samples, command=command,
+                exclude=args.exclude)
     for line in m.notes():
         print(f"torchtea: warning: {line}", file=sys.stderr)
     return m
@@ -336,13 +337,16 @@ def _check_channels(args, m, inputs, *, auto: bool, intervals: bool) -> dict:
     from .checking.channels import check_measurements
 
     levels = {k: getattr(args, k) for k in ("level", "screen_level") if hasattr(args, k)}  # (else check's own)
+    client, close_cluster = _cluster(args)
     step, close = _progress(len(m.channels), "check", "channel", bar=not getattr(args, "json", False))
     try:
         results = check_measurements(m, args.model, inputs=inputs, add=getattr(args, "add", []), auto=auto,
                                      max_steps=getattr(args, "max_steps", 6), strong=getattr(args, "strong", None),
-                                     intervals=intervals, levels=levels, progress=step, log=_note)
+                                     intervals=intervals, levels=levels, progress=step, log=_note, client=client,
+                                     threads=args.threads_per_worker, effects=tuple(args.effects))
     finally:
         close()
+        close_cluster()
     return results
 
 
@@ -355,6 +359,7 @@ def cmd_check(args) -> int:
     from .checking.report import write_report
     from .render.strictjson import dumps
 
+    _check_cluster_flags(args)
     m = _measurements(args, "check", min_samples=1000)
     plan = _export_plan(args, m, args.export)
     if plan and args.no_intervals:
@@ -405,8 +410,9 @@ def _export(args, m, plan, fits: dict, inputs, meta: dict, out: Path, *, quiet: 
 
 def cmd_export(args) -> int:
     """``torchtea export``: check each axis to the end (as ``check --auto``) or fit ``--model``, then export."""
-    from .fitting import fit_series
+    from .fitting.recording import fit_channel
 
+    _check_cluster_flags(args)
     m = _measurements(args, "an export", min_samples=1000)
     plan = _export_plan(args, m, args.format)
     inputs = None if args.temperature is None else {"temperature": m.temperature_input()}
@@ -418,11 +424,23 @@ def cmd_export(args) -> int:
         model = parse_model(args.model)
         if any(c.inputs for _, c in model.components) and inputs is None:
             raise CLIError(f"model {model.spec!r} reads the temperature: give --temperature COL")
-        fits = {}
-        for c in m.channels:
-            print(f"torchtea: fitting {model.spec} to {c.label} …", file=sys.stderr)
-            fits[c.label] = fit_series(model, [c.values], m.h, method="exact",
-                                       inputs=None if inputs is None else [inputs])[0]
+        client, close_cluster = _cluster(args)
+        try:
+            if client is None:
+                fits = {}
+                for c in m.channels:
+                    print(f"torchtea: fitting {model.spec} to {c.label} …", file=sys.stderr)
+                    fits[c.label] = fit_channel(model, c.values, m.h, inputs=inputs)
+            else:
+                from .core.tasks import run_on_cluster
+
+                _note(f"fitting {model.spec} to {len(m.channels)} channels on the cluster …")
+                fits = run_on_cluster(client, fit_channel, [
+                    (c.label, (model.spec, c.values, m.h), dict(inputs=inputs, effects=tuple(args.effects),
+                                                                threads=args.threads_per_worker or 1))
+                    for c in m.channels], name="fit")
+        finally:
+            close_cluster()
     else:
         results = _check_channels(args, m, inputs, auto=True, intervals=True)
         fits = {a: r.fit for a, r in results.items()}
@@ -495,7 +513,7 @@ def cmd_estimate(args) -> int:
     step, close = _progress(None, "TEA", bar=not args.json)
     try:  # the run reports (k, N) for steps k = 1 … N − 1: N − 1 steps
         summary = estimate_file(args.file, cfg, column=name, h=args.h, out=args.out, source=source,
-                                allow_missing=args.allow_missing, device=dev, compile=args.compile,
+                                allow_missing=args.allow_missing, device=dev, compile=args.compile, exclude=args.exclude,
                                 progress=lambda done, total: step(done, total - 1),
                                 log=lambda line: _note(f"note: {line}"))
     finally:
@@ -618,6 +636,8 @@ def cmd_identify(args) -> int:
     summary = save_identification(ident, out_dir, plots=not args.no_plots, r_mode=args.r, seconds=elapsed,
                                   command="torchtea " + " ".join(sys.argv[1:]) if sys.argv[1:] else "",
                                   config_source=config_source)
+    summary["excluded"] = [dict(e) for e in m.excluded]
+    summary["meaning"]["excluded"] = "stretches left out on request (--exclude): their samples missing, or cut at the end"
     res = ident.result
     warnings = [f"warning: {w}" for w in summary["warnings"]]
     if not _report(out_dir, summary, warnings, args.json):
@@ -880,6 +900,21 @@ UNITS_HELP = ("unit of the columns: one for all (g, ms2, rad/s, deg/s, counts) o
               "m/s² and rad/s, the bundled format in counts (±2 g, ±250 °/s); a generic CSV needs it")
 
 
+EXCLUDE_HELP = ("leave out the samples from FROM to TO seconds after the first sample (as the reports give times): "
+                "they become missing, or are cut where they reach the end; repeatable")
+
+
+def _stretch(text: str) -> tuple:
+    """``FROM:TO`` (seconds) → ``(from, to)``."""
+    a, sep, b = text.partition(":")
+    try:
+        if not sep:
+            raise ValueError
+        return float(a), float(b)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: give FROM:TO in seconds, e.g. 633:655") from None
+
+
 def _recording_flags(parser, *, columns_help: str, temperature_help: str | None, samples_default: str,
                      samples_help: str) -> None:
     """The flags that say how to read a recording, the same on ``identify``, ``fit`` and ``check``
@@ -900,6 +935,29 @@ def _recording_flags(parser, *, columns_help: str, temperature_help: str | None,
         parser.add_argument("--temperature", metavar="COL", help=temperature_help)
     parser.add_argument("--samples", default=samples_default, help=samples_help)
     parser.add_argument("--allow-missing", action="store_true", help=ALLOW_MISSING_HELP)
+    parser.add_argument("--exclude", action="append", default=[], type=_stretch, metavar="FROM:TO", help=EXCLUDE_HELP)
+
+
+def _cluster_flags(parser, what: str) -> None:
+    """--workers, --threads-per-worker, --scheduler and --connect-timeout, as ``montecarlo`` has them (:func:`_cluster`);
+    ``what`` names the tasks."""
+    parser.add_argument("--workers", type=int, help=f"run {what} as tasks of a local Dask cluster of N processes")
+    parser.add_argument("--threads-per-worker", type=int,
+                        help="--workers: torch/numba threads of each process (default: the cores shared out)")
+    parser.add_argument("--scheduler", help=f"run {what} as tasks of the Dask cluster of this scheduler "
+                                            "(tcp://host:8786)")
+    parser.add_argument("--connect-timeout", type=float, default=30.0,
+                        help="--scheduler: seconds to wait for the scheduler and its first worker (default 30)")
+
+
+def _check_cluster_flags(args) -> None:
+    if args.workers is not None and args.scheduler:
+        raise CLIError("--workers and --scheduler: give one (a local cluster, or the address of a running one)")
+    for flag, value in (("--workers", args.workers), ("--threads-per-worker", args.threads_per_worker)):
+        if value is not None and value < 1:
+            raise CLIError(f"{flag} must be at least 1, got {value}")
+    if args.threads_per_worker is not None and not args.workers:
+        raise CLIError("--threads-per-worker applies to the local cluster of --workers")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -944,6 +1002,7 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--config", help="TOML settings file")
     e.add_argument("--out", help="trajectory CSV (default: FILE.tea.csv next to the input)")
     e.add_argument("--allow-missing", action="store_true", help=ALLOW_MISSING_HELP)
+    e.add_argument("--exclude", action="append", default=[], type=_stretch, metavar="FROM:TO", help=EXCLUDE_HELP)
     e.add_argument("--memory", help=MEMORY_HELP)
     _add_uncertainty_flags(e)
     e.add_argument("--compile", action="store_true", help=COMPILE_HELP)
@@ -1003,6 +1062,7 @@ def build_parser() -> argparse.ArgumentParser:
     fp.add_argument("--out", help="write the JSON document to this file")
     fp.add_argument("--json", action="store_true", help="print the JSON document")
     _export_flags(fp, standalone=False)
+    _cluster_flags(fp, "the channels' fits")
     fp.set_defaults(func=cmd_fit)
 
     ck = sub.add_parser("check", help="test a noise model against a recording and rank the effects it is missing")
@@ -1030,6 +1090,7 @@ def build_parser() -> argparse.ArgumentParser:
     ck.add_argument("--no-plots", action="store_true")
     ck.add_argument("--json", action="store_true", help="print the JSON document")
     _export_flags(ck, standalone=False)
+    _cluster_flags(ck, "the channels' checks")
     ck.set_defaults(func=cmd_check)
 
     ex = sub.add_parser("export", help="the noise numbers in a navigation filter's format (Kalibr, VINS, ORB-SLAM3, "
@@ -1046,6 +1107,7 @@ def build_parser() -> argparse.ArgumentParser:
     ex.add_argument("--out", help="output directory (default export-<recording name>)")
     ex.add_argument("--no-plots", action="store_true")
     _export_flags(ex, standalone=True)
+    _cluster_flags(ex, "the channels' checks or fits")
     ex.set_defaults(func=cmd_export)
 
     rc = sub.add_parser("record", help="record a protocol-v1 IMU from a serial port (docs/protocol.md)")
@@ -1139,16 +1201,20 @@ def cmd_fit(args) -> int:
     from .render.strictjson import dumps, write
 
     model = parse_model(args.model)
+    _check_cluster_flags(args)
     m = _measurements(args, "a fit", min_samples=100)
     plan = _export_plan(args, m, args.export)
     inputs = _model_inputs(args, [model], m)
+    client, close_cluster = _cluster(args)
     step, close = _progress(len(m.channels), "fit " + model.spec, "channel", bar=not args.json)
     try:
         doc, fits = fit_recording(m, model, inputs=inputs, method=args.method, bootstrap=args.bootstrap,
                                   seed=args.seed, profile=args.profile, progress=step,
-                                  log=lambda line: _note(f"note: {line}"))
+                                  log=lambda line: _note(f"note: {line}"), client=client,
+                                  threads=args.threads_per_worker, effects=tuple(args.effects))
     finally:
         close()
+        close_cluster()
     doc["command"] = "torchtea " + " ".join(sys.argv[1:]) if sys.argv[1:] else ""
     if args.out:
         write(Path(args.out), doc)
@@ -1167,28 +1233,13 @@ def cmd_fit(args) -> int:
 
 
 def _import_effects(name: str) -> None:
-    """Import a user's module of effects (``--effects``): a ``.py`` file by its path, else a module by name."""
-    import importlib
-    import importlib.util
+    """Import a user's module of effects (``--effects``; :func:`torchtea.effects.import_effects`)."""
+    from .effects import import_effects
 
     try:
-        if name.endswith(".py"):
-            path = Path(name)
-            if not path.is_file():
-                raise CLIError(f"--effects {name}: no such file")
-            key = f"torchtea_user_effects_{path.stem}"
-            if getattr(sys.modules.get(key), "__file__", None) == str(path.resolve()):
-                return  # imported by an earlier command in this process: its effects are registered
-            spec = importlib.util.spec_from_file_location(key, path.resolve())
-            module = importlib.util.module_from_spec(spec)
-            sys.modules[spec.name] = module
-            spec.loader.exec_module(module)
-        else:
-            importlib.import_module(name)
-    except CLIError:
-        raise
-    except Exception as exc:  # noqa: BLE001 - the user's module: say which one failed and why
-        raise CLIError(f"--effects {name}: could not import it: {type(exc).__name__}: {exc}") from exc
+        import_effects(name)
+    except ValueError as exc:
+        raise CLIError(str(exc)) from exc
 
 
 def main(argv=None) -> int:

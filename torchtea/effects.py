@@ -110,3 +110,32 @@ def load_entry_points() -> None:
                 register(obj)
         except Exception as exc:  # noqa: BLE001 - a third party's module: name it and go on
             warnings.warn(f"torchtea effect entry point {ep.name!r} ({ep.value}) not loaded: {exc}", stacklevel=2)
+
+
+def import_effects(name: str) -> None:
+    """Import a user's module of effects (what ``--effects`` names, so that its :func:`register` calls run): a ``.py``
+    file by its path, else a module by name. Importing it again in the same process does nothing (a Dask worker runs it
+    before every task that needs it). Raises ``ValueError`` naming the module and what went wrong."""
+    import importlib
+    import importlib.util
+    import sys
+    from pathlib import Path
+
+    try:
+        if name.endswith(".py"):
+            path = Path(name)
+            if not path.is_file():
+                raise ValueError(f"--effects {name}: no such file")
+            key = f"torchtea_user_effects_{path.stem}"
+            if getattr(sys.modules.get(key), "__file__", None) == str(path.resolve()):
+                return  # imported by an earlier command in this process: its effects are registered
+            spec = importlib.util.spec_from_file_location(key, path.resolve())
+            module = importlib.util.module_from_spec(spec)
+            sys.modules[spec.name] = module
+            spec.loader.exec_module(module)
+        else:
+            importlib.import_module(name)
+    except ValueError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - the user's module: say which one failed and why
+        raise ValueError(f"--effects {name}: could not import it: {type(exc).__name__}: {exc}") from exc

@@ -13,13 +13,15 @@ __all__ = ["estimate_file", "estimate_lines"]
 
 def estimate_file(file, config, *, column: str = "y", h: float | None = None, out=None, source: str = "",
                   allow_missing: bool = False, device=None, compile: bool = False, progress: Callable | None = None,
-                  log: Callable | None = None) -> dict:
+                  log: Callable | None = None, exclude=()) -> dict:
     """Run the TEA with ``config`` on column ``column`` of ``file`` (and its known input ``u``, if the file has one),
     the paper's scalar model. The sample time is ``h``, else the mean interval of the file's time column ``t``
     (checked against ``h`` when both exist). Writes the per-step trajectories to ``out`` (default: the file with
     suffix ``.tea.csv``) and the settings beside it (``.toml``, with ``source``). Returns the summary (the meaning of
     each number in ``meaning``; the timing's and the estimates' warnings in ``warnings``). A run stopped by Ctrl-C
-    keeps what it computed (``interrupted``). ``log(line)`` takes the notes."""
+    keeps what it computed (``interrupted``). ``log(line)`` takes the notes. ``exclude``: stretches ``(from_s, to_s)``
+    of the series (seconds from its first sample) whose samples are made missing
+    (:func:`~torchtea.sensors.measurements.exclusion_ranges`)."""
     import numpy as np
     import torch
 
@@ -58,6 +60,15 @@ def estimate_file(file, config, *, column: str = "y", h: float | None = None, ou
             raise InputError(f"{file}: give the sample time with --h (the file has no increasing time column 't')")
         h, h_source = 1.0 / rate, "the mean interval of column 't'"
     timing = check_timing(cols["t"], 1.0 / h, column="t", rate_source=h_source) if "t" in cols else None
+    excluded = []
+    if exclude:
+        from .sensors.measurements import exclusion_ranges
+
+        excluded = exclusion_ranges(exclude, h, N, file)
+        for e in excluded:
+            y[e["first"]:e["last"] + 1] = float("nan")
+            say(f"excluded on request (--exclude {e['from_s']:g}:{e['to_s']:g}): samples {e['first']}–{e['last']} "
+                f"({e['samples']}) made missing")
     t0 = time.perf_counter()
     res = run_tea(y.unsqueeze(0).to(device), h=h, params=make_params(config, Structure()),
                   inputs=None if u is None else u.unsqueeze(0).to(device), progress=progress, compile=compile,
@@ -98,6 +109,7 @@ def estimate_file(file, config, *, column: str = "y", h: float | None = None, ou
         "h_source": h_source,
         "missing_samples": missing.count,
         "missing": missing.to_dict(),
+        "excluded": excluded,
         "timing": timing.to_dict() if timing is not None else None,
         "settings": source,
         "memory": config.memory.spec(),

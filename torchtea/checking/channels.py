@@ -1,37 +1,81 @@
 """``check`` on every channel of a recording: the workflow ``torchtea check`` and ``torchtea export`` run (the
-check, the effects added by hand, then the loop), and its summary as text lines."""
+check, the effects added by hand, then the loop) — channel after channel in this process, or the channels as tasks
+of a Dask cluster —, and its summary as text lines."""
 from __future__ import annotations
 
 from typing import Callable, Iterable
 
+from ..core.threads import engine_threads
 from ..noise.model import PAPER_MODEL
 from .check import CheckResult, check
 
-__all__ = ["check_measurements", "summary_lines"]
+__all__ = ["check_measurements", "check_channel", "summary_lines"]
+
+
+def check_channel(values, h: float, model, *, inputs: dict | None = None, add: Iterable[str] = (), auto: bool = False,
+                  max_steps: int = 6, strong: float | None = None, intervals: bool = True, levels: dict | None = None,
+                  progress: Callable | None = None, threads: int | None = None, effects: tuple = ()) -> CheckResult:
+    """One channel's workflow: :func:`check` of ``model``, the ``add`` effects in order, then (``auto``) the loop
+    (:meth:`CheckResult.auto`). ``progress(line)``: each stage as it starts. ``threads``: numba's threads
+    (:func:`~torchtea.core.threads.engine_threads`; torch runs on one). ``effects``: users' modules of effects to
+    import first (:func:`torchtea.effects.import_effects`: a Dask worker has not imported them)."""
+    from ..effects import import_effects
+
+    for name in effects:
+        import_effects(name)
+    with engine_threads(threads):
+        r = check(values, h, model=model, inputs=inputs, intervals=intervals, progress=progress, **(levels or {}))
+        for effect in add:
+            r = r.add(effect, intervals=intervals, progress=progress)
+        if auto:
+            r = r.auto(max_steps=max_steps, strong=strong, intervals=intervals, progress=progress)
+    return r
 
 
 def check_measurements(m, model=None, *, inputs: dict | None = None, add: Iterable[str] = (), auto: bool = False,
                        max_steps: int = 6, strong: float | None = None, intervals: bool = True,
                        levels: dict | None = None, progress: Callable | None = None,
-                       log: Callable | None = None) -> dict:
+                       log: Callable | None = None, client=None, threads: int | None = None,
+                       effects: tuple = ()) -> dict:
     """Check each channel of ``m`` (:class:`~torchtea.sensors.measurements.Measurements`) with ``model`` (default
-    :data:`PAPER_MODEL`), then add the ``add`` effects in order, then (``auto``) run the loop
-    (:meth:`CheckResult.auto` with ``max_steps``, ``strong``). ``levels``: check's ``level``/``screen_level`` where
-    given. ``progress(done, total)`` after each channel, ``log(line)`` before it. Returns label → result."""
+    :data:`PAPER_MODEL`): :func:`check_channel` with ``add``, ``auto``, ``max_steps``, ``strong``; ``levels``: check's
+    ``level``/``screen_level`` where given. ``progress(done, total)`` after each channel; ``log(line)`` before each
+    channel and at each stage within it (in this process).
+
+    ``client``: a ``distributed.Client``: each channel is one task on its workers (``threads`` numba threads each,
+    default 1), the results in channel order and the same as in this process (every number a channel's check computes
+    is its own: the kernels' parallel loops run whole parameter sets per thread, and torch runs on one thread either
+    way). ``effects``: users' modules of effects each task imports first. Returns label → result."""
     model = model or PAPER_MODEL
+    kw = dict(inputs=inputs, add=tuple(add), auto=auto, max_steps=max_steps, strong=strong, intervals=intervals,
+              levels=levels, effects=tuple(effects))
+    if client is not None:
+        return _on_cluster(m, model, kw, client, 1 if threads is None else threads, progress, log)
     results = {}
     for i, c in enumerate(m.channels):
         if log is not None:
             log(f"checking {c.label}, {c.title} ({m.samples} samples, model {model}) …")
-        r = check(c.values, m.h, model=model, inputs=inputs, intervals=intervals, **(levels or {}))
-        for effect in add:
-            r = r.add(effect, intervals=intervals)
-        if auto:
-            r = r.auto(max_steps=max_steps, strong=strong, intervals=intervals)
-        results[c.label] = r
+        say = None if log is None else (lambda line, label=c.label: log(f"  {label}: {line}"))
+        results[c.label] = check_channel(c.values, m.h, model, progress=say, threads=threads, **kw)
         if progress is not None:
             progress(i + 1, len(m.channels))
     return results
+
+
+def _on_cluster(m, model, kw: dict, client, threads: int, progress, log) -> dict:
+    """The channels as tasks of ``client``'s cluster, one each."""
+    from ..core.tasks import run_on_cluster
+
+    if log is not None:
+        log(f"checking {len(m.channels)} channels on the cluster ({sum(client.nthreads().values())} worker threads, "
+            f"{m.samples} samples each, model {model}) …")
+
+    def done(k, total):
+        if progress is not None:
+            progress(k, total)
+
+    calls = [(c.label, (c.values, m.h, model), dict(threads=threads, **kw)) for c in m.channels]
+    return run_on_cluster(client, check_channel, calls, name="check", progress=done)
 
 
 def summary_lines(results: dict, titles: dict) -> list[str]:
@@ -42,8 +86,6 @@ def summary_lines(results: dict, titles: dict) -> list[str]:
     for a, r in results.items():
         lines += _channel_lines(a, titles.get(a, a), r)
     return lines
-
-
 def _channel_lines(a: str, title: str, r: CheckResult) -> list[str]:
     out = []
     head = f"{a} ({title}): {r.model.spec}: {'adequate' if r.adequate else 'NOT adequate'}"
@@ -69,10 +111,15 @@ def _channel_lines(a: str, title: str, r: CheckResult) -> list[str]:
         pars = ", ".join(f"{k} {v:.4g}" for k, v in s.parameters.items())
         out.append(f"  suggest {s.effect}: gain {s.gain:.1f} (ΔBIC), {pars}; repairs {', '.join(s.repairs) or '—'}"
                    + (f" — {s.note}" if s.note else ""))
-    if not r.suggestions:
+    if not r.suggestions and r.failed_refits:
+        out.append(f"  no suggestion: the screens of {', '.join(r.failed_refits)} passed, but their refits failed to "
+                   "find what the screens saw (an optimiser's failure, not evidence against them)")
+    elif not r.suggestions:
         out.append("  no suggestion: no effect of the library passes its screen")
     for u in r.unexplained:
         more = ([f"--add {', '.join(u['add_by_hand'])} by hand"] if u["add_by_hand"] else []) + (
             [f"not in the library: {', '.join(u['not_in_library'])}"] if u["not_in_library"] else [])
+        if u.get("exclude"):
+            more.append(f"a disturbance of the recording there? leave it out with {' '.join(u['exclude'][:3])}")
         out.append(f"  unexplained {u['diagnostic']}: {u['would_fit']}" + (f" ({'; '.join(more)})" if more else ""))
     return out

@@ -40,7 +40,13 @@ MEANING = {
     "loop_end": "why --auto stopped: the model adequate, no effect passing its screen, or the step limit",
     "unexplained": "failed diagnostics that no suggestion repairs: where, what kind of effect would fit that "
                    "signature, and which of those effects check screened (in_library), the library has but does not "
-                   "screen (add_by_hand: --add them) or lacks (not_in_library)",
+                   "screen (add_by_hand: --add them) or lacks (not_in_library); for a failure located in time, the "
+                   "--exclude flags that would leave those stretches out (exclude)",
+    "seconds": "(per axis) wall-clock seconds of the axis's whole check, every step of the loop (seconds_this_step: "
+               "the last step's; a step row's seconds and timings: that step's, by stage)",
+    "excluded": "stretches left out on request (--exclude): their samples missing, or cut at the end",
+    "refit_failed": "(a screen's row) its screen passed, but the exact refit of the model with it gained far less than "
+                    "the screen's statistic and lowered no BIC: the fit failed, which is no evidence against it",
 }
 
 
@@ -280,6 +286,10 @@ def write_report(out: Path, results: dict, meta: dict, plots: bool = True) -> di
             lines.append("")
             lines += [f"{s.effect}: {s.note}." for s in r.suggestions if s.note]
             lines.append(f"Add the best with `--add {r.suggestions[0].effect}`.")
+        elif r.failed_refits:
+            lines.append(f"The screens of {', '.join(r.failed_refits)} passed, but their refits failed to find what "
+                         "the screens saw: an optimiser's failure, not evidence against them (their rows below say "
+                         "what was tried).")
         else:
             lines.append("No effect of the library passes its screen: "
                          + ("nothing is missing that torchtea can add." if r.adequate else
@@ -292,7 +302,9 @@ def write_report(out: Path, results: dict, meta: dict, plots: bool = True) -> di
                 hand = (f" In the library, not screened (`--add`): {', '.join(u['add_by_hand'])}."
                         if u["add_by_hand"] else "")
                 new = f" Not in the library: {', '.join(u['not_in_library'])}." if u["not_in_library"] else ""
-                lines.append(f"- **{u['diagnostic']}** ({u['where']}): {u['would_fit']}.{lib}{hand}{new}")
+                leave = (f" If it is a disturbance of the recording (a knock, a shock), leave it out: "
+                         f"`{' '.join(u['exclude'][:3])}`." if u.get("exclude") else "")
+                lines.append(f"- **{u['diagnostic']}** ({u['where']}): {u['would_fit']}.{lib}{hand}{new}{leave}")
         lines += ["", "Screens: " + "; ".join(
             f"{s['effect']} {('p ' + _fmt(s['p_value'], '.2g')) if s['p_value'] is not None else s['note']}"
             for s in r.screens), ""]

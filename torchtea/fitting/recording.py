@@ -10,7 +10,7 @@ from ..render.text import num
 from .mle import Fit, fit_series
 from .summary import MEANING, axis_summary, fit_nis
 
-__all__ = ["fit_recording", "fit_lines", "BOOTSTRAP_LIMIT", "bootstrap_replicates"]
+__all__ = ["fit_recording", "fit_channel", "fit_lines", "BOOTSTRAP_LIMIT", "bootstrap_replicates"]
 
 #: Records up to this many samples get the fractional-presence bootstrap by default (99 replicates).
 BOOTSTRAP_LIMIT = 200_000
@@ -23,14 +23,17 @@ def bootstrap_replicates(samples: int, asked: int | None) -> int:
 
 def fit_recording(m, model, *, inputs: dict | None = None, method: str = "exact", bootstrap: int | None = None,
                   seed: int = 0, profile: bool = False, progress: Callable | None = None,
-                  log: Callable | None = None) -> tuple[dict, list[Fit]]:
+                  log: Callable | None = None, client=None, threads: int | None = None,
+                  effects: tuple = ()) -> tuple[dict, list[Fit]]:
     """Fit ``model`` to each channel of ``m`` (:class:`~torchtea.sensors.measurements.Measurements`) one at a time
     (bounded memory; ``progress(done, total)`` after each), test the fractional part's presence by parametric
     bootstrap (:func:`~.presence.fractional_test`; replicates: :func:`bootstrap_replicates`; complete series only),
     and summarise each channel (:func:`~.summary.axis_summary`, with the exact filter's NIS). ``inputs``: the input
     channels the model reads (``{"temperature": (N,)}``). ``log(line)`` takes the notes. Returns the document
     (``model``, ``method``, the recording's description, ``bootstrap``, ``axes``, ``meaning``, ``seconds``,
-    ``warnings``) and the fits in channel order."""
+    ``warnings``) and the fits in channel order. ``client``: a ``distributed.Client``: each channel's fit is one task
+    of its cluster (:func:`fit_channel`, ``threads`` numba threads each, default 1; the users' modules of ``effects``
+    imported there first), the same fits as in this process."""
     from ..noise import parse_model
     from .presence import fractional_test
 
@@ -42,12 +45,20 @@ def fit_recording(m, model, *, inputs: dict | None = None, method: str = "exact"
         say(f"{m.samples} samples: the fractional-presence bootstrap is not run (--bootstrap 99 runs it: 99 "
             "simulated replicates, each fitted twice)")
     t0 = time.perf_counter()
-    fits = []
-    for i, y in enumerate(series):
-        fits += fit_series(model, [y], m.h, method=method, inputs=None if inputs is None else [inputs],
-                           profile=True if profile else None)
-        if progress is not None:
-            progress(i + 1, len(series))
+    kw = dict(method=method, inputs=inputs, profile=profile)
+    if client is not None:
+        from ..core.tasks import run_on_cluster
+
+        calls = [(c.label, (model.spec, y, m.h), dict(kw, threads=1 if threads is None else threads, effects=effects))
+                 for c, y in zip(m.channels, series)]
+        done = run_on_cluster(client, fit_channel, calls, name="fit", progress=progress)
+        fits = [done[c.label] for c in m.channels]
+    else:
+        fits = []
+        for i, y in enumerate(series):
+            fits.append(fit_channel(model, y, m.h, threads=threads, **kw))
+            if progress is not None:
+                progress(i + 1, len(series))
     tests = [None] * len(series)
     if model.order_name is not None and n_boot > 0:
         if m.missing.count:
@@ -75,6 +86,20 @@ def fit_recording(m, model, *, inputs: dict | None = None, method: str = "exact"
     doc = {"model": model.spec, "method": method, **m.describe(), "bootstrap": n_boot, "axes": axes,
            "meaning": meaning, "seconds": time.perf_counter() - t0, "warnings": m.notes()}
     return doc, fits
+
+
+def fit_channel(model, y, h: float, *, method: str = "exact", inputs: dict | None = None, profile: bool = False,
+                threads: int | None = None, effects: tuple = ()) -> Fit:
+    """One channel's fit (:func:`~.mle.fit_series`), with numba on ``threads`` threads and torch on one
+    (:func:`~torchtea.core.threads.engine_threads`), after importing the users' modules of ``effects``."""
+    from ..core.threads import engine_threads
+    from ..effects import import_effects
+
+    for name in effects:
+        import_effects(name)
+    with engine_threads(threads):
+        return fit_series(model, [y], h, method=method, inputs=None if inputs is None else [inputs],
+                          profile=True if profile else None)[0]
 
 
 def fit_lines(doc: dict, titles: dict, units: dict, recording: str, rate_hz: float) -> list[str]:

@@ -513,6 +513,14 @@ def read_recording(path=None, *, columns: Sequence[str] | None = None, units=Non
         t, unit_note = _seconds(tcol, col(tcol))
         if unit_note:
             meta["time_unit"] = unit_note
+        # rows in which every column read is exactly 0, the time stamp too, are a logging fault (zero-filled rows,
+        # found and made missing by the faults' check): their stamps are no clock, so they neither give nor
+        # contradict the rate
+        blank = np.all(data == 0.0, axis=1)
+        if blank.any():
+            t = np.where(blank, np.nan, t)
+            meta["time_zero_rows"] = (f"time column {tcol!r}: the stamps of the {int(blank.sum())} row(s) that are "
+                                      "0 in every column are ignored (a logging fault, not a clock)")
     if rate_hz is None:
         rate_hz = stamp_rate(t) if t is not None else math.nan
         if not math.isfinite(rate_hz):

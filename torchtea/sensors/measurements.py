@@ -7,6 +7,7 @@ from any of the formats, the same way.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -49,6 +50,9 @@ class Measurements:
     allow_missing: bool = False
     #: samples in the whole recording (the part used is the first :attr:`samples`)
     total: int = 0
+    #: the stretches left out on request (``--exclude``): dicts with ``from_s``, ``to_s`` (as asked), ``first``,
+    #: ``last`` (sample indices) and ``samples``; those made missing, or cut where they reach the end
+    excluded: tuple = ()
 
     @property
     def h(self) -> float:
@@ -98,32 +102,78 @@ class Measurements:
                 "samples": self.samples, "samples_in_recording": self.total, "channels": {c.label: c.describe() for c in self.channels},
                 "temperature_column": rec.temperature_column, "faults": self.faults.to_dict(),
                 "missing_samples": self.missing.count, "missing": self.missing.to_dict(),
-                "timing": None if self.timing is None else self.timing.to_dict()}
+                "timing": None if self.timing is None else self.timing.to_dict(),
+                "excluded": [dict(e) for e in self.excluded]}
 
     def notes(self) -> list[str]:
         """Lines for stderr and the reports: the faults, then the timing warnings."""
         out = [f"recording fault: {line}" for line in self.faults.lines()]
+        for e in self.excluded:
+            out.append(f"excluded on request (--exclude {e['from_s']:g}:{e['to_s']:g}): samples {e['first']}–"
+                       f"{e['last']} ({e['samples']}), " + ("cut: the stretch reaches the end of the part used"
+                                                          if e["cut"] else "made missing"))
         if self.timing is not None:
             out += list(self.timing.warnings)
         return out
 
 
+def exclusion_ranges(exclude, h: float, N: int, source) -> list[dict]:
+    """The stretches ``exclude`` (``[(from_s, to_s), …]``, seconds from the first sample, as the reports give times)
+    as sample ranges of a series of ``N`` samples at sample time ``h``: the samples k with from ≤ k h ≤ to. An
+    :class:`~.io.InputError` naming ``source`` and the flag for a stretch that is empty, backwards or outside the
+    series."""
+    out = []
+    end = (N - 1) * h
+    for a, b in exclude:
+        flag = f"--exclude {a:g}:{b:g}"
+        if not (math.isfinite(a) and math.isfinite(b)) or b <= a:
+            raise InputError(f"{source}: {flag}: give FROM:TO in seconds with FROM < TO")
+        first, last = max(0, math.ceil(a / h - 1e-9)), min(N - 1, math.floor(b / h + 1e-9))
+        if a > end or b < 0 or last < first:
+            raise InputError(f"{source}: {flag}: no sample there (the part used spans 0–{end:g} s)")
+        out.append({"from_s": float(a), "to_s": float(b), "first": int(first), "last": int(last),
+                    "samples": int(last - first + 1), "cut": False})
+    return out
+
+
 def prepare(recording: Recording, *, samples: int | None = None, allow_missing: bool = False,
-            min_samples: int = 1, command: str = "this command") -> Measurements:
+            min_samples: int = 1, command: str = "this command", exclude=()) -> Measurements:
     """The recording's first ``samples`` samples (all for None), its faults found (:func:`~.faults.find_faults`) and
     made missing, and the missing-sample policy applied: an :class:`~.io.InputError` naming the file, the faults, the
     missing samples and ``--allow-missing`` when any sample is missing and ``allow_missing`` is False; one when fewer
-    than ``min_samples`` samples are there."""
+    than ``min_samples`` samples are there. ``exclude``: stretches ``(from_s, to_s)`` to leave out
+    (:func:`exclusion_ranges`): their samples are made missing in every channel — asked for, so the policy does not
+    refuse them — and a stretch that reaches the end of the part used is cut instead (the same likelihood: a missing
+    sample at the end adds nothing), which keeps the series complete for the fast paths."""
     total = recording.samples
     rec = recording.head(samples)
     N = rec.samples
+    excluded = exclusion_ranges(exclude, rec.h, N, rec.path) if exclude else []
+    drop = np.zeros(N, dtype=bool)
+    for e in excluded:
+        drop[e["first"]:e["last"] + 1] = True
+    if drop.any() and drop[-1]:  # the excluded stretch at the end is cut
+        keep = N - int(np.argmin(drop[::-1])) if not drop.all() else 0
+        for e in excluded:
+            if e["last"] >= keep:
+                e["cut"] = True
+        rec = rec.head(keep)
+        drop = drop[:keep]
+        N = keep
     if N < min_samples:
         raise InputError(f"{rec.path}: {N} samples; {command} needs at least {min_samples}")
     faults = find_faults(rec.channels, h=rec.h, temperature=rec.temperature, time_s=rec.time_s)
     channels, temperature = apply_faults(rec.channels, rec.temperature, faults)
     values = np.column_stack([c.values for c in channels])
+    unasked = find_missing(np.where(drop[:, None], 0.0, values), [c.label for c in channels])
+    if drop.any():
+        from dataclasses import replace
+
+        channels = tuple(replace(c, values=np.where(drop, np.nan, c.values)) for c in channels)
+        values = np.column_stack([c.values for c in channels])
     missing = find_missing(values, [c.label for c in channels])
-    if missing.count and not allow_missing:
+    if unasked.count and not allow_missing:
+        missing = unasked
         why = ""
         if faults.missing_count:
             why = (f" — {faults.missing_count} of them made missing by the recording's faults: "
@@ -135,4 +185,4 @@ def prepare(recording: Recording, *, samples: int | None = None, allow_missing: 
     timing = None
     if rec.time_s is not None:
         timing = check_timing(rec.time_s, rec.rate_hz, column=rec.time_column, rate_source=rec.rate_source)
-    return Measurements(rec, channels, faults, missing, timing, temperature, allow_missing, total)
+    return Measurements(rec, channels, faults, missing, timing, temperature, allow_missing, total, tuple(excluded))

@@ -16,7 +16,7 @@ from torchtea.checking.hidden import HIDDEN_STRENGTH, hidden_case
 from torchtea.checking.diagnostics import (LEVEL, _stochastic_avar, change, innovations, linear_lr, lines, ljung_box, nis_windows,
                                            run_diagnostics, spectrum_bands, temperature_view)
 from torchtea.cli import main
-from torchtea.fitting.mle import exact_loglik, refine_exact
+from torchtea.fitting.mle import exact_loglik, fit_series, refine_exact
 from torchtea.noise import default_values, parse_model, simulate_model, temperature_profile
 from torchtea.noise.components import TemperatureOrder
 
@@ -499,3 +499,58 @@ def test_an_effect_that_explains_a_failed_diagnostic_comes_first_within_the_wind
     rw = s("random-walk", 95.0, ["change"])
     out = rank([s("ramp", 100.0, []), rw, s("step", 80.0, [])], {"change"})
     assert out[0].effect == "ramp" and out[0].close == ["random-walk"] and "random-walk (gain 95.0)" in out[0].note
+
+
+def test_a_degenerate_base_is_refitted_before_the_screens_and_the_band_is_suggested():
+    """Issue 44, item 1: a band at 20 Hz beside fractional+white, and the model's exact fit handed to check at a
+    degenerate point — the order at its bound (0.9999) and the white noise collapsed (10⁻⁶ of its value), the
+    fractional part standing in for both. check sees the degeneracy, refits the model from the other modes of its
+    likelihood before anything is screened (the note says so, and the fit is then far higher), and the resonance is
+    the first suggestion."""
+    m = "fractional+white+resonance"
+    v = default_values(m, H)
+    v.update({"resonance.frequency_hz": 20.0, "resonance.bandwidth_hz": 0.3, "resonance.sigma": 0.06})
+    y = simulate_model(m, v, n_steps=8000, h=H, generator=torch.Generator().manual_seed(5))[0, 0].numpy()
+    base = parse_model("fractional+white")
+    good = fit_series(base, [y], H, intervals=False)[0]
+    bad_values = dict(good.values, **{"fractional.order": 0.9999, "white.r": good.values["white.r"] * 1e-6})
+    bad = refine_exact(base, y, H, bad_values, fixed=base.names, intervals=False)
+    bad.free = list(base.names)
+    bad.u = base.to_unconstrained(bad_values, H)[0]
+    from torchtea.checking.check import degenerate
+
+    why = degenerate(base, bad, H, len(y))
+    assert any("fractional.order 0.9999 at its bound" in w for w in why), why
+    walk = parse_model("fractional+white+random-walk")
+    gone = refine_exact(walk, y, H, dict(good.values, **{"random-walk.sigma": 1e-12}), fixed=walk.names,
+                        intervals=False)
+    gone.free = list(walk.names)
+    assert "random-walk collapsed" in degenerate(walk, gone, H, len(y))
+    r = check(y, H, fit=bad, intervals=False)
+    assert any("was degenerate" in n for n in r.notes), r.notes
+    assert r.fit.loglik > bad.loglik + 100 and r.fit.loglik >= good.loglik - 1e-3
+    assert r.suggestions and r.suggestions[0].effect == "resonance"
+    assert abs(r.suggestions[0].parameters["frequency_hz"] - 20.0) < 0.5
+
+
+def test_an_effect_at_its_null_value_is_never_credited():
+    """Issue 44, item 1: data from fractional+white with a temperature channel, the model's fit handed to check off
+    its maximum (its pole 1.6× the fitted one, everything held there), and every screened effect let through
+    (screen_level 1): a refit that gains only by moving the model's own parameters, its effect at its null value, is
+    the model's improvement — the model is refined and checked again (the note says so), its ℓ then that of its own
+    fit, and nothing is suggested (the data have no effect).""" 
+    m = "fractional+white"
+    n = 6000
+    T = temperature_profile(n, H, generator=torch.Generator().manual_seed(3)).numpy()
+    y = simulate_model(m, default_values(m, H), n_steps=n, h=H, generator=torch.Generator().manual_seed(8))[0, 0].numpy()
+    model = parse_model(m)
+    good = fit_series(model, [y], H, intervals=False)[0]
+    off = dict(good.values, **{"fractional.pole": good.values["fractional.pole"] * 1.6})
+    bad = refine_exact(model, y, H, off, fixed=model.names, intervals=False)
+    bad.free = list(model.names)
+    assert bad.loglik < good.loglik - 2
+    r = check(y, H, inputs={"temperature": T}, fit=bad, intervals=False, screen_level=1.0,
+              candidates=["temperature-order", "temperature-bias"])
+    assert any("was not its maximum" in note for note in r.notes), r.notes
+    assert r.fit.loglik >= good.loglik - 1e-2
+    assert not r.suggestions, [(s.effect, s.gain, s.parameters) for s in r.suggestions]

@@ -54,6 +54,7 @@ def _without_times(x):
     return x
 
 
+@pytest.mark.slow
 def test_check_on_a_cluster_is_the_check_in_this_process(cluster, tmp_path):
     """``check --auto`` of four channels with ``--scheduler`` (the module's cluster) writes the check.json of the run
     in this process, number for number (the timings aside): each channel's arithmetic is its own, torch and BLAS run

@@ -342,7 +342,8 @@ def _check_channels(args, m, inputs, *, auto: bool, intervals: bool) -> dict:
     try:
         results = check_measurements(m, args.model, inputs=inputs, add=getattr(args, "add", []), auto=auto,
                                      max_steps=getattr(args, "max_steps", 6), strong=getattr(args, "strong", None),
-                                     intervals=intervals, levels=levels, progress=step, log=_note, client=client,
+                                     intervals=intervals, levels=levels, progress=step, log=_note, stages=_note,
+                                     client=client,
                                      threads=args.threads_per_worker, effects=tuple(args.effects))
     finally:
         close()

@@ -36,11 +36,11 @@ def check_measurements(m, model=None, *, inputs: dict | None = None, add: Iterab
                        max_steps: int = 6, strong: float | None = None, intervals: bool = True,
                        levels: dict | None = None, progress: Callable | None = None,
                        log: Callable | None = None, client=None, threads: int | None = None,
-                       effects: tuple = ()) -> dict:
+                       effects: tuple = (), stages: Callable | None = None) -> dict:
     """Check each channel of ``m`` (:class:`~torchtea.sensors.measurements.Measurements`) with ``model`` (default
     :data:`PAPER_MODEL`): :func:`check_channel` with ``add``, ``auto``, ``max_steps``, ``strong``; ``levels``: check's
     ``level``/``screen_level`` where given. ``progress(done, total)`` after each channel; ``log(line)`` before each
-    channel and at each stage within it (in this process).
+    channel; ``stages(line)`` at each stage within one (in this process).
 
     ``client``: a ``distributed.Client``: each channel is one task on its workers (``threads`` numba threads each,
     default 1), the results in channel order and the same as in this process (every number a channel's check computes
@@ -55,7 +55,7 @@ def check_measurements(m, model=None, *, inputs: dict | None = None, add: Iterab
     for i, c in enumerate(m.channels):
         if log is not None:
             log(f"checking {c.label}, {c.title} ({m.samples} samples, model {model}) …")
-        say = None if log is None else (lambda line, label=c.label: log(f"  {label}: {line}"))
+        say = None if stages is None else (lambda line, label=c.label: stages(f"  {label}: {line}"))
         results[c.label] = check_channel(c.values, m.h, model, progress=say, threads=threads, **kw)
         if progress is not None:
             progress(i + 1, len(m.channels))

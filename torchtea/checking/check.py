@@ -147,6 +147,9 @@ class CheckResult:
     timings: dict = field(default_factory=dict)
     #: Why :meth:`auto` stopped here ("" when this result is not the end of a loop).
     loop_end: str = ""
+    #: Every passing candidate's exact refit, effect → :class:`~torchtea.fitting.mle.Fit` (the suggestions' and those
+    #: that lowered no BIC): the next step of the loop starts its refits of the same effects from them.
+    refits: dict = field(default_factory=dict)
 
     @property
     def model(self) -> NoiseModel:
@@ -218,8 +221,9 @@ class CheckResult:
             except NotScreened as exc:
                 raise ValueError(f"cannot add {effect}: {exc}") from None
         start = next((s.fit for s in self.suggestions if s.fit.model.spec == alt.spec), None)
+        carry = {e: f for e, f in self.refits.items() if e != effect}
         res = check(self.y, self.h, model=alt, inputs=self.inputs, level=self.level,
-                    screen_level=self.screen_level, fit=start, **kw)
+                    screen_level=self.screen_level, fit=start, carry=carry, **kw)
         res.before = self
         return res
 
@@ -446,11 +450,10 @@ def _whittle_screens(model, base, rows_alts, y, h, inputs, cache: dict):
         # ≈ 1 to mimic it, and the extended model's optimum is then far from the model's. Both searches are run to
         # convergence and the better kept: after a few iterations the bent start can look better and is not
         strengths = dict(alt.components)[label].strengths(label, model, base_values, h, len(y))
-        fits = [whittle_fit(alt, [yy], h, inputs=inp, fractions=(0.5,))]
-        if strengths:  # (a user's component may give none: the grid alone)
-            fits.append(whittle_fit(alt, [yy], h, inputs=inp, grid=False,
-                                    starts=[[{**base_values, **o} for o in strengths]]))
-        wf = max(fits, key=lambda w: float(w.loglik[0]) if bool(torch.isfinite(w.loglik[0])) else -math.inf)
+        # (the grid and the strengths as one batch: a user's component may give no strength, the grid alone then)
+        wf = whittle_fit(alt, [yy], h, inputs=inp, fractions=(0.5,),
+                         starts=[[{**base_values, **o} for o in strengths]] if strengths else None)
+        fits = [wf]
         lr = max(0.0, 2.0 * float(wf.loglik[0] - base.loglik[0]))
         logp = boundary_logsf(lr, dict(alt.components)[label].screen_df)
         vals = dict(zip(alt.names, wf.values[0].tolist()))
@@ -465,7 +468,7 @@ def _whittle_screens(model, base, rows_alts, y, h, inputs, cache: dict):
 
 def check(y, h: float, model=PAPER_MODEL, inputs: dict | None = None, *, level: float = LEVEL,
           screen_level: float = 0.05, candidates=None, fit: Fit | None = None, intervals: bool = True,
-          progress=None) -> CheckResult:
+          progress=None, carry: dict | None = None) -> CheckResult:
     """Fit ``model`` to the series ``y`` (NaN = missing, sample time ``h``), run the diagnostics and rank the
     missing effects (module docstring). ``inputs``: ``{"temperature": (N,)}`` (°C) when there is a temperature
     channel. ``candidates``: the effects to screen (default: every registered candidate,
@@ -473,7 +476,9 @@ def check(y, h: float, model=PAPER_MODEL, inputs: dict | None = None, *, level: 
     ``intervals``: compute the intervals of
     the model's parameters and of the best suggestion's (the observed information, from exact gradients where the
     sensitivity filter applies); the other suggestions' parameters come without. ``progress(line)``: called with a
-    short line as each stage starts (the CLI shows them).
+    short line as each stage starts (the CLI shows them). ``carry``: effect → an earlier step's refit of a model
+    with that effect (:attr:`CheckResult.refits`): one more start for its refit here, the effect at the values it
+    had there (what the loop knows carries to its next step).
 
     The model's exact likelihood can have several maxima (a fractional order bent to ≈ 1 mimics a random walk
     or a low-pass). Every candidate's refit starts from several places (:func:`_refit`); when a refit, with its new
@@ -490,6 +495,7 @@ def check(y, h: float, model=PAPER_MODEL, inputs: dict | None = None, *, level: 
             if len(v) != len(y):
                 raise ValueError(f"input channel {k!r} has {len(v)} values, the series {len(y)}")
     run = _Run(y, h, inputs, level, progress)
+    run.carry = dict(carry or {})
     say = run.say
     if ("whittle", model.spec) not in run.cache:
         say(f"fitting {model.spec} (Whittle)")
@@ -499,8 +505,20 @@ def check(y, h: float, model=PAPER_MODEL, inputs: dict | None = None, *, level: 
         say(f"fitting {model.spec} (exact likelihood)")
         fit = fit_series(model, [y], h, method="exact", inputs=run.inp_list, profile=False, whittle=wf,
                          intervals=intervals)[0]
-    run.clock("fit")
     notes = []
+    why = degenerate(model, fit, h, len(y))
+    if why:
+        say(f"refitting {model.spec} from other modes ({'; '.join(why)})")
+        better = _refit_degenerate(run, model, fit, wf, intervals)
+        if better is not None:
+            notes.append(f"the exact fit of {model.spec} was degenerate ({'; '.join(why)}; ℓ {fit.loglik:.2f}): "
+                         f"refitted from the other modes of its likelihood before anything was screened, the best "
+                         f"({better.notes[0] if better.notes else 'ℓ ' + format(better.loglik, '.2f')}) kept")
+            fit = better
+        else:
+            notes.append(f"the exact fit of {model.spec} is degenerate ({'; '.join(why)}): refitted from the other "
+                         "modes of its likelihood, none higher — the data put it there")
+    run.clock("fit")
     for attempt in range(BASE_RESTARTS + 1):
         res, better = _check_once(run, model, fit, wf, screen_level, candidates, intervals,
                                   restart=attempt < BASE_RESTARTS)
@@ -510,7 +528,7 @@ def check(y, h: float, model=PAPER_MODEL, inputs: dict | None = None, *, level: 
                      f"{better[0].loglik:.2f} after refining), and the check was run from there")
         fit = better[0]
     res.notes[:0] = notes
-    if not fit.converged:
+    if not res.fit.converged:
         res.notes.append("the exact fit did not report convergence: diagnostics are at the last iterate")
     res.seconds = time.perf_counter() - t0
     res.timings = run.clock.laps
@@ -519,6 +537,61 @@ def check(y, h: float, model=PAPER_MODEL, inputs: dict | None = None, *, level: 
 
 #: How many times :func:`check` refines the model from a candidate's better point and starts again.
 BASE_RESTARTS = 2
+#: A logit beyond this puts a parameter at its bound (an order within 3·10⁻⁴ of 0 or 1, a pole at its stability
+#: limit or at 0); a stochastic component whose spectrum is below this fraction of the model's at every frequency
+#: has collapsed (:func:`degenerate`).
+DEGENERATE_LOGIT, DEGENERATE_SHARE = 8.0, 1e-4
+#: The denser grid of starts a degenerate fit is refitted from (orders × pole fractions).
+DEGENERATE_ORDERS, DEGENERATE_FRACTIONS = (0.05, 0.3, 0.6, 0.95), (0.2, 0.95)
+
+
+def degenerate(model, fit: Fit, h: float, n: int) -> list[str]:
+    """Why the fit of ``model`` is degenerate (empty when it is not): a free bounded parameter at its bound (an order
+    at 0 or 1; a pole at its stability limit — a pole at 0 is a model without one: logits beyond
+    :data:`DEGENERATE_LOGIT`), a stochastic component collapsed (its
+    spectrum below :data:`DEGENERATE_SHARE` of the model's at every Fourier frequency of ``n`` samples) — one
+    component standing in for another, as the fractional part at order 1 with a collapsed white noise stands in for
+    a band and the white noise at once (issue 44)."""
+    out = []
+    u = fit.u
+    for i, name in enumerate(model.names):
+        spec = model.param_spec(name)
+        if name not in fit.free or u is None:
+            continue
+        if spec.kind == "bounded" and abs(float(u[i])) > DEGENERATE_LOGIT:
+            out.append(f"{name} {fit.values[name]:.6g} at its bound")
+        elif spec.kind == "fraction" and float(u[i]) > DEGENERATE_LOGIT:  # (a pole at 0 is no pole: not degenerate)
+            out.append(f"{name} {fit.values[name]:.6g} at its stability limit")
+    omega = torch.linspace(2 * math.pi / n, math.pi, 512, dtype=torch.float64)
+    values = {k: [v] for k, v in fit.values.items()}
+    parts = model.component_spectra(values, omega, h)
+    total = sum(parts.values())
+    for label, S in parts.items():
+        if len(parts) > 1 and bool((S < DEGENERATE_SHARE * total).all()):
+            out.append(f"{label} collapsed")
+    return out
+
+
+def _refit_degenerate(run: _Run, model, fit: Fit, wf, intervals: bool) -> Fit | None:
+    """The model refitted from its degenerate fit and from the modes of its Whittle likelihood, those of the first
+    fit and those of a grid of other starts (:data:`DEGENERATE_ORDERS` × :data:`DEGENERATE_FRACTIONS`), the best kept (:func:`refine_best`); None when
+    none is higher than ``fit`` by :data:`BASE_SLACK`."""
+    y, h = run.y, run.h
+    starts = [("the degenerate fit", dict(fit.values))]
+    dense = whittle_fit(model, [run.filled], h, inputs=run.inp_list, orders=DEGENERATE_ORDERS,
+                        fractions=DEGENERATE_FRACTIONS) if model.order_name is not None else wf
+    for w, name in ((wf, "Whittle mode"), (dense, "dense-grid Whittle mode")):
+        for k, (u, _, _) in enumerate(w.modes[0] if w.modes else []):
+            v = {n: float(x) for n, x in zip(model.names, model.as_matrix(model.from_unconstrained(u, h))[0])}
+            starts.append((f"{name} {k + 1}", {**v, **w.means[0]}))
+    located = model.located()
+    fixed = [n for n in model.names if n not in fit.free or n in located or n in model.references()]
+    new, _ = refine_best(model, y, h, starts, inputs=run.inputs, fixed=fixed, must=["the degenerate fit"],
+                         intervals=intervals)
+    if not new.loglik > fit.loglik + BASE_SLACK:
+        return None
+    _counted(new, {n: w for n, w in located.items()})
+    return new
 
 
 class _Run:
@@ -533,6 +606,7 @@ class _Run:
         self.cache = {}
         self.clock = _Clock()
         self.progress = progress
+        self.carry = {}
 
     def say(self, line: str) -> None:
         if self.progress is not None:
@@ -556,21 +630,27 @@ def _check_once(run: _Run, model, fit: Fit, wf, screen_level, candidates, interv
     threshold = screen_level / max(1, len(screened))
     suggestions = []
     refits = []
+    refitted = {}
     failed_before = {d.name for d in diags if d.passed is False}
     for row in screened:
         row["passed"] = bool(row["p_value"] < threshold)
         row["threshold"] = threshold
     passed = [r for r in screened if r["passed"]]
+    long = len(y) > LONG_RECORD and len(passed) > 1
     for k, row in enumerate(passed):
-        run.say(f"refitting {model.spec}+{row['effect']} ({k + 1}/{len(passed)})")
+        run.say(f"{'evaluating' if long else 'refitting'} {model.spec}+{row['effect']} ({k + 1}/{len(passed)})")
         alt = extend(model, row["token"])
         label = _new_label(model, alt)
         # what the components hold (a temperature reference; the new line's frequency at the refined periodogram
         # peak, which still counts as an estimated parameter in BIC)
         estimates = {**_held(alt, label), **alt.located()}
         fixed = [n for n in alt.names if n in alt.references() or n in estimates]
-        f2 = _refit(run, model, alt, label, fit, wf, row, fixed)
+        f2 = _refit(run, model, alt, label, fit, wf, row, fixed, refine=not long)
+        if long:
+            _add_note(row, "a long record: its gain is the exact likelihood's at the best of its starts, not maximised "
+                           "(a lower bound); the best suggestion alone is refitted")
         refits.append(f2)
+        refitted[row["effect"]] = f2
         _counted(f2, estimates)
         gain = _bic(fit) - _bic(f2)
         lr = 2.0 * (f2.loglik_exact - fit.loglik_exact)
@@ -582,6 +662,10 @@ def _check_once(run: _Run, model, fit: Fit, wf, screen_level, candidates, interv
                     return None, (better, f"{row['effect']}'s refit put {row['effect']} at its null value (its "
                                           f"share of ℓ {f2.loglik - base_there:.2f} nats), the rest at a better "
                                           "point of the model's own likelihood")
+        if gain <= 0 and long:
+            _add_note(row, f"at the best of its starts the exact likelihood lowers no BIC (gain {gain:.1f}, a lower "
+                           "bound: not maximised on a long record); not suggested")
+            continue
         if gain <= 0:
             if row["statistic"] is not None and lr < 0.5 * row["statistic"] - FIT_FAILED_SLACK:
                 _add_note(row, f"passed its screen (LR {row['statistic']:.1f}), but the exact refit gains only "
@@ -605,6 +689,20 @@ def _check_once(run: _Run, model, fit: Fit, wf, screen_level, candidates, interv
         if better is not None:
             return None, (better, "a candidate's refit without its new component was a better point")
     suggestions = rank(suggestions, failed_before)
+    if long and suggestions:  # the best suggestion refitted, from the start that ranked it
+        top = suggestions[0]
+        row = next(r for r in screens if r["effect"] == top.effect)
+        run.say(f"refitting {top.fit.model.spec}")
+        alt = top.fit.model
+        estimates = {**_held(alt, top.label), **alt.located()}
+        fixed = [n for n in alt.names if n in alt.references() or n in estimates]
+        f2 = _refit_from(run, alt, top.fit, fixed)
+        _counted(f2, estimates)
+        top.fit, top.gain = f2, float(_bic(fit) - _bic(f2))
+        _, top.diagnostics, top.metrics = _assess(alt, f2.values, y, h, inputs, run.level)
+        top.repairs = sorted(failed_before & {d.name for d in top.diagnostics if d.passed})
+        row["note"] = row["note"].replace("; the best suggestion alone is refitted", "; refitted as the best suggestion")
+        suggestions = rank(suggestions, failed_before)
     if intervals and suggestions:  # the best suggestion's intervals (the observed information)
         run.say(f"intervals of {suggestions[0].fit.model.spec}")
         top = suggestions[0]
@@ -618,7 +716,8 @@ def _check_once(run: _Run, model, fit: Fit, wf, screen_level, candidates, interv
             if n in top.fit.free:
                 top.fit.ci95[n], top.fit.ci95_method[n] = c, words
     clock("intervals")
-    return CheckResult(y, h, inputs, fit, inn, diags, mets, screens, suggestions, run.level, screen_level, 0.0, []), None
+    return CheckResult(y, h, inputs, fit, inn, diags, mets, screens, suggestions, run.level, screen_level, 0.0, [],
+                       refits=refitted), None
 
 
 #: A suggestion that repairs a failed diagnostic its effect explains (``Component.explains``: a temperature effect
@@ -695,6 +794,14 @@ def _add_note(row: dict, text: str) -> None:
 #: A refit of the extended model whose ℓ is more than this many nats below the model's fit has failed (the
 #: extended model contains the model, so its maximum is at least the model's).
 NESTED_SLACK = 0.5
+#: Above this many samples a check ranks the passing candidates by the exact likelihood at the best of their starts
+#: (a lower bound of each refit's gain: the screen's Whittle fit, the model's fit with the effect at the screen's
+#: values, …) and refits only the best: on 2.16·10⁶ samples one exact refit takes minutes (issue 44).
+LONG_RECORD = 500_000
+#: A candidate's refit has converged when it can gain less than this many nats: its BIC gain is then known to 10⁻³
+#: (the ranking needs 0.1; the suggestion the loop adds is refined to :func:`~torchtea.fitting.mle.decrement_tolerance`
+#: with its intervals).
+REFIT_TOLERANCE = 1e-3
 #: A point of the model's own likelihood better than its fit by more than this many nats shows that the fit was not
 #: the model's maximum.
 BASE_SLACK = 0.5
@@ -707,7 +814,7 @@ NULL_EFFECT = 1.92
 FIT_FAILED_SLACK = 5.0
 
 
-def _refit(run: _Run, model, alt, label, fit: Fit, wf, row: dict, fixed: list) -> Fit:
+def _refit(run: _Run, model, alt, label, fit: Fit, wf, row: dict, fixed: list, refine: bool = True) -> Fit:
     """The extended model ``alt`` (the model with the component ``label``) fitted by exact likelihood from several
     starts (:func:`~torchtea.fitting.mle.refine_best`), the best kept:
 
@@ -724,7 +831,9 @@ def _refit(run: _Run, model, alt, label, fit: Fit, wf, row: dict, fixed: list) -
       in for the missing effect), the extended model's optimum lies elsewhere, and starting from the model's fit
       stays on the model's mode.
 
-    The row's note says which start won when it was not the screen's."""
+    The row's note says which start won when it was not the screen's. ``refine=False`` (a long record's candidates,
+    :data:`LONG_RECORD`): the best start as it is, its exact ℓ evaluated, not maximised — a lower bound of the
+    refit's, so its gain is too."""
     y, h, inputs, cache = run.y, run.h, run.inputs, run.cache
     comp = dict(alt.components)[label]
     new = [n for n in alt.names if n not in model.names]
@@ -734,7 +843,9 @@ def _refit(run: _Run, model, alt, label, fit: Fit, wf, row: dict, fixed: list) -
     starts = []
     if comp.kind in ("mean", "modifier"):
         key = ("whittle", alt.spec)
-        if key not in cache:  # (a mean's own values are its least squares there)
+        if key not in cache:  # (a mean's own values are its least squares there; its noise starts at the grid —
+            # a mean the model lacked can have bent its order to the other mode of the order–pole ridge, and the
+            # extended model's optimum is then on the first — and at the model's Whittle fit)
             cache[key] = whittle_fit(alt, [run.filled], h, inputs=run.inp_list, fractions=(0.5,),
                                      starts=[[{**{n: start[n] for n in new},
                                                **dict(zip(model.names, wf.values[0].tolist()))}]])
@@ -770,11 +881,18 @@ def _refit(run: _Run, model, alt, label, fit: Fit, wf, row: dict, fixed: list) -
                       **wfa.means[0]} for u, _, _ in (wfa.modes[0] if wfa.modes else [])]
         for k, v in enumerate(modes or []):
             starts.append((f"the extended model's Whittle mode {k + 1}", v))
+    earlier = run.carry.get(row["effect"])
+    if earlier is not None:  # the last step's refit of this effect: its values there, the model's here
+        kept = {n: earlier.values[n] for n in new if n in earlier.values}
+        if len(kept) == len(new):
+            starts.append(("the effect at its last step's refit", {**base, **kept}))
     starts = [(name, v) for name, v in starts if set(v) >= set(alt.names)]
-    key = ("refit", alt.spec, tuple((name, tuple(sorted((k, float(x)) for k, x in v.items()))) for name, v in starts))
+    key = ("refit" if refine else "evaluated", alt.spec,
+           tuple((name, tuple(sorted((k, float(x)) for k, x in v.items()))) for name, v in starts))
     if key not in cache:
         must = [name for name, _ in starts[:3]]
-        cache[key] = refine_best(alt, y, h, starts, inputs=inputs, fixed=fixed, must=must)
+        cache[key] = refine_best(alt, y, h, starts, inputs=inputs, fixed=fixed, must=must, others=1,
+                                 tolerance=REFIT_TOLERANCE, refine=refine)
     f2, tried = cache[key]
     f2 = copy.deepcopy(f2)
     winner = max(tried, key=lambda t: t[2])
@@ -784,10 +902,17 @@ def _refit(run: _Run, model, alt, label, fit: Fit, wf, row: dict, fixed: list) -
             f"{there:.2f}" if math.isfinite(there) else "−∞: no finite likelihood")
         _add_note(row, f"refitted from {len(tried)} starts; the best from {winner[0]} (ℓ {winner[2]:.2f}; from the "
                        f"screen's start {there})")
-    if not f2.loglik >= fit.loglik - NESTED_SLACK:
+    if refine and not f2.loglik >= fit.loglik - NESTED_SLACK:
         _add_note(row, f"every refit ended below the model's ℓ {fit.loglik:.2f} (best {f2.loglik:.2f}): an optimiser "
                        "failure (the models are nested)")
     return f2
+
+
+def _refit_from(run: _Run, alt, evaluated: Fit, fixed: list) -> Fit:
+    """A long record's best suggestion: its exact maximum from the start that ranked it."""
+    fit, _ = refine_best(alt, run.y, run.h, [("the start that ranked it", dict(evaluated.values))],
+                         inputs=run.inputs, fixed=fixed, tolerance=REFIT_TOLERANCE)
+    return fit
 
 
 def _model_at(model, f2: Fit, y, h, inputs) -> float:

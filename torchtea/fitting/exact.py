@@ -101,6 +101,9 @@ def exact_loglik_grad(model, U: Tensor, y, h: float, free, *, inputs: dict | Non
     N = len(y)
     U = torch.as_tensor(U, dtype=torch.float64).reshape(-1, len(model.names))
     free = torch.as_tensor(np.asarray(free, dtype=np.int64))
+    if free.numel() == 0:  # nothing free: the likelihood alone
+        ll = exact_loglik(model, model.from_unconstrained(U, h), y, h, inputs=inputs, memory=memory)
+        return ll, np.zeros((len(U), 0)), np.zeros((len(U), 0, 0))
     mem = state_memory(memory, N)
     t = torch.arange(N, dtype=torch.float64) * h
     inp = None if inputs is None else {k: torch.as_tensor(v, dtype=torch.float64) for k, v in inputs.items()}
@@ -123,9 +126,13 @@ def exact_loglik_grad(model, U: Tensor, y, h: float, free, *, inputs: dict | Non
             def mean_of(um, u=u, sub=sub):
                 return model.mean(model.from_unconstrained(u.index_put((sub,), um), h), t, inp)[0]
 
-            # one forward-mode pass per direction (a mean may hold a function with its own jvp, which vmap cannot batch)
-            eye = torch.eye(len(sub), dtype=torch.float64)
-            dmeans.append(torch.stack([torch.func.jvp(mean_of, (u[sub],), (eye[d],))[1] for d in range(len(sub))]))
+            try:  # every direction in one batched forward-mode pass …
+                dmeans.append(torch.func.jacfwd(mean_of)(u[sub]).mT)  # (D, N)
+            except RuntimeError:  # … or one pass each, where a mean holds a function of its own derivative (a
+                # thermal lag's filter) that vmap cannot batch
+                eye = torch.eye(len(sub), dtype=torch.float64)
+                dmeans.append(torch.stack([torch.func.jvp(mean_of, (u[sub],), (eye[d],))[1]
+                                           for d in range(len(sub))]))
     stack = lambda k: torch.stack([m[0][k] for m in mats]).detach().numpy()  # noqa: E731
     dstack = lambda k: torch.stack([m[1][k].movedim(-1, 0) for m in mats]).detach().numpy()  # noqa: E731
     if np.any(dstack(2)):

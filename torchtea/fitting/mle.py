@@ -318,14 +318,15 @@ SCORING_STEPS = (1.0, 0.25, 0.0625, 0.015625)
 #: within RACE_MARGIN nats of a finished start's ℓ in its iterations left (:func:`_score_batch`).
 RACE_WINDOW, RACE_MARGIN = 5, 2.0
 #: The scoring iterations keep every logit (a bounded parameter's, the pole's fraction, a frequency's share of
-#: Nyquist) within ±this (:func:`_score_batch`).
-LOGIT_BOUND = 12.0
+#: Nyquist) within ±this (:func:`_score_batch`): an order within 10⁻⁷ of 0 or 1 is at its bound.
+LOGIT_BOUND = 16.0
 #: Two full scoring steps in a row whose decrement is above this fraction of the one before: linear convergence, and
 #: the metric starts learning from the gradients (:func:`_score_batch`).
 SLOW_RATIO = 0.5
 
 
-def _score_batch(model, y, h, U0: Tensor, free: Tensor, inputs, memory, max_iter: int = 60):
+def _score_batch(model, y, h, U0: Tensor, free: Tensor, inputs, memory, max_iter: int = 60,
+                 tolerance: float | None = None):
     r"""The method of scoring from K starts ``U0`` ``(K, P)`` at once (their likelihoods evaluated as one batch, the
     finished ones left out): directions :math:`-(\mathcal I + \mu\,\mathrm{diag}\,\mathcal I)^{-1} g` on the
     scoring information of the sensitivity filter (:func:`~.exact.exact_loglik_grad`), capped at 3 in the
@@ -338,6 +339,7 @@ def _score_batch(model, y, h, U0: Tensor, free: Tensor, inputs, memory, max_iter
     within :data:`MODE_DISTANCE` of a finished one, below it, or once at its recent pace it cannot reach a finished
     one's ℓ in the iterations it has left (:data:`RACE_WINDOW`, :data:`RACE_MARGIN`): the batch does not wait for a
     start that cannot end higher.
+    ``tolerance``: the decrement (nats) at which a start has converged, instead of :func:`decrement_tolerance`'s.
     Returns the free coordinates ``(K, F)``, −ℓ ``(K,)``, converged ``(K,)`` and iterations ``(K,)``."""
     idx = free.nonzero().squeeze(-1).numpy()
     U0 = U0.detach().to(torch.float64)
@@ -347,12 +349,14 @@ def _score_batch(model, y, h, U0: Tensor, free: Tensor, inputs, memory, max_iter
     values = _objective(model, y, h, U0[0].clone(), idx, inputs, memory)
     X = U0[:, idx].numpy().copy()
     K = len(X)
-    # a logit past ±LOGIT_BOUND is a parameter at its bound (an order within 6·10⁻⁶ of 0 or 1, a pole at its
+    # a logit past ±LOGIT_BOUND is a parameter at its bound (an order within 10⁻⁷ of 0 or 1, a pole at its
     # stability limit or at 0): the steps stop there instead of wandering along a flat boundary
     bounded = np.array([model.param_spec(model.names[i]).kind in ("bounded", "fraction", "nyquist") for i in idx])
     lim = np.where(bounded, LOGIT_BOUND, np.inf)
     X = np.clip(X, -lim, lim)
     f, g, info = vgi(X)
+    if not len(idx):  # nothing free: the likelihood where it is
+        return X, f, np.ones(K, dtype=bool), np.zeros(K, dtype=int)
     # the metric of each start's steps: the scoring information, until the steps converge only linearly (each full
     # step gains what the information predicts, but the prediction shrinks slowly: the information overstates the
     # curvature along some direction — the misspecified part of a model, a mean's second derivatives), then
@@ -368,7 +372,7 @@ def _score_batch(model, y, h, U0: Tensor, free: Tensor, inputs, memory, max_iter
     done = f >= 1e300
     stalls = np.zeros(K, dtype=int)
     iterations = np.zeros(K, dtype=int)
-    tol = np.array([decrement_tolerance(x) for x in f])
+    tol = np.array([decrement_tolerance(x) if tolerance is None else tolerance for x in f])
     ts = np.array(SCORING_STEPS)
     for _ in range(max_iter):
         active = np.nonzero(~done)[0]
@@ -376,13 +380,18 @@ def _score_batch(model, y, h, U0: Tensor, free: Tensor, inputs, memory, max_iter
             break
         steps, decs = [], []
         for k in active:
-            d = np.diag(metric[k])
-            floor = 1e-12 * max(float(d.max()), 1e-300)
-            A = metric[k] + np.diag(mu[k] * np.maximum(d, floor) + floor)
+            # a logit held at its bound while the gradient pushes it further out stays there: the step is the
+            # Newton step of the others (projected Newton; a step clipped at the bound afterwards points elsewhere)
+            held = (np.abs(X[k]) >= lim) & (np.sign(X[k]) == -np.sign(g[k]))
+            move = ~held
+            step = np.zeros_like(g[k])
+            d = np.diag(metric[k])[move]
+            floor = 1e-12 * max(float(d.max()), 1e-300) if len(d) else 1.0
+            A = metric[k][np.ix_(move, move)] + np.diag(mu[k] * np.maximum(d, floor) + floor)
             try:
-                step = -np.linalg.solve(A, g[k])
+                step[move] = -np.linalg.solve(A, g[k][move])
             except np.linalg.LinAlgError:
-                step = -g[k] / (np.maximum(d, floor) * (1 + mu[k]))
+                step[move] = -g[k][move] / (np.maximum(d, floor) * (1 + mu[k]))
             decs.append(-0.5 * float(g[k] @ step))
             big = float(np.max(np.abs(step))) if len(step) else 0.0
             steps.append(step * (3.0 / big) if big > 3.0 else step)
@@ -919,14 +928,17 @@ START_MARGIN = 10.0
 
 
 def refine_best(model, y, h: float, starts: list, *, inputs: dict | None = None, fixed=(), must=(),
-                memory=FIT_MEMORY, intervals: bool = False) -> tuple[Fit, list]:
+                memory=FIT_MEMORY, intervals: bool = False, others: int = MAX_MODES,
+                tolerance: float | None = None, refine: bool = True) -> tuple[Fit, list]:
     """The exact MLE of one series from several starts, the best kept: ``starts`` a list of ``(name, values)``
     (values of every parameter of ``model``; the names in ``fixed`` stay at the first start's values). The exact ℓ is
-    evaluated at every start in one batch; the starts within :data:`START_MARGIN` of the best (at most
-    :data:`MAX_MODES`, distinct) and those whose names are in ``must`` are refined — as one batch of scoring iterations
+    evaluated at every start in one batch; those whose names are in ``must`` and the best ``others`` of the rest
+    within :data:`START_MARGIN` of the best (distinct) are refined — as one batch of scoring iterations
     where the sensitivity filter applies (:func:`_score_batch`), else one after another — and the highest maximum
-    kept. Returns the :class:`Fit` (its notes say which start won) and per refined start ``(name, ℓ at the start,
-    ℓ at its maximum)``."""
+    kept (``tolerance``: the decrement at which a start has converged, :func:`_score_batch`). ``refine=False``:
+    the best start as it is, no iteration (its ℓ a lower bound of the maximum's). Returns the
+    :class:`Fit` (its notes say which start won) and per refined start ``(name, ℓ at the start, ℓ at its
+    maximum)``."""
     model = parse_model(model)
     y = np.asarray(y, dtype=np.float64)
     yc = centred(model, y)
@@ -937,18 +949,20 @@ def refine_best(model, y, h: float, starts: list, *, inputs: dict | None = None,
     free = torch.tensor([n not in fixed for n in model.names])
     ll0 = exact_loglik(model, model.from_unconstrained(U, h), yc, h, inputs=inputs, memory=memory)
     ll0 = np.where(np.isfinite(ll0), ll0, -np.inf)
-    chosen = []
+    chosen = [i for i in range(len(points)) if points[i][0] in must]
+    extra = 0
     for i in np.argsort(-ll0):
         i = int(i)
-        forced = points[i][0] in must
-        if not forced and (ll0[i] < ll0.max() - START_MARGIN or len(chosen) >= MAX_MODES):
+        if i in chosen or extra >= others or ll0[i] < ll0.max() - START_MARGIN:
             continue
-        near = any(float((U[i].clamp(-8, 8) - U[j].clamp(-8, 8))[free].abs().max()) <= MODE_DISTANCE for j in chosen)
-        if near and not forced:
+        if any(float((U[i].clamp(-8, 8) - U[j].clamp(-8, 8))[free].abs().max()) <= MODE_DISTANCE for j in chosen):
             continue
         chosen.append(i)
-    if gradient_supported(model, yc) is None:
-        X, f, ok, _ = _score_batch(model, yc, h, U[chosen], free, inputs, memory)
+        extra += 1
+    if not refine:
+        runs = [(U[i].clone(), float(ll0[i]), False) for i in chosen]
+    elif gradient_supported(model, yc) is None:
+        X, f, ok, _ = _score_batch(model, yc, h, U[chosen], free, inputs, memory, tolerance=tolerance)
         runs = []
         for k, i in enumerate(chosen):
             u = U[i].clone()

@@ -362,6 +362,7 @@ def _two_effects(n=12000, seed=1):
     return y, T
 
 
+@pytest.mark.slow
 def test_the_loop_runs_to_an_adequate_model_and_the_error_falls_at_each_step():
     """``CheckResult.auto`` (issue 30, item 3) on a temperature bias and a 3.37 Hz line hidden together: both are
     added, one per step, with a BIC gain each; between them they repair the lines and temperature diagnostics,
@@ -395,6 +396,7 @@ def test_the_loop_goes_on_past_an_adequate_model_while_a_suggestion_gains_strong
     assert kept is first and kept.loop_end.startswith("adequate after 0 effect(s) added (ramp would still gain")
 
 
+@pytest.mark.slow
 def test_the_loop_on_the_command_line(tmp_path, capsys):
     """``check --auto``: the terminal, report.md and check.json show every step; clean data end at step 0."""
     y, T = _two_effects(n=6000, seed=2)
@@ -414,6 +416,7 @@ def test_the_loop_on_the_command_line(tmp_path, capsys):
     assert len(r.steps) == 1 and r.loop_end == "adequate after 0 effect(s) added"
 
 
+@pytest.mark.slow
 def test_where_nothing_repairs_a_failure_the_verdict_says_where_and_what_would_fit(tmp_path):
     """Issue 30, item 4. A vibration line drifting from 13.1 to 11.8 Hz, which no fixed line fits, is now named:
     drifting-line first, at the middle frequency 12.45 Hz and rate −1.3/300 Hz/s, and it repairs the failed spectrum

@@ -236,6 +236,7 @@ def test_identify_runs_a_check_grown_model(tmp_path, capsys):
     assert "--r fitted" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_identify_from_a_checks_json(tmp_path, capsys):
     """``identify --from-check``: each channel runs the model its check ended with, at the check's values, no refit;
     channels of different models run as separate batches and come back in channel order (a channel's estimates are

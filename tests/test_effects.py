@@ -451,6 +451,7 @@ def test_spikes_are_written_with_their_count_and_their_mean_is_one_impulse_each(
     assert np.count_nonzero(d) == 2 and d[round(v["spikes.t1"] / H)] == pytest.approx(v["spikes.size1"])
 
 
+@pytest.mark.slow
 def test_check_finds_isolated_spikes_lists_their_times_and_ends_adequate():
     """The held-out case of the issue: spikes of 6–12 σ_w hidden in a recording of the random study (they pass as
     adequate without the extremes diagnostic). check fails extremes, suggests spikes first with the spikes' own
@@ -562,6 +563,7 @@ def test_a_resonance_is_the_dense_gaussian_and_its_fit_finds_the_band():
     assert COMPONENTS["resonance"].candidate
 
 
+@pytest.mark.slow
 def test_the_band_search_holds_its_level_on_noise_and_check_names_a_hidden_resonance():
     """``band_search`` (the resonance's screen): on 200 seeded white series its p-value is below 5 % in at most
     5 % + 3 binomial standard deviations of them (Bonferroni over positions and widths: conservative); on a recording

@@ -268,6 +268,7 @@ def test_the_model_spectrum_is_the_sum_of_its_components():
     assert torch.allclose(sum(parts.values()), m.spectrum(v, w, H), rtol=1e-12)
 
 
+@pytest.mark.slow
 def test_fit_and_check_export_the_model_they_end_with(tmp_path, capsys):
     """``fit --export`` writes beside its JSON; ``check --export`` into OUT/export, from the model the loop ends
     with (here one gyroscope axis of white noise + random walk, checked from white + random-walk)."""

@@ -151,6 +151,7 @@ def test_gyro_in_degrees_and_in_radians_give_the_same_numbers(tmp_path, capsys):
     assert docs[0]["axes"]["gx"]["parameters"]["white.r"]["value"] < r_deg * (math.pi / 180) ** 2 * 3
 
 
+@pytest.mark.slow
 def test_one_column_and_six_on_every_command(tmp_path, capsys):
     f = six_axis_csv(tmp_path, 1500)
     units = "g,g,g,deg/s,deg/s,deg/s"

@@ -890,7 +890,12 @@ def _refit(run: _Run, model, alt, label, fit: Fit, wf, row: dict, fixed: list, r
     key = ("refit" if refine else "evaluated", alt.spec,
            tuple((name, tuple(sorted((k, float(x)) for k, x in v.items()))) for name, v in starts))
     if key not in cache:
-        must = [name for name, _ in starts[:3]]
+        # always refined: the starts anchored at the model's exact fit (the effect at the screen's values; where it
+        # vanishes: the guarantee that the refit's ℓ is at least the model's); the others compete for one more place
+        must = ["the model's fit with the effect at the screen's estimate", "the model's fit with the effect at the "
+                "screen's values", "the model's fit with the effect vanishing"]
+        if comp.kind in ("mean", "modifier"):
+            must.append("the screen's start")
         cache[key] = refine_best(alt, y, h, starts, inputs=inputs, fixed=fixed, must=must, others=1,
                                  tolerance=REFIT_TOLERANCE, refine=refine)
     f2, tried = cache[key]

@@ -26,12 +26,16 @@ def free_cores() -> int:
 @contextlib.contextmanager
 def engine_threads(threads: int | None = None):
     """Within the block, torch and the BLAS libraries (NumPy's, SciPy's: ``threadpoolctl``) on one thread and numba's
-    kernels on ``threads`` (default :func:`free_cores`, at most numba's pool); all restored after. One BLAS thread
+    kernels on ``threads`` (default :func:`free_cores`, at most numba's pool); all restored after. The process's
+    allocator keeps large blocks in its heap from then on (:func:`~torchtea.core.alloc.tune_allocator`). One BLAS thread
     also makes a long dot product's rounding the same in every process (OpenBLAS splits it among its threads)."""
     import numba
     import torch
     from threadpoolctl import threadpool_limits
 
+    from .alloc import tune_allocator
+
+    tune_allocator()  # (a Dask worker's allocator settings made every large temporary a fresh mapping)
     n = free_cores() if threads is None else max(1, int(threads))
     n = min(n, numba.config.NUMBA_NUM_THREADS)
     before = torch.get_num_threads(), numba.get_num_threads()

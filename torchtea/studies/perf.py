@@ -1,42 +1,5 @@
-"""Process-level performance settings.
-
-A batched filter step allocates and frees the same few-megabyte temporaries thousands of times per
-second. With glibc's defaults, blocks that large are mapped and unmapped (or trimmed back to the system)
-each time, and every fresh page costs a page fault on first touch: in isolation, the exponential-sum
-evaluation of 1000 realisations ran 3–4× faster with :func:`tune_allocator`, which keeps such blocks in
-the heap. In whole TEA runs the benchmark (``experiments/bench/README.md``) measures the effect side by
-side; it was not large enough to turn on by default, so nothing in torchtea calls it — it is here for
-users who want to measure it on their machine.
-"""
-from __future__ import annotations
-
-import ctypes
-import ctypes.util
-import sys
+"""Process-level performance settings (moved to :mod:`torchtea.core.alloc`, which the check's and the fits' tasks on
+a Dask worker call; kept here for the benchmarks and users that import it from here)."""
+from ..core.alloc import tune_allocator
 
 __all__ = ["tune_allocator"]
-
-_M_TRIM_THRESHOLD = -1  # glibc mallopt parameters (malloc.h)
-_M_MMAP_THRESHOLD = -3
-
-
-def tune_allocator(mmap_threshold: int = 1 << 28, trim_threshold: int = 1 << 30) -> bool:
-    """Serve allocations below ``mmap_threshold`` bytes from the heap and keep up to ``trim_threshold``
-    bytes of freed heap instead of returning it to the system (glibc ``mallopt``).
-
-    Returns True if applied; False on platforms without glibc (nothing changes there).
-    """
-    if not sys.platform.startswith("linux"):
-        return False
-    name = ctypes.util.find_library("c")
-    if not name:
-        return False
-    try:
-        libc = ctypes.CDLL(name)
-        mallopt = libc.mallopt
-    except (OSError, AttributeError):
-        return False
-    mallopt.argtypes = [ctypes.c_int, ctypes.c_int]
-    ok = mallopt(_M_MMAP_THRESHOLD, int(mmap_threshold)) == 1
-    ok = mallopt(_M_TRIM_THRESHOLD, int(trim_threshold)) == 1 and ok
-    return ok

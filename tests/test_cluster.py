@@ -18,19 +18,6 @@ distributed = pytest.importorskip("distributed")
 TRUTH = Truth(h=1e-3, n_steps=150, order="0.35", param=-1.0, q=1e-4, r=1e-3, input_std=1.0)
 
 
-@pytest.fixture(scope="module")
-def cluster():
-    """Two worker processes with one thread each, shared by the tests of this module that do not break it."""
-    from torchtea.studies.cluster import local_cluster
-
-    cl, client = local_cluster(2, threads_per_worker=1)
-    try:
-        yield client
-    finally:
-        client.close()
-        cl.close()
-
-
 def assert_same_result(a: StudyResult, b: StudyResult):
     """Per-realisation values equal (the same arithmetic on the same draws); per-step sums to 1e-12 (the order
     of summation over realisations differs between splits)."""

@@ -17,18 +17,6 @@ H = 0.01
 G0 = 9.80665
 
 
-@pytest.fixture(scope="module")
-def cluster():
-    from torchtea.studies.cluster import local_cluster
-
-    cl, client = local_cluster(2, threads_per_worker=1)
-    try:
-        yield client
-    finally:
-        client.close()
-        cl.close()
-
-
 def _recording(tmp_path, n=3000):
     """A six-axis CSV: fractional+white on the accelerometer, a random walk added to gx and a line to gy."""
     gen = torch.Generator().manual_seed(4)

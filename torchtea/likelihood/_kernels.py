@@ -12,6 +12,25 @@ from ..noise._simulate_kernel import varying_row
 from .chandrasekhar import DROP
 
 
+@njit(cache=True, inline="always")
+def level_step(sww, beta, rss, e, ew, S):
+    """One observed sample of the recursive weighted least squares of the innovations e on those of the constant
+    level, ew (each of variance S): the running Σ ew²/S, the level β and the residual sum Σ (e − β ew)²/S at the
+    current β, updated without forming the sums (no cancellation when some S is tiny). Every exact filter calls it
+    (the Riccati and Chandrasekhar kernels, the sensitivity kernel)."""
+    if sww > 0.0:
+        d = e - beta * ew
+        rss += d * d / (S + ew * ew / sww)
+        sww += ew * ew / S
+        beta += (ew / S) * d / sww
+    elif ew != 0.0:
+        sww = ew * ew / S
+        beta = e / ew
+    else:
+        rss += e * e / S
+    return sww, beta, rss
+
+
 # error_model="numpy": a zero innovation variance (white noise → 0 with a zero-variance start) gives an
 # infinite or NaN log-likelihood, which the optimisers reject, instead of raising ZeroDivisionError
 @njit(cache=True, fastmath=False, error_model="numpy")
@@ -60,16 +79,7 @@ def riccati_one(indptr, indices, fval, Q, C, cidx, R, y, mu, e_out, s_out, w_out
         if not np.isnan(e):
             if lvl:  # recursive weighted least squares of e on w (a constant's innovations)
                 ll -= 0.5 * math.log(2.0 * math.pi * S)
-                if sww > 0.0:
-                    d = e - beta * ew
-                    rss += d * d / (S + ew * ew / sww)
-                    sww += ew * ew / S
-                    beta += (ew / S) * d / sww
-                elif ew != 0.0:
-                    sww = ew * ew / S
-                    beta = e / ew
-                else:
-                    rss += e * e / S
+                sww, beta, rss = level_step(sww, beta, rss, e, ew, S)
                 g = ew / S
                 for i in range(n):
                     w[i] += Pc[i] * g
@@ -319,16 +329,7 @@ def chandrasekhar_one(indptr, indices, fval, L0, M0, b0, S0, C, cidx, R, y, mu, 
         if obs:
             if lvl:  # recursive weighted least squares of e on w, as the Riccati kernel
                 ll -= 0.5 * np.log(2.0 * np.pi * S)
-                if sww > 0.0:
-                    d = e - beta * ew
-                    rss += d * d / (S + ew * ew / sww)
-                    sww += ew * ew / S
-                    beta += (ew / S) * d / sww
-                elif ew != 0.0:
-                    sww = ew * ew / S
-                    beta = e / ew
-                else:
-                    rss += e * e / S
+                sww, beta, rss = level_step(sww, beta, rss, e, ew, S)
                 gw = ew / S
             else:
                 ll -= 0.5 * (np.log(2.0 * np.pi * S) + e * e / S)

@@ -7,6 +7,8 @@ import math
 import numpy as np
 from numba import njit, prange
 
+from ._kernels import level_step
+
 
 @njit(cache=True, error_model="numpy")
 def sensitivity_one(indptr, indices, fval, dval, drows, ndrows, L0, M0, b0, S0, dL0, dM0, db0, dS0, C, cidx,
@@ -94,16 +96,7 @@ def sensitivity_one(indptr, indices, fval, dval, drows, ndrows, L0, M0, b0, S0, 
                 info[q, s] += v
         if lvl:
             ll -= 0.5 * math.log(2.0 * math.pi * S)
-            if sww > 0.0:
-                d = e - beta * ew
-                rss += d * d / (S + ew * ew / sww)
-                sww += ew * ew / S
-                beta += (ew / S) * d / sww
-            elif ew != 0.0:
-                sww = ew * ew / S
-                beta = e / ew
-            else:
-                rss += e * e / S
+            sww, beta, rss = level_step(sww, beta, rss, e, ew, S)
             for q in range(P):
                 dA[q] += 2.0 * e * de[q] * iS - e * e * dS[q] * iS2
                 dB[q] += (de[q] * ew + e * dew[q]) * iS - e * ew * dS[q] * iS2

@@ -87,7 +87,8 @@ def cases(work: Path) -> dict:
     bundled = []
     x_fwd = [SHARED / "unmoved_x_forward.csv", *SIX]
     z_front = [SHARED / "unmoved_z_front_x_up.csv", *SIX]
-    sim = lambda name: [work / f"{name}.csv", "--temperature", "temp"]  # noqa: E731
+    sim = lambda name: [work / f"{name}.csv", "--units", "ms2,ms2,ms2,rad/s,rad/s,rad/s",  # noqa: E731
+                        "--temperature", "temp"]
     return {
         "bundled": (bundled, ["check", "--auto", "--no-plots"], True),
         "x_forward": (x_fwd, ["check", "--auto", "--no-plots"], False),
@@ -99,13 +100,38 @@ def cases(work: Path) -> dict:
     }
 
 
+def table(results: dict) -> str:
+    """The runs as two markdown tables: the commands' times, and each axis's model, verdict and seconds."""
+    lines = ["| case | code | wall [s] | CPU [s] | peak memory [MB] | exit |", "|---|---|---|---|---|---|"]
+    for r in results["runs"]:
+        lines.append(f"| {r['case']} | {r['code']} | {r['wall_s']:.1f} | {r['cpu_s']:.1f} | "
+                     f"{r['peak_rss_mb']:.0f} | {r['exit']} |")
+    lines += ["", "| case | code | axis | model | verdict | loop's end | seconds |", "|---|---|---|---|---|---|---|"]
+    for r in results["runs"]:
+        for axis, a in (r.get("axes") or {}).items():
+            verdict = "adequate" if a.get("adequate") else "not adequate"
+            failed = ", ".join(a.get("failed") or [])
+            if failed:
+                verdict += f" (fails {failed})"
+            seconds = a.get("seconds")
+            lines.append(f"| {r['case']} | {r['code']} | {axis} | {a.get('model')} | {verdict} | "
+                         f"{a.get('loop_end')} | {'' if seconds is None else f'{seconds:.1f}'} |")
+    return "\n".join(lines)
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--old", default="97a7c4c", help="the commit before issue 44 (default 97a7c4c)")
     ap.add_argument("--cases", default="bundled,x_forward,z_front,sim_1min,sim_10min,export,sim_3h")
     ap.add_argument("--out", default=str(HERE / "issue44.json"))
     ap.add_argument("--no-old", action="store_true", help="time the new tree only")
+    ap.add_argument("--append", action="store_true",
+                    help="keep the runs already in --out and skip those cases and variants (a run cut short goes on)")
+    ap.add_argument("--table", action="store_true", help="only print the tables of --out (markdown)")
     args = ap.parse_args()
+    if args.table:
+        print(table(json.loads(Path(args.out).read_text())))
+        return 0
     work = Path(tempfile.mkdtemp(prefix="issue44-"))
     wanted = args.cases.split(",")
     old = None
@@ -116,6 +142,11 @@ def main() -> int:
     results = {"old": args.old, "new": subprocess.run(["git", "-C", str(ROOT), "rev-parse", "--short", "HEAD"],
                                                       capture_output=True, text=True).stdout.strip(),
                "machine": f"{os.cpu_count()} cores", "load_at_start": os.getloadavg()[0], "runs": []}
+    if args.append and Path(args.out).exists():
+        kept = json.loads(Path(args.out).read_text())
+        results["runs"] = kept["runs"]
+        results["earlier"] = {k: kept.get(k) for k in ("new", "load_at_start")}
+    done = {(r["case"], r["code"]) for r in results["runs"]}
     try:
         for name, n, h in (("sim_1min", 6000, 0.01), ("sim_10min", 60000, 0.01), ("sim_3h", 2160000, 0.005)):
             if name in wanted:
@@ -136,6 +167,8 @@ def main() -> int:
             elif old is not None:
                 variants.insert(0, ("old", old, []))
             for label, tree, extra in variants:
+                if (name, label) in done:
+                    continue
                 out = work / f"{name}-{label.replace(' ', '_')}"
                 if out.exists():
                     shutil.rmtree(out)

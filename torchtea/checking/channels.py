@@ -114,7 +114,10 @@ def _channel_lines(a: str, title: str, r: CheckResult) -> list[str]:
     if not r.suggestions and r.failed_refits:
         out.append(f"  no suggestion: the screens of {', '.join(r.failed_refits)} passed, but their refits failed to "
                    "find what the screens saw (an optimiser's failure, not evidence against them)")
-    elif not r.suggestions:
+    if not r.suggestions and r.unconfirmed:
+        out.append(f"  no suggestion: the Whittle screens of {', '.join(r.unconfirmed)} passed, but the exact "
+                   "likelihood does not confirm them (below the model at the screens' own points; no gain refitted)")
+    if not (r.suggestions or r.failed_refits or r.unconfirmed):
         out.append("  no suggestion: no effect of the library passes its screen")
     for u in r.unexplained:
         more = ([f"--add {', '.join(u['add_by_hand'])} by hand"] if u["add_by_hand"] else []) + (

@@ -170,6 +170,12 @@ class CheckResult:
         return [r["effect"] for r in self.screens if r.get("refit_failed")]
 
     @property
+    def unconfirmed(self) -> list[str]:
+        """The effects whose Whittle screen passed but which the exact likelihood does not confirm: below the model
+        at the screen's own point and no gain when refitted (the two likelihoods disagree on this record)."""
+        return [r["effect"] for r in self.screens if r.get("not_confirmed")]
+
+    @property
     def failing_ranges_s(self) -> list:
         out = []
         for d in self.diagnostics:
@@ -196,7 +202,8 @@ class CheckResult:
             out.append({"diagnostic": d.name, "where": d.summary, "ranges": d.ranges, "unit": d.unit,
                         "would_fit": words,
                         # a failure located in time may be a disturbance of the recording: how to leave it out
-                        "exclude": [f"--exclude {a:.4g}:{b:.4g}" for a, b in d.ranges] if d.domain == "time" else [],
+                        "exclude": [f"--exclude {a:.4g}:{b:.4g}" for a, b in d.ranges if b > a]
+                        if d.domain == "time" else [],  # (a change at one instant is no stretch to leave out)
                         "in_library": [n for n in names if n in COMPONENTS and COMPONENTS[n].candidate and (
                             n not in have or COMPONENTS[n].add_again)],
                         "add_by_hand": [n for n in names if n in COMPONENTS and not COMPONENTS[n].candidate
@@ -254,10 +261,17 @@ class CheckResult:
                 s = res.suggestions[0]
                 res.loop_end += (f" ({s.effect} would still gain {s.gain:.1f} BIC, under the {strong:g} an adequate "
                                  f"model's loop asks for)")
-        elif not res.suggestions and res.failed_refits:
-            res.loop_end = (f"not adequate after {added} effect(s) added: failing {', '.join(res.failed)}; the screens "
-                            f"of {', '.join(res.failed_refits)} passed, but their refits failed to find what the "
-                            "screens saw — an optimiser's failure, not evidence that nothing explains it")
+        elif not res.suggestions and (res.failed_refits or res.unconfirmed):
+            res.loop_end = f"not adequate after {added} effect(s) added: failing {', '.join(res.failed)}"
+            if res.failed_refits:
+                res.loop_end += (f"; the screens of {', '.join(res.failed_refits)} passed, but their refits failed to "
+                                 "find what the screens saw — an optimiser's failure, not evidence that nothing "
+                                 "explains it")
+            if res.unconfirmed:
+                res.loop_end += (f"; the Whittle screens of {', '.join(res.unconfirmed)} passed, but the exact "
+                                 "likelihood does not confirm them (below the model at the screens' own points, no "
+                                 "gain when refitted): the record is not what the cheap likelihood takes it for — "
+                                 "not stationary?")
         elif not res.suggestions:
             res.loop_end = (f"not adequate after {added} effect(s) added, and no effect of the library passes its "
                             f"screen and lowers BIC: failing {', '.join(res.failed)}")
@@ -667,7 +681,21 @@ def _check_once(run: _Run, model, fit: Fit, wf, screen_level, candidates, interv
                            "bound: not maximised on a long record); not suggested")
             continue
         if gain <= 0:
-            if row["statistic"] is not None and lr < 0.5 * row["statistic"] - FIT_FAILED_SLACK:
+            failed = row["statistic"] is not None and lr < 0.5 * row["statistic"] - FIT_FAILED_SLACK
+            at_screen = (_loglik_at(alt, row["start"], y, h, inputs)
+                         if failed and row["test"].startswith("Whittle") and set(row.get("start") or ()) >= set(alt.names)
+                         else math.inf)
+            if at_screen < fit.loglik - BASE_SLACK:
+                # the screen's own point is below the model in the exact likelihood: the cheap likelihood's gain does
+                # not hold in the exact one (the optimiser is not what failed)
+                _add_note(row, f"passed its screen (LR {row['statistic']:.1f}) on the Whittle likelihood, but the "
+                               "exact likelihood does not confirm it: at the screen's own point it is "
+                               f"{fit.loglik - at_screen:.1f} nats below the model's, and the exact refit gains only "
+                               f"{lr:.1f} in 2ℓ (BIC gain {gain:.1f}) — the two likelihoods disagree on this record "
+                               "(the Whittle likelihood takes it as stationary), which is no evidence for the effect; "
+                               "not suggested")
+                row["not_confirmed"] = True
+            elif failed:
                 _add_note(row, f"passed its screen (LR {row['statistic']:.1f}), but the exact refit gains only "
                                f"{lr:.1f} in 2ℓ (BIC gain {gain:.1f}): the refit failed to find what the screen "
                                "saw — an optimiser's failure, not evidence against the effect; not suggested")
@@ -922,7 +950,12 @@ def _refit_from(run: _Run, alt, evaluated: Fit, fixed: list) -> Fit:
 
 def _model_at(model, f2: Fit, y, h, inputs) -> float:
     """The model's exact ℓ at the values a refit of an extended model gives the model's parameters."""
-    ll = exact_loglik(model, {n: [f2.values[n]] for n in model.names}, centred(model, y), h, inputs=inputs)
+    return _loglik_at(model, f2.values, y, h, inputs)
+
+
+def _loglik_at(model, values: dict, y, h, inputs) -> float:
+    """The model's exact ℓ at ``values`` (−∞ where it is not finite)."""
+    ll = exact_loglik(model, {n: [values[n]] for n in model.names}, centred(model, y), h, inputs=inputs)
     return float(ll[0]) if np.isfinite(ll[0]) else -math.inf
 
 

@@ -47,6 +47,9 @@ MEANING = {
     "excluded": "stretches left out on request (--exclude): their samples missing, or cut at the end",
     "refit_failed": "(a screen's row) its screen passed, but the exact refit of the model with it gained far less than "
                     "the screen's statistic and lowered no BIC: the fit failed, which is no evidence against it",
+    "not_confirmed": "(a screen's row) its Whittle screen passed, but the exact likelihood at the screen's own point is "
+                     "below the model's and the refit lowered no BIC: the cheap and the exact likelihood disagree on "
+                     "this record, no evidence for the effect",
 }
 
 
@@ -286,10 +289,16 @@ def write_report(out: Path, results: dict, meta: dict, plots: bool = True) -> di
             lines.append("")
             lines += [f"{s.effect}: {s.note}." for s in r.suggestions if s.note]
             lines.append(f"Add the best with `--add {r.suggestions[0].effect}`.")
-        elif r.failed_refits:
-            lines.append(f"The screens of {', '.join(r.failed_refits)} passed, but their refits failed to find what "
-                         "the screens saw: an optimiser's failure, not evidence against them (their rows below say "
-                         "what was tried).")
+        elif r.failed_refits or r.unconfirmed:
+            if r.failed_refits:
+                lines.append(f"The screens of {', '.join(r.failed_refits)} passed, but their refits failed to find "
+                             "what the screens saw: an optimiser's failure, not evidence against them (their rows "
+                             "below say what was tried).")
+            if r.unconfirmed:
+                lines.append(f"The Whittle screens of {', '.join(r.unconfirmed)} passed, but the exact likelihood does "
+                             "not confirm them: at the screens' own points it is below the model's, and their refits "
+                             "gain nothing. The two likelihoods disagree on this record (the Whittle likelihood takes "
+                             "it as stationary): no evidence for these effects (their rows below give the numbers).")
         else:
             lines.append("No effect of the library passes its screen: "
                          + ("nothing is missing that torchtea can add." if r.adequate else

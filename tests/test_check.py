@@ -11,6 +11,8 @@ import pytest
 import torch
 
 from torchtea.checking import allan, check, extend
+from torchtea.checking import channels as channels_mod
+from torchtea.checking.report import write_report
 from torchtea.checking.check import STRONG_BIC
 from torchtea.checking.hidden import HIDDEN_STRENGTH, hidden_case
 from torchtea.checking.diagnostics import (LEVEL, _stochastic_avar, change, innovations, linear_lr, lines, ljung_box, nis_windows,
@@ -423,7 +425,6 @@ def test_where_nothing_repairs_a_failure_the_verdict_says_where_and_what_would_f
     test. A quiet stretch (30 s without the white noise that the rest of the record has: no effect of the library) is repaired by no
     suggestion: the verdict names where the model fails — the stretch — and the kind of effect that fits, in the
     result, check.json and report.md."""
-    from torchtea.checking.report import write_report
 
     n = 30000
     y0 = simulate_model("fractional+white", default_values("fractional+white", H), n_steps=n, h=H,
@@ -557,3 +558,79 @@ def test_an_effect_at_its_null_value_is_never_credited():
     assert any("was not its maximum" in note for note in r.notes), r.notes
     assert r.fit.loglik >= good.loglik - 1e-2
     assert not r.suggestions, [(s.effect, s.gain, s.parameters) for s in r.suggestions]
+
+
+def _ramp_case():
+    m = "fractional+white+ramp"
+    v = default_values(m, H)
+    v["ramp.slope"] = 1e-2
+    return simulate_model(m, v, n_steps=6000, h=H, generator=torch.Generator().manual_seed(11))[0, 0].numpy()
+
+
+def test_a_refit_that_loses_what_the_screen_saw_is_a_failed_fit_not_evidence(monkeypatch, tmp_path):
+    """Issue 44, item 1: a passed screen whose refit gains nothing is reported as a fit that failed, never as
+    'nothing explains it'. The ramp's refit is handed only the start where the ramp vanishes, not iterated (the
+    optimiser made to fail): the screen passed with a large statistic, the refit gains nothing, so the row is
+    ``refit_failed``, the effect is in ``failed_refits``, and the terminal lines and report.md say an optimiser
+    failed; with the optimiser left alone the same data get the ramp suggested."""
+    ck = importlib.import_module("torchtea.checking.check")
+    y = _ramp_case()
+    real = ck.refine_best
+
+    def no_optimiser(model, yy, h, starts, **kw):
+        if model.spec.endswith("+ramp"):  # the model's fit with no ramp, as it is
+            name, start = next(s for s in starts if s[0].startswith("the model's fit with the effect"))
+            starts = [("no ramp", dict(start, **{"ramp.slope": 0.0}))]
+            kw = dict(kw, refine=False, must=["no ramp"])
+        return real(model, yy, h, starts, **kw)
+
+    monkeypatch.setattr(ck, "refine_best", no_optimiser)
+    r = check(y, H, intervals=False, candidates=["ramp"])
+    row = next(s for s in r.screens if s["effect"] == "ramp")
+    assert row["passed"] and row["statistic"] > 20, row
+    assert row.get("refit_failed") and not row.get("not_confirmed"), row
+    assert "an optimiser's failure" in row["note"], row["note"]
+    assert r.failed_refits == ["ramp"] and r.unconfirmed == [] and not r.suggestions
+    lines = "\n".join(channels_mod._channel_lines("ax", "x", r))
+    assert "refits failed to find what the screens saw" in lines and "no effect of the library passes" not in lines
+    write_report(tmp_path, {"ax": r}, {"recording": "ramp.csv", "samples": len(y), "rate_hz": 1 / H}, plots=False)
+    text = (tmp_path / "report.md").read_text()
+    assert "an optimiser's failure, not evidence against them" in text
+    monkeypatch.setattr(ck, "refine_best", real)
+    assert check(y, H, intervals=False, candidates=["ramp"]).suggestions[0].effect == "ramp"
+
+
+def test_a_whittle_screen_the_exact_likelihood_does_not_confirm_is_said_so(monkeypatch):
+    """A Whittle screen that passes, whose point the exact likelihood puts below the model and whose refit gains
+    nothing, is not an optimiser's failure: the two likelihoods disagree on the record (``not_confirmed``). Data
+    with a random walk; the screen's own point is moved off (its walk 10³× stronger: far below the model in the
+    exact likelihood) and the refit kept from iterating, as on a record that is not stationary."""
+    ck = importlib.import_module("torchtea.checking.check")
+    m = "fractional+white+random-walk"
+    v = default_values(m, H)
+    v["random-walk.sigma"] = 8e-3
+    y = simulate_model(m, v, n_steps=6000, h=H, generator=torch.Generator().manual_seed(5))[0, 0].numpy()
+    real_refit, real_best = ck._refit, ck.refine_best
+
+    def screen_point_off(run, model, alt, label, fit, wf, row, fixed, refine=True):
+        if row["effect"] == "random-walk":
+            row["start"] = dict(row["start"], **{"random-walk.sigma": row["start"]["random-walk.sigma"] * 1e3})
+        return real_refit(run, model, alt, label, fit, wf, row, fixed, refine=refine)
+
+    def no_optimiser(model, yy, h, starts, **kw):
+        if model.spec.endswith("+random-walk"):  # the model's fit with a walk too weak to matter, as it is
+            name, start = next(s for s in starts if s[0].startswith("the model's fit with the effect"))
+            starts = [("no walk", dict(start, **{"random-walk.sigma": 1e-9}))]
+            kw = dict(kw, refine=False, must=["no walk"])
+        return real_best(model, yy, h, starts, **kw)
+
+    monkeypatch.setattr(ck, "_refit", screen_point_off)
+    monkeypatch.setattr(ck, "refine_best", no_optimiser)
+    r = check(y, H, intervals=False, candidates=["random-walk"])
+    row = next(s for s in r.screens if s["effect"] == "random-walk")
+    assert row["passed"] and row["test"].startswith("Whittle"), row
+    assert row.get("not_confirmed") and not row.get("refit_failed"), row
+    assert "does not confirm it" in row["note"] and "optimiser" not in row["note"], row["note"]
+    assert r.unconfirmed == ["random-walk"] and r.failed_refits == []
+    lines = "\n".join(channels_mod._channel_lines("ax", "x", r))
+    assert "exact likelihood does not confirm them" in lines and "no effect of the library passes" not in lines

@@ -600,8 +600,10 @@ def _refit_degenerate(run: _Run, model, fit: Fit, wf, intervals: bool) -> Fit | 
             starts.append((f"{name} {k + 1}", {**v, **w.means[0]}))
     located = model.located()
     fixed = [n for n in model.names if n not in fit.free or n in located or n in model.references()]
+    # every distinct mode refined, however far below the degenerate fit it starts: a converged fit's ℓ against
+    # unrefined starts' says nothing of where they climb
     new, _ = refine_best(model, y, h, starts, inputs=run.inputs, fixed=fixed, must=["the degenerate fit"],
-                         intervals=intervals)
+                         intervals=intervals, margin=math.inf)
     if not new.loglik > fit.loglik + BASE_SLACK:
         return None
     _counted(new, {n: w for n, w in located.items()})

@@ -91,3 +91,25 @@ def test_engine_threads_are_restored():
     with engine_threads(1) as n:
         assert n == 1 and torch.get_num_threads() == 1 and numba.get_num_threads() == 1
     assert (torch.get_num_threads(), numba.get_num_threads()) == before
+
+
+def test_large_channels_go_to_the_workers_as_data_not_in_the_graph(cluster):
+    """A channel of hours is megabytes: run_on_cluster scatters large arguments (and keyword arguments) to the
+    workers before submitting, so Dask does not warn of a large graph, and each task gets its own data back."""
+    import warnings
+
+    from torchtea.core.tasks import SCATTER_BYTES, run_on_cluster
+
+    def _digests(y, inputs=None):  # (defined here: pickled by value for the workers)
+        import hashlib
+        return hashlib.sha1(y.tobytes()).hexdigest(), hashlib.sha1(inputs["temperature"].tobytes()).hexdigest()
+
+    assert SCATTER_BYTES < 12_000_000  # (Dask warns of a graph above 10 MB: a channel of 25 min at 1 kHz)
+    big = [np.random.default_rng(k).normal(size=1_500_000) for k in range(3)]
+    calls = [(f"c{k}", (y,), {"inputs": {"temperature": y[::-1].copy()}}) for k, y in enumerate(big)]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # Dask's "Sending large graph" is a UserWarning
+        out = run_on_cluster(cluster, _digests, calls, name="scatter")
+    assert list(out) == ["c0", "c1", "c2"]
+    for k, y in enumerate(big):
+        assert out[f"c{k}"] == _digests(y, {"temperature": y[::-1].copy()})

@@ -339,6 +339,7 @@ def _check_channels(args, m, inputs, *, auto: bool, intervals: bool) -> dict:
     levels = {k: getattr(args, k) for k in ("level", "screen_level") if hasattr(args, k)}  # (else check's own)
     client, close_cluster = _cluster(args)
     step, close = _progress(len(m.channels), "check", "channel", bar=not getattr(args, "json", False))
+    step(0, len(m.channels))  # (the clock starts with the first channel, not when it is done)
     try:
         results = check_measurements(m, args.model, inputs=inputs, add=getattr(args, "add", []), auto=auto,
                                      max_steps=getattr(args, "max_steps", 6), strong=getattr(args, "strong", None),
@@ -1208,6 +1209,7 @@ def cmd_fit(args) -> int:
     inputs = _model_inputs(args, [model], m)
     client, close_cluster = _cluster(args)
     step, close = _progress(len(m.channels), "fit " + model.spec, "channel", bar=not args.json)
+    step(0, len(m.channels))  # (the clock starts with the first channel, not when it is done)
     try:
         doc, fits = fit_recording(m, model, inputs=inputs, method=args.method, bootstrap=args.bootstrap,
                                   seed=args.seed, profile=args.profile, progress=step,

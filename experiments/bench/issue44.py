@@ -109,7 +109,7 @@ def table(results: dict) -> str:
     lines += ["", "| case | code | axis | model | verdict | loop's end | seconds |", "|---|---|---|---|---|---|---|"]
     for r in results["runs"]:
         for axis, a in (r.get("axes") or {}).items():
-            verdict = "adequate" if a.get("adequate") else "not adequate"
+            verdict = {True: "adequate", False: "not adequate"}.get(a.get("adequate"), "—")
             failed = ", ".join(a.get("failed") or [])
             if failed:
                 verdict += f" (fails {failed})"

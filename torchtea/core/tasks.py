@@ -3,7 +3,27 @@ from __future__ import annotations
 
 from typing import Callable
 
+import numpy as np
+
 __all__ = ["run_on_cluster"]
+
+#: Arguments larger than this (bytes of their arrays) are scattered to the workers before the tasks are submitted.
+SCATTER_BYTES = 1 << 20
+
+
+def _nbytes(x) -> int:
+    if isinstance(x, np.ndarray):
+        return x.nbytes
+    if isinstance(x, dict):
+        return sum(_nbytes(v) for v in x.values())
+    if isinstance(x, (list, tuple)):
+        return sum(_nbytes(v) for v in x)
+    return 0
+
+
+def _scattered(client, x):
+    """``x`` itself, or a future of it on the workers when its arrays are large."""
+    return client.scatter([x], hash=False)[0] if _nbytes(x) > SCATTER_BYTES else x
 
 
 def run_on_cluster(client, fn: Callable, calls: list, *, name: str = "task", progress: Callable | None = None) -> dict:
@@ -18,6 +38,9 @@ def run_on_cluster(client, fn: Callable, calls: list, *, name: str = "task", pro
     run = uuid.uuid4().hex[:10]
     futures = {}
     for label, args, kw in calls:
+        # a channel's samples go to the workers as data, not inside the task graph (which Dask warns of above 10 MB)
+        args = [_scattered(client, a) for a in args]
+        kw = {k: _scattered(client, v) for k, v in kw.items()}
         fut = client.submit(fn, *args, key=f"torchtea-{name}-{run}-{label}", **kw)
         futures[fut.key] = (label, fut)
     results = {}

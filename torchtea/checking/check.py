@@ -460,20 +460,19 @@ def _whittle_screens(model, base, rows_alts, y, h, inputs, cache: dict):
             row.update(cache[key])
             continue
         label = _new_label(model, alt)
-        # the grid as well: a model that lacks a random walk (or a low-pass) may have bent its fractional order to
-        # ≈ 1 to mimic it, and the extended model's optimum is then far from the model's. Both searches are run to
-        # convergence and the better kept: after a few iterations the bent start can look better and is not
+        # the grid as well as the effect's strengths from the model's fit: a model that lacks a random walk (or a
+        # low-pass) may have bent its fractional order to ≈ 1 to mimic it, and the extended model's optimum is then
+        # far from the model's. Both kinds of start run to convergence in one batch and the best is kept (a user's
+        # component may give no strength: the grid alone then)
         strengths = dict(alt.components)[label].strengths(label, model, base_values, h, len(y))
-        # (the grid and the strengths as one batch: a user's component may give no strength, the grid alone then)
         wf = whittle_fit(alt, [yy], h, inputs=inp, fractions=(0.5,),
                          starts=[[{**base_values, **o} for o in strengths]] if strengths else None)
-        fits = [wf]
         lr = max(0.0, 2.0 * float(wf.loglik[0] - base.loglik[0]))
         logp = boundary_logsf(lr, dict(alt.components)[label].screen_df)
         vals = dict(zip(alt.names, wf.values[0].tolist()))
         vals.update(wf.means[0])
         modes = [{**{n: float(x) for n, x in zip(alt.names, alt.as_matrix(alt.from_unconstrained(u, h))[0])},
-                  **w.means[0]} for w in fits for u, _, _ in (w.modes[0] if w.modes else [])]
+                  **wf.means[0]} for u, _, _ in (wf.modes[0] if wf.modes else [])]
         found = dict(statistic=lr, p_value=float(math.exp(logp)), log10_p=float(logp / math.log(10)),
                      start=vals, metric=wf.hessian[0], modes=modes)
         cache[key] = found
@@ -657,10 +656,7 @@ def _check_once(run: _Run, model, fit: Fit, wf, screen_level, candidates, interv
         run.say(f"{'evaluating' if long else 'refitting'} {model.spec}+{row['effect']} ({k + 1}/{len(passed)})")
         alt = extend(model, row["token"])
         label = _new_label(model, alt)
-        # what the components hold (a temperature reference; the new line's frequency at the refined periodogram
-        # peak, which still counts as an estimated parameter in BIC)
-        estimates = {**_held(alt, label), **alt.located()}
-        fixed = [n for n in alt.names if n in alt.references() or n in estimates]
+        estimates, fixed = _held_fixed(alt, label)
         f2 = _refit(run, model, alt, label, fit, wf, row, fixed, refine=not long)
         if long:
             _add_note(row, "a long record: its gain is the exact likelihood's at the best of its starts, not maximised "
@@ -671,7 +667,7 @@ def _check_once(run: _Run, model, fit: Fit, wf, screen_level, candidates, interv
         gain = _bic(fit) - _bic(f2)
         lr = 2.0 * (f2.loglik_exact - fit.loglik_exact)
         if restart:  # the effect at its null value: what the refit gained is the model's own
-            base_there = _model_at(model, f2, y, h, inputs)
+            base_there = _loglik_at(model, f2.values, y, h, inputs)  # the model's part of the refit
             if base_there > fit.loglik + BASE_SLACK and f2.loglik - base_there < NULL_EFFECT:
                 better = _refined_model(model, fit, f2, y, h, inputs, intervals)
                 if better is not None:
@@ -724,8 +720,7 @@ def _check_once(run: _Run, model, fit: Fit, wf, screen_level, candidates, interv
         row = next(r for r in screens if r["effect"] == top.effect)
         run.say(f"refitting {top.fit.model.spec}")
         alt = top.fit.model
-        estimates = {**_held(alt, top.label), **alt.located()}
-        fixed = [n for n in alt.names if n in alt.references() or n in estimates]
+        estimates, fixed = _held_fixed(alt, top.label)
         f2 = _refit_from(run, alt, top.fit, fixed)
         _counted(f2, estimates)
         top.fit, top.gain = f2, float(_bic(fit) - _bic(f2))
@@ -950,9 +945,11 @@ def _refit_from(run: _Run, alt, evaluated: Fit, fixed: list) -> Fit:
     return fit
 
 
-def _model_at(model, f2: Fit, y, h, inputs) -> float:
-    """The model's exact ℓ at the values a refit of an extended model gives the model's parameters."""
-    return _loglik_at(model, f2.values, y, h, inputs)
+def _held_fixed(alt, label) -> tuple[dict, list]:
+    """What the extended model's components hold (a temperature reference; a new line's frequency at the refined
+    periodogram peak, which still counts as an estimated parameter in BIC) and the names its refit keeps fixed."""
+    estimates = {**_held(alt, label), **alt.located()}
+    return estimates, [n for n in alt.names if n in alt.references() or n in estimates]
 
 
 def _loglik_at(model, values: dict, y, h, inputs) -> float:

@@ -342,7 +342,8 @@ def _score_batch(model, y, h, U0: Tensor, free: Tensor, inputs, memory, max_iter
     ones, in a second, only where the full one fails); each start's damping μ shrunk
     after a full step and grown after none (Levenberg–Marquardt). A start has converged when its decrement
     ½ gᵀ𝓘⁻¹g (the −ℓ still to gain on the information) is below :func:`decrement_tolerance`, or after
-    :data:`STALL_STEPS` steps in a row that each gained less. A start still running is left where it is once it is
+    :data:`STALL_STEPS` steps in a row that each gained less, or once its last :data:`FLAT_WINDOW` steps together
+    gained less than :data:`FLAT_GAIN` with its decrement below that too (a crawl along a flat direction). A start still running is left where it is once it is
     within :data:`MODE_DISTANCE` of a finished one, below it, or once at its recent pace it cannot reach a finished
     one's ℓ in the iterations it has left (:data:`RACE_WINDOW`, :data:`RACE_MARGIN`), or it is below a finished one
     and gains less per iteration than the tolerance's ten times: the batch does not wait for a start that cannot end

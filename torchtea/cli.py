@@ -343,6 +343,7 @@ def _check_channels(args, m, inputs, *, auto: bool, intervals: bool) -> dict:
     try:
         results = check_measurements(m, args.model, inputs=inputs, add=getattr(args, "add", []), auto=auto,
                                      max_steps=getattr(args, "max_steps", 6), strong=getattr(args, "strong", None),
+                                     simplify=not getattr(args, "no_simplify", False),
                                      intervals=intervals, levels=levels, progress=step, log=_note, stages=_note,
                                      client=client,
                                      threads=args.threads_per_worker, effects=tuple(args.effects))
@@ -1067,6 +1068,28 @@ def build_parser() -> argparse.ArgumentParser:
     _cluster_flags(fp, "the channels' fits")
     fp.set_defaults(func=cmd_fit)
 
+    pl = sub.add_parser("plan", help="how long to record: the expected 95 %% intervals of the noise numbers by record "
+                                     "length, from a recording's fit, a check, or a datasheet")
+    _recording_flags(pl, columns_help="the columns to plan for (default: every accelerometer and gyroscope axis)",
+                     temperature_help="temperature column (°C), for a --model with temperature effects",
+                     samples_default="all", samples_help="use the first N samples (default all)")
+    pl.add_argument("--model", default="fractional+white",
+                    help="fit this model SPEC to each column and plan from it (default fractional+white; --from-check "
+                         "takes the model check's loop ended with)")
+    pl.add_argument("--from-check", metavar="CHECK_JSON",
+                    help="plan from a check's models and fits (check.json), with its ties' lengths")
+    pl.add_argument("--datasheet", metavar="FILE",
+                    help="plan before any recording, from a datasheet's N, B, K (TOML: sensor, rate_hz, and "
+                         "N/B/K = {value, unit}; see examples/datasheets)")
+    pl.add_argument("--lengths", metavar="S,S,…", help="record lengths in seconds (default: the record's own, 4× and "
+                                                        "10× it, 10 min, 1 h and 3 h; a datasheet: 1 min to 10 h)")
+    pl.add_argument("--target", action="append", default=[], metavar="NAME=PERCENT",
+                    help="the length at which NAME (N, B, K or a parameter) is within ± PERCENT (repeatable; e.g. "
+                         "K=10%%)")
+    pl.add_argument("--out", help="write the JSON document to this file")
+    pl.add_argument("--json", action="store_true", help="print the JSON document")
+    pl.set_defaults(func=cmd_plan)
+
     ck = sub.add_parser("check", help="test a noise model against a recording and rank the effects it is missing")
     _recording_flags(ck, columns_help="the columns to check, any number (default: every accelerometer and gyroscope "
                                       "axis the file names, both sensors side by side)",
@@ -1080,6 +1103,9 @@ def build_parser() -> argparse.ArgumentParser:
                     help="run the loop to its end: add the best suggestion and check again until no effect passes "
                          "its screen, or the model is adequate and no suggestion gains --strong BIC (after any --add)")
     ck.add_argument("--max-steps", type=_steps, default=6, help="--auto adds at most this many effects (default 6)")
+    ck.add_argument("--no-simplify", action="store_true",
+                    help="--auto only adds: no component taken away, replaced by its special case (the fractional "
+                         "part by a random walk) or swapped for another that passed its screen")
     ck.add_argument("--strong", type=float, default=None, metavar="BIC",
                     help="--auto goes on past an adequate model while the best suggestion gains at least this much "
                          "BIC (default 10, checking.check.STRONG_BIC: very strong evidence; inf stops at adequacy)")
@@ -1106,6 +1132,7 @@ def build_parser() -> argparse.ArgumentParser:
                                     "check --auto, and export the model it ends with)")
     ex.add_argument("--strong", type=float, default=None, metavar="BIC", help="as check --strong")
     ex.add_argument("--max-steps", type=_steps, default=6, help="as check --max-steps")
+    ex.add_argument("--no-simplify", action="store_true", help="as check --no-simplify")
     ex.add_argument("--out", help="output directory (default export-<recording name>)")
     ex.add_argument("--no-plots", action="store_true")
     _export_flags(ex, standalone=True)
@@ -1230,6 +1257,73 @@ def cmd_fit(args) -> int:
         return 0
     print("\n".join(fit_lines(doc, {c.label: c.title for c in m.channels}, _units_of(m), Path(m.recording.path).name,
                               m.recording.rate_hz)))
+    if args.out:
+        print(f"written {args.out}")
+    return 0
+
+
+def cmd_plan(args) -> int:
+    """``torchtea plan``: how long to record (:mod:`torchtea.fitting.plan`)."""
+    from .fitting.mle import fit_series
+    from .fitting.plan import datasheet_model, parse_target, plan_document, plan_lines, read_datasheet
+    from .noise import parse_model
+    from .render.strictjson import dumps, write
+
+    try:
+        targets = [parse_target(t) for t in args.target]
+        lengths_s = None if not args.lengths else [float(x) for x in args.lengths.split(",") if x.strip()]
+    except ValueError as exc:
+        raise CLIError(str(exc) if "target" in str(exc) else f"--lengths {args.lengths!r}: seconds, comma-separated")
+    if lengths_s is not None and not all(x > 0 for x in lengths_s):
+        raise CLIError(f"--lengths {args.lengths!r}: every length must be positive")
+    axes, ties, source = {}, {}, ""
+
+    def lengths(h, n0):
+        base = [n0, 4 * n0, 10 * n0] if n0 else [60 / h]
+        default = base + [600 / h, 3600 / h, 10800 / h] + ([] if n0 else [36000 / h])
+        return sorted({max(8, int(round(x))) for x in ((x / h for x in lengths_s) if lengths_s else default)})
+
+    try:
+        if args.datasheet:
+            sheet = read_datasheet(args.datasheet)
+            model, values, h, terms, fixed = datasheet_model(sheet)
+            source = f"datasheet {args.datasheet}" + (f" ({sheet['source']})" if sheet["source"] else "")
+            axes[sheet["sensor"]] = plan_document(model, values, h, lengths(h, None), targets=targets, fixed=fixed,
+                                                  terms=terms)
+        elif args.from_check:
+            from .checking.check import read_check
+
+            doc, fits = read_check(args.from_check)
+            h = 1.0 / float(doc["rate_hz"])
+            source = f"check {args.from_check}"
+            for label, f in fits.items():
+                axes[label] = plan_document(f.model, f.values, h, lengths(h, f.n), recorded=f.n, targets=targets)
+                ties[label] = doc["axes"][label].get("ties", [])
+        else:
+            model = parse_model(args.model)
+            m = _measurements(args, "a plan", min_samples=100)
+            inputs = _model_inputs(args, [model], m)
+            source = f"{model.spec} fitted to {Path(m.recording.path).name}"
+            for c in m.channels:
+                _note(f"fitting {model.spec} to {c.label} …")
+                f = fit_series(model, [c.values], m.h, inputs=None if inputs is None else [inputs], profile=False,
+                               intervals=False)[0]
+                axes[c.label] = plan_document(model, f.values, m.h, lengths(m.h, f.n), recorded=f.n, targets=targets)
+    except ValueError as exc:
+        raise CLIError(str(exc)) from exc
+    out = {"source": source, "axes": axes, "ties": ties,
+           "command": "torchtea " + " ".join(sys.argv[1:]) if sys.argv[1:] else ""}
+    if args.out:
+        write(Path(args.out), out)
+    if args.json:
+        print(dumps(out))
+        return 0
+    print(f"plan from {source}")
+    for label, d in axes.items():
+        print("\n".join(plan_lines(label, d)))
+        for t in ties.get(label, []):
+            print(f"  tie: {t['words']}")
+    print("(expected if the model at these values is the truth: from the Whittle likelihood's expected information)")
     if args.out:
         print(f"written {args.out}")
     return 0

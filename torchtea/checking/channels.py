@@ -7,16 +7,17 @@ from typing import Callable, Iterable
 
 from ..core.threads import engine_threads
 from ..noise.model import PAPER_MODEL
-from .check import CheckResult, check
+from .check import CheckResult, change_words, check
 
 __all__ = ["check_measurements", "check_channel", "summary_lines"]
 
 
 def check_channel(values, h: float, model, *, inputs: dict | None = None, add: Iterable[str] = (), auto: bool = False,
                   max_steps: int = 6, strong: float | None = None, intervals: bool = True, levels: dict | None = None,
-                  progress: Callable | None = None, threads: int | None = None, effects: tuple = ()) -> CheckResult:
+                  progress: Callable | None = None, threads: int | None = None, effects: tuple = (),
+                  simplify: bool = True) -> CheckResult:
     """One channel's workflow: :func:`check` of ``model``, the ``add`` effects in order, then (``auto``) the loop
-    (:meth:`CheckResult.auto`). ``progress(line)``: each stage as it starts. ``threads``: numba's threads
+    (:meth:`CheckResult.auto`, taking away and swapping unless ``simplify`` is False). ``progress(line)``: each stage as it starts. ``threads``: numba's threads
     (:func:`~torchtea.core.threads.engine_threads`; torch runs on one). ``effects``: users' modules of effects to
     import first (:func:`torchtea.effects.import_effects`: a Dask worker has not imported them)."""
     from ..effects import import_effects
@@ -28,17 +29,17 @@ def check_channel(values, h: float, model, *, inputs: dict | None = None, add: I
         for effect in add:
             r = r.add(effect, intervals=intervals, progress=progress)
         if auto:
-            r = r.auto(max_steps=max_steps, strong=strong, intervals=intervals, progress=progress)
+            r = r.auto(max_steps=max_steps, strong=strong, intervals=intervals, progress=progress, simplify=simplify)
     return r
 
 
 def check_measurements(m, model=None, *, inputs: dict | None = None, add: Iterable[str] = (), auto: bool = False,
-                       max_steps: int = 6, strong: float | None = None, intervals: bool = True,
+                       max_steps: int = 6, strong: float | None = None, intervals: bool = True, simplify: bool = True,
                        levels: dict | None = None, progress: Callable | None = None,
                        log: Callable | None = None, client=None, threads: int | None = None,
                        effects: tuple = (), stages: Callable | None = None) -> dict:
     """Check each channel of ``m`` (:class:`~torchtea.sensors.measurements.Measurements`) with ``model`` (default
-    :data:`PAPER_MODEL`): :func:`check_channel` with ``add``, ``auto``, ``max_steps``, ``strong``; ``levels``: check's
+    :data:`PAPER_MODEL`): :func:`check_channel` with ``add``, ``auto``, ``max_steps``, ``strong``, ``simplify``; ``levels``: check's
     ``level``/``screen_level`` where given. ``progress(done, total)`` after each channel; ``log(line)`` before each
     channel; ``stages(line)`` at each stage within one (in this process).
 
@@ -48,7 +49,7 @@ def check_measurements(m, model=None, *, inputs: dict | None = None, add: Iterab
     way). ``effects``: users' modules of effects each task imports first. Returns label → result."""
     model = model or PAPER_MODEL
     kw = dict(inputs=inputs, add=tuple(add), auto=auto, max_steps=max_steps, strong=strong, intervals=intervals,
-              levels=levels, effects=tuple(effects))
+              simplify=simplify, levels=levels, effects=tuple(effects))
     if client is not None:
         return _on_cluster(m, model, kw, client, 1 if threads is None else threads, progress, log)
     results = {}
@@ -93,11 +94,13 @@ def _channel_lines(a: str, title: str, r: CheckResult) -> list[str]:
         out.append(head)
         for k, st in enumerate(r.step_rows()):
             what = ("start" if k == 0 else
-                    f"+ {st['added']} (gain {st['gain']:.1f}, repaired {', '.join(st['repaired']) or '—'})")
+                    f"{change_words(st)} (gain {st['gain']:.1f}, repaired {', '.join(st['repaired']) or '—'})")
             out.append(f"  step {k}: {what}: nll/sample {st['nll_per_sample']:.5f}, psd misfit {st['psd_misfit']:.4f}, "
                        f"adev misfit {st['adev_misfit']:.4f}, failed {', '.join(st['failed']) or 'none'}")
         if r.loop_end:
             out.append(f"  loop end: {r.loop_end}")
+        for t in r.ties:
+            out.append(f"  tie: {t['words']}")
     else:
         if r.before is not None:
             b = r.before

@@ -49,38 +49,26 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from ..fitting.mle import (Fit, centred, exact_loglik, fit_series, located_intervals, refine_best, refine_exact,
-                           refine_frequency, whittle_fit)
+from ..fitting.mle import (Fit, centred, exact_loglik, fit_series, refine_best, refine_exact, refine_frequency,
+                           whittle_fit)
 from ..noise.components import COMPONENTS, Component, NotScreened, boundary_logsf
 from ..noise.components import candidates as candidates_all
 from ..noise.model import PAPER_MODEL, NoiseModel, parse_model
-from .diagnostics import LEVEL, Diagnostic, Innovations, innovations, linear_lr, metrics, run_diagnostics
+from .diagnostics import LEVEL, Diagnostic, Innovations, linear_lr
+from .models import REFIT_TOLERANCE, extend, with_intervals
+from .models import assess as _assess
+from .models import bic as _bic
+from .models import counted as _counted
+from .models import held as _held
 
 __all__ = ["check", "CheckResult", "Suggestion", "read_check", "CANDIDATES", "extend", "SCREENS", "effect_parameters", "rank",
-           "EXPLAIN_WINDOW", "CLOSE_BIC"]
+           "change_words", "EXPLAIN_WINDOW", "CLOSE_BIC"]
 
 #: The built-in effects check screens, in the order of its table; :func:`~torchtea.noise.components.candidates` gives
 #: every registered one (a user's too) at call time.
 CANDIDATES = candidates_all()
 #: What each built-in effect's screen computes (each component's ``screen_test``).
 SCREENS = {name: COMPONENTS[name].screen_test for name in CANDIDATES}
-
-
-def extend(model: NoiseModel, effect: str) -> NoiseModel:
-    """``model`` with one more component, where the component's :meth:`~torchtea.noise.components.Component.position`
-    puts it (a ``low-pass`` right after the last stochastic component, anything else at the end). ``effect``: a name,
-    or a spec token ``name:argument`` (``spikes:3``)."""
-    model = parse_model(model)
-    name = effect.partition(":")[0]
-    if name not in COMPONENTS:
-        raise ValueError(f"unknown effect {effect!r}; choose from: {', '.join(candidates_all())}")
-    comp = COMPONENTS[name]
-    names = [c.name for _, c in model.components]
-    if name in names and not comp.add_again:
-        raise ValueError(f"model {model.spec!r} already has {name!r}")
-    tokens = [c.token for _, c in model.components]
-    tokens.insert(comp.position(model), effect)
-    return parse_model("+".join(tokens))
 
 
 def _new_label(base: NoiseModel, alt: NoiseModel) -> str:
@@ -150,6 +138,13 @@ class CheckResult:
     #: Every passing candidate's exact refit, effect → :class:`~torchtea.fitting.mle.Fit` (the suggestions' and those
     #: that lowered no BIC): the next step of the loop starts its refits of the same effects from them.
     refits: dict = field(default_factory=dict)
+    #: What this step of the loop changed when it took something away or swapped it (:mod:`.simplify`):
+    #: ``{"kind": "drop" | "simpler" | "swap", "removed": label, "added": effect or None}``; None for an addition.
+    change: dict | None = None
+    #: The alternatives the simplification tried from this model (:class:`~.simplify.Alternative`, lowest BIC first).
+    alternatives: list = field(default_factory=list)
+    #: (the end of a loop) what the record cannot tell apart from this model (:func:`~.simplify.ties`).
+    ties: list = field(default_factory=list)
 
     @property
     def model(self) -> NoiseModel:
@@ -234,35 +229,55 @@ class CheckResult:
         res.before = self
         return res
 
-    def auto(self, max_steps: int = 6, strong: float | None = None, **kw) -> "CheckResult":
+    def recheck(self, model, fit: Fit | None = None, **kw) -> "CheckResult":
+        """:func:`check` of another ``model`` on the same series, inputs and levels, from its exact ``fit`` when given
+        and with this result's refits carried as starts (the loop's simplification, :mod:`.simplify`)."""
+        return check(self.y, self.h, model=model, inputs=self.inputs, level=self.level,
+                     screen_level=self.screen_level, fit=fit, carry=self.refits, **kw)
+
+    def auto(self, max_steps: int = 6, strong: float | None = None, simplify: bool = True, **kw) -> "CheckResult":
         """Run the loop to its end: add the best suggestion and check again (:meth:`add`, ``kw`` passed on), until
         no effect passes its screen and lowers BIC, the model is adequate and no suggestion gains ``strong`` BIC
-        or more (default :data:`STRONG_BIC`), or ``max_steps`` effects were added. Returns the last result: its
-        :attr:`steps` are the path, its :attr:`loop_end` says why it stopped.
+        or more (default :data:`STRONG_BIC`), or ``max_steps`` effects were added; then (``simplify``) take away and
+        swap (:func:`~.simplify.simplify`: each component dropped, replaced by its special cases, each added effect
+        swapped for the others that passed their screens), one change at a time while BIC falls and the model stays
+        adequate, adding again after each change — at most :data:`~.simplify.MAX_CHANGES` changes. Returns the last
+        result: its :attr:`steps` are the path, its :attr:`loop_end` says why it stopped, its :attr:`ties` what the
+        record cannot tell apart from it.
 
         An adequate model still gets a very strong suggestion added: the eight diagnostics are omnibus tests, and
         one effect can hide another from them (a random walk takes up a step's level, a bias per °C the slow part
         of a walk) while the screen of the hidden one, a likelihood-ratio test against that one alternative, still
         sees it. Of 300 series drawn from models fitted to the bundled recording none that passed the diagnostics
         got any suggestion (experiments/check/false_alarm.md)."""
+        from . import simplify as simplifying
+
         strong = STRONG_BIC if strong is None else float(strong)
         res = self
-        for _ in range(max_steps):
-            if not res.suggestions or (res.adequate and res.suggestions[0].gain < strong):
+        added = changes = 0
+        while True:
+            while added < max_steps and res.suggestions and not (res.adequate and res.suggestions[0].gain < strong):
+                res = res.add(res.suggestions[0].effect, **kw)
+                added += 1
+            if not simplify or changes >= simplifying.MAX_CHANGES:
                 break
-            res = res.add(res.suggestions[0].effect, **kw)
-        added = len(res.steps) - len(self.steps)
+            simpler = simplifying.simplify(res, **kw)
+            if simpler is res:
+                break
+            res, changes = simpler, changes + 1
+        res.ties = simplifying.ties(res, CLOSE_BIC) if simplify else []
+        done = f"{added} effect(s) added" + (f", {changes} change(s) taking away or swapping" if changes else "")
         if res.adequate and res.suggestions and res.suggestions[0].gain >= strong:
             res.loop_end = (f"stopped after {max_steps} effects added (max_steps), adequate; "
                             f"{res.suggestions[0].effect} still gains {res.suggestions[0].gain:.1f}")
         elif res.adequate:
-            res.loop_end = f"adequate after {added} effect(s) added"
+            res.loop_end = f"adequate after {done}"
             if res.suggestions:
                 s = res.suggestions[0]
                 res.loop_end += (f" ({s.effect} would still gain {s.gain:.1f} BIC, under the {strong:g} an adequate "
                                  f"model's loop asks for)")
         elif not res.suggestions and (res.failed_refits or res.unconfirmed):
-            res.loop_end = f"not adequate after {added} effect(s) added: failing {', '.join(res.failed)}"
+            res.loop_end = f"not adequate after {done}: failing {', '.join(res.failed)}"
             if res.failed_refits:
                 res.loop_end += (f"; the screens of {', '.join(res.failed_refits)} passed, but their refits failed to "
                                  "find what the screens saw — an optimiser's failure, not evidence that nothing "
@@ -273,11 +288,13 @@ class CheckResult:
                                  "gain when refitted): the record is not what the cheap likelihood takes it for — "
                                  "not stationary?")
         elif not res.suggestions:
-            res.loop_end = (f"not adequate after {added} effect(s) added, and no effect of the library passes its "
+            res.loop_end = (f"not adequate after {done}, and no effect of the library passes its "
                             f"screen and lowers BIC: failing {', '.join(res.failed)}")
         else:
             res.loop_end = (f"stopped after {max_steps} effects added (max_steps), not adequate: failing "
                             f"{', '.join(res.failed)}")
+        if res.ties:
+            res.loop_end += "; cannot tell apart: " + "; ".join(t["words"] for t in res.ties)
         return res
 
     @property
@@ -299,7 +316,8 @@ class CheckResult:
                    "psd_misfit": r.metrics["psd_misfit"], "adev_misfit": r.metrics["adev_misfit"],
                    "failed": r.failed, "bic": _bic(r.fit), "seconds": r.seconds, "timings": r.timings}
             if prev is not None:
-                row.update(added=_added(prev.model, r.model), gain=_bic(prev.fit) - _bic(r.fit),
+                row.update(added=_added(prev.model, r.model), removed=_removed(prev.model, r.model),
+                           change=(r.change or {}).get("kind", "add"), gain=_bic(prev.fit) - _bic(r.fit),
                            repaired=sorted(set(prev.failed) - set(r.failed)),
                            broke=sorted(set(r.failed) - set(prev.failed)))
             rows.append(row)
@@ -317,7 +335,22 @@ class CheckResult:
                 "level": self.level, "screen_level": self.screen_level,
                 "seconds": sum(r.seconds for r in self.steps), "seconds_this_step": self.seconds,
                 "notes": self.notes, "steps": self.step_rows(), "loop_end": self.loop_end,
-                "unexplained": self.unexplained}
+                "unexplained": self.unexplained, "ties": self.ties,
+                "alternatives": [a.as_dict() for a in self.alternatives]}
+
+
+def _removed(before: NoiseModel, after: NoiseModel) -> str:
+    """The component ``before`` has and ``after`` has not (by label), as its effect's name; "" when none."""
+    new = {label for label, _ in after.components}
+    return next((c.name for label, c in before.components if label not in new), "")
+
+
+def change_words(row: dict) -> str:
+    """A step of the loop in a few characters: ``+ resonance``, ``− fractional``, ``fractional → random-walk``."""
+    added, removed = row.get("added") or "", row.get("removed") or ""
+    if added and removed:
+        return f"{removed} → {added}"
+    return f"− {removed}" if removed else f"+ {added}"
 
 
 def _added(before: NoiseModel, after: NoiseModel) -> str:
@@ -356,17 +389,6 @@ def read_check(path) -> tuple[dict, dict]:
     except (json.JSONDecodeError, KeyError, TypeError, ValueError) as exc:
         raise ValueError(f"{path}: not a check.json ({type(exc).__name__}: {exc})") from None
     return doc, fits
-
-
-def _bic(fit: Fit) -> float:
-    return fit.k * math.log(fit.n) - 2.0 * fit.loglik_exact
-
-
-def _assess(model, values, y, h, inputs, level):
-    inn = innovations(model, values, y, h, inputs)
-    T = None if inputs is None else inputs.get("temperature")
-    diags = run_diagnostics(model, values, inn, h, temperature=T, level=level)
-    return inn, diags, metrics(inn, diags)
 
 
 @dataclass
@@ -730,16 +752,7 @@ def _check_once(run: _Run, model, fit: Fit, wf, screen_level, candidates, interv
         suggestions = rank(suggestions, failed_before)
     if intervals and suggestions:  # the best suggestion's intervals (the observed information)
         run.say(f"intervals of {suggestions[0].fit.model.spec}")
-        top = suggestions[0]
-        f = top.fit
-        held = _held(f.model, "*")
-        fixed = [n for n in f.model.names if n not in f.free or n in held]
-        top.fit = refine_exact(f.model, y, h, f.values, inputs=inputs, fixed=fixed, metric=f.hessian, intervals=True)
-        top.fit.notes[:0] = f.notes
-        _counted(top.fit, {n: f.ci95_method[n] for n in held if n in f.free})
-        for n, (c, words) in located_intervals(f.model, top.fit.values, y, h, inputs).items():
-            if n in top.fit.free:
-                top.fit.ci95[n], top.fit.ci95_method[n] = c, words
+        suggestions[0].fit = with_intervals(suggestions[0].fit, y, h, inputs)
     clock("intervals")
     return CheckResult(y, h, inputs, fit, inn, diags, mets, screens, suggestions, run.level, screen_level, 0.0, [],
                        refits=refitted), None
@@ -796,22 +809,6 @@ def rank(suggestions: list, failed: set, window: float = EXPLAIN_WINDOW) -> list
     return out
 
 
-def _held(model: NoiseModel, label: str) -> dict:
-    """The estimates ``model``'s components hold (:attr:`~torchtea.noise.components.Component.held` entries with
-    words, not the references): those of the component ``label``, or of every component with ``"*"``. Name → the
-    words for its interval."""
-    return {f"{lb}.{p}": words for lb, comp in model.components for p, words in comp.held.items()
-            if words is not None and label in ("*", lb)}
-
-
-def _counted(fit: Fit, held: dict) -> None:
-    """Count the ``held`` estimates (name → words for the interval) among the fit's estimated parameters (BIC)."""
-    for n, words in held.items():
-        if n not in fit.free:
-            fit.free.append(n)
-        fit.ci95_method[n] = words
-
-
 def _add_note(row: dict, text: str) -> None:
     row["note"] = f"{row['note']}; {text}" if row.get("note") else text
 
@@ -823,10 +820,6 @@ NESTED_SLACK = 0.5
 #: (a lower bound of each refit's gain: the screen's Whittle fit, the model's fit with the effect at the screen's
 #: values, …) and refits only the best: on 2.16·10⁶ samples one exact refit takes minutes (issue 44).
 LONG_RECORD = 500_000
-#: A candidate's refit has converged when it can gain less than this many nats: its BIC gain is then known to 10⁻³
-#: (the ranking needs 0.1; the suggestion the loop adds is refined to :func:`~torchtea.fitting.mle.decrement_tolerance`
-#: with its intervals).
-REFIT_TOLERANCE = 1e-3
 #: A point of the model's own likelihood better than its fit by more than this many nats shows that the fit was not
 #: the model's maximum.
 BASE_SLACK = 0.5

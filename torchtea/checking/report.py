@@ -15,12 +15,13 @@ import numpy as np
 import torch
 from scipy import stats
 
+from ..fitting.plan import plan_document, plan_lines
 from ..noise.model import parse_model
 from ..likelihood.whittle import periodogram
 from ..render.plots import pyplot, save_figure
 from ..render.strictjson import write
 from . import allan
-from .check import CheckResult
+from .check import CLOSE_BIC, CheckResult, change_words
 
 __all__ = ["write_report", "axis_document", "figures", "MEANING"]
 
@@ -36,7 +37,8 @@ MEANING = {
                "screen_level / (effects screened) and gain > 0",
     "repairs": "diagnostics that failed before and pass with the effect",
     "steps": "the checks of the loop (--add, --auto), first first: model, nll per sample, misfits, failed "
-             "diagnostics; from the second on the effect added, its BIC gain, what it repaired and broke",
+             "diagnostics; from the second on what changed (change: add, drop, simpler or swap; added, removed: "
+             "the effects), its BIC gain, what it repaired and broke",
     "loop_end": "why --auto stopped: the model adequate, no effect passing its screen, or the step limit",
     "unexplained": "failed diagnostics that no suggestion repairs: where, what kind of effect would fit that "
                    "signature, and which of those effects check screened (in_library), the library has but does not "
@@ -47,6 +49,17 @@ MEANING = {
     "excluded": "stretches left out on request (--exclude): their samples missing, or cut at the end",
     "refit_failed": "(a screen's row) its screen passed, but the exact refit of the model with it gained far less than "
                     "the screen's statistic and lowered no BIC: the fit failed, which is no evidence against it",
+    "ties": "what the record cannot tell apart from the model the loop ended with: models whose BIC is within 6 of "
+            "its own (kind drop: without one of its components; simpler: a component replaced by its special case; "
+            "swap: an added effect replaced by another that passed its screen) and adequate where it is, and "
+            "suggestions that would gain less than 6 (kind add); bic_difference: BIC of that model − BIC of this one",
+    "alternatives": "the models the loop's simplification tried from this one (each component dropped, replaced by "
+                    "its special cases, each added effect swapped): bic = exact-likelihood BIC (null: not refitted, its "
+                    "Whittle BIC more than 20 above the model's), rejected = why one with a lower BIC was not kept",
+    "plan": "how long to record: the expected 95 % intervals of the final model's noise numbers (N, K where it has "
+            "them, its noise parameters) on records 1×, 4× and 10× this one, if the model at its fitted values is the "
+            "truth (the Whittle likelihood's expected information; rows[].relative_half_width = half the interval's "
+            "width over the value; torchtea plan for other lengths and targets)",
     "not_confirmed": "(a screen's row) its Whittle screen passed, but the exact likelihood at the screen's own point is "
                      "below the model's and the refit lowered no BIC: the cheap and the exact likelihood disagree on "
                      "this record, no evidence for the effect",
@@ -58,7 +71,23 @@ def axis_document(res: CheckResult) -> dict:
     if res.before is not None:
         d["before"] = {"model": res.before.model.spec, **res.before.metrics, "failed": res.before.failed,
                        "bic": res.before.as_dict()["base"]["bic"]}
+    d["plan"] = record_plan(res)
     return d
+
+
+#: The record lengths, in multiples of this one's, of the plan every check report has.
+PLAN_MULTIPLES = (1, 4, 10)
+
+
+def record_plan(res: CheckResult) -> dict | None:
+    """How long to record, from the model the check ended with taken as the truth
+    (:func:`~torchtea.fitting.plan.plan_document`): the expected 95 % intervals of its noise numbers on a record as
+    long as this one, 4× and 10× it; None where the model has no spectrum to plan from."""
+    n = int(np.sum(~np.isnan(res.y)))
+    try:
+        return plan_document(res.model, res.fit.values, res.h, [k * n for k in PLAN_MULTIPLES], recorded=n)
+    except (ValueError, RuntimeError, NotImplementedError) as exc:
+        return {"notes": [f"no plan: {exc}"], "rows": [], "targets": []}
 
 
 def _component_models(res: CheckResult):
@@ -251,16 +280,20 @@ def write_report(out: Path, results: dict, meta: dict, plots: bool = True) -> di
                  if info.get("sensor", "signal") != "signal" else f"column `{info.get('column', a)}`")
         lines += [f"## {a}: {title}: model `{r.model.spec}` — {'adequate' if r.adequate else 'NOT adequate'}", ""]
         if len(r.steps) > 2 or r.loop_end:
-            lines += ["The loop, one effect added per step (`gain`: the BIC it gained; `repaired`: failed before, "
-                      "pass now):", "",
-                      "| step | model | added | gain | nll/sample | psd misfit | adev misfit | failed | repaired |",
+            lines += ["The loop, one change per step — an effect added (+), taken away (−) or swapped (→) — (`gain`: "
+                      "the BIC it gained; `repaired`: failed before, pass now):", "",
+                      "| step | model | change | gain | nll/sample | psd misfit | adev misfit | failed | repaired |",
                       "|---|---|---|---|---|---|---|---|---|"]
             for k, st in enumerate(r.step_rows()):
-                lines.append(f"| {k} | `{st['model']}` | {st.get('added', '—')} | "
+                lines.append(f"| {k} | `{st['model']}` | {change_words(st) if k else '—'} | "
                              f"{_fmt(st.get('gain'), '.1f') if 'gain' in st else '—'} | {st['nll_per_sample']:.5f} | "
                              f"{_fmt(st['psd_misfit'], '.4f')} | {_fmt(st['adev_misfit'], '.4f')} | "
                              f"{', '.join(st['failed']) or 'none'} | {', '.join(st.get('repaired', [])) or '—'} |")
             lines += ["", f"Loop end: {r.loop_end}." if r.loop_end else "", ""]
+            if r.ties:
+                lines += ["What this record cannot tell apart (BIC within "
+                          f"{CLOSE_BIC:g} of the model's; a longer record would):", ""]
+                lines += [f"- {t['words']} (`{t['model']}`)" for t in r.ties] + [""]
         elif r.before is not None:
             b = r.before
             lines += ["| | model | nll/sample | psd misfit | adev misfit | failed |", "|---|---|---|---|---|---|",
@@ -314,6 +347,12 @@ def write_report(out: Path, results: dict, meta: dict, plots: bool = True) -> di
                 leave = (f" If it is a disturbance of the recording (a knock, a shock), leave it out: "
                          f"`{' '.join(u['exclude'][:3])}`." if u.get("exclude") else "")
                 lines.append(f"- **{u['diagnostic']}** ({u['where']}): {u['would_fit']}.{lib}{hand}{new}{leave}")
+        plan = doc["axes"][a].get("plan")
+        if plan and plan.get("rows"):
+            lines += ["", "How long to record — the expected 95 % intervals of this model's noise numbers, ± half "
+                          "the width over the value, if the model at these values is the truth (`torchtea plan`; the "
+                          "ties above say how long would tell them apart):", ""]
+            lines += plan_lines(a, plan, markdown=True)
         lines += ["", "Screens: " + "; ".join(
             f"{s['effect']} {('p ' + _fmt(s['p_value'], '.2g')) if s['p_value'] is not None else s['note']}"
             for s in r.screens), ""]

@@ -212,6 +212,12 @@ class Component:
     #: Kalibr, VINS and ORB-SLAM3 know N and K only: export names every other component and covers it.
     nav_term: str | None = None
 
+    def nav_value(self, label: str, v: dict, h: float) -> tuple[float, str, float] | None:
+        """Its :attr:`nav_term`'s value at the values ``v`` (name → float) as ``(value, the parameter it follows,
+        the power it follows it with)`` — N = √(r h) follows r to the power ½, K = σ to the power 1 — for a plan's
+        intervals (:mod:`torchtea.fitting.plan`); None where it has none or it is not one parameter's power."""
+        return None
+
     def nav_note(self, label: str, v: dict, h: float) -> str:
         """What a white-noise + random-walk filter misses of this component (export's list); ``v``: its values
         (floats)."""
@@ -221,6 +227,9 @@ class Component:
     # ---- how check screens it -----------------------------------------------------------------------------
     #: ``check`` screens it when the model lacks it (the base parts — fractional, white, offset — are not)
     candidate: bool = True
+    #: the simpler effects it contains as special cases, which the loop's simplification tries in its place
+    #: (:mod:`torchtea.checking.simplify`; dropping it is always tried)
+    special_cases: tuple = ()
     #: the order of the screens in check's table (the built-in ones 10 … 70; a user's effect after them)
     screen_order: int = 100
     #: the diagnostics whose failure this effect explains physically (a temperature effect the ``temperature``
@@ -438,6 +447,9 @@ class Fractional(Component):
     kind = "state"
     candidate = False
     order_param = "order"
+    #: order 1 with its pole at 0 is a random walk, order 1 with a pole a first-order Gauss–Markov bias (at order 0
+    #: it is white noise: dropping it beside a white component)
+    special_cases = ("random-walk", "gauss-markov")
 
     def check_fixed(self, label, fixed):
         if f"{label}.pole" in fixed and f"{label}.order" not in fixed:
@@ -556,6 +568,9 @@ class RandomWalk(Component):
     name = "random-walk"
     kind = "state"
     nav_term = "K"
+
+    def nav_value(self, label, v, h):
+        return float(v[f"{label}.sigma"]), f"{label}.sigma", 1.0
     screen_order = 10
     params = (ParamSpec("sigma", "positive", "K (units/√s)"),)
 
@@ -859,6 +874,9 @@ class White(Component):
     nav_term = "N"
     candidate = False
     params = (ParamSpec("r", "positive", "variance (units²)"),)
+
+    def nav_value(self, label, v, h):
+        return math.sqrt(float(v[f"{label}.r"]) * h), f"{label}.r", 0.5
 
     def measurement_variance(self, v):
         return v["r"]

@@ -1,0 +1,299 @@
+"""The loop's other half (issue 45): after adding, take away and swap.
+
+A loop that only adds keeps whatever it took first: a fractional part at order 1 with its pole at 0 standing in for
+a random walk, a random walk added before the temperature effect the data hold. :func:`simplify` tries, from the
+model a loop ended with, each **alternative** (:func:`alternatives`):
+
+- each component **dropped**;
+- each component replaced by the **simpler effects it contains** (:attr:`~torchtea.noise.components.Component.
+  special_cases`: the fractional part by a random walk or a first-order Gauss–Markov bias);
+- each **added** effect **swapped** for the other candidates that passed their screens at the step that added it.
+
+Each alternative is fitted (its Whittle likelihood first: those whose Whittle BIC is more than
+:data:`WHITTLE_WINDOW` above the model's are not refitted; then the exact likelihood from its Whittle modes and from
+the model's own fit), and the one with the lowest BIC below the model's is checked (:func:`~.check.check`: the
+diagnostics, the screens); it is kept when the model stays adequate (or, for a model that was not, fails nothing
+more), and the search goes on from there. Each kept change is a step of the loop like an addition.
+
+Where an alternative's BIC is within :data:`~.check.CLOSE_BIC` of the final model's, the record cannot tell them
+apart: a **tie** (:func:`ties`), named in the verdict."""
+from __future__ import annotations
+
+import copy
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..fitting.mle import Fit, fit_series, refine_best, whittle_fit
+from ..fitting.plan import duration, tie_length
+from ..noise.components import COMPONENTS
+from ..noise.model import NoiseModel, parse_model
+from .models import REFIT_TOLERANCE, assess, bic, counted, extend, held, with_intervals
+
+__all__ = ["Alternative", "alternatives", "evaluate", "simplify", "ties", "WHITTLE_WINDOW", "MAX_CHANGES"]
+
+#: An alternative whose Whittle BIC is more than this above the model's is not refitted by exact likelihood (the
+#: two BICs agree to a few units on a stationary record; a tie is within 6).
+WHITTLE_WINDOW = 20.0
+#: At most this many changes (drops, swaps, special cases) in one loop (:meth:`~.check.CheckResult.auto`).
+MAX_CHANGES = 4
+
+
+@dataclass
+class Alternative:
+    """One model the simplification tries in place of the loop's: ``kind`` ``"drop"`` (the component ``removed``
+    taken away), ``"simpler"`` (replaced by its special case ``added``) or ``"swap"`` (an added effect replaced by
+    ``added``, another candidate that passed its screen at that step)."""
+
+    kind: str
+    removed: str
+    added: str | None
+    model: NoiseModel
+    #: filled in by :func:`simplify`: the exact fit, its BIC, the Whittle BIC difference to the model's
+    fit: Fit | None = None
+    bic: float = math.inf
+    whittle_delta: float = math.inf
+    #: why it was not kept though its BIC is lower (the diagnostics it fails)
+    rejected: str = ""
+
+    @property
+    def words(self) -> str:
+        if self.kind == "drop":
+            return f"without {self.removed}"
+        how = "its special case " if self.kind == "simpler" else ""
+        return f"{self.removed} → {how}{self.added}"
+
+    def as_dict(self) -> dict:
+        return {"kind": self.kind, "removed": self.removed, "added": self.added, "model": self.model.spec,
+                "bic": None if not math.isfinite(self.bic) else self.bic,
+                "whittle_bic_difference": None if not math.isfinite(self.whittle_delta) else self.whittle_delta,
+                "rejected": self.rejected}
+
+
+def _swaps(res) -> dict:
+    """label → the other effects that passed their screens at the step of the loop that added the component
+    ``label`` (still in the model under that label and name)."""
+    out = {}
+    steps = res.steps
+    now = dict(res.model.components)
+    for prev, cur in zip(steps, steps[1:]):
+        old = {lb for lb, _ in prev.model.components}
+        for lb, comp in cur.model.components:
+            if lb in old or lb not in now or now[lb].name != comp.name:
+                continue
+            passed = [r["effect"] for r in prev.screens if r.get("passed") and r["effect"] != comp.name]
+            out.setdefault(lb, [])
+            out[lb] += [e for e in passed if e not in out[lb]]
+    return out
+
+
+def alternatives(res) -> list[Alternative]:
+    """The models :func:`simplify` tries in place of ``res.model`` (a :class:`~.check.CheckResult`), each once."""
+    model = res.model
+    tokens = [c.token for _, c in model.components]
+    names = [c.name for _, c in model.components]
+    swaps = _swaps(res)
+    out, seen = [], {model.spec}
+
+    def push(kind, label, effect, build):
+        try:
+            m = build()
+        except ValueError:  # (no stochastic component left; a filter with nothing before it; …)
+            return
+        if m.spec not in seen:
+            seen.add(m.spec)
+            out.append(Alternative(kind, label, effect, m))
+
+    for i, (label, comp) in enumerate(model.components):
+        rest = tokens[:i] + tokens[i + 1:]
+        push("drop", label, None, lambda: parse_model("+".join(rest)))
+        for kind, effects in (("simpler", comp.special_cases), ("swap", swaps.get(label, ()))):
+            for e in effects:
+                if e not in COMPONENTS or (e in names and not COMPONENTS[e].add_again):
+                    continue
+                # where the effect goes by itself (a low-pass after the stochastic parts), else in its place
+                push(kind, label, e, lambda e=e: _replaced(rest, tokens, i, e))
+    return out
+
+
+def _replaced(rest: list, tokens: list, i: int, effect: str) -> NoiseModel:
+    try:
+        return extend(parse_model("+".join(rest)), effect)
+    except ValueError:
+        return parse_model("+".join(tokens[:i] + [effect] + tokens[i + 1:]))
+
+
+def _whittle_bic(model, filled, h, inp_list, n):
+    """The model's BIC on its Whittle likelihood (its references not counted) and its Whittle fit."""
+    wf = whittle_fit(model, [filled], h, inputs=inp_list)
+    k = len([p for p in model.names if p not in model.references()])
+    return k * math.log(n) - 2.0 * float(wf.loglik[0]), wf
+
+
+def _fit(alt: Alternative, res, wf, filled) -> Fit:
+    """The alternative's exact fit: from its Whittle modes (:func:`~torchtea.fitting.mle.fit_series`) and from the
+    model's fit (its values for the parameters both have, the new effect at its starting strengths), the best kept;
+    held estimates counted in BIC as the loop counts them."""
+    y, h, inputs = res.y, res.h, res.inputs
+    inp_list = None if inputs is None else [inputs]
+    m = alt.model
+    best = fit_series(m, [y], h, method="exact", inputs=inp_list, profile=False, whittle=wf, intervals=False)[0]
+    current = res.fit.values
+    shared = {n: current[n] for n in m.names if n in current}
+    starts = []
+    if len(shared) == len(m.names):
+        starts.append(("the model's fit", shared))
+    else:
+        new = [(lb, c) for lb, c in m.components if any(f"{lb}.{p.name}" not in current for p in c.params)]
+        for lb, comp in new:  # (its strengths against the model's spectrum at its fit)
+            for k, s in enumerate(comp.strengths(lb, res.model, current, h, len(y))):
+                v = {**shared, **s}
+                if set(v) >= set(m.names):
+                    starts.append((f"the model's fit with {comp.name} at strength {k + 1}", v))
+    if starts:
+        refs = m.references() | set(m.located())
+        fixed = [n for n in m.names if n in refs]
+        try:
+            other, _ = refine_best(m, y, h, starts, inputs=inputs, fixed=fixed, tolerance=REFIT_TOLERANCE)
+        except (ValueError, RuntimeError):
+            other = None
+        if other is not None and other.loglik > best.loglik:
+            best = other
+    best = copy.deepcopy(best)
+    counted(best, held(m, "*"))
+    return best
+
+
+def _bic_of(fit: Fit) -> float:
+    f = copy.copy(fit)
+    f.free = list(fit.free)
+    f.ci95_method = dict(fit.ci95_method)
+    counted(f, held(fit.model, "*"))
+    return bic(f)
+
+
+def evaluate(res, progress=None) -> list[Alternative]:
+    """Every alternative to ``res.model`` (:func:`alternatives`), fitted where its Whittle BIC is within
+    :data:`WHITTLE_WINDOW` of the model's (``fit``, ``bic``); sorted by BIC, the lowest first."""
+    y, h = res.y, res.h
+    filled = np.where(np.isnan(y), np.nanmean(y), y)
+    inp_list = None if res.inputs is None else [res.inputs]
+    n = int(np.sum(~np.isnan(y)))
+    alts = alternatives(res)
+    if not alts:
+        return []
+    here, _ = _whittle_bic(res.model, filled, h, inp_list, n)
+    for a in alts:
+        if progress is not None:
+            progress(f"simplifying: {a.words} ({a.model.spec})")
+        try:
+            wb, wf = _whittle_bic(a.model, filled, h, inp_list, n)
+        except (ValueError, RuntimeError):
+            continue
+        a.whittle_delta = wb - here
+        if a.whittle_delta > WHITTLE_WINDOW:
+            continue
+        a.fit = _fit(a, res, wf, filled)
+        a.bic = _bic_of(a.fit)
+    return sorted(alts, key=lambda a: a.bic)
+
+
+def simplify(res, **kw):
+    """One change from the loop's result ``res`` (:class:`~.check.CheckResult`): the alternative with the lowest BIC
+    below the model's that stays adequate (or, for a model that was not, fails nothing more), checked
+    (:func:`~.check.check`, ``kw`` passed on) — its result, :attr:`~.check.CheckResult.change` saying what changed;
+    or ``res`` itself when none is kept. Either way the result's ``alternatives`` are those tried from it."""
+    progress = kw.get("progress")
+    t0 = time.perf_counter()
+
+    def spent(kept=None):  # (the search counted in this step's seconds: check.json's seconds cover the whole loop)
+        dt = time.perf_counter() - t0 - (kept.seconds if kept is not None else 0.0)
+        res.seconds += dt
+        res.timings["simplify"] = res.timings.get("simplify", 0.0) + dt
+
+    alts = evaluate(res, progress)
+    res.alternatives = alts
+    current = _bic_of(res.fit)
+    for a in alts:
+        if not a.bic < current:
+            break
+        if progress is not None:
+            progress(f"checking {a.model.spec} ({a.words}: BIC {current - a.bic:.1f} lower)")
+        fit = with_intervals(a.fit, res.y, res.h, res.inputs) if kw.get("intervals", True) else a.fit
+        new = res.recheck(a.model, fit, **kw)
+        if new.adequate or (not res.adequate and set(new.failed) <= set(res.failed)):
+            new.before = res
+            new.change = {"kind": a.kind, "removed": a.removed, "added": a.added}
+            spent(new)
+            return new
+        a.rejected = f"BIC {current - a.bic:.1f} lower, but fails {', '.join(sorted(set(new.failed) - set(res.failed)))}"
+    spent()
+    return res
+
+
+def ties(res, close: float) -> list[dict]:
+    """What the record cannot tell apart from the final model ``res``: every model the loop fitted on its way — the
+    alternatives tried at each step (:attr:`~.check.CheckResult.alternatives`), each step's suggestions, the steps
+    themselves — whose BIC is within ``close`` of the final one's, and that is adequate where it is. Each:
+    ``kind`` (swap: one component for another; add: one more; drop: one fewer; other), ``effects``, ``model``,
+    ``bic_difference`` (its BIC − the final model's: ≥ 0, or below 0 for one that fails a diagnostic the final model
+    passes, which is no tie), the record length expected to tell them apart and the sentence to show."""
+    out = []
+    current = _bic_of(res.fit)
+    n0 = int(np.sum(~np.isnan(res.y)))
+    pool = {}
+    for step in res.steps:
+        fits = [step.fit] + [s.fit for s in step.suggestions] + [a.fit for a in step.alternatives if a.fit is not None]
+        for f in fits:
+            b = _bic_of(f)
+            if f.model.spec != res.model.spec and (f.model.spec not in pool or b < pool[f.model.spec][0]):
+                pool[f.model.spec] = (b, f)
+    final = [c.name for _, c in res.model.components]
+    for spec, (b, f) in sorted(pool.items(), key=lambda kv: kv[1][0]):
+        d = b - current
+        if not (math.isfinite(d) and 0.0 <= d < close):
+            continue
+        if res.adequate:
+            _, diags, _ = assess(f.model, f.values, res.y, res.h, res.inputs, res.level)
+            if any(x.passed is False for x in diags):
+                continue
+        other = [c.name for _, c in f.model.components]
+        gone = [c for c in final if c not in other or final.count(c) > other.count(c)]
+        new = [c for c in other if c not in final or other.count(c) > final.count(c)]
+        if len(gone) == 1 and len(new) == 1:
+            kind, effects = "swap", [gone[0], new[0]]
+            words = f"{gone[0]} or {new[0]}: this record cannot tell them apart (BIC within {d:.1f})"
+        elif not gone and len(new) == 1:
+            kind, effects = "add", new
+            words = f"with or without {new[0]}: this record cannot tell (BIC {d:.1f} higher with it)"
+        elif len(gone) == 1 and not new:
+            kind, effects = "drop", gone
+            words = f"{gone[0]} or without it: this record cannot tell (BIC {d:.1f} higher without it)"
+        else:
+            kind, effects = "other", sorted(set(gone) | set(new))
+            words = f"{spec} fits about as well (BIC within {d:.1f})"
+        out.append(_with_length({"kind": kind, "effects": effects, "model": spec, "bic_difference": d,
+                                 "words": words}, d, f.k - res.fit.k, n0, res.h, close))
+    return out
+
+
+#: A tie is told apart in most records once the expected BIC difference is this many times the strong-evidence level
+#: (the difference's own spread is a few units: for a Gauss–Markov bias with τ at a tenth of a 60 s record, named a
+#: tie with the random walk, 6 of 6 records simulated from the truth at the length this gives, 6.8 min, were told
+#: apart, ΔBIC 11–27 in its favour: tests/test_plan.py).
+RESOLVE_FACTOR = 2.0
+
+
+def _with_length(tie: dict, d0: float, dk: int, n0: int, h: float, close: float) -> dict:
+    """The tie with the record length at which it is expected to be told apart in most records
+    (:func:`~torchtea.fitting.plan.tie_length` at :data:`RESOLVE_FACTOR` × ``close``: ``resolve_samples``,
+    ``resolve_seconds``; None: the likelihoods do not part) and its words."""
+    n = tie_length(d0, dk, n0, RESOLVE_FACTOR * close)
+    tie["resolve_samples"] = n
+    tie["resolve_seconds"] = None if n is None else n * h
+    tie["words"] += (f"; about {duration(n * h)} of recording would tell them apart ({n / n0:.1f}× this one; "
+                     f"expected BIC difference {RESOLVE_FACTOR * close:g})" if n
+                     else "; a longer record is not expected to tell (their likelihoods do not part)")
+    return tie

@@ -411,7 +411,7 @@ def test_the_loop_on_the_command_line(tmp_path, capsys):
     added = [st.get("added") for st in doc["steps"]]
     assert added[0] is None and set(added[1:]) == {"sinusoid", "temperature-bias"} and doc["adequate"] is True
     assert doc["loop_end"].startswith("adequate after 2") and "loop end: adequate after 2" in out
-    assert "step 2: + " in out and "The loop, one effect added per step" in (tmp_path / "c" / "report.md").read_text()
+    assert "step 2: + " in out and "The loop, one change per step" in (tmp_path / "c" / "report.md").read_text()
     clean = simulate_model("fractional+white", default_values("fractional+white", H), n_steps=6000, h=H,
                            generator=torch.Generator().manual_seed(3))[0, 0].numpy()
     r = check(clean, H, intervals=False).auto(intervals=False)

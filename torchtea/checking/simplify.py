@@ -132,7 +132,7 @@ def _whittle_bic(model, filled, h, inp_list, n):
     return k * math.log(n) - 2.0 * float(wf.loglik[0]), wf
 
 
-def _fit(alt: Alternative, res, wf, filled) -> Fit:
+def _fit(alt: Alternative, res, wf) -> Fit:
     """The alternative's exact fit: from its Whittle modes (:func:`~torchtea.fitting.mle.fit_series`) and from the
     model's fit (its values for the parameters both have, the new effect at its starting strengths), the best kept;
     held estimates counted in BIC as the loop counts them."""
@@ -190,12 +190,13 @@ def evaluate(res, progress=None) -> list[Alternative]:
             progress(f"simplifying: {a.words} ({a.model.spec})")
         try:
             wb, wf = _whittle_bic(a.model, filled, h, inp_list, n)
-        except (ValueError, RuntimeError):
+        except (ValueError, RuntimeError) as exc:
+            a.rejected = f"not fitted: {exc}"
             continue
         a.whittle_delta = wb - here
         if a.whittle_delta > WHITTLE_WINDOW:
             continue
-        a.fit = _fit(a, res, wf, filled)
+        a.fit = _fit(a, res, wf)
         a.bic = _bic_of(a.fit)
     return sorted(alts, key=lambda a: a.bic)
 

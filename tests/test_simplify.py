@@ -21,8 +21,8 @@ def _step(spec, passed=()):
 def test_the_alternatives_are_each_component_dropped_its_special_cases_and_the_added_effects_swapped():
     """From fractional+white+resonance, reached by adding the resonance while low-pass and random-walk passed
     their screens too: each of the three dropped, the fractional part by its special cases (a random walk, a
-    Gauss–Markov bias), the resonance by the two others that passed — each model once; a dropped component
-    leaving no stochastic part is no alternative."""
+    Gauss–Markov bias) — in its place where a low-pass after it filtered it —, the resonance by the two others
+    that passed — each model once; a dropped component leaving no stochastic part is no alternative."""
     start = _step("fractional+white", passed=("resonance", "low-pass", "random-walk"))
     end = _step("fractional+white+resonance")
     res = SimpleNamespace(model=end.model, steps=[start, end])
@@ -37,6 +37,11 @@ def test_the_alternatives_are_each_component_dropped_its_special_cases_and_the_a
         ("swap", "resonance", "random-walk"): "fractional+white+random-walk",
     }
     assert alternatives(SimpleNamespace(model=parse_model("white"), steps=[_step("white")])) == []
+    # a special case stays where the component was: before the low-pass that filtered it
+    filtered = _step("fractional+white+low-pass")
+    got = {(a.kind, a.added): a.model.spec for a in alternatives(SimpleNamespace(model=filtered.model,
+                                                                                 steps=[filtered]))}
+    assert got[("simpler", "random-walk")] == "random-walk+white+low-pass"
     assert change_words({"added": "random-walk", "removed": "fractional"}) == "fractional → random-walk"
     assert change_words({"added": "", "removed": "ramp"}) == "− ramp"
     assert change_words({"added": "ramp", "removed": ""}) == "+ ramp"
@@ -108,3 +113,19 @@ def test_export_of_white_noise_and_a_random_walk_gives_the_fitted_walk_with_its_
     k = axis["bare"]["K"]
     assert k["ci95"][0] < K_TRUE < k["ci95"][1] and axis["covered"]["K"]["value"] == pytest.approx(k["value"])
     assert "no random walk" not in k["how"]
+
+
+def test_identify_from_a_check_that_dropped_the_fractional_part_names_the_channels(tmp_path, capsys):
+    """A check whose model has no fractional part (as the loop leaves a channel where BIC prefers that) cannot feed
+    the TEA: `identify --from-check` stops with one line naming the channel and what to do, exit 2."""
+    from torchtea.cli import main
+    from torchtea.sensors.io import write_columns
+
+    y = _white_and_walk(n=3000)
+    path = write_columns(tmp_path / "w.csv", {"t": np.arange(len(y)) * H, "gyr_x": y})
+    assert main(["check", str(path), "--units", "rad/s", "--model", "white", "--no-plots", "--no-intervals",
+                 "--out", str(tmp_path / "c")]) == 0
+    capsys.readouterr()
+    assert main(["identify", str(path), "--units", "rad/s", "--from-check", str(tmp_path / "c" / "check.json")]) == 2
+    err = capsys.readouterr().err
+    assert "without a fractional part on gx (white)" in err and "--no-simplify" in err

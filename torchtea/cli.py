@@ -575,6 +575,13 @@ def _checked_fits(args):
         raise CLIError(str(exc)) from None
     if not args.columns:
         args.columns = ",".join(doc["channels"][label]["column"] for label in fits)
+    asked = {c.strip() for c in args.columns.split(",")}
+    plain = [lb for lb, f in fits.items() if f.model.order_name is None and doc["channels"][lb]["column"] in asked]
+    if plain:  # (check --auto drops the fractional part where BIC prefers the model without it)
+        raise CLIError(f"--from-check {args.from_check}: the check ended without a fractional part on "
+                       f"{', '.join(f'{lb} ({fits[lb].model.spec})' for lb in plain)} — BIC preferred the model "
+                       "without it — and the TEA estimates a fractional order: leave those channels out (--columns), "
+                       "or identify with --model, or check with --auto --no-simplify")
     if args.temperature is None and doc.get("temperature_column"):
         args.temperature = doc["temperature_column"]
     return doc, fits
@@ -1105,7 +1112,7 @@ def build_parser() -> argparse.ArgumentParser:
     ck.add_argument("--max-steps", type=_steps, default=6, help="--auto adds at most this many effects (default 6)")
     ck.add_argument("--no-simplify", action="store_true",
                     help="--auto only adds: no component taken away, replaced by its special case (the fractional "
-                         "part by a random walk) or swapped for another that passed its screen")
+                         "part by a random walk) or swapped for another that passed its screen, and no ties named")
     ck.add_argument("--strong", type=float, default=None, metavar="BIC",
                     help="--auto goes on past an adequate model while the best suggestion gains at least this much "
                          "BIC (default 10, checking.check.STRONG_BIC: very strong evidence; inf stops at adequacy)")

@@ -49,10 +49,12 @@ MEANING = {
     "excluded": "stretches left out on request (--exclude): their samples missing, or cut at the end",
     "refit_failed": "(a screen's row) its screen passed, but the exact refit of the model with it gained far less than "
                     "the screen's statistic and lowered no BIC: the fit failed, which is no evidence against it",
-    "ties": "what the record cannot tell apart from the model the loop ended with: models whose BIC is within 6 of "
-            "its own (kind drop: without one of its components; simpler: a component replaced by its special case; "
-            "swap: an added effect replaced by another that passed its screen) and adequate where it is, and "
-            "suggestions that would gain less than 6 (kind add); bic_difference: BIC of that model − BIC of this one",
+    "ties": "what the record cannot tell apart from the model the loop ended with: models fitted on the way whose "
+            "BIC is within 6 above its own and that are adequate where it is (kind swap: one component for another; "
+            "add: one more; drop: one fewer; other), and the last step's suggestions that gain less than 6 (kind add, "
+            "bic_difference below 0); bic_difference: BIC of that model − BIC of this one; resolve_samples, "
+            "resolve_seconds: the record length at which their BIC difference is expected to reach 12 (for add and "
+            "drop: if the extra effect is there)",
     "alternatives": "the models the loop's simplification tried from this one (each component dropped, replaced by "
                     "its special cases, each added effect swapped): bic = exact-likelihood BIC (null: not refitted, its "
                     "Whittle BIC more than 20 above the model's), rejected = why one with a lower BIC was not kept",
@@ -350,8 +352,7 @@ def write_report(out: Path, results: dict, meta: dict, plots: bool = True) -> di
         plan = doc["axes"][a].get("plan")
         if plan and plan.get("rows"):
             lines += ["", "How long to record — the expected 95 % intervals of this model's noise numbers, ± half "
-                          "the width over the value, if the model at these values is the truth (`torchtea plan`; the "
-                          "ties above say how long would tell them apart):", ""]
+                          "the width over the value, if the model at these values is the truth (`torchtea plan`):", ""]
             lines += plan_lines(a, plan, markdown=True)
         lines += ["", "Screens: " + "; ".join(
             f"{s['effect']} {('p ' + _fmt(s['p_value'], '.2g')) if s['p_value'] is not None else s['note']}"

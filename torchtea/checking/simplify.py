@@ -11,9 +11,9 @@ model a loop ended with, each **alternative** (:func:`alternatives`):
 
 Each alternative is fitted (its Whittle likelihood first: those whose Whittle BIC is more than
 :data:`WHITTLE_WINDOW` above the model's are not refitted; then the exact likelihood from its Whittle modes and from
-the model's own fit), and the one with the lowest BIC below the model's is checked (:func:`~.check.check`: the
-diagnostics, the screens); it is kept when the model stays adequate (or, for a model that was not, fails nothing
-more), and the search goes on from there. Each kept change is a step of the loop like an addition.
+the model's own fit), and those with a BIC below the model's are checked in order of BIC (:func:`~.check.check`: the
+diagnostics, the screens); the first that keeps the model adequate (or, for a model that was not, fails nothing
+more) is kept, and the search goes on from there. Each kept change is a step of the loop like an addition.
 
 Where an alternative's BIC is within :data:`~.check.CLOSE_BIC` of the final model's, the record cannot tell them
 apart: a **tie** (:func:`ties`), named in the verdict."""
@@ -113,16 +113,20 @@ def alternatives(res) -> list[Alternative]:
             for e in effects:
                 if e not in COMPONENTS or (e in names and not COMPONENTS[e].add_again):
                     continue
-                # where the effect goes by itself (a low-pass after the stochastic parts), else in its place
-                push(kind, label, e, lambda e=e: _replaced(rest, tokens, i, e))
+                # a special case in the component's place where a filter after it filtered it; else (and a swapped
+                # effect) where it goes by itself (a low-pass after the stochastic parts), failing that in its place
+                filtered = kind == "simpler" and any(c.kind == "filter" for _, c in model.components[i + 1:])
+                push(kind, label, e, lambda e=e, f=filtered: _replaced(rest, tokens, i, e, f))
     return out
 
 
-def _replaced(rest: list, tokens: list, i: int, effect: str) -> NoiseModel:
-    try:
-        return extend(parse_model("+".join(rest)), effect)
-    except ValueError:
-        return parse_model("+".join(tokens[:i] + [effect] + tokens[i + 1:]))
+def _replaced(rest: list, tokens: list, i: int, effect: str, in_place: bool) -> NoiseModel:
+    if not in_place:
+        try:
+            return extend(parse_model("+".join(rest)), effect)
+        except ValueError:
+            pass
+    return parse_model("+".join(tokens[:i] + [effect] + tokens[i + 1:]))
 
 
 def _whittle_bic(model, filled, h, inp_list, n):
@@ -237,10 +241,11 @@ def simplify(res, **kw):
 def ties(res, close: float) -> list[dict]:
     """What the record cannot tell apart from the final model ``res``: every model the loop fitted on its way — the
     alternatives tried at each step (:attr:`~.check.CheckResult.alternatives`), each step's suggestions, the steps
-    themselves — whose BIC is within ``close`` of the final one's, and that is adequate where it is. Each:
-    ``kind`` (swap: one component for another; add: one more; drop: one fewer; other), ``effects``, ``model``,
-    ``bic_difference`` (its BIC − the final model's: ≥ 0, or below 0 for one that fails a diagnostic the final model
-    passes, which is no tie), the record length expected to tell them apart and the sentence to show."""
+    themselves — whose BIC is within ``close`` above the final one's and that is adequate where it is, and the final
+    step's suggestions that gain less than ``close`` (the loop stopped short of them). Each: ``kind`` (swap: one
+    component for another; add: one more; drop: one fewer; other), ``effects``, ``model``, ``bic_difference`` (its BIC
+    − the final model's; below 0 for such a suggestion), the record length expected to tell them apart
+    (``resolve_samples``, ``resolve_seconds``) and the sentence to show."""
     out = []
     current = _bic_of(res.fit)
     n0 = int(np.sum(~np.isnan(res.y)))
@@ -252,9 +257,10 @@ def ties(res, close: float) -> list[dict]:
             if f.model.spec != res.model.spec and (f.model.spec not in pool or b < pool[f.model.spec][0]):
                 pool[f.model.spec] = (b, f)
     final = [c.name for _, c in res.model.components]
+    suggested = {s.fit.model.spec for s in res.suggestions}  # (the loop stopped short of them: gain under strong)
     for spec, (b, f) in sorted(pool.items(), key=lambda kv: kv[1][0]):
         d = b - current
-        if not (math.isfinite(d) and 0.0 <= d < close):
+        if not (math.isfinite(d) and (0.0 <= d < close or (spec in suggested and -close < d < 0.0))):
             continue
         if res.adequate:
             _, diags, _ = assess(f.model, f.values, res.y, res.h, res.inputs, res.level)
@@ -268,7 +274,8 @@ def ties(res, close: float) -> list[dict]:
             words = f"{gone[0]} or {new[0]}: this record cannot tell them apart (BIC within {d:.1f})"
         elif not gone and len(new) == 1:
             kind, effects = "add", new
-            words = f"with or without {new[0]}: this record cannot tell (BIC {d:.1f} higher with it)"
+            words = (f"with or without {new[0]}: this record cannot tell (BIC {abs(d):.1f} "
+                     f"{'higher' if d >= 0 else 'lower'} with it)")
         elif len(gone) == 1 and not new:
             kind, effects = "drop", gone
             words = f"{gone[0]} or without it: this record cannot tell (BIC {d:.1f} higher without it)"
@@ -294,7 +301,11 @@ def _with_length(tie: dict, d0: float, dk: int, n0: int, h: float, close: float)
     n = tie_length(d0, dk, n0, RESOLVE_FACTOR * close)
     tie["resolve_samples"] = n
     tie["resolve_seconds"] = None if n is None else n * h
+    # (one model inside the other: the length assumes the larger one's extra effect is real — if it is not, only
+    # the penalty grows, as ln n, and it takes far longer)
+    nested = tie["kind"] in ("add", "drop")
     tie["words"] += (f"; about {duration(n * h)} of recording would tell them apart ({n / n0:.1f}× this one; "
-                     f"expected BIC difference {RESOLVE_FACTOR * close:g})" if n
+                     f"expected BIC difference {RESOLVE_FACTOR * close:g}"
+                     + (f", if {tie['effects'][0]} is there — if not, far longer)" if nested else ")") if n
                      else "; a longer record is not expected to tell (their likelihoods do not part)")
     return tie

@@ -364,6 +364,11 @@ def plan_document(model, values: dict, h: float, lengths, *, recorded: int | Non
     out_targets = []
     for name, rel in targets:
         known = set(_stochastic(model)) | set(nav_numbers(model, values, h) if terms is None else terms)
+        held = _held(model, values, h, fixed)
+        if name in held:
+            out_targets.append({"name": name, "relative_half_width": rel, "samples": None, "seconds": None,
+                                "absent": f"{name} is held (given, or at a bound): not estimated"})
+            continue
         if name not in known:  # (another axis's model may have it)
             out_targets.append({"name": name, "relative_half_width": rel, "samples": None, "seconds": None,
                                 "absent": f"{model.spec} has no {name} (its numbers: {', '.join(sorted(known))})"})

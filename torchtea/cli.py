@@ -1278,9 +1278,12 @@ def cmd_plan(args) -> int:
 
     try:
         targets = [parse_target(t) for t in args.target]
-        lengths_s = None if not args.lengths else [float(x) for x in args.lengths.split(",") if x.strip()]
     except ValueError as exc:
-        raise CLIError(str(exc) if "target" in str(exc) else f"--lengths {args.lengths!r}: seconds, comma-separated")
+        raise CLIError(str(exc)) from None
+    try:
+        lengths_s = None if not args.lengths else [float(x) for x in args.lengths.split(",") if x.strip()]
+    except ValueError:
+        raise CLIError(f"--lengths {args.lengths!r}: seconds, comma-separated") from None
     if lengths_s is not None and not all(x > 0 for x in lengths_s):
         raise CLIError(f"--lengths {args.lengths!r}: every length must be positive")
     axes, ties, source = {}, {}, ""

@@ -145,6 +145,9 @@ class CheckResult:
     alternatives: list = field(default_factory=list)
     #: (the end of a loop) what the record cannot tell apart from this model (:func:`~.simplify.ties`).
     ties: list = field(default_factory=list)
+    #: The model's Whittle fit on this series (:func:`~torchtea.fitting.mle.whittle_fit`), which the loop's
+    #: simplification compares its alternatives with.
+    whittle: object = None
 
     @property
     def model(self) -> NoiseModel:
@@ -229,11 +232,11 @@ class CheckResult:
         res.before = self
         return res
 
-    def recheck(self, model, fit: Fit | None = None, **kw) -> "CheckResult":
-        """:func:`check` of another ``model`` on the same series, inputs and levels, from its exact ``fit`` when given
-        and with this result's refits carried as starts (the loop's simplification, :mod:`.simplify`)."""
+    def recheck(self, model, fit: Fit | None = None, whittle=None, **kw) -> "CheckResult":
+        """:func:`check` of another ``model`` on the same series, inputs and levels, from its exact ``fit`` and Whittle
+        fit when given and with this result's refits carried as starts (the loop's simplification, :mod:`.simplify`)."""
         return check(self.y, self.h, model=model, inputs=self.inputs, level=self.level,
-                     screen_level=self.screen_level, fit=fit, carry=self.refits, **kw)
+                     screen_level=self.screen_level, fit=fit, carry=self.refits, whittle=whittle, **kw)
 
     def auto(self, max_steps: int = 6, strong: float | None = None, simplify: bool = True, **kw) -> "CheckResult":
         """Run the loop to its end: add the best suggestion and check again (:meth:`add`, ``kw`` passed on), until
@@ -503,7 +506,7 @@ def _whittle_screens(model, base, rows_alts, y, h, inputs, cache: dict):
 
 def check(y, h: float, model=PAPER_MODEL, inputs: dict | None = None, *, level: float = LEVEL,
           screen_level: float = 0.05, candidates=None, fit: Fit | None = None, intervals: bool = True,
-          progress=None, carry: dict | None = None) -> CheckResult:
+          progress=None, carry: dict | None = None, whittle=None) -> CheckResult:
     """Fit ``model`` to the series ``y`` (NaN = missing, sample time ``h``), run the diagnostics and rank the
     missing effects (module docstring). ``inputs``: ``{"temperature": (N,)}`` (°C) when there is a temperature
     channel. ``candidates``: the effects to screen (default: every registered candidate,
@@ -513,7 +516,9 @@ def check(y, h: float, model=PAPER_MODEL, inputs: dict | None = None, *, level: 
     sensitivity filter applies); the other suggestions' parameters come without. ``progress(line)``: called with a
     short line as each stage starts (the CLI shows them). ``carry``: effect → an earlier step's refit of a model
     with that effect (:attr:`CheckResult.refits`): one more start for its refit here, the effect at the values it
-    had there (what the loop knows carries to its next step).
+    had there (what the loop knows carries to its next step). ``whittle``: the model's Whittle fit on this series
+    (:func:`~torchtea.fitting.mle.whittle_fit` of the model on the mean-filled series, the default grid), already
+    made (:attr:`CheckResult.whittle`; the loop's simplification fits each alternative so).
 
     The model's exact likelihood can have several maxima (a fractional order bent to ≈ 1 mimics a random walk
     or a low-pass). Every candidate's refit starts from several places (:func:`_refit`); when a refit, with its new
@@ -532,6 +537,8 @@ def check(y, h: float, model=PAPER_MODEL, inputs: dict | None = None, *, level: 
     run = _Run(y, h, inputs, level, progress)
     run.carry = dict(carry or {})
     say = run.say
+    if whittle is not None:
+        run.cache[("whittle", model.spec)] = whittle
     if ("whittle", model.spec) not in run.cache:
         say(f"fitting {model.spec} (Whittle)")
         run.cache[("whittle", model.spec)] = whittle_fit(model, [run.filled], h, inputs=run.inp_list)
@@ -567,6 +574,7 @@ def check(y, h: float, model=PAPER_MODEL, inputs: dict | None = None, *, level: 
         res.notes.append("the exact fit did not report convergence: diagnostics are at the last iterate")
     res.seconds = time.perf_counter() - t0
     res.timings = run.clock.laps
+    res.whittle = wf
     return res
 
 

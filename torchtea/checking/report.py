@@ -85,7 +85,7 @@ def record_plan(res: CheckResult) -> dict | None:
     """How long to record, from the model the check ended with taken as the truth
     (:func:`~torchtea.fitting.plan.plan_document`): the expected 95 % intervals of its noise numbers on a record as
     long as this one, 4× and 10× it; None where the model has no spectrum to plan from."""
-    n = int(np.sum(~np.isnan(res.y)))
+    n = res.fit.n
     try:
         return plan_document(res.model, res.fit.values, res.h, [k * n for k in PLAN_MULTIPLES], recorded=n)
     except (ValueError, RuntimeError, NotImplementedError) as exc:

@@ -55,6 +55,8 @@ class Alternative:
     fit: Fit | None = None
     bic: float = math.inf
     whittle_delta: float = math.inf
+    #: its Whittle fit (what :func:`~.check.check` of it would make first)
+    whittle: object = None
     #: why it was not kept though its BIC is lower (the diagnostics it fails)
     rejected: str = ""
 
@@ -129,11 +131,10 @@ def _replaced(rest: list, tokens: list, i: int, effect: str, in_place: bool) -> 
     return parse_model("+".join(tokens[:i] + [effect] + tokens[i + 1:]))
 
 
-def _whittle_bic(model, filled, h, inp_list, n):
-    """The model's BIC on its Whittle likelihood (its references not counted) and its Whittle fit."""
-    wf = whittle_fit(model, [filled], h, inputs=inp_list)
+def _whittle_bic(model, wf, n) -> float:
+    """The model's BIC on its Whittle likelihood (its Whittle fit ``wf``; its references not counted)."""
     k = len([p for p in model.names if p not in model.references()])
-    return k * math.log(n) - 2.0 * float(wf.loglik[0]), wf
+    return k * math.log(n) - 2.0 * float(wf.loglik[0])
 
 
 def _fit(alt: Alternative, res, wf) -> Fit:
@@ -170,37 +171,43 @@ def _fit(alt: Alternative, res, wf) -> Fit:
     return best
 
 
-def _bic_of(fit: Fit) -> float:
+def _as_counted(fit: Fit) -> Fit:
+    """A shallow copy of ``fit`` with every held estimate of its model counted (its ``k`` as BIC counts it here,
+    however the fit was made)."""
     f = copy.copy(fit)
     f.free = list(fit.free)
     f.ci95_method = dict(fit.ci95_method)
     counted(f, held(fit.model, "*"))
-    return bic(f)
+    return f
+
+
+def _bic_of(fit: Fit) -> float:
+    return bic(_as_counted(fit))
 
 
 def evaluate(res, progress=None) -> list[Alternative]:
     """Every alternative to ``res.model`` (:func:`alternatives`), fitted where its Whittle BIC is within
     :data:`WHITTLE_WINDOW` of the model's (``fit``, ``bic``); sorted by BIC, the lowest first."""
     y, h = res.y, res.h
-    filled = np.where(np.isnan(y), np.nanmean(y), y)
+    filled = np.where(np.isnan(y), np.nanmean(y), y)  # (as check fits the Whittle likelihood: CheckResult.whittle)
     inp_list = None if res.inputs is None else [res.inputs]
-    n = int(np.sum(~np.isnan(y)))
+    n = res.fit.n
     alts = alternatives(res)
     if not alts:
         return []
-    here, _ = _whittle_bic(res.model, filled, h, inp_list, n)
+    here = _whittle_bic(res.model, res.whittle or whittle_fit(res.model, [filled], h, inputs=inp_list), n)
     for a in alts:
         if progress is not None:
             progress(f"simplifying: {a.words} ({a.model.spec})")
         try:
-            wb, wf = _whittle_bic(a.model, filled, h, inp_list, n)
+            a.whittle = whittle_fit(a.model, [filled], h, inputs=inp_list)
         except (ValueError, RuntimeError) as exc:
             a.rejected = f"not fitted: {exc}"
             continue
-        a.whittle_delta = wb - here
+        a.whittle_delta = _whittle_bic(a.model, a.whittle, n) - here
         if a.whittle_delta > WHITTLE_WINDOW:
             continue
-        a.fit = _fit(a, res, wf)
+        a.fit = _fit(a, res, a.whittle)
         a.bic = _bic_of(a.fit)
     return sorted(alts, key=lambda a: a.bic)
 
@@ -227,7 +234,7 @@ def simplify(res, **kw):
         if progress is not None:
             progress(f"checking {a.model.spec} ({a.words}: BIC {current - a.bic:.1f} lower)")
         fit = with_intervals(a.fit, res.y, res.h, res.inputs) if kw.get("intervals", True) else a.fit
-        new = res.recheck(a.model, fit, **kw)
+        new = res.recheck(a.model, fit, a.whittle, **kw)
         if new.adequate or (not res.adequate and set(new.failed) <= set(res.failed)):
             new.before = res
             new.change = {"kind": a.kind, "removed": a.removed, "added": a.added}
@@ -247,13 +254,14 @@ def ties(res, close: float) -> list[dict]:
     − the final model's; below 0 for such a suggestion), the record length expected to tell them apart
     (``resolve_samples``, ``resolve_seconds``) and the sentence to show."""
     out = []
-    current = _bic_of(res.fit)
-    n0 = int(np.sum(~np.isnan(res.y)))
+    here = _as_counted(res.fit)
+    current = bic(here)
+    n0 = res.fit.n
     pool = {}
     for step in res.steps:
         fits = [step.fit] + [s.fit for s in step.suggestions] + [a.fit for a in step.alternatives if a.fit is not None]
-        for f in fits:
-            b = _bic_of(f)
+        for f in map(_as_counted, fits):
+            b = bic(f)
             if f.model.spec != res.model.spec and (f.model.spec not in pool or b < pool[f.model.spec][0]):
                 pool[f.model.spec] = (b, f)
     final = [c.name for _, c in res.model.components]
@@ -283,7 +291,7 @@ def ties(res, close: float) -> list[dict]:
             kind, effects = "other", sorted(set(gone) | set(new))
             words = f"{spec} fits about as well (BIC within {d:.1f})"
         out.append(_with_length({"kind": kind, "effects": effects, "model": spec, "bic_difference": d,
-                                 "words": words}, d, f.k - res.fit.k, n0, res.h, close))
+                                 "words": words}, d, f.k - here.k, n0, res.h, close))
     return out
 
 

@@ -488,9 +488,9 @@ def _score_batch(model, y, h, U0: Tensor, free: Tensor, inputs, memory, max_iter
             near = any(f[k] >= f[j] and float(np.max(np.abs(np.clip(X[k], -8, 8) - np.clip(X[j], -8, 8))))
                        <= MODE_DISTANCE for j in finished)
             pace = (history[k][-RACE_WINDOW - 1] - f[k]) / RACE_WINDOW if len(history[k]) > RACE_WINDOW else np.inf
-            behind = f[k] - f[top] > RACE_MARGIN + pace * (max_iter - iterations[k])
-            crawling = f[k] > f[top] and pace < NOISE_DECREMENTS * tol[k]  # below it and all but still
             gap = f[k] - f[top]
+            behind = gap > RACE_MARGIN + pace * (max_iter - iterations[k])
+            crawling = gap > 0 and pace < NOISE_DECREMENTS * tol[k]  # below it and all but still
             caught = RACE_MARGIN >= gap > CATCH_SAFETY * max(decs[j], _remaining(history[k]))
             if near or behind or crawling or caught:
                 done[k] = True

@@ -84,10 +84,15 @@ def _ordinates(n: int) -> tuple[np.ndarray, np.ndarray]:
 AT_BOUND_LOGIT = 8.0
 
 
+def _point(model, values: dict, h: float) -> torch.Tensor:
+    """The values (name → float) as the fits' unconstrained coordinates ``(P,)``."""
+    return model.to_unconstrained({k: torch.as_tensor([float(values[k])], dtype=torch.float64)
+                                   for k in model.names}, h)[0].detach()
+
+
 def _held(model, values: dict, h: float, fixed=()) -> list[str]:
     """The noise parameters the plan holds: those ``fixed`` and those at a bound (:data:`AT_BOUND_LOGIT`)."""
-    u = model.to_unconstrained({k: torch.as_tensor([float(values[k])], dtype=torch.float64) for k in model.names},
-                               h)[0]
+    u = _point(model, values, h)
     return [p for p in _stochastic(model) if p in fixed or (
         model.param_spec(p).kind in ("bounded", "fraction", "nyquist")
         and abs(float(u[model.names.index(p)])) > AT_BOUND_LOGIT)]
@@ -100,8 +105,7 @@ def information(model, values: dict, h: float, n: int, fixed=()) -> tuple[list[s
     held = _held(model, values, h, fixed)
     names = [p for p in _stochastic(model) if p not in held]
     idx = [model.names.index(p) for p in names]
-    u0 = model.to_unconstrained({k: torch.as_tensor([float(values[k])], dtype=torch.float64)
-                                 for k in model.names}, h)[0].detach()
+    u0 = _point(model, values, h)
     j, w = _ordinates(n)
     omega = torch.as_tensor(2.0 * math.pi * j / n)
 
@@ -185,8 +189,7 @@ def plan(model, values: dict, h: float, lengths, fixed=(), terms: dict | None = 
 
 def _mapped(model, values, h, name, se_u) -> tuple[float, float]:
     """The 95 % interval of ``name`` from its unconstrained coordinate's standard error, mapped back."""
-    u = model.to_unconstrained({k: torch.as_tensor([float(values[k])], dtype=torch.float64) for k in model.names},
-                               h)[0]
+    u = _point(model, values, h)
     i = model.names.index(name)
     ends = []
     for sign in (-1.0, 1.0):
@@ -362,9 +365,9 @@ def plan_document(model, values: dict, h: float, lengths, *, recorded: int | Non
     rows = plan(model, values, h, lengths, fixed, terms)
     names = set(rows[0].intervals) if rows else set()
     out_targets = []
+    known = set(_stochastic(model)) | set(nav_numbers(model, values, h) if terms is None else terms)
+    held = _held(model, values, h, fixed)
     for name, rel in targets:
-        known = set(_stochastic(model)) | set(nav_numbers(model, values, h) if terms is None else terms)
-        held = _held(model, values, h, fixed)
         if name in held:
             out_targets.append({"name": name, "relative_half_width": rel, "samples": None, "seconds": None,
                                 "absent": f"{name} is held (given, or at a bound): not estimated"})
@@ -381,8 +384,8 @@ def plan_document(model, values: dict, h: float, lengths, *, recorded: int | Non
     if means:
         notes.append(f"not planned: {', '.join(means)} (a mean's information depends on the temperature history or "
                      "the line, not on the noise alone)")
-    if rows and rows[0].held:
-        notes.append(f"held where they are: {', '.join(rows[0].held)} (given, or at a bound)")
+    if held:
+        notes.append(f"held where they are: {', '.join(held)} (given, or at a bound)")
     if rows and not names:
         notes.append("the information is singular: no intervals")
     return {"model": model.spec, "values": {k: float(v) for k, v in values.items()}, "sample_time_s": h,

@@ -9,7 +9,7 @@ import pytest
 import torch
 
 from torchtea.checking.check import check, change_words
-from torchtea.checking.simplify import alternatives, simplify
+from torchtea.checking.simplify import _carried, alternatives, simplify
 from torchtea.noise.model import parse_model
 from torchtea.noise.simulate import simulate_model, temperature_profile
 
@@ -45,6 +45,18 @@ def test_the_alternatives_are_each_component_dropped_its_special_cases_and_the_a
     assert change_words({"added": "random-walk", "removed": "fractional"}) == "fractional → random-walk"
     assert change_words({"added": "", "removed": "ramp"}) == "− ramp"
     assert change_words({"added": "ramp", "removed": ""}) == "+ ramp"
+
+
+def test_a_component_left_by_a_drop_is_started_from_its_own_values_not_the_dropped_ones():
+    """Labels are numbered anew (without the first of two lines the second is ``sinusoid``): the alternative's fit
+    starts each component left from its own values in the model (:func:`_carried` maps the labels), not from the
+    values of the one that had its label."""
+    m = parse_model("fractional+white+sinusoid+sinusoid")
+    one = parse_model("fractional+white+sinusoid")
+    assert _carried(m, one, "sinusoid") == {"fractional": "fractional", "white": "white", "sinusoid": "sinusoid2"}
+    assert _carried(m, one, "sinusoid2") == {"fractional": "fractional", "white": "white", "sinusoid": "sinusoid"}
+    assert _carried(m, parse_model("white+random-walk+sinusoid+sinusoid"), "fractional") == {
+        "white": "white", "sinusoid": "sinusoid", "sinusoid2": "sinusoid2"}
 
 
 H = 0.005
@@ -129,3 +141,17 @@ def test_identify_from_a_check_that_dropped_the_fractional_part_names_the_channe
     assert main(["identify", str(path), "--units", "rad/s", "--from-check", str(tmp_path / "c" / "check.json")]) == 2
     err = capsys.readouterr().err
     assert "without a fractional part on gx (white)" in err and "--no-simplify" in err
+
+
+def test_auto_leaves_the_result_it_starts_from_as_it_is():
+    """A loop that adds and changes nothing still returns a result of its own: the check it started from keeps
+    its loop_end, ties and timings (a second auto() from it gives the same end)."""
+    y = np.random.default_rng(5).standard_normal(3000) * 0.01
+    first = check(y, 0.01, model="white", intervals=False)
+    before = (first.loop_end, list(first.ties), dict(first.timings), first.seconds)
+    end = first.auto(intervals=False)
+    assert end is not first and end.model.spec == "white"
+    assert end.loop_end.startswith("adequate after 0 effect(s) added")
+    assert (first.loop_end, first.ties, first.timings, first.seconds) == before
+    assert first.auto(intervals=False).loop_end == end.loop_end
+    assert [r.model.spec for r in end.steps] == ["white"]

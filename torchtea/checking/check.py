@@ -245,8 +245,9 @@ class CheckResult:
         swap (:func:`~.simplify.simplify`: each component dropped, replaced by its special cases, each added effect
         swapped for the others that passed their screens), one change at a time while BIC falls and the model stays
         adequate, adding again after each change — at most :data:`~.simplify.MAX_CHANGES` changes. Returns the last
-        result: its :attr:`steps` are the path, its :attr:`loop_end` says why it stopped, its :attr:`ties` what the
-        record cannot tell apart from it.
+        result (a new one, also where nothing was added or changed: this result is left as it is): its
+        :attr:`steps` are the path, its :attr:`loop_end` says why it stopped, its :attr:`ties` what the record cannot
+        tell apart from it.
 
         An adequate model still gets a very strong suggestion added: the eight diagnostics are omnibus tests, and
         one effect can hide another from them (a random walk takes up a step's level, a bias per °C the slow part
@@ -256,7 +257,8 @@ class CheckResult:
         from . import simplify as simplifying
 
         strong = STRONG_BIC if strong is None else float(strong)
-        res = self
+        res = copy.copy(self)  # (the loop's end is a result of its own: this one keeps its loop_end, ties, timings)
+        res.timings, res.alternatives = dict(self.timings), list(self.alternatives)
         added = changes = 0
         while True:
             while added < max_steps and res.suggestions and not (res.adequate and res.suggestions[0].gain < strong):
@@ -331,7 +333,8 @@ class CheckResult:
         return {"model": self.model.spec, "adequate": self.adequate,
                 "base": dict(self.metrics, failed=self.failed, failing_ranges_s=self.failing_ranges_s,
                              parameters=self.fit.values, se=self.fit.se, ci95=self.fit.ci95,
-                             ci95_method=self.fit.ci95_method, loglik=self.fit.loglik_exact, bic=_bic(self.fit)),
+                             ci95_method=self.fit.ci95_method, loglik=self.fit.loglik_exact, bic=_bic(self.fit),
+                             observed=self.fit.n),
                 "diagnostics": [d.as_dict() for d in self.diagnostics],
                 "screens": self.screens,
                 "suggestions": [s.as_dict() for s in self.suggestions],
@@ -366,8 +369,9 @@ def _added(before: NoiseModel, after: NoiseModel) -> str:
 def read_check(path) -> tuple[dict, dict]:
     """A ``check.json`` read back: the document and, per channel, the :class:`~torchtea.fitting.mle.Fit` of the model
     its loop ended with (``axes[label]["base"]``, as :meth:`CheckResult.as_dict` writes it: values, standard errors,
-    intervals and how each was made, the exact log-likelihood), for ``identify --from-check`` and ``export``.
-    Raises ``ValueError`` naming the file when it is not a check document."""
+    intervals and how each was made, the exact log-likelihood, the samples it saw — missing ones not counted; a
+    check.json from before that field: the recording's rows), for ``identify --from-check``, ``export`` and
+    ``plan --from-check``. Raises ``ValueError`` naming the file when it is not a check document."""
     import json
     from pathlib import Path
 
@@ -383,7 +387,7 @@ def read_check(path) -> tuple[dict, dict]:
             ci = {k: None if v is None else (float(v[0]), float(v[1])) for k, v in base["ci95"].items()}
             loglik = float(base["loglik"])
             fits[label] = Fit(model, "exact", {k: float(v) for k, v in base["parameters"].items()}, se, ci,
-                              dict(base["ci95_method"]), loglik, loglik, n,
+                              dict(base["ci95_method"]), loglik, loglik, int(base.get("observed", n)),
                               [f"{lb}.{p.name}" for lb, c in model.components for p in c.params
                                if p.name not in c.held], True,
                               notes=[f"read from {path.name} (check's fit of the model its loop ended with)"])

@@ -131,6 +131,18 @@ def _replaced(rest: list, tokens: list, i: int, effect: str, in_place: bool) -> 
     return parse_model("+".join(tokens[:i] + [effect] + tokens[i + 1:]))
 
 
+def _carried(model: NoiseModel, alt: NoiseModel, removed: str) -> dict:
+    """Which component of ``model`` each component of the alternative ``alt`` is (its label in ``alt`` → its label
+    in ``model``), ``removed`` taken out: the k-th of a name in ``alt`` is the k-th of that name left in ``model``
+    (labels are numbered anew: without the first of two lines, the second is ``sinusoid``). A component ``alt``
+    adds is not in it."""
+    left = {}
+    for lb, c in model.components:
+        if lb != removed:
+            left.setdefault(c.name, []).append(lb)
+    return {lb: left[c.name].pop(0) for lb, c in alt.components if left.get(c.name)}
+
+
 def _whittle_bic(model, wf, n) -> float:
     """The model's BIC on its Whittle likelihood (its Whittle fit ``wf``; its references not counted)."""
     k = len([p for p in model.names if p not in model.references()])
@@ -146,12 +158,14 @@ def _fit(alt: Alternative, res, wf) -> Fit:
     m = alt.model
     best = fit_series(m, [y], h, method="exact", inputs=inp_list, profile=False, whittle=wf, intervals=False)[0]
     current = res.fit.values
-    shared = {n: current[n] for n in m.names if n in current}
+    carried = _carried(res.model, m, alt.removed)
+    shared = {f"{lb}.{p.name}": current[f"{carried[lb]}.{p.name}"] for lb, c in m.components if lb in carried
+              for p in c.params if f"{carried[lb]}.{p.name}" in current}
     starts = []
     if len(shared) == len(m.names):
         starts.append(("the model's fit", shared))
     else:
-        new = [(lb, c) for lb, c in m.components if any(f"{lb}.{p.name}" not in current for p in c.params)]
+        new = [(lb, c) for lb, c in m.components if any(f"{lb}.{p.name}" not in shared for p in c.params)]
         for lb, comp in new:  # (its strengths against the model's spectrum at its fit)
             for k, s in enumerate(comp.strengths(lb, res.model, current, h, len(y))):
                 v = {**shared, **s}

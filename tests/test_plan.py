@@ -83,17 +83,26 @@ def test_the_tie_length_is_where_the_expected_bic_difference_reaches_the_level()
 
 
 def test_datasheet_files_are_read_in_their_units_and_bad_ones_named(tmp_path):
-    """The shipped example files read in SI (0.15 °/√h = 4.36·10⁻⁵ rad/s/√Hz, 2 °/h = 9.70·10⁻⁶ rad/s, 400 µg/√Hz);
-    a unit the table lacks, a missing N, a bad sensor: one ValueError naming the file."""
+    """The shipped example files read in SI (0.15 °/√h = 4.36·10⁻⁵ rad/s/√Hz, 400 µg/√Hz; a bias stability of
+    2 °/h = 9.70·10⁻⁶ rad/s at the Allan floor is B = 1.46·10⁻⁵ rad/s, given as the coefficient 9.70·10⁻⁶); a unit
+    the table lacks, a missing N, a bad sensor, an unknown B convention: one ValueError naming the file."""
     from pathlib import Path
 
     root = Path(__file__).resolve().parents[1] / "examples" / "datasheets"
     adis = read_datasheet(root / "adis16465-1_gyroscope.toml")
-    assert adis["N"] == pytest.approx(0.15 * math.pi / 180 / 60) and adis["B"] == pytest.approx(2 * math.pi / 180 / 3600)
+    assert adis["N"] == pytest.approx(0.15 * math.pi / 180 / 60)
+    # its in-run bias stability is the Allan deviation's floor: IEEE 952's B is that over 0.664
+    assert adis["B"] == pytest.approx(2 * math.pi / 180 / 3600 / BIAS_INSTABILITY_FACTOR)
+    coefficient = tmp_path / "coefficient.toml"
+    coefficient.write_text('sensor = "gyroscope"\nrate_hz = 100\nN = { value = 0.1, unit = "deg/sqrt(h)" }\n'
+                           'B = { value = 2, unit = "deg/h", convention = "ieee952" }')
+    assert read_datasheet(coefficient)["B"] == pytest.approx(2 * math.pi / 180 / 3600)
     assert read_datasheet(root / "mpu6050_accelerometer.toml")["N"] == pytest.approx(400e-6 * 9.80665)
     for text, words in [('sensor = "gyroscope"\nrate_hz = 100\nN = { value = 1, unit = "furlongs" }', "unit one of"),
                         ('sensor = "gyroscope"\nrate_hz = 100\nB = { value = 1, unit = "deg/h" }', "is needed"),
-                        ('sensor = "magnetometer"\nrate_hz = 100', "sensor must be")]:
+                        ('sensor = "magnetometer"\nrate_hz = 100', "sensor must be"),
+                        ('sensor = "gyroscope"\nrate_hz = 100\nN = { value = 0.1, unit = "deg/sqrt(h)" }\n'
+                         'B = { value = 1, unit = "deg/h", convention = "floor" }', "convention must be")]:
         bad = tmp_path / "bad.toml"
         bad.write_text(text)
         with pytest.raises(ValueError, match=words) as err:
@@ -158,3 +167,36 @@ def test_a_gauss_markov_bias_at_a_tenth_of_the_record_is_a_tie_told_apart_at_the
         rw = fit_series("white+random-walk", [z], h, intervals=False)[0]
         told += rw.bic - gm.bic >= 6.0
     assert told >= 4
+
+
+def test_a_check_document_gives_plan_the_samples_the_fit_saw_not_the_rows(tmp_path):
+    """A recording with missing samples: check.json's base says how many samples its fit saw, and read_check (plan
+    --from-check, export) takes that n, not the recording's rows."""
+    from torchtea.checking.check import check, read_check
+    y = np.random.default_rng(2).standard_normal(4000) * 0.01
+    y[1000:1600] = np.nan
+    res = check(y, 0.01, model="white", intervals=False)
+    axis = res.as_dict()
+    assert axis["base"]["observed"] == 3400
+    path = tmp_path / "check.json"
+    path.write_text(json.dumps({"samples": 4000, "rate_hz": 100.0, "axes": {"x": axis}}, default=float))
+    _, fits = read_check(path)
+    assert fits["x"].n == 3400
+
+
+def test_a_component_the_fit_collapsed_is_none_seen_and_the_others_keep_their_intervals():
+    """White noise fitted as white + random walk: the walk's σ goes to ~0, its information to ~0. The plan says
+    'none seen' for σ and K and still gives N and r their intervals (before, the whole information was singular
+    and no number got one); the white noise's interval is the one planned for white noise alone."""
+    y = np.random.default_rng(1).standard_normal(6000) * 0.01
+    f = fit_series("white+random-walk", [y], 0.01, intervals=False)[0]
+    assert f.values["random-walk.sigma"] < 1e-6
+    rows = plan(f.model, f.values, 0.01, [6000, 60000])
+    alone = plan("white", {"white.r": f.values["white.r"]}, 0.01, [6000, 60000])
+    for r, a in zip(rows, alone):
+        assert not r.singular
+        assert set(r.collapsed) == {"random-walk.sigma", "K"}
+        assert r.relative["N"] == pytest.approx(a.relative["N"], rel=1e-3)
+    from torchtea.fitting.plan import plan_document, plan_lines
+    text = "\n".join(plan_lines("x", plan_document(f.model, f.values, 0.01, [6000])))
+    assert "none seen" in text and "±" in text

@@ -1298,6 +1298,9 @@ def cmd_plan(args) -> int:
             sheet = read_datasheet(args.datasheet)
             model, values, h, terms, fixed = datasheet_model(sheet)
             source = f"datasheet {args.datasheet}" + (f" ({sheet['source']})" if sheet["source"] else "")
+            if sheet.get("B_convention") == "allan-minimum":
+                source += ("; its B read as the Allan deviation's minimum, IEEE 952's B = that / 0.664 (convention = "
+                           "\"ieee952\" in the file if it gives the coefficient)")
             axes[sheet["sensor"]] = plan_document(model, values, h, lengths(h, None), targets=targets, fixed=fixed,
                                                   terms=terms)
         elif args.from_check:

@@ -28,6 +28,7 @@ __all__ = ["write_report", "axis_document", "figures", "MEANING"]
 MEANING = {
     "adequate": "every diagnostic that ran passed at its level (a test of 'the data came from the fitted model')",
     "nll_per_sample": "−(exact log-likelihood)/(observed samples) at the fit, nats",
+    "observed": "the samples the fit saw (missing ones not counted): the n of BIC and of plan's 'this record'",
     "psd_misfit": "mean |log10| of the innovations' band power over log-spaced bands (0 = the model's spectrum matches; 0.01–0.04 "
                   "is the bands' own scatter at 30 000 samples)",
     "adev_misfit": "mean |log10(ADEV data / ADEV model)| over octave τ",

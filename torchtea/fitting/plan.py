@@ -46,7 +46,7 @@ import torch
 
 from ..noise.model import NoiseModel, parse_model
 
-__all__ = ["PlanRow", "plan", "length_for", "tie_length", "datasheet_model", "read_datasheet", "EXACT_ORDINATES",
+__all__ = ["PlanRow", "plan", "B_CONVENTIONS", "length_for", "tie_length", "datasheet_model", "read_datasheet", "EXACT_ORDINATES",
            "DATASHEET_UNITS", "nav_numbers", "plan_document", "plan_lines", "plan_table", "parse_target",
            "duration"]
 
@@ -133,10 +133,13 @@ class PlanRow:
     singular: bool = False
     #: the noise parameters held where they are (given as fixed, or at a bound)
     held: tuple = ()
+    #: the parameters (and N, K) of components the fit put almost nothing of in the record (:data:`COLLAPSED`)
+    collapsed: tuple = ()
 
     def as_dict(self) -> dict:
         return {"samples": self.samples, "seconds": self.seconds, "ci95": self.intervals,
-                "relative_half_width": self.relative, "singular": self.singular, "held": list(self.held)}
+                "relative_half_width": self.relative, "singular": self.singular, "held": list(self.held),
+                "collapsed": list(self.collapsed)}
 
 
 def nav_numbers(model, values: dict, h: float) -> dict:
@@ -167,11 +170,7 @@ def plan(model, values: dict, h: float, lengths, fixed=(), terms: dict | None = 
         n = int(n)
         names, info = information(model, values, h, n, fixed)
         intervals, relative = {}, {}
-        try:
-            evals = np.linalg.eigvalsh(info)
-            cov = np.linalg.inv(info) if evals.min() > 1e-12 * max(evals.max(), 1e-300) else None
-        except np.linalg.LinAlgError:
-            cov = None
+        cov, names, collapsed = _covariance(names, info)
         if cov is not None:
             se = np.sqrt(np.clip(np.diag(cov), 0.0, None))
             for p, s in zip(names, se):
@@ -183,8 +182,33 @@ def plan(model, values: dict, h: float, lengths, fixed=(), terms: dict | None = 
                     lo, hi = intervals[p]
                     intervals[term] = (v * (lo / float(values[p])) ** power, v * (hi / float(values[p])) ** power)
                     relative[term] = (intervals[term][1] - intervals[term][0]) / (2.0 * v)
-        rows.append(PlanRow(n, n * h, intervals, relative, cov is None, held))
+        gone = [t for t, (_, p, _) in nav.items() if p in collapsed]
+        rows.append(PlanRow(n, n * h, intervals, relative, cov is None, held, tuple(collapsed) + tuple(gone)))
     return rows
+
+
+#: A parameter whose expected information is below this fraction of the largest one's is of a component the fit put
+#: (almost) nothing of in the record — a random walk at σ ≈ 0: the plan leaves it out (``collapsed``) rather than
+#: call every interval undetermined.
+COLLAPSED = 1e-8
+
+
+def _covariance(names: list, info: np.ndarray) -> tuple:
+    """The inverse information, the names it is over and those left out as collapsed (:data:`COLLAPSED`); the
+    covariance None where what is left is still singular."""
+    d = np.diag(info)
+    keep = [i for i in range(len(names)) if d[i] > COLLAPSED * max(d.max(initial=0.0), 1e-300)]
+    collapsed = [names[i] for i in range(len(names)) if i not in keep] if len(keep) < len(names) else []
+    sub = info[np.ix_(keep, keep)]
+    names = [names[i] for i in keep]
+    if not keep:
+        return None, names, collapsed
+    try:
+        evals = np.linalg.eigvalsh(sub)
+        cov = np.linalg.inv(sub) if evals.min() > 1e-12 * max(evals.max(), 1e-300) else None
+    except np.linalg.LinAlgError:
+        cov = None
+    return cov, names, collapsed
 
 
 def _mapped(model, values, h, name, se_u) -> tuple[float, float]:
@@ -275,10 +299,18 @@ DATASHEET_UNITS = {
 }
 
 
+#: How a datasheet's bias instability B may be given, and what it is over IEEE Std 952's coefficient B: the minimum of
+#: the Allan deviation (the flat floor of a flicker, 0.664 B — how data sheets quote an "in-run bias stability" and
+#: Allan tools a "bias instability"), the default; or the coefficient itself.
+B_CONVENTIONS = {"allan-minimum": math.sqrt(2.0 * math.log(2.0) / math.pi), "ieee952": 1.0}
+
+
 def read_datasheet(path) -> dict:
     """A datasheet file (TOML): ``sensor`` (gyroscope or accelerometer), ``rate_hz``, and the terms it gives —
     ``N``, ``B``, ``K`` — each ``{value = …, unit = "…"}`` in a unit of :data:`DATASHEET_UNITS`, optionally
-    ``source``. Returns ``{"sensor", "rate_hz", "N", "B", "K"}`` in SI (a term not given: None) and ``source``.
+    ``source``; B also ``convention`` (:data:`B_CONVENTIONS`: ``"allan-minimum"``, the default, the Allan deviation's
+    floor as data sheets quote it; ``"ieee952"``, the coefficient). Returns ``{"sensor", "rate_hz", "N", "B", "K"}``
+    in SI, B as IEEE 952's coefficient (a term not given: None), ``source`` and ``B_convention``.
     Raises ``ValueError`` naming the file and what is wrong."""
     path = Path(path)
     try:
@@ -306,6 +338,13 @@ def read_datasheet(path) -> dict:
         if not float(entry["value"]) > 0:
             raise ValueError(f"{path}: {term} must be positive, got {entry['value']!r}")
         out[term] = float(entry["value"]) * units[entry["unit"]]
+        if term == "B":
+            convention = entry.get("convention", "allan-minimum")
+            if convention not in B_CONVENTIONS:
+                raise ValueError(f"{path}: B's convention must be one of {', '.join(B_CONVENTIONS)}; got "
+                                 f"{convention!r}")
+            out[term] /= B_CONVENTIONS[convention]
+            out["B_convention"] = convention
     if out["N"] is None:
         raise ValueError(f"{path}: N (the noise density) is needed; B and K are optional")
     return out
@@ -386,6 +425,11 @@ def plan_document(model, values: dict, h: float, lengths, *, recorded: int | Non
                      "the line, not on the noise alone)")
     if held:
         notes.append(f"held where they are: {', '.join(held)} (given, or at a bound)")
+    gone = sorted({n for r in rows for n in r.collapsed})
+    if gone:
+        notes.append(f"none seen: {', '.join(gone)} — almost no information on it in a record of that length (a "
+                     "component the fit puts almost nothing of in the record, as a random walk at σ ≈ 0): no interval, "
+                     "an upper bound is all such a record gives; the other numbers' intervals without it")
     if rows and not names:
         notes.append("the information is singular: no intervals")
     return {"model": model.spec, "values": {k: float(v) for k, v in values.items()}, "sample_time_s": h,
@@ -413,10 +457,12 @@ def plan_table(doc: dict) -> tuple[list[str], list[list[str]]]:
     """One axis's plan (:func:`plan_document`) as a table: the header (length, then N, B, K where the model has
     them, then its noise parameters) and a row of strings per length."""
     rows = doc["rows"]
-    names = [t for t in ("N", "B", "K") if rows and t in rows[0]["relative_half_width"]]
-    names += sorted({n for r in rows for n in r["relative_half_width"]} - set(names))
-    return ["length"] + names, [[duration(r["seconds"])] + [_share(r["relative_half_width"].get(n)) for n in names]
-                                for r in rows]
+    names = [t for t in ("N", "B", "K") if rows and (t in rows[0]["relative_half_width"]
+                                                    or t in rows[0].get("collapsed", ()))]
+    names += sorted({n for r in rows for n in [*r["relative_half_width"], *r.get("collapsed", ())]} - set(names))
+    return ["length"] + names, [[duration(r["seconds"])] + [
+        "none seen" if n in r.get("collapsed", ()) else _share(r["relative_half_width"].get(n)) for n in names]
+        for r in rows]
 
 
 def plan_lines(label: str, doc: dict, markdown: bool = False) -> list[str]:

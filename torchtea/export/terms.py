@@ -223,6 +223,8 @@ def _delta_intervals(fit, h: float, fn, keys: tuple) -> tuple[dict, str, list]:
         sd = math.sqrt(max(float(grads[k] @ C @ grads[k]), 0.0))
         if lin[k]:
             out[k] = (max(0.0, g0[k] - 1.96 * sd), g0[k] + 1.96 * sd)
+        elif 1.96 * sd > 700.0:  # (a factor beyond a float's range: the record does not bound it — a collapsed walk)
+            out[k] = (0.0, math.inf)
         else:
             out[k] = (g0[k] * math.exp(-1.96 * sd), g0[k] * math.exp(1.96 * sd))
     return out, "", held

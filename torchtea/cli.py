@@ -312,7 +312,8 @@ def _measurements(args, command: str, *, min_samples: int = 1, sensors=None):
     time_column = None if args.time_column == "none" else args.time_column
     rec = read_recording(args.recording, columns=columns, units=args.units, lsb_per_g=args.lsb_per_g,
                          lsb_per_dps=args.lsb_per_dps, rate_hz=args.rate, segment=args.segment,
-                         time_column=time_column, temperature_column=getattr(args, "temperature", None))
+                         time_column=time_column, temperature_column=getattr(args, "temperature", None),
+                         topic=getattr(args, "topic", None))
     if columns is None and sensors:
         chosen = tuple(c for c in rec.channels if c.sensor in sensors)
         if chosen:
@@ -929,7 +930,10 @@ def _recording_flags(parser, *, columns_help: str, temperature_help: str | None,
                      samples_help: str) -> None:
     """The flags that say how to read a recording, the same on ``identify``, ``fit`` and ``check``
     (:func:`_measurements`)."""
-    parser.add_argument("recording", nargs="?", help="recording CSV (default: the bundled MPU-6050 recording)")
+    parser.add_argument("recording", nargs="?", help="recording: a CSV, or a ROS bag (.bag, .db3, .mcap or a ROS 2 "
+                                                     "bag's folder) (default: the bundled MPU-6050 recording)")
+    parser.add_argument("--topic", help="ROS bag: its sensor_msgs/Imu topic (default: the bag's only one; the bag's "
+                                        "topics are listed when it has several)")
     parser.add_argument("--columns", help=columns_help)
     parser.add_argument("--units", help=UNITS_HELP)
     parser.add_argument("--lsb-per-g", type=_positive_float, help="accelerometer counts per g (bundled format: 16384)")
@@ -942,7 +946,8 @@ def _recording_flags(parser, *, columns_help: str, temperature_help: str | None,
                              "sec, timestamp, stamp, %%time, …; seconds unless the name or the spacing says ns, µs "
                              "or ms; 'none' ignores them). A generic CSV without --rate takes the stamps' mean rate")
     if temperature_help is not None:
-        parser.add_argument("--temperature", metavar="COL", help=temperature_help)
+        parser.add_argument("--temperature", metavar="COL", help=temperature_help + "; ROS bag: its "
+                            "sensor_msgs/Temperature topic (default: the bag's only one)")
     parser.add_argument("--samples", default=samples_default, help=samples_help)
     parser.add_argument("--allow-missing", action="store_true", help=ALLOW_MISSING_HELP)
     parser.add_argument("--exclude", action="append", default=[], type=_stretch, metavar="FROM:TO", help=EXCLUDE_HELP)

@@ -37,7 +37,10 @@ variance is :math:`N^2/\tau`, and flicker :math:`B^2/(2\pi f)`, whose Allan devi
 from __future__ import annotations
 
 import math
-import tomllib
+try:
+    import tomllib
+except ImportError:  # (Python 3.10)
+    import tomli as tomllib
 from dataclasses import dataclass
 from pathlib import Path
 

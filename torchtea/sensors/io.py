@@ -408,7 +408,8 @@ def default_columns(header: Sequence[str]) -> list[str]:
 
 def read_recording(path=None, *, columns: Sequence[str] | None = None, units=None, lsb_per_g: float | None = None,
                    lsb_per_dps: float | None = None, rate_hz: float | None = None, segment: int | None = None,
-                   time_column: str | None = "auto", temperature_column: str | None = None) -> Recording:
+                   time_column: str | None = "auto", temperature_column: str | None = None,
+                   topic: str | None = None) -> Recording:
     """Read a recording: the ``columns`` asked for (default: every accelerometer and gyroscope axis its header
     names), each as a :class:`Channel` in SI units.
 
@@ -433,8 +434,24 @@ def read_recording(path=None, *, columns: Sequence[str] | None = None, units=Non
     :mod:`torchtea.sensors.datacheck` for the policy).
 
     Temperature: ``temperature_column`` names a column in °C (a torchtea recording's is ``temp``, read always).
+
+    ROS bags (``.bag``, ``.db3``, ``.mcap``, a ROS 2 bag's folder): the ``sensor_msgs/Imu`` ``topic`` (default: the
+    bag's only one), ``temperature_column`` a ``sensor_msgs/Temperature`` topic (default: the bag's only one) —
+    :func:`torchtea.sensors.bags.read_bag`.
     """
+    from .bags import is_bag, read_bag
+
     path = bundled_recording() if path is None else Path(path)
+    if is_bag(path):
+        given = [flag for flag, v in (("--units", units), ("--lsb-per-g", lsb_per_g), ("--lsb-per-dps", lsb_per_dps),
+                                      ("--segment", segment)) if v is not None]
+        if given:
+            raise InputError(f"{path}: a ROS bag's sensor_msgs/Imu is in m/s² and rad/s, without segments: leave out "
+                             f"{', '.join(given)}")
+        return read_bag(path, topic=topic, temperature_topic=temperature_column, columns=columns, rate_hz=rate_hz,
+                        time_column=time_column)
+    if topic is not None:
+        raise InputError(f"{path}: --topic is for ROS bags (.bag, .db3, .mcap); this is read as a CSV")
     lines = _head_lines(path)  # the format and the header are in the first lines; the body is streamed
     if lines and lines[0].strip() == RECORDING_MAGIC:
         if temperature_column not in (None, "temp"):

@@ -1,0 +1,158 @@
+"""ROS bags in (issue 46, item 1): real bags written with rosbags' own writers — ROS 1 ``.bag``, ROS 2 ``.db3`` and
+``.mcap`` — read as recordings, checked and exported with the same numbers as the same data from a CSV, and the
+refusals: a wrong topic, a topic of another type, several IMU topics and none named, an empty bag, stamps that go
+back, CSV flags on a bag."""
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("rosbags")
+from rosbags.rosbag1 import Writer as Writer1  # noqa: E402
+from rosbags.rosbag2 import StoragePlugin, Writer as Writer2  # noqa: E402
+from rosbags.typesys import Stores, get_typestore  # noqa: E402
+
+from torchtea.cli import main  # noqa: E402
+from torchtea.sensors.bags import bag_topics, is_bag  # noqa: E402
+from torchtea.sensors.io import InputError, read_recording, write_columns  # noqa: E402
+
+KINDS = {"ros1": "imu.bag", "db3": "imu_db3", "mcap": "imu_mcap"}
+T0_NS = 1_700_000_000_123_456_789
+H_NS = 5_000_000  # 200 Hz
+
+
+def write_bag(path, kind, t_ns, acc, gyr, temp=None, topic="/imu/data", extra_imu=None, temp_every=10):
+    """A bag of ``kind`` (ros1, db3, mcap) with ``sensor_msgs/Imu`` on ``topic`` (header stamps ``t_ns``, the
+    accelerometer ``acc`` and the gyroscope ``gyr``, (N, 3) each) and, given ``temp``, ``sensor_msgs/Temperature``
+    on ``/imu/temperature`` every ``temp_every`` messages; ``extra_imu``: a second Imu topic's name."""
+    ros1 = kind == "ros1"
+    ts = get_typestore(Stores.ROS1_NOETIC if ros1 else Stores.ROS2_HUMBLE)
+    T = ts.types
+    Imu, Header, Time = T["sensor_msgs/msg/Imu"], T["std_msgs/msg/Header"], T["builtin_interfaces/msg/Time"]
+    Q, V, Temp = T["geometry_msgs/msg/Quaternion"], T["geometry_msgs/msg/Vector3"], T["sensor_msgs/msg/Temperature"]
+    ser = ts.serialize_ros1 if ros1 else ts.serialize_cdr
+    plugin = StoragePlugin.MCAP if kind == "mcap" else StoragePlugin.SQLITE3
+    writer = Writer1(path) if ros1 else Writer2(path, version=9, storage_plugin=plugin)
+    z9 = np.zeros(9)
+
+    def header(k, t):
+        st = Time(sec=int(t // 1_000_000_000), nanosec=int(t % 1_000_000_000))
+        return Header(seq=k, stamp=st, frame_id="imu") if ros1 else Header(stamp=st, frame_id="imu")
+
+    def imu(k, t):
+        return Imu(header=header(k, t), orientation=Q(x=0.0, y=0.0, z=0.0, w=1.0), orientation_covariance=z9,
+                   angular_velocity=V(x=gyr[k, 0], y=gyr[k, 1], z=gyr[k, 2]), angular_velocity_covariance=z9,
+                   linear_acceleration=V(x=acc[k, 0], y=acc[k, 1], z=acc[k, 2]),
+                   linear_acceleration_covariance=z9)
+
+    with writer:
+        c = writer.add_connection(topic, Imu.__msgtype__, typestore=ts)
+        c2 = writer.add_connection(extra_imu, Imu.__msgtype__, typestore=ts) if extra_imu else None
+        ct = writer.add_connection("/imu/temperature", Temp.__msgtype__, typestore=ts) if temp is not None else None
+        for k, t in enumerate(t_ns):
+            writer.write(c, T0_NS + k * H_NS, ser(imu(k, int(t)), Imu.__msgtype__))
+            if c2 is not None:
+                writer.write(c2, T0_NS + k * H_NS, ser(imu(k, int(t)), Imu.__msgtype__))
+            if ct is not None and k % temp_every == 0:
+                writer.write(ct, T0_NS + k * H_NS, ser(Temp(header=header(k, int(t)), temperature=float(temp[k]),
+                                                            variance=0.0), Temp.__msgtype__))
+    return Path(path)
+
+
+def _data(n=2000, seed=0):
+    rng = np.random.default_rng(seed)
+    acc = 0.02 * rng.standard_normal((n, 3)) + np.array([0.0, 0.0, 9.81])
+    gyr = 1e-3 * rng.standard_normal((n, 3))
+    gyr[:, 2] += 2e-5 * np.cumsum(rng.standard_normal(n))  # (a random walk on gz)
+    temp = 25.0 + np.linspace(0.0, 2.0, n)
+    t_ns = T0_NS + np.arange(n, dtype=np.int64) * H_NS
+    return t_ns, acc, gyr, temp
+
+
+@pytest.mark.parametrize("kind", list(KINDS))
+def test_a_bag_reads_as_the_recording_it_holds(tmp_path, kind):
+    """Every format: six channels in SI equal to what was written, the stamps in seconds from the first, the rate
+    from them, the temperature topic interpolated onto the IMU's stamps (linear here, so exact)."""
+    t_ns, acc, gyr, temp = _data()
+    path = write_bag(tmp_path / KINDS[kind], kind, t_ns, acc, gyr, temp)
+    assert is_bag(path)
+    rec = read_recording(path)
+    assert [c.label for c in rec.channels] == ["ax", "ay", "az", "gx", "gy", "gz"]
+    assert np.array_equal(rec.accel_ms2(), acc)
+    assert np.array_equal(np.column_stack([c.values for c in rec.sensor("gyroscope")]), gyr)
+    assert rec.rate_hz == pytest.approx(200.0, rel=1e-12)
+    assert rec.time_s[0] == 0.0 and rec.time_s[-1] == pytest.approx((len(t_ns) - 1) * 0.005, abs=1e-12)
+    last = (len(t_ns) - 1) // 10 * 10  # (the last temperature message; NaN after it)
+    assert np.allclose(rec.temperature[:last + 1], temp[:last + 1], atol=1e-12)
+    assert np.isnan(rec.temperature[last + 1:]).all()
+    assert rec.temperature_column == "/imu/temperature" and rec.metadata["topic"] == "/imu/data"
+    assert ("/imu/data", "sensor_msgs/msg/Imu", len(t_ns)) in bag_topics(path)
+    if kind == "mcap":  # (a ROS 2 storage file alone, without its folder's metadata.yaml)
+        alone = next(path.glob("*.mcap"))
+        assert np.array_equal(read_recording(alone).accel_ms2(), acc)
+
+
+@pytest.mark.parametrize("kind", list(KINDS))
+def test_check_and_export_of_a_bag_give_the_numbers_of_the_same_data_from_a_csv(tmp_path, kind, capsys):
+    """`check` and `export --format kalibr` on the bag and on a CSV of the same samples, stamps and temperature:
+    the same fitted values (to 1e-9 relative: the stamps' seconds are the same numbers written as text) and the same
+    Kalibr file but for the source it names."""
+    t_ns, acc, gyr, temp = _data(1500, seed=1)
+    bag = write_bag(tmp_path / KINDS[kind], kind, t_ns, acc, gyr, temp, temp_every=1)
+    t = (t_ns - t_ns[0]) * 1e-9
+    csv = write_columns(tmp_path / "same.csv", {"t": t, "ax": acc[:, 0], "ay": acc[:, 1], "az": acc[:, 2],
+                                                "gx": gyr[:, 0], "gy": gyr[:, 1], "gz": gyr[:, 2], "temp": temp})
+    runs = {}
+    six = "ms2,ms2,ms2,rad/s,rad/s,rad/s"
+    for name, one, every in (("bag", [str(bag)], [str(bag)]),
+                             ("csv", [str(csv), "--units", "rad/s", "--temperature", "temp"],
+                              [str(csv), "--units", six, "--temperature", "temp"])):
+        out = tmp_path / f"check_{name}"
+        assert main(["check", *one, "--columns", "gz", "--model", "white+random-walk", "--no-plots",
+                     "--out", str(out)]) == 0
+        doc = json.loads((out / "check.json").read_text())
+        ex = tmp_path / f"export_{name}"
+        assert main(["export", *every, "--format", "kalibr", "--model", "white+random-walk", "--no-plots",
+                     "--out", str(ex)]) == 0
+        runs[name] = (doc["axes"]["gz"]["base"]["parameters"],
+                      (ex / "imu.yaml").read_text().replace(str(bag), "SOURCE").replace(str(csv), "SOURCE"))
+    capsys.readouterr()
+    a, b = runs["bag"][0], runs["csv"][0]
+    assert a.keys() == b.keys()
+    for k in a:
+        assert a[k] == pytest.approx(b[k], rel=1e-9, abs=1e-300)
+    assert runs["bag"][1] == runs["csv"][1]
+
+
+def test_the_refusals_name_the_bag_the_topic_and_what_the_bag_has(tmp_path, capsys):
+    """A wrong topic lists the bag's topics; a topic of another type says its type; two IMU topics and none named
+    asks for --topic and lists them; an empty bag says so; stamps that go back name the message; CSV flags on a bag
+    are refused — each one line on stderr, exit 2, nothing written."""
+    t_ns, acc, gyr, temp = _data(300)
+    two = write_bag(tmp_path / "two.bag", "ros1", t_ns, acc, gyr, temp, extra_imu="/imu/raw")
+    back = t_ns.copy()
+    back[100], back[101] = back[101], back[100]
+    shuffled = write_bag(tmp_path / "back", "mcap", back, acc, gyr)
+    empty = write_bag(tmp_path / "empty", "db3", t_ns[:0], acc, gyr)
+    cases = [
+        ([str(two), "--topic", "/imu/nope"], ["no topic '/imu/nope'", "/imu/data (sensor_msgs/Imu, 300 messages)"]),
+        ([str(two), "--topic", "/imu/temperature"], ["is sensor_msgs/Temperature, not sensor_msgs/Imu"]),
+        ([str(two)], ["2 sensor_msgs/Imu topics", "--topic", "/imu/raw"]),
+        ([str(empty)], ["holds no messages"]),
+        ([str(shuffled)], ["'/imu/data'", "go back at message 101"]),
+        ([str(two), "--topic", "/imu/data", "--units", "g"], ["leave out --units"]),
+        ([str(two), "--topic", "/imu/data", "--temperature", "/imu/raw"], ["is sensor_msgs/Imu, not "
+                                                                           "sensor_msgs/Temperature"]),
+    ]
+    for args, words in cases:
+        out = tmp_path / "never"
+        assert main(["check", *args, "--model", "white", "--no-plots", "--out", str(out)]) == 2, args
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1, err
+        for w in words:
+            assert w in err, (w, err)
+        assert not out.exists()
+    with pytest.raises(InputError, match="--topic is for ROS bags"):
+        read_recording(write_columns(tmp_path / "a.csv", {"t": np.arange(10) * 0.01, "ax": np.zeros(10)}),
+                       units="ms2", topic="/imu/data")

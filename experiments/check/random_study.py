@@ -46,6 +46,8 @@ def run_case(effects: list, seed: int, n: int, h: float, max_steps: int) -> dict
                                                           for s in first.suggestions],
             "top": first.suggestions[0].effect if first.suggestions else None,
             "steps": last.step_rows(), "loop_end": last.loop_end, "adequate": last.adequate,
+            "model": last.model.spec, "ties": [{k: t[k] for k in ("kind", "effects", "model", "bic_difference",
+                                                                  "resolve_seconds", "words")} for t in last.ties],
             "final_parameters": last.fit.values, "seconds": time.perf_counter() - t0}
 
 

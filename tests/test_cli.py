@@ -493,3 +493,24 @@ def test_identify_refuses_an_unscaled_drive_for_a_model_of_several_states(tmp_pa
     m = prepare(read_recording(columns=["az"]), samples=600)
     with pytest.raises(ValueError, match="channel az: a model of several KFx states needs noise_scaling 'scaled'"):
         identify(m, model="fractional+white+random-walk", overrides={"noise_scaling": "unscaled"})
+
+
+def test_the_progress_line_does_not_take_a_one_time_cost_for_the_pace(monkeypatch, capsys):
+    """A headless run's progress lines: the first window holds numba's compile (100 s for one step), so the first
+    line gives no time left; the next takes the pace since the line before (1000 steps in 10 s → 90 s for the 8999 left of
+    10 000), not since the start (which said 'about 5953 s left' of a run of minutes)."""
+    import sys
+
+    import torchtea.cli as cli
+
+    clock = iter([0.0, 100.0, 110.0])
+    monkeypatch.setattr(cli.time, "monotonic", lambda: next(clock))
+    monkeypatch.setattr(sys.stderr, "isatty", lambda: False)
+    step, close = cli._progress(10_000, "TEA")
+    for done in (0, 1, 1001):
+        step(done, 10_000)
+    close()
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 2
+    assert "1/10000 steps" in lines[0] and "the time left follows at the next line" in lines[0]
+    assert "1001/10000 steps" in lines[1] and "about 90 s left" in lines[1]

@@ -233,12 +233,15 @@ def test_export_on_the_command_line_writes_every_format(tmp_path, capsys):
     (["--format", "ieee952", "--horizon", "0.001:10"], "outside what the recording shows"),
     (["--format", "ieee952", "--horizon", "10"], "expected LO:HI"),
     (["--format", "ieee952", "--horizon", "1:1000"], "outside what the recording shows"),
+    (["--format", "kalibr", "--out", "imu.yaml"], "--out imu.yaml: --out is the folder"),
 ])
-def test_bad_export_input_is_one_line_and_exit_2(tmp_path, capsys, argv, words):
+def test_bad_export_input_is_one_line_and_exit_2(tmp_path, capsys, monkeypatch, argv, words):
     path, units = _six_csv(tmp_path, n=2000)
+    monkeypatch.chdir(tmp_path)
     assert main(["export", str(path), "--units", units, "--model", "white", *argv]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and words in err[0]
+    assert not (tmp_path / "imu.yaml").exists()  # (not made a folder)
 
 
 def test_a_format_that_needs_a_sensor_the_recording_lacks_is_refused_and_all_skips_it(tmp_path, capsys):

@@ -125,21 +125,24 @@ def _progress(total, desc, unit="step", *, bar=True):
             bars[0].update(done - bars[0].n)
 
         return step, lambda: bars and bars[0].close()
-    start = []  # (time, done) of the first report: the clock starts with the work, not with the command
+    start = []  # (time, done) of the first report and of the last line: the clock starts with the work
 
     def line(done, _total):
         total_ = total if total is not None else _total
         now = time.monotonic()
         if not start:
-            start.extend([now, done, now])
+            start.extend([now, done, now, done])
             return
-        t0, d0, last = start
+        t0, d0, last, d_last = start
         if now - last < PROGRESS_EVERY_S or done <= d0:
             return
-        start[2] = now
-        left = (now - t0) * (total_ - done) / (done - d0)
+        # the time left at the pace since the last line: the first window holds one-time costs (numba's compile
+        # made a first line say 'about 5953 s left' of a run of minutes), so the first line gives none
+        left = (f"about {(now - last) * (total_ - done) / (done - d_last):.0f} s left" if d_last > d0 and done > d_last
+                else "the time left follows at the next line")
+        start[2], start[3] = now, done
         print(f"torchtea {desc}: {done}/{total_} {unit}s ({100 * done / total_:.0f} %), {now - t0:.0f} s elapsed, "
-              f"about {left:.0f} s left", file=sys.stderr, flush=True)
+              f"{left}", file=sys.stderr, flush=True)
 
     return line, lambda: None
 
@@ -412,11 +415,26 @@ def _export(args, m, plan, fits: dict, inputs, meta: dict, out: Path, *, quiet: 
     return doc
 
 
+def _export_folder(out: str) -> None:
+    """``--out`` is the folder an export writes its files in: a name that ends like a file (``imu.yaml``) or an
+    existing file is refused with one line, not made a folder of that name."""
+    path = Path(out)
+    if path.is_file():
+        raise CLIError(f"--out {out}: a file; --out is the folder the export writes its files in (imu.yaml, "
+                       "export.md, export.json …)")
+    if path.suffix.lower() in (".yaml", ".yml", ".csv", ".json", ".md", ".txt"):
+        raise CLIError(f"--out {out}: --out is the folder the export writes its files in (the format's own names: "
+                       f"imu.yaml, vins_imu.yaml, orbslam3_imu.yaml, ieee952.csv, export.md …), not a file name; e.g. "
+                       f"--out {path.with_suffix('')}")
+
+
 def cmd_export(args) -> int:
     """``torchtea export``: check each axis to the end (as ``check --auto``) or fit ``--model``, then export."""
     from .fitting.recording import fit_channel
 
     _check_cluster_flags(args)
+    if args.out:  # (before the checks: a wrong --out found after minutes of fitting loses them)
+        _export_folder(args.out)
     m = _measurements(args, "an export", min_samples=1000)
     plan = _export_plan(args, m, args.format)
     inputs = None if args.temperature is None else {"temperature": m.temperature_input()}

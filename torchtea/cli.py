@@ -371,6 +371,8 @@ def cmd_check(args) -> int:
     plan = _export_plan(args, m, args.export)
     if plan and args.no_intervals:
         raise CLIError("--export needs the intervals: drop --no-intervals")
+    if _sheets(args) and args.no_intervals:
+        raise CLIError("--datasheet compares intervals: drop --no-intervals")
     inputs = None if args.temperature is None else {"temperature": m.temperature_input()}
     t0 = time.perf_counter()
     results = _check_channels(args, m, inputs, auto=args.auto, intervals=not args.no_intervals)
@@ -379,7 +381,8 @@ def cmd_check(args) -> int:
     meta = m.describe()
     meta.update(command="torchtea " + " ".join(sys.argv[1:]), seconds=time.perf_counter() - t0,
                 warnings=m.notes())
-    doc = write_report(out, results, meta, plots=not args.no_plots)
+    verdicts = _datasheet_verdicts(args, m, {a: r.fit for a, r in results.items()}, inputs)
+    doc = write_report(out, results, meta, plots=not args.no_plots, datasheet=verdicts)
     if plan:
         _export(args, m, plan, {a: r.fit for a, r in results.items()}, inputs, meta, out / "export",
                 quiet=args.json, plots=not args.no_plots)
@@ -387,6 +390,7 @@ def cmd_check(args) -> int:
         print(dumps(doc))
         return 0
     print("\n".join(summary_lines(results, {c.label: c.title for c in m.channels})))
+    _print_verdicts(verdicts)
     print(f"units: {'; '.join(f'{k}: {v}' for k, v in _units_of(m).items())}")
     print(f"report: {out / 'report.md'}; JSON: {out / 'check.json'}")
     return 0
@@ -400,7 +404,43 @@ def _export_plan(args, m, names):
     plan = plan_export(m, names, args.horizon)
     if plan is not None and plan.horizon_note:
         _note(f"note: {plan.horizon_note}")
+    sheets = _sheets(args)
+    if sheets and not any(c.sensor in sheets for c in m.channels):
+        raise CLIError(f"--datasheet: the datasheet(s) are for the {', '.join(sheets)}; the channels read are "
+                       f"{', '.join(c.label for c in m.channels)}")
     return plan
+
+
+def _sheets(args) -> dict:
+    """``--datasheet`` files read (:func:`torchtea.export.datasheet.read_sheets`), once; a bad one is one line."""
+    if not hasattr(args, "_sheets"):
+        from .export.datasheet import read_sheets
+
+        try:
+            args._sheets = read_sheets(getattr(args, "datasheet", None))
+        except ValueError as exc:
+            raise CLIError(f"--datasheet {exc}") from None
+    return args._sheets
+
+
+def _datasheet_verdicts(args, m, fits: dict, inputs) -> dict:
+    """Each axis whose sensor has a ``--datasheet`` against it (:func:`torchtea.export.datasheet.compare`)."""
+    from .export.datasheet import compare
+    from .export.terms import axis_terms, parse_horizon
+
+    sheets = _sheets(args)
+    if not sheets:
+        return {}
+    horizon, _ = parse_horizon(getattr(args, "horizon", None), m.h, m.samples)
+    out = {}
+    for c in m.channels:
+        if c.sensor in sheets and c.label in fits:
+            f = fits[c.label]
+            inp = inputs if inputs is not None and any(x.inputs for _, x in f.model.components) else None
+            _note(f"{c.label}: against the datasheet {sheets[c.sensor]['file']} …")
+            terms = axis_terms(f, c.values, m.h, c.sensor, c.label, horizon, inputs=inp)
+            out[c.label] = compare(terms, sheets[c.sensor], f, m.h)
+    return out
 
 
 def _export(args, m, plan, fits: dict, inputs, meta: dict, out: Path, *, quiet: bool, plots: bool) -> dict:
@@ -409,10 +449,20 @@ def _export(args, m, plan, fits: dict, inputs, meta: dict, out: Path, *, quiet: 
     _note(f"exporting {', '.join(plan.formats)} (cover over τ {plan.horizon[0]:g}–{plan.horizon[1]:g} s; NEES "
           f"study: {args.nees} realisations) …")
     doc, axes = export_recording(m, plan, fits, out, inputs=inputs, meta=meta, nees=args.nees, seed=args.export_seed,
-                                 values=args.values, plots=plots)
+                                 values=args.values, plots=plots, sheets=_sheets(args))
     if not quiet:
         print("\n".join(export_lines(doc, axes, out)))
+        _print_verdicts({a.label: a.datasheet for a in axes if a.datasheet})
     return doc
+
+
+def _print_verdicts(verdicts: dict) -> None:
+    from .fitting.plan import verdict_lines
+
+    if verdicts:
+        print("against the datasheet (fitted [95 %] against its value, SI units):")
+        for label, doc in verdicts.items():
+            print("\n".join(verdict_lines(label, doc)))
 
 
 def _export_folder(out: str) -> None:
@@ -490,6 +540,10 @@ def _export_flags(parser, *, standalone: bool) -> None:
                         help="realisations of the filter NEES study of the bare and covered values" + from_what
                              + " (default 64; 0: not run)")
     parser.add_argument("--export-seed", type=int, default=0, help="seed of the NEES study's simulated series")
+    parser.add_argument("--datasheet", action="append", default=[], metavar="FILE",
+                        help="hold each axis's N, B, K against a datasheet's (TOML, as torchtea plan --datasheet reads "
+                             "it; examples/datasheets/): within spec, worse than spec, or not determined by this "
+                             "record and how long would tell; one file per sensor, repeatable")
 
 
 def _units_of(m) -> dict:

@@ -15,7 +15,7 @@ import numpy as np
 import torch
 from scipy import stats
 
-from ..fitting.plan import plan_document, plan_lines
+from ..fitting.plan import plan_document, plan_lines, verdict_lines
 from ..noise.model import parse_model
 from ..likelihood.whittle import periodogram
 from ..render.plots import pyplot, save_figure
@@ -229,10 +229,11 @@ def _sqrt_r(r: CheckResult) -> float | None:
     return math.sqrt(sum(rs) * r.h) if rs else None
 
 
-def write_report(out: Path, results: dict, meta: dict, plots: bool = True) -> dict:
+def write_report(out: Path, results: dict, meta: dict, plots: bool = True, datasheet: dict | None = None) -> dict:
     """``check.json`` and ``report.md`` (and the figures) for ``results`` {channel label: CheckResult}; ``meta``
     describes the recording (``channels``: label → its column, sensor, axis and unit, as
-    :meth:`~torchtea.sensors.measurements.Measurements.describe` writes them). Returns the JSON document."""
+    :meth:`~torchtea.sensors.measurements.Measurements.describe` writes them); ``datasheet``: label → the axis held
+    against a datasheet (:func:`torchtea.export.datasheet.compare`). Returns the JSON document."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     channels = meta.get("channels", {})
@@ -245,6 +246,8 @@ def write_report(out: Path, results: dict, meta: dict, plots: bool = True) -> di
         info = channels.get(a, {})
         d.update(sensor=info.get("sensor", "signal"), unit=info.get("unit", "units"), column=info.get("column", a),
                  white_noise_density=_sqrt_r(r))
+        if datasheet and a in datasheet:
+            d["datasheet"] = datasheet[a]
         doc["axes"][a] = d
     if len(results) == 1:
         doc.update(next(iter(doc["axes"].values())))
@@ -350,6 +353,11 @@ def write_report(out: Path, results: dict, meta: dict, plots: bool = True) -> di
                 leave = (f" If it is a disturbance of the recording (a knock, a shock), leave it out: "
                          f"`{' '.join(u['exclude'][:3])}`." if u.get("exclude") else "")
                 lines.append(f"- **{u['diagnostic']}** ({u['where']}): {u['would_fit']}.{lib}{hand}{new}{leave}")
+        sheet = doc["axes"][a].get("datasheet")
+        if sheet:
+            lines += ["", f"Against the datasheet {sheet['file']} ({sheet['source']}; its values are typical ones):",
+                      ""]
+            lines += verdict_lines(a, sheet, markdown=True)
         plan = doc["axes"][a].get("plan")
         if plan and plan.get("rows"):
             lines += ["", "How long to record — the expected 95 % intervals of this model's noise numbers, ± half "

@@ -76,12 +76,18 @@ def plan_export(m, names, horizon: str | None) -> ExportPlan | None:
 
 def export_recording(m, plan: ExportPlan, fits: dict, out: Path, *, inputs: dict | None = None,
                      meta: dict | None = None, nees: int = 64, seed: int = 0, values: str = "covered",
-                     plots: bool = True) -> tuple[dict, list]:
+                     plots: bool = True, sheets: dict | None = None) -> tuple[dict, list]:
     """Export the fitted models ``fits`` (label → :class:`~torchtea.fitting.mle.Fit`) of ``m``'s channels as
     ``plan`` says, into ``out`` (:func:`export_axes`, then :func:`write_export` with ``meta`` and the plan's horizon
     note). Returns the JSON document and the axes' terms."""
     axes = export_axes(fits, m.series(), {c.label: c.sensor for c in m.channels}, m.h, plan.horizon,
                        inputs=inputs, nees=nees, seed=seed)
+    if sheets:
+        from .datasheet import compare
+
+        for a in axes:
+            if a.sensor in sheets:
+                a.datasheet = compare(a, sheets[a.sensor], fits[a.label], m.h)
     doc = write_export(out, axes, plan.formats, dict(meta or {}, horizon_note=plan.horizon_note), which=values,
                        plots=plots)
     return doc, axes
@@ -190,6 +196,16 @@ def markdown(axes: list, doc: dict) -> str:
     left = [f"- {a.label}: {c['words']}" for a in axes for c in a.components if c["term"] not in IN_FORMATS]
     left += [f"- {a.label}: note: {x}" for a in axes for x in a.notes]
     lines += left or ["Nothing: every component is white noise, a random walk, a ramp or a constant level."]
+    held = [a for a in axes if a.datasheet]
+    if held:
+        from .datasheet import verdict_lines
+
+        lines += ["", "## Against the datasheet", ""]
+        for a in held:
+            lines += [f"**{a.label}** against {a.datasheet['file']} ({a.datasheet['source']}):", ""]
+            lines += verdict_lines(a.label, a.datasheet, markdown=True) + [""]
+        lines.append("A datasheet's values are typical ones: within spec says the axis is no worse than the typical "
+                     "part by this record.")
     study = [a for a in axes if a.nees]
     if study:
         s0 = study[0].nees

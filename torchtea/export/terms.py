@@ -124,13 +124,15 @@ class AxisTerms:
     notes: list = field(default_factory=list)
     #: the NEES study (:func:`~.nees.nees_study`), when run
     nees: dict | None = None
+    #: the axis against a datasheet (:func:`~.datasheet.compare`), when one was given for its sensor
+    datasheet: dict | None = None
 
     def as_dict(self) -> dict:
         num = lambda d: {k: (v.as_dict() if isinstance(v, Number) else v) for k, v in d.items()}  # noqa: E731
         return {"sensor": self.sensor, "model": self.model, "sample_time_s": self.h, "horizon_s": list(self.horizon),
                 "bare": num(self.bare), "covered": num(self.covered), "factor": num(self.factor),
                 "forced_by": self.forced_by, "ieee952": num(self.ieee), "components": self.components,
-                "notes": self.notes}
+                "notes": self.notes, **({"datasheet": self.datasheet} if self.datasheet else {})}
 
 
 # --------------------------------------------------------------------------- the format's model

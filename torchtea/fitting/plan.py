@@ -51,7 +51,7 @@ from ..noise.model import NoiseModel, parse_model
 
 __all__ = ["PlanRow", "plan", "B_CONVENTIONS", "length_for", "tie_length", "datasheet_model", "read_datasheet", "EXACT_ORDINATES",
            "DATASHEET_UNITS", "nav_numbers", "plan_document", "plan_lines", "plan_table", "parse_target",
-           "duration"]
+           "duration", "verdict_lines"]
 
 Z95 = 1.959963984540054
 #: Up to this many Fourier ordinates (records of 2·10⁶ samples) the information is summed over each: 0.6 s for the
@@ -341,6 +341,7 @@ def read_datasheet(path) -> dict:
         if not float(entry["value"]) > 0:
             raise ValueError(f"{path}: {term} must be positive, got {entry['value']!r}")
         out[term] = float(entry["value"]) * units[entry["unit"]]
+        out.setdefault("printed", {})[term] = f"{entry['value']} {entry['unit']}"
         if term == "B":
             convention = entry.get("convention", "allan-minimum")
             if convention not in B_CONVENTIONS:
@@ -348,6 +349,8 @@ def read_datasheet(path) -> dict:
                                  f"{convention!r}")
             out[term] /= B_CONVENTIONS[convention]
             out["B_convention"] = convention
+            if convention == "allan-minimum":
+                out["printed"][term] += " at the Allan floor"
     if out["N"] is None:
         raise ValueError(f"{path}: N (the noise density) is needed; B and K are optional")
     return out
@@ -485,4 +488,26 @@ def plan_lines(label: str, doc: dict, markdown: bool = False) -> list[str]:
                    t["absent"] if t.get("absent") else "not within 10¹⁰ samples" if t["samples"] is None else
                       f"{duration(t['seconds'])} ({t['samples']} samples)"))
     out += [f"{pad}note: {x}" for x in doc["notes"]]
+    return out
+
+
+def _g(x) -> str:
+    return "—" if x is None or (isinstance(x, float) and not math.isfinite(x)) else f"{x:.3g}"
+
+
+def verdict_lines(label: str, doc: dict, markdown: bool = False) -> list[str]:
+    """One axis held against a datasheet (:func:`torchtea.export.datasheet.compare`'s document) as lines: a row per
+    term; ``markdown``: a markdown table."""
+    out = []
+    if markdown:
+        out += ["| term | fitted [95 %] | datasheet | fitted / datasheet | verdict |", "|---|---|---|---|---|"]
+    for r in doc["rows"]:
+        ci = "" if r["ci95"] is None else f" [{_g(r['ci95'][0])}, {_g(r['ci95'][1])}]"
+        sheet = f"{_g(r['datasheet'])} {r['unit']}" + (f" ({r['datasheet_as_printed']})"
+                                                      if r["datasheet_as_printed"] else "")
+        if markdown:
+            out.append(f"| {r['term']} | {_g(r['fitted'])}{ci} {r['unit']} | {sheet} | {r['words']} | "
+                       f"**{r['verdict']}** |")
+        else:
+            out.append(f"  {label} {r['term']}: {_g(r['fitted'])}{ci} against {sheet}: {r['verdict']} — {r['words']}")
     return out

@@ -17,7 +17,6 @@ Memory: the messages are read one at a time into arrays sized from the bag's ind
 """
 from __future__ import annotations
 
-import math
 from pathlib import Path
 from typing import Sequence
 
@@ -131,14 +130,12 @@ def _read_topic(reader, path: Path, topic: str, fields) -> tuple[np.ndarray, np.
 
 
 def read_bag(path, *, topic: str | None = None, temperature_topic: str | None = None,
-             columns: Sequence[str] | None = None, rate_hz: float | None = None, time_column: str | None = "auto"):
-    """The IMU topic of a ROS bag as a :class:`~torchtea.sensors.io.Recording` (module docstring): ``columns``
-    (labels ``ax`` … ``gz`` or field names ``linear_acceleration.x`` …; default all six), ``temperature_topic`` a
-    ``sensor_msgs/Temperature`` topic (the temperature input), ``rate_hz`` instead of the stamps' mean rate,
-    ``time_column=None`` to leave the stamps out (then ``rate_hz`` is needed)."""
-    from .datacheck import stamp_rate
-    from .io import Channel, Recording, SI_UNITS
-
+             columns: Sequence[str] | None = None) -> dict:
+    """The IMU topic of a ROS bag (module docstring): ``columns`` (labels ``ax`` … ``gz`` or field names
+    ``linear_acceleration.x`` …; default all six), ``temperature_topic`` a ``sensor_msgs/Temperature`` topic.
+    Returns ``{"topic", "channels": [(name, sensor, axis, values (N,))], "time_s": (N,) seconds from the first
+    stamp, "temperature": (N,) °C or None, "metadata"}`` — :func:`~torchtea.sensors.io.read_recording` makes the
+    :class:`~torchtea.sensors.io.Recording` of it."""
     path = Path(path)
     reader = _reader(path)
     try:
@@ -192,18 +189,6 @@ def read_bag(path, *, topic: str | None = None, temperature_topic: str | None = 
                 meta["temperature_topic"] = ttopic
     finally:
         reader.close()
-    rate_source = "--rate" if rate_hz is not None else ""
-    if rate_hz is None:
-        if time_column is None:
-            raise InputError(f"{path}: with the stamps left out (--time-column none) the rate is needed: --rate")
-        rate_hz = stamp_rate(t)
-        if not (math.isfinite(rate_hz) and 0.5 <= rate_hz <= 1e5):
-            raise InputError(f"{path}: topic {imu!r}: the header stamps give a rate of {rate_hz:.4g} Hz over "
-                             f"{len(t)} messages, implausible for an IMU; give the rate with --rate")
-        rate_source = f"the mean rate of topic {imu!r}'s header stamps"
-    channels = tuple(Channel(name, sensor, axis, values[:, j].copy(), SI_UNITS[sensor] + " (sensor_msgs/Imu)")
-                     for j, (name, sensor, axis, _, _) in enumerate(wanted))
-    return Recording(path=path, rate_hz=float(rate_hz), channels=channels, metadata=meta,
-                     time_s=None if time_column is None else t, time_column=None if time_column is None else
-                     f"{imu} header.stamp", rate_source=rate_source, temperature=temperature,
-                     temperature_column=meta.get("temperature_topic"))
+    return {"topic": imu, "time_s": t, "temperature": temperature, "metadata": meta,
+            "channels": [(name, sensor, axis, values[:, j].copy())
+                         for j, (name, sensor, axis, _, _) in enumerate(wanted)]}

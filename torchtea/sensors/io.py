@@ -448,8 +448,8 @@ def read_recording(path=None, *, columns: Sequence[str] | None = None, units=Non
         if given:
             raise InputError(f"{path}: a ROS bag's sensor_msgs/Imu is in m/s² and rad/s, without segments: leave out "
                              f"{', '.join(given)}")
-        return read_bag(path, topic=topic, temperature_topic=temperature_column, columns=columns, rate_hz=rate_hz,
-                        time_column=time_column)
+        return _bag_recording(path, read_bag(path, topic=topic, temperature_topic=temperature_column,
+                                             columns=columns), rate_hz, time_column)
     if topic is not None:
         raise InputError(f"{path}: --topic is for ROS bags (.bag, .db3, .mcap); this is read as a CSV")
     lines = _head_lines(path)  # the format and the header are in the first lines; the body is streamed
@@ -552,6 +552,28 @@ def read_recording(path=None, *, columns: Sequence[str] | None = None, units=Non
                      rate_source=rate_source,
                      temperature=None if temperature_column is None else col(temperature_column).copy(),
                      temperature_column=temperature_column)
+
+
+def _bag_recording(path: Path, bag: dict, rate_hz: float | None, time_column: str | None) -> Recording:
+    """The :class:`Recording` of a bag's IMU topic (:func:`torchtea.sensors.bags.read_bag`): the rate from its header
+    stamps unless given, the stamps left out with ``time_column=None``."""
+    imu, t = bag["topic"], bag["time_s"]
+    rate_source = "--rate" if rate_hz is not None else ""
+    if rate_hz is None:
+        if time_column is None:
+            raise InputError(f"{path}: with the stamps left out (--time-column none) the rate is needed: --rate")
+        rate_hz = stamp_rate(t)
+        if not (math.isfinite(rate_hz) and 0.5 <= rate_hz <= 1e5):
+            raise InputError(f"{path}: topic {imu!r}: the header stamps give a rate of {rate_hz:.4g} Hz over "
+                             f"{len(t)} messages, implausible for an IMU; give the rate with --rate")
+        rate_source = f"the mean rate of topic {imu!r}'s header stamps"
+    channels = tuple(Channel(name, sensor, axis, values, SI_UNITS[sensor] + " (sensor_msgs/Imu)")
+                     for name, sensor, axis, values in bag["channels"])
+    meta = bag["metadata"]
+    return Recording(path=path, rate_hz=float(rate_hz), channels=channels, metadata=meta,
+                     time_s=None if time_column is None else t,
+                     time_column=None if time_column is None else f"{imu} header.stamp", rate_source=rate_source,
+                     temperature=bag["temperature"], temperature_column=meta.get("temperature_topic"))
 
 
 def _is_number(text: str) -> bool:

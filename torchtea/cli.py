@@ -383,6 +383,7 @@ def cmd_check(args) -> int:
                 warnings=m.notes())
     verdicts = _datasheet_verdicts(args, m, {a: r.fit for a, r in results.items()}, inputs)
     doc = write_report(out, results, meta, plots=not args.no_plots, datasheet=verdicts)
+    _tensorboard(args, m, results)
     if plan:
         _export(args, m, plan, {a: r.fit for a, r in results.items()}, inputs, meta, out / "export",
                 quiet=args.json, plots=not args.no_plots)
@@ -456,6 +457,16 @@ def _export(args, m, plan, fits: dict, inputs, meta: dict, out: Path, *, quiet: 
     return doc
 
 
+def _tensorboard(args, m, results: dict) -> None:
+    """``--logdir``: the loop of each channel as a TensorBoard run (:func:`torchtea.checking.tblog.write_check_runs`)."""
+    if getattr(args, "logdir", None):
+        from .checking.tblog import write_check_runs
+
+        runs = write_check_runs(args.logdir, results, {c.label: c.unit for c in m.channels},
+                                figures=not args.no_plots)
+        _note(f"TensorBoard: {len(runs)} run(s) in {args.logdir} (tensorboard --logdir {args.logdir})")
+
+
 def _print_verdicts(verdicts: dict) -> None:
     from .fitting.plan import verdict_lines
 
@@ -485,6 +496,8 @@ def cmd_export(args) -> int:
     _check_cluster_flags(args)
     if args.out:  # (before the checks: a wrong --out found after minutes of fitting loses them)
         _export_folder(args.out)
+    if args.logdir and args.model:
+        raise CLIError("--logdir shows the check's loop on each axis; with --model there is none: leave one out")
     m = _measurements(args, "an export", min_samples=1000)
     plan = _export_plan(args, m, args.format)
     inputs = None if args.temperature is None else {"temperature": m.temperature_input()}
@@ -517,6 +530,7 @@ def cmd_export(args) -> int:
         results = _check_channels(args, m, inputs, auto=True, intervals=True)
         fits = {a: r.fit for a, r in results.items()}
         meta["loop_end"] = {a: r.loop_end for a, r in results.items()}
+        _tensorboard(args, m, results)
     out = Path(args.out or f"export-{Path(m.recording.path).stem}")
     _export(args, m, plan, fits, inputs, meta, out, quiet=False, plots=not args.no_plots)
     return 0
@@ -1201,6 +1215,9 @@ def build_parser() -> argparse.ArgumentParser:
     ck.add_argument("--out", help="output directory (default check-<recording name>)")
     ck.add_argument("--no-plots", action="store_true")
     ck.add_argument("--json", action="store_true", help="print the JSON document")
+    ck.add_argument("--logdir", help="also write the loop of each channel as a TensorBoard run (DIR/<channel>: each "
+                                     "step's −ℓ per sample, misfits, gain as scalars, its figures as images, the "
+                                     "verdict as text)")
     _export_flags(ck, standalone=False)
     _cluster_flags(ck, "the channels' checks")
     ck.set_defaults(func=cmd_check)
@@ -1219,6 +1236,7 @@ def build_parser() -> argparse.ArgumentParser:
     ex.add_argument("--no-simplify", action="store_true", help="as check --no-simplify")
     ex.add_argument("--out", help="output directory (default export-<recording name>)")
     ex.add_argument("--no-plots", action="store_true")
+    ex.add_argument("--logdir", help="as check --logdir: each axis's loop as a TensorBoard run")
     _export_flags(ex, standalone=True)
     _cluster_flags(ex, "the channels' checks or fits")
     ex.set_defaults(func=cmd_export)

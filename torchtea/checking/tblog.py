@@ -1,0 +1,74 @@
+"""A check's loop in TensorBoard (issue 46, item 5): ``check --logdir DIR`` (and ``export``) writes one run per
+channel (``DIR/<label>``), each step of the loop a global step:
+
+- scalars ``loop/nll_per_sample`` (the exact −ℓ per observed sample), ``loop/psd_misfit``, ``loop/adev_misfit``,
+  ``loop/failed_diagnostics`` (how many), ``loop/bic``, and from the second step ``loop/gain`` (the BIC the step
+  gained);
+- images ``figures/<name>``: that step's figures (spectrum, Allan deviation, … as ``report.md`` shows them), so the
+  slider walks the loop;
+- text ``loop/step``: what the step changed and what it repaired or broke; ``verdict`` at the last step: the model the
+  loop ended with, adequate or not, why it stopped, the ties.
+
+Read back with TensorBoard's own event reader in the tests."""
+from __future__ import annotations
+
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["write_check_runs"]
+
+
+def _step_text(row: dict, k: int) -> str:
+    if k == 0:
+        return f"step 0: `{row['model']}` (the model checked first); failing: {', '.join(row['failed']) or 'nothing'}"
+    from .check import change_words
+
+    return (f"step {k}: {change_words(row)} → `{row['model']}`, BIC gain {row['gain']:.1f}; repaired: "
+            f"{', '.join(row['repaired']) or 'nothing'}; broke: {', '.join(row['broke']) or 'nothing'}; failing: "
+            f"{', '.join(row['failed']) or 'nothing'}")
+
+
+def write_check_runs(logdir, results: dict, units: dict | None = None, figures: bool = True) -> list[Path]:
+    """One TensorBoard run per channel of ``results`` (label → :class:`~.check.CheckResult`, the loop's last) under
+    ``logdir``; ``units``: label → unit for the figures' axes. Returns the runs' folders."""
+    from torch.utils.tensorboard import SummaryWriter
+
+    logdir = Path(logdir)
+    runs = []
+    for label, res in results.items():
+        run = logdir / label
+        rows = res.step_rows()
+        steps = res.steps
+        with SummaryWriter(log_dir=str(run)) as w:
+            for k, (row, r) in enumerate(zip(rows, steps)):
+                w.add_scalar("loop/nll_per_sample", row["nll_per_sample"], k)
+                for name in ("psd_misfit", "adev_misfit", "bic"):
+                    if row.get(name) is not None:
+                        w.add_scalar(f"loop/{name}", row[name], k)
+                w.add_scalar("loop/failed_diagnostics", len(row["failed"]), k)
+                if k:
+                    w.add_scalar("loop/gain", row["gain"], k)
+                w.add_text("loop/step", _step_text(row, k), k)
+                if figures:
+                    _add_figures(w, r, label, (units or {}).get(label, "units"), k)
+            ties = "; ".join(t["words"] for t in res.ties) or "none"
+            w.add_text("verdict", f"**{label}**: `{res.model.spec}`, {'adequate' if res.adequate else 'NOT adequate'}"
+                                  f" — {res.loop_end or 'one check, no loop'}. Ties: {ties}", len(rows) - 1)
+        runs.append(run)
+    return runs
+
+
+def _add_figures(w, res, label: str, unit: str, k: int) -> None:
+    """The step's figures, drawn as report.md draws them, as images at global step ``k``."""
+    import matplotlib.image as mpimg
+
+    from .report import figures as make_figures
+
+    with tempfile.TemporaryDirectory() as tmp:
+        for p in make_figures(res, Path(tmp), label, unit):
+            img = mpimg.imread(str(p))
+            if img.dtype != np.uint8:
+                img = (np.clip(img, 0.0, 1.0) * 255).astype(np.uint8)
+            w.add_image(f"figures/{p.stem.removeprefix(label + '_')}", img[..., :3], k, dataformats="HWC")

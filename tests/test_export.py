@@ -97,6 +97,31 @@ def test_kalibr_yaml_parses_back_with_its_documented_keys_units_and_the_largest_
     assert set(doc["files"]) == set(FORMATS) and not doc["skipped"]
 
 
+def test_gtsam_files_carry_each_axis_and_set_gtsams_own_preintegration_params(six_axes, tmp_path):
+    """gtsam_imu.yaml holds per axis x, y, z the four densities; gtsam_imu.py, run, sets gtsam's own
+    PreintegrationCombinedParams to their squares on the diagonal (read back with gtsam's getters)."""
+    import importlib.util
+
+    _, _, axes = six_axes
+    write_export(tmp_path, axes, ["gtsam", "gtsam-python"], {"recording": "six.csv"}, which="bare", plots=False)
+    y = yaml.safe_load((tmp_path / "gtsam_imu.yaml").read_text())
+    by = {a.label: a for a in axes}
+    for key, labels, term in (("accelerometer_noise_density", "ax ay az", "N"),
+                              ("gyroscope_random_walk", "gx gy gz", "K")):
+        assert y[key] == pytest.approx([by[a].bare[term].value for a in labels.split()], rel=1e-6)
+    spec = importlib.util.spec_from_file_location("gtsam_imu", tmp_path / "gtsam_imu.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    assert module.ACCELEROMETER_NOISE_DENSITY == pytest.approx(y["accelerometer_noise_density"], rel=1e-6)
+    gtsam = pytest.importorskip("gtsam")
+    params = module.preintegration_params()
+    assert isinstance(params, gtsam.PreintegrationCombinedParams)
+    assert np.diag(params.getAccelerometerCovariance()) == pytest.approx(np.square(y["accelerometer_noise_density"]))
+    assert np.diag(params.getGyroscopeCovariance()) == pytest.approx(np.square(y["gyroscope_noise_density"]))
+    assert np.diag(params.getBiasOmegaCovariance()) == pytest.approx(np.square(y["gyroscope_random_walk"]))
+    assert np.diag(params.getBiasAccCovariance()) == pytest.approx(np.square(y["accelerometer_random_walk"]))
+
+
 def test_vins_and_orbslam3_files_read_back_with_opencv_filestorage(six_axes, tmp_path):
     """The readers of VINS and ORB-SLAM3 are OpenCV's FileStorage: parse the files with it."""
     cv2 = pytest.importorskip("cv2")

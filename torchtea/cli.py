@@ -1228,7 +1228,8 @@ def build_parser() -> argparse.ArgumentParser:
                      temperature_help="temperature column (°C) for the temperature effects", samples_default="all",
                      samples_help="use the first N samples (default all)")
     ex.add_argument("--format", action="append", required=True, metavar="FORMAT",
-                    help="kalibr (imu.yaml), vins, orbslam3, ieee952 (CSV) or all; repeatable or comma-separated")
+                    help="kalibr (imu.yaml), vins, orbslam3, ieee952 (CSV), gtsam (YAML), gtsam-python (a module setting "
+                         "PreintegrationCombinedParams) or all; repeatable or comma-separated")
     ex.add_argument("--model", help="fit this model SPEC to every axis (default: check each axis to the end, as "
                                     "check --auto, and export the model it ends with)")
     ex.add_argument("--strong", type=float, default=None, metavar="BIC", help="as check --strong")

@@ -3,7 +3,8 @@
 A format is one class in :data:`FORMATS`: its name, file name, the sensors it needs, and :meth:`Format.render`.
 Kalibr's ``imu.yaml`` (YAML), VINS-Mono/Fusion's and ORB-SLAM3's settings (OpenCV FileStorage YAML, ``%YAML:1.0``)
 take one number per sensor: the largest axis's, said so in a comment with its 95 % interval, the bare and the
-covered value and the cover's factor; the IEEE Std 952 table (CSV) has every axis. Comments carry the convention:
+covered value and the cover's factor; the IEEE Std 952 table (CSV) has every axis, and gtsam's preintegration
+noise (YAML, and a Python module that sets ``PreintegrationCombinedParams``) a value per axis. Comments carry the convention:
 continuous time, a filter at Δt uses σ_d = N/√Δt for the white noise and σ_bd = K·√Δt for the walk.
 """
 from __future__ import annotations
@@ -13,7 +14,7 @@ import io
 
 from .terms import IN_FORMATS
 
-__all__ = ["Format", "FORMATS", "register_format", "sensor_values", "FormatError"]
+__all__ = ["Format", "FORMATS", "register_format", "sensor_values", "per_axis", "FormatError"]
 
 
 class FormatError(ValueError):
@@ -184,6 +185,83 @@ class Ieee952(Format):
         return out.getvalue()
 
 
+def per_axis(axes: list, sensor: str, term: str, which: str) -> tuple[list, list]:
+    """``sensor``'s ``term`` (N or K, ``which`` value) on its x, y, z axes, and what stood in for an axis the recording
+    lacks (the largest of those it has, said in ``notes``)."""
+    rows = {a.label[-1]: a for a in axes if a.sensor == sensor}
+    if not rows:
+        raise FormatError(f"no {sensor} axis")
+    largest = max(getattr(a, which)[term].value for a in rows.values())
+    values, notes = [], []
+    for ax in "xyz":
+        if ax in rows:
+            values.append(getattr(rows[ax], which)[term].value)
+        else:
+            values.append(largest)
+            notes.append(f"{sensor} {ax}: not in the recording; the largest of its other axes stands in")
+    return values, notes
+
+
+class GtsamYaml(Format):
+    """gtsam's IMU preintegration noise (``PreintegrationCombinedParams``) as YAML: per axis x, y, z, the continuous-
+    time densities gtsam's covariances are the squares of — ``setAccelerometerCovariance(diag(N_a²))``,
+    ``setGyroscopeCovariance(diag(N_g²))``, ``setBiasAccCovariance(diag(K_a²))``, ``setBiasOmegaCovariance(diag(K_g²))``
+    (gtsam's examples and its ImuFactor documentation take them in continuous time)."""
+
+    name = "gtsam"
+    filename = "gtsam_imu.yaml"
+    keys = {("accelerometer", "N"): "accelerometer_noise_density", ("gyroscope", "N"): "gyroscope_noise_density",
+            ("accelerometer", "K"): "accelerometer_random_walk", ("gyroscope", "K"): "gyroscope_random_walk"}
+
+    def render(self, axes: list, meta: dict, which: str = "covered") -> str:
+        self.check(axes)
+        lines = self.preamble(axes, meta, which)
+        lines.append("# gtsam: PreintegrationCombinedParams covariances = diag(value²) per axis x, y, z; the "
+                     "integration covariance is not the IMU's (set it yourself)")
+        for (sensor, term), key in self.keys.items():
+            values, notes = per_axis(axes, sensor, term, which)
+            unit = next(getattr(a, which)[term].unit for a in axes if a.sensor == sensor)
+            lines.append(f"{key}: [{', '.join(_fmt(v) for v in values)}]  # {unit}, x y z")
+            lines += [f"#   {n}" for n in notes]
+        lines.append(f"update_rate: {1.0 / axes[0].h:.6g}  # Hz, the recording's sample rate")
+        return "\n".join(lines) + "\n"
+
+
+class GtsamPython(GtsamYaml):
+    """The same numbers as a Python module whose ``preintegration_params()`` returns gtsam's
+    ``PreintegrationCombinedParams`` with them set (gtsam#213: what users write by hand)."""
+
+    name = "gtsam-python"
+    filename = "gtsam_imu.py"
+
+    def render(self, axes: list, meta: dict, which: str = "covered") -> str:
+        self.check(axes)
+        lines = ['"""IMU noise for gtsam\'s preintegration, written by torchtea export."""']
+        lines += self.preamble(axes, meta, which)
+        lines += ["import numpy as np", "", ""]
+        names = {}
+        for (sensor, term), key in self.keys.items():
+            values, notes = per_axis(axes, sensor, term, which)
+            unit = next(getattr(a, which)[term].unit for a in axes if a.sensor == sensor)
+            names[(sensor, term)] = key.upper()
+            lines += [f"#   {n}" for n in notes]
+            lines.append(f"{key.upper()} = ({', '.join(repr(float(v)) for v in values)})  # {unit}, x y z")
+        lines += [f"UPDATE_RATE_HZ = {1.0 / axes[0].h!r}", "", "",
+                  "def preintegration_params(gravity=9.81, integration_sigma=0.0):",
+                  '    """gtsam.PreintegrationCombinedParams (z up, gravity in m/s²) with this IMU\'s noise: each '
+                  'covariance diag(value²);',
+                  '    ``integration_sigma``: the integration covariance\'s σ, not the IMU\'s (0 by default)."""',
+                  "    import gtsam", "",
+                  "    p = gtsam.PreintegrationCombinedParams.MakeSharedU(gravity)",
+                  f"    p.setAccelerometerCovariance(np.diag(np.square({names[('accelerometer', 'N')]})))",
+                  f"    p.setGyroscopeCovariance(np.diag(np.square({names[('gyroscope', 'N')]})))",
+                  f"    p.setBiasAccCovariance(np.diag(np.square({names[('accelerometer', 'K')]})))",
+                  f"    p.setBiasOmegaCovariance(np.diag(np.square({names[('gyroscope', 'K')]})))",
+                  "    p.setIntegrationCovariance(np.eye(3) * integration_sigma ** 2)",
+                  "    return p"]
+        return "\n".join(lines) + "\n"
+
+
 #: The formats by name (a user's: :func:`register_format`).
 FORMATS: dict = {}
 
@@ -195,5 +273,5 @@ def register_format(cls) -> type:
     return cls
 
 
-for _cls in (Kalibr, Vins, OrbSlam3, Ieee952):
+for _cls in (Kalibr, Vins, OrbSlam3, Ieee952, GtsamYaml, GtsamPython):
     register_format(_cls)

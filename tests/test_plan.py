@@ -198,5 +198,6 @@ def test_a_component_the_fit_collapsed_is_none_seen_and_the_others_keep_their_in
         assert set(r.collapsed) == {"random-walk.sigma", "K"}
         assert r.relative["N"] == pytest.approx(a.relative["N"], rel=1e-3)
     from torchtea.fitting.plan import plan_document, plan_lines
-    text = "\n".join(plan_lines("x", plan_document(f.model, f.values, 0.01, [6000])))
+    text = "\n".join(plan_lines("x", plan_document(f.model, f.values, 0.01, [6000], targets=[("K", 0.2)])))
     assert "none seen" in text and "±" in text
+    assert "K within ±20 %: none seen: the fit puts almost no K in the record" in text

@@ -421,6 +421,11 @@ def plan_document(model, values: dict, h: float, lengths, *, recorded: int | Non
             out_targets.append({"name": name, "relative_half_width": rel, "samples": None, "seconds": None,
                                 "absent": f"{model.spec} has no {name} (its numbers: {', '.join(sorted(known))})"})
             continue
+        if rows and all(name in r.collapsed for r in rows):  # (a length from a σ at ≈ 0 would be the optimiser's)
+            out_targets.append({"name": name, "relative_half_width": rel, "samples": None, "seconds": None,
+                                "absent": f"none seen: the fit puts almost no {name} in the record, so no length "
+                                          "pins it down from here (a longer record may show one)"})
+            continue
         n = length_for(model, values, h, name, rel, fixed=fixed, terms=terms)
         out_targets.append({"name": name, "relative_half_width": rel, "samples": n,
                             "seconds": None if n is None else n * h})

@@ -83,9 +83,9 @@ def test_a_bag_reads_as_the_recording_it_holds(tmp_path, kind):
     assert np.array_equal(np.column_stack([c.values for c in rec.sensor("gyroscope")]), gyr)
     assert rec.rate_hz == pytest.approx(200.0, rel=1e-12)
     assert rec.time_s[0] == 0.0 and rec.time_s[-1] == pytest.approx((len(t_ns) - 1) * 0.005, abs=1e-12)
-    last = (len(t_ns) - 1) // 10 * 10  # (the last temperature message; NaN after it)
+    last = (len(t_ns) - 1) // 10 * 10  # (the last temperature message: held after it for one interval)
     assert np.allclose(rec.temperature[:last + 1], temp[:last + 1], atol=1e-12)
-    assert np.isnan(rec.temperature[last + 1:]).all()
+    assert np.all(rec.temperature[last + 1:] == temp[last]) and np.isfinite(rec.temperature).all()
     assert rec.temperature_column == "/imu/temperature" and rec.metadata["topic"] == "/imu/data"
     assert ("/imu/data", "sensor_msgs/msg/Imu", len(t_ns)) in bag_topics(path)
     if kind == "mcap":  # (a ROS 2 storage file alone, without its folder's metadata.yaml)
@@ -112,6 +112,8 @@ def test_check_and_export_of_a_bag_give_the_numbers_of_the_same_data_from_a_csv(
         assert main(["check", *one, "--columns", "gz", "--model", "white+random-walk", "--no-plots",
                      "--out", str(out)]) == 0
         doc = json.loads((out / "check.json").read_text())
+        temperature = next(d for d in doc["axes"]["gz"]["diagnostics"] if d["name"] == "temperature")
+        assert temperature["passed"] is not None  # (the bag's own temperature topic is the input, as --temperature)
         ex = tmp_path / f"export_{name}"
         assert main(["export", *every, "--format", "kalibr", "--model", "white+random-walk", "--no-plots",
                      "--out", str(ex)]) == 0

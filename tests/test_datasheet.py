@@ -98,3 +98,19 @@ def test_check_and_export_hold_the_axes_against_a_datasheet_file(tmp_path, capsy
                      "--out", str(tmp_path / "never"), *extra]) == 2
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and words in err[0], err
+
+
+def test_a_walk_the_fit_collapsed_is_none_seen_and_fit_needs_export(tmp_path, capsys):
+    """White noise fitted as white + random walk: the walk's σ goes to ≈ 0 and its interval has no upper end — K is
+    'none seen', not 'not determined' with a length computed from σ ≈ 0. `fit --datasheet` without `--export`: one
+    line, exit 2."""
+    y = 1e-3 * np.random.default_rng(8).standard_normal(6000)
+    fit = fit_series("white+random-walk", [y], H)[0]
+    terms = axis_terms(fit, y, H, "gyroscope", "gz", (H, 10.0))
+    row = compare(terms, _sheet(K=K_TRUE), fit, H)["rows"][0]
+    assert row["verdict"] == "none seen" and row["record_for_s"] is None
+    rec = write_columns(tmp_path / "r.csv", {"t": np.arange(len(y)) * H, "gz": y})
+    sheet = tmp_path / "gyro.toml"
+    sheet.write_text('sensor = "gyroscope"\nrate_hz = 100\nN = { value = 1e-4, unit = "rad/s/sqrt(Hz)" }\n')
+    assert main(["fit", str(rec), "--units", "rad/s", "--model", "white", "--datasheet", str(sheet)]) == 2
+    assert "give --export FORMAT too" in capsys.readouterr().err

@@ -49,3 +49,51 @@ def test_a_gauss_markov_bias_is_told_from_a_random_walk_only_when_its_tau_is_sho
         assert o["effects"]["gauss-markov"]["resolved"]
         out[tau] = o["rivals"]["gauss-markov"]["random-walk"]["bic_difference"]
     assert out[0.3] >= 6.0 > out[15.0]
+
+
+def test_two_lines_each_judged_by_its_own_values_after_the_other_is_dropped():
+    """Two lines, a strong one first and a buried one second: without the first the second is labelled
+    ``sinusoid`` and must keep its own frequency (held at the truth) — then the strong line is resolved and the
+    buried one is not (taking the first line's values for the second would refit the strong line in its place and
+    call it unresolved)."""
+    v = {"white.r": 1e-4, "sinusoid.frequency_hz": 7.0, "sinusoid.amplitude": 0.01, "sinusoid.phase": 0.3,
+         "sinusoid2.frequency_hz": 19.0, "sinusoid2.amplitude": 1e-5, "sinusoid2.phase": -1.0}
+    y = _series("white+sinusoid+sinusoid", v, 5)
+    o = oracle(y, H, v, "white+sinusoid+sinusoid", base="white")
+    assert o["effects"]["sinusoid"]["resolved"] and o["effects"]["sinusoid"]["lr"] > 100.0
+    assert not o["effects"]["sinusoid2"]["resolved"] and not o["effects"]["sinusoid2"]["screen"]
+
+
+def _orc(lr, gain, screen=True, rivals=None):
+    e = {"name": "gauss-markov", "lr": lr, "bic_gain": gain, "screen": screen,
+         "resolved": screen and gain >= 6.0}
+    return {"effects": {"gauss-markov": e}, "rivals": {"gauss-markov": rivals or {}}}
+
+
+@pytest.mark.parametrize("orc, model, ties, status, right", [
+    (_orc(300, 280, rivals={"random-walk": {"bic_difference": 40.0}}), "fractional+white+gauss-markov", [],
+     "shown", True),
+    (_orc(300, 280, rivals={"random-walk": {"bic_difference": 40.0}}), "fractional+white+random-walk", [],
+     "shown", False),
+    # resolved but within the tie window of its rival: either, with the tie named
+    (_orc(300, 280, rivals={"random-walk": {"bic_difference": 2.4}}), "fractional+white+gauss-markov",
+     [{"effects": ["gauss-markov", "random-walk"]}], "tie-rival", True),
+    (_orc(300, 280, rivals={"random-walk": {"bic_difference": 2.4}}), "fractional+white+random-walk", [],
+     "tie-rival", False),
+    # the rival does better by more than the window: the record shows the rival
+    (_orc(300, 280, rivals={"random-walk": {"bic_difference": -8.0}}), "fractional+white+random-walk", [],
+     "rival", True),
+    # passes the screen's level, under the tie window: kept, or named as a tie
+    (_orc(11.0, 0.7), "fractional+white", [{"effects": ["gauss-markov"]}], "weak", True),
+    (_orc(11.0, 0.7), "fractional+white", [], "weak", False),
+    # not visible at all: right when not kept
+    (_orc(2.0, -18.0, screen=False), "fractional+white", [], "hidden", True),
+    (_orc(2.0, -18.0, screen=False), "fractional+white+gauss-markov", [], "hidden", False),
+])
+def test_the_judge_scores_the_loops_end_by_what_the_record_shows(orc, model, ties, status, right):
+    """oracle.judge: each status of a hidden effect and what end of the loop is right for it."""
+    from torchtea.checking.oracle import judge
+
+    j = judge({"effects": ["gauss-markov"], "model": model, "ties": ties}, orc)
+    assert j["status"] == {"gauss-markov": status} and j["right"] is right
+    assert j["all_shown"] is (status == "shown")

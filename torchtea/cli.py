@@ -317,6 +317,9 @@ def _measurements(args, command: str, *, min_samples: int = 1, sensors=None):
                          lsb_per_dps=args.lsb_per_dps, rate_hz=args.rate, segment=args.segment,
                          time_column=time_column, temperature_column=getattr(args, "temperature", None),
                          topic=getattr(args, "topic", None))
+    if getattr(args, "temperature", "") is None and rec.metadata.get("temperature_topic"):
+        args.temperature = rec.metadata["temperature_topic"]  # (a bag's own temperature topic is the input)
+        _note(f"temperature: topic {args.temperature!r} of the bag (--temperature names another)")
     if columns is None and sensors:
         chosen = tuple(c for c in rec.channels if c.sensor in sensors)
         if chosen:
@@ -1335,6 +1338,9 @@ def cmd_fit(args) -> int:
     model = parse_model(args.model)
     _check_cluster_flags(args)
     m = _measurements(args, "a fit", min_samples=100)
+    if args.datasheet and not args.export:
+        raise CLIError("--datasheet holds the exported numbers against the datasheet: give --export FORMAT too "
+                       "(or use check --datasheet)")
     plan = _export_plan(args, m, args.export)
     inputs = _model_inputs(args, [model], m)
     client, close_cluster = _cluster(args)

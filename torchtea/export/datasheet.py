@@ -11,18 +11,24 @@ deviation's minimum / 0.664) and a verdict:
   which the expected interval would no longer hold it (:func:`~torchtea.fitting.plan.length_for`, the fitted model
   taken as the truth);
 - **none in the model**: the fitted model has no such component (a random walk the loop did not add): the record
-  shows none above its other noise, which is no measurement of it — not compared.
+  shows none above its other noise, which is no measurement of it — not compared; **none seen**: the model has it
+  but the fit puts almost none of it in the record (a walk at σ ≈ 0, an interval over more than six decades) — the same.
 
 A datasheet's values are typical ones; "within spec" says the sensor is no worse than the typical part by this
 record, not that it meets a guaranteed bound.
 """
 from __future__ import annotations
 
+import math
+
 from ..fitting.plan import duration, length_for, verdict_lines
 
 __all__ = ["compare", "verdict_lines", "read_sheets", "VERDICTS"]
 
-VERDICTS = ("within spec", "worse than spec", "not determined by this record", "none in the model")
+#: An interval whose ends are further apart than this factor measures nothing (a walk fitted at σ ≈ 0: 10⁻⁸³ to 10⁶⁸).
+UNBOUNDED = 1e6
+
+VERDICTS = ("within spec", "worse than spec", "not determined by this record", "none in the model", "none seen")
 
 
 def compare(terms, sheet: dict, fit, h: float) -> dict:
@@ -42,6 +48,12 @@ def compare(terms, sheet: dict, fit, h: float) -> dict:
         row = {"term": term, "fitted": value, "ci95": None if ci is None else list(ci), "datasheet": spec,
                "datasheet_as_printed": sheet.get("printed", {}).get(term, ""), "unit": unit, "ratio": None,
                "ratio_ci95": None, "record_for_s": None}
+        if value and ci is not None and (not math.isfinite(ci[1]) or ci[1] > UNBOUNDED * max(ci[0], 1e-300)):
+            row["verdict"] = "none seen"
+            row["words"] = ("the fit puts almost none of it in the record (its interval spans more than six decades "
+                            "or has no upper end): the record does not measure it; not compared")
+            rows.append(row)
+            continue
         if not value:
             row["verdict"] = "none in the model"
             row["words"] = (f"the fitted model has no {'random walk' if term == 'K' else term} — the record shows "

@@ -199,6 +199,9 @@ def per_axis(axes: list, sensor: str, term: str, which: str) -> tuple[list, list
         else:
             values.append(largest)
             notes.append(f"{sensor} {ax}: not in the recording; the largest of its other axes stands in")
+    if term == "K" and not all(values):
+        notes.append(f"{sensor}: K = 0 on an axis (its model has no random walk): a bias covariance of 0 is singular "
+                     "for a filter — use --values covered, or give it a floor of your own")
     return values, notes
 
 

@@ -129,6 +129,16 @@ def _read_topic(reader, path: Path, topic: str, fields) -> tuple[np.ndarray, np.
     return stamps[:k], received[:k], values[:k]
 
 
+def _onto(t: np.ndarray, ts: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Readings ``v`` at times ``ts`` interpolated onto ``t``; before the first and after the last each is held for up
+    to one median interval between readings (a slower topic's edges), NaN beyond (no reading there)."""
+    out = np.interp(t, ts, v, left=np.nan, right=np.nan)
+    step = float(np.median(np.diff(ts))) if len(ts) > 1 else 0.0
+    out[(t < ts[0]) & (t >= ts[0] - step)] = v[0]
+    out[(t > ts[-1]) & (t <= ts[-1] + step)] = v[-1]
+    return out
+
+
 def read_bag(path, *, topic: str | None = None, temperature_topic: str | None = None,
              columns: Sequence[str] | None = None) -> dict:
     """The IMU topic of a ROS bag (module docstring): ``columns`` (labels ``ax`` … ``gz`` or field names
@@ -185,8 +195,10 @@ def read_bag(path, *, topic: str | None = None, temperature_topic: str | None = 
                 ts = tr if np.all(ts == 0) else ts
                 order = np.argsort(ts, kind="stable")
                 tsec = (ts[order] - stamps[0]).astype(np.float64) * 1e-9
-                temperature = np.interp(t, tsec, tv[order, 0], left=np.nan, right=np.nan)
+                temperature = _onto(t, tsec, tv[order, 0])
                 meta["temperature_topic"] = ttopic
+                meta["temperature_source"] = (f"topic {ttopic!r}: {len(ts)} readings, interpolated onto the IMU's "
+                                              "stamps, the first and last held for up to one of their intervals")
     finally:
         reader.close()
     return {"topic": imu, "time_s": t, "temperature": temperature, "metadata": meta,

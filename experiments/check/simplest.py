@@ -15,12 +15,13 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import time
 from pathlib import Path
 
 import torch
 
-from torchtea.checking.check import check
+from torchtea.checking.check import CANDIDATES, CLOSE_BIC, check
 from torchtea.checking.oracle import oracle
 from torchtea.noise.simulate import default_values, simulate_model
 
@@ -41,12 +42,21 @@ def truth(spec: str) -> dict:
     return v
 
 
+def _resolved(o: dict, n: int) -> bool:
+    """The oracle's rule (:mod:`torchtea.checking.oracle`): p under the screen level and a BIC gain (LR − ln n for
+    the walk's one parameter) of at least CLOSE_BIC — recomputed from the stored LR and p."""
+    return o["p"] < 0.05 / len(CANDIDATES) and o["lr"] - math.log(n) >= CLOSE_BIC
+
+
 def table(doc: dict) -> str:
-    lines = ["| truth | seed | the oracle: walk's LR (resolved) | model at the loop's end | adequate | ties | s |",
+    lines = ["| truth | seed | the oracle: walk's LR, BIC gain (resolved) | model at the loop's end | adequate | ties | s |",
              "|---|---|---|---|---|---|---|"]
     for r in doc["runs"]:
         o = r.get("oracle")
-        lr = "—" if o is None else f"{o['lr']:.1f} ({'yes' if o['resolved'] else 'no'})"
+        if o is not None:
+            o["resolved"] = _resolved(o, doc["samples"])
+        lr = "—" if o is None else (f"{o['lr']:.1f}, {o['lr'] - math.log(doc['samples']):+.1f} "
+                                    f"({'yes' if o['resolved'] else 'no'})")
         lines.append(f"| {r['truth']} | {r['seed']} | {lr} | {r['model']} | {r['adequate']} | "
                      f"{'; '.join(r['ties']) or '—'} | {r['seconds']:.0f} |")
     runs = [r for r in doc["runs"] if r.get("oracle")]
@@ -57,7 +67,8 @@ def table(doc: dict) -> str:
         ends = sum("random-walk" in r["model"].split("+") for r in shown)
         named = sum(bool(r["ties"]) or "random-walk" not in r["model"].split("+") for r in other)
         lines += ["", f"{spec}: the oracle resolves the walk in {len(shown)} of {len(rs)}; of those the loop ends with "
-                      f"it in {ends}; of the {len(other)} others, {named} end without it or name a tie"]
+                      f"it in {ends}; of the {len(other)} others, {named} end without it or name a tie, "
+                      f"{len(other) - named} keep it without a tie"]
     return "\n".join(lines)
 
 

@@ -395,7 +395,9 @@ def test_the_loop_goes_on_past_an_adequate_model_while_a_suggestion_gains_strong
     assert r.model.spec == "white+ramp" and r.loop_end.startswith("adequate after 1 effect(s) added")
     assert abs(r.fit.values["ramp.slope"] * 20000 * H - 0.15) < 3 * math.sqrt(12 / 20000)  # the rise's SE, σ = 1
     kept = first.auto(intervals=False, strong=first.suggestions[0].gain + 1)
-    assert kept is first and kept.loop_end.startswith("adequate after 0 effect(s) added (ramp would still gain")
+    assert kept.model.spec == "white" and kept.loop_end.startswith("adequate after 0 effect(s) added (ramp would "
+                                                                    "still gain")
+    assert kept is not first and not first.loop_end.startswith("adequate after")  # (a result of its own)
 
 
 @pytest.mark.slow

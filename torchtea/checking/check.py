@@ -257,8 +257,10 @@ class CheckResult:
         from . import simplify as simplifying
 
         strong = STRONG_BIC if strong is None else float(strong)
-        res = copy.copy(self)  # (the loop's end is a result of its own: this one keeps its loop_end, ties, timings)
-        res.timings, res.alternatives = dict(self.timings), list(self.alternatives)
+        # (a loop that adds and changes nothing still ends in a result of its own: this one, when it is not a step of
+        # the loop's path, gets back what the search wrote on it)
+        saved = (self.seconds, dict(self.timings), list(self.alternatives), self.loop_end, list(self.ties))
+        res = self
         added = changes = 0
         while True:
             while added < max_steps and res.suggestions and not (res.adequate and res.suggestions[0].gain < strong):
@@ -270,6 +272,10 @@ class CheckResult:
             if simpler is res:
                 break
             res, changes = simpler, changes + 1
+        if res is self:
+            res = copy.copy(self)
+            res.timings, res.alternatives = dict(self.timings), list(self.alternatives)
+            self.seconds, self.timings, self.alternatives, self.loop_end, self.ties = saved
         res.ties = simplifying.ties(res, CLOSE_BIC) if simplify else []
         done = f"{added} effect(s) added" + (f", {changes} change(s) taking away or swapping" if changes else "")
         if res.adequate and res.suggestions and res.suggestions[0].gain >= strong:

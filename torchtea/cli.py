@@ -138,7 +138,8 @@ def _progress(total, desc, unit="step", *, bar=True):
             return
         # the time left at the pace since the last line: the first window holds one-time costs (numba's compile
         # made a first line say 'about 5953 s left' of a run of minutes), so the first line gives none
-        left = (f"about {(now - last) * (total_ - done) / (done - d_last):.0f} s left" if d_last > d0 and done > d_last
+        left = ("about 0 s left" if done >= total_ else
+                f"about {(now - last) * (total_ - done) / (done - d_last):.0f} s left" if d_last > d0 and done > d_last
                 else "the time left follows at the next line")
         start[2], start[3] = now, done
         print(f"torchtea {desc}: {done}/{total_} {unit}s ({100 * done / total_:.0f} %), {now - t0:.0f} s elapsed, "

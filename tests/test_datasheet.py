@@ -89,6 +89,13 @@ def test_check_and_export_hold_the_axes_against_a_datasheet_file(tmp_path, capsy
     ex = json.loads((tmp_path / "e" / "export.json").read_text())
     assert {r["term"] for r in ex["axes"]["gz"]["datasheet"]["rows"]} == {"N", "K"}
     assert "## Against the datasheet" in (tmp_path / "e" / "export.md").read_text()
+    # check --export: the export's verdicts are the report's, made and printed once
+    assert main(["check", str(rec), "--units", "rad/s", "--model", "white+random-walk", "--no-plots",
+                 "--datasheet", str(sheet), "--export", "ieee952", "--nees", "0", "--out", str(tmp_path / "ce")]) == 0
+    printed = capsys.readouterr().out
+    assert printed.count("against the datasheet (fitted") == 1 and "export ieee952:" in printed
+    both = json.loads((tmp_path / "ce" / "check.json").read_text())["axes"]["gz"]["datasheet"]
+    assert both == json.loads((tmp_path / "ce" / "export" / "export.json").read_text())["axes"]["gz"]["datasheet"]
     accel = tmp_path / "accel.toml"
     accel.write_text('sensor = "accelerometer"\nrate_hz = 100\nN = { value = 400, unit = "ug/sqrt(Hz)" }\n')
     for extra, words in ((["--datasheet", str(accel)], "the datasheet(s) are for the accelerometer"),

@@ -385,15 +385,22 @@ def cmd_check(args) -> int:
     meta = m.describe()
     meta.update(command="torchtea " + " ".join(sys.argv[1:]), seconds=time.perf_counter() - t0,
                 warnings=m.notes())
-    verdicts = _datasheet_verdicts(args, m, {a: r.fit for a, r in results.items()}, inputs)
+    fits = {a: r.fit for a, r in results.items()}
+    if plan:  # (the export holds the axes against the datasheet: its verdicts are the report's, made once)
+        exported, axes = _export(args, m, plan, fits, inputs, meta, out / "export", quiet=True,
+                                 plots=not args.no_plots)
+        verdicts = {a.label: a.datasheet for a in axes if a.datasheet}
+    else:
+        verdicts = _datasheet_verdicts(args, m, fits, inputs)
     doc = write_report(out, results, meta, plots=not args.no_plots, datasheet=verdicts)
     _tensorboard(args, m, results)
-    if plan:
-        _export(args, m, plan, {a: r.fit for a, r in results.items()}, inputs, meta, out / "export",
-                quiet=args.json, plots=not args.no_plots)
     if args.json:
         print(dumps(doc))
         return 0
+    if plan:
+        from .export.run import export_lines
+
+        print("\n".join(export_lines(exported, axes, out / "export")))
     print("\n".join(summary_lines(results, {c.label: c.title for c in m.channels})))
     _print_verdicts(verdicts)
     print(f"units: {'; '.join(f'{k}: {v}' for k, v in _units_of(m).items())}")
@@ -429,26 +436,25 @@ def _sheets(args) -> dict:
 
 
 def _datasheet_verdicts(args, m, fits: dict, inputs) -> dict:
-    """Each axis whose sensor has a ``--datasheet`` against it (:func:`torchtea.export.datasheet.compare`)."""
+    """Each axis whose sensor has a ``--datasheet`` against it (:func:`torchtea.export.datasheet.compare`), its
+    numbers as an export makes them (:func:`torchtea.export.run.export_axes`, no NEES study)."""
     from .export.datasheet import compare
-    from .export.terms import axis_terms, parse_horizon
+    from .export.run import export_axes
+    from .export.terms import parse_horizon
 
     sheets = _sheets(args)
-    if not sheets:
+    held = {c.label: c.sensor for c in m.channels if c.sensor in sheets and c.label in fits}
+    if not held:
         return {}
+    _note(f"{', '.join(held)}: against the datasheet(s) {', '.join(sheets[s]['file'] for s in set(held.values()))} …")
     horizon, _ = parse_horizon(getattr(args, "horizon", None), m.h, m.samples)
-    out = {}
-    for c in m.channels:
-        if c.sensor in sheets and c.label in fits:
-            f = fits[c.label]
-            inp = inputs if inputs is not None and any(x.inputs for _, x in f.model.components) else None
-            _note(f"{c.label}: against the datasheet {sheets[c.sensor]['file']} …")
-            terms = axis_terms(f, c.values, m.h, c.sensor, c.label, horizon, inputs=inp)
-            out[c.label] = compare(terms, sheets[c.sensor], f, m.h)
-    return out
+    axes = export_axes({a: fits[a] for a in held}, m.series(), held, m.h, horizon, inputs=inputs, nees=0)
+    return {a.label: compare(a, sheets[a.sensor], fits[a.label], m.h) for a in axes}
 
 
-def _export(args, m, plan, fits: dict, inputs, meta: dict, out: Path, *, quiet: bool, plots: bool) -> dict:
+def _export(args, m, plan, fits: dict, inputs, meta: dict, out: Path, *, quiet: bool, plots: bool) -> tuple:
+    """Export ``fits`` as ``plan`` says into ``out``; unless ``quiet``, print what was written and the datasheet
+    verdicts. Returns the export's JSON document and its axes' terms."""
     from .export.run import export_lines, export_recording
 
     _note(f"exporting {', '.join(plan.formats)} (cover over τ {plan.horizon[0]:g}–{plan.horizon[1]:g} s; NEES "
@@ -458,7 +464,7 @@ def _export(args, m, plan, fits: dict, inputs, meta: dict, out: Path, *, quiet: 
     if not quiet:
         print("\n".join(export_lines(doc, axes, out)))
         _print_verdicts({a.label: a.datasheet for a in axes if a.datasheet})
-    return doc
+    return doc, axes
 
 
 def _tensorboard(args, m, results: dict) -> None:

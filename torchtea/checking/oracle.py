@@ -33,7 +33,6 @@ import numpy as np
 from scipy import stats
 
 from ..fitting.mle import fit_series, refine_best
-from ..noise.components import COMPONENTS
 from ..noise.model import parse_model
 from .check import CANDIDATES, CLOSE_BIC
 from .models import held
@@ -81,11 +80,6 @@ def _put_back(values: dict, model, m, removed: str) -> dict:
 
     return {f"{old}.{n.split('.', 1)[1]}": v for lb, old in _carried(model, m, removed).items()
             for n, v in values.items() if n.split(".", 1)[0] == lb}
-
-
-def _estimated_df(model, label: str) -> int:
-    """The parameters of ``label`` that BIC counts in check (held estimates too, references not): ``effect_df``."""
-    return effect_df(model, label)
 
 
 def _estimated(model) -> int:
@@ -145,7 +139,7 @@ def oracle(y, h: float, truth: dict, model, inputs: dict | None = None, base: st
         df = effect_df(model, lb)
         lr = max(0.0, 2.0 * (full.loglik - ll0))
         p = float(stats.chi2.sf(lr, df))
-        gain = lr - _estimated_df(model, lb) * math.log(n)
+        gain = lr - df * math.log(n)
         effects[lb] = {"name": dict(model.components)[lb].name, "df": df, "loglik_without": ll0, "lr": lr, "p": p,
                        "screen": bool(p < threshold), "bic_gain": gain,
                        "resolved": bool(p < threshold and gain >= CLOSE_BIC),

@@ -53,6 +53,8 @@ TIME_UNITS = {"_ns": 1e-9, "_us": 1e-6, "_ms": 1e-3, "%time": 1e-9, "header.stam
 UNITS = {"g": ("accelerometer", STANDARD_GRAVITY), "ms2": ("accelerometer", 1.0), "m/s2": ("accelerometer", 1.0),
          "m/s^2": ("accelerometer", 1.0), "rad/s": ("gyroscope", 1.0), "deg/s": ("gyroscope", DEG),
          "dps": ("gyroscope", DEG), "counts": (None, None)}
+#: The rates (Hz) time stamps may give an IMU; outside, the stamps are taken for another unit or a wrong clock.
+PLAUSIBLE_RATE_HZ = (0.5, 1e5)
 #: The SI unit of each sensor's channels, written next to every number.
 SI_UNITS = {"accelerometer": "m/s²", "gyroscope": "rad/s", "signal": "units of the file"}
 #: Canonical labels of IMU channels (result keys): sensor letter + axis.
@@ -543,7 +545,7 @@ def read_recording(path=None, *, columns: Sequence[str] | None = None, units=Non
         if not math.isfinite(rate_hz):
             raise InputError(f"{path}: no sample rate in the file: no 'Fs,<Hz>' line, and time column {tcol!r} "
                              "has fewer than two stamps or does not increase; give the rate with --rate")
-        if not 0.5 <= rate_hz <= 1e5:
+        if not PLAUSIBLE_RATE_HZ[0] <= rate_hz <= PLAUSIBLE_RATE_HZ[1]:
             raise InputError(f"{path}: time column {tcol!r} gives a sample rate of {rate_hz:.4g} Hz, implausible for an "
                              "IMU: time stamps are read as seconds; give the rate with --rate (and --time-column none "
                              "if the stamps are in other units)")
@@ -563,7 +565,7 @@ def _bag_recording(path: Path, bag: dict, rate_hz: float | None, time_column: st
         if time_column is None:
             raise InputError(f"{path}: with the stamps left out (--time-column none) the rate is needed: --rate")
         rate_hz = stamp_rate(t)
-        if not (math.isfinite(rate_hz) and 0.5 <= rate_hz <= 1e5):
+        if not (math.isfinite(rate_hz) and PLAUSIBLE_RATE_HZ[0] <= rate_hz <= PLAUSIBLE_RATE_HZ[1]):
             raise InputError(f"{path}: topic {imu!r}: the header stamps give a rate of {rate_hz:.4g} Hz over "
                              f"{len(t)} messages, implausible for an IMU; give the rate with --rate")
         rate_source = f"the mean rate of topic {imu!r}'s header stamps"

@@ -414,6 +414,8 @@ def test_the_loop_on_the_command_line(tmp_path, capsys):
     assert added[0] is None and set(added[1:]) == {"sinusoid", "temperature-bias"} and doc["adequate"] is True
     assert doc["loop_end"].startswith("adequate after 2") and "loop end: adequate after 2" in out
     assert "step 2: + " in out and "The loop, one change per step" in (tmp_path / "c" / "report.md").read_text()
+    # every entry of the file is described in its own "meaning" (the reference's JSON page is made from it)
+    assert {k for k in [*doc, *doc["axes"]["y"]] if k not in doc["meaning"]} == set()
     clean = simulate_model("fractional+white", default_values("fractional+white", H), n_steps=6000, h=H,
                            generator=torch.Generator().manual_seed(3))[0, 0].numpy()
     r = check(clean, H, intervals=False).auto(intervals=False)
@@ -539,6 +541,7 @@ def test_a_degenerate_base_is_refitted_before_the_screens_and_the_band_is_sugges
     assert abs(r.suggestions[0].parameters["frequency_hz"] - 20.0) < 0.5
 
 
+@pytest.mark.slow
 def test_an_effect_at_its_null_value_is_never_credited():
     """Issue 44, item 1: data from fractional+white with a temperature channel, the model's fit handed to check off
     its maximum (its pole 1.6× the fitted one, everything held there), and every screened effect let through

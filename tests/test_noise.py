@@ -308,6 +308,10 @@ def test_cli_fit_json(capsys):
         assert a["fractional_test"]["n_boot"] == 9  # p = (1 + #{LR_b ≥ LR}) / 10: a bootstrap p, not χ²
         assert a["fractional_p_value"] * 10 == pytest.approx(round(a["fractional_p_value"] * 10))
         assert a["aic"] == pytest.approx(2 * 4 - 2 * a["loglik"])
+    # every entry, at the top, per axis and per parameter, is described in the file's own "meaning"
+    axis = doc["axes"]["ax"]
+    keys = {*doc, *axis, *axis["parameters"]["white.r"]}
+    assert {k for k in keys if k not in doc["meaning"]} == set()
     assert main(["fit", "--model", "fractional+chirp"]) == 2
     assert "unknown component 'chirp'" in capsys.readouterr().err
 

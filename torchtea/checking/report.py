@@ -20,6 +20,7 @@ from ..noise.model import parse_model
 from ..likelihood.whittle import periodogram
 from ..render.plots import pyplot, save_figure
 from ..render.strictjson import write
+from ..sensors.measurements import RECORDING_MEANING
 from . import allan
 from .check import CLOSE_BIC, CheckResult, change_words
 
@@ -50,6 +51,33 @@ MEANING = {
     "excluded": "stretches left out on request (--exclude): their samples missing, or cut at the end",
     "refit_failed": "(a screen's row) its screen passed, but the exact refit of the model with it gained far less than "
                     "the screen's statistic and lowered no BIC: the fit failed, which is no evidence against it",
+    "model": "the model the check ended with (with --auto: the loop's last), as a spec (components joined by +)",
+    "base": "that model's fit: the metrics, failed diagnostics, parameters with se, ci95 and ci95_method, exact "
+            "loglik, bic and observed",
+    "diagnostics": "one row per diagnostic: name, domain, statistic, p_value, level, passed (null: not run), "
+                   "summary, and where it fails (ranges in unit, directions: high = the data above the model)",
+    "screens": "one row per effect screened: its test, statistic, p_value (log10_p), whether it passed, and why "
+               "not screened where it was not",
+    "suggestions": "the effects whose screen passed and whose exact refit lowers BIC, best first: gain, p_value, the "
+                   "model with it, its parameters and ci95, the metrics after, what it repairs, notes",
+    "seconds_this_step": "wall-clock seconds of the last step of the loop alone",
+    "level": "the level of each diagnostic (Bonferroni inside it)",
+    "screen_level": "the screens' family level: an effect passes below screen_level / (effects screened)",
+    "notes": "what the check did that its numbers alone do not say (refits, restarts, effects skipped)",
+    "alternatives": "the models the loop's simplification fitted from this one (a component dropped, swapped or "
+                    "simplified), lowest BIC first, with their adequacy",
+    "before": "(after --add) the model before the effect, its metrics, failed diagnostics and bic",
+    "plan": "how long to record: the expected 95 % intervals of the model's noise numbers on this record, 4× and 10× "
+            "it, taking the fitted model as the truth (torchtea plan)",
+    "sensor": "accelerometer, gyroscope or signal",
+    "column": "the recording's column (or bag field) the channel came from",
+    "white_noise_density": "√(r h) of the fitted white noise: its density in unit/√Hz",
+    "unit": "the channel's unit (m/s² accelerometer, rad/s gyroscope); a parameter's 'units' is it",
+    "datasheet": "(--datasheet) the axis's N, B, K held against the datasheet's, with a verdict per term",
+    "command": "the command line that made the file",
+    "warnings": "where a number should not be trusted, and why (the recording's faults and timing first)",
+    "axes": "one document per channel, by label (a single channel's is also at the top level)",
+    "meaning": "this table: what each entry means",
     "ties": "what the record cannot tell apart from the model the loop ended with: models fitted on the way whose "
             "BIC is within 6 above its own and that are adequate where it is (kind swap: one component for another; "
             "add: one more; drop: one fewer; other), and the last step's suggestions that gain less than 6 (kind add, "
@@ -238,8 +266,7 @@ def write_report(out: Path, results: dict, meta: dict, plots: bool = True, datas
     out.mkdir(parents=True, exist_ok=True)
     channels = meta.get("channels", {})
     doc = dict(meta)
-    doc["meaning"] = dict(MEANING, white_noise_density="√(r h) of the fitted white noise: its density in unit/√Hz",
-                          unit="the channel's unit (m/s² accelerometer, rad/s gyroscope); a parameter's 'units' is it")
+    doc["meaning"] = dict(RECORDING_MEANING, **MEANING)
     doc["axes"] = {}
     for a, r in results.items():
         d = axis_document(r)

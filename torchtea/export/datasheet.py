@@ -23,12 +23,19 @@ import math
 
 from ..fitting.plan import duration, length_for, verdict_lines
 
-__all__ = ["compare", "verdict_lines", "read_sheets", "VERDICTS"]
+__all__ = ["compare", "verdict_lines", "read_sheets", "VERDICTS", "VERDICT_MEANING"]
 
 #: An interval whose ends are further apart than this factor measures nothing (a walk fitted at σ ≈ 0: 10⁻⁸³ to 10⁶⁸).
 UNBOUNDED = 1e6
 
 VERDICTS = ("within spec", "worse than spec", "not determined by this record", "none in the model", "none seen")
+
+
+#: What the entries of a datasheet verdict (an axis's ``datasheet`` in check.json and export.json) mean.
+VERDICT_MEANING = ("fitted: the axis's value (SI) with its 95 % interval; datasheet: the data sheet's typical value "
+    "in SI (B as IEEE 952's coefficient); ratio: fitted / datasheet; verdict: within spec (the "
+    "interval at or below), worse than spec (above), not determined by this record (it holds "
+    "the datasheet's value; record_for_s: the length that would tell), none in the model")
 
 
 def compare(terms, sheet: dict, fit, h: float) -> dict:
@@ -85,10 +92,7 @@ def compare(terms, sheet: dict, fit, h: float) -> dict:
         rows.append(row)
     return {"sensor": sheet["sensor"], "source": sheet.get("source", ""), "file": sheet.get("file", ""),
             "rows": rows,
-            "meaning": "fitted: the axis's value (SI) with its 95 % interval; datasheet: the data sheet's typical value "
-                       "in SI (B as IEEE 952's coefficient); ratio: fitted / datasheet; verdict: within spec (the "
-                       "interval at or below), worse than spec (above), not determined by this record (it holds "
-                       "the datasheet's value; record_for_s: the length that would tell), none in the model"}
+            "meaning": VERDICT_MEANING}
 
 
 def read_sheets(paths) -> dict:

@@ -7,11 +7,12 @@ from pathlib import Path
 
 import numpy as np
 
+from ..sensors.measurements import RECORDING_MEANING
 from .formats import FORMATS, FormatError
 from .nees import nees_study
 from .terms import IN_FORMATS, axis_terms
 
-__all__ = ["export_axes", "write_export", "resolve_formats", "NEES_TAUS", "ExportPlan", "plan_export",
+__all__ = ["EXPORT_MEANING", "export_axes", "write_export", "resolve_formats", "NEES_TAUS", "ExportPlan", "plan_export",
            "export_recording", "export_lines"]
 
 #: The outages of the NEES study (s), those within a quarter of the record.
@@ -19,6 +20,30 @@ NEES_TAUS = (0.1, 1.0, 10.0, 60.0)
 
 #: Samples of the NEES study's series (at most; the record's length if shorter).
 NEES_SAMPLES = 30_000
+
+
+#: What each entry of ``export.json`` means; the file carries it (with the recording's part,
+#: :data:`~torchtea.sensors.measurements.RECORDING_MEANING`).
+EXPORT_MEANING = {
+    **RECORDING_MEANING,
+    "bare": "N (white noise density) and K (bias random walk) as the fitted model has them",
+    "covered": "the least N, K whose Allan deviation covers the fitted model's over the horizon",
+    "factor": "covered / bare (None where the model has none of the term)",
+    "forced_by": "the τ where the cover touches the model and the component largest there",
+    "ieee952": "IEEE Std 952 coefficients: Q angle quantisation, N angle/velocity random walk, B bias instability "
+               "(ADEV minimum / 0.664), K rate random walk, R rate ramp",
+    "nees": "the outage NEES study (torchtea.export.nees): bare and covered values in a static IMU's filter on series "
+            "simulated from the fitted model",
+    "values": "which values the formats' files hold: bare (the fit's) or covered (the Allan cover's)",
+    "files": "each format's file, by format",
+    "skipped": "each format the recording cannot fill, with why",
+    "axes": "one entry per axis: its sensor, unit, model, N, B, K, the IEEE 952 terms with intervals, the cover and "
+            "the datasheet verdict where one was given",
+    "figure": "the Allan deviation figure of every axis, the model's and the cover's",
+    "command": "the command line that made the file",
+    "seconds": "wall-clock seconds of the whole export (fits, cover, NEES study)",
+    "warnings": "where a number should not be trusted, and why (the recording's faults and timing first)",
+    "meaning": "this table: what each entry means"}
 
 
 def resolve_formats(names) -> list:
@@ -146,14 +171,7 @@ def write_export(out: Path, axes: list, formats: list, meta: dict, which: str = 
         files[name] = str(out / fmt.filename)
     doc = {**meta, "values": which, "files": files, "skipped": skipped,
            "axes": {a.label: dict(a.as_dict(), nees=a.nees) for a in axes},
-           "meaning": {"bare": "N (white noise density) and K (bias random walk) as the fitted model has them",
-                       "covered": "the least N, K whose Allan deviation covers the fitted model's over the horizon",
-                       "factor": "covered / bare (None where the model has none of the term)",
-                       "forced_by": "the τ where the cover touches the model and the component largest there",
-                       "ieee952": "IEEE Std 952 coefficients: Q angle quantisation, N angle/velocity random walk, "
-                                  "B bias instability (ADEV minimum / 0.664), K rate random walk, R rate ramp",
-                       "nees": "the outage NEES study (torchtea.export.nees): bare and covered values in a static "
-                               "IMU's filter on series simulated from the fitted model"}}
+           "meaning": EXPORT_MEANING}
     if plots:
         doc["figure"] = str(allan_figure(out / "allan.png", axes))
     write(out / "export.json", doc)

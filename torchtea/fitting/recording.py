@@ -8,12 +8,38 @@ from typing import Callable
 
 from ..render.text import num
 from .mle import Fit, fit_series
+from ..sensors.measurements import RECORDING_MEANING
 from .summary import MEANING, axis_summary, fit_nis
 
-__all__ = ["fit_recording", "fit_channel", "fit_lines", "BOOTSTRAP_LIMIT", "bootstrap_replicates"]
+__all__ = ["FIT_MEANING", "fit_recording", "fit_channel", "fit_lines", "BOOTSTRAP_LIMIT", "bootstrap_replicates"]
 
 #: Records up to this many samples get the fractional-presence bootstrap by default (99 replicates).
 BOOTSTRAP_LIMIT = 200_000
+
+
+#: What each entry of ``torchtea fit --json`` (:func:`fit_recording`'s document) means; the file carries it.
+FIT_MEANING = dict(
+    RECORDING_MEANING, **MEANING,
+    model="the model fitted to every channel, as a spec (components joined by +)",
+    method="the likelihood maximised: exact (Kalman filter) or whittle (spectral)",
+    bootstrap="parametric-bootstrap replicates of the fractional-presence test (0: not run)",
+    axes="one document per channel, by label",
+    parameters="each parameter by name (component.parameter): value, se, ci95, ci95_method, unit, free",
+    ci95_method="how its interval was made (Wald from the observed information, profile, or none)",
+    free="false for a parameter held at a value (fixed, or a least-squares value)",
+    n="the observed samples the fit saw", converged="whether the optimiser reported convergence",
+    notes="what the fit did that its numbers alone do not say (restarts, a parameter at a bound)",
+    fractional_test="the bootstrap test's statistic, replicates and p-value",
+    order_profile="the Whittle profile likelihood's 95 % interval of the fractional order, its pieces, and whether it "
+                  "reaches an edge of the order's range",
+    sensor="accelerometer, gyroscope or signal",
+    column="the recording's column (or bag field) the channel came from",
+    unit="the channel's unit: every parameter's 'units' is this unit (variances unit²)",
+    white_noise_density="√(r h): the white noise's density in unit/√Hz (the value σ/√(sample rate) converts back to a "
+                        "per-sample σ)",
+    meaning="this table: what each entry means", command="the command line that made the file",
+    seconds="wall-clock seconds of the whole fit",
+    warnings="where a number should not be trusted, and why (the recording's faults and timing first)")
 
 
 def bootstrap_replicates(samples: int, asked: int | None) -> int:
@@ -80,11 +106,8 @@ def fit_recording(m, model, *, inputs: dict | None = None, method: str = "exact"
         if "white.r" in f.values:
             a["white_noise_density"] = math.sqrt(f.values["white.r"] * m.h)
         axes[c.label] = a
-    meaning = dict(MEANING, unit="the channel's unit: every parameter's 'units' is this unit (variances unit²)",
-                   white_noise_density="√(r h): the white noise's density in unit/√Hz (the value σ/√(sample rate) "
-                                       "converts back to a per-sample σ)")
     doc = {"model": model.spec, "method": method, **m.describe(), "bootstrap": n_boot, "axes": axes,
-           "meaning": meaning, "seconds": time.perf_counter() - t0, "warnings": m.notes()}
+           "meaning": FIT_MEANING, "seconds": time.perf_counter() - t0, "warnings": m.notes()}
     return doc, fits
 
 

@@ -17,7 +17,7 @@ from ..engines.settings import TEAConfig
 from ..engines.tea import CLAMP_NOTE
 
 __all__ = ["AXES", "mean_or_nan", "sd_or_nan", "MIN_SAMPLES", "NIS_TRUST_BAND", "SETTLE_BAND", "DRIFT_BAND",
-           "ALPHA_SD_LIMIT", "summarise", "settle_time", "trust_warnings", "filter_sd_label"]
+           "ALPHA_SD_LIMIT", "summarise", "settle_time", "trust_warnings", "filter_sd_label", "estimate_meaning"]
 
 AXES = ("x", "y", "z")
 
@@ -64,7 +64,9 @@ def filter_sd_label(config: TEAConfig, which: str = "KFo") -> str:
     return f"{which}'s own standard deviation"
 
 
-def _meaning(k0: int, N: int, h: float, config: TEAConfig) -> dict:
+def estimate_meaning(k0: int, N: int, h: float, config: TEAConfig) -> dict:
+    """What each per-axis estimate of ``summary.json`` means, for a run whose last third starts at sample ``k0`` of
+    ``N`` (sample time ``h``) with the TEA settings ``config``; the file carries it."""
     span = f"samples {k0}–{N - 1} ({k0 * h:.2f}–{(N - 1) * h:.2f} s)"
     return {
         "alpha": f"mean of the order estimate α̂ over the last third, {span}",
@@ -231,5 +233,5 @@ def summarise(result: TEAResult, configs, means=None, *, y: torch.Tensor | None 
         total = N if y is None else y.shape[-2]
         warnings.append(f"interrupted (Ctrl-C) after {N} of {total} steps: every number covers only those steps, "
                         "and the outputs hold those steps only")
-    return {"axes": axes, "warnings": warnings, "meaning": _meaning(k0, N, h, configs[0]),
+    return {"axes": axes, "warnings": warnings, "meaning": estimate_meaning(k0, N, h, configs[0]),
             "last_third": {"first_sample": k0, "last_sample": N - 1, "t0_s": k0 * h, "t1_s": (N - 1) * h}}

@@ -13,7 +13,27 @@ from ..core.stats import last_third
 from ..noise.model import PAPER_MODEL
 
 __all__ = ["settle_time", "axis_statistics", "write_report", "log_identification", "orders_figure",
-           "save_identification"]
+           "save_identification", "SUMMARY_MEANING"]
+
+
+#: What the entries of ``summary.json`` that are not per-axis estimates mean (the estimates':
+#: :func:`~torchtea.reports.identify.estimate_meaning`); the file carries both.
+SUMMARY_MEANING = {
+    "fit": "per channel: maximum-likelihood fit of the model (exact likelihood) whose r̂, q̂, α̂, f̂ (and its other "
+           "states' drives) set the TEA (r_mode fitted); see torchtea fit --json for the meaning of its entries",
+    "model": "the noise model fitted and run by the TEA ('per channel' when the channels' models differ: models)",
+    "models": "each channel's model",
+    "tea_model": "per channel, each component of its model: what the TEA does with it",
+    "statistics": "per channel: noise variance and std over all samples used; over the last third the mean squared "
+                  "innovation, its predicted value S and the residual y − x̂ variance; settling times [s]",
+    "timing": "the file's time stamps against the rate in use (null: the file has no time column)",
+    "rate_source": "where rate_hz came from", "channels": "each channel: its column, sensor, axis, unit (SI) "
+    "and what the file held", "faults": "the recording's own faults, found before any fit (their samples are "
+    "missing samples)", "r_mode": "fitted: R, Q and the start values from a likelihood fit; measured: R = each axis's "
+              "variance; paper: the paper's printed R",
+    "seconds": "wall-clock time of the TEA", "steps_done": "steps the TEA finished (samples unless interrupted)",
+    "settings_changed": "settings that differ from the paper's §5.1 MEMS settings with measured R",
+}
 
 
 def _uncertainty_note(cfg) -> str:
@@ -314,22 +334,7 @@ def save_identification(ident: Identification, out_dir, *, plots: bool = True, r
         summary["models"] = specs
         if ident.views:
             summary["tea_model"] = {a: dict(v.notes) for a, v in zip(ident.labels, ident.views)}
-    summary["meaning"].update({
-        "fit": "per channel: maximum-likelihood fit of the model (exact likelihood) whose r̂, q̂, α̂, f̂ (and its other "
-               "states' drives) set the TEA (r_mode fitted); see torchtea fit --json for the meaning of its entries",
-        "model": "the noise model fitted and run by the TEA ('per channel' when the channels' models differ: models)",
-        "models": "each channel's model",
-        "tea_model": "per channel, each component of its model: what the TEA does with it",
-        "statistics": "per channel: noise variance and std over all samples used; over the last third the mean squared "
-                      "innovation, its predicted value S and the residual y − x̂ variance; settling times [s]",
-        "timing": "the file's time stamps against the rate in use (null: the file has no time column)",
-        "rate_source": "where rate_hz came from", "channels": "each channel: its column, sensor, axis, unit (SI) "
-        "and what the file held", "faults": "the recording's own faults, found before any fit (their samples are "
-        "missing samples)", "r_mode": "fitted: R, Q and the start values from a likelihood fit; measured: R = each axis's "
-                  "variance; paper: the paper's printed R",
-        "seconds": "wall-clock time of the TEA", "steps_done": "steps the TEA finished (samples unless interrupted)",
-        "settings_changed": "settings that differ from the paper's §5.1 MEMS settings with measured R",
-    })
+    summary["meaning"].update(SUMMARY_MEANING)
     for i, c in enumerate(ident.channels):
         summary["axes"][c.label].update(unit=c.unit, sensor=c.sensor, column=c.name,
                                         mean_removed=float(ident.means[i]))

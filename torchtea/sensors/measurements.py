@@ -16,7 +16,7 @@ from .datacheck import Missing, Timing, check_timing, find_missing, missing_erro
 from .faults import Faults, apply_faults, find_faults
 from .io import Channel, InputError, Recording
 
-__all__ = ["Measurements", "prepare", "fill_temperature"]
+__all__ = ["Measurements", "prepare", "fill_temperature", "RECORDING_MEANING"]
 
 
 def fill_temperature(T: np.ndarray, source) -> np.ndarray:
@@ -96,7 +96,8 @@ class Measurements:
         return out
 
     def describe(self) -> dict:
-        """The JSON entry: the recording, its channels with units, the faults, missing samples and timing."""
+        """The JSON entry: the recording, its channels with units, the faults, missing samples and timing (each key
+        described in :data:`RECORDING_MEANING`)."""
         rec = self.recording
         return {"recording": str(rec.path), "rate_hz": rec.rate_hz, "rate_source": rec.rate_source,
                 "samples": self.samples, "samples_in_recording": self.total, "channels": {c.label: c.describe() for c in self.channels},
@@ -115,6 +116,24 @@ class Measurements:
         if self.timing is not None:
             out += list(self.timing.warnings)
         return out
+
+
+#: What each entry of :meth:`Measurements.describe` means: the recording's part of every JSON output that reads one
+#: (``check.json``, ``fit --json``, ``export.json``, ``summary.json``).
+RECORDING_MEANING = {
+    "recording": "the file (or bag) read",
+    "rate_hz": "the sample rate in use, Hz",
+    "rate_source": "where rate_hz came from (--rate, the file's time column, its header)",
+    "samples": "the samples used (after --start/--samples and a cut at the end by --exclude)",
+    "samples_in_recording": "the samples the recording holds",
+    "channels": "each channel by label: its column, sensor, axis, unit (SI) and what the file held",
+    "temperature_column": "the column (or topic) read as the temperature input; null: none",
+    "faults": "the recording's own faults, found before any fit (their samples are missing samples, never physics)",
+    "missing_samples": "samples missing in the part used (empty, NaN, a fault's or an excluded stretch's)",
+    "missing": "the missing samples by cause and their longest run",
+    "timing": "the file's time stamps against the rate in use (null: the file has no time column)",
+    "excluded": "stretches left out on request (--exclude): their samples missing, or cut at the end",
+}
 
 
 def exclusion_ranges(exclude, h: float, N: int, source) -> list[dict]:

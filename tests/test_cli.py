@@ -204,6 +204,7 @@ def test_identify_bundled_json_contract(tmp_path, capsys):
         assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
+@pytest.mark.slow
 def test_identify_runs_a_check_grown_model(tmp_path, capsys):
     """``identify --model``: the model is fitted per channel, its random walk joins KFx's state (two states) and a
     ramp leaves the series at its fitted slope; the report says where each component went. A filter the TEA cannot
@@ -298,6 +299,7 @@ def test_identify_report_and_tensorboard(tmp_path, capsys):
     assert {"param/az", "innovation/ax", "order_sd/ax"} <= set(ea.Tags()["scalars"])
 
 
+@pytest.mark.slow
 def test_identify_generic_csv_columns_and_units(tmp_path, capsys):
     from torchtea.sensors.io import read_recording
 

@@ -32,7 +32,7 @@ class WarmUp(Component):  # a settling transient after power-on: A·exp(−t/τ)
 
     def typical(self, param, h, t_ref):
         return {"amplitude": 0.05, "tau_s": 20.0}[param]
-    # the README's effect, word for word: no start method (0 for the amplitude, 1 s for the time constant)
+    # the effect of docs/howto/own-effect.md, word for word: no start method (0 for the amplitude, 1 s for the time constant)
 
 
 @pytest.fixture

@@ -168,6 +168,7 @@ def test_one_column_and_six_on_every_command(tmp_path, capsys):
             assert out["channels"]["gz"]["file_unit"] == "°/s"
 
 
+@pytest.mark.slow
 def test_check_reports_the_two_sensors_side_by_side(tmp_path, capsys):
     f = six_axis_csv(tmp_path, 1500)
     assert run("check", f, "--units", "g,g,g,deg/s,deg/s,deg/s", "--no-intervals", "--out", tmp_path / "ck") == 0

@@ -88,6 +88,7 @@ def test_white_noise_and_a_random_walk_end_as_white_plus_random_walk():
     assert doc["steps"][-1]["change"] == "simpler" and {a["kind"] for a in doc["alternatives"]} == {"drop"}
 
 
+@pytest.mark.slow
 def test_a_temperature_effect_masked_by_a_random_walk_added_first_is_swapped_in():
     """A bias of 0.004 per °C over an 8 °C warm-up and white noise, no walk: with a random walk added first (as a
     greedy loop may), the temperature bias and the thermal lag both passed their screens at that step; the

@@ -197,6 +197,7 @@ def test_bursty_host_stamps_of_a_real_recording_are_warned_about(tmp_path, capsy
     assert any("the stamps are irregular" in w for w in out["warnings"])
 
 
+@pytest.mark.slow
 def test_time_stamps_in_other_units_or_as_text(tmp_path, capsys):
     stamps_ms = np.arange(300) * 10.0  # milliseconds
     f = bundled_csv(tmp_path, 300, time=stamps_ms)

@@ -1,4 +1,5 @@
-"""The ``torchtea`` command line: simulate, estimate, identify, record, montecarlo, presets."""
+"""torchtea: noise models of inertial sensors — simulate, estimate (the TEA), identify, fit, plan, check, export,
+record, montecarlo, presets. ``torchtea COMMAND --help`` lists a command's flags."""
 from __future__ import annotations
 
 import argparse
@@ -1233,7 +1234,7 @@ def build_parser() -> argparse.ArgumentParser:
     ck.set_defaults(func=cmd_check)
 
     ex = sub.add_parser("export", help="the noise numbers in a navigation filter's format (Kalibr, VINS, ORB-SLAM3, "
-                                       "IEEE 952), with intervals and a cover")
+                                       "IEEE 952, gtsam), with intervals and a cover")
     _recording_flags(ex, columns_help="the columns to export (default: every accelerometer and gyroscope axis)",
                      temperature_help="temperature column (°C) for the temperature effects", samples_default="all",
                      samples_help="use the first N samples (default all)")

@@ -48,7 +48,7 @@ from ..fitting.innovations import (Innovations, gls_statistic, innovations, line
                                    _whiten_with_level)
 from . import allan
 
-__all__ = ["Diagnostic", "Innovations", "innovations", "whiten", "run_diagnostics", "metrics", "DIAGNOSTICS",
+__all__ = ["Diagnostic", "Innovations", "innovations", "whiten", "run_diagnostics", "metrics", "DIAGNOSTICS", "FUNCTIONS",
            "LEVEL",
            # defined in fitting.innovations and core.search, imported from here too
            "gls_statistic", "linear_lr", "scan_lr", "BAND_WIDTHS", "band_search", "chirp_search", "refine_chirp",
@@ -196,6 +196,9 @@ def _two_sided(cdf: np.ndarray, sf: np.ndarray) -> np.ndarray:
 # --------------------------------------------------------------------------- time
 
 def nis_windows(z: np.ndarray, h: float, level: float = LEVEL, windows: int | None = None) -> Diagnostic:
+    """Where in time the model fails: the series cut into W windows (``windows``, default one per 1000 samples, at
+    most 30), Σz² of each against its χ²ₙ law, two-sided, at level ``level``/W each. Fails where a window's noise is
+    louder (``high``) or quieter (``low``) than the model's; the statistic is the mean NIS of the whole series."""
     N = len(z)
     W = windows or int(min(30, max(1, N // 1000)))
     edges = np.linspace(0, N, W + 1).astype(int)
@@ -223,6 +226,9 @@ def nis_windows(z: np.ndarray, h: float, level: float = LEVEL, windows: int | No
 
 
 def change(z: np.ndarray, h: float, level: float = LEVEL) -> Diagnostic:
+    """A drift or a step: the CUSUM of z (a change of the innovations' mean) and of z² − 1 (of their variance),
+    each scaled to a Brownian bridge whose supremum has the Kolmogorov law; Bonferroni over the two. Fails with the
+    time of the largest excursion."""
     k = np.nonzero(np.isfinite(z))[0]
     zz = z[k]
     n = len(zz)
@@ -283,6 +289,8 @@ def acf(x: np.ndarray, lags: int) -> np.ndarray:
 
 
 def ljung_box(z: np.ndarray, level: float = LEVEL, lags: int = 20) -> Diagnostic:
+    """Correlation the model leaves in its innovations: Ljung–Box Q = n(n+2) Σ r_k²/(n−k) over the first ``lags``
+    lags, χ² with ``lags`` degrees of freedom under the model."""
     n = int(np.isfinite(z).sum())
     r = acf(z, lags)
     Q = float(n * (n + 2) * np.sum(r * r / (n - np.arange(1, lags + 1))))
@@ -301,6 +309,10 @@ def ljung_box(z: np.ndarray, level: float = LEVEL, lags: int = 20) -> Diagnostic
 
 def spectrum_bands(z: np.ndarray, h: float, level: float = LEVEL, bands: int = 24,
                    min_ordinates: int = 8) -> Diagnostic:
+    """The frequency bands where the model's spectrum is too low or too high: the innovations' periodogram (2π ×,
+    unit mean under the model) averaged over ``bands`` log-spaced bands of at least ``min_ordinates`` ordinates;
+    a band mean of m ordinates is Gamma(m)/m, tested two-sided at ``level``/(bands). The statistic, ``psd_misfit``,
+    is the bands' mean |log₁₀ ratio|."""
     j, u = innovation_periodogram(z)
     N = len(z)
     edges = np.unique(np.rint(np.geomspace(1, j[-1] + 1, bands + 1)).astype(int))
@@ -388,6 +400,10 @@ def _stochastic_avar(model, values: dict, h: float, m, temperature=None, n_order
 
 def allan_view(model, values: dict, inn: Innovations, h: float, level: float = LEVEL,
                temperature=None) -> Diagnostic:
+    """The data's overlapping Allan variance at octave τ (allantools) against the model's own (its stochastic
+    components in closed form, its means' deterministic AVAR), each τ χ² with Greenhall's equivalent degrees of
+    freedom, two-sided at ``level``/(τ values). Fails at the τ ranges outside the band; the statistic,
+    ``adev_misfit``, is the mean |log₁₀(ADEV data / ADEV model)|. Needs a complete series."""
     y = inn.y
     if not inn.observed.all():
         return Diagnostic("allan", "Allan", None, None, level, "not run: the overlapping ADEV needs a complete "
@@ -427,6 +443,10 @@ def allan_view(model, values: dict, inn: Innovations, h: float, level: float = L
 # --------------------------------------------------------------------------- inputs
 
 def temperature_view(inn: Innovations, T, h: float, level: float = LEVEL, max_lag_s: float = 10.0) -> Diagnostic:
+    """The innovations against the temperature ``T`` (°C): the score test of a term proportional to the
+    temperature (z against the whitened temperature, χ²₁) and the correlation of z² − 1 with the temperature (a
+    variance that moves with it, normal), Bonferroni over the two. Not run without a temperature channel. The
+    cross-correlations at lags up to ``max_lag_s`` are kept for the figure."""
     if T is None:
         return Diagnostic("temperature", "inputs", None, None, level, "not run: no temperature channel "
                           "(--temperature COL)")
@@ -473,6 +493,12 @@ def run_diagnostics(model, values: dict, inn: Innovations, h: float, temperature
     return [nis_windows(z, h, level), change(z, h, level), extremes(z, h, level), ljung_box(z, level),
             spectrum_bands(z, h, level),
             lines(z, h, level), allan_view(model, values, inn, h, level, temperature), temperature_view(inn, temperature, h, level)]
+
+
+#: Each diagnostic :func:`run_diagnostics` runs, in its order: its name and the function that makes it (the
+#: reference pages are made from this and the functions' docstrings).
+FUNCTIONS = {"nis": nis_windows, "change": change, "extremes": extremes, "ljung-box": ljung_box,
+             "spectrum": spectrum_bands, "lines": lines, "allan": allan_view, "temperature": temperature_view}
 
 
 def metrics(inn: Innovations, diags: list[Diagnostic]) -> dict:

@@ -1,0 +1,177 @@
+"""The documentation's reference pages, made from the code so they cannot drift from it: every effect of the registry
+(its parameters with units, its physics, how ``check`` screens it), every diagnostic, the command line from its own
+parser, and the JSON outputs' fields from the ``meaning`` table each file carries. ``docs/gen_pages.py`` writes them
+when the site is built; an effect a user registered (:func:`torchtea.effects.register`) is on the page once its module
+is imported. Each ``*_page`` function returns one page's Markdown."""
+from __future__ import annotations
+
+import argparse
+import inspect
+import os
+import re
+
+__all__ = ["rst_to_markdown", "effects_page", "diagnostics_page", "cli_page", "json_page", "PAGES"]
+
+_ROLE = re.compile(r":(?:func|class|meth|attr|data|mod|obj|exc):`~?([^`]+)`")
+
+
+def rst_to_markdown(text: str | None) -> str:
+    """A docstring in the package's reStructuredText habits as Markdown: ``literal`` and :math:`x` as code, a
+    cross-reference as the name it points to (``~`` keeps the last part, as Sphinx shows it), ``::`` as ``:``."""
+    if not text:
+        return ""
+    text = inspect.cleandoc(text)
+
+    def role(m):
+        target = m.group(1)
+        shown = target.rsplit(".", 1)[-1] if m.group(0).split("`", 1)[1].startswith("~") else target
+        return f"`{shown}`"
+
+    text = _ROLE.sub(role, text)
+    text = re.sub(r":math:`([^`]+)`", r"`\1`", text)
+    text = re.sub(r"``([^`]+)``", r"`\1`", text)
+    return text.replace("::\n", ":\n")
+
+
+def _cell(x) -> str:
+    return str(x).replace("|", "\\|").replace("\n", " ")
+
+
+def _table(header: tuple, rows) -> list[str]:
+    out = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    out += ["| " + " | ".join(_cell(c) for c in row) + " |" for row in rows]
+    return out
+
+
+def effects_page() -> str:
+    """Every registered effect: its kind, inputs, IEEE 952 term, parameters (kind, unit, bounds), physics (its
+    docstring) and, for those ``check`` screens, the screen's test."""
+    from .noise.components import COMPONENTS, candidates
+
+    screened = candidates()
+    lines = ["# Effects", "",
+             "Every physical effect torchtea knows, as its registry has it when these pages are built "
+             "(`torchtea.noise.components.COMPONENTS`; a model is a spec of them joined by `+`, e.g. "
+             "`fractional+white+random-walk`). *Kind*: a **state** or **filter** is a linear Gaussian state-space "
+             "block, a **measurement** adds white noise, a **mean** is a deterministic function of time and the "
+             "input channels, a **modifier** changes another component. Parameters are given in natural units; "
+             "*unit* is the channel's unit (m/s² for an accelerometer, rad/s for a gyroscope) unless it says "
+             "otherwise. Effects a user registers (`torchtea.effects.register`, [Your own effect]"
+             "(../howto/own-effect.md)) join this list and `check`'s screens.", "",
+             f"`check` screens {len(screened)} of them, in this order: " + ", ".join(f"`{n}`" for n in screened)
+             + ".", ""]
+    for name, comp in COMPONENTS.items():
+        facts = [f"kind **{comp.kind}**"]
+        if comp.inputs:
+            facts.append("reads the input " + ", ".join(f"`{i}`" for i in comp.inputs))
+        term = getattr(comp, "nav_term", None)
+        if term:
+            facts.append(f"IEEE 952 term **{term}**")
+        if comp.order_param:
+            facts.append(f"its `{comp.order_param}` is the fractional order KFo estimates")
+        if not comp.stationary:
+            facts.append("not stationary: fitted by the exact likelihood only")
+        facts.append("screened by `check`" if name in screened else "not screened (add it with `--add` or a model)")
+        lines += [f"## `{name}`", "", "; ".join(facts) + ".", "", rst_to_markdown(type(comp).__doc__), ""]
+        if comp.params:
+            rows = [(f"`{name}.{p.name}`", p.kind, p.unit,
+                     "" if p.bounds == (float("-inf"), float("inf")) else f"({p.bounds[0]:g}, {p.bounds[1]:g})")
+                    for p in comp.params]
+            lines += _table(("parameter", "transform", "unit", "bounds"), rows) + [""]
+        test = comp.screen_test
+        if name in screened and test:
+            lines += [f"**Screen**: {test}.", ""]
+    return "\n".join(lines) + "\n"
+
+
+def diagnostics_page() -> str:
+    """Every diagnostic ``check`` runs, in its order, from the functions that make them."""
+    from .checking import diagnostics as dg
+
+    lines = ["# Diagnostics", "", rst_to_markdown(dg.__doc__).split("\n\n")[0], "",
+             f"Each is a test at level {dg.LEVEL:g} (`--level`) of \"the data came from the fitted model\", with the "
+             "multiple comparisons inside it Bonferroni-corrected, so its p-value is the whole diagnostic's. They read "
+             "the standardised innovations z of the exact Kalman filter at the fitted values — independent N(0, 1) "
+             "when the model is right. Their false-alarm rates on data drawn from fitted models are measured in "
+             "`experiments/check/` ([Studies](../studies/index.md)).", ""]
+    for name, fn in dg.FUNCTIONS.items():
+        lines += [f"## `{name}`", "", f"`torchtea.checking.diagnostics.{fn.__name__}`", "",
+                  rst_to_markdown(fn.__doc__), ""]
+    lines += ["## Metrics", "",
+              "Descriptive, not tests: `nll_per_sample` (−ℓ/N of the exact filter, nats), `psd_misfit` (the "
+              "spectrum diagnostic's mean |log₁₀| band ratio: 0 when the model's spectrum has the data's shape and "
+              "level), `adev_misfit` (the Allan diagnostic's mean |log₁₀(ADEV data / ADEV model)|).", ""]
+    return "\n".join(lines) + "\n"
+
+
+def _subcommands(parser: argparse.ArgumentParser) -> dict:
+    for action in parser._actions:  # argparse keeps its subcommands in its one sub-parsers action
+        if isinstance(action, argparse._SubParsersAction):
+            helps = {a.dest: a.help for a in action._choices_actions}
+            return {name: (p, helps.get(name, "")) for name, p in action.choices.items()}
+    return {}
+
+
+def cli_page() -> str:
+    """``torchtea``'s commands, each with its ``--help`` as the parser prints it."""
+    from .cli import build_parser
+
+    old = os.environ.get("COLUMNS")
+    os.environ["COLUMNS"] = "110"
+    try:
+        parser = build_parser()
+        lines = ["# Command line", "",
+                 "Every command of `torchtea` with its `--help`, printed by the parser itself when these pages were "
+                 "built. The [guide](../guide/commands.md) shows them at work.", "",
+                 "```text", parser.format_help().rstrip(), "```", ""]
+        for name, (sub, text) in _subcommands(parser).items():
+            lines += [f"## `torchtea {name}`", "", (text or "").replace("%%", "%"), "",
+                      "```text", sub.format_help().rstrip(), "```", ""]
+    finally:
+        if old is None:
+            os.environ.pop("COLUMNS", None)
+        else:
+            os.environ["COLUMNS"] = old
+    return "\n".join(lines) + "\n"
+
+
+def _meaning_table(meaning: dict) -> list[str]:
+    return _table(("entry", "what it means"), ((f"`{k}`", v) for k, v in sorted(meaning.items()))) + [""]
+
+
+def json_page() -> str:
+    """The fields of the JSON files the commands write, from the ``meaning`` table each file carries."""
+    from .checking.report import MEANING as CHECK_MEANING
+    from .engines.presets import get_preset
+    from .export.datasheet import VERDICT_MEANING
+    from .export.run import EXPORT_MEANING
+    from .fitting.recording import FIT_MEANING
+    from .reports.identify import estimate_meaning
+    from .reports.report import SUMMARY_MEANING
+    from .sensors.measurements import RECORDING_MEANING
+
+    n, k0 = 44_900, 29_934
+    lines = ["# JSON outputs", "",
+             "Every JSON file torchtea writes is strict (RFC 8259: `null` where there is no number) and carries a "
+             "`meaning` entry: what each of its entries means. The tables below are those entries, taken from the "
+             "code when these pages were built. Numbers are in SI units of the channel (`unit`) unless the entry "
+             "says otherwise.", "",
+             "## `check.json` (`torchtea check`)", "",
+             "Per channel under `axes` (a single channel's entries also at the top level), with the recording's "
+             "part below.", ""]
+    lines += _meaning_table(dict(RECORDING_MEANING, **CHECK_MEANING))
+    lines += ["## `fit --json` (`torchtea fit`)", ""] + _meaning_table(FIT_MEANING)
+    lines += ["## `export.json` (`torchtea export`, `--export` of `fit` and `check`)", ""]
+    lines += _meaning_table(EXPORT_MEANING)
+    lines += ["### A datasheet verdict (`--datasheet`: `datasheet` of an axis)", "",
+              f"Its `rows`, one per term (N, B, K): {VERDICT_MEANING}.", ""]
+    lines += ["## `summary.json` (`torchtea identify`)", "",
+              "Per axis under `axes`, the TEA's estimates; the spans below are those of a run of "
+              f"{n} samples at 100 Hz with the paper's MEMS settings (a file names its own).", ""]
+    lines += _meaning_table(dict(SUMMARY_MEANING, **estimate_meaning(k0, n, 0.01, get_preset("paper-mems-x"))))
+    return "\n".join(lines) + "\n"
+
+
+#: Each generated page: its path under ``docs/`` and the function that writes it.
+PAGES = {"reference/effects.md": effects_page, "reference/diagnostics.md": diagnostics_page,
+         "reference/cli.md": cli_page, "reference/json.md": json_page}

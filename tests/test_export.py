@@ -143,6 +143,28 @@ def test_vins_and_orbslam3_files_read_back_with_opencv_filestorage(six_axes, tmp
                                  "IMU.Frequency": 1 / H}, rel=1e-6)
 
 
+def test_the_openvins_file_reads_back_as_openvins_reads_it(six_axes, tmp_path):
+    """OpenVINS parses kalibr_imu_chain.yaml with OpenCV's FileStorage and takes the four densities from its imu0
+    node (and the intrinsics beside them): read them so, and its Kalibr-keyed values are Kalibr's file's."""
+    cv2 = pytest.importorskip("cv2")
+    _, _, axes = six_axes
+    write_export(tmp_path, axes, ["openvins", "kalibr"], {"recording": "six.csv"}, plots=False)
+    fs = cv2.FileStorage(str(tmp_path / "kalibr_imu_chain.yaml"), cv2.FILE_STORAGE_READ)
+    imu0 = fs.getNode("imu0")
+    keys = ("accelerometer_noise_density", "accelerometer_random_walk", "gyroscope_noise_density",
+            "gyroscope_random_walk")
+    got = {k: imu0.getNode(k).real() for k in keys}
+    rate, model = imu0.getNode("update_rate").real(), imu0.getNode("model").string()
+    mats = {k: np.array([[imu0.getNode(k).at(i).at(j).real() for j in range(3)] for i in range(3)])
+            for k in ("Tw", "R_IMUtoGYRO", "Ta", "R_IMUtoACC", "Tg")}
+    fs.release()
+    kalibr = yaml.safe_load((tmp_path / "imu.yaml").read_text())
+    assert got == pytest.approx({k: kalibr[k] for k in keys}, rel=1e-12) and all(v > 0 for v in got.values())
+    assert rate == pytest.approx(1 / H) and model == "kalibr"
+    assert all(np.array_equal(mats[k], np.eye(3)) for k in ("Tw", "R_IMUtoGYRO", "Ta", "R_IMUtoACC"))
+    assert not mats["Tg"].any()
+
+
 def test_the_ieee952_table_has_every_axis_and_coefficient_with_units(six_axes, tmp_path):
     _, _, axes = six_axes
     write_export(tmp_path, axes, ["ieee952"], {"recording": "six.csv"}, plots=False)

@@ -552,8 +552,8 @@ def _export_flags(parser, *, standalone: bool) -> None:
     from_what = "" if standalone else " (with --export)"
     if not standalone:
         parser.add_argument("--export", action="append", default=[], metavar="FORMAT",
-                            help="also export the models the command ends with: kalibr, vins, orbslam3, ieee952 or "
-                                 "all (repeatable; files in OUT/export)")
+                            help="also export the models the command ends with: kalibr, vins, orbslam3, openvins, ieee952, "
+                                 "gtsam, gtsam-python or all (repeatable; files in OUT/export)")
     parser.add_argument("--horizon", metavar="LO:HI",
                         help="time scales (s) the exported white noise + random walk must cover" + from_what
                              + " (default 0.005:100, clipped to the recording: one sample to half its length)")
@@ -1234,13 +1234,14 @@ def build_parser() -> argparse.ArgumentParser:
     ck.set_defaults(func=cmd_check)
 
     ex = sub.add_parser("export", help="the noise numbers in a navigation filter's format (Kalibr, VINS, ORB-SLAM3, "
-                                       "IEEE 952, gtsam), with intervals and a cover")
+                                       "OpenVINS, IEEE 952, gtsam), with intervals and a cover")
     _recording_flags(ex, columns_help="the columns to export (default: every accelerometer and gyroscope axis)",
                      temperature_help="temperature column (°C) for the temperature effects", samples_default="all",
                      samples_help="use the first N samples (default all)")
     ex.add_argument("--format", action="append", required=True, metavar="FORMAT",
-                    help="kalibr (imu.yaml), vins, orbslam3, ieee952 (CSV), gtsam (YAML), gtsam-python (a module setting "
-                         "PreintegrationCombinedParams) or all; repeatable or comma-separated")
+                    help="kalibr (imu.yaml), vins, orbslam3, openvins (kalibr_imu_chain.yaml), ieee952 (CSV), gtsam (YAML), "
+                         "gtsam-python (a module setting PreintegrationCombinedParams) or all; repeatable or "
+                         "comma-separated")
     ex.add_argument("--model", help="fit this model SPEC to every axis (default: check each axis to the end, as "
                                     "check --auto, and export the model it ends with)")
     ex.add_argument("--strong", type=float, default=None, metavar="BIC", help="as check --strong")

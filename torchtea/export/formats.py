@@ -1,7 +1,8 @@
 """The files navigation filters read, written from the axes' :class:`~.terms.AxisTerms`.
 
 A format is one class in :data:`FORMATS`: its name, file name, the sensors it needs, and :meth:`Format.render`.
-Kalibr's ``imu.yaml`` (YAML), VINS-Mono/Fusion's and ORB-SLAM3's settings (OpenCV FileStorage YAML, ``%YAML:1.0``)
+Kalibr's ``imu.yaml`` (YAML), VINS-Mono/Fusion's and ORB-SLAM3's settings and OpenVINS's ``kalibr_imu_chain.yaml``
+(OpenCV FileStorage YAML, ``%YAML:1.0``)
 take one number per sensor: the largest axis's, said so in a comment with its 95 % interval, the bare and the
 covered value and the cover's factor; the IEEE Std 952 table (CSV) has every axis, and gtsam's preintegration
 noise (YAML, and a Python module that sets ``PreintegrationCombinedParams``) a value per axis. Comments carry the convention:
@@ -163,6 +164,37 @@ class OrbSlam3(Format):
         return [f"IMU.Frequency: {1.0 / axes[0].h:.6g}", "#   Hz, the recording's sample rate"]
 
 
+class OpenVins(Format):
+    """OpenVINS's IMU file (``kalibr_imu_chain.yaml``): Kalibr's four continuous-time densities, but under an ``imu0``
+    node of an OpenCV FileStorage file (``%YAML:1.0``), which is how OpenVINS reads them (``parse_external`` of
+    ``imu0``'s ``gyroscope_noise_density`` … in its ``VioManagerOptions``); a Kalibr ``imu.yaml`` with the keys at the
+    top is not read. The node also carries the IMU intrinsics OpenVINS reads beside them, written as the identity
+    (no misalignment or scale error, no g-sensitivity): torchtea estimates noise, not intrinsics."""
+
+    name = "openvins"
+    filename = "kalibr_imu_chain.yaml"
+    header = "%YAML:1.0"
+    keys = Kalibr.keys
+
+    def render(self, axes: list, meta: dict, which: str = "covered") -> str:
+        self.check(axes)
+        eye = lambda n: [f"    - [{', '.join('1.0' if i == j else '0.0' for j in range(n))}]" for i in range(n)]  # noqa: E731
+        lines = [self.header, *self.preamble(axes, meta, which), "",
+                 "imu0:", "  T_i_b:", *eye(4)]
+        for key, v in self.fields(axes, which):
+            lines += [f"  {key}: {_fmt(v['value'])}"] + _comment(v, which)
+        lines += [f"  rostopic: {meta.get('rostopic', '/imu0')}", "  time_offset: 0.0",
+                  f"  update_rate: {1.0 / axes[0].h:.6g}  # Hz, the recording's sample rate",
+                  "# the IMU intrinsics OpenVINS reads with the noise: identity (torchtea does not estimate them; "
+                  "keep your own if you have them)",
+                  '  model: "kalibr"']
+        for name, n, zero in (("Tw", 3, False), ("R_IMUtoGYRO", 3, False), ("Ta", 3, False),
+                              ("R_IMUtoACC", 3, False), ("Tg", 3, True)):
+            rows = [f"    - [{', '.join('0.0' for _ in range(n))}]" for _ in range(n)] if zero else eye(n)
+            lines += [f"  {name}:", *rows]
+        return "\n".join(lines) + "\n"
+
+
 class Ieee952(Format):
     """The IEEE Std 952 coefficient table, one row per axis and coefficient (CSV): Q, N, B, K, R with units,
     95 % intervals and how each was made."""
@@ -276,5 +308,5 @@ def register_format(cls) -> type:
     return cls
 
 
-for _cls in (Kalibr, Vins, OrbSlam3, Ieee952, GtsamYaml, GtsamPython):
+for _cls in (Kalibr, Vins, OrbSlam3, Ieee952, GtsamYaml, GtsamPython, OpenVins):
     register_format(_cls)

@@ -15,7 +15,7 @@ from torchtea.checking import channels as channels_mod
 from torchtea.checking.report import write_report
 from torchtea.checking.check import STRONG_BIC
 from torchtea.checking.hidden import HIDDEN_STRENGTH, hidden_case
-from torchtea.checking.diagnostics import (LEVEL, _stochastic_avar, change, innovations, linear_lr, lines, ljung_box, nis_windows,
+from torchtea.checking.diagnostics import (LEVEL, stochastic_avar, change, innovations, linear_lr, lines, ljung_box, nis_windows,
                                            run_diagnostics, spectrum_bands, temperature_view)
 from torchtea.cli import main
 from torchtea.fitting.mle import exact_loglik, fit_series, refine_exact
@@ -59,9 +59,9 @@ def test_allan_of_a_temperature_driven_order_averages_the_local_orders():
     m = allan.octave_clusters(n)
     base = parse_model("fractional+white")
     stat = allan.model_avar(base, {k: v[k] for k in base.names}, H, m)[0]
-    assert np.allclose(_stochastic_avar(model, dict(v, **{"temperature-order.order_per_degC": 0.0}), H, m, T), stat)
-    assert np.allclose(_stochastic_avar(model, v, H, m, None), stat)  # no temperature: the stationary one
-    av = _stochastic_avar(model, v, H, m, T)
+    assert np.allclose(stochastic_avar(model, dict(v, **{"temperature-order.order_per_degC": 0.0}), H, m, T), stat)
+    assert np.allclose(stochastic_avar(model, v, H, m, None), stat)  # no temperature: the stationary one
+    av = stochastic_avar(model, v, H, m, T)
     a = v["fractional.order"] + v["temperature-order.order_per_degC"] * (T - T.mean())
     lo, hi = (allan.model_avar(base, dict({k: v[k] for k in base.names}, **{"fractional.order": x}), H, m)[0]
               for x in (a.min(), a.max()))

@@ -14,7 +14,7 @@ from torchtea.engines.presets import SCENARIOS, get_preset
 from torchtea.engines.settings import TEAConfig, UnscentedConfig
 from torchtea.noise.simulate import gaussian_input, simulate
 from torchtea.engines.structure import Structure
-from torchtea.engines.tea import (_constant_truth_cov, _estimate_uncertainty, _sigma_points, _ut_update, make_params,
+from torchtea.engines.tea import (_constant_truth_cov, _estimate_uncertainty, sigma_points, ut_update, make_params,
                                   run_tea, ut_weights)
 
 from .test_fast import _same
@@ -45,8 +45,8 @@ def test_the_term_equals_a_brute_force_variance_of_the_prediction():
     alpha, w = 0.45, -1.3
     wm, wc, scale = ut_weights(1, 1.0, 2.0, None)
     for P_alpha, P_w in ((1e-6, 1e-4), (1e-4, 1e-2)):
-        sig_o = _sigma_points(torch.tensor([alpha], dtype=torch.float64), torch.tensor([[P_alpha]], dtype=torch.float64), scale)
-        sig_w = _sigma_points(torch.tensor([w], dtype=torch.float64), torch.tensor([[P_w]], dtype=torch.float64), scale)
+        sig_o = sigma_points(torch.tensor([alpha], dtype=torch.float64), torch.tensor([[P_alpha]], dtype=torch.float64), scale)
+        sig_w = sigma_points(torch.tensor([w], dtype=torch.float64), torch.tensor([[P_w]], dtype=torch.float64), scale)
         chi_o = predicted_state(sig_o[:, 0], torch.tensor(w, dtype=torch.float64), hist, u).unsqueeze(-1)
         chi_w = predicted_state(torch.tensor(alpha, dtype=torch.float64), sig_w[:, 0], hist, u).unsqueeze(-1)
         term = (_estimate_uncertainty(chi_o, sig_o, torch.tensor([alpha]).double(), torch.tensor([[P_alpha]]).double(),
@@ -143,7 +143,7 @@ def test_statistical_linearisation_is_exact_for_a_linear_map():
     post = 0.01 * (B @ B.T)
     mean = torch.tensor([0.3, 1.0], dtype=torch.float64)
     wm, wc, scale = ut_weights(2, 1.0, 2.0, None)
-    pts = _sigma_points(mean, prior, scale)
+    pts = sigma_points(mean, prior, scale)
     chi = pts @ M.T + torch.tensor([1.0, -2.0, 0.5], dtype=torch.float64)
     torch.testing.assert_close(_estimate_uncertainty(chi, pts, mean, prior, post, wc), M @ post @ M.T,
                                rtol=1e-12, atol=1e-14)
@@ -277,7 +277,7 @@ def test_cli_choices_are_the_settings():
 
 def test_constant_truth_covariance_equals_a_brute_force_variance_on_a_linear_model():
     """An unscented filter of a random-walk order (Q > 0) measured as y = 2α + v, run on a constant truth α ~ N(m₀,
-    P₀) drawn 200 000 times, through the engine's own _sigma_points, _ut_update and _constant_truth_cov. For a
+    P₀) drawn 200 000 times, through the engine's own sigma_points, ut_update and _constant_truth_cov. For a
     linear model the gains do not depend on the data, and the constant-truth covariance is the error's variance
     exactly: it must equal the sample variance of α̂ − α to 5 standard errors of a sample variance (√(2/n)) at every
     step, including across a missing sample, where it stays while the filter's own covariance grows by Q. The
@@ -296,8 +296,8 @@ def test_constant_truth_covariance_equals_a_brute_force_variance_on_a_linear_mod
         y = 2.0 * truth + math.sqrt(R) * torch.randn(n, 1, generator=g, dtype=torch.float64)
         mask = torch.full((n, 1), k != 12)  # sample 12 is missing
         Pt = P + Q
-        pts = _sigma_points(mean, Pt, scale)
-        mean, P_new, K, _, Pyy, Pxy = _ut_update(pts, 2.0 * pts, mean, Pt, Rm, torch.where(mask, y, 0.0), mask,
+        pts = sigma_points(mean, Pt, scale)
+        mean, P_new, K, _, Pyy, Pxy = ut_update(pts, 2.0 * pts, mean, Pt, Rm, torch.where(mask, y, 0.0), mask,
                                                  wm, wc, 0)
         Sigma_new = _constant_truth_cov(Sigma, Pt, K, Pyy, Pxy)
         if k == 12:
@@ -333,9 +333,9 @@ def test_constant_truth_covariance_with_two_orders_and_three_outputs_equals_a_br
         if k == 9:
             mask[:] = False
         Pt = P + Q
-        pts = _sigma_points(mean, Pt, scale)
+        pts = sigma_points(mean, Pt, scale)
         Sigma_prev = Sigma
-        mean, P, K, _, Pyy, Pxy = _ut_update(pts, pts @ M.T, mean, Pt, R, torch.where(mask, y, 0.0), mask, wm, wc,
+        mean, P, K, _, Pyy, Pxy = ut_update(pts, pts @ M.T, mean, Pt, R, torch.where(mask, y, 0.0), mask, wm, wc,
                                              start)
         Sigma = _constant_truth_cov(Sigma, Pt, K, Pyy, Pxy)
         if k == 9:  # nothing observed: Σ stays (to the rounding of the PSD projection)

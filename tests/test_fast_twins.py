@@ -21,10 +21,10 @@ from torchtea.engines.structure import Structure
 
 #: The kernel's step functions and the torch function each mirrors, in the order the step calls them.
 STEP_TWINS = {
-    "sigma_points": "_sigma_points",
+    "sigma_points": "sigma_points",
     "replica": "_replica",
-    "ut_update": "_ut_update",
-    "adapt_q": "_adapt_q",
+    "ut_update": "ut_update",
+    "adapt_q": "adapt_q",
     "kfx_sums": "kfx_sums",  # the memory's method
     "estimate_uncertainty": "_estimate_uncertainty",
     "kfx_update": "_kfx_update",
@@ -105,7 +105,7 @@ def test_sigma_points():
     mean, cov = g.normal(size=B), g.uniform(0, 2, size=B)
     cov[:4] = [0.0, -1e-18, 1e-300, 3.0]  # a zero, a rounding negative (projected to 0), a tiny one
     scale = 2.7
-    expected = tea._sigma_points(_t(mean, 1), _t(cov, 1, 1), scale)  # (B, 3, 1)
+    expected = tea.sigma_points(_t(mean, 1), _t(cov, 1, 1), scale)  # (B, 3, 1)
     out, roots = np.empty((B, 3)), np.empty(B)
     for b in range(B):
         roots[b] = kern.sigma_points(mean[b], cov[b], scale, out[b])
@@ -122,7 +122,7 @@ def test_ut_update(start):
     pts = np.stack([mean, mean + np.sqrt(scale * Pt), mean - np.sqrt(scale * Pt)], axis=1)
     Y = g.normal(size=(B, 6))  # the second half: another filter's outputs, which off = 3 reads
     for off in (0, 3):
-        exp = tea._ut_update(_t(pts.ravel()).reshape(B, 3, 1), torch.from_numpy(Y[:, off:off + 3]).unsqueeze(-1),
+        exp = tea.ut_update(_t(pts.ravel()).reshape(B, 3, 1), torch.from_numpy(Y[:, off:off + 3]).unsqueeze(-1),
                              _t(mean, 1), _t(Pt, 1, 1), _t(R, 1, 1), _t(np.where(obs, y, 0.0), 1),
                              torch.from_numpy(obs).unsqueeze(-1), wm, wc, start)
         got = np.array([kern.ut_update(Y[b], off, pts[b], mean[b], Pt[b], wm.numpy(), wc.numpy(), start, R[b],
@@ -137,7 +137,7 @@ def test_adapt_q():
     qmax = np.where(g.uniform(size=B) > 0.5, 1e-3, np.inf)  # the cap binds for some
     obs = g.uniform(size=B) > 0.2
     for delta in (0.0, 0.05):
-        exp = tea._adapt_q(_t(Q, 1, 1), _t(K, 1, 1), _t(e, 1), delta, torch.from_numpy(qmax),
+        exp = tea.adapt_q(_t(Q, 1, 1), _t(K, 1, 1), _t(e, 1), delta, torch.from_numpy(qmax),
                            torch.from_numpy(obs))
         got = [kern.adapt_q(Q[b], K[b], e[b], delta, qmax[b], obs[b]) for b in range(B)]
         _close(got, exp, f"Q (delta {delta})", rtol=1e-14, atol=0)

@@ -139,6 +139,48 @@ def test_the_module_graph_has_no_circle():
     assert not circles, f"import circles: {circles}"
 
 
+def _subpackage(module: str) -> str:
+    return ".".join(module.split(".")[:2])
+
+
+def private_imports(source: str, mod: str, is_package: bool) -> list[str]:
+    """The private names (``_x``) and private modules (a ``_x`` part) that module ``mod`` imports from another of the
+    package's sub-packages (a sub-package's own private parts are its own business)."""
+    package = mod if is_package else mod.rsplit(".", 1)[0]
+    found = []
+    for node in ast.walk(ast.parse(source)):
+        if not isinstance(node, ast.ImportFrom):
+            continue
+        base = node.module or ""
+        if node.level:
+            parts = package.split(".")
+            base = ".".join(parts[:len(parts) - (node.level - 1)] + ([node.module] if node.module else []))
+        if not base.startswith("torchtea") or _subpackage(base) == _subpackage(mod):
+            continue
+        for a in node.names:
+            full = f"{base}.{a.name}"
+            if any(p.startswith("_") and not p.startswith("__") for p in full.split(".")):
+                found.append(full)
+    return found
+
+
+def test_no_module_takes_a_private_part_of_another_subpackage():
+    """Issue 47, item 4: what a sub-package keeps private (a ``_name``, a ``_module``) stays inside it; another
+    sub-package that needs it imports a public name."""
+    bad = {}
+    for path in ROOT.rglob("*.py"):
+        mod = module_name(path)
+        names = private_imports(path.read_text(encoding="utf-8"), mod, path.name == "__init__.py")
+        if names:
+            bad[mod] = names
+    assert not bad, f"private parts imported across sub-packages: {bad}"
+    # the rule sees a private name, a private module, relative and absolute, and leaves a sub-package's own alone
+    src = "from ..engines.tea import _guard, run_tea\nfrom torchtea.likelihood._kernels import x\nfrom ._kernels import y\n"
+    assert private_imports(src, "torchtea.noise.model", False) == ["torchtea.engines.tea._guard",
+                                                                    "torchtea.likelihood._kernels.x"]
+    assert private_imports("from ._kernels import y\n", "torchtea.likelihood.kalman", False) == []
+
+
 def test_the_checker_sees_what_it_must():
     """The reader finds a function-level import, a relative ``from . import x`` of a submodule, a ``from ..x import
     name`` and an ``import_module`` call; and a module importing upward fails the layer test's rule."""

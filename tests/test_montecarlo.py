@@ -341,12 +341,12 @@ def test_consistent_prior_draws_follow_the_estimators_priors_around_the_truth():
     against 4000 draws (means within 5 standard errors, covariances within 5 SE of the sample covariance); a zero
     P₀ gives the truth itself; the draws use a stream of their own."""
     from torchtea.engines.structure import Structure
-    from torchtea.engines.tea import _sqrt_psd, make_params
+    from torchtea.engines.tea import sqrt_psd, make_params
     from torchtea.studies.montecarlo import draw_prior
 
     params = make_params(get_preset("paper-example1"), Structure())
     Pw = torch.tensor([[0.04, -0.018, 0.006], [-0.018, 0.01, 0.002], [0.006, 0.002, 0.03]], dtype=torch.float64)
-    root = _sqrt_psd(Pw)
+    root = sqrt_psd(Pw)
     assert not torch.allclose(root, root.T)  # so a transposed root would draw another covariance
     params = params._replace(P0w=Pw, P0o=torch.tensor([[0.02]], dtype=torch.float64))
     x_true, a_true, w_true = (torch.tensor(v, dtype=torch.float64) for v in ([0.3], [0.35], [-1.0, 2.0, 0.5]))

@@ -9,7 +9,7 @@ import torch
 from torchtea.engines.structure import ConstantOrder, Structure
 from torchtea.engines.presets import SCENARIOS, get_preset
 from torchtea.noise.simulate import gaussian_input, simulate
-from torchtea.engines.tea import _ExactMemory, _replica, _Model, _sigma_points, make_params, run_tea, stack_params, ut_weights
+from torchtea.engines.tea import _ExactMemory, _replica, _Model, sigma_points, make_params, run_tea, stack_params, ut_weights
 from torchtea.engines.settings import TEAConfig
 
 from .reference_tea import settings_from_config, tea_reference
@@ -119,8 +119,8 @@ def test_sigma_points_batched_equal_one_at_a_time():
     u_prev = torch.randn(B + (1,), generator=g, dtype=torch.float64)
     alpha = 0.3 + 0.1 * torch.rand(B + (1,), generator=g, dtype=torch.float64)
     w = -1.0 + 0.2 * torch.randn(B + (1,), generator=g, dtype=torch.float64)
-    sig_o = _sigma_points(alpha, torch.full(B + (1, 1), 0.05, dtype=torch.float64), 3.0)
-    sig_w = _sigma_points(w, torch.full(B + (1, 1), 0.2, dtype=torch.float64), 3.0)
+    sig_o = sigma_points(alpha, torch.full(B + (1, 1), 0.05, dtype=torch.float64), 3.0)
+    sig_w = sigma_points(w, torch.full(B + (1, 1), 0.2, dtype=torch.float64), 3.0)
     Y, chi = _replica(model, _ExactMemory(), (xh, None), sig_o, w, sig_w, x_prev, u_prev)
     assert Y.shape == B + (6, 1) and torch.equal(chi, Y)  # C = 1: the outputs are the states
     for i in range(3):

@@ -45,10 +45,11 @@ from scipy import stats
 from ..core.search import (BAND_WIDTHS, against_neighbours, band_search, chirp_search, innovation_periodogram,
                            max_abs_bound, max_abs_logp, max_abs_p, refine_chirp)
 from ..fitting.innovations import (Innovations, gls_statistic, innovations, linear_lr, scan_lr, whiten,
-                                   _whiten_with_level)
+                                   whiten_with_level)
 from . import allan
 
 __all__ = ["Diagnostic", "Innovations", "innovations", "whiten", "run_diagnostics", "metrics", "DIAGNOSTICS", "FUNCTIONS",
+           "stochastic_avar",
            "LEVEL",
            # defined in fitting.innovations and core.search, imported from here too
            "gls_statistic", "linear_lr", "scan_lr", "BAND_WIDTHS", "band_search", "chirp_search", "refine_chirp",
@@ -379,7 +380,7 @@ def lines(z: np.ndarray, h: float, level: float = LEVEL, neighbours: int = 50, g
 
 # --------------------------------------------------------------------------- Allan
 
-def _stochastic_avar(model, values: dict, h: float, m, temperature=None, n_orders: int = 32) -> np.ndarray:
+def stochastic_avar(model, values: dict, h: float, m, temperature=None, n_orders: int = 32) -> np.ndarray:
     """The model's AVAR at cluster sizes ``m``. A temperature-driven order makes the model non-stationary: its
     AVAR is then the average of the stationary AVARs at ``n_orders`` quantiles of the orders α_k the temperature
     gave (locally stationary — exact for τ short against the time the order takes to change)."""
@@ -409,7 +410,7 @@ def allan_view(model, values: dict, inn: Innovations, h: float, level: float = L
         return Diagnostic("allan", "Allan", None, None, level, "not run: the overlapping ADEV needs a complete "
                           "series (this one has missing samples)", "s")
     m = allan.octave_clusters(len(y))
-    stoch = _stochastic_avar(model, values, h, m, temperature)
+    stoch = stochastic_avar(model, values, h, m, temperature)
     det = allan.deterministic_avar(inn.mean - inn.mean.mean(), m)
     av_model = stoch + det
     ad = allan.data_adev(y, h, m)
@@ -453,7 +454,7 @@ def temperature_view(inn: Innovations, T, h: float, level: float = LEVEL, max_la
     T = np.asarray(T, dtype=np.float64)
     z = inn.z
     ok = np.isfinite(z)
-    wl = _whiten_with_level(inn, T - T[inn.observed].mean())  # = linear_lr, keeping w for the figure
+    wl = whiten_with_level(inn, T - T[inn.observed].mean())  # = linear_lr, keeping w for the figure
     score, beta = gls_statistic(z, wl[:1], wl[1:])
     w = wl[0]
     p_bias = float(stats.chi2.sf(score, 1))

@@ -18,7 +18,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-__all__ = ["gl_coefficients", "gl_tail_coefficients", "difference", "history_sum", "KINDS"]
+__all__ = ["gl_coefficients", "gl_tail_coefficients", "difference", "history_sum", "KINDS", "lag_constants"]
 
 KINDS = ("A", "B", "D", "E")
 
@@ -34,7 +34,7 @@ def broadcast_shapes(*shapes) -> torch.Size:
     return torch.Size(np.broadcast_shapes(*(tuple(int(d) for d in s) for s in shapes)))
 
 
-def _lag_constants(n: int, dtype, device):
+def lag_constants(n: int, dtype, device):
     """``(1 − 1/j, −1/j)`` for ``j = 1 … n``, cached per dtype and device (sliced from the longest built)."""
     key = (dtype, str(device))
     cached = _LAG_CACHE.get(key)
@@ -61,7 +61,7 @@ def gl_tail_coefficients(order: Tensor, n: int) -> Tensor:
         order = order.to(torch.get_default_dtype())
     if n < 0:
         raise ValueError(f"n must be >= 0, got {n}")
-    a, b = _lag_constants(n, order.dtype, order.device)
+    a, b = lag_constants(n, order.dtype, order.device)
     factors = torch.addcmul(a, order.unsqueeze(-1), b)
     if order.device.type not in INNER_SCAN_DEVICES and order.dim() > 0:
         # a GPU's scan along the innermost dimension is slow for short rows over a wide batch (1.3 ms for

@@ -1,6 +1,6 @@
 """The compiled kernel of :mod:`.fast` (numba), imported on first use: the torch step (:func:`.tea._tea_step`)
 for the scalar structure, written as one scalar twin per function of that step (``sigma_points`` for
-``_sigma_points``, …, ``guard`` for ``_guard``; ``mean_sums``, ``kfx_sums`` and ``push`` for the memory's methods),
+``tea.sigma_points``, …, ``guard`` for ``tea._guard``; ``mean_sums``, ``kfx_sums`` and ``push`` for the memory's methods),
 which :func:`advance` calls in the torch step's order. tests/test_fast_twins.py checks each twin against its torch
 function on the same inputs and that order; the numerics inside the twins (``vexp``, ``tails3``, …) are checked
 through them.
@@ -128,7 +128,7 @@ def tails3(al, ro, modes, ka, kb, kbig, eta, klo, khi, out, arg, E, Ec, have, D,
 @njit(cache=True, inline="always")
 def exact_sums3(so, xh, k, la, lb, out):
     """Σ_{j=1..k} c_j(σ) x_{k−j} for the three sigma orders in one pass over the history (chronological);
-    the recursion factor (1 − 1/j) + σ(−1/j) from the tables ``la``, ``lb`` (gl._lag_constants)."""
+    the recursion factor (1 − 1/j) + σ(−1/j) from the tables ``la``, ``lb`` (gl.lag_constants)."""
     c0 = c1 = c2 = 1.0
     s0 = s1 = s2 = 0.0
     o0, o1, o2 = so[0], so[1], so[2]
@@ -175,7 +175,7 @@ def psd(v):
 
 @njit(cache=True, inline="always")
 def sigma_points(mean, prior_cov, scale, out):
-    """Sigma points (15)/(40) of a scalar filter (tea._sigma_points): ``mean, mean + r, mean − r`` into ``out``
+    """Sigma points (15)/(40) of a scalar filter (tea.sigma_points): ``mean, mean + r, mean − r`` into ``out``
     with ``r = √(scale · prior_cov)``; returns ``r``."""
     r = math.sqrt(psd(scale * prior_cov))
     out[0], out[1], out[2] = mean, mean + r, mean - r
@@ -215,7 +215,7 @@ def replica(so, sw, w, x, up, h, ms, Y):
 
 @njit(cache=True, inline="always")
 def ut_update(Y, off, pts, mean, Pt, wm, wc, start, R, obs, yv):
-    """Unscented update (19)–(24) of one scalar filter (tea._ut_update): sigma points ``pts``, their predicted
+    """Unscented update (19)–(24) of one scalar filter (tea.ut_update): sigma points ``pts``, their predicted
     outputs ``Y[off:off+3]``; returns (mean, covariance, gain, innovation, Pyy, Pxy)."""
     yp = wm[0] * Y[off] + wm[1] * Y[off + 1] + wm[2] * Y[off + 2]
     Pyy = 0.0
@@ -233,7 +233,7 @@ def ut_update(Y, off, pts, mean, Pt, wm, wc, start, R, obs, yv):
 
 @njit(cache=True, inline="always")
 def adapt_q(Q, K, e, delta, qmax, obs):
-    """Robbins–Monro adaptation (25) with its cap (tea._adapt_q), scalar."""
+    """Robbins–Monro adaptation (25) with its cap (tea.adapt_q), scalar."""
     if delta == 0.0:
         return Q
     Ke = K * e

@@ -170,11 +170,11 @@ def _kernel():
 
 
 def _lag_tables(n: int):
-    """``(1 − 1/j, −1/j)`` at index ``j = 1 … n`` (index 0 unused), as :func:`torchtea.core.gl._lag_constants`
+    """``(1 − 1/j, −1/j)`` at index ``j = 1 … n`` (index 0 unused), as :func:`torchtea.core.gl.lag_constants`
     computes them, so that the recursion rounds alike."""
-    from ..core.gl import _lag_constants
+    from ..core.gl import lag_constants
 
-    a, b = _lag_constants(n, torch.float64, torch.device("cpu"))
+    a, b = lag_constants(n, torch.float64, torch.device("cpu"))
     la, lb = np.zeros(n + 1), np.zeros(n + 1)
     la[1:], lb[1:] = a.numpy(), b.numpy()
     return la, lb

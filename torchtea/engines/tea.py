@@ -48,6 +48,12 @@ __all__ = [
     "TEAStream",
     "ut_weights",
     "STEP_OUTPUTS",
+    # the unscented filters' parts, which the exact-KFx TEA (torchtea.noise.tea_exact) and the studies reuse
+    "sigma_points",
+    "ut_update",
+    "adapt_q",
+    "q_cap",
+    "sqrt_psd",
 ]
 
 
@@ -114,8 +120,8 @@ def make_params(config: TEAConfig, structure: Structure, *, dtype=torch.float64,
         Q0o=Q0o, Ro=_r(o, p, like, "kfo.R"),
         w0=_vec(w.x0, m, like, "kfw.x0"), P0w=_mat(w.P0, m, like, "kfw.P0"),
         Q0w=Q0w, Rw=_r(w, p, like, "kfw.R"),
-        Qmax_o=_q_cap(o.Q_max, Q0o, like),
-        Qmax_w=_q_cap(w.Q_max, Q0w, like),
+        Qmax_o=q_cap(o.Q_max, Q0o, like),
+        Qmax_w=q_cap(w.Q_max, Q0w, like),
         config=config,
     )
 
@@ -128,7 +134,7 @@ def _r(f, size: int, like: Tensor, name: str) -> Tensor:
     return _mat(f.R, size, like, name)
 
 
-def _q_cap(q_max, Q0: Tensor, like: Tensor) -> Tensor:
+def q_cap(q_max, Q0: Tensor, like: Tensor) -> Tensor:
     if q_max == "none":
         return torch.tensor(math.inf, dtype=like.dtype, device=like.device)
     if q_max == "Q0":
@@ -190,7 +196,7 @@ def _psd(M: Tensor) -> Tensor:
     return _mm(vecs * vals.clamp(min=0.0).unsqueeze(-2), vecs.mT)
 
 
-def _sqrt_psd(M: Tensor) -> Tensor:
+def sqrt_psd(M: Tensor) -> Tensor:
     """A square root ``S`` with ``S Sᵀ = M``: Cholesky (the paper's choice), eigen fallback."""
     if M.shape[-1] == 1:
         return M.clamp(min=0.0).sqrt()
@@ -202,9 +208,9 @@ def _sqrt_psd(M: Tensor) -> Tensor:
     return Lc
 
 
-def _sigma_points(mean: Tensor, cov: Tensor, scale: float) -> Tensor:
+def sigma_points(mean: Tensor, cov: Tensor, scale: float) -> Tensor:
     """Sigma points (15)/(40): ``[m, m + Sᵢ, m − Sᵢ]`` with ``S Sᵀ = scale · cov``; ``(*B, 2L+1, L)``."""
-    S = _sqrt_psd(scale * cov).mT  # rows are the columns of the root
+    S = sqrt_psd(scale * cov).mT  # rows are the columns of the root
     m = mean.unsqueeze(-2)
     return torch.cat([m, m + S, m - S], dim=-2)
 
@@ -224,7 +230,7 @@ def _gain(Pxy: Tensor, Pyy: Tensor, mask: Tensor) -> Tensor:
     return torch.linalg.solve(Pyy_m, Pxy_m.mT).mT
 
 
-def _ut_update(points, Y, prior_mean, prior_cov, R, y, mask, wm, wc, start):
+def ut_update(points, Y, prior_mean, prior_cov, R, y, mask, wm, wc, start):
     """Unscented update (19)–(24): returns (mean, cov, gain, innovation, Pyy, Pxy).
 
     points ``(*B, S, q)``, Y ``(*B, S, p)``; sums over sigma points ``i ≥ start`` in (20)–(21).
@@ -260,7 +266,7 @@ def _joseph(P, K, H, R):
     return _mm(_mm(IKH, P), IKH.mT) + _mm(_mm(K, R), K.mT)
 
 
-def _adapt_q(Q, K, e, delta: float, q_max: Tensor, observed):
+def adapt_q(Q, K, e, delta: float, q_max: Tensor, observed):
     """Robbins–Monro adaptation (25): ``Q ← (1−δ) Q + δ (K e)(K e)ᵀ``, scaled down so that its largest
     diagonal entry stays ≤ ``q_max`` (``(*B,)``, +inf for no cap)."""
     if delta == 0.0:
@@ -448,20 +454,20 @@ def _tea_step(model: _Model, params: TEAParams, weights, memory, carry: Carry, y
     # KFo and KFw predictions (13)–(15), (38)–(40), from the covariances that set their gains
     Po_t = carry.Po_own + carry.Qo
     Pw_t = carry.Pw_own + carry.Qw
-    sig_o = _sigma_points(carry.alpha, Po_t, scale_o)
-    sig_w = _sigma_points(carry.w, Pw_t, scale_w)
+    sig_o = sigma_points(carry.alpha, Po_t, scale_o)
+    sig_w = sigma_points(carry.w, Pw_t, scale_w)
     Y, chi = _replica(model, memory, hist, model.full(sig_o), carry.w, sig_w, carry.x, u_prev)
     So = sig_o.shape[-2]
     Ro = carry.S if cfg.kfo.uses_innovation else params.Ro
     Rw = carry.S if cfg.kfw.uses_innovation else params.Rw
-    alpha, Po, Ko, eo, Pyy_o, Pxy_o = _ut_update(sig_o, Y[..., :So, :], carry.alpha, Po_t, Ro, y0, mask,
+    alpha, Po, Ko, eo, Pyy_o, Pxy_o = ut_update(sig_o, Y[..., :So, :], carry.alpha, Po_t, Ro, y0, mask,
                                                  wm_o, wc_o, start)
     lo, hi = cfg.order_bounds
     alpha = alpha.clamp(lo, hi)
-    Qo = _adapt_q(carry.Qo, Ko, eo, cfg.kfo.delta, params.Qmax_o, observed)
-    w, Pw, Kw, ew, Pyy_w, Pxy_w = _ut_update(sig_w, Y[..., So:, :], carry.w, Pw_t, Rw, y0, mask,
+    Qo = adapt_q(carry.Qo, Ko, eo, cfg.kfo.delta, params.Qmax_o, observed)
+    w, Pw, Kw, ew, Pyy_w, Pxy_w = ut_update(sig_w, Y[..., So:, :], carry.w, Pw_t, Rw, y0, mask,
                                              wm_w, wc_w, start)
-    Qw = _adapt_q(carry.Qw, Kw, ew, cfg.kfw.delta, params.Qmax_w, observed)
+    Qw = adapt_q(carry.Qw, Kw, ew, cfg.kfw.delta, params.Qmax_w, observed)
 
     # KFx (29)–(35) with α̂_k and ŵ_{k−1}
     a = model.full(alpha)  # (*B, n)

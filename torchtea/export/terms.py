@@ -247,7 +247,7 @@ def axis_terms(fit, y: np.ndarray, h: float, sensor: str, label: str, horizon,
     t = torch.arange(n, dtype=torch.float64) * h
     inp = None if inputs is None else {k: torch.as_tensor(v, dtype=torch.float64) for k, v in inputs.items()}
     temperature = None if inputs is None else inputs.get("temperature")
-    from ..checking.diagnostics import _stochastic_avar
+    from ..checking.diagnostics import stochastic_avar
 
     parts = allan.model_avar(model, values, h, m, by_component=True)
     parts = {k: v[0] for k, v in parts.items()}
@@ -258,7 +258,7 @@ def axis_terms(fit, y: np.ndarray, h: float, sensor: str, label: str, horizon,
         parts[lb] = allan.deterministic_avar(d - d.mean(), m)
     det = model.mean(values, t, inp).numpy()[0] if mean_labels else np.zeros(n)
     det_avar = allan.deterministic_avar(det - det.mean(), m)
-    stoch = _stochastic_avar(model, values, h, m, temperature)
+    stoch = stochastic_avar(model, values, h, m, temperature)
     total = stoch + det_avar
 
     # bare values: N from the white measurement variance (white + quantisation), K from a random walk
@@ -289,7 +289,7 @@ def axis_terms(fit, y: np.ndarray, h: float, sensor: str, label: str, horizon,
 
     # B: the stochastic ADEV's minimum over all τ the recording shows
     mb = np.unique(np.rint(np.logspace(0, math.log10(max(1, n // 2)), 64)).astype(int))
-    avar_b = _stochastic_avar(model, values, h, mb, temperature)
+    avar_b = stochastic_avar(model, values, h, mb, temperature)
     adev_b = np.sqrt(avar_b)
     ib = int(np.argmin(adev_b))
     b_how = (f"ADEV minimum {adev_b[ib]:.4g} at τ {mb[ib] * h:.4g} s / 0.664 (the model's stochastic part, τ from "
@@ -300,8 +300,8 @@ def axis_terms(fit, y: np.ndarray, h: float, sensor: str, label: str, horizon,
     def derived(v: dict, avar_m=None, avar_mb=None) -> dict:
         """B, the covered values and their factors at parameter values ``v`` (the deterministic part held);
         ``avar_m``, ``avar_mb``: the stochastic AVAR at ``m`` and ``mb`` when already computed for ``v``."""
-        avar_m = _stochastic_avar(model, v, h, m, temperature) if avar_m is None else avar_m
-        avar_mb = _stochastic_avar(model, v, h, mb, temperature) if avar_mb is None else avar_mb
+        avar_m = stochastic_avar(model, v, h, m, temperature) if avar_m is None else avar_m
+        avar_mb = stochastic_avar(model, v, h, mb, temperature) if avar_mb is None else avar_mb
         r, k = float(model.measurement_variance(v)[0]), float(v[f"{k_label}.sigma"]) if k_label else 0.0
         a, b2, _ = cover(avar_m + det_avar, basis, r, k)
         nc, kc = math.sqrt(a * h), math.sqrt(b2)

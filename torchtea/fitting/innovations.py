@@ -16,7 +16,8 @@ from ..likelihood.kalman import filter_fast
 from ..noise.model import StateSpace, parse_model
 from .exact import FIT_MEMORY, centred, exact_pass
 
-__all__ = ["Innovations", "innovations", "whiten", "gls_statistic", "linear_lr", "scan_lr", "located_intervals"]
+__all__ = ["Innovations", "innovations", "whiten", "gls_statistic", "linear_lr", "scan_lr", "located_intervals",
+           "whiten_with_level"]
 
 
 @dataclass
@@ -92,7 +93,7 @@ def linear_lr(inn: Innovations, columns: np.ndarray) -> tuple[float, np.ndarray]
     and their GLS coefficients. The level matters where the model's own mean, the sample mean, is not its GLS
     estimate — a random walk, an order near 1 — and a slow regressor (a warm-up) would otherwise pick up the
     filter's start-up from the wrong level."""
-    w = _whiten_with_level(inn, columns)
+    w = whiten_with_level(inn, columns)
     return gls_statistic(inn.z, w[:-1], w[-1:])
 
 
@@ -104,7 +105,7 @@ def scan_lr(inn: Innovations, columns: np.ndarray, *, draws: int = 20_000, seed:
     of jointly normal scores whose correlation is the (level-projected) whitened columns' — the maximum's tail by
     ``draws`` seeded draws of them, never above the Bonferroni bound G·P(χ²₁ > max) (which takes over where no
     draw exceeds it)."""
-    w = _whiten_with_level(inn, columns)
+    w = whiten_with_level(inn, columns)
     ok = np.isfinite(inn.z) & np.isfinite(w).all(0)
     c, W, z = w[-1, ok], w[:-1, ok], inn.z[ok]
     cc = float(c @ c)
@@ -127,7 +128,7 @@ def scan_lr(inn: Innovations, columns: np.ndarray, *, draws: int = 20_000, seed:
     return lr, beta, min(0.0, logp)
 
 
-def _whiten_with_level(inn: Innovations, columns: np.ndarray) -> np.ndarray:
+def whiten_with_level(inn: Innovations, columns: np.ndarray) -> np.ndarray:
     """The whitened regressors ``columns`` ``(m, N)`` and, as the last row, the whitened constant (one filter pass)."""
     X = np.atleast_2d(np.asarray(columns, dtype=np.float64))
     return whiten(inn, np.concatenate([X, np.ones((1, X.shape[1]))]))

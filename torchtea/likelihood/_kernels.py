@@ -8,7 +8,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from ..noise._simulate_kernel import varying_row
+from ..noise.simulate_kernel import varying_row
 from .chandrasekhar import DROP
 
 

@@ -26,7 +26,7 @@ import torch
 from torch import Tensor
 
 from ..noise.model import StateSpace, varying_kernel_args
-from ..noise._simulate_kernel import csr
+from ..noise.simulate_kernel import csr
 
 __all__ = ["FilterResult", "kalman_filter", "loglik_fast", "filter_fast"]
 

@@ -95,7 +95,7 @@ class VaryingRow:
 
     def _at(self, tab: Tensor, k: int) -> Tensor:
         """Step k's entry of ``tab`` (``(B, G, …)``): its table entry and the next mixed by the weight (the compiled
-        kernels do the same in :func:`torchtea.noise._simulate_kernel.varying_row`)."""
+        kernels do the same in :func:`torchtea.noise.simulate_kernel.varying_row`)."""
         b = torch.arange(tab.shape[0])
         j = self.index[:, k]
         w = self.frac[:, k].reshape(-1, *([1] * (tab.dim() - 2)))

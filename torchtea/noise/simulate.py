@@ -351,8 +351,8 @@ def _run(ss, z0: torch.Tensor, xi: torch.Tensor, keep: list, fr_i: int, forcing)
     seconds and little memory."""
     import numpy as np
 
-    from ._simulate_kernel import csr
-    from ._simulate_kernel import simulate_batch
+    from .simulate_kernel import csr
+    from .simulate_kernel import simulate_batch
 
     F = ss.F.detach().cpu().numpy()
     B, R_, N, _ = xi.shape

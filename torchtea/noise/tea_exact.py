@@ -41,7 +41,7 @@ import torch
 from torch import Tensor
 
 from ..engines.results import TEAResult, ut_weights
-from ..engines.tea import _adapt_q, _q_cap, _sigma_points, _ut_update
+from ..engines.tea import adapt_q, q_cap, sigma_points, ut_update
 from .model import state_memory
 from .tea import TEAView
 
@@ -187,8 +187,8 @@ def run_tea_exact(view, y, *, h: float, progress=None, partial: bool = False) ->
 
     def qmax(Q_max, *Q0s):
         """The TEA's cap (``Q_max``: "none", "Q0" or a number) per series for a filter whose Q starts at ``Q0s`` (each
-        ``get(config)``): a vector filter's caps its Q's largest diagonal entry (engines.tea._adapt_q)."""
-        return per_series([float(_q_cap(Q_max(v.config), torch.diag(torch.tensor([_first(q(v.config)) for q in Q0s],
+        ``get(config)``): a vector filter's caps its Q's largest diagonal entry (engines.tea.adapt_q)."""
+        return per_series([float(q_cap(Q_max(v.config), torch.diag(torch.tensor([_first(q(v.config)) for q in Q0s],
                                                                                 dtype=torch.float64)), like))
                            for v in views])
 
@@ -247,29 +247,29 @@ def run_tea_exact(view, y, *, h: float, progress=None, partial: bool = False) ->
                 observed = mask.any(-1)
                 if joint:  # one filter over (order, pole): sigma points (α, w)ᵢ, each a replica
                     Pj_t = Pj + Qj
-                    sig = _sigma_points(theta, Pj_t, scale_j)  # (R, 5, 2)
+                    sig = sigma_points(theta, Pj_t, scale_j)  # (R, 5, 2)
                     out_o = (sig[..., 0] < k_lo) | (sig[..., 0] > k_hi)
                     rj, _ = row(sig[..., 0], sig[..., 1])
-                    theta, Pj, Kj, ej, _, _ = _ut_update(sig, replica(rj), theta, Pj_t, Ro, y0, mask, wm_j, wc_j, start)
+                    theta, Pj, Kj, ej, _, _ = ut_update(sig, replica(rj), theta, Pj_t, Ro, y0, mask, wm_j, wc_j, start)
                     theta = torch.cat([theta[:, :1].clamp(lo, hi), theta[:, 1:]], dim=-1)
-                    Qj = _adapt_q(Qj, Kj, ej, ko.delta, qmax_o, observed)
+                    Qj = adapt_q(Qj, Kj, ej, ko.delta, qmax_o, observed)
                     alpha, w_new = theta[:, :1], theta[:, 1:]
                     w_kfx = w_new  # KFx at α̂_k and ŵ_k
                     Po, Qo, Pw, Qw = Pj[:, :1, :1], Qj[:, :1, :1], Pj[:, 1:, 1:], Qj[:, 1:, 1:]
                 else:
                     Po_t, Pw_t = Po + Qo, Pw + Qw
-                    sig_o = _sigma_points(alpha, Po_t, scale_o)  # (R, 3, 1)
-                    sig_w = _sigma_points(w, Pw_t, scale_w)
+                    sig_o = sigma_points(alpha, Po_t, scale_o)  # (R, 3, 1)
+                    sig_w = sigma_points(w, Pw_t, scale_w)
                     out_o = (sig_o[..., 0] < k_lo) | (sig_o[..., 0] > k_hi)
                     ro, _ = row(sig_o[..., 0], w)  # KFo: sigma orders, ŵ_{k−1}
                     rw, _ = row(alpha.expand(-1, sig_w.shape[-2]), sig_w[..., 0])  # KFw: α̂_{k−1}, sigma poles
                     Yo, Yw = replica(ro), replica(rw)  # (R, 3, 1)
                     Rw = S_prev if Rw_num is None else Rw_num
-                    alpha, Po, Ko, eo, _, _ = _ut_update(sig_o, Yo, alpha, Po_t, Ro, y0, mask, wm_o, wc_o, start)
+                    alpha, Po, Ko, eo, _, _ = ut_update(sig_o, Yo, alpha, Po_t, Ro, y0, mask, wm_o, wc_o, start)
                     alpha = alpha.clamp(lo, hi)
-                    Qo = _adapt_q(Qo, Ko, eo, ko.delta, qmax_o, observed)
-                    w_new, Pw, Kw, ew, _, _ = _ut_update(sig_w, Yw, w, Pw_t, Rw, y0, mask, wm_w, wc_w, start)
-                    Qw = _adapt_q(Qw, Kw, ew, kw.delta, qmax_w, observed)
+                    Qo = adapt_q(Qo, Ko, eo, ko.delta, qmax_o, observed)
+                    w_new, Pw, Kw, ew, _, _ = ut_update(sig_w, Yw, w, Pw_t, Rw, y0, mask, wm_w, wc_w, start)
+                    Qw = adapt_q(Qw, Kw, ew, kw.delta, qmax_w, observed)
                     w_kfx = w  # KFx at α̂_k and ŵ_{k−1}, as the paper's
                 out_o = out_o | (alpha < k_lo) | (alpha > k_hi)
                 step_clamped = out_o.any(-1).to(torch.int64)

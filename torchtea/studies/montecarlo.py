@@ -111,10 +111,10 @@ def draw_prior(params, seed: int, rows, x_true0: Tensor, alpha_true0: Tensor, w_
     ``(R, n)``, ``alpha_true0`` ``(R, L)``, one row per realisation, and ``w_true`` ``(m,)``). Realisation ``i``
     draws from its second stream, so any chunking gives the same draws. Returns ``(x0, alpha0, w0)``, each with
     the leading dimension ``R = len(rows)``."""
-    from ..engines.tea import _sqrt_psd
+    from ..engines.tea import sqrt_psd
 
     lo, hi = params.config.order_bounds
-    roots = [_sqrt_psd(c.to("cpu", torch.float64)) for c in (params.P0, params.P0o, params.P0w)]  # also singular P0
+    roots = [sqrt_psd(c.to("cpu", torch.float64)) for c in (params.P0, params.P0o, params.P0w)]  # also singular P0
     out = []
     for i in rows:
         g = torch.Generator().manual_seed(realisation_seed(seed, i, stream=1))

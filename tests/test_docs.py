@@ -147,6 +147,8 @@ def test_the_site_builds_with_warnings_as_errors_and_runs_the_tutorial(tmp_path)
     path = re.findall(r"^(fractional\+white\S*)\s+−ℓ/sample (\S+)\s+failed (\d+)", tutorial, re.M)
     assert [p[0] for p in path] == ["fractional+white", "fractional+white+sinusoid",
                                     "fractional+white+sinusoid+temperature-bias"]
+    counts = [int(n) for n in re.findall(r"^(\d+) suggestions \(effects that pass", tutorial, re.M)]
+    assert counts[0] == 9 and counts[-1] == 0  # as the page says: nine at step 0, none at the end
     nll = [float(p[1]) for p in path]
     assert nll[0] > nll[1] > nll[2] and [int(p[2]) for p in path] == [5, 4, 0]  # as the page says
     found = re.search(r"fitted line ([\d.]+) Hz .*?amplitude ([\d.]+) m/s² .*?bias per °C ([\d.]+) ", tutorial, re.S)

@@ -1,5 +1,5 @@
 """torchtea: noise models of inertial sensors — simulate, estimate (the TEA), identify, fit, plan, check, export,
-record, montecarlo, presets. ``torchtea COMMAND --help`` lists a command's flags."""
+record, montecarlo, presets. torchtea COMMAND --help lists a command's flags."""
 from __future__ import annotations
 
 import argparse
@@ -553,7 +553,8 @@ def _export_flags(parser, *, standalone: bool) -> None:
     if not standalone:
         parser.add_argument("--export", action="append", default=[], metavar="FORMAT",
                             help="also export the models the command ends with: kalibr, vins, orbslam3, openvins, ieee952, "
-                                 "gtsam, gtsam-python or all (repeatable; files in OUT/export)")
+                                 "gtsam, gtsam-python or all (repeatable; the files go to an export folder: "
+                                 "check's OUT/export, beside fit's --out file, else export-RECORDING)")
     parser.add_argument("--horizon", metavar="LO:HI",
                         help="time scales (s) the exported white noise + random walk must cover" + from_what
                              + " (default 0.005:100, clipped to the recording: one sample to half its length)")

@@ -10,7 +10,7 @@ import inspect
 import os
 import re
 
-__all__ = ["rst_to_markdown", "effects_page", "diagnostics_page", "cli_page", "json_page", "PAGES"]
+__all__ = ["rst_to_markdown", "sane_lists", "effects_page", "diagnostics_page", "cli_page", "json_page", "PAGES"]
 
 _ROLE = re.compile(r":(?:func|class|meth|attr|data|mod|obj|exc):`~?([^`]+)`")
 
@@ -31,6 +31,36 @@ def rst_to_markdown(text: str | None) -> str:
     text = re.sub(r":math:`([^`]+)`", r"`\1`", text)
     text = re.sub(r"``([^`]+)``", r"`\1`", text)
     return text.replace("::\n", ":\n")
+
+
+_ITEM = re.compile(r"^( *)([-*+]|\d+\.) \S")
+
+
+def sane_lists(text: str) -> str:
+    """Markdown written for GitHub's renderer, made to read the same in Python-Markdown (the site's): a blank line
+    before a list that follows a paragraph line (Python-Markdown runs it into the paragraph otherwise), and a list
+    nested by 2 or 3 spaces indented to 4 with its continuation lines (Python-Markdown flattens it otherwise).
+    Code fences are left alone."""
+    lines, out, fence, nested = text.split("\n"), [], False, False
+    for i, line in enumerate(lines):
+        if line.lstrip().startswith("```"):
+            fence = not fence
+        m = None if fence else _ITEM.match(line)
+        if fence:
+            pass
+        elif m and not m.group(1):
+            nested = False
+            before = lines[i - 1] if i else ""
+            if before.strip() and not _ITEM.match(before) and not before.startswith((" ", "|", "#", ">", "```")):
+                out.append("")
+        elif m and len(m.group(1)) in (2, 3):
+            nested, line = True, " " * (4 - len(m.group(1))) + line
+        elif nested and line.startswith("    "):
+            line = "  " + line
+        elif not line.startswith(" "):
+            nested = False
+        out.append(line)
+    return "\n".join(out)
 
 
 def _cell(x) -> str:
@@ -72,7 +102,8 @@ def effects_page() -> str:
         if not comp.stationary:
             facts.append("not stationary: fitted by the exact likelihood only")
         facts.append("screened by `check`" if name in screened else "not screened (add it with `--add` or a model)")
-        lines += [f"## `{name}`", "", "; ".join(facts) + ".", "", rst_to_markdown(type(comp).__doc__), ""]
+        physics = rst_to_markdown(type(comp).__doc__).replace("ALGORITHMS.md", "[ALGORITHMS.md](../explanation/algorithms.md)")
+        lines += [f"## `{name}`", "", "; ".join(facts) + ".", "", physics, ""]
         if comp.params:
             rows = [(f"`{name}.{p.name}`", p.kind, p.unit,
                      "" if p.bounds == (float("-inf"), float("inf")) else f"({p.bounds[0]:g}, {p.bounds[1]:g})")
@@ -152,10 +183,14 @@ def json_page() -> str:
 
     n, k0 = 44_900, 29_934
     lines = ["# JSON outputs", "",
-             "Every JSON file torchtea writes is strict (RFC 8259: `null` where there is no number) and carries a "
-             "`meaning` entry: what each of its entries means. The tables below are those entries, taken from the "
-             "code when these pages were built. Numbers are in SI units of the channel (`unit`) unless the entry "
-             "says otherwise.", "",
+             "Every JSON file torchtea writes is strict (RFC 8259: `null` where there is no number). Those of "
+             "`check`, `fit`, `export` and `identify` carry a `meaning` entry: what each of their entries means. "
+             "The tables below are those entries, taken from the code when these pages were built (tests hold "
+             "`check.json` and `fit --json` to them: every entry the files write is described). Numbers are in SI "
+             "units of the channel (`unit`) unless the entry says otherwise. The others are described where they "
+             "are made: the recorder's `REC.json` in the [recording format](../recording.md), a Monte Carlo "
+             "study's `summary.json` and `sweep.json` in [its how-to](../howto/montecarlo.md); `plan --json` "
+             "carries its own one-line `meaning`.", "",
              "## `check.json` (`torchtea check`)", "",
              "Per channel under `axes` (a single channel's entries also at the top level), with the recording's "
              "part below.", ""]

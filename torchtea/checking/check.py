@@ -155,10 +155,12 @@ class CheckResult:
 
     @property
     def failed(self) -> list[str]:
+        """The diagnostics that ran and failed (their p-value below the level), by name."""
         return [d.name for d in self.diagnostics if d.passed is False]
 
     @property
     def adequate(self) -> bool:
+        """Every diagnostic that ran passed: the data are consistent with the fitted model by each test."""
         return not self.failed
 
     @property

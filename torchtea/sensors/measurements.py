@@ -124,7 +124,7 @@ RECORDING_MEANING = {
     "recording": "the file (or bag) read",
     "rate_hz": "the sample rate in use, Hz",
     "rate_source": "where rate_hz came from (--rate, the file's time column, its header)",
-    "samples": "the samples used (after --start/--samples and a cut at the end by --exclude)",
+    "samples": "the samples used (the first --samples of the recording, less a cut at the end by --exclude)",
     "samples_in_recording": "the samples the recording holds",
     "channels": "each channel by label: its column, sensor, axis, unit (SI) and what the file held",
     "temperature_column": "the column (or topic) read as the temperature input; null: none",

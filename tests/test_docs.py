@@ -31,6 +31,13 @@ def test_rst_to_markdown():
                                               "`\\sigma^2 h`:\n\n    code\nend")
 
 
+def test_sane_lists_reads_github_lists_as_github_does():
+    text = "A paragraph\n- one\n  - nested\n    its second line\n- two\n\n```\nx\n- in code\n```\n"
+    assert reference.sane_lists(text) == ("A paragraph\n\n- one\n    - nested\n      its second line\n- two\n\n"
+                                          "```\nx\n- in code\n```\n")
+    assert reference.sane_lists("# Title\n- a\n") == "# Title\n- a\n"  # a list under a heading needs nothing
+
+
 class _Bump(Component):
     """A test's effect: a Gaussian bump of height ``a`` at the record's middle."""
     name = "doc-bump"

@@ -1,0 +1,412 @@
+"""The base of every effect: :class:`Component` (what the model, the fits, the screens, the TEA and the exports ask
+of an effect), its parameters (:class:`ParamSpec`), its place in the TEA (:class:`TEAPart`), and the screens'
+common laws."""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from ...core.search import remove_regressors
+
+
+#: Orders the ``fractional`` component may take: open interval, the kernel is designed on it.
+ORDER_BOUNDS = (0.0, 1.0)
+
+
+@dataclass(frozen=True)
+class ParamSpec:
+    """One parameter of a component.
+
+    ``kind``: ``"positive"`` (log transform), ``"bounded"`` (logit on ``bounds``), ``"free"`` (identity),
+    ``"fraction"`` (logit on (0, 1): the fractional pole's stability fraction, see the module docstring),
+    ``"nyquist"`` (a frequency in Hz below the Nyquist frequency 1/(2h): logit of f·2h — above it a resonance aliases
+    to the same model, so the fit must not go there). ``unit`` is what the value means, written next to it in reports.
+    """
+
+    name: str
+    kind: str
+    unit: str
+    bounds: tuple = (-math.inf, math.inf)
+
+    def bounded_to_unconstrained(self, x: Tensor) -> Tensor:
+        """``logit((x − low)/(high − low))``: a ``bounded`` value on the optimisers' scale."""
+        lo, hi = self.bounds
+        return logit((x - lo) / (hi - lo))
+
+
+class StartData(NamedTuple):
+    """What a component's :meth:`Component.start` may use: the series ``y`` (tensor), its variance, half the
+    variance of its first differences (the white level), the number of state components, the sample time and the
+    fractional order to start from."""
+
+    y: Tensor
+    var: float
+    white: float
+    n_state: int
+    h: float
+    order: float
+
+
+@dataclass(frozen=True)
+class TEAPart:
+    r"""A state component's place in the TEA's A-type model (paper (9)–(10)): its ``n`` states follow
+    :math:`x_{k+1} = h^{\alpha}(A x_k + \omega_k) - \sum_{j\ge1} c_j(\alpha) x_{k+1-j}` with
+    :math:`\omega_k \sim N(0, Q_0)` — KFx's ``Q0`` in the TEA's ``"scaled"`` convention, where the drive enters
+    as :math:`h^\alpha Q_0 h^\alpha` — and its output is its state 0.
+
+    ``order``: the states' order (a number; every state of the part has it). ``estimated``: KFo estimates it (from
+    ``order``). ``pole``: the value KFw estimates as ``A[0, 0]``'s parameter (``A`` then holds 0 there), or None.
+    An integer-order part (``order`` 1) is exact whatever the memory: ``c_1(1) = −1`` and ``c_j(1) = 0`` for j ≥ 2."""
+
+    A: Tensor  # (n, n)
+    Q0: Tensor  # (n, n)
+    order: float = 1.0
+    estimated: bool = False
+    pole: float | None = None
+
+    @property
+    def n(self) -> int:
+        return self.A.shape[0]
+
+
+class TEAUnsupported(ValueError):
+    """Raised by :meth:`Component.tea_part` when the TEA's A-type model has no place for the component."""
+
+
+class NotScreened(Exception):
+    """Raised by a component's :meth:`Component.screen` when this model or these data cannot screen it; the
+    message says why (``check`` writes it in the screen's row)."""
+
+
+#: The screen of a stochastic component (a state, measurement or filter): the Whittle likelihood-ratio of the model
+#: with and without it; the null value is on the boundary of the parameter space, hence the mixture.
+WHITTLE_SCREEN = "Whittle LR, ½χ²₀+½χ²₁"
+#: The same for a stochastic component of two parameters (a Gauss–Markov bias's σ and τ: τ is not identified where σ
+#: vanishes, so the mixture is an approximation; its false-alarm rate is measured in experiments/check)
+WHITTLE_SCREEN_2 = "Whittle LR, ½χ²₁+½χ²₂"
+
+
+def boundary_logsf(lr: float, k: int) -> float:
+    """log P(LR > ``lr``) for a likelihood-ratio whose null puts one parameter of ``k`` on its boundary (a variance
+    at 0): the mixture ½χ²_{k−1} + ½χ²_k (Self & Liang 1987), χ²₀ a point mass at 0."""
+    from scipy import stats
+
+    if lr <= 0:
+        return 0.0
+    hi = stats.chi2.logsf(lr, k)
+    if k == 1:
+        return math.log(0.5) + hi
+    return math.log(0.5) + float(np.logaddexp(stats.chi2.logsf(lr, k - 1), hi))
+#: The default screen of a user's mean effect: the exact likelihood-ratio at the effect's least-squares values (on
+#: the model's residual) with the model's parameters held — a lower bound of the refit's, so conservative.
+MEAN_SCREEN = "exact LR at the effect's least-squares values, the model's held (χ²ₖ, conservative)"
+
+
+def logit(p: Tensor) -> Tensor:
+    return torch.log(p) - torch.log1p(-p)
+
+
+class Component:
+    """Base class: a named part of the model. Subclasses set ``name``, ``kind`` and ``params``."""
+
+    name: str = ""
+    kind: str = ""  # "state", "measurement", "filter", "mean", "modifier" (changes another component)
+    params: tuple = ()
+    inputs: tuple = ()  # input channels the component reads (e.g. "temperature")
+    #: the parameter that is a fractional order — the memory the TEA's KFo estimates, over which the Whittle profile
+    #: and the fractional-presence test run (:attr:`NoiseModel.order_name`); None: it has none
+    order_param: str | None = None
+    #: False for a component that makes the model's dynamics change in time: the model then has no spectrum that
+    #: defines its likelihood, and only the exact likelihood fits it
+    stationary: bool = True
+    #: True for a modifier that drives the order of the model's fractional component in time (``orders(v, α₀, T)``)
+    varies_order: bool = False
+
+    def check_fixed(self, label: str, fixed) -> None:
+        """Raise ``ValueError`` when the parameter names ``fixed`` hold some of this component's parameters in a way
+        its fit cannot (default: any is fine)."""
+
+    # ---- spectra (stationary parts) -------------------------------------------------------------
+    def spectrum(self, v: dict, omega: Tensor, h: float) -> Tensor:
+        """Two-sided spectral density at ω (rad/sample) for parameter values ``v`` (each ``(B,)``) → ``(B, W)``."""
+        raise NotImplementedError
+
+    # ---- state blocks ---------------------------------------------------------------------------
+    def n_states(self, memory) -> int:
+        return 0
+
+    def block(self, v: dict, h: float, memory) -> tuple[Tensor, Tensor]:
+        """Transition ``F`` ``(B, n, n)`` and noise loading ``G`` ``(B, n, m)`` of the block (process noise
+        ``G ξ_k``, ξ standard normal, so ``Q = G Gᵀ``); the block's output is its state 0."""
+        raise NotImplementedError
+
+    # ---- means ------------------------------------------------------------------------------------
+    def mean(self, v: dict, t: Tensor, inputs: dict) -> Tensor:
+        """Deterministic contribution ``(B, N)`` at times ``t`` (s, from the first sample)."""
+        raise NotImplementedError
+
+    def measurement_variance(self, v: dict) -> Tensor:
+        raise NotImplementedError
+
+    # ---- how the TEA runs it (torchtea.noise.tea) ----------------------------------------------------------
+    def tea_part(self, label: str, v: dict, h: float) -> "TEAPart | None":
+        """Its place in the TEA's model for one parameter set ``v`` (each ``(1,)``). A state of integer order:
+        its block ``z_{k+1} = F z_k + G ξ_k`` is the A-type model's order-1 form ``x_{k+1} = h(A x_k + ω_k) + x_k``
+        with ``A = (F − I)/h`` and ``Q0 = G Gᵀ/h²`` — exactly (the same transition and drive). A measurement
+        noise is KFx's R, a mean is taken from the series before the TEA runs (None for both). A filter or a
+        modifier has no general place: refused (a subclass that has one overrides this)."""
+        if self.kind in ("measurement", "mean"):
+            return None
+        if self.kind == "state":
+            F, G = self.block(v, h, None)
+            F, G = F[0], G[0]
+            eye = torch.eye(F.shape[-1], dtype=F.dtype)
+            return TEAPart((F - eye) / h, G @ G.mT / h ** 2)
+        raise TEAUnsupported(f"{self.name} ({self.kind}) has no place in the TEA's A-type model "
+                             f"x_(k+1) = h^a (A x_k + w_k) - sum c_j x_(k+1-j): {self.tea_refusal}")
+
+    #: why the TEA refuses it (the default :meth:`tea_part` of a filter or a modifier says this)
+    tea_refusal = "no state-space form of this kind"
+
+    @property
+    def tea_note(self) -> str:
+        """What the TEA does with it, in the identification's report."""
+        return {"measurement": "in KFx's R (and KFo's, KFw's)", "mean": "removed from the series at its fitted values",
+                "state": "a KFx state of order 1 (its transition and drive as the exact filter has them)"
+                }.get(self.kind, "")
+
+    # ---- how a navigation filter's noise model sees it (torchtea.export) ----------------------------------
+    #: the IEEE Std 952 term it is: ``"N"`` (white rate noise: a noise density), ``"K"`` (rate random walk: a bias
+    #: random walk), ``"R"`` (rate ramp), ``"bias"`` (a constant level: a filter's bias state holds it), or None.
+    #: Kalibr, VINS and ORB-SLAM3 know N and K only: export names every other component and covers it.
+    nav_term: str | None = None
+
+    def nav_value(self, label: str, v: dict, h: float) -> tuple[float, str, float] | None:
+        """Its :attr:`nav_term`'s value at the values ``v`` (name → float) as ``(value, the parameter it follows,
+        the power it follows it with)`` — N = √(r h) follows r to the power ½, K = σ to the power 1 — for a plan's
+        intervals (:mod:`torchtea.fitting.plan`); None where it has none or it is not one parameter's power."""
+        return None
+
+    def nav_note(self, label: str, v: dict, h: float) -> str:
+        """What a white-noise + random-walk filter misses of this component (export's list); ``v``: its values
+        (floats)."""
+        shown = ", ".join(f"{p.name} {v[p.name]:.4g}" for p in self.params if p.name in v)
+        return f"{label}: no term in a white-noise + random-walk model ({shown}); covered by raising N or K"
+
+    # ---- how check screens it -----------------------------------------------------------------------------
+    #: ``check`` screens it when the model lacks it (the base parts — fractional, white, offset — are not)
+    candidate: bool = True
+    #: the simpler effects it contains as special cases, which the loop's simplification tries in its place
+    #: (:mod:`torchtea.checking.simplify`; dropping it is always tried)
+    special_cases: tuple = ()
+    #: the order of the screens in check's table (the built-in ones 10 … 70; a user's effect after them)
+    screen_order: int = 100
+    #: the diagnostics whose failure this effect explains physically (a temperature effect the ``temperature``
+    #: diagnostic, a line the ``lines`` one): where it repairs such a failed diagnostic, ``check`` ranks it before a
+    #: suggestion that only soaks up slow variance, unless that one gains clearly more (``EXPLAIN_WINDOW``)
+    explains: tuple = ()
+
+    @property
+    def screen_test(self) -> str | None:
+        """What the screen computes, named in check's table: a stochastic component's Whittle LR, a mean's exact LR
+        at its least-squares values (:meth:`screen`); None: not screened (a modifier without a screen)."""
+        if self.kind in ("state", "measurement", "filter"):
+            return WHITTLE_SCREEN if self.screen_df == 1 else WHITTLE_SCREEN_2 if self.screen_df == 2 else \
+                f"Whittle LR, ½χ²{self.screen_df - 1}+½χ²{self.screen_df}"
+        return MEAN_SCREEN if self.kind == "mean" else None
+
+    @property
+    def screen_df(self) -> int:
+        """The Whittle screen's degrees of freedom: the parameters the fits estimate (not those held)."""
+        return max(1, len([p for p in self.params if p.name not in self.held]))
+
+    def not_screened(self, model) -> str | None:
+        """Why ``model`` cannot be screened for it (None: it can); ``check`` skips it with this note."""
+        return None
+
+    def screen(self, ctx) -> tuple[float, float, dict, str]:
+        """The screen of ``ctx.alt`` (the model extended by this component, labelled ``ctx.label``) against the
+        model at its fit: ``(statistic, log p-value, this component's start values, note)``; raises
+        :class:`NotScreened` with the reason when it cannot. ``ctx``: :class:`~torchtea.checking.check.ScreenContext`.
+
+        A stochastic component without its own screen is screened by the Whittle likelihood-ratio in ``check``
+        (this method is not called). The default for a mean (a user's effect): its values by least squares on the
+        model's residual — its :meth:`regressors` and :meth:`fit_residual`, from its :meth:`start` — and the
+        exact likelihood-ratio there with the model's parameters held (:data:`MEAN_SCREEN`, χ² with as many degrees
+        of freedom as it has parameters)."""
+        if self.kind != "mean":
+            raise NotScreened(f"{self.name} has no screen")
+        from scipy import stats
+
+
+        y, t, ok = ctx.y, ctx.t, ~np.isnan(ctx.y)
+        inp = None if ctx.inputs is None else {k: torch.as_tensor(v, dtype=torch.float64)
+                                                for k, v in ctx.inputs.items()}
+        fitted = ctx.model.mean(dict(ctx.fit.values), torch.as_tensor(t), inp).numpy()[0]
+        resid = np.where(ok, y - fitted, np.nan)
+        resid[ok] -= resid[ok].mean()
+        start = ctx.alt.initial_values(torch.as_tensor(np.where(ok, y, np.nanmean(y))), ctx.h)
+        values, columns = self.regressors(ctx.label, t, ctx.inputs, ok)
+        values.update(remove_regressors(resid, ok, columns))
+        values.update(self.fit_residual(ctx.label, resid, t, ok, ctx.h, start, ctx.inputs))
+        values = {n: values.get(n, start[n]) for n in ctx.alt.names if n not in ctx.model.names}
+        ll = float(ctx.exact_loglik(ctx.alt, {**ctx.fit.values, **values})[0])
+        lr = max(0.0, 2.0 * (ll - ctx.inn.loglik)) if math.isfinite(ll) else 0.0
+        return lr, float(stats.chi2.logsf(lr, len(values))), values, ""
+
+    #: Parameters the exact fits hold where the data put them, name → None for a reference (not an estimate:
+    #: the temperature's ``t_ref``) or the words the report gives for its interval (an estimate made elsewhere —
+    #: a line's frequency at the refined periodogram peak — which counts as estimated in BIC).
+    held: dict = {}
+    #: Of the held estimates, those every fit holds (their likelihood is not smooth — a time — so no optimiser can
+    #: move them): at the value the least-squares start found (:meth:`fit_residual`), counted as estimated in BIC.
+    located: tuple = ()
+
+    # ---- its spec token ----------------------------------------------------------------------------------
+    @property
+    def token(self) -> str:
+        """How the component is written in a model's spec: its name, or ``name:argument`` for one configured by an
+        argument (``spikes:13``, :meth:`configured`)."""
+        return self.name
+
+    def configured(self, argument: str) -> "Component":
+        """The component configured by the spec's ``name:argument`` (a spikes component's count); raises
+        ``ValueError`` for a component that takes no argument."""
+        raise ValueError(f"component {self.name!r} takes no argument (got {self.name}:{argument})")
+
+    #: it needs an argument in a spec (``spikes:K``): the bare name is refused, with these words
+    needs_argument: str = ""
+
+    def configure(self, ctx) -> str:
+        """The token with which ``check`` adds it to ``ctx.model``, given the model's fit and innovations (a
+        :class:`~torchtea.checking.check.ScreenContext` whose ``alt`` and ``label`` are not set yet): its name, or
+        ``name:argument`` where the data decide the argument (how many spikes). May raise :class:`NotScreened`."""
+        return self.name
+
+    def token_for(self, label: str, values: dict) -> str:
+        """The token of the component ``label`` whose parameter values are ``values`` (a simulation's truth)."""
+        return self.name
+
+    # ---- how a model holds it ---------------------------------------------------------------------------
+    #: at most one in a model (``parse_model`` refuses a second)
+    single: bool = False
+    #: ``check`` may add it to a model that has it already (a second line)
+    add_again: bool = False
+    #: it carries the series' constant level: the fits do not centre the series (``offset``)
+    level: bool = False
+
+    def validate(self, components: list, spec: str) -> None:
+        """Raise ``ValueError`` (naming the model ``spec``) when the model's ``(label, component)`` list cannot hold
+        this component (a combination no filter can evaluate); default: any model can."""
+
+    def position(self, model) -> int:
+        """Where :func:`~torchtea.checking.check.extend` inserts it among ``model``'s components (default: at the
+        end); raises ``ValueError`` naming what the model lacks when it cannot be added."""
+        return len(model.components)
+
+    # ---- values -----------------------------------------------------------------------------------------
+    def typical(self, param: str, h: float, t_ref: float) -> float:
+        """A MEMS-like value of ``param`` (accelerometer units, m/s²; sample time ``h``; ``t_ref`` the mean
+        temperature): what ``torchtea simulate --model`` uses unless ``--set`` gives another."""
+        raise NotImplementedError(f"component {self.name!r} has no typical value of {param!r}")
+
+    def start(self, param: str, data: "StartData") -> float:
+        """A rough data-based value of ``param`` to start a fit from (not an estimate). Default: 0 for a free
+        parameter, 1 for a positive one, the middle of a bounded one's range."""
+        spec = next(p for p in self.params if p.name == param)
+        if spec.kind == "positive":
+            return 1.0
+        if spec.kind == "fraction":
+            return 0.5
+        if spec.kind == "nyquist":
+            return 0.25 / data.h
+        if spec.kind == "bounded":
+            lo, hi = spec.bounds
+            return 0.5 * (lo + hi) if math.isfinite(lo) and math.isfinite(hi) else 0.0
+        return 0.0
+
+    def grid_start(self, label: str, v: dict, white: float, order, fraction, h: float) -> None:
+        """Set this component's values (in place) in one start of the Whittle fit's grid: ``white`` the
+        periodogram's level at high frequencies (variance), ``order``/``fraction`` the grid's fractional order
+        and pole fraction (None without a fractional part)."""
+
+    def scale_drive(self, label: str, v: dict, s: float, fixed) -> None:
+        """Scale this component's drive (in place) when a grid start's spectrum is scaled by ``s`` to meet the
+        periodogram on the lower half of the band (names in ``fixed`` are kept)."""
+
+    def located_intervals(self, label: str, model, values: dict, y, h: float, inputs: dict | None,
+                          innovations=None) -> dict:
+        """95 % intervals of this component's :attr:`located` parameters at the fit ``values`` of ``model`` to ``y``:
+        name → ``((lo, hi), words)``; default none (they are reported without). ``innovations(values)``: the model's
+        :class:`~torchtea.fitting.innovations.Innovations` on ``y`` at other values (given by the caller, so that a
+        component needs nothing of the fitting layer)."""
+        return {}
+
+    def strengths(self, label: str, model, values: dict, h: float, n: int) -> list[dict]:
+        """This component's parameters at a few strengths, to start the Whittle fit of ``model`` extended by it
+        from the fit ``values`` of ``model`` (``n`` samples); default none (the grid's starts only)."""
+        return []
+
+    def vanishing(self, label: str, model, values: dict, h: float, n: int) -> dict:
+        """This component's parameters where it (all but) vanishes, so that ``model`` extended by it at these
+        values is ``model`` at ``values``: the start from which an extended model's likelihood is at least the
+        model's (the models are nested). Default: empty (not known)."""
+        return {}
+
+    def regressors(self, label: str, t, inputs: dict | None, ok) -> tuple[dict, list]:
+        """The mean's linear part for the least-squares start (:func:`~torchtea.fitting.mle.regress_mean`):
+        ``(values fixed by the data, [(parameter name, regressor column (N,)), …])``."""
+        return {}, []
+
+    def fit_residual(self, label: str, resid, t, ok, h: float, start: dict, inputs: dict | None) -> dict:
+        """Values estimated from the residual after the linear regression (a line's frequency, amplitude and
+        phase); removes what it explains from ``resid`` in place. ``start``: this component's start values
+        (:meth:`start`). Default: nothing for a component that is not a mean, carries the level or whose mean the
+        regression took (:meth:`regressors`); a mean that the regression did not take (a user's effect) by
+        nonlinear least squares over its parameters from ``start`` (:func:`scipy.optimize.least_squares`)."""
+        if self.kind != "mean" or self.level or self.regressors(label, t, inputs, ok)[1]:
+            return {}
+        from scipy.optimize import least_squares
+
+        names = [p.name for p in self.params]
+        tt = torch.as_tensor(t, dtype=torch.float64)
+        inp = None if inputs is None else {k: torch.as_tensor(x, dtype=torch.float64) for k, x in inputs.items()}
+
+        def natural(u):
+            out = {}
+            for p, x in zip(self.params, u):
+                if p.kind == "positive":
+                    out[p.name] = math.exp(x)
+                elif p.kind in ("bounded", "fraction"):
+                    lo, hi = p.bounds if p.kind == "bounded" else (0.0, 1.0)
+                    out[p.name] = lo + (hi - lo) / (1.0 + math.exp(-x))
+                else:
+                    out[p.name] = x
+            return out
+
+        def unconstrained(p, x):
+            if p.kind == "positive":
+                return math.log(x)
+            if p.kind in ("bounded", "fraction"):
+                lo, hi = p.bounds if p.kind == "bounded" else (0.0, 1.0)
+                q = (x - lo) / (hi - lo)
+                return math.log(q / (1 - q))
+            return x
+
+        def residual(u):
+            v = {n: torch.tensor([x], dtype=torch.float64) for n, x in natural(u).items()}
+            m = self.mean(v, tt, inp)[0].numpy()
+            r = resid - m
+            return (r - r[ok].mean())[ok]
+
+        u0 = [unconstrained(p, start[f"{label}.{p.name}"]) for p in self.params]
+        sol = least_squares(residual, u0, method="lm")
+        best = natural(sol.x)
+        v = {n: torch.tensor([best[n]], dtype=torch.float64) for n in names}
+        resid[ok] -= self.mean(v, tt, inp)[0].numpy()[ok]
+        return {f"{label}.{n}": float(best[n]) for n in names}

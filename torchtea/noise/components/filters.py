@@ -1,0 +1,103 @@
+"""The sensor's filters: a first-order low-pass and its digital-filter variant."""
+from __future__ import annotations
+
+import math
+
+import torch
+from torch import Tensor
+
+from .base import Component, ParamSpec
+
+
+class LowPass(Component):
+    r"""First-order low-pass :math:`l_k = a l_{k-1} + (1-a) s_k`, :math:`a = e^{-2\pi f_c h}`, of the stochastic
+    components before it, :math:`s_k` their sum (the sensor's digital filter), started from rest before the first
+    sample. Multiplies their spectra by :math:`(1-a)^2/(1 - 2a\cos\omega + a^2)`."""
+
+    name = "low-pass"
+    kind = "filter"
+    tea_refusal = ("its state is driven by the next value of the states before it, whose row depends on the "
+                   "estimated order: no fixed A holds it")
+    screen_order = 50
+    params = (ParamSpec("cutoff_hz", "positive", "f_c (Hz)"),)
+    #: first-order stages in cascade, each with the cut-off ``cutoff_hz``
+    stages = 1
+
+    def nav_note(self, label, v, h):
+        fc = v["cutoff_hz"]
+        return (f"{label}: the sensor filters its output at {fc:.4g} Hz ({self.stages} stage(s); Nyquist "
+                f"{0.5 / h:g} Hz): above the cut-off the noise is not white, so σ_d = N/√Δt at the IMU rate "
+                f"overstates the noise of one sample and ignores that neighbouring samples are correlated "
+                f"(over about {1 / (2 * math.pi * fc):.3g} s); the density N holds below the cut-off")
+
+    def gain(self, v, omega, h):
+        a = self.coefficient(v, h).unsqueeze(-1)
+        return ((1.0 - a) ** 2 / (1.0 - 2.0 * a * torch.cos(omega) + a * a)) ** self.stages
+
+    def coefficient(self, v, h):
+        return torch.exp(-2.0 * math.pi * v["cutoff_hz"] * h)
+
+    def filter_block(self, v, h) -> tuple[Tensor, Tensor]:
+        r"""The filter as the state space the model's assembly stacks after the components it filters:
+        :math:`x_{k+1} = A x_k + b\, u_{k+1}` with ``u`` its input (the sum of what it filters) and its output the
+        last state; ``A`` ``(B, m, m)``, ``b`` ``(B, m)``, ``m`` = :attr:`stages`. Stage j filters stage j − 1:
+        :math:`x^{(j)}_{k+1} = a x^{(j)}_k + (1-a) x^{(j-1)}_{k+1}`, so A's row j is (1 − a) × row j − 1 plus a on
+        the diagonal and :math:`b_j = (1-a)^{j+1}`."""
+        a = self.coefficient(v, h)
+        B, m = a.shape[0], self.stages
+        eye = torch.eye(m, dtype=a.dtype)
+        rows, bs = [], [1.0 - a]
+        for j in range(m):  # rows built anew, not written in place, so that the assembly has derivatives
+            before = (1.0 - a).unsqueeze(-1) * rows[-1] if rows else a.new_zeros(B, m)
+            rows.append(before + a.unsqueeze(-1) * eye[j])
+            if j:
+                bs.append((1.0 - a) * bs[-1])
+        return torch.stack(rows, dim=1), torch.stack(bs, dim=1)
+
+    single = True
+
+    def validate(self, components, spec):
+        filters = [c.name for _, c in components if c.kind == "filter"]
+        if len(filters) > 1:
+            raise ValueError(f"model {spec!r}: one sensor filter at most ({', '.join(filters)})")
+
+    def position(self, model):
+        """Right after the last stochastic component: a sensor's digital filter filters its whole signal, white
+        noise included."""
+        last = max((i for i, (_, c) in enumerate(model.components) if c.kind in ("state", "measurement")),
+                   default=None)
+        if last is None:
+            raise ValueError(f"a {self.name} filters stochastic components; {model.spec!r} has none")
+        return last + 1
+
+    def typical(self, param, h, t_ref):
+        return 5.0
+
+    def start(self, param, data):
+        return 0.25 / data.h
+
+    def strengths(self, label, model, values, h, n):
+        return [{f"{label}.cutoff_hz": c / (2 * h)} for c in (0.4, 0.1)]  # 0.4× and 0.1× the Nyquist frequency
+
+    def vanishing(self, label, model, values, h, n):
+        return {f"{label}.cutoff_hz": 10.0 / h}  # a = e^{−20π}: the filter passes every frequency unchanged
+
+
+class DigitalFilter(LowPass):
+    r"""A sensor's digital low-pass of second order: two first-order stages in cascade, each
+    :math:`l_k = a l_{k-1} + (1-a) u_k` with :math:`a = e^{-2\pi f_c h}` (the critically damped second-order
+    filter, both poles at a), of everything before it, white noise included, started from rest before the first
+    sample. MEMS parts filter in two or more stages (a decimation filter after the converter, then the
+    user-selected DLPF), and a cascade falls off twice as fast above its cut-off as one stage:
+    :math:`|H(\omega)|^2 = \big((1-a)^2/(1 - 2a\cos\omega + a^2)\big)^2`, −12 dB per octave well above f_c. Its
+    half-power frequency is ≈ 0.64 f_c (:math:`\sqrt{\sqrt2 - 1}` f_c for the continuous-time cascade), so a DLPF
+    specified as "21 Hz bandwidth" is a cut-off f_c near 33 Hz here. One filter per model: it and ``low-pass``
+    exclude each other."""
+
+    name = "digital-filter"
+    stages = 2
+    screen_order = 55
+    params = (ParamSpec("cutoff_hz", "positive", "f_c (Hz), each of the two stages"),)
+
+    def typical(self, param, h, t_ref):
+        return 8.0

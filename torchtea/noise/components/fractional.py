@@ -1,0 +1,133 @@
+"""The paper's fractional-order noise (its (43)–(45)): a Grünwald–Letnikov state of order α."""
+from __future__ import annotations
+
+import math
+
+import torch
+from torch import Tensor
+
+from ...core.gl import gl_tail_coefficients
+from .base import Component, ORDER_BOUNDS, ParamSpec, TEAPart
+
+
+class Fractional(Component):
+    r"""The paper's (43)–(45): :math:`x_{k+1} = h^{\alpha}(f x_k + \omega_k) - \sum_{j\ge1} c_j(\alpha) x_{k+1-j}`,
+    ω ~ N(0, q), zero history before ``x_0 = 0``. Spectrum (ALGORITHMS.md §5)
+    :math:`S(\omega) = q h^{2\alpha} / (2\pi |(1-e^{-i\omega})^\alpha - f h^\alpha e^{-i\omega}|^2)`."""
+
+    name = "fractional"
+    kind = "state"
+    candidate = False
+    order_param = "order"
+    #: order 1 with its pole at 0 is a random walk, order 1 with a pole a first-order Gauss–Markov bias (at order 0
+    #: it is white noise: dropping it beside a white component)
+    special_cases = ("random-walk", "gauss-markov")
+
+    def check_fixed(self, label, fixed):
+        if f"{label}.pole" in fixed and f"{label}.order" not in fixed:
+            raise ValueError(f"{label}.pole cannot be fixed while {label}.order is free: the pole is fitted as a "
+                             "fraction of its stability limit −2^α/h^α, which moves with the order; fix the order "
+                             "too, or leave the pole free")
+    params = (ParamSpec("order", "bounded", "α (dimensionless)", ORDER_BOUNDS),
+              ParamSpec("pole", "fraction", "f (1/s^α), stable for −2^α < f h^α < 0"),
+              ParamSpec("q", "positive", "drive variance (units²)"))
+
+    def spectrum(self, v, omega, h):
+        alpha, f, q = v["order"].unsqueeze(-1), v["pole"].unsqueeze(-1), v["q"].unsqueeze(-1)
+        a = f * h ** alpha
+        # |(1 − e^{−iω})^α − a e^{−iω}|²: 1 − e^{−iω} = 2 sin(ω/2) e^{i(π−ω)/2}
+        mag = (2.0 * torch.sin(omega / 2.0)) ** alpha
+        phase = alpha * (math.pi - omega) / 2.0
+        re = mag * torch.cos(phase) - a * torch.cos(omega)
+        im = mag * torch.sin(phase) + a * torch.sin(omega)
+        return q * h ** (2.0 * alpha) / (2.0 * math.pi * (re * re + im * im))
+
+    def n_states(self, memory) -> int:
+        return memory.lags + memory.n_modes
+
+    def first_row(self, alpha: Tensor, f: Tensor, q: Tensor, h: float, memory) -> tuple[Tensor, Tensor]:
+        """The block's first row of F, ``(*S, J + M)``, and its noise loading ``h^α √q`` ``(*S,)`` for orders
+        ``alpha`` ``(*S,)`` (the only part of the block that depends on the order, so a time-varying order
+        changes this row alone); ``f``, ``q`` broadcast against ``alpha``."""
+        J, M = memory.lags, memory.n_modes
+        hp = h ** alpha
+        c = gl_tail_coefficients(alpha.reshape(-1), J).reshape(*alpha.shape, J)  # c_1 … c_J
+        row = torch.cat([-c, -memory.kernel.weights(alpha)], dim=-1) if M else -c
+        row[..., 0] = row[..., 0] + hp * f
+        return row, hp * torch.sqrt(q)
+
+    def typical(self, param, h, t_ref):
+        a = 0.3  # the Monte Carlo studies' part: order 0.3, pole at 40 % of its stability limit, q = r / h^{2α}
+        return {"order": a, "pole": -0.4 * 2 ** a / h ** a, "q": 1e-3 / h ** (2 * a)}[param]
+
+    def start(self, param, data):
+        a = data.order
+        return {"order": a, "pole": -0.5 * 2.0 ** a / data.h ** a,
+                "q": max(data.var - data.white, 0.1 * data.var) / data.n_state}[param]
+
+    def grid_start(self, label, v, white, order, fraction, h):
+        v[f"{label}.order"] = order
+        v[f"{label}.pole"] = -fraction * 2.0 ** order / h ** order
+
+    def scale_drive(self, label, v, s, fixed):
+        if f"{label}.q" not in fixed:
+            v[f"{label}.q"] = v[f"{label}.q"] * s
+
+    tea_note = "KFx's fractional state: KFo estimates its order, KFw its pole, from the fitted values"
+
+    def tea_part(self, label, v, h):
+        """The paper's (43)–(45) itself: order and pole estimated (KFo, KFw, starting at the fitted values), its
+        drive ``Q0 = q``."""
+        return TEAPart(torch.zeros(1, 1, dtype=torch.float64), v["q"].reshape(1, 1).to(torch.float64),
+                       order=float(v["order"][0]), estimated=True, pole=float(v["pole"][0]))
+
+    def run_exact(self, v: dict, alpha: Tensor, h: float, xi: Tensor, forcing: Tensor | None = None,
+                  x0: Tensor | None = None) -> Tensor:
+        r"""The state over the whole past (exact memory, O(k) per step, any length): for ``k = 0 … N−2``
+        :math:`x_{k+1} = h^{\alpha_{k+1}}(f x_k + u_k + \sqrt{q}\,\xi_k) - \sum_{j=1}^{k+1} c_j(\alpha_{k+1}) x_{k+1-j}`,
+        ``x_0 = x0`` (zero by default) — the block's recursion with its history uncut, for the simulator (the state
+        space's ``exact`` memory holds the same past as states). ``alpha`` ``(S, N)`` the order of each step (a known
+        trajectory, or a constant), ``xi`` ``(S, N)`` standard-normal drive, ``forcing`` ``(S, N)`` a known input
+        ``u_k`` (the paper's ``B u_k``); ``v`` holds ``pole`` and ``q`` ``(S,)``. Returns x ``(S, N)``. Runs where
+        its arguments are (a GPU included) and keeps their gradients."""
+        S, N = alpha.shape
+        a3 = alpha.unsqueeze(-1)  # (S, N, 1): one state; the layout of the paper's simulator, so its sums are the same
+        f = v["pole"].to(alpha).reshape(S, 1, 1)
+        omega = xi.unsqueeze(-1) * torch.sqrt(v["q"].to(alpha)).reshape(S, 1, 1)
+        u = None if forcing is None else forcing.to(alpha).unsqueeze(-1)
+        x = alpha.new_empty(S, N, 1)
+        x[:, 0, :] = 0.0 if x0 is None else torch.as_tensor(x0).to(alpha).reshape(S, 1)
+        hpow = torch.as_tensor(h, dtype=alpha.dtype, device=alpha.device) ** a3
+        constant = bool(torch.all(a3 == a3[:, :1, :]))
+        # past states newest first, hist[..., i] = x_{k−i}: time-reversed so that every step reads one contiguous slice
+        hist = alpha.new_zeros(S, 1, N)
+        hist[..., N - 1] = x[:, 0, :]
+        if constant:
+            coeff_all = gl_tail_coefficients(a3[:, 0, :], N)  # (S, 1, N): c_1 … c_N
+        for k in range(N - 1):
+            past = hist[..., N - 1 - k:]  # x_k … x_0
+            c = coeff_all[..., :k + 1] if constant else gl_tail_coefficients(a3[:, k + 1, :], k + 1)
+            drive = torch.bmm(f, x[:, k, :, None]).squeeze(-1)
+            if u is not None:
+                drive = drive + u[:, k, :]
+            x[:, k + 1, :] = hpow[:, k + 1, :] * (drive + omega[:, k, :]) - (c * past).sum(-1)
+            hist[..., N - 2 - k] = x[:, k + 1, :]
+        return x[..., 0]
+
+    def block(self, v, h, memory):
+        alpha, f, q = v["order"], v["pole"], v["q"]
+        B = alpha.shape[0]
+        J, M = memory.lags, memory.n_modes
+        n = J + M
+        F = alpha.new_zeros(B, n, n)
+        F[:, 0], g = self.first_row(alpha, f, q, h, memory)
+        idx = torch.arange(1, J)
+        F[:, idx, idx - 1] = 1.0
+        if M:
+            _, _, decay, inject = memory.kernel.tensors(alpha.dtype, alpha.device)
+            modes = torch.arange(J, n)
+            F[:, modes, modes] = decay
+            F[:, modes, J - 1] = inject
+        G = alpha.new_zeros(B, n, 1)
+        G[:, 0, 0] = g
+        return F, G

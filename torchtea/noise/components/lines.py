@@ -1,0 +1,133 @@
+"""Lines: a sinusoid and a line whose frequency drifts linearly."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import torch
+
+from ...core.search import chirp_search, refine_chirp, refine_frequency
+from .base import Component, ParamSpec
+
+
+class Sinusoid(Component):
+    """A sin(2π f₀ t + φ): a vibration line. Not a spectral density — removed before the Whittle sum."""
+
+    name = "sinusoid"
+    kind = "mean"
+    params = (ParamSpec("frequency_hz", "positive", "f₀ (Hz)"), ParamSpec("amplitude", "positive", "A (units)"),
+              ParamSpec("phase", "free", "φ (rad)"))
+
+    add_again = True  # a second line
+
+    def mean(self, v, t, inputs):
+        return v["amplitude"].unsqueeze(-1) * torch.sin(2.0 * math.pi * v["frequency_hz"].unsqueeze(-1) * t
+                                                        + v["phase"].unsqueeze(-1))
+
+    def typical(self, param, h, t_ref):
+        return {"frequency_hz": 3.37, "amplitude": 0.01, "phase": 0.0}[param]
+
+    def start(self, param, data):
+        return {"frequency_hz": 0.1 / data.h, "amplitude": math.sqrt(data.var) / 10.0, "phase": 0.0}[param]
+
+    screen_test = "largest innovation periodogram line (F(2,200), max over frequencies)"
+    screen_order = 20
+    explains = ("lines",)
+    # the frequency at the refined periodogram peak (asymptotically efficient in coloured noise, Hannan 1973)
+    held = {"frequency_hz": "refined periodogram peak (held in the exact refit): no interval"}
+
+    def screen(self, ctx):
+        """The ``lines`` diagnostic's p-value (the largest innovation periodogram ordinate against its neighbours,
+        over all frequencies); the statistic and the start: the whitened sine and cosine at the refined peak."""
+
+        ln = ctx.diagnostic("lines")
+        inn, t = ctx.inn, ctx.t
+        r = inn.y - inn.mean
+        f0 = refine_frequency(np.where(inn.observed, r, 0.0), ln.detail["peak_hz"], ctx.h)
+        lr, beta = inn.linear_lr(np.stack([np.sin(2 * np.pi * f0 * t), np.cos(2 * np.pi * f0 * t)]))
+        return lr, ln.detail["log_p"], {f"{ctx.label}.frequency_hz": f0,
+                                        f"{ctx.label}.amplitude": float(math.hypot(*beta)),
+                                        f"{ctx.label}.phase": float(math.atan2(beta[1], beta[0]))}, ""
+
+    def fit_residual(self, label, resid, t, ok, h, start, inputs):
+        """The residual periodogram's highest peak (not the trend's three lowest bins), its frequency refined,
+        amplitude and phase by least squares."""
+
+        N = len(resid)
+        r = np.where(ok, resid, 0.0)
+        spec = np.abs(np.fft.rfft(r)) ** 2
+        spec[:3] = 0.0  # not the trend
+        j = int(np.argmax(spec))
+        f0 = refine_frequency(r, j / (N * h), h)
+        w = 2 * np.pi * f0 * t
+        X = np.stack([np.sin(w), np.cos(w)], 1)
+        coef, *_ = np.linalg.lstsq(X[ok], resid[ok], rcond=None)
+        resid[ok] -= X[ok] @ coef
+        return {f"{label}.frequency_hz": f0, f"{label}.amplitude": float(math.hypot(*coef)),
+                f"{label}.phase": float(math.atan2(coef[1], coef[0]))}
+
+
+class DriftingLine(Component):
+    r"""A vibration line whose frequency moves linearly in time (a fan or a motor speeding up or slowing down):
+    :math:`A \sin(2\pi (f_0 \tau + \tfrac12 f_1 \tau^2) + \varphi)`, τ = t − t̄ the time from the record's
+    middle, so f₀ is the frequency there and f₁ its rate (Hz/s). Its power is spread over |f₁| T Hz, so the line
+    test, which looks for one frequency, misses it once that is more than a few bins. Found by a chirp search
+    (:func:`~torchtea.checking.diagnostics.chirp_search`: dechirp at each rate of a grid, then the line test), f₀ and
+    f₁ refined and held (counted in BIC), the amplitude and phase by least squares."""
+
+    name = "drifting-line"
+    kind = "mean"
+    params = (ParamSpec("frequency_hz", "positive", "f₀ (Hz), at the record's middle"),
+              ParamSpec("rate_hz_per_s", "free", "f₁ (Hz/s)"),
+              ParamSpec("amplitude", "positive", "A (units)"), ParamSpec("phase", "free", "φ (rad)"))
+    held = {"frequency_hz": "chirp search, refined (held in the exact refit): no interval",
+            "rate_hz_per_s": "chirp search, refined (held in the exact refit): no interval"}
+    add_again = True
+    screen_test = "largest dechirped innovation periodogram line (F(2,200), Bonferroni over frequencies and rates)"
+    screen_order = 25
+    explains = ("spectrum",)
+
+    def mean(self, v, t, inputs):
+        tau = t - t.mean()
+        f0, f1 = v["frequency_hz"].unsqueeze(-1), v["rate_hz_per_s"].unsqueeze(-1)
+        return v["amplitude"].unsqueeze(-1) * torch.sin(2.0 * math.pi * (f0 * tau + 0.5 * f1 * tau * tau)
+                                                        + v["phase"].unsqueeze(-1))
+
+    def typical(self, param, h, t_ref):
+        return {"frequency_hz": 12.45, "rate_hz_per_s": -4e-3, "amplitude": 0.01, "phase": 0.0}[param]
+
+    def start(self, param, data):
+        return {"frequency_hz": 0.1 / data.h, "rate_hz_per_s": 0.0, "amplitude": math.sqrt(data.var) / 10.0,
+                "phase": 0.0}[param]
+
+    @staticmethod
+    def columns(f0: float, f1: float, t) -> np.ndarray:
+        tau = np.asarray(t) - np.mean(t)
+        w = 2 * np.pi * (f0 * tau + 0.5 * f1 * tau * tau)
+        return np.stack([np.sin(w), np.cos(w)])
+
+    def screen(self, ctx):
+        """The chirp search on the model's standardised innovations (its p-value, Bonferroni over every frequency
+        and rate tested); the statistic and the start: the whitened chirp's sine and cosine at the refined
+        (f₀, f₁)."""
+
+        inn, t = ctx.inn, ctx.t
+        found = chirp_search(inn.z, ctx.h)
+        r = np.where(inn.observed, inn.y - inn.mean, np.nan)
+        f0, f1 = refine_chirp(r, found["f0_hz"], found["rate_hz_per_s"], ctx.h)
+        lr, beta = inn.linear_lr(self.columns(f0, f1, t))
+        return lr, found["log_p"], {f"{ctx.label}.frequency_hz": f0, f"{ctx.label}.rate_hz_per_s": f1,
+                                    f"{ctx.label}.amplitude": float(math.hypot(*beta)),
+                                    f"{ctx.label}.phase": float(math.atan2(beta[1], beta[0]))}, ""
+
+    def fit_residual(self, label, resid, t, ok, h, start, inputs):
+        """The chirp search on the residual, refined; amplitude and phase by least squares."""
+
+        r = np.where(ok, resid, np.nan)
+        found = chirp_search(r, h)
+        f0, f1 = refine_chirp(r, found["f0_hz"], found["rate_hz_per_s"], h)
+        X = self.columns(f0, f1, t).T
+        coef, *_ = np.linalg.lstsq(X[ok], resid[ok], rcond=None)
+        resid[ok] -= X[ok] @ coef
+        return {f"{label}.frequency_hz": f0, f"{label}.rate_hz_per_s": f1,
+                f"{label}.amplitude": float(math.hypot(*coef)), f"{label}.phase": float(math.atan2(coef[1], coef[0]))}

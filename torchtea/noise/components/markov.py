@@ -1,0 +1,221 @@
+"""Integer-order stochastic states: the bias random walk, the first-order Gauss–Markov bias, a resonance."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import torch
+
+from ...core.search import band_search
+from .base import Component, ParamSpec
+
+
+class RandomWalk(Component):
+    r"""Bias random walk :math:`b_{k+1} = b_k + \sigma\sqrt{h}\,\xi_k`, ``b_0 = 0`` (σ: rate random walk K, units/√s).
+    Spectrum of its increments' integral: :math:`\sigma^2 h / (2\pi \cdot 4\sin^2(\omega/2))`."""
+
+    name = "random-walk"
+    kind = "state"
+    nav_term = "K"
+
+    def nav_value(self, label, v, h):
+        return float(v[f"{label}.sigma"]), f"{label}.sigma", 1.0
+    screen_order = 10
+    params = (ParamSpec("sigma", "positive", "K (units/√s)"),)
+
+    def spectrum(self, v, omega, h):
+        s = v["sigma"].unsqueeze(-1)
+        return s * s * h / (2.0 * math.pi * 4.0 * torch.sin(omega / 2.0) ** 2)
+
+    def n_states(self, memory) -> int:
+        return 1
+
+    def typical(self, param, h, t_ref):
+        return 2e-3
+
+    def start(self, param, data):
+        return math.sqrt(max(data.var, 1e-12) / (len(data.y) * data.h)) / 10.0
+
+    def scale_drive(self, label, v, s, fixed):
+        if f"{label}.sigma" not in fixed:
+            v[f"{label}.sigma"] = v[f"{label}.sigma"] * math.sqrt(s) * 0.1
+
+    def _sigma(self, share, model, values, h, n):
+        """The σ whose spectrum at the lowest Fourier frequency ω₁ is ``share`` × the model's there:
+        S_rw(ω₁) = σ²h/(2π·4 sin²(ω₁/2))."""
+        omega1 = torch.tensor([2 * math.pi / n], dtype=torch.float64)
+        level = float(model.spectrum(values, omega1, h)[0, 0])
+        return math.sqrt(share * level * 2 * math.pi * 4 * math.sin(float(omega1) / 2) ** 2 / h)
+
+    def strengths(self, label, model, values, h, n):
+        return [{f"{label}.sigma": self._sigma(share, model, values, h, n)} for share in (0.1, 1.0)]
+
+    def vanishing(self, label, model, values, h, n):
+        return {f"{label}.sigma": self._sigma(1e-8, model, values, h, n)}
+
+    def block(self, v, h, memory):
+        s = v["sigma"]
+        F = s.new_ones(s.shape[0], 1, 1)
+        G = (s * math.sqrt(h)).reshape(-1, 1, 1)
+        return F, G
+
+
+class GaussMarkov(Component):
+    r"""First-order Gauss–Markov noise, IEEE Std 952's exponentially correlated noise (in every INS error model as a
+    bias instability): :math:`b_{k+1} = a\,b_k + \sigma\sqrt{1-a^2}\,\xi_k`, :math:`a = e^{-h/\tau}`, so that
+    σ is its stationary standard deviation and τ its correlation time (autocorrelation :math:`\sigma^2
+    e^{-|t|/\tau}`); started at ``b_0 = 0`` like the random walk (a constant bias is the level's business).
+    Spectrum of the stationary process: :math:`\sigma^2(1-a^2) / (2\pi(1 - 2a\cos\omega + a^2))`. Its Allan
+    deviation peaks near τ_A ≈ 1.89 τ at ≈ 0.62 σ (the flat "bias instability" region when τ is long)."""
+
+    name = "gauss-markov"
+    kind = "state"
+    params = (ParamSpec("sigma", "positive", "σ (units), stationary standard deviation"),
+              ParamSpec("tau_s", "positive", "τ (s), correlation time"))
+    screen_order = 15
+
+    def coefficient(self, v, h):
+        return torch.exp(-h / v["tau_s"])
+
+    def spectrum(self, v, omega, h):
+        a = self.coefficient(v, h).unsqueeze(-1)
+        s2 = (v["sigma"] ** 2).unsqueeze(-1)
+        return s2 * (1.0 - a * a) / (2.0 * math.pi * (1.0 - 2.0 * a * torch.cos(omega) + a * a))
+
+    def n_states(self, memory) -> int:
+        return 1
+
+    def block(self, v, h, memory):
+        a = self.coefficient(v, h)
+        F = a.reshape(-1, 1, 1).clone()
+        G = (v["sigma"] * torch.sqrt(1.0 - a * a)).reshape(-1, 1, 1)
+        return F, G
+
+    def typical(self, param, h, t_ref):
+        return {"sigma": 5e-3, "tau_s": 20.0}[param]
+
+    def start(self, param, data):
+        n = len(data.y)
+        return {"sigma": math.sqrt(max(data.var, 1e-12)) / 10.0, "tau_s": n * data.h / 10.0}[param]
+
+    def _sigma(self, share, model, values, h, n, tau):
+        """The σ whose spectrum at the lowest Fourier frequency ω₁ is ``share`` × the model's there."""
+        omega1 = torch.tensor([2 * math.pi / n], dtype=torch.float64)
+        level = float(model.spectrum(values, omega1, h)[0, 0])
+        a = math.exp(-h / tau)
+        return math.sqrt(share * level * 2 * math.pi * (1 - 2 * a * math.cos(float(omega1)) + a * a) / (1 - a * a))
+
+    def strengths(self, label, model, values, h, n):
+        out = []
+        for frac in (0.05, 0.3):  # correlation times of 5 % and 30 % of the record
+            tau = frac * n * h
+            out.append({f"{label}.sigma": self._sigma(1.0, model, values, h, n, tau), f"{label}.tau_s": tau})
+        return out
+
+    def vanishing(self, label, model, values, h, n):
+        tau = 0.1 * n * h
+        return {f"{label}.sigma": self._sigma(1e-8, model, values, h, n, tau), f"{label}.tau_s": tau}
+
+
+class Resonance(Component):
+    r"""A vibration band: narrow-band random vibration, white noise through a damped second-order resonator — a
+    mechanical mode of the board or the part, or vibration aliased into the band, whose power spreads over a band
+    instead of one line (a line that wanders is not a line). The AR(2) with complex poles
+    :math:`\rho e^{\pm i\theta}`, :math:`\theta = 2\pi f_r h`, :math:`\rho = e^{-\pi B h}`:
+    :math:`x_{k+1} = a_1 x_k + a_2 x_{k-1} + g\,\xi_k` with :math:`a_1 = 2\rho\cos\theta`, :math:`a_2 = -\rho^2`,
+    started at rest like the Gauss–Markov bias. ``frequency_hz`` is f_r, ``bandwidth_hz`` B (the resonance's
+    half-power width when it is narrow, B ≪ f_r), ``sigma`` its stationary standard deviation:
+    :math:`g^2 = \sigma^2 (1 + a_2)((1 - a_2)^2 - a_1^2)/(1 - a_2)`. Spectrum
+    :math:`g^2 / (2\pi |1 - a_1 e^{-i\omega} - a_2 e^{-2i\omega}|^2)`.
+
+    ``check`` screens it by the band of the innovations' periodogram with the most power against the model
+    (:func:`~torchtea.checking.diagnostics.band_search`: sums of 4 to 256 adjacent ordinates, each Gamma under the
+    model, Bonferroni over positions and widths — its frequency is not identified where σ vanishes, so a likelihood
+    ratio's null would not be a χ² mixture), and refits it by exact likelihood from that band. By hand, its start is
+    the band where the data's spectrum stands highest above its own smooth trend."""
+
+    name = "resonance"
+    kind = "state"
+    add_again = True
+    screen_test = "largest band of the innovation periodogram (Gamma sums of 4–256 ordinates, Bonferroni over positions and widths)"
+    screen_order = 27
+    explains = ("spectrum",)
+    params = (ParamSpec("frequency_hz", "nyquist", "f_r (Hz), centre of the band"),
+              ParamSpec("bandwidth_hz", "positive", "B (Hz), half-power width"),
+              ParamSpec("sigma", "positive", "σ (units), stationary standard deviation"))
+
+    def screen(self, ctx):
+        """The band search on the model's standardised innovations; the start: f_r at the band's centre, B its width,
+        σ² the band's excess power over the model there, (ratio − 1) S(ω) × 2 × the band's width in rad/sample."""
+
+        found = band_search(ctx.inn.z, ctx.h)
+        w = torch.tensor([2.0 * math.pi * found["centre_hz"] * ctx.h], dtype=torch.float64)
+        level = float(ctx.model.spectrum(dict(ctx.fit.values), w, ctx.h)[0, 0])
+        dw = 2.0 * math.pi * found["width_hz"] * ctx.h
+        sigma = math.sqrt(max(found["ratio"] - 1.0, 0.1) * level * 2.0 * dw)
+        lab = ctx.label
+        return found["ratio"], found["log_p"], {
+            f"{lab}.frequency_hz": found["centre_hz"], f"{lab}.bandwidth_hz": max(found["width_hz"], 2.0 / (len(ctx.y) * ctx.h)),
+            f"{lab}.sigma": sigma}, (f"band {found['centre_hz'] - found['width_hz'] / 2:.3g}–"
+                                     f"{found['centre_hz'] + found['width_hz'] / 2:.3g} Hz at {found['ratio']:.2f}× "
+                                     "the model")
+
+    @staticmethod
+    def coefficients(v, h):
+        """``(a₁, a₂, g)`` of the AR(2), each ``(B,)``."""
+        rho = torch.exp(-math.pi * v["bandwidth_hz"] * h)
+        a1 = 2.0 * rho * torch.cos(2.0 * math.pi * v["frequency_hz"] * h)
+        a2 = -rho * rho
+        g2 = v["sigma"] ** 2 * (1.0 + a2) * ((1.0 - a2) ** 2 - a1 * a1) / (1.0 - a2)
+        return a1, a2, torch.sqrt(torch.clamp(g2, min=0.0))
+
+    def spectrum(self, v, omega, h):
+        a1, a2, g = (c.unsqueeze(-1) for c in self.coefficients(v, h))
+        re = 1.0 - a1 * torch.cos(omega) - a2 * torch.cos(2.0 * omega)
+        im = a1 * torch.sin(omega) + a2 * torch.sin(2.0 * omega)
+        return g * g / (2.0 * math.pi * (re * re + im * im))
+
+    def n_states(self, memory) -> int:
+        return 2
+
+    def block(self, v, h, memory):
+        a1, a2, g = self.coefficients(v, h)
+        B = a1.shape[0]
+        F = a1.new_zeros(B, 2, 2)
+        F[:, 0, 0], F[:, 0, 1], F[:, 1, 0] = a1, a2, 1.0
+        G = a1.new_zeros(B, 2, 1)
+        G[:, 0, 0] = g
+        return F, G
+
+    def typical(self, param, h, t_ref):
+        return {"frequency_hz": min(30.0, 0.3 / h), "bandwidth_hz": min(3.0, 0.03 / h), "sigma": 2e-3}[param]
+
+    @staticmethod
+    def band(y, h) -> tuple[float, float]:
+        """The frequency (Hz) where the data's Welch spectrum stands highest above its own smooth trend (a running
+        median over ±1/16 of the band, in log), above 2 % of the Nyquist frequency, and that excess (ratio)."""
+        from scipy.ndimage import median_filter
+        from scipy.signal import welch
+
+        x = np.asarray(y, dtype=np.float64)
+        x = x[np.isfinite(x)]
+        f, p = welch(x - x.mean(), fs=1.0 / h, nperseg=min(512, len(x)))
+        lp = np.log(np.maximum(p, 1e-300))
+        trend = median_filter(lp, size=max(5, len(lp) // 8) | 1, mode="nearest")
+        ok = (f > 0.02 * f[-1]) & (f < f[-1])  # (not the Nyquist bin itself: the frequency is below it)
+        k = int(np.argmax(np.where(ok, lp - trend, -np.inf)))
+        return float(f[k]), float(np.exp(lp[k] - trend[k]))
+
+    def start(self, param, data):
+        if param == "frequency_hz":
+            return self.band(data.y.numpy(), data.h)[0]
+        if param == "bandwidth_hz":
+            return 0.02 / data.h
+        return math.sqrt(max(data.var, 1e-12)) / 3.0
+
+    def scale_drive(self, label, v, s, fixed):
+        if f"{label}.sigma" not in fixed:
+            v[f"{label}.sigma"] = v[f"{label}.sigma"] * math.sqrt(s) * 0.3
+
+    def vanishing(self, label, model, values, h, n):
+        return {f"{label}.frequency_hz": 0.1 / h, f"{label}.bandwidth_hz": 0.02 / h, f"{label}.sigma": 1e-12}

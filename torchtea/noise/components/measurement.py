@@ -1,0 +1,80 @@
+"""Measurement noise: white noise and quantisation."""
+from __future__ import annotations
+
+import math
+
+import torch
+
+from .base import Component, ParamSpec
+
+
+class White(Component):
+    """Measurement (ADC) noise ν_k ~ N(0, r): spectrum r/2π."""
+
+    name = "white"
+    kind = "measurement"
+    nav_term = "N"
+    candidate = False
+    params = (ParamSpec("r", "positive", "variance (units²)"),)
+
+    def nav_value(self, label, v, h):
+        return math.sqrt(float(v[f"{label}.r"]) * h), f"{label}.r", 0.5
+
+    def measurement_variance(self, v):
+        return v["r"]
+
+    def typical(self, param, h, t_ref):
+        return 1e-3
+
+    def start(self, param, data):
+        return data.white / 2.0
+
+    def grid_start(self, label, v, white, order, fraction, h):
+        v[f"{label}.r"] = white * 0.5
+
+    def spectrum(self, v, omega, h):
+        return (v["r"] / (2.0 * math.pi)).unsqueeze(-1).expand(-1, omega.shape[-1])
+
+
+class Quantisation(Component):
+    """Quantisation of step Δ, modelled as white noise of variance Δ²/12."""
+
+    name = "quantisation"
+    kind = "measurement"
+    nav_term = "N"  # (white: Δ²/12 adds to the white variance)
+    screen_order = 70
+    params = (ParamSpec("step", "positive", "Δ (units)"),)
+
+    def measurement_variance(self, v):
+        return v["step"] ** 2 / 12.0
+
+    def typical(self, param, h, t_ref):
+        return 0.01
+
+    def start(self, param, data):
+        return math.sqrt(12.0 * data.white / 2.0)
+
+    def grid_start(self, label, v, white, order, fraction, h):
+        v[f"{label}.step"] = math.sqrt(12 * white * 0.5)
+
+    def not_screened(self, model):
+        if any(c.kind == "measurement" and type(c) is not type(self) for _, c in model.components):
+            return "quantisation noise is white, indistinguishable from the white component"
+        return None
+
+    def _level(self, model, values, h, n):
+        """The model's white level: its measurement variance, else its spectrum's at ω₁ × 2π."""
+        r = float(model.measurement_variance(values)[0])
+        if not r:
+            omega1 = torch.tensor([2 * math.pi / n], dtype=torch.float64)
+            r = float(model.spectrum(values, omega1, h)[0, 0]) * 2 * math.pi
+        return r
+
+    def strengths(self, label, model, values, h, n):
+        return [{f"{label}.step": math.sqrt(12 * self._level(model, values, h, n))}]
+
+    def vanishing(self, label, model, values, h, n):
+        return {f"{label}.step": math.sqrt(12 * 1e-8 * self._level(model, values, h, n))}
+
+    def spectrum(self, v, omega, h):
+        return (self.measurement_variance(v) / (2.0 * math.pi)).unsqueeze(-1).expand(-1, omega.shape[-1])

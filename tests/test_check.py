@@ -20,7 +20,7 @@ from torchtea.checking.diagnostics import (LEVEL, stochastic_avar, change, innov
 from torchtea.cli import main
 from torchtea.fitting.mle import exact_loglik, fit_series, refine_exact
 from torchtea.noise import default_values, parse_model, simulate_model, temperature_profile
-from torchtea.noise.components import TemperatureOrder
+from torchtea.checking.screens import temperature as temperature_screens
 
 H = 0.01
 
@@ -225,9 +225,9 @@ def test_a_quiet_temperature_order_scan_stops_early_and_says_so(monkeypatch):
         return r.screens[0]
 
     quiet, loud = row(1), row(3)
-    assert "scan stopped" in quiet["note"] and quiet["statistic"] < 2 * TemperatureOrder.SCAN_QUIET
-    assert loud["note"] == "" and loud["statistic"] > 2 * TemperatureOrder.SCAN_QUIET
-    monkeypatch.setattr(TemperatureOrder, "SCAN_QUIET", -math.inf)  # never quiet: both stages run
+    assert "scan stopped" in quiet["note"] and quiet["statistic"] < 2 * temperature_screens.SCAN_QUIET
+    assert loud["note"] == "" and loud["statistic"] > 2 * temperature_screens.SCAN_QUIET
+    monkeypatch.setattr(temperature_screens, "SCAN_QUIET", -math.inf)  # never quiet: both stages run
     full = row(1)
     assert full["note"] == "" and quiet["statistic"] <= full["statistic"] < 2.0
 

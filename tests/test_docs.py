@@ -15,6 +15,7 @@ import torch
 
 from torchtea import reference
 from torchtea.checking import check, diagnostics
+from torchtea.checking.screens import screen_test
 from torchtea.cli import build_parser
 from torchtea.effects import register, unregister
 from torchtea.noise import default_values, simulate_model
@@ -56,7 +57,7 @@ def test_the_effects_page_has_every_registered_effect_with_its_parameters_and_sc
             assert f"`{name}.{p.name}`" in section and p.unit.replace("|", "\\|") in section, (name, p.name)
         assert ("screened by `check`" in section) == (name in candidates()), name
         if name in candidates():
-            assert f"**Screen**: {comp.screen_test}." in section, name
+            assert f"**Screen**: {screen_test(comp)}." in section, name
     register(_Bump)
     try:  # a user's effect is on the page once registered, with its docstring
         assert "## `doc-bump`" in reference.effects_page() and "A test's effect" in reference.effects_page()

@@ -12,6 +12,7 @@ import torch
 
 import torchtea.effects as effects
 from torchtea.checking import check
+from torchtea.checking.screens.outliers import find as find_spikes
 from torchtea.checking.report import write_report
 from torchtea.effects import register, unregister
 from torchtea.fitting.mle import fit_series, regress_mean
@@ -177,7 +178,7 @@ def test_check_screens_and_suggests_a_users_effect(warm_up):
     least-squares values, the model held), after the built-in ones; hidden in the data it is suggested first, with
     its parameters near the truth; on data without it it passes no screen."""
     from torchtea.checking.check import CANDIDATES, candidates_all
-    from torchtea.noise.components import MEAN_SCREEN
+    from torchtea.checking.screens import MEAN_SCREEN
 
     assert candidates_all()[-1] == "warm-up" and "warm-up" not in CANDIDATES
     m, v, y = _series(n=6000, seed=5, amplitude=0.3)
@@ -192,6 +193,35 @@ def test_check_screens_and_suggests_a_users_effect(warm_up):
     r0 = check(y0, H, intervals=False)
     row0 = next(s for s in r0.screens if s["effect"] == "warm-up")
     assert row0["p_value"] is not None and not row0["passed"] and not r0.suggestions
+
+
+def test_a_users_effect_may_register_its_own_screen(warm_up):
+    """A screen registered for the user's class (torchtea.checking.screens.register_screen, the how-to's example)
+    replaces the default: check runs it, names its test, starts the refit from its values; unregistered, the default
+    is back."""
+    from scipy import stats
+
+    from torchtea.checking.screens import MEAN_SCREEN, REGISTRY, register_screen, screen_test
+
+    calls = []
+
+    @register_screen(WarmUp, "exact LR of the whitened exp(−t/20 s), χ²₁")
+    def warm_up_screen(comp, ctx):
+        calls.append(ctx.label)
+        lr, beta = ctx.inn.linear_lr(np.exp(-ctx.t / 20.0))
+        return lr, stats.chi2.logsf(lr, 1), {f"{ctx.label}.amplitude": float(beta[0]), f"{ctx.label}.tau_s": 20.0}, ""
+
+    try:
+        assert screen_test(warm_up) == "exact LR of the whitened exp(−t/20 s), χ²₁"
+        m, v, y = _series(n=6000, seed=5, amplitude=0.3)
+        r = check(y, H, intervals=False, candidates=("warm-up",))
+        row = r.screens[0]
+        assert calls == ["warm-up"] and row["test"].startswith("exact LR of the whitened") and row["p_value"] < 1e-4
+        assert r.suggestions[0].effect == "warm-up"
+        assert r.suggestions[0].fit.values["warm-up.tau_s"] == pytest.approx(20, rel=0.3)
+    finally:
+        REGISTRY.pop(WarmUp, None)
+    assert screen_test(warm_up) == MEAN_SCREEN
 
 
 def _assert_dense_density(m, v, y, cov):
@@ -339,14 +369,15 @@ def test_the_boundary_mixture_is_chi2_with_one_parameter_at_its_bound():
     """½χ²₀+½χ²₁ for one parameter, ½χ²₁+½χ²₂ for two (a Gauss–Markov bias): exact values of the mixture."""
     from scipy import stats
 
-    from torchtea.noise.components import COMPONENTS, boundary_logsf
+    from torchtea.checking.screens import boundary_logsf, screen_df, screen_test
+    from torchtea.noise.components import COMPONENTS
 
     assert boundary_logsf(0.0, 1) == 0.0
     assert math.isclose(math.exp(boundary_logsf(3.0, 1)), 0.5 * stats.chi2.sf(3.0, 1), rel_tol=1e-12)
     assert math.isclose(math.exp(boundary_logsf(5.0, 2)), 0.5 * (stats.chi2.sf(5.0, 1) + stats.chi2.sf(5.0, 2)),
                         rel_tol=1e-12)
-    assert COMPONENTS["gauss-markov"].screen_df == 2 and COMPONENTS["random-walk"].screen_df == 1
-    assert COMPONENTS["gauss-markov"].screen_test.endswith("½χ²₁+½χ²₂")
+    assert screen_df(COMPONENTS["gauss-markov"]) == 2 and screen_df(COMPONENTS["random-walk"]) == 1
+    assert screen_test(COMPONENTS["gauss-markov"]).endswith("½χ²₁+½χ²₂")
 
 
 def test_a_scan_over_regressors_is_each_ones_exact_lr_and_its_maximum_is_calibrated():
@@ -585,7 +616,7 @@ def test_the_band_search_holds_its_level_on_noise_and_check_names_a_hidden_reson
 
 def test_spikes_next_to_each_other_and_on_a_wander_are_located_where_they_are():
     """Where the filter's gain is large (a random walk under little white noise) the innovation after a spike is
-    about −spike, beyond the bound too: ``Spikes.find`` takes only the largest exceedance within ±3 samples per
+    about −spike, beyond the bound too: the spikes screen's ``find`` takes only the largest exceedance within ±3 samples per
     round and reruns the filter, so a spike's neighbour is not a spike; the least-squares start of a model written
     by hand scores each sample against its neighbours' median, so the peaks of a wander or the edge of a step are not
     taken for spikes. A bare ``spikes:3`` token names its component in ``without``; a resonance frequency at or above
@@ -598,7 +629,7 @@ def test_spikes_next_to_each_other_and_on_a_wander_are_located_where_they_are():
     y = simulate_model(m, v, n_steps=3000, h=H, generator=torch.Generator().manual_seed(1))[0, 0].numpy().copy()
     ks = [500, 1500, 2500]
     y[ks] += 10 * 0.05 * math.sqrt(H)
-    ks_found, _ = Spikes.find(m, v, y, H, None, innovations(m, v, y, H), 0.01)
+    ks_found, _ = find_spikes(Spikes(), m, v, y, H, None, innovations(m, v, y, H), 0.01)
     assert ks_found == ks
     for spec, extra in (("random-walk+white+spikes:3", {}), ("white+step+spikes:3", {"step.size": 0.6,
                                                                                      "step.t_step": 12.0})):

@@ -28,7 +28,9 @@ name. A user adds an effect from their own module or notebook::
         def start(self, param, data):
             return {"amplitude": 0.0, "tau_s": 10.0}[param]
 
-and ``fractional+white+warm-up`` is then simulated, fitted (Whittle and exact) and reported like a built-in model.
+and ``fractional+white+warm-up`` is then simulated, fitted (Whittle and exact), checked and reported like a built-in
+model. How ``check`` screens it is not the class's business: the default screen of its kind, or one registered for
+it with :func:`torchtea.checking.screens.register_screen`.
 A package can register its effects through the entry-point group ``torchtea.effects`` (each entry a Component
 subclass); they are loaded the first time a model names a component that is not registered.
 """

@@ -76,6 +76,7 @@ def _table(header: tuple, rows) -> list[str]:
 def effects_page() -> str:
     """Every registered effect: its kind, inputs, IEEE 952 term, parameters (kind, unit, bounds), physics (its
     docstring) and, for those ``check`` screens, the screen's test."""
+    from .checking.screens import screen_test
     from .noise.components import COMPONENTS, candidates
 
     screened = candidates()
@@ -109,7 +110,7 @@ def effects_page() -> str:
                      "" if p.bounds == (float("-inf"), float("inf")) else f"({p.bounds[0]:g}, {p.bounds[1]:g})")
                     for p in comp.params]
             lines += _table(("parameter", "transform", "unit", "bounds"), rows) + [""]
-        test = comp.screen_test
+        test = screen_test(comp)
         if name in screened and test:
             lines += [f"**Screen**: {test}.", ""]
     return "\n".join(lines) + "\n"

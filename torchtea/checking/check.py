@@ -5,8 +5,8 @@ r"""``check``: fit a noise model, test it against the measurements, and rank the
    deviation against the model's band, the innovations against the temperature. ``adequate`` when every
    diagnostic that ran passed at its level.
 3. **Screen** every registered effect (:mod:`torchtea.effects`) that the model lacks, each with a test whose
-   null distribution is known, so its p-value is calibrated — each component's ``screen`` (the built-in ones'
-   in :data:`SCREENS`):
+   null distribution is known, so its p-value is calibrated — each effect's screen (:mod:`.screens`; what each
+   built-in one computes in :data:`SCREENS`):
 
    - linear mean terms (``ramp``, ``temperature-bias``): the exact likelihood-ratio at the fitted noise
      parameters, by least squares of the innovations on the *whitened* regressor (χ²₁; mean and noise
@@ -23,7 +23,7 @@ r"""``check``: fit a noise model, test it against the measurements, and rank the
      ordinates, Gamma under the model; Bonferroni over positions and widths: :func:`.diagnostics.band_search`);
    - ``spikes``: the ``extremes`` diagnostic's exact law of the largest |z|; the spikes are every innovation beyond
      its bound, set aside and the filter rerun until none is new, and the statistic their joint exact LR (GLS sizes)
-     — the count decides the component's spec token ``spikes:K`` (:meth:`~torchtea.noise.components.Component.configure`);
+     — the count decides the component's spec token ``spikes:K`` (:func:`.screens.configure`);
    - stochastic components (``random-walk``, ``gauss-markov``, ``low-pass``, ``digital-filter``, ``quantisation``): the Whittle
      likelihood-ratio of the model with and without the component (the null value is on the boundary: ½χ²₀ + ½χ²₁,
      ½χ²₁ + ½χ²₂ for the two parameters of a Gauss–Markov bias);
@@ -51,7 +51,9 @@ import torch
 
 from ..fitting.mle import (Fit, centred, exact_loglik, fit_series, refine_best, refine_exact, refine_frequency,
                            whittle_fit)
-from ..noise.components import COMPONENTS, Component, NotScreened, boundary_logsf
+from ..noise.components import COMPONENTS
+from . import screens
+from .screens import NotScreened, boundary_logsf
 from ..noise.components import candidates as candidates_all
 from ..noise.model import PAPER_MODEL, NoiseModel, parse_model
 from .diagnostics import LEVEL, Diagnostic, Innovations, linear_lr
@@ -67,8 +69,8 @@ __all__ = ["check", "CheckResult", "Suggestion", "read_check", "CANDIDATES", "ex
 #: The built-in effects check screens, in the order of its table; :func:`~torchtea.noise.components.candidates` gives
 #: every registered one (a user's too) at call time.
 CANDIDATES = candidates_all()
-#: What each built-in effect's screen computes (each component's ``screen_test``).
-SCREENS = {name: COMPONENTS[name].screen_test for name in CANDIDATES}
+#: What each built-in effect's screen computes (:func:`.screens.screen_test`).
+SCREENS = {name: screens.screen_test(COMPONENTS[name]) for name in CANDIDATES}
 
 
 def _new_label(base: NoiseModel, alt: NoiseModel) -> str:
@@ -214,7 +216,7 @@ class CheckResult:
     def add(self, effect: str, **kw) -> "CheckResult":
         """Check the model with ``effect`` added (reusing the suggestion's fit when there is one): a name, the
         suggestion's model when it suggested that effect, else the component configured on these data
-        (:meth:`~torchtea.noise.components.Component.configure`: how many spikes); or a token ``name:argument``."""
+        (:func:`.screens.configure`: how many spikes); or a token ``name:argument``."""
         sug = next((s for s in self.suggestions if s.effect == effect), None)
         if sug is not None:
             alt = sug.fit.model
@@ -224,7 +226,7 @@ class CheckResult:
             ctx = ScreenContext(self.model, None, "", self.fit, self.innovations, self.diagnostics, self.y,
                                 np.arange(len(self.y)) * self.h, self.h, self.inputs)
             try:
-                alt = extend(self.model, COMPONENTS[effect].configure(ctx))
+                alt = extend(self.model, screens.configure(COMPONENTS[effect], ctx))
             except NotScreened as exc:
                 raise ValueError(f"cannot add {effect}: {exc}") from None
         start = next((s.fit for s in self.suggestions if s.fit.model.spec == alt.spec), None)
@@ -408,7 +410,7 @@ def read_check(path) -> tuple[dict, dict]:
 
 @dataclass
 class ScreenContext:
-    """What a component's :meth:`~torchtea.noise.components.Component.screen` may use: the model and its fit, the
+    """What an effect's screen (:mod:`.screens`) may use: the model and its fit, the
     model extended by the component (``alt``, the component labelled ``label``), the model's innovations and
     diagnostics at the fit, the series ``y`` (NaN = missing) with its times ``t`` (s) and sample time ``h``, and the
     input channels (``{"temperature": (N,)}`` or None)."""
@@ -423,7 +425,7 @@ class ScreenContext:
     t: np.ndarray
     h: float
     inputs: dict | None
-    #: what a component's :meth:`~torchtea.noise.components.Component.configure` found, for its screen to reuse
+    #: what a screen's ``configure`` found (:func:`.screens.configure`), for the screen to reuse
     memo: dict = field(default_factory=dict)
     #: the level of the extremes diagnostic, whose bound decides what an isolated outlier is (spikes)
     extremes_level: float = LEVEL
@@ -442,19 +444,19 @@ class ScreenContext:
 def _screen(model: NoiseModel, fit: Fit, wf, inn: Innovations, diags, y, h, inputs, effects,
             cache: dict | None = None) -> list[dict]:
     """Screening statistic, p-value and a starting point for each candidate effect: each component's own
-    :meth:`~torchtea.noise.components.Component.screen`, the stochastic ones without one by the Whittle
+    screen (:func:`.screens.run_screen`), the stochastic ones without one by the Whittle
     likelihood-ratio (all of them on one periodogram)."""
     t = np.arange(len(y)) * h
     out = []
     stochastic = []
     for effect in effects:
         comp = COMPONENTS[effect]
-        row = {"effect": effect, "test": comp.screen_test, "statistic": None, "p_value": None, "log10_p": None,
+        row = {"effect": effect, "test": screens.screen_test(comp), "statistic": None, "p_value": None, "log10_p": None,
                "start": None, "note": ""}
         out.append(row)
         ctx = ScreenContext(model, None, "", fit, inn, diags, y, t, h, inputs)
         try:
-            row["token"] = comp.configure(ctx)
+            row["token"] = screens.configure(comp, ctx)
             alt = extend(model, row["token"])
         except (ValueError, NotScreened) as exc:
             row["note"] = f"not screened: {exc}"
@@ -466,11 +468,11 @@ def _screen(model: NoiseModel, fit: Fit, wf, inn: Innovations, diags, y, h, inpu
         if reason:
             row["note"] = f"not screened: {reason}"
             continue
-        if comp.kind in ("state", "measurement", "filter") and type(comp).screen is Component.screen:
+        if screens.whittle_screened(comp):
             stochastic.append((row, alt))
             continue
         try:
-            lr, logp, values, note = comp.screen(ctx)
+            lr, logp, values, note = screens.run_screen(comp, ctx)
         except NotScreened as exc:
             row["note"] = f"not screened: {exc}"
             continue
@@ -505,7 +507,7 @@ def _whittle_screens(model, base, rows_alts, y, h, inputs, cache: dict):
         wf = whittle_fit(alt, [yy], h, inputs=inp, fractions=(0.5,),
                          starts=[[{**base_values, **o} for o in strengths]] if strengths else None)
         lr = max(0.0, 2.0 * float(wf.loglik[0] - base.loglik[0]))
-        logp = boundary_logsf(lr, dict(alt.components)[label].screen_df)
+        logp = boundary_logsf(lr, screens.screen_df(dict(alt.components)[label]))
         vals = dict(zip(alt.names, wf.values[0].tolist()))
         vals.update(wf.means[0])
         modes = [{**{n: float(x) for n, x in zip(alt.names, alt.as_matrix(alt.from_unconstrained(u, h))[0])},

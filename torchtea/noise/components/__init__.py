@@ -28,13 +28,13 @@ The package holds one module per family of effects — :mod:`.base` (the :class:
 parameters, its place in the TEA), :mod:`.fractional`, :mod:`.markov` (random walk, Gauss–Markov, resonance),
 :mod:`.filters`, :mod:`.measurement` (white, quantisation), :mod:`.levels` (offset, ramp, step), :mod:`.lines`
 (sinusoid, drifting line), :mod:`.thermal` and :mod:`.outliers` (spikes) — and the registry :data:`COMPONENTS`
-(a user's effect joins it through :func:`torchtea.effects.register`). Its layer is the model's: it may import
-``torchtea.core`` (the GL coefficients, the searches on a series) and numpy, torch and scipy, nothing above.
+(a user's effect joins it through :func:`torchtea.effects.register`). How ``check`` screens an effect lives apart,
+in :mod:`torchtea.checking.screens`. Its layer is the model's: it may import ``torchtea.core`` (the GL coefficients,
+the searches on a series), numpy, torch and scipy's filters and optimisers (no statistical tests), nothing above.
 """
 from __future__ import annotations
 
-from .base import (MEAN_SCREEN, ORDER_BOUNDS, WHITTLE_SCREEN, WHITTLE_SCREEN_2, Component, NotScreened, ParamSpec,
-                   StartData, TEAPart, TEAUnsupported, boundary_logsf, logit)
+from .base import ORDER_BOUNDS, Component, ParamSpec, StartData, TEAPart, TEAUnsupported, logit
 from .filters import DigitalFilter, LowPass
 from .fractional import Fractional
 from .levels import Offset, Ramp, Step
@@ -44,9 +44,8 @@ from .measurement import Quantisation, White
 from .outliers import Spikes
 from .thermal import TemperatureBias, TemperatureOrder, ThermalLag
 
-__all__ = ["ParamSpec", "Component", "StartData", "NotScreened", "TEAPart", "TEAUnsupported", "COMPONENTS",
-           "ORDER_BOUNDS", "logit", "candidates", "WHITTLE_SCREEN", "WHITTLE_SCREEN_2", "MEAN_SCREEN",
-           "boundary_logsf",
+__all__ = ["ParamSpec", "Component", "StartData", "TEAPart", "TEAUnsupported", "COMPONENTS", "ORDER_BOUNDS", "logit",
+           "candidates",
            # the built-in effects
            "Fractional", "White", "Quantisation", "RandomWalk", "LowPass", "Offset", "Ramp", "Sinusoid",
            "TemperatureBias", "TemperatureOrder", "GaussMarkov", "ThermalLag", "Step", "DriftingLine",

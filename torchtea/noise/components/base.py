@@ -1,17 +1,15 @@
 """The base of every effect: :class:`Component` (what the model, the fits, the screens, the TEA and the exports ask
-of an effect), its parameters (:class:`ParamSpec`), its place in the TEA (:class:`TEAPart`), and the screens'
-common laws."""
+of an effect), its parameters (:class:`ParamSpec`) and its place in the TEA (:class:`TEAPart`). How ``check``
+screens an effect is not here: :mod:`torchtea.checking.screens`."""
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
 from typing import NamedTuple
 
-import numpy as np
 import torch
 from torch import Tensor
 
-from ...core.search import remove_regressors
 
 
 #: Orders the ``fractional`` component may take: open interval, the kernel is designed on it.
@@ -76,35 +74,6 @@ class TEAPart:
 
 class TEAUnsupported(ValueError):
     """Raised by :meth:`Component.tea_part` when the TEA's A-type model has no place for the component."""
-
-
-class NotScreened(Exception):
-    """Raised by a component's :meth:`Component.screen` when this model or these data cannot screen it; the
-    message says why (``check`` writes it in the screen's row)."""
-
-
-#: The screen of a stochastic component (a state, measurement or filter): the Whittle likelihood-ratio of the model
-#: with and without it; the null value is on the boundary of the parameter space, hence the mixture.
-WHITTLE_SCREEN = "Whittle LR, ½χ²₀+½χ²₁"
-#: The same for a stochastic component of two parameters (a Gauss–Markov bias's σ and τ: τ is not identified where σ
-#: vanishes, so the mixture is an approximation; its false-alarm rate is measured in experiments/check)
-WHITTLE_SCREEN_2 = "Whittle LR, ½χ²₁+½χ²₂"
-
-
-def boundary_logsf(lr: float, k: int) -> float:
-    """log P(LR > ``lr``) for a likelihood-ratio whose null puts one parameter of ``k`` on its boundary (a variance
-    at 0): the mixture ½χ²_{k−1} + ½χ²_k (Self & Liang 1987), χ²₀ a point mass at 0."""
-    from scipy import stats
-
-    if lr <= 0:
-        return 0.0
-    hi = stats.chi2.logsf(lr, k)
-    if k == 1:
-        return math.log(0.5) + hi
-    return math.log(0.5) + float(np.logaddexp(stats.chi2.logsf(lr, k - 1), hi))
-#: The default screen of a user's mean effect: the exact likelihood-ratio at the effect's least-squares values (on
-#: the model's residual) with the model's parameters held — a lower bound of the refit's, so conservative.
-MEAN_SCREEN = "exact LR at the effect's least-squares values, the model's held (χ²ₖ, conservative)"
 
 
 def logit(p: Tensor) -> Tensor:
@@ -211,53 +180,9 @@ class Component:
     #: suggestion that only soaks up slow variance, unless that one gains clearly more (``EXPLAIN_WINDOW``)
     explains: tuple = ()
 
-    @property
-    def screen_test(self) -> str | None:
-        """What the screen computes, named in check's table: a stochastic component's Whittle LR, a mean's exact LR
-        at its least-squares values (:meth:`screen`); None: not screened (a modifier without a screen)."""
-        if self.kind in ("state", "measurement", "filter"):
-            return WHITTLE_SCREEN if self.screen_df == 1 else WHITTLE_SCREEN_2 if self.screen_df == 2 else \
-                f"Whittle LR, ½χ²{self.screen_df - 1}+½χ²{self.screen_df}"
-        return MEAN_SCREEN if self.kind == "mean" else None
-
-    @property
-    def screen_df(self) -> int:
-        """The Whittle screen's degrees of freedom: the parameters the fits estimate (not those held)."""
-        return max(1, len([p for p in self.params if p.name not in self.held]))
-
     def not_screened(self, model) -> str | None:
         """Why ``model`` cannot be screened for it (None: it can); ``check`` skips it with this note."""
         return None
-
-    def screen(self, ctx) -> tuple[float, float, dict, str]:
-        """The screen of ``ctx.alt`` (the model extended by this component, labelled ``ctx.label``) against the
-        model at its fit: ``(statistic, log p-value, this component's start values, note)``; raises
-        :class:`NotScreened` with the reason when it cannot. ``ctx``: :class:`~torchtea.checking.check.ScreenContext`.
-
-        A stochastic component without its own screen is screened by the Whittle likelihood-ratio in ``check``
-        (this method is not called). The default for a mean (a user's effect): its values by least squares on the
-        model's residual — its :meth:`regressors` and :meth:`fit_residual`, from its :meth:`start` — and the
-        exact likelihood-ratio there with the model's parameters held (:data:`MEAN_SCREEN`, χ² with as many degrees
-        of freedom as it has parameters)."""
-        if self.kind != "mean":
-            raise NotScreened(f"{self.name} has no screen")
-        from scipy import stats
-
-
-        y, t, ok = ctx.y, ctx.t, ~np.isnan(ctx.y)
-        inp = None if ctx.inputs is None else {k: torch.as_tensor(v, dtype=torch.float64)
-                                                for k, v in ctx.inputs.items()}
-        fitted = ctx.model.mean(dict(ctx.fit.values), torch.as_tensor(t), inp).numpy()[0]
-        resid = np.where(ok, y - fitted, np.nan)
-        resid[ok] -= resid[ok].mean()
-        start = ctx.alt.initial_values(torch.as_tensor(np.where(ok, y, np.nanmean(y))), ctx.h)
-        values, columns = self.regressors(ctx.label, t, ctx.inputs, ok)
-        values.update(remove_regressors(resid, ok, columns))
-        values.update(self.fit_residual(ctx.label, resid, t, ok, ctx.h, start, ctx.inputs))
-        values = {n: values.get(n, start[n]) for n in ctx.alt.names if n not in ctx.model.names}
-        ll = float(ctx.exact_loglik(ctx.alt, {**ctx.fit.values, **values})[0])
-        lr = max(0.0, 2.0 * (ll - ctx.inn.loglik)) if math.isfinite(ll) else 0.0
-        return lr, float(stats.chi2.logsf(lr, len(values))), values, ""
 
     #: Parameters the exact fits hold where the data put them, name → None for a reference (not an estimate:
     #: the temperature's ``t_ref``) or the words the report gives for its interval (an estimate made elsewhere —
@@ -281,12 +206,6 @@ class Component:
 
     #: it needs an argument in a spec (``spikes:K``): the bare name is refused, with these words
     needs_argument: str = ""
-
-    def configure(self, ctx) -> str:
-        """The token with which ``check`` adds it to ``ctx.model``, given the model's fit and innovations (a
-        :class:`~torchtea.checking.check.ScreenContext` whose ``alt`` and ``label`` are not set yet): its name, or
-        ``name:argument`` where the data decide the argument (how many spikes). May raise :class:`NotScreened`."""
-        return self.name
 
     def token_for(self, label: str, values: dict) -> str:
         """The token of the component ``label`` whose parameter values are ``values`` (a simulation's truth)."""

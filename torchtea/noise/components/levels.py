@@ -44,18 +44,7 @@ class Ramp(Component):
     def regressors(self, label, t, inputs, ok):
         return {}, [(f"{label}.slope", t - t[ok].mean())]
 
-    screen_test = "exact LR (whitened regressor), χ²₁"
     screen_order = 60
-
-    def screen(self, ctx):
-        """The exact likelihood-ratio at the fitted noise parameters, by least squares of the innovations on the
-        whitened time (mean and noise parameters are orthogonal in a Gaussian model: holding the latter is
-        asymptotically exact)."""
-        from scipy import stats
-
-
-        lr, beta = ctx.inn.linear_lr(ctx.t - ctx.t.mean())
-        return lr, stats.chi2.logsf(lr, 1), {f"{ctx.label}.slope": float(beta[0])}, ""
 
 
 class Step(Component):
@@ -80,13 +69,12 @@ class Step(Component):
     INTERVAL = ("profile likelihood over the step's time, the other parameters held (2Δℓ ≤ 7.35, the change-point "
                 "limit's 95 % point; hull)")
     add_again = True
-    screen_test = "exact LR at the best candidate time, Bonferroni over the N−1 splits"
     screen_order = 65
     # (explains nothing: the change test fails on any slow wander — a random walk's too; in the hidden-effect study
     # ranking a step first for it took a random-walk seed whose walk gained 8 more)
 
     @staticmethod
-    def _split_scores(resid, ok):
+    def split_scores(resid, ok):
         """c_k² / (m_k (n − m_k)) for the split before each sample k = 1 … N−1 (c the cumulative sum of the centred
         residual, m_k the observed samples before k): one step's least-squares score in white noise."""
         r = np.where(ok, resid - resid[ok].mean(), 0.0)
@@ -94,41 +82,6 @@ class Step(Component):
         m = np.cumsum(ok)[:-1].astype(np.float64)
         n = float(ok.sum())
         return np.where((m > 0) & (m < n), c * c / np.maximum(m * (n - m), 1.0), -np.inf)
-
-    @staticmethod
-    def _tops(score, k: int, gap: int) -> list:
-        """The indices of the ``k`` largest finite scores at least ``gap`` apart."""
-        score = np.array(score, dtype=np.float64)
-        out = []
-        for _ in range(k):
-            i = int(np.argmax(score))
-            if not np.isfinite(score[i]):
-                break
-            out.append(i)
-            score[max(0, i - gap):i + gap + 1] = -np.inf
-        return out
-
-    def screen(self, ctx):
-        """A step's time is searched among a few candidates — the least-squares splits of the model's residual
-        (where a step shows in a model without a slow part) and the largest innovations (where it shows in a model
-        with a random walk, which absorbs it after one sample) — and its exact likelihood-ratio (the model held,
-        the whitened step) taken at the best. The p-value pays for a search over every split: Bonferroni over the
-        N−1 of them (a bound, whatever the model's correlation)."""
-        from scipy import stats
-
-
-        y, N = ctx.y, len(ctx.y)
-        ok = ~np.isnan(y)
-        resid = np.where(ok, ctx.inn.y - ctx.inn.mean, 0.0)
-        ks = [k + 1 for k in self._tops(self._split_scores(resid, ok), 4, max(1, N // 50))]  # starts at sample k
-        z = np.where(np.isfinite(ctx.inn.z), np.abs(ctx.inn.z), -np.inf)
-        z[0] = -np.inf  # a step at the first sample is the level
-        ks = sorted(set(ks) | set(self._tops(z, 4, 10)))
-        X = (np.arange(N)[None, :] >= np.asarray(ks)[:, None]).astype(np.float64)
-        lr, beta, _ = ctx.inn.scan_lr(X)
-        g = int(np.argmax(lr))
-        logp = min(0.0, math.log(N - 1) + float(stats.chi2.logsf(lr[g], 1)))
-        return float(lr[g]), logp, {f"{ctx.label}.size": float(beta[g]), f"{ctx.label}.t_step": float(ctx.t[ks[g]])}, ""
 
     def mean(self, v, t, inputs):
         return v["size"].unsqueeze(-1) * (t >= v["t_step"].unsqueeze(-1)).to(t.dtype)
@@ -170,7 +123,7 @@ class Step(Component):
 
     def fit_residual(self, label, resid, t, ok, h, start, inputs):
         # least squares for one step in white noise (the raw |c_k| would be pulled towards the middle)
-        k = int(np.argmax(self._split_scores(resid, ok))) + 1  # the step is between samples k−1 and k
+        k = int(np.argmax(self.split_scores(resid, ok))) + 1  # the step is between samples k−1 and k
         before, after = ok[:k], ok[k:]
         size = float(resid[k:][after].mean() - resid[:k][before].mean()) if before.any() and after.any() else 0.0
         resid[ok & (np.arange(len(resid)) >= k)] -= size

@@ -30,24 +30,10 @@ class Sinusoid(Component):
     def start(self, param, data):
         return {"frequency_hz": 0.1 / data.h, "amplitude": math.sqrt(data.var) / 10.0, "phase": 0.0}[param]
 
-    screen_test = "largest innovation periodogram line (F(2,200), max over frequencies)"
     screen_order = 20
     explains = ("lines",)
     # the frequency at the refined periodogram peak (asymptotically efficient in coloured noise, Hannan 1973)
     held = {"frequency_hz": "refined periodogram peak (held in the exact refit): no interval"}
-
-    def screen(self, ctx):
-        """The ``lines`` diagnostic's p-value (the largest innovation periodogram ordinate against its neighbours,
-        over all frequencies); the statistic and the start: the whitened sine and cosine at the refined peak."""
-
-        ln = ctx.diagnostic("lines")
-        inn, t = ctx.inn, ctx.t
-        r = inn.y - inn.mean
-        f0 = refine_frequency(np.where(inn.observed, r, 0.0), ln.detail["peak_hz"], ctx.h)
-        lr, beta = inn.linear_lr(np.stack([np.sin(2 * np.pi * f0 * t), np.cos(2 * np.pi * f0 * t)]))
-        return lr, ln.detail["log_p"], {f"{ctx.label}.frequency_hz": f0,
-                                        f"{ctx.label}.amplitude": float(math.hypot(*beta)),
-                                        f"{ctx.label}.phase": float(math.atan2(beta[1], beta[0]))}, ""
 
     def fit_residual(self, label, resid, t, ok, h, start, inputs):
         """The residual periodogram's highest peak (not the trend's three lowest bins), its frequency refined,
@@ -83,7 +69,6 @@ class DriftingLine(Component):
     held = {"frequency_hz": "chirp search, refined (held in the exact refit): no interval",
             "rate_hz_per_s": "chirp search, refined (held in the exact refit): no interval"}
     add_again = True
-    screen_test = "largest dechirped innovation periodogram line (F(2,200), Bonferroni over frequencies and rates)"
     screen_order = 25
     explains = ("spectrum",)
 
@@ -105,20 +90,6 @@ class DriftingLine(Component):
         tau = np.asarray(t) - np.mean(t)
         w = 2 * np.pi * (f0 * tau + 0.5 * f1 * tau * tau)
         return np.stack([np.sin(w), np.cos(w)])
-
-    def screen(self, ctx):
-        """The chirp search on the model's standardised innovations (its p-value, Bonferroni over every frequency
-        and rate tested); the statistic and the start: the whitened chirp's sine and cosine at the refined
-        (f₀, f₁)."""
-
-        inn, t = ctx.inn, ctx.t
-        found = chirp_search(inn.z, ctx.h)
-        r = np.where(inn.observed, inn.y - inn.mean, np.nan)
-        f0, f1 = refine_chirp(r, found["f0_hz"], found["rate_hz_per_s"], ctx.h)
-        lr, beta = inn.linear_lr(self.columns(f0, f1, t))
-        return lr, found["log_p"], {f"{ctx.label}.frequency_hz": f0, f"{ctx.label}.rate_hz_per_s": f1,
-                                    f"{ctx.label}.amplitude": float(math.hypot(*beta)),
-                                    f"{ctx.label}.phase": float(math.atan2(beta[1], beta[0]))}, ""
 
     def fit_residual(self, label, resid, t, ok, h, start, inputs):
         """The chirp search on the residual, refined; amplitude and phase by least squares."""

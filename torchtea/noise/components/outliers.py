@@ -4,8 +4,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from ...core.search import max_abs_bound, max_abs_logp
-from .base import Component, NotScreened, ParamSpec
+from .base import Component, ParamSpec
 
 
 class Spikes(Component):
@@ -24,7 +23,6 @@ class Spikes(Component):
     name = "spikes"
     kind = "mean"
     add_again = True
-    screen_test = "largest |z| against its exact law, P(max > m) = 1 − (1 − 2Φ(−m))ⁿ; the outliers set aside until none is left"
     screen_order = 60
     explains = ("extremes",)
     needs_argument = "spikes need their count: spikes:K (check finds the spikes and their count itself)"
@@ -74,72 +72,6 @@ class Spikes(Component):
     def typical(self, param, h, t_ref):
         j = int(param[4:] if param.startswith("size") else param[1:])
         return 0.05 * (-1) ** j if param.startswith("size") else round((5.0 + 10.0 * (j - 1)) / h) * h
-
-    @classmethod
-    def find(cls, model, values, y, h, inputs, inn, level: float) -> tuple[list, float]:
-        """The samples of the spikes (sorted) and the log p-value of the largest |z| of ``inn`` under the model: every
-        standardised innovation beyond the bound c with P(max |z| > c) = ``level`` over the n observed samples, the
-        samples found set aside (missing) and the filter run again, :attr:`ROUNDS` times at most, until no new one is
-        beyond the bound. Raises :class:`NotScreened` for more than :attr:`MAX_SPIKES`."""
-        from scipy.ndimage import maximum_filter1d
-
-
-        z = inn.z
-        ok = np.isfinite(z)
-        n = int(ok.sum())
-        logp = max_abs_logp(float(np.max(np.abs(z[ok]))) if n else 0.0, n)
-        found: list = []
-        y = np.asarray(y, dtype=np.float64)
-        for _ in range(cls.ROUNDS):
-            ok = np.isfinite(z)
-            bound = max_abs_bound(int(ok.sum()), level)
-            a = np.abs(np.where(ok, z, 0.0))
-            # only the largest within ±NEAR samples: the innovation after a spike carries −gain × spike and can be
-            # beyond the bound too; the filter rerun without the spike tells whether it is one
-            peak = a >= maximum_filter1d(a, 2 * cls.NEAR + 1, mode="constant")
-            new = [int(k) for k in np.nonzero((a > bound) & peak)[0] if k not in found]
-            if not new:
-                break
-            found += new
-            if len(found) > cls.MAX_SPIKES:
-                raise NotScreened(f"{len(found)} or more innovations beyond the extremes bound: heavy-tailed noise, "
-                                  f"not isolated spikes (at most {cls.MAX_SPIKES})")
-            y2 = y.copy()
-            y2[found] = np.nan
-            z = inn.again(y2).z
-        if not found:  # nothing beyond the bound: the largest, so that the screen has a statistic (and fails)
-            found = [int(np.nanargmax(np.abs(inn.z)))]
-        return sorted(found), logp
-
-    def _found(self, ctx) -> tuple[list, float]:
-        """:meth:`find` on the check's model and innovations, once per check (kept in ``ctx.memo``)."""
-        key = ("spikes", ctx.model.spec)
-        if key not in ctx.memo:
-            ctx.memo[key] = self.find(ctx.model, dict(ctx.fit.values), ctx.y, ctx.h, ctx.inputs, ctx.inn,
-                                      ctx.extremes_level)
-        return ctx.memo[key]
-
-    def configure(self, ctx):
-        return f"{self.name}:{len(self._found(ctx)[0])}"
-
-    def screen(self, ctx):
-        """The spikes :meth:`find` gives, their sizes by GLS (the whitened impulses, jointly, the model held): the
-        statistic is their exact likelihood-ratio, the p-value that of the largest |z| under the model (the
-        extremes diagnostic's exact law: it is what decides whether there is any spike)."""
-
-        ks, logp = self._found(ctx)
-        comp = dict(ctx.alt.components)[ctx.label]
-        if comp.count != len(ks):
-            raise NotScreened(f"the model was extended by {comp.count} spikes, {len(ks)} were found")
-        X = np.zeros((len(ks), len(ctx.y)))
-        X[np.arange(len(ks)), ks] = 1.0
-        lr, beta = ctx.inn.linear_lr(X)
-        values = {}
-        for j, (k, b) in enumerate(zip(ks, np.atleast_1d(beta)), start=1):
-            values[f"{ctx.label}.size{j}"] = float(b)
-            values[f"{ctx.label}.t{j}"] = float(ctx.t[k])
-        times = ", ".join(f"{ctx.t[k]:.2f} s" for k in ks[:8]) + (f" and {len(ks) - 8} more" if len(ks) > 8 else "")
-        return float(lr), float(logp), values, f"{len(ks)} spike(s) at {times}"
 
     def fit_residual(self, label, resid, t, ok, h, start, inputs):
         """The ``count`` samples farthest from the median of their ±5 neighbours (a local level: a wander or a step

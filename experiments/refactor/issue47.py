@@ -1,0 +1,172 @@
+"""Issue 47's refactors against the code before them: every output the same, bit for bit.
+
+    python experiments/refactor/issue47.py [--old a720df1] [--cases components,fit,check,cli]
+
+The old tree is checked out with ``git worktree`` (removed afterwards); each case runs in a child process whose
+``sys.path`` starts with one tree and prints a digest: the SHA-256 of every number it computed, written with
+``float.hex`` (so equal digests mean equal bits), and a few of the numbers for the eye. Cases:
+
+* ``components`` — every built-in effect in a model (``fractional+white+EFFECT``, its inputs a warm-up temperature):
+  its spectrum at 64 frequencies, its mean, 2000 simulated samples (seeded), the exact log-likelihood there;
+* ``fit`` — the exact fit (values, standard errors, intervals, log-likelihoods) of fractional+white+random-walk to
+  6000 simulated samples;
+* ``check`` — ``check`` of 6000 samples with a hidden sinusoid and temperature bias, every candidate screened:
+  the screens' rows (statistics, p-values, notes), the suggestions (gains, parameters), the diagnostics;
+* ``cli`` — ``torchtea fit --json`` of the bundled recording's first 3000 samples (the seconds, the command and
+  the file's path — each tree's own — left out).
+
+Writes experiments/refactor/issue47.json.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+ROOT = HERE.parents[1]
+
+CHILD = r'''
+import hashlib, json, math, sys
+import numpy as np
+import torch
+torch.set_num_threads(1)
+case = sys.argv[1]
+H = 0.01
+
+def flat(x, out):
+    """Every number in x (nested dicts, lists, arrays, tensors) as float.hex, in a fixed order."""
+    if isinstance(x, dict):
+        for k in sorted(x, key=str):
+            out.append(str(k)); flat(x[k], out)
+    elif isinstance(x, (list, tuple)):
+        for v in x:
+            flat(v, out)
+    elif isinstance(x, torch.Tensor):
+        flat(x.detach().cpu().numpy(), out)
+    elif isinstance(x, np.ndarray):
+        out.extend(float(v).hex() for v in x.astype(np.float64).ravel())
+    elif isinstance(x, (bool, np.bool_)) or x is None or isinstance(x, str):
+        out.append(repr(x))
+    elif isinstance(x, (int, float, np.floating, np.integer)):
+        out.append(float(x).hex())
+    else:
+        out.append(repr(x))
+    return out
+
+def digest(x):
+    return hashlib.sha256("\n".join(flat(x, [])).encode()).hexdigest()
+
+def series(model, values, n, T, seed):
+    from torchtea.noise import simulate_model
+    return simulate_model(model, values, n_steps=n, h=H, inputs={"temperature": T},
+                          generator=torch.Generator().manual_seed(seed))[0, 0].numpy()
+
+out = {}
+if case == "components":
+    from torchtea.noise import default_values, parse_model, temperature_profile
+    from torchtea.noise.components import COMPONENTS
+    from torchtea.fitting.exact import exact_loglik
+    T = temperature_profile(2000, H, generator=torch.Generator().manual_seed(0))
+    omega = torch.linspace(0.01, 3.1, 64, dtype=torch.float64)
+    t = torch.arange(2000, dtype=torch.float64) * H
+    for name, comp in COMPONENTS.items():
+        if name in ("fractional", "white") or not comp.candidate:
+            continue
+        token = "spikes:3" if name == "spikes" else name
+        try:
+            model = parse_model(f"fractional+white+{token}")
+        except ValueError as exc:
+            out[name] = {"refused": str(exc)}
+            continue
+        v = default_values(model, H, T)
+        vt = {k: torch.tensor([x], dtype=torch.float64) for k, x in v.items()}
+        row = {"values": v}
+        if model.stationary:
+            row["spectrum"] = model.spectrum(vt, omega, H)
+        row["mean"] = model.mean(vt, t, {"temperature": T})
+        y = series(model, v, 2000, T, 1)
+        row["series"] = y
+        row["loglik"] = exact_loglik(model, v, y, H, inputs={"temperature": T.numpy()})
+        out[name] = {"digest": digest(row), "loglik": float(np.asarray(row["loglik"]).ravel()[0])}
+elif case == "fit":
+    from torchtea.fitting.mle import fit_series
+    from torchtea.noise import default_values, temperature_profile
+    model = "fractional+white+random-walk"
+    T = temperature_profile(6000, H, generator=torch.Generator().manual_seed(0))
+    v = default_values(model, H)
+    v["random-walk.sigma"] = 2e-3
+    y = series(model, v, 6000, T, 3)
+    f = fit_series(model, [y], H)[0]
+    row = {"values": f.values, "se": f.se, "ci95": f.ci95, "loglik": f.loglik, "exact": f.loglik_exact, "n": f.n}
+    out = {"digest": digest(row), "values": f.values, "loglik_exact": f.loglik_exact}
+elif case == "check":
+    from torchtea.checking import check
+    from torchtea.noise import default_values, temperature_profile
+    truth = "fractional+white+sinusoid+temperature-bias"
+    T = temperature_profile(6000, H, generator=torch.Generator().manual_seed(7))
+    v = default_values(truth, H, T)
+    v.update({"sinusoid.frequency_hz": 3.37, "sinusoid.amplitude": 8e-3, "temperature-bias.bias_per_degC": 0.01})
+    y = series(truth, v, 6000, T, 7)
+    d = check(y, H, model="fractional+white", inputs={"temperature": T.numpy()}).as_dict()
+    for k in ("seconds", "seconds_this_step", "steps"):
+        d.pop(k, None)
+    for s in d["screens"]:
+        s.pop("seconds", None)
+    out = {"digest": digest(d), "screens": [[s["effect"], s.get("statistic"), s.get("p_value")] for s in d["screens"]],
+           "suggestions": [[s["effect"], s["gain"]] for s in d["suggestions"]]}
+elif case == "cli":
+    import contextlib, io
+    from torchtea.cli import main
+    buf = io.StringIO()
+    with contextlib.redirect_stdout(buf):
+        main(["fit", "--samples", "3000", "--bootstrap", "0", "--json"])
+    doc = json.loads(buf.getvalue())
+    doc.pop("seconds"); doc.pop("command", None); doc.pop("meaning", None)
+    doc.pop("recording")  # the bundled file's path, inside each tree
+    out = {"digest": digest(doc), "bic": {a: x["bic"] for a, x in doc["axes"].items()}}
+print(json.dumps(out))
+'''
+
+
+def run(tree: Path, case: str) -> dict:
+    code = f"import sys; sys.path.insert(0, {str(tree)!r})\n" + CHILD
+    res = subprocess.run([sys.executable, "-c", code, case], capture_output=True, text=True, cwd=tempfile.gettempdir(),
+                         env={"MPLBACKEND": "Agg", "PATH": "/usr/bin:/bin", "HOME": str(Path.home())})
+    if res.returncode:
+        raise RuntimeError(f"{case} in {tree}: {res.stderr[-2000:]}")
+    return json.loads(res.stdout.strip().splitlines()[-1])
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--old", default="a720df1", help="the commit before the refactor (default a720df1)")
+    ap.add_argument("--cases", default="components,fit,check,cli")
+    args = ap.parse_args()
+    new = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
+    if subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=ROOT, capture_output=True,
+                      text=True).stdout.strip():
+        new += " + uncommitted changes"
+    old_dir = Path(tempfile.mkdtemp(prefix="issue47-old-"))
+    subprocess.run(["git", "worktree", "add", "--detach", str(old_dir), args.old], cwd=ROOT, check=True,
+                   capture_output=True)
+    results, same = {"old": args.old, "new": new, "cases": {}}, True
+    try:
+        for case in args.cases.split(","):
+            a, b = run(old_dir, case), run(ROOT, case)
+            equal = a == b
+            same &= equal
+            results["cases"][case] = {"equal": equal, "old": a, "new": b}
+            print(f"{case:12s} {'the same, bit for bit' if equal else 'DIFFERENT'}")
+    finally:
+        subprocess.run(["git", "worktree", "remove", "--force", str(old_dir)], cwd=ROOT, capture_output=True)
+    (HERE / "issue47.json").write_text(json.dumps(results, indent=1) + "\n")
+    print(f"{args.old} → {new}: {'every output the same' if same else 'outputs differ'}; written {HERE / 'issue47.json'}")
+    return 0 if same else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -201,11 +201,11 @@ def test_a_users_effect_may_register_its_own_screen(warm_up):
     is back."""
     from scipy import stats
 
-    from torchtea.checking.screens import MEAN_SCREEN, REGISTRY, register_screen, screen_test
+    from torchtea.checking.screens import MEAN_SCREEN, register_screen, screen_test, unregister_screen
 
     calls = []
 
-    @register_screen(WarmUp, "exact LR of the whitened exp(−t/20 s), χ²₁")
+    @register_screen(warm_up, "exact LR of the whitened exp(−t/20 s), χ²₁")  # an instance names its class
     def warm_up_screen(comp, ctx):
         calls.append(ctx.label)
         lr, beta = ctx.inn.linear_lr(np.exp(-ctx.t / 20.0))
@@ -220,8 +220,26 @@ def test_a_users_effect_may_register_its_own_screen(warm_up):
         assert r.suggestions[0].effect == "warm-up"
         assert r.suggestions[0].fit.values["warm-up.tau_s"] == pytest.approx(20, rel=0.3)
     finally:
-        REGISTRY.pop(WarmUp, None)
+        unregister_screen(WarmUp)
     assert screen_test(warm_up) == MEAN_SCREEN
+
+
+def test_a_class_with_the_old_screen_hooks_is_refused_not_silently_defaulted():
+    """Before screens were registered apart, a class carried its own ``screen``/``screen_test``/``configure``;
+    register refuses one that still does, naming the new way, and the moved names say where they went."""
+    import torchtea.noise.components as components
+
+    class OldStyle(WarmUp):
+        name = "old-style"
+
+        def screen(self, ctx):
+            return 0.0, 0.0, {}, ""
+
+    with pytest.raises(ValueError, match="screen on the class is no longer read.*register_screen"):
+        register(OldStyle)
+    assert "old-style" not in COMPONENTS
+    with pytest.raises(AttributeError, match="moved to torchtea.checking.screens.NotScreened"):
+        components.NotScreened
 
 
 def _assert_dense_density(m, v, y, cov):

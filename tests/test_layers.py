@@ -10,9 +10,10 @@ circle. Lowest first:
 7. the applications: ``identification``, ``reports``, ``studies``, the recorder, live mode and the fake device;
 8. the command line and the package's own ``__init__``.
 
-A component's screen (in ``noise``) gets what it needs of the layers above through what it is given — the check's
-``ScreenContext`` (``ctx.exact_loglik``), the ``Innovations`` (``ctx.inn.linear_lr``, ``.scan_lr``, ``.again``) —
-and the searches it runs on a series live in ``core.search``. ``KNOWN`` would list upward imports allowed for now:
+An effect's screen lives in ``checking.screens`` (registered apart from the effect's physics in ``noise``); it reads
+the check's ``ScreenContext`` (``ctx.exact_loglik``) and ``Innovations`` (``ctx.inn.linear_lr``, ``.scan_lr``,
+``.again``), and the searches it runs on a series live in ``core.search``. No module takes a private part of another
+sub-package (:func:`test_no_module_takes_a_private_part_of_another_subpackage`). ``KNOWN`` would list upward imports allowed for now:
 none is left; the test fails on a new one."""
 from __future__ import annotations
 

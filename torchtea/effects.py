@@ -49,6 +49,9 @@ ENTRY_POINTS = "torchtea.effects"
 #: ``modifier`` (the temperature-driven order) are built into the state-space assembly and cannot be added.
 KINDS = ("state", "measurement", "mean")
 _BUILT_IN = frozenset(COMPONENTS)
+#: The screen methods a component class had before screens were registered apart (torchtea.checking.screens): a
+#: user's class that still defines one is refused by :func:`register`, not silently screened by the default.
+SCREEN_HOOKS = ("screen", "screen_test", "screen_df", "configure")
 _loaded_entry_points = False
 
 
@@ -75,6 +78,10 @@ def register(effect, *, replace: bool = False):
         raise ValueError(f"{where}: a mean effect must define mean(v, t, inputs)")
     if comp.kind == "state" and (type(comp).block is Component.block or type(comp).spectrum is Component.spectrum):
         raise ValueError(f"{where}: a state effect must define block(v, h, memory) and spectrum(v, omega, h)")
+    old = [m for m in SCREEN_HOOKS if any(m in vars(c) for c in type(comp).__mro__[:-1] if c is not Component)]
+    if old:
+        raise ValueError(f"{where}: {', '.join(old)} on the class is no longer read — how check screens an effect is "
+                         "registered apart: torchtea.checking.screens.register_screen(YourEffect, test=…)")
     if name in _BUILT_IN:
         raise ValueError(f"{where}: {name!r} is a built-in component and cannot be replaced")
     if name in COMPONENTS and not replace:

@@ -12,6 +12,9 @@ The old tree is checked out with ``git worktree`` (removed afterwards); each cas
   6000 simulated samples;
 * ``check`` — ``check`` of 6000 samples with a hidden sinusoid and temperature bias, every candidate screened:
   the screens' rows (statistics, p-values, notes), the suggestions (gains, parameters), the diagnostics;
+* ``loop`` — ``check(...).auto()`` of 6000 samples with a temperature-driven order, a step and three spikes: every
+  step's document (its screens — the spikes' count chosen by their screen, the temperature-order scan past its first
+  stage — suggestions, diagnostics and fit);
 * ``cli`` — ``torchtea fit --json`` of the bundled recording's first 3000 samples (the seconds, the command and
   the file's path — each tree's own — left out).
 
@@ -118,6 +121,26 @@ elif case == "check":
         s.pop("seconds", None)
     out = {"digest": digest(d), "screens": [[s["effect"], s.get("statistic"), s.get("p_value")] for s in d["screens"]],
            "suggestions": [[s["effect"], s["gain"]] for s in d["suggestions"]]}
+elif case == "loop":
+    from torchtea.checking import check
+    from torchtea.noise import default_values, parse_model, temperature_profile
+    truth = parse_model("fractional+white+temperature-order+step+spikes:3")
+    T = temperature_profile(6000, H, generator=torch.Generator().manual_seed(11))
+    v = default_values(truth, H, T)
+    v.update({"temperature-order.order_per_degC": 0.03, "step.size": 0.05, "step.t_step": 31.0,
+              "spikes.size1": -0.3, "spikes.size2": 0.3, "spikes.size3": -0.3})
+    y = series(truth, v, 6000, T, 11)
+    r = check(y, H, model="fractional+white", inputs={"temperature": T.numpy()}, intervals=False)
+    r = r.auto(intervals=False, max_steps=4)
+    docs = []
+    for st in r.steps:
+        d = st.as_dict()
+        for k in ("seconds", "seconds_this_step", "steps"):
+            d.pop(k, None)
+        for s in d["screens"]:
+            s.pop("seconds", None)
+        docs.append(d)
+    out = {"digest": digest(docs), "path": [st.model.spec for st in r.steps], "loop_end": r.loop_end}
 elif case == "cli":
     import contextlib, io
     from torchtea.cli import main
@@ -144,7 +167,7 @@ def run(tree: Path, case: str) -> dict:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--old", default="a720df1", help="the commit before the refactor (default a720df1)")
-    ap.add_argument("--cases", default="components,fit,check,cli")
+    ap.add_argument("--cases", default="components,fit,check,loop,cli")
     args = ap.parse_args()
     new = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
     if subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=ROOT, capture_output=True,

@@ -12,7 +12,7 @@ import torch
 
 from ...core.search import remove_regressors
 
-__all__ = ["Screen", "REGISTRY", "register_screen", "screen_of", "screen_df", "screen_test", "whittle_screened",
+__all__ = ["Screen", "REGISTRY", "register_screen", "unregister_screen", "screen_of", "screen_df", "screen_test", "whittle_screened",
            "run_screen", "configure", "mean_screen", "boundary_logsf", "NotScreened", "WHITTLE_SCREEN",
            "WHITTLE_SCREEN_2", "MEAN_SCREEN"]
 
@@ -62,13 +62,23 @@ class Screen:
 REGISTRY: dict = {}
 
 
-def register_screen(effect: type, test: str, configure: Callable | None = None):
-    """Decorator: the function becomes the screen of the effect class ``effect`` (a built-in one's or a user's,
-    as ``torch.distributions.register_kl`` attaches a divergence to a pair of classes)."""
+def register_screen(effect, test: str, configure: Callable | None = None):
+    """Decorator: the function becomes the screen of the effect class ``effect`` (a built-in one's or a user's, or
+    the class of an effect instance given; as ``torch.distributions.register_kl`` attaches a divergence to a pair of
+    classes). Register it in the module that defines the effect, so that whatever loads the effect — ``--effects``,
+    a Dask worker, an entry point — loads its screen too."""
+    cls = effect if isinstance(effect, type) else type(effect)
+
     def attach(run: Callable) -> Callable:
-        REGISTRY[effect] = Screen(run, test, configure)
+        REGISTRY[cls] = Screen(run, test, configure)
         return run
     return attach
+
+
+def unregister_screen(effect) -> None:
+    """Remove the screen registered for the effect class ``effect`` (or an instance's class): its kind's default is
+    back."""
+    REGISTRY.pop(effect if isinstance(effect, type) else type(effect), None)
 
 
 def screen_of(comp) -> Screen | None:

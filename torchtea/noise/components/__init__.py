@@ -52,6 +52,16 @@ __all__ = ["ParamSpec", "Component", "StartData", "TEAPart", "TEAUnsupported", "
            "DigitalFilter", "Spikes", "Resonance"]
 
 
+#: Names this module exported before the screens moved to :mod:`torchtea.checking.screens`.
+MOVED = frozenset({"NotScreened", "WHITTLE_SCREEN", "WHITTLE_SCREEN_2", "MEAN_SCREEN", "boundary_logsf"})
+
+
+def __getattr__(name: str):
+    if name in MOVED:
+        raise AttributeError(f"torchtea.noise.components.{name} moved to torchtea.checking.screens.{name}")
+    raise AttributeError(f"module 'torchtea.noise.components' has no attribute {name!r}")
+
+
 COMPONENTS = {c.name: c for c in (Fractional(), White(), Quantisation(), RandomWalk(), LowPass(), Offset(), Ramp(),
                                   Sinusoid(), TemperatureBias(), TemperatureOrder(), GaussMarkov(), ThermalLag(),
                                   Step(), DriftingLine(), DigitalFilter(), Spikes(), Resonance())}

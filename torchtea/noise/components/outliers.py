@@ -77,7 +77,7 @@ class Spikes(Component):
         """The ``count`` samples farthest from the median of their ±5 neighbours (a local level: a wander or a step
         does not count), in units of the median absolute deviation of those excesses (a scale the spikes do not
         inflate); each spike's size its excess. A start for a model written by hand: ``check`` finds the spikes by
-        the extremes law and their sizes by GLS (:meth:`screen`)."""
+        the extremes law and their sizes by GLS (its screen, :func:`torchtea.checking.screens.outliers.spikes`)."""
         from scipy.ndimage import generic_filter
 
         r = np.where(ok, resid, np.nan)

@@ -170,8 +170,8 @@ def main() -> int:
     ap.add_argument("--cases", default="components,fit,check,loop,cli")
     args = ap.parse_args()
     new = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
-    if subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=ROOT, capture_output=True,
-                      text=True).stdout.strip():
+    if subprocess.run(["git", "status", "--porcelain", "--untracked-files=no", "--", ".",
+                       ":!experiments/refactor/issue47.json"], cwd=ROOT, capture_output=True, text=True).stdout.strip():
         new += " + uncommitted changes"
     old_dir = Path(tempfile.mkdtemp(prefix="issue47-old-"))
     subprocess.run(["git", "worktree", "add", "--detach", str(old_dir), args.old], cwd=ROOT, check=True,

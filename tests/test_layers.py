@@ -182,6 +182,20 @@ def test_no_module_takes_a_private_part_of_another_subpackage():
     assert private_imports("from ._kernels import y\n", "torchtea.likelihood.kalman", False) == []
 
 
+def test_the_noise_layer_runs_no_statistical_test():
+    """Issue 47, item 4: the model's layer (``noise``) holds physics — spectra, state blocks, means, their fits'
+    starts — and no test: scipy's ``stats`` is the screens' and the diagnostics' (``checking``), not the effects'."""
+    hits = []
+    for path in (ROOT / "noise").rglob("*.py"):
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            names = ([a.name for a in node.names] if isinstance(node, ast.Import) else
+                     [f"{node.module}.{a.name}" for a in node.names] if isinstance(node, ast.ImportFrom) and node.module
+                     else [])
+            hits += [f"{path.relative_to(ROOT)}:{node.lineno} {n}" for n in names if n.startswith("scipy.stats")
+                     or n == "scipy.stats"]
+    assert hits == [], hits
+
+
 def test_the_checker_sees_what_it_must():
     """The reader finds a function-level import, a relative ``from . import x`` of a submodule, a ``from ..x import
     name`` and an ``import_module`` call; and a module importing upward fails the layer test's rule."""

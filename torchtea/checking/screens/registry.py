@@ -51,7 +51,7 @@ class Screen:
     """An effect's own screen: ``run(component, ctx)`` → ``(statistic, log p-value, the effect's start values,
     note)`` (raising :class:`NotScreened` with the reason when it cannot), ``test`` what it computes (check's table
     names it), and ``configure(component, ctx)`` → the token with which ``check`` adds the effect when the data decide
-    its argument (how many spikes; None: its name). ``ctx``: :class:`~torchtea.checking.check.ScreenContext`."""
+    its argument (how many spikes; None: its name). ``ctx``: :class:`~torchtea.checking.screening.ScreenContext`."""
 
     run: Callable
     test: str

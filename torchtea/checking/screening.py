@@ -1,0 +1,134 @@
+"""The screening step of ``check``: every candidate effect screened against the model at its fit — each by its own
+screen (:mod:`.screens`), the stochastic ones without one by the Whittle likelihood-ratio on one periodogram — and the
+context a screen reads (:class:`ScreenContext`)."""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..fitting.mle import Fit, centred, exact_loglik, whittle_fit
+from ..noise.components import COMPONENTS
+from ..noise.model import NoiseModel
+from . import screens
+from .diagnostics import LEVEL, Diagnostic, Innovations
+from .models import extend
+from .screens import NotScreened, boundary_logsf
+
+__all__ = ["ScreenContext", "screen_all", "whittle_screens", "new_label"]
+
+
+def new_label(base: NoiseModel, alt: NoiseModel) -> str:
+    old = {label for label, _ in base.components}
+    return next(label for label, _ in alt.components if label not in old)
+
+
+@dataclass
+class ScreenContext:
+    """What an effect's screen (:mod:`.screens`) may use: the model and its fit, the
+    model extended by the component (``alt``, the component labelled ``label``), the model's innovations and
+    diagnostics at the fit, the series ``y`` (NaN = missing) with its times ``t`` (s) and sample time ``h``, and the
+    input channels (``{"temperature": (N,)}`` or None)."""
+
+    model: NoiseModel
+    alt: NoiseModel
+    label: str
+    fit: Fit
+    inn: Innovations
+    diags: list
+    y: np.ndarray
+    t: np.ndarray
+    h: float
+    inputs: dict | None
+    #: what a screen's ``configure`` found (:func:`.screens.configure`), for the screen to reuse
+    memo: dict = field(default_factory=dict)
+    #: the level of the extremes diagnostic, whose bound decides what an isolated outlier is (spikes)
+    extremes_level: float = LEVEL
+
+    def diagnostic(self, name: str) -> Diagnostic:
+        return next(d for d in self.diags if d.name == name)
+
+    def exact_loglik(self, model, values, inputs: dict | None = None):
+        """The exact log-likelihood ``(B,)`` of ``model`` at ``values`` (a batch) on this series as the likelihood sees
+        it (:func:`~torchtea.fitting.exact.centred`), with this check's inputs unless ``inputs`` are given: what a
+        component's screen evaluates, so that it needs nothing of the fitting layer."""
+        return exact_loglik(model, values, centred(model, self.y), self.h,
+                            inputs=self.inputs if inputs is None else inputs)
+
+
+def screen_all(model: NoiseModel, fit: Fit, wf, inn: Innovations, diags, y, h, inputs, effects,
+            cache: dict | None = None) -> list[dict]:
+    """Screening statistic, p-value and a starting point for each candidate effect: each component's own
+    screen (:func:`.screens.run_screen`), the stochastic ones without one by the Whittle
+    likelihood-ratio (all of them on one periodogram)."""
+    t = np.arange(len(y)) * h
+    out = []
+    stochastic = []
+    for effect in effects:
+        comp = COMPONENTS[effect]
+        row = {"effect": effect, "test": screens.screen_test(comp), "statistic": None, "p_value": None, "log10_p": None,
+               "start": None, "note": ""}
+        out.append(row)
+        ctx = ScreenContext(model, None, "", fit, inn, diags, y, t, h, inputs)
+        try:
+            row["token"] = screens.configure(comp, ctx)
+            alt = extend(model, row["token"])
+        except (ValueError, NotScreened) as exc:
+            row["note"] = f"not screened: {exc}"
+            continue
+        label = new_label(model, alt)
+        ctx.alt, ctx.label = alt, label
+        missing = [k for k in comp.inputs if inputs is None or inputs.get(k) is None]
+        reason = f"needs the {' and '.join(missing)} channel" if missing else comp.not_screened(model)
+        if reason:
+            row["note"] = f"not screened: {reason}"
+            continue
+        if screens.whittle_screened(comp):
+            stochastic.append((row, alt))
+            continue
+        try:
+            lr, logp, values, note = screens.run_screen(comp, ctx)
+        except NotScreened as exc:
+            row["note"] = f"not screened: {exc}"
+            continue
+        row.update(statistic=lr, start={**dict(fit.values), **values}, note=note,
+                   p_value=float(math.exp(logp)), log10_p=float(logp / math.log(10)))
+    if stochastic and np.isnan(y).any():
+        for row, _ in stochastic:
+            row["note"] = "not screened: the Whittle likelihood-ratio needs a complete series (missing samples)"
+    elif stochastic:
+        whittle_screens(model, wf, stochastic, y, h, inputs, {} if cache is None else cache)
+    return out
+
+
+def whittle_screens(model, base, rows_alts, y, h, inputs, cache: dict):
+    """Whittle LR of each stochastic candidate against the model (its Whittle fit ``base``), on the same
+    periodogram. They do not depend on the model's exact fit, so a check run again from a better exact fit takes
+    them from ``cache`` (keyed by the candidate's spec)."""
+    yy = centred(model, y)
+    inp = None if inputs is None else [inputs]
+    base_values = dict(zip(model.names, base.values[0].tolist()))
+    for row, alt in rows_alts:
+        key = ("whittle screen", alt.spec)
+        if key in cache:
+            row.update(cache[key])
+            continue
+        label = new_label(model, alt)
+        # the grid as well as the effect's strengths from the model's fit: a model that lacks a random walk (or a
+        # low-pass) may have bent its fractional order to ≈ 1 to mimic it, and the extended model's optimum is then
+        # far from the model's. Both kinds of start run to convergence in one batch and the best is kept (a user's
+        # component may give no strength: the grid alone then)
+        strengths = dict(alt.components)[label].strengths(label, model, base_values, h, len(y))
+        wf = whittle_fit(alt, [yy], h, inputs=inp, fractions=(0.5,),
+                         starts=[[{**base_values, **o} for o in strengths]] if strengths else None)
+        lr = max(0.0, 2.0 * float(wf.loglik[0] - base.loglik[0]))
+        logp = boundary_logsf(lr, screens.screen_df(dict(alt.components)[label]))
+        vals = dict(zip(alt.names, wf.values[0].tolist()))
+        vals.update(wf.means[0])
+        modes = [{**{n: float(x) for n, x in zip(alt.names, alt.as_matrix(alt.from_unconstrained(u, h))[0])},
+                  **wf.means[0]} for u, _, _ in (wf.modes[0] if wf.modes else [])]
+        found = dict(statistic=lr, p_value=float(math.exp(logp)), log10_p=float(logp / math.log(10)),
+                     start=vals, metric=wf.hessian[0], modes=modes)
+        cache[key] = found
+        row.update(found)

@@ -5,7 +5,7 @@ from pathlib import Path
 
 import mkdocs_gen_files
 
-from torchtea.reference import PAGES, sane_lists
+from torchtea.reference import PAGES, link_design_notes, sane_lists
 
 ROOT = Path(__file__).resolve().parent.parent
 EXPERIMENTS = ROOT / "experiments"
@@ -23,7 +23,7 @@ index = index.replace("# Experiments", "# Studies\n\nThe reproductions, studies 
 
 def studies_page(text: str, depth: int) -> str:
     """A study's Markdown as the site shows it: lists as Python-Markdown reads them, the design notes linked."""
-    return sane_lists(text).replace("`ALGORITHMS.md`", "ALGORITHMS.md").replace("ALGORITHMS.md", f"[ALGORITHMS.md]({'../' * depth}explanation/algorithms.md)")
+    return link_design_notes(sane_lists(text), "../" * depth)
 
 
 with mkdocs_gen_files.open("studies/index.md", "w") as f:

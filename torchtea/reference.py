@@ -10,7 +10,7 @@ import inspect
 import os
 import re
 
-__all__ = ["rst_to_markdown", "sane_lists", "effects_page", "diagnostics_page", "cli_page", "json_page", "PAGES"]
+__all__ = ["rst_to_markdown", "sane_lists", "link_design_notes", "effects_page", "diagnostics_page", "cli_page", "json_page", "PAGES"]
 
 _ROLE = re.compile(r":(?:func|class|meth|attr|data|mod|obj|exc):`~?([^`]+)`")
 
@@ -63,6 +63,13 @@ def sane_lists(text: str) -> str:
     return "\n".join(out)
 
 
+def link_design_notes(text: str, to_site_root: str) -> str:
+    """``text`` with its citations of the design notes (``ALGORITHMS.md``, in code or not) linked to the site's
+    algorithms page, ``to_site_root`` the relative path from the page to the site's root (``"../"``)."""
+    return text.replace("`ALGORITHMS.md`", "ALGORITHMS.md").replace(
+        "ALGORITHMS.md", f"[ALGORITHMS.md]({to_site_root}explanation/algorithms.md)")
+
+
 def _cell(x) -> str:
     return str(x).replace("|", "\\|").replace("\n", " ")
 
@@ -103,7 +110,7 @@ def effects_page() -> str:
         if not comp.stationary:
             facts.append("not stationary: fitted by the exact likelihood only")
         facts.append("screened by `check`" if name in screened else "not screened (add it with `--add` or a model)")
-        physics = rst_to_markdown(type(comp).__doc__).replace("ALGORITHMS.md", "[ALGORITHMS.md](../explanation/algorithms.md)")
+        physics = link_design_notes(rst_to_markdown(type(comp).__doc__), "../")
         lines += [f"## `{name}`", "", "; ".join(facts) + ".", "", physics, ""]
         if comp.params:
             rows = [(f"`{name}.{p.name}`", p.kind, p.unit,

@@ -20,13 +20,14 @@ from ..noise.model import parse_model
 from ..likelihood.whittle import periodogram
 from ..render.plots import pyplot, save_figure
 from ..render.strictjson import write
-from ..sensors.measurements import RECORDING_MEANING
+from ..sensors.measurements import DOCUMENT_MEANING, RECORDING_MEANING
 from . import allan
 from .check import CLOSE_BIC, CheckResult, change_words
 
 __all__ = ["write_report", "axis_document", "figures", "MEANING"]
 
 MEANING = {
+    **DOCUMENT_MEANING,
     "adequate": "every diagnostic that ran passed at its level (a test of 'the data came from the fitted model')",
     "nll_per_sample": "−(exact log-likelihood)/(observed samples) at the fit, nats",
     "observed": "the samples the fit saw (missing ones not counted): the n of BIC and of plan's 'this record'",
@@ -74,10 +75,7 @@ MEANING = {
     "white_noise_density": "√(r h) of the fitted white noise: its density in unit/√Hz",
     "unit": "the channel's unit (m/s² accelerometer, rad/s gyroscope); a parameter's 'units' is it",
     "datasheet": "(--datasheet) the axis's N, B, K held against the datasheet's, with a verdict per term",
-    "command": "the command line that made the file",
-    "warnings": "where a number should not be trusted, and why (the recording's faults and timing first)",
     "axes": "one document per channel, by label (a single channel's is also at the top level)",
-    "meaning": "this table: what each entry means",
     "ties": "what the record cannot tell apart from the model the loop ended with: models fitted on the way whose "
             "BIC is within 6 above its own and that are adequate where it is (kind swap: one component for another; "
             "add: one more; drop: one fewer; other), and the last step's suggestions that gain less than 6 (kind add, "

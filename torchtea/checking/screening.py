@@ -58,7 +58,7 @@ class ScreenContext:
 
 
 def screen_all(model: NoiseModel, fit: Fit, wf, inn: Innovations, diags, y, h, inputs, effects,
-            cache: dict | None = None) -> list[dict]:
+               cache: dict | None = None) -> list[dict]:
     """Screening statistic, p-value and a starting point for each candidate effect: each component's own
     screen (:func:`.screens.run_screen`), the stochastic ones without one by the Whittle
     likelihood-ratio (all of them on one periodogram)."""

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..sensors.measurements import RECORDING_MEANING
+from ..sensors.measurements import DOCUMENT_MEANING, RECORDING_MEANING
 from .formats import FORMATS, FormatError
 from .nees import nees_study
 from .terms import IN_FORMATS, axis_terms
@@ -26,6 +26,7 @@ NEES_SAMPLES = 30_000
 #: :data:`~torchtea.sensors.measurements.RECORDING_MEANING`).
 EXPORT_MEANING = {
     **RECORDING_MEANING,
+    **DOCUMENT_MEANING,
     "bare": "N (white noise density) and K (bias random walk) as the fitted model has them",
     "covered": "the least N, K whose Allan deviation covers the fitted model's over the horizon",
     "factor": "covered / bare (None where the model has none of the term)",
@@ -40,10 +41,8 @@ EXPORT_MEANING = {
     "axes": "one entry per axis: its sensor, unit, model, N, B, K, the IEEE 952 terms with intervals, the cover and "
             "the datasheet verdict where one was given",
     "figure": "the Allan deviation figure of every axis, the model's and the cover's",
-    "command": "the command line that made the file",
     "seconds": "wall-clock seconds of the whole export (fits, cover, NEES study)",
-    "warnings": "where a number should not be trusted, and why (the recording's faults and timing first)",
-    "meaning": "this table: what each entry means"}
+}
 
 
 def resolve_formats(names) -> list:

@@ -8,7 +8,7 @@ from typing import Callable
 
 from ..render.text import num
 from .mle import Fit, fit_series
-from ..sensors.measurements import RECORDING_MEANING
+from ..sensors.measurements import DOCUMENT_MEANING, RECORDING_MEANING
 from .summary import MEANING, axis_summary, fit_nis
 
 __all__ = ["FIT_MEANING", "fit_recording", "fit_channel", "fit_lines", "BOOTSTRAP_LIMIT", "bootstrap_replicates"]
@@ -19,7 +19,7 @@ BOOTSTRAP_LIMIT = 200_000
 
 #: What each entry of ``torchtea fit --json`` (:func:`fit_recording`'s document) means; the file carries it.
 FIT_MEANING = dict(
-    RECORDING_MEANING, **MEANING,
+    RECORDING_MEANING, **DOCUMENT_MEANING, **MEANING,
     model="the model fitted to every channel, as a spec (components joined by +)",
     method="the likelihood maximised: exact (Kalman filter) or whittle (spectral)",
     bootstrap="parametric-bootstrap replicates of the fractional-presence test (0: not run)",
@@ -37,9 +37,7 @@ FIT_MEANING = dict(
     unit="the channel's unit: every parameter's 'units' is this unit (variances unit²)",
     white_noise_density="√(r h): the white noise's density in unit/√Hz (the value σ/√(sample rate) converts back to a "
                         "per-sample σ)",
-    meaning="this table: what each entry means", command="the command line that made the file",
-    seconds="wall-clock seconds of the whole fit",
-    warnings="where a number should not be trusted, and why (the recording's faults and timing first)")
+    seconds="wall-clock seconds of the whole fit")
 
 
 def bootstrap_replicates(samples: int, asked: int | None) -> int:

@@ -16,7 +16,7 @@ from .datacheck import Missing, Timing, check_timing, find_missing, missing_erro
 from .faults import Faults, apply_faults, find_faults
 from .io import Channel, InputError, Recording
 
-__all__ = ["Measurements", "prepare", "fill_temperature", "RECORDING_MEANING"]
+__all__ = ["Measurements", "prepare", "fill_temperature", "RECORDING_MEANING", "DOCUMENT_MEANING"]
 
 
 def fill_temperature(T: np.ndarray, source) -> np.ndarray:
@@ -133,6 +133,12 @@ RECORDING_MEANING = {
     "missing": "the missing samples by cause and their longest run",
     "timing": "the file's time stamps against the rate in use (null: the file has no time column)",
     "excluded": "stretches left out on request (--exclude): their samples missing, or cut at the end",
+}
+#: The entries every JSON document of a command that reads a recording has beside the recording's part.
+DOCUMENT_MEANING = {
+    "command": "the command line that made the file",
+    "warnings": "where a number should not be trusted, and why (the recording's faults and timing first)",
+    "meaning": "this table: what each entry means",
 }
 
 

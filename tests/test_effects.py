@@ -16,6 +16,8 @@ from torchtea.checking.screens.outliers import find as find_spikes
 from torchtea.checking.report import write_report
 from torchtea.effects import register, unregister
 from torchtea.fitting.mle import fit_series, regress_mean
+from torchtea.fitting.starts import Starts, initial_values, register_start, unregister_start
+from torchtea.fitting.starts.markov import band
 from torchtea.noise.components import COMPONENTS, Component, ParamSpec
 from torchtea.noise.model import parse_model
 from torchtea.noise.simulate import default_values, simulate_model, temperature_profile
@@ -58,7 +60,7 @@ def test_a_user_effect_is_simulated_and_fitted_like_a_built_in_one(warm_up):
     # the simulated series carries its mean: the first second sits A above the last
     assert np.mean(y[:100]) - np.mean(y[-3000:]) == pytest.approx(0.3 * np.exp(-0.5 / 20), abs=0.1)
     # the least-squares start takes it by nonlinear least squares from its start values (no regressor of its own)
-    assert parse_model(m).initial_values(torch.as_tensor(y), H)["warm-up.tau_s"] == 1.0
+    assert initial_values(parse_model(m), torch.as_tensor(y), H)["warm-up.tau_s"] == 1.0
     vals, resid = regress_mean(parse_model(m), y, H)
     assert vals["warm-up.tau_s"] == pytest.approx(20.0, rel=0.2) and vals["warm-up.amplitude"] == pytest.approx(0.3,
                                                                                                                 rel=0.2)
@@ -242,6 +244,37 @@ def test_a_class_with_the_old_screen_hooks_is_refused_not_silently_defaulted():
         components.NotScreened
 
 
+def test_a_class_with_the_old_start_hooks_is_refused_and_registered_starts_are_used(warm_up):
+    """Before starts were registered apart, a class carried its own ``start``/``fit_residual``/…; register refuses
+    one that still does, naming the new way. Starts registered for the effect (the how-to's) are what the fits
+    start from, and unregistering them brings the defaults back."""
+    class OldStart(WarmUp):
+        name = "old-start"
+
+        def start(self, param, data):
+            return 0.0
+
+    with pytest.raises(ValueError, match="start on the class is no longer read.*register_start"):
+        register(OldStart)
+    assert "old-start" not in COMPONENTS
+    m, _, y = _series(n=3000)
+    model = parse_model(m)
+    assert initial_values(model, torch.as_tensor(y), H)["warm-up.tau_s"] == 1.0  # the default for a positive value
+
+    @register_start(WarmUp)
+    class WarmUpStarts(Starts):
+        def start(self, comp, param, data):
+            return {"amplitude": 0.0, "tau_s": 10.0}[param]
+
+    try:
+        assert initial_values(model, torch.as_tensor(y), H)["warm-up.tau_s"] == 10.0
+        # (and the fractional part's start is its own, not the default's 0.5 for a pole fraction)
+        assert initial_values(model, torch.as_tensor(y), H)["fractional.pole"] == pytest.approx(-0.5 * 2 ** 0.3 / H ** 0.3)
+    finally:
+        unregister_start(WarmUp)
+    assert initial_values(model, torch.as_tensor(y), H)["warm-up.tau_s"] == 1.0
+
+
 def _assert_dense_density(m, v, y, cov):
     """The exact filter's ℓ (torch and compiled) of ``y`` (NaN = missing) under ``m`` at ``v`` is the Gaussian density
     of the observed samples under the dense covariance ``cov``, to 1e-8."""
@@ -351,8 +384,9 @@ def test_a_users_state_effect_without_strengths_is_screened():
         name = "my-gm"
         candidate = True
 
-        def strengths(self, label, model, values, h, n):
-            return []
+    @register_start(Plain)
+    class PlainStarts(Starts):  # (not the Gauss-Markov's, which give strengths)
+        pass
 
     register(Plain)
     try:
@@ -362,6 +396,7 @@ def test_a_users_state_effect_without_strengths_is_screened():
         assert row["p_value"] is not None and row["test"].startswith("Whittle LR")
     finally:
         unregister("my-gm")
+        unregister_start(Plain)
 
 
 def test_a_located_step_stays_held_and_counted_in_check(tmp_path):
@@ -584,8 +619,6 @@ def test_a_resonance_is_the_dense_gaussian_and_its_fit_finds_the_band():
     covariance built from the recursion, with gaps; its spectrum integrates to σ²; on 30 000 samples of
     resonance+white the exact fit, started where the data's spectrum stands highest above its trend, finds f_r, B and
     σ within 4 standard errors; it is a candidate check screens."""
-    from torchtea.noise.components import Resonance
-
     m = parse_model("resonance+white")
     v = {"resonance.frequency_hz": 25.0, "resonance.bandwidth_hz": 2.0, "resonance.sigma": 0.05, "white.r": 1e-3}
     n = 150
@@ -604,7 +637,7 @@ def test_a_resonance_is_the_dense_gaussian_and_its_fit_finds_the_band():
     assert var == pytest.approx(0.05 ** 2, rel=1e-6)
     truth = {"resonance.frequency_hz": 29.0, "resonance.bandwidth_hz": 4.0, "resonance.sigma": 0.03, "white.r": 1e-3}
     y = simulate_model(m, truth, n_steps=30000, h=H, generator=torch.Generator().manual_seed(2))[0, 0].numpy()
-    assert abs(Resonance.band(y, H)[0] - 29.0) < 2.0
+    assert abs(band(y, H)[0] - 29.0) < 2.0
     f = fit_series(m, [y], H)[0]
     assert f.converged
     for name, x in truth.items():

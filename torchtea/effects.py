@@ -5,8 +5,8 @@ Every part of a noise model — the built-in ones (``torchtea.noise.components.C
 ``spikes``, ``sinusoid``, ``drifting-line``, ``temperature-bias``, ``thermal-lag``, ``temperature-order``,
 ``quantisation``) and any a user writes — is a
 :class:`~torchtea.noise.components.Component` subclass that carries its own knowledge: its parameters with units
-and transforms, its spectrum or state block or mean, its typical values (``torchtea simulate``), its data-based
-start, its part of the least-squares start, and where ``check`` inserts it. :func:`parse_model` finds it here by
+and transforms, its spectrum or state block or mean, its typical values (``torchtea simulate``), and where
+``check`` inserts it. :func:`parse_model` finds it here by
 name. A user adds an effect from their own module or notebook::
 
     import torch
@@ -25,12 +25,10 @@ name. A user adds an effect from their own module or notebook::
         def typical(self, param, h, t_ref):
             return {"amplitude": 0.05, "tau_s": 20.0}[param]
 
-        def start(self, param, data):
-            return {"amplitude": 0.0, "tau_s": 10.0}[param]
-
 and ``fractional+white+warm-up`` is then simulated, fitted (Whittle and exact), checked and reported like a built-in
-model. How ``check`` screens it is not the class's business: the default screen of its kind, or one registered for
-it with :func:`torchtea.checking.screens.register_screen`.
+model. How ``check`` screens it and how the fits start it are not the class's business: the defaults of its kind, or
+a screen registered for it with :func:`torchtea.checking.screens.register_screen` and starts with
+:func:`torchtea.fitting.starts.register_start`.
 A package can register its effects through the entry-point group ``torchtea.effects`` (each entry a Component
 subclass); they are loaded the first time a model names a component that is not registered.
 """
@@ -52,6 +50,10 @@ _BUILT_IN = frozenset(COMPONENTS)
 #: The screen methods a component class had before screens were registered apart (torchtea.checking.screens): a
 #: user's class that still defines one is refused by :func:`register`, not silently screened by the default.
 SCREEN_HOOKS = ("screen", "screen_test", "screen_df", "configure")
+#: The start methods a component class had before starts were registered apart (torchtea.fitting.starts): refused the
+#: same way, rather than silently replaced by the defaults.
+START_HOOKS = ("start", "grid_start", "scale_drive", "strengths", "vanishing", "regressors", "fit_residual",
+               "located_intervals")
 _loaded_entry_points = False
 
 
@@ -78,10 +80,16 @@ def register(effect, *, replace: bool = False):
         raise ValueError(f"{where}: a mean effect must define mean(v, t, inputs)")
     if comp.kind == "state" and (type(comp).block is Component.block or type(comp).spectrum is Component.spectrum):
         raise ValueError(f"{where}: a state effect must define block(v, h, memory) and spectrum(v, omega, h)")
-    old = [m for m in SCREEN_HOOKS if any(m in vars(c) for c in type(comp).__mro__[:-1] if c is not Component)]
-    if old:
-        raise ValueError(f"{where}: {', '.join(old)} on the class is no longer read — how check screens an effect is "
-                         "registered apart: torchtea.checking.screens.register_screen(YourEffect, test=…)")
+    def defined(hooks):
+        return [m for m in hooks if any(m in vars(c) for c in type(comp).__mro__[:-1] if c is not Component)]
+    if defined(SCREEN_HOOKS):
+        raise ValueError(f"{where}: {', '.join(defined(SCREEN_HOOKS))} on the class is no longer read — how check "
+                         "screens an effect is registered apart: torchtea.checking.screens.register_screen(YourEffect, "
+                         "test=…)")
+    if defined(START_HOOKS):
+        raise ValueError(f"{where}: {', '.join(defined(START_HOOKS))} on the class is no longer read — how the fits "
+                         "start an effect is registered apart: a torchtea.fitting.starts.Starts subclass with these "
+                         "methods (each taking the effect first), decorated @register_start(YourEffect)")
     if name in _BUILT_IN:
         raise ValueError(f"{where}: {name!r} is a built-in component and cannot be replaced")
     if name in COMPONENTS and not replace:

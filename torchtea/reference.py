@@ -80,10 +80,16 @@ def _table(header: tuple, rows) -> list[str]:
     return out
 
 
+#: What the effects page says of an effect without starts of its own (:class:`torchtea.fitting.starts.Starts`).
+DEFAULT_START = ("the defaults: 0 for a free parameter, 1 for a positive one, the middle of a bounded range; a mean "
+                 "that no regression takes by nonlinear least squares from there.")
+
+
 def effects_page() -> str:
     """Every registered effect: its kind, inputs, IEEE 952 term, parameters (kind, unit, bounds), physics (its
-    docstring) and, for those ``check`` screens, the screen's test."""
+    docstring), for those ``check`` screens the screen's test, and how the fits start it."""
     from .checking.screens import screen_test
+    from .fitting.starts import Starts, starts_of
     from .noise.components import COMPONENTS, candidates
 
     screened = candidates()
@@ -120,6 +126,8 @@ def effects_page() -> str:
         test = screen_test(comp)
         if name in screened and test:
             lines += [f"**Screen**: {test}.", ""]
+        own = type(starts_of(comp))
+        lines += ["**Start**: " + (rst_to_markdown(own.__doc__.strip()) if own is not Starts else DEFAULT_START), ""]
     return "\n".join(lines) + "\n"
 
 

@@ -1,5 +1,5 @@
 """Coverage of a step's time interval (issue 30): on the step cases of a randomised study (random_study.py), the
-interval :meth:`torchtea.noise.components.Step.located_intervals` makes at the loop's final fit, against the true time.
+interval :meth:`torchtea.fitting.starts.levels.StepStarts.located_intervals` makes at the loop's final fit, against the true time.
 
     python experiments/check/step_interval.py --dir /tmp/rs      # after random_study.py --sets step --dir /tmp/rs
 

@@ -15,6 +15,9 @@ The old tree is checked out with ``git worktree`` (removed afterwards); each cas
 * ``loop`` — ``check(...).auto()`` of 6000 samples with a temperature-driven order, a step and three spikes: every
   step's document (its screens — the spikes' count chosen by their screen, the temperature-order scan past its first
   stage — suggestions, diagnostics and fit);
+* ``starts`` — every built-in effect's starts in ``fractional+white+EFFECT`` on 2000 simulated samples: the data's
+  starting values, the least-squares start of the mean (values and residual), the refit strengths and the vanishing
+  values against fractional+white, the Whittle fit from the grid (where stationary), a located parameter's interval;
 * ``cli`` — ``torchtea fit --json`` of the bundled recording's first 3000 samples (the seconds, the command and
   the file's path — each tree's own — left out).
 
@@ -141,6 +144,43 @@ elif case == "loop":
             s.pop("seconds", None)
         docs.append(d)
     out = {"digest": digest(docs), "path": [st.model.spec for st in r.steps], "loop_end": r.loop_end}
+elif case == "starts":
+    from torchtea.fitting.innovations import located_intervals
+    from torchtea.fitting.mle import regress_mean, whittle_fit
+    from torchtea.noise import default_values, parse_model, temperature_profile
+    from torchtea.noise.components import COMPONENTS
+    try:  # the starts registered apart (after issue 47's move) or on the classes (before it)
+        from torchtea.fitting.starts import initial_values, starts_of
+        hook = lambda c, name: (lambda *a: getattr(starts_of(c), name)(c, *a))
+    except ImportError:
+        initial_values = lambda m, y, h: m.initial_values(y, h)
+        hook = lambda c, name: getattr(c, name)
+    T = temperature_profile(2000, H, generator=torch.Generator().manual_seed(0))
+    base = parse_model("fractional+white")
+    vb = default_values(base, H)
+    for name, comp in COMPONENTS.items():
+        if name in ("fractional", "white"):
+            continue
+        token = "spikes:3" if name == "spikes" else name
+        try:
+            model = parse_model(f"fractional+white+{token}")
+        except ValueError:
+            continue
+        label = model.components[-1][0]
+        v = default_values(model, H, T)
+        if name == "step":
+            v["step.t_step"] = 7.0  # (its typical time, 100 s, is past these 20 s)
+        y = series(model, v, 2000, T, 2)
+        row = {"initial": initial_values(model, torch.as_tensor(y), H),
+               "regress": regress_mean(model, y, H, {"temperature": T.numpy()}),
+               "strengths": hook(comp, "strengths")(label, base, vb, H, len(y)),
+               "vanishing": hook(comp, "vanishing")(label, base, vb, H, len(y))}
+        if model.stationary:
+            wf = whittle_fit(model, [y - y.mean()], H, inputs=[{"temperature": T.numpy()}])
+            row["whittle"] = [wf.values, wf.loglik]
+        if comp.located:
+            row["located"] = located_intervals(model, v, y, H, {"temperature": T.numpy()})
+        out[name] = digest(row)
 elif case == "cli":
     import contextlib, io
     from torchtea.cli import main
@@ -167,7 +207,7 @@ def run(tree: Path, case: str) -> dict:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--old", default="a720df1", help="the commit before the refactor (default a720df1)")
-    ap.add_argument("--cases", default="components,fit,check,loop,cli")
+    ap.add_argument("--cases", default="components,fit,check,loop,cli,starts")
     args = ap.parse_args()
     new = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
     if subprocess.run(["git", "status", "--porcelain", "--untracked-files=no", "--", ".",

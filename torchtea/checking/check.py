@@ -50,6 +50,7 @@ import numpy as np
 import torch
 
 from ..fitting.mle import Fit, centred, exact_loglik, fit_series, refine_best, refine_exact, whittle_fit
+from ..fitting.starts import starts_of
 from ..noise.components import COMPONENTS
 from . import screens
 from .screens import NotScreened
@@ -748,7 +749,7 @@ def _refit(run: _Run, model, alt, label, fit: Fit, wf, row: dict, fixed: list, r
       the model's fit is undone there); and, for a stochastic effect, the model's exact fit with the component at
       the screen's values;
     - the nested start: the model at its fit with the effect where it vanishes (a stochastic one,
-      :meth:`~torchtea.noise.components.Component.vanishing`) or at the screen's estimate given the model (a mean),
+      :meth:`~torchtea.fitting.starts.Starts.vanishing`) or at the screen's estimate given the model (a mean),
       whose ℓ is the model's — a refit can only gain from it — and the same with the effect at its starting
       strengths;
     - for a stochastic effect, the extended model's own Whittle fit from its multi-start grid, each of its modes:
@@ -791,10 +792,10 @@ def _refit(run: _Run, model, alt, label, fit: Fit, wf, row: dict, fixed: list, r
         # periodogram ordinate)
         starts.append(("the model's fit with the effect at the screen's values",
                        {**base, **{n: start[n] for n in new if n in start}}))
-        vanish = comp.vanishing(label, model, base, h, len(y))
+        vanish = starts_of(comp).vanishing(comp, label, model, base, h, len(y))
         if vanish:
             starts.append(("the model's fit with the effect vanishing", {**base, **vanish}))
-        for k, s_ in enumerate(comp.strengths(label, model, base, h, len(y))):
+        for k, s_ in enumerate(starts_of(comp).strengths(comp, label, model, base, h, len(y))):
             starts.append((f"the model's fit with the effect at strength {k + 1}", {**base, **s_}))
         modes = row.pop("modes", None)  # (the Whittle screen's fits of the extended model)
         if modes is None and alt.stationary and not np.isnan(y).any():

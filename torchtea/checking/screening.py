@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..fitting.mle import Fit, centred, exact_loglik, whittle_fit
+from ..fitting.starts import starts_of
 from ..noise.components import COMPONENTS
 from ..noise.model import NoiseModel
 from . import screens
@@ -119,7 +120,8 @@ def whittle_screens(model, base, rows_alts, y, h, inputs, cache: dict):
         # low-pass) may have bent its fractional order to ≈ 1 to mimic it, and the extended model's optimum is then
         # far from the model's. Both kinds of start run to convergence in one batch and the best is kept (a user's
         # component may give no strength: the grid alone then)
-        strengths = dict(alt.components)[label].strengths(label, model, base_values, h, len(y))
+        comp = dict(alt.components)[label]
+        strengths = starts_of(comp).strengths(comp, label, model, base_values, h, len(y))
         wf = whittle_fit(alt, [yy], h, inputs=inp, fractions=(0.5,),
                          starts=[[{**base_values, **o} for o in strengths]] if strengths else None)
         lr = max(0.0, 2.0 * float(wf.loglik[0] - base.loglik[0]))

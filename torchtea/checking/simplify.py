@@ -28,6 +28,7 @@ import numpy as np
 
 from ..fitting.mle import Fit, fit_series, refine_best, whittle_fit
 from ..fitting.plan import duration, tie_length
+from ..fitting.starts import starts_of
 from ..noise.components import COMPONENTS
 from ..noise.model import NoiseModel, parse_model
 from .models import REFIT_TOLERANCE, assess, bic, counted, extend, held, with_intervals
@@ -167,7 +168,7 @@ def _fit(alt: Alternative, res, wf) -> Fit:
     else:
         new = [(lb, c) for lb, c in m.components if any(f"{lb}.{p.name}" not in shared for p in c.params)]
         for lb, comp in new:  # (its strengths against the model's spectrum at its fit)
-            for k, s in enumerate(comp.strengths(lb, res.model, current, h, len(y))):
+            for k, s in enumerate(starts_of(comp).strengths(comp, lb, res.model, current, h, len(y))):
                 v = {**shared, **s}
                 if set(v) >= set(m.names):
                     starts.append((f"the model's fit with {comp.name} at strength {k + 1}", v))

@@ -15,6 +15,7 @@ from scipy import stats
 from ..likelihood.kalman import filter_fast
 from ..noise.model import StateSpace, parse_model
 from .exact import FIT_MEMORY, centred, exact_pass
+from .starts import starts_of
 
 __all__ = ["Innovations", "innovations", "whiten", "gls_statistic", "linear_lr", "scan_lr", "located_intervals",
            "whiten_with_level"]
@@ -136,13 +137,13 @@ def whiten_with_level(inn: Innovations, columns: np.ndarray) -> np.ndarray:
 
 def located_intervals(model, values: dict, y, h: float, inputs: dict | None = None) -> dict:
     """The 95 % intervals the components make for their located parameters (a step's time) at the fit ``values``:
-    name → ``((lo, hi), words)`` (:meth:`~torchtea.noise.components.Component.located_intervals`, given the model's
+    name → ``((lo, hi), words)`` (:meth:`~torchtea.fitting.starts.Starts.located_intervals`, given the model's
     innovations at any values as ``innovations(values)``)."""
     model = parse_model(model)
     out = {}
     for label, comp in model.components:
         if comp.located:
-            out.update(comp.located_intervals(label, model, dict(values), np.asarray(y, dtype=np.float64), h, inputs,
-                                              innovations=lambda v: innovations(model, v, centred(model, y), h,
-                                                                                inputs=inputs)))
+            out.update(starts_of(comp).located_intervals(
+                comp, label, model, dict(values), np.asarray(y, dtype=np.float64), h, inputs,
+                innovations=lambda v: innovations(model, v, centred(model, y), h, inputs=inputs)))
     return out

@@ -36,6 +36,7 @@ from ..likelihood.settings import current as likelihood_settings
 from ..likelihood.whittle import RESOLUTION, WhittleData, periodogram, whittle_data
 from ..noise.model import NoiseModel, parse_model
 from .optimize import newton
+from .starts import initial_values, starts_of
 
 __all__ = ["Fit", "WhittleFit", "fit_series", "located_intervals", "refine_exact", "refine_best", "regress_mean", "whittle_fit", "exact_loglik", "profile_order", "METHODS",
            "Z95", "CHI2_95",
@@ -111,15 +112,15 @@ def regress_mean(model: NoiseModel, y, h: float, inputs: dict | None = None) -> 
     columns = []
     model.check_inputs(inputs)
     for label, comp in model.components:
-        fixed, cols = comp.regressors(label, t, inputs, ok)
+        fixed, cols = starts_of(comp).regressors(comp, label, t, inputs, ok)
         vals.update(fixed)
         columns += cols
     vals.update(remove_regressors(resid, ok, columns))
     start = None
     for label, comp in model.components:  # what the residual shows (a line), one component after the other
         if comp.kind == "mean" and start is None:
-            start = model.initial_values(torch.as_tensor(np.where(ok, y, np.nanmean(y))), h)
-        vals.update(comp.fit_residual(label, resid, t, ok, h, start or {}, inputs))
+            start = initial_values(model, torch.as_tensor(np.where(ok, y, np.nanmean(y))), h)
+        vals.update(starts_of(comp).fit_residual(comp, label, resid, t, ok, h, start or {}, inputs))
     # the level: the mean of what is left plus what was removed
     for label, comp in model.components:
         if comp.level:
@@ -142,7 +143,7 @@ def _starts(model: NoiseModel, y: np.ndarray, h: float, omega: Tensor, I: Tensor
     has_frac = model.order_name is not None
     orders = orders if has_frac else (None,)
     fracs = fractions if has_frac else (None,)
-    base = model.initial_values(torch.as_tensor(y), h)
+    base = initial_values(model, torch.as_tensor(y), h)
     hi = I[omega > omega.max() * 0.75].mean()
     white = float(hi) * 2 * math.pi
     low = omega < omega.max() * 0.5
@@ -152,7 +153,7 @@ def _starts(model: NoiseModel, y: np.ndarray, h: float, omega: Tensor, I: Tensor
             v = dict(base)
             v.update(mean_vals)
             for label, comp in model.components:
-                comp.grid_start(label, v, white, a, rho, h)
+                starts_of(comp).grid_start(comp, label, v, white, a, rho, h)
             v.update(fixed)
             # scale the state drives so that the mean spectrum matches on the lower half
             S = model.spectrum(v, omega, h)[0]
@@ -161,7 +162,7 @@ def _starts(model: NoiseModel, y: np.ndarray, h: float, omega: Tensor, I: Tensor
             if now > 0 and target > 0:
                 s = target / now
                 for label, comp in model.components:
-                    comp.scale_drive(label, v, s, fixed)
+                    starts_of(comp).scale_drive(comp, label, v, s, fixed)
             if all(v != w for w in starts):
                 starts.append(v)
     return starts

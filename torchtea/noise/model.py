@@ -27,7 +27,7 @@ from torch import Tensor
 
 from ..core.gl import broadcast_shapes
 from ..core.memory import MemoryConfig, SOEKernel, memory_plan, parse_memory
-from .components import COMPONENTS, ORDER_BOUNDS, Component, StartData, logit
+from .components import COMPONENTS, ORDER_BOUNDS, Component, logit
 
 __all__ = ["NoiseModel", "PAPER_MODEL", "parse_model", "StateSpace", "VaryingRow", "StateMemory", "state_memory",
            "EXACT_MEMORY_LIMIT", "ROW_TABLE"]
@@ -519,17 +519,6 @@ class NoiseModel:
             raise ValueError(f"the temperature input must have {n_steps} finite values, got {T.shape[0]} "
                              f"({int((~torch.isfinite(T)).sum())} not finite)")
         return comps[mods[0]].orders(byc[mods[0]], alpha0, T[:n_steps])
-
-    # ------------------------------------------------------------------ starting values
-    def initial_values(self, y: Tensor, h: float, order: float = 0.3) -> dict:
-        """Rough data-based starting values for one series (a fit's start, not an estimate)."""
-        y = torch.as_tensor(y, dtype=torch.float64)
-        var = float(y.var()) if y.numel() > 1 else 1.0
-        var = var if var > 0 else 1.0
-        d = torch.diff(y)
-        white = max(float(d.var()) / 2.0, 1e-6 * var) if d.numel() > 1 else var / 2
-        data = StartData(y, var, white, len(self.labels("state")), h, order)
-        return {f"{label}.{p.name}": comp.start(p.name, data) for label, comp in self.components for p in comp.params}
 
 
 #: The paper's noise model (43)–(45): a fractional state and white measurement noise — every command's starting model.

@@ -9,7 +9,8 @@ stochastic effect without one is screened by the Whittle likelihood-ratio (in ``
 periodogram), a mean without one by :func:`mean_screen`. A user's effect may register its own.
 
 Its layer is the model checking's: it may import ``torchtea.core`` (the searches and exact laws on a series) and
-``torchtea.noise`` (the effects it screens), and reads the rest through the check's context (``ctx.inn``,
+``torchtea.noise`` (the effects it screens), the effects' starts (``torchtea.fitting.starts``: a mean's default
+screen starts where the fits do), and reads the rest through the check's context (``ctx.inn``,
 ``ctx.exact_loglik``, ``ctx.diagnostic``)."""
 from __future__ import annotations
 

@@ -11,6 +11,7 @@ import numpy as np
 import torch
 
 from ...core.search import remove_regressors
+from ...fitting.starts import initial_values, starts_of
 
 __all__ = ["Screen", "REGISTRY", "register_screen", "unregister_screen", "screen_of", "screen_df", "screen_test", "whittle_screened",
            "run_screen", "configure", "mean_screen", "boundary_logsf", "NotScreened", "WHITTLE_SCREEN",
@@ -147,10 +148,10 @@ def mean_screen(comp, ctx) -> tuple[float, float, dict, str]:
     fitted = ctx.model.mean(dict(ctx.fit.values), torch.as_tensor(t), inp).numpy()[0]
     resid = np.where(ok, y - fitted, np.nan)
     resid[ok] -= resid[ok].mean()
-    start = ctx.alt.initial_values(torch.as_tensor(np.where(ok, y, np.nanmean(y))), ctx.h)
-    values, columns = comp.regressors(ctx.label, t, ctx.inputs, ok)
+    start = initial_values(ctx.alt, torch.as_tensor(np.where(ok, y, np.nanmean(y))), ctx.h)
+    values, columns = starts_of(comp).regressors(comp, ctx.label, t, ctx.inputs, ok)
     values.update(remove_regressors(resid, ok, columns))
-    values.update(comp.fit_residual(ctx.label, resid, t, ok, ctx.h, start, ctx.inputs))
+    values.update(starts_of(comp).fit_residual(comp, ctx.label, resid, t, ok, ctx.h, start, ctx.inputs))
     values = {n: values.get(n, start[n]) for n in ctx.alt.names if n not in ctx.model.names}
     ll = float(ctx.exact_loglik(ctx.alt, {**ctx.fit.values, **values})[0])
     lr = max(0.0, 2.0 * (ll - ctx.inn.loglik)) if math.isfinite(ll) else 0.0

@@ -29,12 +29,12 @@ parameters, its place in the TEA), :mod:`.fractional`, :mod:`.markov` (random wa
 :mod:`.filters`, :mod:`.measurement` (white, quantisation), :mod:`.levels` (offset, ramp, step), :mod:`.lines`
 (sinusoid, drifting line), :mod:`.thermal` and :mod:`.outliers` (spikes) — and the registry :data:`COMPONENTS`
 (a user's effect joins it through :func:`torchtea.effects.register`). How ``check`` screens an effect lives apart,
-in :mod:`torchtea.checking.screens`. Its layer is the model's: it may import ``torchtea.core`` (the GL coefficients,
+in :mod:`torchtea.checking.screens`, and how the fits start it in :mod:`torchtea.fitting.starts`. Its layer is the model's: it may import ``torchtea.core`` (the GL coefficients,
 the searches on a series), numpy, torch and scipy's filters and optimisers (no statistical tests), nothing above.
 """
 from __future__ import annotations
 
-from .base import ORDER_BOUNDS, Component, ParamSpec, StartData, TEAPart, TEAUnsupported, logit
+from .base import ORDER_BOUNDS, Component, ParamSpec, TEAPart, TEAUnsupported, logit
 from .filters import DigitalFilter, LowPass
 from .fractional import Fractional
 from .levels import Offset, Ramp, Step
@@ -44,7 +44,7 @@ from .measurement import Quantisation, White
 from .outliers import Spikes
 from .thermal import TemperatureBias, TemperatureOrder, ThermalLag
 
-__all__ = ["ParamSpec", "Component", "StartData", "TEAPart", "TEAUnsupported", "COMPONENTS", "ORDER_BOUNDS", "logit",
+__all__ = ["ParamSpec", "Component", "TEAPart", "TEAUnsupported", "COMPONENTS", "ORDER_BOUNDS", "logit",
            "candidates",
            # the built-in effects
            "Fractional", "White", "Quantisation", "RandomWalk", "LowPass", "Offset", "Ramp", "Sinusoid",

@@ -1,12 +1,11 @@
 """The base of every effect: :class:`Component` (what the model, the fits, the screens, the TEA and the exports ask
 of an effect), its parameters (:class:`ParamSpec`) and its place in the TEA (:class:`TEAPart`). How ``check``
-screens an effect is not here: :mod:`torchtea.checking.screens`."""
+screens an effect is not here (:mod:`torchtea.checking.screens`), nor how the fits start it
+(:mod:`torchtea.fitting.starts`)."""
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import NamedTuple
-
 import torch
 from torch import Tensor
 
@@ -33,19 +32,6 @@ class ParamSpec:
         """``logit((x − low)/(high − low))``: a ``bounded`` value on the optimisers' scale."""
         lo, hi = self.bounds
         return logit((x - lo) / (hi - lo))
-
-
-class StartData(NamedTuple):
-    """What a component's :meth:`Component.start` may use: the series ``y`` (tensor), its variance, half the
-    variance of its first differences (the white level), the number of state components, the sample time and the
-    fractional order to start from."""
-
-    y: Tensor
-    var: float
-    white: float
-    n_state: int
-    h: float
-    order: float
 
 
 @dataclass(frozen=True)
@@ -231,99 +217,3 @@ class Component:
         """A MEMS-like value of ``param`` (accelerometer units, m/s²; sample time ``h``; ``t_ref`` the mean
         temperature): what ``torchtea simulate --model`` uses unless ``--set`` gives another."""
         raise NotImplementedError(f"component {self.name!r} has no typical value of {param!r}")
-
-    def start(self, param: str, data: "StartData") -> float:
-        """A rough data-based value of ``param`` to start a fit from (not an estimate). Default: 0 for a free
-        parameter, 1 for a positive one, the middle of a bounded one's range."""
-        spec = next(p for p in self.params if p.name == param)
-        if spec.kind == "positive":
-            return 1.0
-        if spec.kind == "fraction":
-            return 0.5
-        if spec.kind == "nyquist":
-            return 0.25 / data.h
-        if spec.kind == "bounded":
-            lo, hi = spec.bounds
-            return 0.5 * (lo + hi) if math.isfinite(lo) and math.isfinite(hi) else 0.0
-        return 0.0
-
-    def grid_start(self, label: str, v: dict, white: float, order, fraction, h: float) -> None:
-        """Set this component's values (in place) in one start of the Whittle fit's grid: ``white`` the
-        periodogram's level at high frequencies (variance), ``order``/``fraction`` the grid's fractional order
-        and pole fraction (None without a fractional part)."""
-
-    def scale_drive(self, label: str, v: dict, s: float, fixed) -> None:
-        """Scale this component's drive (in place) when a grid start's spectrum is scaled by ``s`` to meet the
-        periodogram on the lower half of the band (names in ``fixed`` are kept)."""
-
-    def located_intervals(self, label: str, model, values: dict, y, h: float, inputs: dict | None,
-                          innovations=None) -> dict:
-        """95 % intervals of this component's :attr:`located` parameters at the fit ``values`` of ``model`` to ``y``:
-        name → ``((lo, hi), words)``; default none (they are reported without). ``innovations(values)``: the model's
-        :class:`~torchtea.fitting.innovations.Innovations` on ``y`` at other values (given by the caller, so that a
-        component needs nothing of the fitting layer)."""
-        return {}
-
-    def strengths(self, label: str, model, values: dict, h: float, n: int) -> list[dict]:
-        """This component's parameters at a few strengths, to start the Whittle fit of ``model`` extended by it
-        from the fit ``values`` of ``model`` (``n`` samples); default none (the grid's starts only)."""
-        return []
-
-    def vanishing(self, label: str, model, values: dict, h: float, n: int) -> dict:
-        """This component's parameters where it (all but) vanishes, so that ``model`` extended by it at these
-        values is ``model`` at ``values``: the start from which an extended model's likelihood is at least the
-        model's (the models are nested). Default: empty (not known)."""
-        return {}
-
-    def regressors(self, label: str, t, inputs: dict | None, ok) -> tuple[dict, list]:
-        """The mean's linear part for the least-squares start (:func:`~torchtea.fitting.mle.regress_mean`):
-        ``(values fixed by the data, [(parameter name, regressor column (N,)), …])``."""
-        return {}, []
-
-    def fit_residual(self, label: str, resid, t, ok, h: float, start: dict, inputs: dict | None) -> dict:
-        """Values estimated from the residual after the linear regression (a line's frequency, amplitude and
-        phase); removes what it explains from ``resid`` in place. ``start``: this component's start values
-        (:meth:`start`). Default: nothing for a component that is not a mean, carries the level or whose mean the
-        regression took (:meth:`regressors`); a mean that the regression did not take (a user's effect) by
-        nonlinear least squares over its parameters from ``start`` (:func:`scipy.optimize.least_squares`)."""
-        if self.kind != "mean" or self.level or self.regressors(label, t, inputs, ok)[1]:
-            return {}
-        from scipy.optimize import least_squares
-
-        names = [p.name for p in self.params]
-        tt = torch.as_tensor(t, dtype=torch.float64)
-        inp = None if inputs is None else {k: torch.as_tensor(x, dtype=torch.float64) for k, x in inputs.items()}
-
-        def natural(u):
-            out = {}
-            for p, x in zip(self.params, u):
-                if p.kind == "positive":
-                    out[p.name] = math.exp(x)
-                elif p.kind in ("bounded", "fraction"):
-                    lo, hi = p.bounds if p.kind == "bounded" else (0.0, 1.0)
-                    out[p.name] = lo + (hi - lo) / (1.0 + math.exp(-x))
-                else:
-                    out[p.name] = x
-            return out
-
-        def unconstrained(p, x):
-            if p.kind == "positive":
-                return math.log(x)
-            if p.kind in ("bounded", "fraction"):
-                lo, hi = p.bounds if p.kind == "bounded" else (0.0, 1.0)
-                q = (x - lo) / (hi - lo)
-                return math.log(q / (1 - q))
-            return x
-
-        def residual(u):
-            v = {n: torch.tensor([x], dtype=torch.float64) for n, x in natural(u).items()}
-            m = self.mean(v, tt, inp)[0].numpy()
-            r = resid - m
-            return (r - r[ok].mean())[ok]
-
-        u0 = [unconstrained(p, start[f"{label}.{p.name}"]) for p in self.params]
-        sol = least_squares(residual, u0, method="lm")
-        best = natural(sol.x)
-        v = {n: torch.tensor([best[n]], dtype=torch.float64) for n in names}
-        resid[ok] -= self.mean(v, tt, inp)[0].numpy()[ok]
-        return {f"{label}.{n}": float(best[n]) for n in names}

@@ -73,15 +73,6 @@ class LowPass(Component):
     def typical(self, param, h, t_ref):
         return 5.0
 
-    def start(self, param, data):
-        return 0.25 / data.h
-
-    def strengths(self, label, model, values, h, n):
-        return [{f"{label}.cutoff_hz": c / (2 * h)} for c in (0.4, 0.1)]  # 0.4× and 0.1× the Nyquist frequency
-
-    def vanishing(self, label, model, values, h, n):
-        return {f"{label}.cutoff_hz": 10.0 / h}  # a = e^{−20π}: the filter passes every frequency unchanged
-
 
 class DigitalFilter(LowPass):
     r"""A sensor's digital low-pass of second order: two first-order stages in cascade, each

@@ -60,18 +60,6 @@ class Fractional(Component):
         a = 0.3  # the Monte Carlo studies' part: order 0.3, pole at 40 % of its stability limit, q = r / h^{2α}
         return {"order": a, "pole": -0.4 * 2 ** a / h ** a, "q": 1e-3 / h ** (2 * a)}[param]
 
-    def start(self, param, data):
-        a = data.order
-        return {"order": a, "pole": -0.5 * 2.0 ** a / data.h ** a,
-                "q": max(data.var - data.white, 0.1 * data.var) / data.n_state}[param]
-
-    def grid_start(self, label, v, white, order, fraction, h):
-        v[f"{label}.order"] = order
-        v[f"{label}.pole"] = -fraction * 2.0 ** order / h ** order
-
-    def scale_drive(self, label, v, s, fixed):
-        if f"{label}.q" not in fixed:
-            v[f"{label}.q"] = v[f"{label}.q"] * s
 
     tea_note = "KFx's fractional state: KFo estimates its order, KFw its pole, from the fitted values"
 

@@ -6,7 +6,6 @@ import math
 import numpy as np
 import torch
 
-from ...core.search import chirp_search, refine_chirp, refine_frequency
 from .base import Component, ParamSpec
 
 
@@ -27,30 +26,11 @@ class Sinusoid(Component):
     def typical(self, param, h, t_ref):
         return {"frequency_hz": 3.37, "amplitude": 0.01, "phase": 0.0}[param]
 
-    def start(self, param, data):
-        return {"frequency_hz": 0.1 / data.h, "amplitude": math.sqrt(data.var) / 10.0, "phase": 0.0}[param]
 
     screen_order = 20
     explains = ("lines",)
     # the frequency at the refined periodogram peak (asymptotically efficient in coloured noise, Hannan 1973)
     held = {"frequency_hz": "refined periodogram peak (held in the exact refit): no interval"}
-
-    def fit_residual(self, label, resid, t, ok, h, start, inputs):
-        """The residual periodogram's highest peak (not the trend's three lowest bins), its frequency refined,
-        amplitude and phase by least squares."""
-
-        N = len(resid)
-        r = np.where(ok, resid, 0.0)
-        spec = np.abs(np.fft.rfft(r)) ** 2
-        spec[:3] = 0.0  # not the trend
-        j = int(np.argmax(spec))
-        f0 = refine_frequency(r, j / (N * h), h)
-        w = 2 * np.pi * f0 * t
-        X = np.stack([np.sin(w), np.cos(w)], 1)
-        coef, *_ = np.linalg.lstsq(X[ok], resid[ok], rcond=None)
-        resid[ok] -= X[ok] @ coef
-        return {f"{label}.frequency_hz": f0, f"{label}.amplitude": float(math.hypot(*coef)),
-                f"{label}.phase": float(math.atan2(coef[1], coef[0]))}
 
 
 class DriftingLine(Component):
@@ -81,9 +61,6 @@ class DriftingLine(Component):
     def typical(self, param, h, t_ref):
         return {"frequency_hz": 12.45, "rate_hz_per_s": -4e-3, "amplitude": 0.01, "phase": 0.0}[param]
 
-    def start(self, param, data):
-        return {"frequency_hz": 0.1 / data.h, "rate_hz_per_s": 0.0, "amplitude": math.sqrt(data.var) / 10.0,
-                "phase": 0.0}[param]
 
     @staticmethod
     def columns(f0: float, f1: float, t) -> np.ndarray:
@@ -91,14 +68,3 @@ class DriftingLine(Component):
         w = 2 * np.pi * (f0 * tau + 0.5 * f1 * tau * tau)
         return np.stack([np.sin(w), np.cos(w)])
 
-    def fit_residual(self, label, resid, t, ok, h, start, inputs):
-        """The chirp search on the residual, refined; amplitude and phase by least squares."""
-
-        r = np.where(ok, resid, np.nan)
-        found = chirp_search(r, h)
-        f0, f1 = refine_chirp(r, found["f0_hz"], found["rate_hz_per_s"], h)
-        X = self.columns(f0, f1, t).T
-        coef, *_ = np.linalg.lstsq(X[ok], resid[ok], rcond=None)
-        resid[ok] -= X[ok] @ coef
-        return {f"{label}.frequency_hz": f0, f"{label}.rate_hz_per_s": f1,
-                f"{label}.amplitude": float(math.hypot(*coef)), f"{label}.phase": float(math.atan2(coef[1], coef[0]))}

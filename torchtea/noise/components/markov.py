@@ -3,7 +3,6 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
 import torch
 
 from .base import Component, ParamSpec
@@ -32,25 +31,6 @@ class RandomWalk(Component):
     def typical(self, param, h, t_ref):
         return 2e-3
 
-    def start(self, param, data):
-        return math.sqrt(max(data.var, 1e-12) / (len(data.y) * data.h)) / 10.0
-
-    def scale_drive(self, label, v, s, fixed):
-        if f"{label}.sigma" not in fixed:
-            v[f"{label}.sigma"] = v[f"{label}.sigma"] * math.sqrt(s) * 0.1
-
-    def _sigma(self, share, model, values, h, n):
-        """The σ whose spectrum at the lowest Fourier frequency ω₁ is ``share`` × the model's there:
-        S_rw(ω₁) = σ²h/(2π·4 sin²(ω₁/2))."""
-        omega1 = torch.tensor([2 * math.pi / n], dtype=torch.float64)
-        level = float(model.spectrum(values, omega1, h)[0, 0])
-        return math.sqrt(share * level * 2 * math.pi * 4 * math.sin(float(omega1) / 2) ** 2 / h)
-
-    def strengths(self, label, model, values, h, n):
-        return [{f"{label}.sigma": self._sigma(share, model, values, h, n)} for share in (0.1, 1.0)]
-
-    def vanishing(self, label, model, values, h, n):
-        return {f"{label}.sigma": self._sigma(1e-8, model, values, h, n)}
 
     def block(self, v, h, memory):
         s = v["sigma"]
@@ -92,28 +72,6 @@ class GaussMarkov(Component):
 
     def typical(self, param, h, t_ref):
         return {"sigma": 5e-3, "tau_s": 20.0}[param]
-
-    def start(self, param, data):
-        n = len(data.y)
-        return {"sigma": math.sqrt(max(data.var, 1e-12)) / 10.0, "tau_s": n * data.h / 10.0}[param]
-
-    def _sigma(self, share, model, values, h, n, tau):
-        """The σ whose spectrum at the lowest Fourier frequency ω₁ is ``share`` × the model's there."""
-        omega1 = torch.tensor([2 * math.pi / n], dtype=torch.float64)
-        level = float(model.spectrum(values, omega1, h)[0, 0])
-        a = math.exp(-h / tau)
-        return math.sqrt(share * level * 2 * math.pi * (1 - 2 * a * math.cos(float(omega1)) + a * a) / (1 - a * a))
-
-    def strengths(self, label, model, values, h, n):
-        out = []
-        for frac in (0.05, 0.3):  # correlation times of 5 % and 30 % of the record
-            tau = frac * n * h
-            out.append({f"{label}.sigma": self._sigma(1.0, model, values, h, n, tau), f"{label}.tau_s": tau})
-        return out
-
-    def vanishing(self, label, model, values, h, n):
-        tau = 0.1 * n * h
-        return {f"{label}.sigma": self._sigma(1e-8, model, values, h, n, tau), f"{label}.tau_s": tau}
 
 
 class Resonance(Component):
@@ -172,32 +130,4 @@ class Resonance(Component):
     def typical(self, param, h, t_ref):
         return {"frequency_hz": min(30.0, 0.3 / h), "bandwidth_hz": min(3.0, 0.03 / h), "sigma": 2e-3}[param]
 
-    @staticmethod
-    def band(y, h) -> tuple[float, float]:
-        """The frequency (Hz) where the data's Welch spectrum stands highest above its own smooth trend (a running
-        median over ±1/16 of the band, in log), above 2 % of the Nyquist frequency, and that excess (ratio)."""
-        from scipy.ndimage import median_filter
-        from scipy.signal import welch
 
-        x = np.asarray(y, dtype=np.float64)
-        x = x[np.isfinite(x)]
-        f, p = welch(x - x.mean(), fs=1.0 / h, nperseg=min(512, len(x)))
-        lp = np.log(np.maximum(p, 1e-300))
-        trend = median_filter(lp, size=max(5, len(lp) // 8) | 1, mode="nearest")
-        ok = (f > 0.02 * f[-1]) & (f < f[-1])  # (not the Nyquist bin itself: the frequency is below it)
-        k = int(np.argmax(np.where(ok, lp - trend, -np.inf)))
-        return float(f[k]), float(np.exp(lp[k] - trend[k]))
-
-    def start(self, param, data):
-        if param == "frequency_hz":
-            return self.band(data.y.numpy(), data.h)[0]
-        if param == "bandwidth_hz":
-            return 0.02 / data.h
-        return math.sqrt(max(data.var, 1e-12)) / 3.0
-
-    def scale_drive(self, label, v, s, fixed):
-        if f"{label}.sigma" not in fixed:
-            v[f"{label}.sigma"] = v[f"{label}.sigma"] * math.sqrt(s) * 0.3
-
-    def vanishing(self, label, model, values, h, n):
-        return {f"{label}.frequency_hz": 0.1 / h, f"{label}.bandwidth_hz": 0.02 / h, f"{label}.sigma": 1e-12}

@@ -3,8 +3,6 @@ from __future__ import annotations
 
 import math
 
-import torch
-
 from .base import Component, ParamSpec
 
 
@@ -26,11 +24,6 @@ class White(Component):
     def typical(self, param, h, t_ref):
         return 1e-3
 
-    def start(self, param, data):
-        return data.white / 2.0
-
-    def grid_start(self, label, v, white, order, fraction, h):
-        v[f"{label}.r"] = white * 0.5
 
     def spectrum(self, v, omega, h):
         return (v["r"] / (2.0 * math.pi)).unsqueeze(-1).expand(-1, omega.shape[-1])
@@ -51,30 +44,12 @@ class Quantisation(Component):
     def typical(self, param, h, t_ref):
         return 0.01
 
-    def start(self, param, data):
-        return math.sqrt(12.0 * data.white / 2.0)
-
-    def grid_start(self, label, v, white, order, fraction, h):
-        v[f"{label}.step"] = math.sqrt(12 * white * 0.5)
 
     def not_screened(self, model):
         if any(c.kind == "measurement" and type(c) is not type(self) for _, c in model.components):
             return "quantisation noise is white, indistinguishable from the white component"
         return None
 
-    def _level(self, model, values, h, n):
-        """The model's white level: its measurement variance, else its spectrum's at ω₁ × 2π."""
-        r = float(model.measurement_variance(values)[0])
-        if not r:
-            omega1 = torch.tensor([2 * math.pi / n], dtype=torch.float64)
-            r = float(model.spectrum(values, omega1, h)[0, 0]) * 2 * math.pi
-        return r
-
-    def strengths(self, label, model, values, h, n):
-        return [{f"{label}.step": math.sqrt(12 * self._level(model, values, h, n))}]
-
-    def vanishing(self, label, model, values, h, n):
-        return {f"{label}.step": math.sqrt(12 * 1e-8 * self._level(model, values, h, n))}
 
     def spectrum(self, v, omega, h):
         return (self.measurement_variance(v) / (2.0 * math.pi)).unsqueeze(-1).expand(-1, omega.shape[-1])

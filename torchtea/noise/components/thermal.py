@@ -26,10 +26,6 @@ class TemperatureBias(Component):
     def typical(self, param, h, t_ref):
         return {"bias_per_degC": 0.02, "t_ref": t_ref}[param]
 
-    def regressors(self, label, t, inputs, ok):
-        T = np.asarray(inputs["temperature"], dtype=np.float64)
-        tref = float(np.nanmean(T))
-        return {f"{label}.t_ref": tref}, [(f"{label}.bias_per_degC", T - tref)]
 
     screen_order = 30
     explains = ("temperature",)
@@ -107,22 +103,6 @@ class ThermalLag(Component):
     def typical(self, param, h, t_ref):
         return {"bias_per_degC": 0.02, "tau_s": 60.0, "t_ref": t_ref}[param]
 
-    def fit_residual(self, label, resid, t, ok, h, start, inputs):
-        T = np.asarray(inputs["temperature"], dtype=np.float64)
-        t_ref = float(np.nanmean(T))
-        best = None
-        for tau in self.lags(h, len(resid)):
-            x = self.lagged(T, torch.tensor([tau]), h)[0].numpy()[ok]
-            x = x - x.mean()
-            beta = float(x @ resid[ok] / (x @ x)) if x @ x > 0 else 0.0
-            rss = float(np.sum((resid[ok] - beta * x) ** 2))
-            if best is None or rss < best[0]:
-                best = (rss, tau, beta)
-        _, tau, beta = best
-        x = self.lagged(T, torch.tensor([tau]), h)[0].numpy()
-        resid[ok] -= beta * (x[ok] - x[ok].mean())
-        return {f"{label}.bias_per_degC": beta, f"{label}.tau_s": float(tau), f"{label}.t_ref": t_ref}
-
 
 class TemperatureOrder(Component):
     r"""The fractional component's order driven by temperature: :math:`\alpha_k = \alpha_0 + \gamma (T_k - T_\mathrm{ref})`,
@@ -163,10 +143,6 @@ class TemperatureOrder(Component):
     def typical(self, param, h, t_ref):
         return {"order_per_degC": 0.03, "t_ref": t_ref}[param]
 
-    def regressors(self, label, t, inputs, ok):
-        """Not a mean: only its reference (the mean temperature), and γ = 0 to start from."""
-        return {f"{label}.t_ref": float(np.nanmean(np.asarray(inputs["temperature"], dtype=np.float64))),
-                f"{label}.order_per_degC": 0.0}, []
 
     screen_order = 40
     explains = ("temperature",)

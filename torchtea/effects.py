@@ -37,6 +37,7 @@ from __future__ import annotations
 from importlib import metadata
 
 from .noise.components import COMPONENTS, Component, ParamSpec
+from .noise.components.base import SCALES
 
 __all__ = ["register", "unregister", "registered", "ENTRY_POINTS"]
 
@@ -76,6 +77,12 @@ def register(effect, *, replace: bool = False):
                          "is built into the state-space assembly: only the built-in ones run)")
     if not comp.params or not all(isinstance(p, ParamSpec) for p in comp.params):
         raise ValueError(f"{where}: params must be a non-empty tuple of ParamSpec")
+    if any(p.kind not in SCALES for p in comp.params):
+        raise ValueError(f"{where}: a parameter's kind must be one of {', '.join(SCALES)} (got "
+                         f"{', '.join(sorted({p.kind for p in comp.params} - set(SCALES)))})")
+    if any(p.kind == "fraction" for p in comp.params) and comp.order_param is None:
+        raise ValueError(f"{where}: a 'fraction' parameter is a pole's fraction of the stability limit at the "
+                         "effect's fractional order: the effect needs an order_param")
     if comp.kind == "mean" and type(comp).mean is Component.mean:
         raise ValueError(f"{where}: a mean effect must define mean(v, t, inputs)")
     if comp.kind == "state" and (type(comp).block is Component.block or type(comp).spectrum is Component.spectrum):

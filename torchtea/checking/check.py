@@ -59,9 +59,6 @@ from ..noise.model import PAPER_MODEL, NoiseModel, parse_model
 from .diagnostics import LEVEL, Diagnostic, Innovations
 from .models import REFIT_TOLERANCE, extend, with_intervals
 from .models import assess as _assess
-from .models import bic as _bic
-from .models import counted as _counted
-from .models import held as _held
 from .screening import ScreenContext, new_label, screen_all
 
 __all__ = ["check", "CheckResult", "Suggestion", "read_check", "CANDIDATES", "extend", "SCREENS", "effect_parameters", "rank",
@@ -325,10 +322,10 @@ class CheckResult:
         for r in self.steps:
             row = {"model": r.model.spec, "adequate": r.adequate, "nll_per_sample": r.metrics["nll_per_sample"],
                    "psd_misfit": r.metrics["psd_misfit"], "adev_misfit": r.metrics["adev_misfit"],
-                   "failed": r.failed, "bic": _bic(r.fit), "seconds": r.seconds, "timings": r.timings}
+                   "failed": r.failed, "bic": r.fit.bic_exact, "seconds": r.seconds, "timings": r.timings}
             if prev is not None:
                 row.update(added=_added(prev.model, r.model), removed=_removed(prev.model, r.model),
-                           change=(r.change or {}).get("kind", "add"), gain=_bic(prev.fit) - _bic(r.fit),
+                           change=(r.change or {}).get("kind", "add"), gain=prev.fit.bic_exact - r.fit.bic_exact,
                            repaired=sorted(set(prev.failed) - set(r.failed)),
                            broke=sorted(set(r.failed) - set(prev.failed)))
             rows.append(row)
@@ -339,7 +336,7 @@ class CheckResult:
         return {"model": self.model.spec, "adequate": self.adequate,
                 "base": dict(self.metrics, failed=self.failed, failing_ranges_s=self.failing_ranges_s,
                              parameters=self.fit.values, se=self.fit.se, ci95=self.fit.ci95,
-                             ci95_method=self.fit.ci95_method, loglik=self.fit.loglik_exact, bic=_bic(self.fit),
+                             ci95_method=self.fit.ci95_method, loglik=self.fit.loglik_exact, bic=self.fit.bic_exact,
                              observed=self.fit.n),
                 "diagnostics": [d.as_dict() for d in self.diagnostics],
                 "screens": self.screens,
@@ -535,7 +532,7 @@ def _refit_degenerate(run: _Run, model, fit: Fit, wf, intervals: bool) -> Fit | 
                          intervals=intervals, margin=math.inf)
     if not new.loglik > fit.loglik + BASE_SLACK:
         return None
-    _counted(new, {n: w for n, w in located.items()})
+    new.count({n: w for n, w in located.items()})
     return new
 
 
@@ -593,8 +590,8 @@ def _check_once(run: _Run, model, fit: Fit, wf, screen_level, candidates, interv
                            "(a lower bound); the best suggestion alone is refitted")
         refits.append(f2)
         refitted[row["effect"]] = f2
-        _counted(f2, estimates)
-        gain = _bic(fit) - _bic(f2)
+        f2.count(estimates)
+        gain = fit.bic_exact - f2.bic_exact
         lr = 2.0 * (f2.loglik_exact - fit.loglik_exact)
         if restart:  # the effect at its null value: what the refit gained is the model's own
             base_there = _loglik_at(model, f2.values, y, h, inputs)  # the model's part of the refit
@@ -652,8 +649,8 @@ def _check_once(run: _Run, model, fit: Fit, wf, screen_level, candidates, interv
         alt = top.fit.model
         estimates, fixed = _held_fixed(alt, top.label)
         f2 = _refit_from(run, alt, top.fit, fixed)
-        _counted(f2, estimates)
-        top.fit, top.gain = f2, float(_bic(fit) - _bic(f2))
+        f2.count(estimates)
+        top.fit, top.gain = f2, float(fit.bic_exact - f2.bic_exact)
         _, top.diagnostics, top.metrics = _assess(alt, f2.values, y, h, inputs, run.level)
         top.repairs = sorted(failed_before & {d.name for d in top.diagnostics if d.passed})
         row["note"] = row["note"].replace("; the best suggestion alone is refitted", "; refitted as the best suggestion")
@@ -849,7 +846,7 @@ def _refit_from(run: _Run, alt, evaluated: Fit, fixed: list) -> Fit:
 def _held_fixed(alt, label) -> tuple[dict, list]:
     """What the extended model's components hold (a temperature reference; a new line's frequency at the refined
     periodogram peak, which still counts as an estimated parameter in BIC) and the names its refit keeps fixed."""
-    estimates = {**_held(alt, label), **alt.located()}
+    estimates = {**alt.held_estimates(label), **alt.located()}
     return estimates, [n for n in alt.names if n in alt.references() or n in estimates]
 
 
@@ -866,7 +863,7 @@ def _refined_model(model, fit: Fit, f2: Fit, y, h, inputs, intervals: bool) -> F
     fixed = [n for n in model.names if n not in fit.free or n in located]
     new = refine_exact(model, y, h, {n: f2.values[n] for n in model.names}, inputs=inputs, fixed=fixed,
                        metric=fit.hessian, intervals=intervals)
-    _counted(new, located)
+    new.count(located)
     return new if new.loglik > fit.loglik + BASE_SLACK else None
 
 

@@ -3,15 +3,13 @@ model's components hold and how they count in BIC, an exact fit with its interva
 Used by :mod:`.check` (adding) and :mod:`.simplify` (taking away and swapping)."""
 from __future__ import annotations
 
-import math
-
 from ..fitting.mle import Fit, located_intervals, refine_exact
 from ..noise.components import COMPONENTS
 from ..noise.components import candidates as candidates_all
 from ..noise.model import NoiseModel, parse_model
 from .diagnostics import innovations, metrics, run_diagnostics
 
-__all__ = ["extend", "bic", "assess", "held", "counted", "with_intervals", "REFIT_TOLERANCE"]
+__all__ = ["extend", "assess", "with_intervals", "REFIT_TOLERANCE"]
 
 #: A candidate's refit has converged when it can gain less than this many nats: its BIC gain is then known to 10⁻³
 #: (the ranking needs 0.1; the suggestion the loop adds is refined to :func:`~torchtea.fitting.mle.decrement_tolerance`
@@ -36,11 +34,6 @@ def extend(model: NoiseModel, effect: str) -> NoiseModel:
     return parse_model("+".join(tokens))
 
 
-def bic(fit: Fit) -> float:
-    """BIC = k ln n − 2ℓ on the exact likelihood, k the fit's estimated parameters (held estimates counted)."""
-    return fit.k * math.log(fit.n) - 2.0 * fit.loglik_exact
-
-
 def assess(model, values, y, h, inputs, level):
     """The model's innovations at ``values``, its diagnostics at ``level`` and their metrics."""
     inn = innovations(model, values, y, h, inputs)
@@ -49,30 +42,14 @@ def assess(model, values, y, h, inputs, level):
     return inn, diags, metrics(inn, diags)
 
 
-def held(model: NoiseModel, label: str) -> dict:
-    """The estimates ``model``'s components hold (:attr:`~torchtea.noise.components.Component.held` entries with
-    words, not the references): those of the component ``label``, or of every component with ``"*"``. Name → the
-    words for its interval."""
-    return {f"{lb}.{p}": words for lb, comp in model.components for p, words in comp.held.items()
-            if words is not None and label in ("*", lb)}
-
-
-def counted(fit: Fit, held: dict) -> None:
-    """Count the ``held`` estimates (name → words for the interval) among the fit's estimated parameters (BIC)."""
-    for n, words in held.items():
-        if n not in fit.free:
-            fit.free.append(n)
-        fit.ci95_method[n] = words
-
-
 def with_intervals(f: Fit, y, h, inputs) -> Fit:
     """The exact fit ``f`` refined with its intervals (the observed information), what it holds fixed kept fixed and
     its held estimates counted; a located parameter's interval from its own profile."""
-    kept = held(f.model, "*")
+    kept = f.model.held_estimates()
     fixed = [n for n in f.model.names if n not in f.free or n in kept]
     out = refine_exact(f.model, y, h, f.values, inputs=inputs, fixed=fixed, metric=f.hessian, intervals=True)
     out.notes[:0] = f.notes
-    counted(out, {n: f.ci95_method[n] for n in kept if n in f.free})
+    out.count({n: f.ci95_method[n] for n in kept if n in f.free})
     for n, (c, words) in located_intervals(f.model, out.values, y, h, inputs).items():
         if n in out.free:
             out.ci95[n], out.ci95_method[n] = c, words

@@ -35,7 +35,6 @@ from scipy import stats
 from ..fitting.mle import fit_series, refine_best
 from ..noise.model import parse_model
 from .check import CANDIDATES, CLOSE_BIC
-from .models import held
 
 __all__ = ["oracle", "effect_df", "status", "judge"]
 
@@ -53,7 +52,7 @@ def effect_df(model, label: str) -> int:
 
 def _fixed(model) -> list:
     """What every fit holds: references, held estimates (a line's frequency) and located times (a step's)."""
-    return sorted(set(model.references()) | set(held(model, "*")) | set(model.located()))
+    return sorted(set(model.references()) | set(model.held_estimates()) | set(model.located()))
 
 
 def _restricted(values: dict, model, m, removed: str | None, partial: bool = False) -> dict:

@@ -26,12 +26,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..fitting.mle import Fit, fit_series, refine_best, whittle_fit
+from ..fitting.mle import Fit, bic, fit_series, refine_best, whittle_fit
 from ..fitting.plan import duration, tie_length
 from ..fitting.starts import starts_of
 from ..noise.components import COMPONENTS
 from ..noise.model import NoiseModel, parse_model
-from .models import REFIT_TOLERANCE, assess, bic, counted, extend, held, with_intervals
+from .models import REFIT_TOLERANCE, assess, extend, with_intervals
 
 __all__ = ["Alternative", "alternatives", "evaluate", "simplify", "ties", "WHITTLE_WINDOW", "MAX_CHANGES"]
 
@@ -146,8 +146,7 @@ def _carried(model: NoiseModel, alt: NoiseModel, removed: str) -> dict:
 
 def _whittle_bic(model, wf, n) -> float:
     """The model's BIC on its Whittle likelihood (its Whittle fit ``wf``; its references not counted)."""
-    k = len([p for p in model.names if p not in model.references()])
-    return k * math.log(n) - 2.0 * float(wf.loglik[0])
+    return bic(len([p for p in model.names if p not in model.references()]), n, float(wf.loglik[0]))
 
 
 def _fit(alt: Alternative, res, wf) -> Fit:
@@ -182,7 +181,7 @@ def _fit(alt: Alternative, res, wf) -> Fit:
         if other is not None and other.loglik > best.loglik:
             best = other
     best = copy.deepcopy(best)
-    counted(best, held(m, "*"))
+    best.count(m.held_estimates())
     return best
 
 
@@ -192,12 +191,12 @@ def _as_counted(fit: Fit) -> Fit:
     f = copy.copy(fit)
     f.free = list(fit.free)
     f.ci95_method = dict(fit.ci95_method)
-    counted(f, held(fit.model, "*"))
+    f.count(fit.model.held_estimates())
     return f
 
 
 def _bic_of(fit: Fit) -> float:
-    return bic(_as_counted(fit))
+    return _as_counted(fit).bic_exact
 
 
 def evaluate(res, progress=None) -> list[Alternative]:
@@ -270,13 +269,13 @@ def ties(res, close: float) -> list[dict]:
     (``resolve_samples``, ``resolve_seconds``) and the sentence to show."""
     out = []
     here = _as_counted(res.fit)
-    current = bic(here)
+    current = here.bic_exact
     n0 = res.fit.n
     pool = {}
     for step in res.steps:
         fits = [step.fit] + [s.fit for s in step.suggestions] + [a.fit for a in step.alternatives if a.fit is not None]
         for f in map(_as_counted, fits):
-            b = bic(f)
+            b = f.bic_exact
             if f.model.spec != res.model.spec and (f.model.spec not in pool or b < pool[f.model.spec][0]):
                 pool[f.model.spec] = (b, f)
     final = [c.name for _, c in res.model.components]

@@ -186,7 +186,7 @@ def _delta_intervals(fit, h: float, fn, keys: tuple) -> tuple[dict, str, list]:
     free = torch.nonzero(H.abs().sum(1) > 0).flatten().tolist()
     # a parameter at a bound of its range (an order at 1, a logit beyond ±8: within 3e-4 of the end) carries no
     # information there; it is held at its estimate and the others' law taken given it (said so)
-    held = [names[i] for i in free if fit.model.param_spec(names[i]).kind in ("bounded", "fraction", "nyquist")
+    held = [names[i] for i in free if fit.model.param_spec(names[i]).scale == "logit"
             and abs(float(u0[i])) > AT_BOUND]
     free = [i for i in free if names[i] not in held]
     if not free:

@@ -91,7 +91,29 @@ class Fit:
 
     @property
     def bic(self) -> float:
-        return self.k * math.log(self.n) - 2.0 * self.loglik
+        """BIC on the likelihood of its ``method`` (``fit``'s number)."""
+        return bic(self.k, self.n, self.loglik)
+
+    @property
+    def bic_exact(self) -> float:
+        """BIC on the exact likelihood (what ``check`` compares models by, whatever the fit's method)."""
+        return bic(self.k, self.n, self.loglik_exact)
+
+    def count(self, estimates: dict) -> None:
+        """The one rule of what BIC counts: a parameter a fit holds where the data put it (a step's time, a line's
+        frequency at the refined periodogram peak — :meth:`~torchtea.noise.model.NoiseModel.held_estimates`) is an
+        estimate all the same, so ``estimates`` (name → the words for its interval) join the fit's estimated
+        parameters ``free`` (its ``k``); a reference (a temperature's ``t_ref``) never does."""
+        for n, words in estimates.items():
+            if n not in self.free:
+                self.free.append(n)
+            self.ci95_method[n] = words
+
+
+def bic(k: int, n: int, loglik: float) -> float:
+    """The Bayesian information criterion k ln n − 2ℓ of a fit of ``k`` estimated parameters to ``n`` samples with
+    log-likelihood ``loglik`` (which likelihood: the caller's, and said where the number is written)."""
+    return k * math.log(n) - 2.0 * loglik
 
 
 # --------------------------------------------------------------------------- deterministic part
@@ -369,7 +391,7 @@ def _score_batch(model, y, h, U0: Tensor, free: Tensor, inputs, memory, max_iter
     K = len(X)
     # a logit past ±LOGIT_BOUND is a parameter at its bound (an order within 6·10⁻⁶ of 0 or 1, a pole at its
     # stability limit or at 0): the steps stop there instead of wandering along a flat boundary
-    bounded = np.array([model.param_spec(model.names[i]).kind in ("bounded", "fraction", "nyquist") for i in idx])
+    bounded = np.array([model.param_spec(model.names[i]).scale == "logit" for i in idx])
     lim = np.where(bounded, LOGIT_BOUND, np.inf)
     X = np.clip(X, -lim, lim)
     f, g, info = vgi(X)
@@ -766,14 +788,14 @@ def _intervals(model: NoiseModel, u: Tensor, H: Tensor, free: Tensor, h: float):
         sd_u = float(torch.sqrt(cov_u[k, k]))
         se[n] = float(torch.sqrt(cov[i, i].clamp(min=0)))
         spec = model.param_spec(n)
-        if spec.kind in ("positive", "bounded", "nyquist"):
+        if spec.scale != "identity" and spec.kind != "fraction":  # (a pole: Wald on its own scale, below)
             lo_u, hi_u = u.clone(), u.clone()
             lo_u[i] -= Z95 * sd_u
             hi_u[i] += Z95 * sd_u
             a, b = float(natural(lo_u)[i]), float(natural(hi_u)[i])
             ci[n] = [min(a, b), max(a, b)]
             # (a frequency below the Nyquist frequency: the logit of its share of it)
-            how[n] = "Wald on the log scale" if spec.kind == "positive" else "Wald on the logit scale"
+            how[n] = f"Wald on the {spec.scale} scale"
         else:
             ci[n] = [values[n] - Z95 * se[n], values[n] + Z95 * se[n]]
             how[n] = "Wald"
@@ -804,7 +826,7 @@ def profile_order(model, wf: WhittleFit, h: float, *, grid: int = 21, fixed: dic
         raise ValueError(f"model {model.spec!r} has no fractional order to profile")
     io = model.names.index(name)
     alphas = torch.linspace(0.0125, 0.9875, grid, dtype=torch.float64)
-    ua = model.param_spec(name).bounded_to_unconstrained(alphas)
+    ua = model.param_spec(name).to_unconstrained(alphas, h)
     free = _free_mask(model, set(fixed or {}) | {name}, True)
     S = wf.u.shape[0]
     loss_grid = torch.full((S, grid), math.inf, dtype=torch.float64)
@@ -922,13 +944,6 @@ def fit_series(model, series: list, h: float, *, method: str = "exact", inputs: 
             vals, se, ci, how = _estimates(model, u, H, free, h)
             ll_exact = ll
         kfree = [n for n, f in zip(model.names, free.tolist()) if f]
-        for n, words in located.items():  # held where the data put them, but estimated: counted in BIC
-            kfree.append(n)
-            how[n] = words
-        if intervals and method == "exact":  # their own intervals, where the component makes one
-            for n, (c, words) in located_intervals(model, vals, y, h, inp).items():
-                if n in located:
-                    ci[n], how[n] = c, words
         if not model.has_level:
             notes.append(f"mean {float(np.nanmean(y)):.6g} removed before fitting; the model has no offset, so the "
                          "exact likelihood integrates the unknown level out")
@@ -936,8 +951,14 @@ def fit_series(model, series: list, h: float, *, method: str = "exact", inputs: 
         if prof is not None and method == "whittle":
             ci[name] = prof["ci95"]
             how[name] = "Whittle profile likelihood" + (" (two pieces, hull)" if len(prof["pieces"]) > 1 else "")
-        fits.append(Fit(model, method, vals, se, ci, how, ll, ll_exact, int(np.sum(~np.isnan(y))), kfree, ok,
-                        prof, notes, u, H))
+        fit = Fit(model, method, vals, se, ci, how, ll, ll_exact, int(np.sum(~np.isnan(y))), kfree, ok, prof, notes,
+                  u, H)
+        fit.count(located)  # (held where the data put them, but estimated)
+        if intervals and method == "exact":  # their own intervals, where the component makes one
+            for n, (c, words) in located_intervals(model, vals, y, h, inp).items():
+                if n in located:
+                    ci[n], how[n] = c, words
+        fits.append(fit)
     return fits
 
 

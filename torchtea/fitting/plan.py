@@ -97,7 +97,7 @@ def _held(model, values: dict, h: float, fixed=()) -> list[str]:
     """The noise parameters the plan holds: those ``fixed`` and those at a bound (:data:`AT_BOUND_LOGIT`)."""
     u = _point(model, values, h)
     return [p for p in _stochastic(model) if p in fixed or (
-        model.param_spec(p).kind in ("bounded", "fraction", "nyquist")
+        model.param_spec(p).scale == "logit"
         and abs(float(u[model.names.index(p)])) > AT_BOUND_LOGIT)]
 
 

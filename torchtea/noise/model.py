@@ -27,7 +27,7 @@ from torch import Tensor
 
 from ..core.gl import broadcast_shapes
 from ..core.memory import MemoryConfig, SOEKernel, memory_plan, parse_memory
-from .components import COMPONENTS, ORDER_BOUNDS, Component, logit
+from .components import COMPONENTS, ORDER_BOUNDS, Component
 
 __all__ = ["NoiseModel", "PAPER_MODEL", "parse_model", "StateSpace", "VaryingRow", "StateMemory", "state_memory",
            "EXACT_MEMORY_LIMIT", "ROW_TABLE"]
@@ -183,6 +183,9 @@ class NoiseModel:
         self.spec = spec
         self.names = [f"{label}.{p.name}" for label, comp in components for p in comp.params]
         self._specs = {f"{label}.{p.name}": p for label, comp in components for p in comp.params}
+        #: a pole fraction's name → the name of the order it is a fraction of the stability limit at
+        self._order_of = {f"{label}.{p.name}": f"{label}.{comp.order_param}" for label, comp in components
+                          for p in comp.params if p.kind == "fraction"}
 
     def __repr__(self):
         return f"NoiseModel({self.spec!r})"
@@ -215,6 +218,13 @@ class NoiseModel:
     def references(self) -> set:
         """The parameters the components hold as references, not estimates (a temperature's ``t_ref``)."""
         return {f"{lb}.{p}" for lb, c in self.components for p, words in c.held.items() if words is None}
+
+    def held_estimates(self, label: str = "*") -> dict:
+        """The estimates the components hold in a fit (:attr:`~torchtea.noise.components.Component.held` entries with
+        words, not the references): those of the component ``label``, or of every component with ``"*"``. Name →
+        the words for its interval. They count in BIC (:meth:`~torchtea.fitting.mle.Fit.count`)."""
+        return {f"{lb}.{p}": words for lb, comp in self.components for p, words in comp.held.items()
+                if words is not None and label in ("*", lb)}
 
     def located(self) -> dict:
         """The parameters every fit holds where the data put them (a step's time: the likelihood is not smooth in
@@ -264,45 +274,17 @@ class NoiseModel:
         """Values → unconstrained ``(B, P)`` (log for positive, logit for bounded, for a frequency's share of the Nyquist
         frequency and for the pole's fraction)."""
         v = self.as_dict(values)
-        cols = []
-        for n in self.names:
-            spec = self._specs[n]
-            x = v[n]
-            if spec.kind == "positive":
-                cols.append(torch.log(x))
-            elif spec.kind == "bounded":
-                cols.append(spec.bounded_to_unconstrained(x))
-            elif spec.kind == "nyquist":  # a frequency (Hz) in (0, 1/(2h)): logit of its share of Nyquist
-                if not bool(((x > 0) & (x * 2.0 * h < 1)).all()):
-                    raise ValueError(f"{n} must lie between 0 and the Nyquist frequency {0.5 / h:g} Hz, got "
-                                     f"{x.tolist()}")
-                cols.append(logit(x * 2.0 * h))
-            elif spec.kind == "fraction":
-                alpha = v[n.rsplit(".", 1)[0] + ".order"]
-                cols.append(logit(-x * h ** alpha / 2.0 ** alpha))
-            else:
-                cols.append(x)
-        return torch.stack(cols, dim=-1)
+        return torch.stack([self._specs[n].to_unconstrained(v[n], h, v.get(self._order_of.get(n)), where=n)
+                            for n in self.names], dim=-1)
 
     def from_unconstrained(self, u: Tensor, h: float) -> dict:
         """Inverse of :meth:`to_unconstrained` (differentiable)."""
         u = u.reshape(-1, len(self.names))
-        v = {}
-        for i, n in enumerate(self.names):
-            spec = self._specs[n]
-            if spec.kind == "positive":
-                v[n] = torch.exp(u[:, i])
-            elif spec.kind == "bounded":
-                lo, hi = spec.bounds
-                v[n] = lo + (hi - lo) * torch.sigmoid(u[:, i])
-            elif spec.kind == "nyquist":
-                v[n] = torch.sigmoid(u[:, i]) / (2.0 * h)
-            elif spec.kind == "free":
-                v[n] = u[:, i]
-        for i, n in enumerate(self.names):
-            if self._specs[n].kind == "fraction":
-                alpha = v[n.rsplit(".", 1)[0] + ".order"]
-                v[n] = -torch.sigmoid(u[:, i]) * 2.0 ** alpha / h ** alpha
+        v = {n: self._specs[n].from_unconstrained(u[:, i], h) for i, n in enumerate(self.names)
+             if n not in self._order_of}
+        for i, n in enumerate(self.names):  # (a pole fraction after the order it is a fraction at)
+            if n in self._order_of:
+                v[n] = self._specs[n].from_unconstrained(u[:, i], h, v[self._order_of[n]])
         return v
 
     # ------------------------------------------------------------------ what the engines read

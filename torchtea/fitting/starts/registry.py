@@ -7,6 +7,8 @@ from typing import NamedTuple
 import torch
 from torch import Tensor
 
+from ...noise.model import NoiseModel
+
 __all__ = ["Starts", "StartData", "REGISTRY", "register_start", "unregister_start", "starts_of", "initial_values"]
 
 
@@ -74,7 +76,8 @@ class Starts:
         phase); removes what it explains from ``resid`` in place. ``start``: the model's start values
         (:func:`initial_values`). Default: nothing for an effect that is not a mean, carries the level or whose mean
         the regression took (:meth:`regressors`); a mean that the regression did not take (a user's effect) by
-        nonlinear least squares over its parameters from ``start`` (:func:`scipy.optimize.least_squares`)."""
+        nonlinear least squares over its parameters from ``start`` (:func:`scipy.optimize.least_squares`), each on its
+        kind's unconstrained scale (:meth:`~torchtea.noise.components.ParamSpec.to_unconstrained`, as every fit)."""
         if comp.kind != "mean" or comp.level or self.regressors(comp, label, t, inputs, ok)[1]:
             return {}
         from scipy.optimize import least_squares
@@ -83,26 +86,11 @@ class Starts:
         tt = torch.as_tensor(t, dtype=torch.float64)
         inp = None if inputs is None else {k: torch.as_tensor(x, dtype=torch.float64) for k, x in inputs.items()}
 
-        def natural(u):
-            out = {}
-            for p, x in zip(comp.params, u):
-                if p.kind == "positive":
-                    out[p.name] = math.exp(x)
-                elif p.kind in ("bounded", "fraction"):
-                    lo, hi = p.bounds if p.kind == "bounded" else (0.0, 1.0)
-                    out[p.name] = lo + (hi - lo) / (1.0 + math.exp(-x))
-                else:
-                    out[p.name] = x
-            return out
+        alone = NoiseModel([(label, comp)], comp.token)  # (its parameters' transforms, as a model has them)
 
-        def unconstrained(p, x):
-            if p.kind == "positive":
-                return math.log(x)
-            if p.kind in ("bounded", "fraction"):
-                lo, hi = p.bounds if p.kind == "bounded" else (0.0, 1.0)
-                q = (x - lo) / (hi - lo)
-                return math.log(q / (1 - q))
-            return x
+        def natural(u):
+            v = alone.from_unconstrained(torch.as_tensor(u, dtype=torch.float64), h)
+            return {p.name: float(v[f"{label}.{p.name}"][0]) for p in comp.params}
 
         def residual(u):
             v = {n: torch.tensor([x], dtype=torch.float64) for n, x in natural(u).items()}
@@ -110,7 +98,7 @@ class Starts:
             r = resid - m
             return (r - r[ok].mean())[ok]
 
-        u0 = [unconstrained(p, start[f"{label}.{p.name}"]) for p in comp.params]
+        u0 = alone.to_unconstrained({n: start[n] for n in alone.names}, h)[0].tolist()
         sol = least_squares(residual, u0, method="lm")
         best = natural(sol.x)
         v = {n: torch.tensor([best[n]], dtype=torch.float64) for n in names}

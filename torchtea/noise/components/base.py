@@ -28,10 +28,48 @@ class ParamSpec:
     unit: str
     bounds: tuple = (-math.inf, math.inf)
 
-    def bounded_to_unconstrained(self, x: Tensor) -> Tensor:
-        """``logit((x − low)/(high − low))``: a ``bounded`` value on the optimisers' scale."""
-        lo, hi = self.bounds
-        return logit((x - lo) / (hi - lo))
+    @property
+    def scale(self) -> str:
+        """The scale its kind puts it on for the optimisers and the intervals: ``"log"``, ``"logit"`` or
+        ``"identity"``."""
+        return SCALES[self.kind]
+
+    def to_unconstrained(self, x: Tensor, h: float, order: Tensor | None = None, where: str = "") -> Tensor:
+        """The value ``x`` on the optimisers' unconstrained scale — the one transform of its kind (every fit, start
+        and interval uses it): log of a positive value, logit of a bounded one's share of its range, of a
+        frequency's share of the Nyquist frequency 1/(2h), of a pole's fraction ``−f h^α/2^α`` of its stability
+        limit (``order`` α, the fractional order the pole belongs to). Raises ``ValueError`` (naming ``where``) for
+        a frequency outside (0, Nyquist)."""
+        if self.kind == "positive":
+            return torch.log(x)
+        if self.kind == "bounded":
+            lo, hi = self.bounds
+            return logit((x - lo) / (hi - lo))
+        if self.kind == "nyquist":
+            if not bool(((x > 0) & (x * 2.0 * h < 1)).all()):
+                raise ValueError(f"{where or self.name} must lie between 0 and the Nyquist frequency {0.5 / h:g} Hz, "
+                                 f"got {x.tolist()}")
+            return logit(x * 2.0 * h)
+        if self.kind == "fraction":
+            return logit(-x * h ** order / 2.0 ** order)
+        return x
+
+    def from_unconstrained(self, u: Tensor, h: float, order: Tensor | None = None) -> Tensor:
+        """Inverse of :meth:`to_unconstrained` (differentiable)."""
+        if self.kind == "positive":
+            return torch.exp(u)
+        if self.kind == "bounded":
+            lo, hi = self.bounds
+            return lo + (hi - lo) * torch.sigmoid(u)
+        if self.kind == "nyquist":
+            return torch.sigmoid(u) / (2.0 * h)
+        if self.kind == "fraction":
+            return -torch.sigmoid(u) * 2.0 ** order / h ** order
+        return u
+
+
+#: Each parameter kind's scale (:attr:`ParamSpec.scale`).
+SCALES = {"positive": "log", "bounded": "logit", "fraction": "logit", "nyquist": "logit", "free": "identity"}
 
 
 @dataclass(frozen=True)
@@ -173,7 +211,7 @@ class Component:
     #: a line's frequency at the refined periodogram peak — which counts as estimated in BIC).
     held: dict = {}
     #: Of the held estimates, those every fit holds (their likelihood is not smooth — a time — so no optimiser can
-    #: move them): at the value the least-squares start found (:meth:`fit_residual`), counted as estimated in BIC.
+    #: move them): at the value the least-squares start found (:meth:`~torchtea.fitting.starts.Starts.fit_residual`), counted as estimated in BIC.
     located: tuple = ()
 
     # ---- its spec token ----------------------------------------------------------------------------------

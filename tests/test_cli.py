@@ -398,13 +398,13 @@ def test_bundled_recordings_read_completely():
 
 
 def test_identify_warns_about_long_recordings(tmp_path, capsys, monkeypatch):
-    import torchtea.cli as cli
+    import torchtea.identification as identification
 
-    monkeypatch.setattr(cli, "LONG_RECORDING", 100)
+    monkeypatch.setattr(identification, "EXACT_COST_SAMPLES", 100)
     assert run("identify", "--samples", 150, "--no-plots", "--json", "--out", tmp_path / "id") == 0
     err = capsys.readouterr().err
     assert "150 samples" in err and "O(N²)" in err
-    monkeypatch.setattr(cli, "LONG_RECORDING", 1000)
+    monkeypatch.setattr(identification, "EXACT_COST_SAMPLES", 1000)
     assert run("identify", "--samples", 150, "--no-plots", "--json", "--out", tmp_path / "id") == 0
     assert "O(N²)" not in capsys.readouterr().err
 
@@ -422,8 +422,6 @@ def test_generic_csv_in_g(tmp_path, capsys):
 
 @pytest.mark.slow
 def test_memory_option_on_estimate_identify_simulate(tmp_path, capsys, monkeypatch):
-    import torchtea.cli as cli
-
     sim = tmp_path / "s.csv"
     assert run("simulate", "--n", 1200, "--h", 0.001, "--order", 0.35, "--param", -1, "--q", 1e-4, "--r", 1e-3,
                "--input-std", 1, "--seed", 4, "--out", sim, "--memory", "soe") == 0
@@ -451,7 +449,9 @@ def test_memory_option_on_estimate_identify_simulate(tmp_path, capsys, monkeypat
     assert run("estimate", sim, "--h", 0.001, "--memory", "fast") == 2
     assert "bad memory spec 'fast'" in capsys.readouterr().err
     # identify: no O(N²) note with soe, per-axis clamp counts in the summary
-    monkeypatch.setattr(cli, "LONG_RECORDING", 100)
+    import torchtea.identification as identification
+
+    monkeypatch.setattr(identification, "EXACT_COST_SAMPLES", 100)
     assert run("identify", "--samples", 400, "--no-plots", "--json", "--memory", "soe", "--out", tmp_path / "id") == 0
     cap = capsys.readouterr()
     assert "O(N²)" not in cap.err
@@ -516,3 +516,23 @@ def test_the_progress_line_does_not_take_a_one_time_cost_for_the_pace(monkeypatc
     assert len(lines) == 2
     assert "1/10000 steps" in lines[0] and "the time left follows at the next line" in lines[0]
     assert "1001/10000 steps" in lines[1] and "about 90 s left" in lines[1]
+
+
+def test_simulate_sets_are_one_clear_error_each_and_the_truth_file_is_what_its_meaning_says(tmp_path, capsys):
+    """The ``--set`` grammar and the truth file live in the library (torchtea.noise.simulate): a value that is not a
+    number is one error naming the item, exit 2 (it was a traceback), as is an unknown name; the truth file holds
+    exactly the entries TRUTH_MEANING describes, the values set among them."""
+    from torchtea.noise.simulate import TRUTH_MEANING
+
+    out = tmp_path / "s.csv"
+    assert run("simulate", "--model", "fractional+white", "--n", 200, "--h", 0.01, "--set", "white.r=abc",
+               "--out", out) == 2
+    assert "--set 'white.r=abc': the value must be a finite number" in capsys.readouterr().err and not out.exists()
+    assert run("simulate", "--model", "fractional+white", "--n", 200, "--h", 0.01, "--set", "white.q=1",
+               "--out", out) == 2
+    assert "expected NAME=VALUE or COLUMN:NAME=VALUE with NAME one of" in capsys.readouterr().err
+    assert run("simulate", "--model", "fractional+white", "--n", 200, "--h", 0.01, "--set", "ay:white.r=2e-3",
+               "--columns", "ax,ay", "--out", out) == 0
+    truth = json.loads((tmp_path / "s.csv.truth.json").read_text())
+    assert set(truth) == set(TRUTH_MEANING)
+    assert truth["values"]["ay"]["white.r"] == 2e-3 and truth["values"]["ax"]["white.r"] != 2e-3

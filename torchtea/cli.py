@@ -14,8 +14,6 @@ from .render.text import num as _num
 __all__ = ["main"]
 
 
-#: Above this many samples `identify` warns that the exact O(N²) history sums take minutes.
-LONG_RECORDING = 20000
 #: torchtea.fitting.recording.BOOTSTRAP_LIMIT, for fit's help without importing the fitting layer (which takes about
 #: a second: the help of every command is built at start-up); tests/test_workflows.py checks that the two agree.
 BOOTSTRAP_LIMIT = 200_000
@@ -254,40 +252,12 @@ def cmd_simulate(args) -> int:
 
 
 def _simulate_model(args) -> int:
-    import json
+    from .noise.simulate import simulate_recording
 
-    from .noise import parse_model
-    from .noise.simulate import simulate_columns
-    from .sensors.io import write_columns
-
-    model = parse_model(args.model)
-    try:
-        profile = tuple(float(x) for x in args.temperature_profile.split(","))
-        if len(profile) != 4:
-            raise ValueError
-    except ValueError:
-        raise CLIError(f"--temperature-profile needs four numbers T0,WARMUP,TAU_S,WANDER, got "
-                       f"{args.temperature_profile!r}") from None
-    columns = [c.strip() for c in (args.columns or "y").split(",")]
-    if not all(columns) or len(set(columns)) != len(columns) or any(c in ("t", "temp") for c in columns):
-        raise CLIError(f"--columns {args.columns!r}: distinct names, not t or temp")
-    names = model.names
-    values: dict = {c: {} for c in columns}
-    for item in args.set:
-        target, sep, text = item.partition("=")
-        col, colon, name = target.rpartition(":")
-        if not sep or name not in names or (colon and col not in columns):
-            raise CLIError(f"--set {item!r}: expected NAME=VALUE or COLUMN:NAME=VALUE with NAME one of "
-                           f"{', '.join(names)} and COLUMN one of {', '.join(columns)}")
-        for c in [col] if colon else columns:
-            values[c][name] = _finite_float(text)
-    data, per = simulate_columns(model, n_steps=args.n, h=args.h, columns=columns, values=values, seed=args.seed,
-                                 temperature=profile, memory=_memory(args.memory) or "soe")
-    out = write_columns(args.out, data)
-    truth = Path(str(out) + ".truth.json")
-    doc = {"model": model.spec, "values": per[columns[0]] if columns == ["y"] else per, "h": args.h,
-           "n": args.n, "seed": args.seed, "temperature_profile": args.temperature_profile, "columns": columns}
-    truth.write_text(json.dumps(doc, indent=1))
+    columns = (args.columns or "y").split(",")
+    out, truth, model = simulate_recording(args.model, args.out, n_steps=args.n, h=args.h, columns=columns,
+                                           sets=args.set, seed=args.seed, temperature_profile=args.temperature_profile,
+                                           memory=_memory(args.memory) or "soe")
     print(f"wrote {args.n} samples of {model.spec} in {len(columns)} column(s) to {out} (values in {truth.name})",
           file=sys.stderr)
     return 0
@@ -696,8 +666,8 @@ def _match_check(args, doc: dict, fits: dict, m) -> list:
 
 
 def cmd_identify(args) -> int:
-    from .identification import LONG_INPUT, identify
-    from .reports.identify import MIN_SAMPLES
+    from .identification import LONG_INPUT, identify, memory_note
+    from .reports.identify import MIN_SAMPLES, identify_lines
     from .reports.report import save_identification
 
     from .noise import parse_model
@@ -719,15 +689,9 @@ def cmd_identify(args) -> int:
     inputs = _model_inputs(args, [model] if fits is None else [f.model for f in fits], m, note=fits is None)
     source = f"--from-check {args.from_check}" if fits is not None else f"--model {model.spec}"
     overrides, config_source, memory_kind = _identify_overrides(args)
-    total = m.samples
-    memory_kind = memory_kind or ("soe" if total >= LONG_INPUT else "exact")  # identify's choice by the length
-    if total > LONG_RECORDING and memory_kind == "exact":
-        print(f"torchtea: note: {total} samples with the exact full-history GL sums cost O(N²) "
-              "(the whole bundled recording takes about 2.5 minutes on 2 cores); --memory soe costs O(N)",
-              file=sys.stderr)
-    elif total >= LONG_INPUT and "memory" not in (overrides or {}) and args.memory is None:
-        print(f"torchtea: note: {total} samples: the TEA runs with soe memory (O(N); --memory exact for the full "
-              "sums, O(N²))", file=sys.stderr)
+    note = memory_note(m.samples, memory_kind, "memory" in (overrides or {}) or args.memory is not None)
+    if note:
+        print(f"torchtea: note: {note}", file=sys.stderr)
     step, close = _progress(None, "TEA " + ",".join(m.labels), bar=not args.json)  # identify's total: all groups
     t0 = time.perf_counter()
     try:
@@ -750,36 +714,9 @@ def cmd_identify(args) -> int:
     res = ident.result
     warnings = [f"warning: {w}" for w in summary["warnings"]]
     if not _report(out_dir, summary, warnings, args.json):
-        used = "the paper's §5.1 MEMS settings" + (f" changed by {config_source}" if ident.changes else "")
-        print(f"{Path(rec.path).name}: {summary['samples']} samples at {rec.rate_hz:g} Hz (rate from {rec.rate_source}), "
-              f"mean removed per channel, TEA with {used}, R = " + {"measured": "measured variance",
-                                                                    "fitted": "fitted r̂ and Q = fitted q̂ (" + (model.spec if model else "each channel's checked model")
-                                                                    + (", check's fit" if fits else ", exact likelihood")
-                                                                    + ")"}.get(args.r, "paper values"))
-        for a, v in zip(ident.labels, ident.views):
-            if v.model.spec != "fractional+white":
-                print(f"{a}: {v.model.spec} in the TEA: " + "; ".join(f"{lb}: {v.notes[lb]}" for lb in v.notes))
-        print("channels: " + "; ".join(f"{c.label} = {c.title}" for c in m.channels))
-        for a, fs in summary.get("fit", {}).items():
-            p_ = fs["parameters"]
-            c = p_["fractional.order"]["ci95"]
-            unit = summary["axes"][a]["unit"]
-            others = ", ".join(f"{n} {p_[n]['value']:.3g}" for n in p_ if not n.startswith("fractional."))
-            print(f"fit {a}: α̂ {p_['fractional.order']['value']:.3f} "
-                  + (f"({p_['fractional.order']['ci95_method']})" if c is None else f"[{c[0]:.3f}, {c[1]:.3f}] 95 % CI")
-                  + f", f̂ {p_['fractional.pole']['value']:.3g}, q̂ {p_['fractional.q']['value']:.3g}, {others}"
-                  + (f" (white-noise density {math.sqrt(p_['white.r']['value'] * ident.h):.3g} {unit}/√Hz)"
-                     if "white.r" in p_ else "") + f", NIS of the fit {fs['nis']:.3f}")
-        print(f"missing samples: {ident.missing.describe()}")
-        print(f"{'chan':>4} {'R [unit²]':>12} {'α̂ last⅓':>9} {'sd last⅓':>9} {'α̂ final':>9} "
-              f"{'ŵ last⅓':>9} {'sd last⅓':>9} {'ŵ final':>9} {'NIS last⅓':>9}")
-        for a, s in summary["axes"].items():
-            print(f"{a:>4} {s['R']:12.3e} {s['alpha']:9.4f} {s['alpha_std_last_third']:9.4f} {s['alpha_final']:9.4f} "
-                  f"{s['param']:9.4f} {s['param_std_last_third']:9.4f} {s['param_final']:9.4f} "
-                  f"{_num(s['innovation_nis_last_third'], '9.3f')}" + ("  DIVERGED" if s["diverged"] else ""))
-        print("last⅓: over samples {first_sample}–{last_sample}; sd: how much the estimate moves there, not an "
-              "uncertainty; NIS: 1 for a consistent filter".format(**summary["last_third"]))
-        print(f"outputs in {out_dir}/ (report.md; {elapsed:.1f} s)")
+        for line in identify_lines(ident, summary, m, model=model, fits=fits, r_mode=args.r,
+                                   config_source=config_source, out_dir=out_dir, seconds=elapsed):
+            print(line)
     return 130 if res.interrupted else 0
 
 
@@ -1454,24 +1391,15 @@ def cmd_plan(args) -> int:
     return 0
 
 
-def _import_effects(name: str) -> None:
-    """Import a user's module of effects (``--effects``; :func:`torchtea.effects.import_effects`)."""
-    from .effects import import_effects
-
-    try:
-        import_effects(name)
-    except ValueError as exc:
-        raise CLIError(str(exc)) from exc
-
-
 def main(argv=None) -> int:
+    from .effects import import_effects
     from .sensors.io import InputError
 
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
         for name in args.effects:
-            _import_effects(name)
+            import_effects(name)
         return args.func(args)
     except (CLIError, InputError) as exc:
         if args.debug:

@@ -26,13 +26,28 @@ from .sensors.datacheck import Missing, Timing
 from .sensors.io import InputError, Recording
 from .sensors.measurements import Measurements
 
-__all__ = ["Identification", "identify", "axis_configs", "fits_for", "preset_for", "config_changes", "axis_changes",
+__all__ = ["Identification", "identify", "memory_note", "EXACT_COST_SAMPLES", "axis_configs", "fits_for", "preset_for", "config_changes", "axis_changes",
            "LONG_INPUT", "R_MODES"]
 
 
 #: From this many samples on, ``identify`` runs the TEA with ``soe`` memory unless the settings say otherwise: the
 #: exact GL sums cost O(N²) per series (the whole 449 s bundled recording: 2.5 minutes; an hour at 200 Hz: days).
 LONG_INPUT = 20000
+#: Above this many samples, identify says what the exact full-history sums cost (O(N²)) when they are asked for.
+EXACT_COST_SAMPLES = 20000
+
+
+def memory_note(n: int, memory_kind: str | None = None, memory_set: bool = False) -> str | None:
+    """What the TEA's memory costs on ``n`` samples, in a line for the terminal (None: nothing to say):
+    ``memory_kind`` the memory asked for (None: :func:`identify`'s choice by the length, soe from
+    :data:`LONG_INPUT` samples), ``memory_set`` whether the settings named one (then the choice is not news)."""
+    kind = memory_kind or ("soe" if n >= LONG_INPUT else "exact")
+    if n > EXACT_COST_SAMPLES and kind == "exact":
+        return (f"{n} samples with the exact full-history GL sums cost O(N²) (the whole bundled recording takes "
+                "about 2.5 minutes on 2 cores); --memory soe costs O(N)")
+    if n >= LONG_INPUT and not memory_set:
+        return f"{n} samples: the TEA runs with soe memory (O(N); --memory exact for the full sums, O(N²))"
+    return None
 
 
 def preset_for(channel) -> str:

@@ -24,7 +24,7 @@ from ..core.gl import broadcast_shapes
 from ..core.memory import parse_memory
 from .model import PAPER_MODEL, parse_model, state_memory, varying_kernel_args
 
-__all__ = ["Simulation", "simulate_states", "simulate_model", "simulate", "gaussian_input", "simulate_noise_model",
+__all__ = ["simulate_recording", "parse_sets", "parse_temperature_profile", "TRUTH_MEANING", "Simulation", "simulate_states", "simulate_model", "simulate", "gaussian_input", "simulate_noise_model",
            "simulate_columns", "temperature_profile", "default_values"]
 
 
@@ -433,3 +433,77 @@ def default_values(model, h: float, temperature=None) -> dict:
         for p in comp.params:
             out[f"{label}.{p.name}"] = comp.typical(p.name, h, t_ref)
     return out
+
+
+# --------------------------------------------------------------------------- a simulated recording, as simulate writes it
+
+#: What the truth file beside a simulated recording (``REC.truth.json``) holds.
+TRUTH_MEANING = {
+    "model": "the model simulated (its spec)",
+    "values": "its parameter values: name → value for one column y, else column → {name → value}",
+    "h": "the sample time (s)", "n": "the number of samples", "seed": "the generator's seed",
+    "temperature_profile": "the temperature's T0,WARMUP,TAU_S,WANDER (°C, °C, s, °C): temperature_profile's arguments",
+    "columns": "the simulated columns, in the file's order (beside t and temp)",
+}
+
+
+def parse_temperature_profile(text: str) -> tuple:
+    """``"T0,WARMUP,TAU_S,WANDER"`` → four floats (:func:`temperature_profile`'s start, warm-up, time constant and
+    wander); raises ``ValueError`` naming ``--temperature-profile`` otherwise."""
+    try:
+        profile = tuple(float(x) for x in text.split(","))
+        if len(profile) != 4 or not all(math.isfinite(x) for x in profile):
+            raise ValueError
+    except ValueError:
+        raise ValueError(f"--temperature-profile needs four numbers T0,WARMUP,TAU_S,WANDER, got {text!r}") from None
+    return profile
+
+
+def parse_sets(items, names, columns) -> dict:
+    """The ``--set`` grammar: each item ``NAME=VALUE`` (every column) or ``COLUMN:NAME=VALUE`` (one), ``NAME`` one of
+    the model's parameter ``names``, ``VALUE`` a finite number → ``{column: {name: value}}``. Raises ``ValueError``
+    naming the item."""
+    values: dict = {c: {} for c in columns}
+    for item in items:
+        target, sep, text = item.partition("=")
+        col, colon, name = target.rpartition(":")
+        if not sep or name not in names or (colon and col not in columns):
+            raise ValueError(f"--set {item!r}: expected NAME=VALUE or COLUMN:NAME=VALUE with NAME one of "
+                             f"{', '.join(names)} and COLUMN one of {', '.join(columns)}")
+        try:
+            value = float(text)
+        except ValueError:
+            value = math.nan
+        if not math.isfinite(value):
+            raise ValueError(f"--set {item!r}: the value must be a finite number")
+        for c in [col] if colon else columns:
+            values[c][name] = value
+    return values
+
+
+def simulate_recording(model, out, *, n_steps: int, h: float, columns=("y",), sets=(), seed: int = 0,
+                       temperature_profile: str = "25,3,60,0.2", memory="soe"):
+    """Simulate a recording of ``model`` and write it — what ``torchtea simulate --model`` does: the columns
+    (:func:`simulate_columns`: ``t``, each of ``columns``, ``temp``) to ``out`` and, beside it, the truth file
+    ``out.truth.json`` (:data:`TRUTH_MEANING`). ``sets``: the ``--set`` items (:func:`parse_sets`) on top of the
+    MEMS-like defaults. Returns ``(the recording's path, the truth file's path, the model)``; raises ``ValueError``
+    naming a bad argument before anything is written."""
+    import json
+    from pathlib import Path
+
+    from ..sensors.io import write_columns
+
+    model = parse_model(model)
+    profile = parse_temperature_profile(temperature_profile)
+    columns = [c.strip() for c in columns]
+    if not all(columns) or len(set(columns)) != len(columns) or any(c in ("t", "temp") for c in columns):
+        raise ValueError(f"--columns {','.join(columns)!r}: distinct names, not t or temp")
+    values = parse_sets(sets, model.names, columns)
+    data, per = simulate_columns(model, n_steps=n_steps, h=h, columns=columns, values=values, seed=seed,
+                                 temperature=profile, memory=memory)
+    path = write_columns(out, data)
+    truth = Path(str(path) + ".truth.json")
+    doc = {"model": model.spec, "values": per[columns[0]] if columns == ["y"] else per, "h": h, "n": n_steps,
+           "seed": seed, "temperature_profile": temperature_profile, "columns": columns}
+    truth.write_text(json.dumps(doc, indent=1))
+    return path, truth, model

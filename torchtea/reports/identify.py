@@ -7,6 +7,7 @@ what it is and over which span (``summary["meaning"]``). The run itself is :func
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import torch
@@ -15,8 +16,9 @@ from ..core.stats import last_third, mean_nis
 from ..engines.results import TEAResult
 from ..engines.settings import TEAConfig
 from ..engines.tea import CLAMP_NOTE
+from ..render.text import num
 
-__all__ = ["AXES", "mean_or_nan", "sd_or_nan", "MIN_SAMPLES", "NIS_TRUST_BAND", "SETTLE_BAND", "DRIFT_BAND",
+__all__ = ["identify_lines", "AXES", "mean_or_nan", "sd_or_nan", "MIN_SAMPLES", "NIS_TRUST_BAND", "SETTLE_BAND", "DRIFT_BAND",
            "ALPHA_SD_LIMIT", "summarise", "settle_time", "trust_warnings", "filter_sd_label", "estimate_meaning"]
 
 AXES = ("x", "y", "z")
@@ -235,3 +237,50 @@ def summarise(result: TEAResult, configs, means=None, *, y: torch.Tensor | None 
                         "and the outputs hold those steps only")
     return {"axes": axes, "warnings": warnings, "meaning": estimate_meaning(k0, N, h, configs[0]),
             "last_third": {"first_sample": k0, "last_sample": N - 1, "t0_s": k0 * h, "t1_s": (N - 1) * h}}
+
+
+def identify_lines(ident, summary: dict, m, *, model, fits, r_mode: str, config_source: str | None, out_dir,
+                   seconds: float) -> list[str]:
+    """What ``torchtea identify`` prints for an identification ``ident`` of the channels ``m`` (its ``summary``, as
+    :func:`~torchtea.reports.report.save_identification` wrote it to ``out_dir``): the recording and the settings,
+    the channels' models in the TEA, each channel's fit, the missing samples, a table of the estimates (what each
+    column means under it), where the outputs are. ``model``: the one model of every channel (None: each its
+    checked one); ``fits``: the check's fits the channels ran, or None."""
+    rec = m.recording
+    used = "the paper's §5.1 MEMS settings" + (f" changed by {config_source}" if ident.changes else "")
+    noise = {"measured": "measured variance",
+             "fitted": "fitted r̂ and Q = fitted q̂ (" + (model.spec if model else "each channel's checked model")
+             + (", check's fit" if fits else ", exact likelihood") + ")"}.get(r_mode, "paper values")
+    lines = [f"{Path(rec.path).name}: {summary['samples']} samples at {rec.rate_hz:g} Hz (rate from "
+             f"{rec.rate_source}), mean removed per channel, TEA with {used}, R = {noise}"]
+    for a, v in zip(ident.labels, ident.views):
+        if v.model.spec != "fractional+white":
+            lines.append(f"{a}: {v.model.spec} in the TEA: " + "; ".join(f"{lb}: {v.notes[lb]}" for lb in v.notes))
+    lines.append("channels: " + "; ".join(f"{c.label} = {c.title}" for c in m.channels))
+    for a, fs in summary.get("fit", {}).items():
+        lines.append(_fit_line(a, fs, summary["axes"][a]["unit"], ident.h))
+    lines.append(f"missing samples: {ident.missing.describe()}")
+    lines.append(f"{'chan':>4} {'R [unit²]':>12} {'α̂ last⅓':>9} {'sd last⅓':>9} {'α̂ final':>9} "
+                 f"{'ŵ last⅓':>9} {'sd last⅓':>9} {'ŵ final':>9} {'NIS last⅓':>9}")
+    for a, s in summary["axes"].items():
+        lines.append(f"{a:>4} {s['R']:12.3e} {s['alpha']:9.4f} {s['alpha_std_last_third']:9.4f} "
+                     f"{s['alpha_final']:9.4f} {s['param']:9.4f} {s['param_std_last_third']:9.4f} "
+                     f"{s['param_final']:9.4f} {num(s['innovation_nis_last_third'], '9.3f')}"
+                     + ("  DIVERGED" if s["diverged"] else ""))
+    lines.append("last⅓: over samples {first_sample}–{last_sample}; sd: how much the estimate moves there, not an "
+                 "uncertainty; NIS: 1 for a consistent filter".format(**summary["last_third"]))
+    lines.append(f"outputs in {out_dir}/ (report.md; {seconds:.1f} s)")
+    return lines
+
+
+def _fit_line(a: str, fs: dict, unit: str, h: float) -> str:
+    """One channel's fit in a line: α̂ with its interval, f̂, q̂, the other parameters, the white-noise density, the
+    NIS of the fit."""
+    p_ = fs["parameters"]
+    c = p_["fractional.order"]["ci95"]
+    others = ", ".join(f"{n} {p_[n]['value']:.3g}" for n in p_ if not n.startswith("fractional."))
+    return (f"fit {a}: α̂ {p_['fractional.order']['value']:.3f} "
+            + (f"({p_['fractional.order']['ci95_method']})" if c is None else f"[{c[0]:.3f}, {c[1]:.3f}] 95 % CI")
+            + f", f̂ {p_['fractional.pole']['value']:.3g}, q̂ {p_['fractional.q']['value']:.3g}, {others}"
+            + (f" (white-noise density {math.sqrt(p_['white.r']['value'] * h):.3g} {unit}/√Hz)"
+               if "white.r" in p_ else "") + f", NIS of the fit {fs['nis']:.3f}")

@@ -10,8 +10,8 @@ import torch
 
 from torchtea.checking.hidden import temperature_profile
 from torchtea.fitting.exact import centred, exact_loglik, exact_loglik_grad, gradient_supported
-from torchtea.fitting.mle import (_exact_hessian, _fd_hessian, _information_from_gradients, _objective, fit_series,
-                                  refine_best)
+from torchtea.fitting.mle import fit_series, refine_best
+from torchtea.fitting.scoring import exact_hessian, fd_hessian, information_from_gradients, objective
 from torchtea.noise.components import COMPONENTS, candidates
 from torchtea.noise.model import parse_model
 from torchtea.noise.simulate import default_values, simulate_model
@@ -104,15 +104,15 @@ def test_a_batch_of_sets_is_each_set_on_its_own():
 def test_observed_information_from_gradients_matches_the_finite_difference_hessian():
     """At the exact maximum of a 6000-sample fractional+white+random-walk, the observed information by central
     differences of the exact gradients and the Hessian by central differences of ℓ (step 3·10⁻³) give standard errors
-    within 3 % (the latter's own accuracy on 30 000 samples, mle.HESSIAN_STEP)."""
+    within 3 % (the latter's own accuracy on 30 000 samples, scoring.HESSIAN_STEP)."""
     spec = "fractional+white+random-walk"
     model = parse_model(spec)
     y, v, _ = _series(spec, seed=7, n=6000)
     f = fit_series(model, [y], H, intervals=False)[0]
     yc = centred(model, y)
     free = torch.ones(len(model.names), dtype=torch.bool)
-    Hg = _information_from_gradients(model, yc, H, f.u, free, None, "soe:1e-4").numpy()
-    Hd = _fd_hessian(_objective(model, yc, H, f.u.clone(), np.arange(len(model.names)), None, "soe:1e-4"),
+    Hg = information_from_gradients(model, yc, H, f.u, free, None, "soe:1e-4").numpy()
+    Hd = fd_hessian(objective(model, yc, H, f.u.clone(), np.arange(len(model.names)), None, "soe:1e-4"),
                      f.u.numpy().copy())
     se_g = np.sqrt(np.diag(np.linalg.inv(Hg)))
     se_d = np.sqrt(np.diag(np.linalg.inv(Hd)))
@@ -150,19 +150,19 @@ def test_refine_best_keeps_the_highest_maximum_and_the_forced_starts():
 
 
 def test_the_gain_still_to_come_is_the_geometric_series_of_the_last_gains():
-    """_remaining: gains shrinking by a factor r each iteration sum to last·r/(1−r) from here on; gains that do not
+    """remaining: gains shrinking by a factor r each iteration sum to last·r/(1−r) from here on; gains that do not
     shrink (or a step that gained nothing) promise no bound (∞), nor does a history shorter than the window."""
-    from torchtea.fitting.mle import RACE_WINDOW, _remaining
+    from torchtea.fitting.scoring import RACE_WINDOW, remaining
 
     r, first = 0.8, 0.5
     gains = first * r ** np.arange(RACE_WINDOW)
     f = 100.0 - np.concatenate([[0.0], np.cumsum(gains)])
-    assert _remaining(list(f)) == pytest.approx(gains[-1] * r / (1 - r), rel=1e-9)
-    assert _remaining(list(f[:RACE_WINDOW])) == math.inf
-    assert _remaining(list(100.0 - np.arange(RACE_WINDOW + 1) * 0.1)) == math.inf  # constant gains
+    assert remaining(list(f)) == pytest.approx(gains[-1] * r / (1 - r), rel=1e-9)
+    assert remaining(list(f[:RACE_WINDOW])) == math.inf
+    assert remaining(list(100.0 - np.arange(RACE_WINDOW + 1) * 0.1)) == math.inf  # constant gains
     flat = f.copy()
     flat[-1] = flat[-2]
-    assert _remaining(list(flat)) == math.inf
+    assert remaining(list(flat)) == math.inf
 
 
 @pytest.mark.slow
@@ -170,21 +170,21 @@ def test_a_start_that_cannot_catch_up_is_left_and_the_fit_is_the_same(monkeypatc
     """On the bundled gx (fractional+white, 44 930 samples) a second Whittle mode crawls along the curved order–pole
     ridge 0.04 nats below the best maximum: left once it cannot catch up (CATCH_SAFETY), the fit is the one the
     scoring finds when every start runs to its end — the same ℓ and values — in fewer iterations."""
-    import torchtea.fitting.mle as mle
+    import torchtea.fitting.scoring as scoring
     from torchtea.sensors.io import read_recording
 
     y = read_recording(columns=["gx"]).channels[0].values
     calls = []
-    score = mle._score_batch
+    score = scoring.score_batch
 
     def counted(*a, **k):
         out = score(*a, **k)
         calls.append(int(out[3].sum()))
         return out
 
-    monkeypatch.setattr(mle, "_score_batch", counted)
+    monkeypatch.setattr(scoring, "score_batch", counted)
     fast = fit_series("fractional+white", [y], 0.01, intervals=False)[0]
-    monkeypatch.setattr(mle, "CATCH_SAFETY", math.inf)
+    monkeypatch.setattr(scoring, "CATCH_SAFETY", math.inf)
     full = fit_series("fractional+white", [y], 0.01, intervals=False)[0]
     assert fast.loglik == pytest.approx(full.loglik, abs=1e-6)
     for n in full.values:

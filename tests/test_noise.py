@@ -353,7 +353,8 @@ def test_observed_information_is_converged_in_its_step():
     move H⁻¹ a lot (a forward formula with entries good to 0.3 % moved them by up to 14 %). 6000 samples: at 3000
     of this seed the exact likelihood's highest maximum (which the fit's multi-start finds) sits at the order's
     bound 1, where there is no Hessian to test."""
-    from torchtea.fitting.mle import _fd_hessian, exact_loglik
+    from torchtea.fitting.mle import exact_loglik
+    from torchtea.fitting.scoring import fd_hessian
 
     m = parse_model("fractional+white")
     y = simulate_model(m, FW, n_steps=6000, h=H, generator=torch.Generator().manual_seed(11))[0, 0].numpy()
@@ -363,7 +364,7 @@ def test_observed_information_is_converged_in_its_step():
     def batch(points):
         return -exact_loglik(m, m.from_unconstrained(torch.as_tensor(points), H), y - y.mean(), H)
 
-    se = [np.sqrt(np.diag(np.linalg.inv(_fd_hessian(batch, u, d)))) for d in (3e-3, 1.5e-3)]
+    se = [np.sqrt(np.diag(np.linalg.inv(fd_hessian(batch, u, d)))) for d in (3e-3, 1.5e-3)]
     assert np.all(np.isfinite(se[0]))
     assert np.max(np.abs(se[0] / se[1] - 1)) < 0.01, se
 

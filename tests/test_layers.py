@@ -230,3 +230,53 @@ def test_no_engine_switches_on_a_components_name():
             for i, line in enumerate(p.read_text(encoding="utf-8").splitlines(), 1) if pattern.search(line)]
     assert hits == [], hits
     assert pattern.search('if comp.name == "fractional":') and pattern.search("model.has('temperature-order')")
+
+
+def test_every_folder_says_what_it_is_for_and_what_it_may_import():
+    """Issue 47: each package's ``__init__`` docstring says what the folder holds and what it may import."""
+    for init in sorted(ROOT.rglob("__init__.py")):
+        if init.parent == ROOT:
+            continue  # (the package's own docstring is the user's introduction; its layering is this file's)
+        doc = ast.get_docstring(ast.parse(init.read_text(encoding="utf-8"))) or ""
+        assert len(doc) > 80, f"{init.relative_to(ROOT.parent)}: no docstring saying what the folder is for"
+        assert "may import" in doc, f"{init.relative_to(ROOT.parent)}: its docstring does not say what it may import"
+
+
+#: The compiled kernels (numba): straight-line loops kept whole for the compiler, exempt from the function limit.
+KERNELS = ("torchtea/engines/_fast_kernel.py", "torchtea/likelihood/_kernels.py", "torchtea/likelihood/_sensitivity.py")
+#: Files and functions over issue 47's limits (600 lines, 80 lines) not yet taken apart: the list may only shrink.
+OVER_LIMIT = {
+    "files": {"torchtea/engines/tea.py", "torchtea/sensors/io.py", "torchtea/studies/montecarlo.py"},
+    "functions": {"torchtea/checking/check.py:_check_once", "torchtea/checking/refits.py:refit",
+                  "torchtea/checking/report.py:write_report", "torchtea/checking/report.py:figures",
+                  "torchtea/reports/report.py:write_report", "torchtea/identification.py:identify",
+                  "torchtea/export/terms.py:axis_terms", "torchtea/engines/tea.py:run_tea",
+                  "torchtea/engines/tea.py:_loop", "torchtea/estimation.py:estimate_file",
+                  "torchtea/sensors/faults.py:find_faults", "torchtea/sensors/io.py:read_recording",
+                  "torchtea/noise/simulate.py:simulate", "torchtea/noise/simulate.py:simulate_states",
+                  "torchtea/noise/tea_exact.py:run_tea_exact", "torchtea/noise/model.py:state_space",
+                  "torchtea/likelihood/kalman.py:kalman_filter", "torchtea/fitting/scoring.py:score_batch",
+                  "torchtea/fitting/scoring.py:exact_refine", "torchtea/fitting/mle.py:fit_series"},
+}
+
+
+def test_files_and_functions_stay_within_the_size_limits():
+    """Issue 47: no file over 600 lines, no function over 80 outside the compiled kernels — except those listed in
+    OVER_LIMIT, not yet taken apart; a listed one that has come within the limit must leave the list (it only
+    shrinks)."""
+    files, functions = set(), set()
+    for path in sorted(ROOT.rglob("*.py")):
+        rel = path.relative_to(ROOT.parent).as_posix()
+        source = path.read_text(encoding="utf-8")
+        if len(source.splitlines()) > 600:
+            files.add(rel)
+        if rel in KERNELS:
+            continue
+        for node in ast.walk(ast.parse(source)):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)) and node.end_lineno - node.lineno + 1 > 80:
+                functions.add(f"{rel}:{node.name}")
+    assert files <= OVER_LIMIT["files"], f"files over 600 lines: {sorted(files - OVER_LIMIT['files'])}"
+    assert functions <= OVER_LIMIT["functions"], f"functions over 80 lines: {sorted(functions - OVER_LIMIT['functions'])}"
+    assert not OVER_LIMIT["files"] - files, f"within the limit now, take off OVER_LIMIT: {OVER_LIMIT['files'] - files}"
+    assert not OVER_LIMIT["functions"] - functions, (
+        f"within the limit now, take off OVER_LIMIT: {sorted(OVER_LIMIT['functions'] - functions)}")

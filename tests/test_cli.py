@@ -503,12 +503,12 @@ def test_the_progress_line_does_not_take_a_one_time_cost_for_the_pace(monkeypatc
     10 000), not since the start (which said 'about 5953 s left' of a run of minutes)."""
     import sys
 
-    import torchtea.cli as cli
+    import torchtea.cli.common as common  # where _progress reads the clock
 
     clock = iter([0.0, 100.0, 110.0])
-    monkeypatch.setattr(cli.time, "monotonic", lambda: next(clock))
+    monkeypatch.setattr(common.time, "monotonic", lambda: next(clock))
     monkeypatch.setattr(sys.stderr, "isatty", lambda: False)
-    step, close = cli._progress(10_000, "TEA")
+    step, close = common._progress(10_000, "TEA")
     for done in (0, 1, 1001):
         step(done, 10_000)
     close()

@@ -388,9 +388,9 @@ def test_identify_config_merges_onto_the_mems_settings_and_keeps_its_r(tmp_path,
 
 
 def test_progress_lines_when_stderr_is_not_a_terminal(tmp_path, capsys, monkeypatch):
-    import torchtea.cli as cli
+    import torchtea.cli.common as common  # where _progress reads it
 
-    monkeypatch.setattr(cli, "PROGRESS_EVERY_S", 0.0)
+    monkeypatch.setattr(common, "PROGRESS_EVERY_S", 0.0)
     assert run("identify", "--samples", 200, "--no-plots", "--out", tmp_path / "id") == 0
     lines = [ln for ln in capsys.readouterr().err.splitlines() if ln.startswith("torchtea TEA ax,ay,az: ")]
     # the compiled engine reports once per block of steps (fast.BLOCK), the torch engine once per step

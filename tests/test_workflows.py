@@ -38,11 +38,13 @@ def test_fit_recording_is_fit_series_per_channel(accel):
 
 def test_the_bootstrap_rule():
     import torchtea.cli
+    import torchtea.cli.common
     import torchtea.fitting.recording
 
     assert bootstrap_replicates(1000, None) == 99 and bootstrap_replicates(10**6, None) == 0
     assert bootstrap_replicates(10**6, 5) == 5
-    assert torchtea.cli.BOOTSTRAP_LIMIT == torchtea.fitting.recording.BOOTSTRAP_LIMIT  # fit's help says it
+    assert torchtea.cli.common.BOOTSTRAP_LIMIT == torchtea.fitting.recording.BOOTSTRAP_LIMIT  # fit's help says it
+    assert torchtea.cli.BOOTSTRAP_LIMIT is torchtea.cli.common.BOOTSTRAP_LIMIT  # (re-exported)
 
 
 def test_check_measurements_is_check_per_channel_and_its_lines_name_each(accel):

@@ -1,0 +1,63 @@
+"""The command line, ``torchtea COMMAND`` (``torchtea.cli:main``, also ``python -m torchtea.cli``): each command
+parses its flags, calls one library workflow (``estimate_file``, ``fit_recording``, ``check_measurements``,
+``export_recording``, ``identify``, ``run_sweep`` …) and prints its lines.
+
+It may import every layer of torchtea; nothing in torchtea imports it (the top layer of tests/test_layers.py).
+:mod:`~torchtea.cli.common` holds what the commands share (errors, help texts, argparse types, progress, the reading
+of a recording from its flags, the cluster flags); one module per group of commands adds their sub-parsers
+(``add_parsers``) and runs them (``cmd_*``): :mod:`~torchtea.cli.simulate` (simulate), :mod:`~torchtea.cli.tea`
+(estimate, identify), :mod:`~torchtea.cli.checking` (fit, plan, check), :mod:`~torchtea.cli.export` (export) and
+:mod:`~torchtea.cli.studies` (record, montecarlo, presets). The command modules import ``common`` (and ``checking``
+imports ``export``), never this package."""
+from __future__ import annotations
+
+import argparse
+import sys
+
+from . import checking, export, simulate, studies, tea
+from .common import (BOOTSTRAP_LIMIT, ESTIMATE_UNCERTAINTY_CHOICES, KFX_UNCERTAINTY_CHOICES, PRIOR_CHOICES,
+                     CLIError)
+
+__all__ = ["main", "build_parser", "CLIError", "BOOTSTRAP_LIMIT", "PRIOR_CHOICES", "ESTIMATE_UNCERTAINTY_CHOICES",
+           "KFX_UNCERTAINTY_CHOICES"]
+
+#: what ``torchtea --help`` prints above the commands
+DESCRIPTION = ("torchtea: noise models of inertial sensors — simulate, estimate (the TEA), identify, fit, plan, "
+               "check, export,\nrecord, montecarlo, presets. torchtea COMMAND --help lists a command's flags.")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="torchtea", description=DESCRIPTION)
+    p.add_argument("--debug", action="store_true", help="show tracebacks")
+    p.add_argument("--effects", action="append", default=[], metavar="MODULE",
+                   help="import MODULE (a module name or a .py file) before the command: the effects it registers "
+                        "(torchtea.effects.register) can be named in --model and --add; may be repeated")
+    sub = p.add_subparsers(dest="command", required=True)
+    for commands in (simulate, tea, checking, export, studies):  # the order --help lists them in
+        commands.add_parsers(sub)
+    return p
+
+
+def main(argv=None) -> int:
+    from ..effects import import_effects
+    from ..sensors.io import InputError
+
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        for name in args.effects:
+            import_effects(name)
+        return args.func(args)
+    except (CLIError, InputError) as exc:
+        if args.debug:
+            raise
+        print(f"torchtea: error: {exc}", file=sys.stderr)
+        return 2
+    except (ValueError, OSError) as exc:
+        if args.debug:
+            raise
+        print(f"torchtea: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("torchtea: interrupted", file=sys.stderr)
+        return 130

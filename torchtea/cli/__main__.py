@@ -1,0 +1,6 @@
+"""``python -m torchtea.cli``: the ``torchtea`` command."""
+import sys
+
+from . import main
+
+sys.exit(main())

@@ -1,0 +1,191 @@
+"""``torchtea export`` and the export that ``fit --export`` and ``check --export`` make
+(:mod:`torchtea.export.run`), with the datasheet verdicts (:mod:`torchtea.export.datasheet`)."""
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+from .common import (CLIError, _check_channels, _check_cluster_flags, _cluster, _cluster_flags, _measurements, _note,
+                     _recording_flags, _steps, _tensorboard)
+
+
+def add_parsers(sub) -> None:
+    """Add the sub-parsers of export to ``sub`` (``build_parser``'s subcommands)."""
+    _add_export(sub)
+
+
+def _add_export(sub) -> None:
+    """``torchtea export``'s flags."""
+    ex = sub.add_parser("export", help="the noise numbers in a navigation filter's format (Kalibr, VINS, ORB-SLAM3, "
+                                       "OpenVINS, IEEE 952, gtsam), with intervals and a cover")
+    _recording_flags(ex, columns_help="the columns to export (default: every accelerometer and gyroscope axis)",
+                     temperature_help="temperature column (°C) for the temperature effects", samples_default="all",
+                     samples_help="use the first N samples (default all)")
+    ex.add_argument("--format", action="append", required=True, metavar="FORMAT",
+                    help="kalibr (imu.yaml), vins, orbslam3, openvins (kalibr_imu_chain.yaml), ieee952 (CSV), gtsam (YAML), "
+                         "gtsam-python (a module setting PreintegrationCombinedParams) or all; repeatable or "
+                         "comma-separated")
+    ex.add_argument("--model", help="fit this model SPEC to every axis (default: check each axis to the end, as "
+                                    "check --auto, and export the model it ends with)")
+    ex.add_argument("--strong", type=float, default=None, metavar="BIC", help="as check --strong")
+    ex.add_argument("--max-steps", type=_steps, default=6, help="as check --max-steps")
+    ex.add_argument("--no-simplify", action="store_true", help="as check --no-simplify")
+    ex.add_argument("--out", help="output directory (default export-<recording name>)")
+    ex.add_argument("--no-plots", action="store_true")
+    ex.add_argument("--logdir", help="as check --logdir: each axis's loop as a TensorBoard run")
+    _export_flags(ex, standalone=True)
+    _cluster_flags(ex, "the channels' checks or fits")
+    ex.set_defaults(func=cmd_export)
+
+
+def cmd_export(args) -> int:
+    """``torchtea export``: check each axis to the end (as ``check --auto``) or fit ``--model``, then export."""
+    from ..fitting.recording import fit_channel
+
+    _check_cluster_flags(args)
+    if args.out:  # (before the checks: a wrong --out found after minutes of fitting loses them)
+        _export_folder(args.out)
+    if args.logdir and args.model:
+        raise CLIError("--logdir shows the check's loop on each axis; with --model there is none: leave one out")
+    m = _measurements(args, "an export", min_samples=1000)
+    plan = _export_plan(args, m, args.format)
+    inputs = None if args.temperature is None else {"temperature": m.temperature_input()}
+    meta = m.describe()
+    meta.update(command="torchtea " + " ".join(sys.argv[1:]), warnings=m.notes())
+    if args.model:
+        from ..noise import parse_model
+
+        model = parse_model(args.model)
+        if any(c.inputs for _, c in model.components) and inputs is None:
+            raise CLIError(f"model {model.spec!r} reads the temperature: give --temperature COL")
+        client, close_cluster = _cluster(args)
+        try:
+            if client is None:
+                fits = {}
+                for c in m.channels:
+                    print(f"torchtea: fitting {model.spec} to {c.label} …", file=sys.stderr)
+                    fits[c.label] = fit_channel(model, c.values, m.h, inputs=inputs)
+            else:
+                from ..core.tasks import run_on_cluster
+
+                _note(f"fitting {model.spec} to {len(m.channels)} channels on the cluster …")
+                fits = run_on_cluster(client, fit_channel, [
+                    (c.label, (model.spec, c.values, m.h), dict(inputs=inputs, effects=tuple(args.effects),
+                                                                threads=args.threads_per_worker or 1))
+                    for c in m.channels], name="fit")
+        finally:
+            close_cluster()
+    else:
+        results = _check_channels(args, m, inputs, auto=True, intervals=True)
+        fits = {a: r.fit for a, r in results.items()}
+        meta["loop_end"] = {a: r.loop_end for a, r in results.items()}
+        _tensorboard(args, m, results)
+    out = Path(args.out or f"export-{Path(m.recording.path).stem}")
+    _export(args, m, plan, fits, inputs, meta, out, quiet=False, plots=not args.no_plots)
+    return 0
+
+
+def _export_folder(out: str) -> None:
+    """``--out`` is the folder an export writes its files in: a name that ends like a file (``imu.yaml``) or an
+    existing file is refused with one line, not made a folder of that name."""
+    path = Path(out)
+    if path.is_file():
+        raise CLIError(f"--out {out}: a file; --out is the folder the export writes its files in (imu.yaml, "
+                       "export.md, export.json …)")
+    if path.suffix.lower() in (".yaml", ".yml", ".csv", ".json", ".md", ".txt"):
+        raise CLIError(f"--out {out}: --out is the folder the export writes its files in (the format's own names: "
+                       f"imu.yaml, vins_imu.yaml, orbslam3_imu.yaml, ieee952.csv, export.md …), not a file name; e.g. "
+                       f"--out {path.with_suffix('')}")
+
+
+def _export_plan(args, m, names):
+    """Check what an export asks for before any fitting (:func:`torchtea.export.run.plan_export`); None: no export
+    asked for."""
+    from ..export.run import plan_export
+
+    plan = plan_export(m, names, args.horizon)
+    if plan is not None and plan.horizon_note:
+        _note(f"note: {plan.horizon_note}")
+    sheets = _sheets(args)
+    if sheets and not any(c.sensor in sheets for c in m.channels):
+        raise CLIError(f"--datasheet: the datasheet(s) are for the {', '.join(sheets)}; the channels read are "
+                       f"{', '.join(c.label for c in m.channels)}")
+    return plan
+
+
+def _sheets(args) -> dict:
+    """``--datasheet`` files read (:func:`torchtea.export.datasheet.read_sheets`), once; a bad one is one line."""
+    if not hasattr(args, "_sheets"):
+        from ..export.datasheet import read_sheets
+
+        try:
+            args._sheets = read_sheets(getattr(args, "datasheet", None))
+        except ValueError as exc:
+            raise CLIError(f"--datasheet {exc}") from None
+    return args._sheets
+
+
+def _datasheet_verdicts(args, m, fits: dict, inputs) -> dict:
+    """Each axis whose sensor has a ``--datasheet`` against it (:func:`torchtea.export.datasheet.compare`), its
+    numbers as an export makes them (:func:`torchtea.export.run.export_axes`, no NEES study)."""
+    from ..export.datasheet import compare
+    from ..export.run import export_axes
+    from ..export.terms import parse_horizon
+
+    sheets = _sheets(args)
+    held = {c.label: c.sensor for c in m.channels if c.sensor in sheets and c.label in fits}
+    if not held:
+        return {}
+    _note(f"{', '.join(held)}: against the datasheet(s) {', '.join(sheets[s]['file'] for s in set(held.values()))} …")
+    horizon, _ = parse_horizon(getattr(args, "horizon", None), m.h, m.samples)
+    axes = export_axes({a: fits[a] for a in held}, m.series(), held, m.h, horizon, inputs=inputs, nees=0)
+    return {a.label: compare(a, sheets[a.sensor], fits[a.label], m.h) for a in axes}
+
+
+def _export(args, m, plan, fits: dict, inputs, meta: dict, out: Path, *, quiet: bool, plots: bool) -> tuple:
+    """Export ``fits`` as ``plan`` says into ``out``; unless ``quiet``, print what was written and the datasheet
+    verdicts. Returns the export's JSON document and its axes' terms."""
+    from ..export.run import export_lines, export_recording
+
+    _note(f"exporting {', '.join(plan.formats)} (cover over τ {plan.horizon[0]:g}–{plan.horizon[1]:g} s; NEES "
+          f"study: {args.nees} realisations) …")
+    doc, axes = export_recording(m, plan, fits, out, inputs=inputs, meta=meta, nees=args.nees, seed=args.export_seed,
+                                 values=args.values, plots=plots, sheets=_sheets(args))
+    if not quiet:
+        print("\n".join(export_lines(doc, axes, out)))
+        _print_verdicts({a.label: a.datasheet for a in axes if a.datasheet})
+    return doc, axes
+
+
+def _print_verdicts(verdicts: dict) -> None:
+    from ..fitting.plan import verdict_lines
+
+    if verdicts:
+        print("against the datasheet (fitted [95 %] against its value, SI units):")
+        for label, doc in verdicts.items():
+            print("\n".join(verdict_lines(label, doc)))
+
+
+def _export_flags(parser, *, standalone: bool) -> None:
+    """The flags of an export, the same on ``export``, ``fit --export`` and ``check --export``."""
+    from_what = "" if standalone else " (with --export)"
+    if not standalone:
+        parser.add_argument("--export", action="append", default=[], metavar="FORMAT",
+                            help="also export the models the command ends with: kalibr, vins, orbslam3, openvins, ieee952, "
+                                 "gtsam, gtsam-python or all (repeatable; the files go to an export folder: "
+                                 "check's OUT/export, beside fit's --out file, else export-RECORDING)")
+    parser.add_argument("--horizon", metavar="LO:HI",
+                        help="time scales (s) the exported white noise + random walk must cover" + from_what
+                             + " (default 0.005:100, clipped to the recording: one sample to half its length)")
+    parser.add_argument("--values", choices=("covered", "bare"), default="covered",
+                        help="the value each format's field takes" + from_what + ": covered (default: the least "
+                             "values that cover the fitted model's Allan deviation) or bare (the fitted white noise "
+                             "and random walk); the other is in a comment")
+    parser.add_argument("--nees", type=int, default=64, metavar="M",
+                        help="realisations of the filter NEES study of the bare and covered values" + from_what
+                             + " (default 64; 0: not run)")
+    parser.add_argument("--export-seed", type=int, default=0, help="seed of the NEES study's simulated series")
+    parser.add_argument("--datasheet", action="append", default=[], metavar="FILE",
+                        help="hold each axis's N, B, K against a datasheet's (TOML, as torchtea plan --datasheet reads "
+                             "it; examples/datasheets/): within spec, worse than spec, or not determined by this "
+                             "record and how long would tell; one file per sensor, repeatable")

@@ -12,7 +12,8 @@ from torchtea import SCENARIOS, MemoryConfig, Structure, gaussian_input, get_pre
 from torchtea.core.gl import gl_tail_coefficients
 from torchtea.core.memory import BoundedHistory, cov_tail_mass, design_kernel, gl_coefficients_at, parse_memory
 from torchtea.engines.structure import LinearOrder, ParabolicOrder
-from torchtea.engines.tea import _ExactMemory, _guard, _kfx_update, _Model, _tea_step, Carry, StepOutput, ut_weights
+from torchtea.engines.history import _ExactMemory
+from torchtea.engines.tea import _guard, _kfx_update, _Model, _tea_step, Carry, StepOutput, ut_weights
 
 F64 = torch.float64
 

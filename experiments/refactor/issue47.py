@@ -18,6 +18,9 @@ The old tree is checked out with ``git worktree`` (removed afterwards); each cas
 * ``starts`` — every built-in effect's starts in ``fractional+white+EFFECT`` on 2000 simulated samples: the data's
   starting values, the least-squares start of the mean (values and residual), the refit strengths and the vanishing
   values against fractional+white, the Whittle fit from the grid (where stationary), a located parameter's interval;
+* ``tea`` — the TEA's engines: the torch engine (exact and soe memory), the compiled one, the kernel's other branches
+  (window memory, the paper's gain, constant truth, KFo's R from the innovations) on both, the paper's example 1 with
+  its known input, a ``TEAStream`` step by step — every returned array;
 * ``cli`` — ``torchtea fit --json`` of the bundled recording's first 3000 samples (the seconds, the command and
   the file's path — each tree's own — left out).
 
@@ -181,6 +184,35 @@ elif case == "starts":
         if comp.located:
             row["located"] = located_intervals(model, v, y, H, {"temperature": T.numpy()})
         out[name] = digest(row)
+elif case == "tea":
+    from dataclasses import replace
+    from torchtea import SCENARIOS, Structure, gaussian_input, get_preset, make_params, run_tea, simulate
+    from torchtea.core.memory import parse_memory
+    from torchtea.engines.tea import TEAStream
+    from torchtea.noise import simulate_model
+    FW = {"fractional.order": 0.4, "fractional.pole": -2.0, "fractional.q": 0.02, "white.r": 1e-3}
+    y = simulate_model("fractional+white", FW, n_steps=1500, h=H, realisations=3,
+                       generator=torch.Generator().manual_seed(1))[0].unsqueeze(-1)
+    cfg = get_preset("paper-mems-x")
+    soe = replace(cfg, memory=replace(cfg.memory, kind="soe"))
+    branches = replace(cfg, memory=parse_memory("window:40"), kfx_uncertainty="paper-gain",
+                       estimate_uncertainty="constant-truth", kfo=replace(cfg.kfo, R="innovation"))
+    fields = ("alpha", "P_alpha", "w", "P_w", "x", "P", "innovation", "innovation_cov")
+    def arrays(r):
+        return {k: getattr(r, k) for k in fields if getattr(r, k, None) is not None}
+    for name, c, engine in (("torch exact", cfg, "torch"), ("torch soe", soe, "torch"), ("numba soe", soe, "numba"),
+                            ("numba branches", branches, "numba"), ("torch branches", branches, "torch")):
+        out[name] = digest(arrays(run_tea(y, h=H, params=make_params(c, Structure()), engine=engine)))
+    sc = SCENARIOS["paper-example1"]
+    u = gaussian_input((2,), sc.n_steps, 1, sc.input_std, generator=torch.Generator().manual_seed(11))
+    s = simulate(Structure(), n_steps=sc.n_steps, h=sc.h, order=sc.order, parameters=[sc.param], process_noise=sc.q,
+                 measurement_noise=sc.r, inputs=u, generator=torch.Generator().manual_seed(12))
+    p1 = make_params(get_preset("paper-example1"), Structure())
+    out["paper example 1"] = digest(arrays(run_tea(s.y, h=sc.h, params=p1, inputs=u)))
+    stream = TEAStream(h=H, params=make_params(soe, Structure()))
+    steps = [stream.step(y[0, k]) for k in range(300)]
+    out["stream"] = digest([[getattr(part, k) for part in o for k in part._fields
+                             if isinstance(getattr(part, k), torch.Tensor)] for o in steps])
 elif case == "cli":
     import contextlib, io
     from torchtea.cli import main
@@ -207,7 +239,7 @@ def run(tree: Path, case: str) -> dict:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--old", default="a720df1", help="the commit before the refactor (default a720df1)")
-    ap.add_argument("--cases", default="components,fit,check,loop,cli,starts")
+    ap.add_argument("--cases", default="components,fit,check,loop,cli,starts,tea")
     args = ap.parse_args()
     new = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
     if subprocess.run(["git", "status", "--porcelain", "--untracked-files=no", "--", ".",

@@ -27,17 +27,18 @@ Shapes: ``n`` states, ``L`` estimated orders, ``m`` parameters, ``d`` inputs,
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
-from typing import NamedTuple, Sequence
+from dataclasses import dataclass
 
 import torch
 from torch import Tensor
 
-from ..core.gl import broadcast_shapes, gl_tail_coefficients, history_sum
-from ..core.memory import BoundedHistory, MemoryConfig, cov_tail_mass, gl_coefficients_at, memory_plan
+from ..core.gl import broadcast_shapes
+from .history import _make_memory
+from .params import TEAParams, make_params, q_cap, stack_params
 from .results import STEP_OUTPUTS, Carry, StepOutput, TEAResult, ut_weights
-from .settings import TEAConfig
 from .structure import Structure
+from .unscented import (_constant_truth_cov, _gain, _joseph, _mm, _over_cov, _psd, _symmetrise, adapt_q, sigma_points,
+                        sqrt_psd, ut_update)
 
 __all__ = [
     "TEAParams",
@@ -55,227 +56,6 @@ __all__ = [
     "q_cap",
     "sqrt_psd",
 ]
-
-
-# --------------------------------------------------------------------------- tensors
-
-
-def _mat(value, size: int, like: Tensor, name: str) -> Tensor:
-    t = torch.as_tensor(value, dtype=like.dtype, device=like.device)
-    eye = torch.eye(size, dtype=like.dtype, device=like.device)
-    if t.ndim == 0:
-        return t * eye
-    if t.ndim == 1:
-        if t.shape[0] != size:
-            raise ValueError(f"{name}: expected {size} diagonal entries, got {t.shape[0]}")
-        return torch.diag(t)
-    if t.shape[-2:] != (size, size):
-        raise ValueError(f"{name}: expected a {size}x{size} matrix, got {tuple(t.shape)}")
-    return t
-
-
-def _vec(value, size: int, like: Tensor, name: str) -> Tensor:
-    t = torch.as_tensor(value, dtype=like.dtype, device=like.device)
-    if t.ndim == 0:
-        return t.expand(size).clone()
-    if t.shape[-1] != size:
-        raise ValueError(f"{name}: expected {size} entries, got {tuple(t.shape)}")
-    return t
-
-
-class TEAParams(NamedTuple):
-    """Tensor form of a :class:`TEAConfig` for one :class:`Structure`.
-
-    Tensor fields have a leading batch shape (possibly empty) that broadcasts
-    with the data; :func:`stack_params` stacks configs of e.g. three axes.
-    """
-
-    x0: Tensor  # (*B, n)
-    P0: Tensor  # (*B, n, n)
-    Q: Tensor  # (*B, n, n)
-    R: Tensor  # (*B, p, p)
-    alpha0: Tensor  # (*B, L)
-    P0o: Tensor  # (*B, L, L)
-    Q0o: Tensor  # (*B, L, L)
-    Ro: Tensor  # (*B, p, p)
-    w0: Tensor  # (*B, m)
-    P0w: Tensor  # (*B, m, m)
-    Q0w: Tensor  # (*B, m, m)
-    Rw: Tensor  # (*B, p, p)
-    Qmax_o: Tensor  # (*B,), +inf for no cap
-    Qmax_w: Tensor  # (*B,)
-    config: TEAConfig
-
-
-def make_params(config: TEAConfig, structure: Structure, *, dtype=torch.float64, device=None) -> TEAParams:
-    """Turn a config into tensors shaped for ``structure``."""
-    like = torch.empty((), dtype=dtype, device=device)
-    n, p, L, m = structure.n_states, structure.n_outputs, structure.n_estimated_orders, structure.n_params
-    x, o, w = config.kfx, config.kfo, config.kfw
-    Q0o, Q0w = _mat(o.Q0, L, like, "kfo.Q0"), _mat(w.Q0, m, like, "kfw.Q0")
-    return TEAParams(
-        x0=_vec(x.x0, n, like, "kfx.x0"), P0=_mat(x.P0, n, like, "kfx.P0"),
-        Q=_mat(x.Q0, n, like, "kfx.Q0"), R=_mat(x.R, p, like, "kfx.R"),
-        alpha0=_vec(o.x0, L, like, "kfo.x0"), P0o=_mat(o.P0, L, like, "kfo.P0"),
-        Q0o=Q0o, Ro=_r(o, p, like, "kfo.R"),
-        w0=_vec(w.x0, m, like, "kfw.x0"), P0w=_mat(w.P0, m, like, "kfw.P0"),
-        Q0w=Q0w, Rw=_r(w, p, like, "kfw.R"),
-        Qmax_o=q_cap(o.Q_max, Q0o, like),
-        Qmax_w=q_cap(w.Q_max, Q0w, like),
-        config=config,
-    )
-
-
-def _r(f, size: int, like: Tensor, name: str) -> Tensor:
-    """KFo's or KFw's R (``f`` its :class:`UnscentedConfig`) as a matrix; NaN for ``"innovation"`` (the step takes
-    ``Carry.S`` then, never this)."""
-    if f.uses_innovation:
-        return torch.full((size, size), math.nan, dtype=like.dtype, device=like.device)
-    return _mat(f.R, size, like, name)
-
-
-def q_cap(q_max, Q0: Tensor, like: Tensor) -> Tensor:
-    if q_max == "none":
-        return torch.tensor(math.inf, dtype=like.dtype, device=like.device)
-    if q_max == "Q0":
-        return torch.diagonal(Q0, dim1=-2, dim2=-1).amax(-1)
-    return torch.tensor(float(q_max), dtype=like.dtype, device=like.device)
-
-
-def stack_params(params: Sequence[TEAParams]) -> TEAParams:
-    """Stack parameter sets (e.g. one per axis) along a new leading batch dimension.
-
-    The non-tensor settings (UT constants, δ, options) must agree.
-    """
-    params = list(params)
-    if not params:
-        raise ValueError("nothing to stack")
-    first = params[0].config
-
-    def strip(c: TEAConfig):
-        keep = lambda f: replace(f, x0=0, P0=0, Q0=0, R=0)  # noqa: E731
-        # KFo's and KFw's: the cap's kind and whether R is "innovation" must agree, not their numbers
-        cap = lambda f: replace(keep(f), Q_max=1.0 if f.Q_max != "none" else "none",  # noqa: E731
-                                R=f.R if f.uses_innovation else 0)
-        return replace(c, kfx=keep(c.kfx), kfo=cap(c.kfo), kfw=cap(c.kfw))
-
-    for p in params[1:]:
-        if strip(p.config) != strip(first):
-            raise ValueError("stacked configs may differ only in x0, P0, Q0, R and the Q cap")
-    tensors = [torch.stack([getattr(p, name) for p in params]) for name in TEAParams._fields[:-1]]
-    return TEAParams(*tensors, config=first)
-
-
-# --------------------------------------------------------------------------- unscented pieces
-
-
-#: Devices where :func:`_mm` calls the matrix product (elsewhere: a broadcast product and sum).
-MATMUL_DEVICES = {"cpu"}
-
-
-def _mm(a: Tensor, b: Tensor) -> Tensor:
-    """``a @ b``. While torch.compile traces, and off the CPU, a broadcast product and sum instead, which the
-    compiler fuses with its neighbours: the matrices here are a few rows wide, and an external GEMM call per
-    product costs more than its arithmetic (on a GPU a batched 1×1 GEMM over 10⁵ realisations took ~50 µs,
-    the elementwise product ~5 µs)."""
-    if torch.compiler.is_compiling() or a.device.type not in MATMUL_DEVICES:
-        return (a.unsqueeze(-1) * b.unsqueeze(-3)).sum(-2)
-    return a @ b
-
-
-def _symmetrise(M: Tensor) -> Tensor:
-    return 0.5 * (M + M.mT)
-
-
-def _psd(M: Tensor) -> Tensor:
-    """Project a batch of symmetric matrices onto the PSD cone."""
-    M = _symmetrise(M)
-    if M.shape[-1] == 1:
-        return M.clamp(min=0.0)
-    vals, vecs = torch.linalg.eigh(M)
-    return _mm(vecs * vals.clamp(min=0.0).unsqueeze(-2), vecs.mT)
-
-
-def sqrt_psd(M: Tensor) -> Tensor:
-    """A square root ``S`` with ``S Sᵀ = M``: Cholesky (the paper's choice), eigen fallback."""
-    if M.shape[-1] == 1:
-        return M.clamp(min=0.0).sqrt()
-    Lc, info = torch.linalg.cholesky_ex(M)
-    if bool((info != 0).any()):
-        vals, vecs = torch.linalg.eigh(_symmetrise(M))
-        alt = vecs * vals.clamp(min=0.0).sqrt().unsqueeze(-2)
-        Lc = torch.where((info != 0)[..., None, None], alt, Lc)
-    return Lc
-
-
-def sigma_points(mean: Tensor, cov: Tensor, scale: float) -> Tensor:
-    """Sigma points (15)/(40): ``[m, m + Sᵢ, m − Sᵢ]`` with ``S Sᵀ = scale · cov``; ``(*B, 2L+1, L)``."""
-    S = sqrt_psd(scale * cov).mT  # rows are the columns of the root
-    m = mean.unsqueeze(-2)
-    return torch.cat([m, m + S, m - S], dim=-2)
-
-
-def _gain(Pxy: Tensor, Pyy: Tensor, mask: Tensor) -> Tensor:
-    """Kalman gain ``Pxy Pyy⁻¹`` (22)/(33) with unobserved outputs (``mask`` False) ignored.
-
-    Pxy ``(*B, q, p)``, Pyy ``(*B, p, p)``, mask ``(*B, p)`` → ``(*B, q, p)``;
-    columns of missing outputs are zero.
-    """
-    if Pyy.shape[-1] == 1:
-        return torch.where(mask.unsqueeze(-2), Pxy / Pyy, torch.zeros_like(Pxy))
-    both = mask.unsqueeze(-1) & mask.unsqueeze(-2)
-    eye = torch.eye(Pyy.shape[-1], dtype=Pyy.dtype, device=Pyy.device)
-    Pyy_m = torch.where(both, Pyy, eye.expand_as(Pyy))
-    Pxy_m = torch.where(mask.unsqueeze(-2), Pxy, torch.zeros_like(Pxy))
-    return torch.linalg.solve(Pyy_m, Pxy_m.mT).mT
-
-
-def ut_update(points, Y, prior_mean, prior_cov, R, y, mask, wm, wc, start):
-    """Unscented update (19)–(24): returns (mean, cov, gain, innovation, Pyy, Pxy).
-
-    points ``(*B, S, q)``, Y ``(*B, S, p)``; sums over sigma points ``i ≥ start`` in (20)–(21).
-    """
-    y_pred = _mm(wm.unsqueeze(-2), Y).squeeze(-2)  # (19): Σ_i W_i^m Y_i
-    dY = (Y - y_pred.unsqueeze(-2))[..., start:, :]
-    dX = (points - prior_mean.unsqueeze(-2))[..., start:, :]
-    wdY = dY * wc[start:].unsqueeze(-1)
-    Pyy = _mm(wdY.mT, dY) + R  # (20)
-    Pxy = _mm(dX.mT, wdY)  # (21)
-    K = _gain(Pxy, Pyy, mask)  # (22)
-    e = torch.where(mask, y - y_pred, torch.zeros_like(y_pred))
-    mean = prior_mean + _mm(K, e.unsqueeze(-1)).squeeze(-1)  # (23)
-    cov = _psd(prior_cov - _mm(_mm(K, Pyy), K.mT))  # (24)
-    return mean, cov, K, e, Pyy, Pxy
-
-
-def _constant_truth_cov(Sigma, prior_cov, K, Pyy, Pxy):
-    """The covariance of an unscented filter's error after its update when the truth is constant
-    (``estimate_uncertainty = "constant-truth"``): ``(I − K H) Σ (I − K H)ᵀ + K (P_yy − H P̃ Hᵀ) Kᵀ`` with ``H =
-    P_σyᵀ P̃⁻¹`` (statistical linearisation over the sigma points drawn with ``prior_cov`` = P̃) and ``Σ`` the
-    previous error covariance, no ``Q`` added. ``K`` has zero columns for missing outputs, so a missing sample
-    leaves ``Σ`` as it is. Where P̃ is zero, ``H`` is zero."""
-    H = _over_cov(Pxy.mT, prior_cov)  # (*B, p, L)
-    R_eff = _psd(Pyy - _mm(_mm(H, prior_cov), H.mT))
-    return _psd(_joseph(Sigma, K, H, R_eff))
-
-
-def _joseph(P, K, H, R):
-    """``(I − K H) P (I − K H)ᵀ + K R Kᵀ``: the covariance of an update's error with gain ``K`` for a measurement
-    ``H`` with noise ``R`` whatever ``P`` the gain came from (not symmetrised)."""
-    IKH = torch.eye(P.shape[-1], dtype=P.dtype, device=P.device) - _mm(K, H)
-    return _mm(_mm(IKH, P), IKH.mT) + _mm(_mm(K, R), K.mT)
-
-
-def adapt_q(Q, K, e, delta: float, q_max: Tensor, observed):
-    """Robbins–Monro adaptation (25): ``Q ← (1−δ) Q + δ (K e)(K e)ᵀ``, scaled down so that its largest
-    diagonal entry stays ≤ ``q_max`` (``(*B,)``, +inf for no cap)."""
-    if delta == 0.0:
-        return Q
-    Ke = _mm(K, e.unsqueeze(-1))
-    Qn = (1.0 - delta) * Q + delta * _mm(Ke, Ke.mT)
-    top = torch.diagonal(Qn, dim1=-2, dim2=-1).amax(-1).clamp(min=torch.finfo(Qn.dtype).tiny)
-    Qn = Qn * (q_max / top).clamp(max=1.0)[..., None, None]
-    return torch.where(observed[..., None, None], Qn, Q)
 
 
 # --------------------------------------------------------------------------- one step
@@ -328,113 +108,6 @@ def _replica(model: _Model, memory, hist, orders_o, w_prev, sigma_w, x_prev, u_p
     mem = torch.cat([mem_sum, centre(mem_sum)], dim=-2)
     chi = hp * drive - mem
     return _mm(chi, model.C.mT), chi
-
-
-# --------------------------------------------------------------------------- memory strategies
-
-
-class _ExactMemory:
-    """Full-history sums (O(k) per step). ``hist = (xh, Ph)``: the KFx history newest first,
-    ``x̂_{k−1} … x̂_0`` ``(*B, n, k)`` and ``P_{k−1} … P_0`` ``(*B, n, n, k)``; with ``kfx_uncertainty =
-    "paper-gain"`` a third entry, the gain's covariances ``Pg`` in the same form."""
-
-    bounded = False
-    code = 0  # the compiled engine's switch (core.memory.MemoryPlan.code)
-
-    def mean_sums(self, hist, orders):
-        return history_sum(orders, hist[0])
-
-    def kfx_sums(self, hist, a, k):
-        """``(Σ_j c_j x̂_{k−j}, Σ_{j≥2} c_j² P_{k−j}, the same over Pg or None)``."""
-        xh = hist[0]
-        c = gl_tail_coefficients(a, xh.shape[-1])  # (*B, n, k): c_1 … c_k
-        mean = (c.unsqueeze(-2) @ xh.unsqueeze(-1))[..., 0, 0]
-        cj = c[..., 1:]  # lags 2…k
-
-        def cov(Ph):
-            if cj.shape[-1]:
-                return torch.einsum("...sj,...tj,...stj->...st", cj, cj, Ph[..., 1:])
-            return torch.zeros_like(Ph[..., 0])
-
-        return mean, cov(hist[1]), cov(hist[2]) if len(hist) > 2 else None
-
-
-class _BoundedMemory:
-    """``soe`` or ``window`` memory: constant work per step.
-
-    ``hist = (BoundedHistory, Pwin, Phead)``: ``Pwin`` ``(*B, n, n, J_P)`` = ``P_{k−1} … P_{k−J_P}`` and
-    (``soe``) ``Phead`` ``(*B, n, n, H)`` = ``P_0 … P_{H−1}``, the start-up covariances whose terms stay exact;
-    with ``kfx_uncertainty = "paper-gain"`` two more entries, the gain's covariances ``Pg`` in the same form.
-    """
-
-    bounded = True
-
-    def __init__(self, cfg: MemoryConfig, order_bounds, horizon: int, dtype, device):
-        # sigma points leave the order bounds (by ±√(3 P̃ᵒ), ~0.9 on the MEMS settings): a soe kernel serves one
-        # order beyond them on both sides (down to −0.95 at most, where (★) stops)
-        plan = memory_plan(cfg, horizon, (order_bounds[0] - 1.0, order_bounds[1] + 1.0))
-        self.kernel, self.code = plan.kernel, plan.code
-        self.decay = self.inject = None
-        if self.kernel is not None:
-            _, _, self.decay, self.inject = self.kernel.tensors(dtype, device)
-        self.x_lags, self.p_lags, self.n_modes, self.head = plan.x_lags, plan.p_lags, plan.n_modes, plan.head
-        self.head_index = torch.arange(self.head, dtype=dtype, device=device)
-
-    def init(self, batch, n: int, dtype, device, gain: bool = False):
-        """An empty history; ``gain``: with the gain's covariances (``kfx_uncertainty = "paper-gain"``)."""
-        z = lambda *s: torch.zeros(tuple(batch) + s, dtype=dtype, device=device)  # noqa: E731
-        return (BoundedHistory.zeros(batch, n, self.x_lags, self.n_modes, dtype=dtype, device=device),
-                z(n, n, self.p_lags), z(n, n, self.head)) + ((z(n, n, self.p_lags), z(n, n, self.head)) if gain else ())
-
-    def push(self, hist, x, P, k, Pg=None):
-        """Append ``x̂_k``, ``P_k`` (and ``Pg_k`` where the history keeps them; ``k`` the step they belong to)."""
-        slot = (self.head_index == k).to(P.dtype)  # P_k goes to head slot k while k < H
-
-        def cov(Pwin, Phead, P):
-            if self.head:
-                Phead = Phead + P.unsqueeze(-1) * slot
-            return torch.cat([P.unsqueeze(-1), Pwin[..., :-1]], dim=-1), Phead
-
-        out = (hist[0].push(x, self.decay, self.inject),) + cov(hist[1], hist[2], P)
-        return out + cov(hist[3], hist[4], Pg) if len(hist) > 3 else out
-
-    def mean_sums(self, hist, orders):
-        c = gl_tail_coefficients(orders, self.x_lags)
-        return hist[0].sum(c, orders, self.kernel)
-
-    def kfx_sums(self, hist, a, k):
-        """``(Σ_j c_j x̂_{k−j}, Σ_{j≥2} c_j² P_{k−j}, the same over Pg or None)``, bounded as the class says."""
-        xhist = hist[0]
-        c = gl_tail_coefficients(a, self.p_lags)  # (*B, n, J_P)
-        mean = xhist.sum(c[..., : self.x_lags].unsqueeze(-3), a.unsqueeze(-2), self.kernel)[..., 0, :]
-        cj = c[..., 1:]
-        mass = ch = None
-        if self.kernel is not None:
-            J, H = self.p_lags, self.head
-            ac = a.clamp(min=max(-0.49, self.kernel.order_range[0]))  # Gauss's sum needs a + b > −1
-            # lags J+1 … k−H: coefficient mass × the oldest windowed covariance
-            mass = cov_tail_mass(ac.unsqueeze(-1), ac.unsqueeze(-2), c.unsqueeze(-2), c.unsqueeze(-3), k - H)
-            if H:
-                # lags k−H+1 … k (P_{H−1} … P_0), where beyond the window: exact terms
-                lags = k - self.head_index  # lag of P_i is k − i
-                ch = gl_coefficients_at(ac.unsqueeze(-1), lags.clamp(min=J + 1))  # (*B, n, H)
-                ch = ch * (lags > J).to(ch.dtype)
-
-        def cov(Pwin, Phead):
-            out = torch.einsum("...sj,...tj,...stj->...st", cj, cj, Pwin[..., 1:])
-            if mass is not None:
-                out = out + mass * Pwin[..., -1]
-            if ch is not None:
-                out = out + torch.einsum("...sj,...tj,...stj->...st", ch, ch, Phead)
-            return out
-
-        return mean, cov(hist[1], hist[2]), cov(hist[3], hist[4]) if len(hist) > 3 else None
-
-
-def _make_memory(cfg: TEAConfig, horizon: int, dtype, device):
-    if not cfg.memory.bounded:
-        return _ExactMemory()
-    return _BoundedMemory(cfg.memory, cfg.order_bounds, horizon, dtype, device)
 
 
 def _tea_step(model: _Model, params: TEAParams, weights, memory, carry: Carry, y, u_prev, hist, k, branchless=False):
@@ -518,16 +191,6 @@ def _estimate_uncertainty(chi, points, mean, prior_cov, cov, wc):
     P_cs = _mm((dC * wc.unsqueeze(-1)).mT, dX)  # (*B, n, L)
     J = _over_cov(P_cs, prior_cov)
     return _mm(_mm(J, cov), J.mT)
-
-
-def _over_cov(M, prior_cov):
-    """``M P̃⁻¹``, the statistical linearisation's division by the covariance the sigma points were drawn with:
-    M ``(*B, r, L)``, prior_cov ``(*B, L, L)``; a scalar P̃ divides (zero where P̃ is zero), a matrix one takes the
-    pseudo-inverse."""
-    if prior_cov.shape[-1] == 1:
-        p = prior_cov[..., 0, 0]
-        return torch.where((p > 0)[..., None, None], M / torch.where(p > 0, p, 1.0)[..., None, None], 0.0)
-    return _mm(M, torch.linalg.pinv(prior_cov, hermitian=True))
 
 
 def _kfx_update(model: _Model, params: TEAParams, x_pred, P_pred, y, mask):

@@ -15,12 +15,9 @@ is wrong.
 """
 from __future__ import annotations
 
-import csv
-import io as _io
 import json
 import math
 import re
-from contextlib import contextmanager
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
@@ -30,6 +27,8 @@ import numpy as np
 
 from .datacheck import stamp_rate
 from .errors import InputError
+from .text import (PLAUSIBLE_RATE_HZ, TIME_COLUMNS, _delimiter_hint, _head_lines, _is_number, _numeric_column, _parse_body,
+                   _seconds, _time_column, read_series)
 
 __all__ = ["RECORDER_COLUMNS", "InputError", "Channel", "Recording", "bundled_recording", "read_recording",
            "read_series", "write_columns", "STANDARD_GRAVITY", "BUNDLED", "TIME_COLUMNS", "UNITS", "SI_UNITS",
@@ -41,20 +40,11 @@ DEG = math.pi / 180.0
 #: The vendored recordings (MIT, see torchtea/data/LICENSE and PROVENANCE.md).
 BUNDLED = {"main": "example_data_tinit_calc.csv", "second": "imu_static_test.csv"}
 
-#: Column names taken as time stamps when a reader is asked to find them (``time_column="auto"``), in seconds
-#: unless the name says otherwise (:data:`TIME_UNITS`) or the stamps' spacing shows ms, µs or ns.
-TIME_COLUMNS = ("t", "t_s", "time", "time_s", "sec", "seconds", "timestamp", "stamp", "%time", "header.stamp",
-                "field.header.stamp", "time_ns", "t_ns", "timestamp_ns", "stamp_ns", "time_us", "t_us",
-                "timestamp_us", "time_ms", "t_ms", "timestamp_ms")
-#: Seconds per unit of a time column whose name ends so.
-TIME_UNITS = {"_ns": 1e-9, "_us": 1e-6, "_ms": 1e-3, "%time": 1e-9, "header.stamp": 1e-9}
 
 #: ``--units`` names: (sensor, factor from the file's value to SI). Counts have no factor of their own.
 UNITS = {"g": ("accelerometer", STANDARD_GRAVITY), "ms2": ("accelerometer", 1.0), "m/s2": ("accelerometer", 1.0),
          "m/s^2": ("accelerometer", 1.0), "rad/s": ("gyroscope", 1.0), "deg/s": ("gyroscope", DEG),
          "dps": ("gyroscope", DEG), "counts": (None, None)}
-#: The rates (Hz) time stamps may give an IMU; outside, the stamps are taken for another unit or a wrong clock.
-PLAUSIBLE_RATE_HZ = (0.5, 1e5)
 #: The SI unit of each sensor's channels, written next to every number.
 SI_UNITS = {"accelerometer": "m/s²", "gyroscope": "rad/s", "signal": "units of the file"}
 #: Canonical labels of IMU channels (result keys): sensor letter + axis.
@@ -214,86 +204,6 @@ class Recording:
 def bundled_recording(which: str = "main") -> Path:
     """Path of a vendored MPU-6050 recording (``"main"``: 449 s, ``"second"``: 100 s)."""
     return Path(str(resources.files("torchtea") / "data" / BUNDLED[which]))
-
-
-@contextmanager
-def _text_file(path: Path):
-    """The file opened as text; what goes wrong while opening or reading it is one :class:`InputError` naming it."""
-    try:
-        with open(path, newline="") as fh:
-            yield fh
-    except FileNotFoundError:
-        raise InputError(f"{path}: no such file") from None
-    except IsADirectoryError:
-        raise InputError(f"{path}: is a directory, expected a CSV file") from None
-    except UnicodeDecodeError:
-        raise InputError(f"{path}: not a text file") from None
-    except OSError as exc:
-        raise InputError(f"{path}: cannot read ({exc.strerror})") from None
-
-
-def _read_text(path: Path) -> str:
-    with _text_file(path) as fh:
-        return fh.read()
-
-
-def _delimiter_hint(line: str) -> str:
-    """A hint when a header line looks separated by something other than commas."""
-    for sep, name in ((";", "semicolons"), ("\t", "tabs"), ("|", "'|'")):
-        if line.count(sep) >= 1 and line.count(sep) >= line.count(","):
-            return (f"; the header looks separated by {name}, but torchtea reads comma-separated files "
-                    f"(convert it, e.g. replace each {name[:-1] if name.endswith('s') else name} by a comma)")
-    return ""
-
-
-def _number(text: str, path: Path, line: int, column: str, *, allow_missing: bool) -> float:
-    t = text.strip()
-    if t == "" or t.lower() == "nan":
-        if allow_missing:
-            return math.nan
-        raise InputError(f"{path}, line {line}: column {column!r} is empty or NaN "
-                         "(use --allow-missing to treat such samples as missing)", column)
-    try:
-        v = float(t)
-    except ValueError:
-        raise InputError(f"{path}, line {line}: column {column!r} holds {t!r}, not a number", column) from None
-    if not math.isfinite(v):
-        raise InputError(f"{path}, line {line}: column {column!r} is not finite ({t})", column)
-    return v
-
-
-def read_series(path, columns: Sequence[str], optional: Sequence[str] = (), *, allow_missing=False) -> dict:
-    """Read named numeric columns of a CSV with a header row.
-
-    Returns ``{name: (N,) float64 array}`` for the required ``columns`` and those
-    ``optional`` columns that exist.
-    """
-    path = Path(path)
-    lines = _read_text(path).splitlines()
-    rows = list(csv.reader(lines))
-    if not rows:
-        raise InputError(f"{path}: empty file")
-    header = [h.strip() for h in rows[0]]
-    missing = [c for c in columns if c not in header]
-    if missing:
-        raise InputError(f"{path}: missing column(s) {', '.join(map(repr, missing))}; the header has {header}"
-                         + _delimiter_hint(lines[0]))
-    wanted = list(columns) + [c for c in optional if c in header]
-    idx = {c: header.index(c) for c in wanted}
-    out = {c: [] for c in wanted}
-    body = rows[1:]
-    while body and not any(v.strip() for v in body[-1]):
-        body.pop()  # trailing blank lines are not samples
-    for i, row in enumerate(body, start=2):
-        if not row:
-            row = [""] * len(header)  # an interior blank line is a sample with every field empty
-        if len(row) != len(header):
-            raise InputError(f"{path}, line {i}: {len(row)} fields, the header has {len(header)}")
-        for c in wanted:
-            out[c].append(_number(row[idx[c]], path, i, c, allow_missing=allow_missing))
-    if columns and not out[columns[0]]:
-        raise InputError(f"{path}: no data rows")
-    return {c: np.asarray(v, dtype=np.float64) for c, v in out.items()}
 
 
 def sensor_of(name: str) -> tuple[str, str] | None:
@@ -576,108 +486,6 @@ def _bag_recording(path: Path, bag: dict, rate_hz: float | None, time_column: st
                      time_s=None if time_column is None else t,
                      time_column=None if time_column is None else f"{imu} header.stamp", rate_source=rate_source,
                      temperature=bag["temperature"], temperature_column=meta.get("temperature_topic"))
-
-
-def _is_number(text: str) -> bool:
-    try:
-        float(text)
-        return True
-    except ValueError:
-        return False
-
-
-def _seconds(name: str, t: np.ndarray) -> tuple[np.ndarray, str]:
-    """Time stamps in seconds, by the column's name (``_ns``, ``_us``, ``_ms``, ROS's ``%time`` and ``header.stamp``
-    in ns); other columns are read as seconds, and :func:`~torchtea.sensors.datacheck.check_timing` says when their
-    spacing looks like ms, µs or ns. The note says what was converted."""
-    low = name.lower()
-    for suffix, factor in TIME_UNITS.items():
-        if low.endswith(suffix):
-            return t * factor, f"column {name!r} read as {_UNIT_WORD[factor]} (its name says so)"
-    return t, ""
-
-
-_UNIT_WORD = {1e-3: "milliseconds", 1e-6: "microseconds", 1e-9: "nanoseconds"}
-
-
-#: Lines read to find a file's format and header row.
-HEAD_LINES = 200
-
-
-def _head_lines(path: Path, limit: int = HEAD_LINES) -> list[str]:
-    """The first ``limit`` lines of a file (without their line ends)."""
-    out = []
-    with _text_file(path) as fh:
-        for line in fh:
-            out.append(line.rstrip("\r\n"))
-            if len(out) >= limit:
-                break
-    return out
-
-
-def _parse_body(path: Path, start: int, header: list, wanted: list) -> np.ndarray:
-    """``(N, len(wanted))`` float64 of the rows after the header (line ``start``, 0-based); empty or ``nan`` fields
-    are NaN; blank lines and ``#`` lines are skipped. The fast path streams the file through numpy's C parser (memory:
-    the numbers only, whatever the file's size); a file it cannot read (an empty field, text, a row of another
-    length) is read again line by line, which names the line and column at fault."""
-    idx = [header.index(c) for c in wanted]
-    try:
-        with np.errstate(all="ignore"):
-            arr = np.loadtxt(path, delimiter=",", skiprows=start + 1, ndmin=2, dtype=np.float64, comments="#",
-                             encoding="utf-8")
-        if arr.shape[0] == 0:
-            raise InputError(f"{path}: no data rows")
-        if arr.shape[1] != len(header) or np.isinf(arr).any():
-            raise ValueError
-        return np.ascontiguousarray(arr[:, idx])
-    except ValueError:
-        pass
-    lines = _read_text(path).splitlines()
-    out = np.empty((len(lines) - start - 1, len(wanted)))
-    n = 0
-    for i in range(start + 1, len(lines)):
-        line = lines[i]
-        if not line.strip() or line.startswith("#"):
-            continue
-        parts = line.split(",")
-        if len(parts) != len(header):
-            raise InputError(f"{path}, line {i + 1}: {len(parts)} fields, the header has {len(header)}")
-        for k, j in enumerate(idx):
-            out[n, k] = _number(parts[j], path, i + 1, header[j], allow_missing=True)
-        n += 1
-    if n == 0:
-        raise InputError(f"{path}: no data rows")
-    return out[:n]
-
-
-def _numeric_column(lines: list, start: int, j: int) -> bool:
-    """Whether column ``j`` of the first data row after line ``start`` holds a number (or is empty)."""
-    for line in lines[start + 1:]:
-        if line.strip():
-            parts = line.split(",")
-            if j >= len(parts):
-                return True  # the row's own error comes later
-            t = parts[j].strip()
-            if t == "" or t.lower() == "nan":
-                continue
-            try:
-                float(t)
-            except ValueError:
-                return False
-            return True
-    return True
-
-
-def _time_column(path: Path, header: list, wanted) -> str | None:
-    """The time column: ``wanted`` by name, the first of :data:`TIME_COLUMNS` in ``header`` for ``"auto"``,
-    none for ``None``."""
-    if wanted is None:
-        return None
-    if wanted == "auto":
-        return next((c for c in header if c.lower() in TIME_COLUMNS), None)
-    if wanted not in header:
-        raise InputError(f"{path}: no time column {wanted!r}; the header has {', '.join(header[:12])}")
-    return wanted
 
 
 RECORDING_MAGIC = "# torchtea-recording 1"

@@ -41,7 +41,6 @@ r"""``check``: fit a noise model, test it against the measurements, and rank the
 """
 from __future__ import annotations
 
-import math
 import time
 
 import numpy as np
@@ -56,9 +55,9 @@ from .diagnostics import LEVEL
 from .models import extend, with_intervals
 from .models import assess as _assess
 from .ranking import CLOSE_BIC, EXPLAIN_WINDOW, STRONG_BIC, rank
-from .refits import (BASE_RESTARTS, BASE_SLACK, FIT_FAILED_SLACK, LONG_RECORD, NULL_EFFECT, CheckRun, add_note,
-                     better_model_fit, degenerate, held_fixed, loglik_at, refined_model, refit, refit_degenerate,
-                     refit_from)
+from .refits import (BASE_RESTARTS, BASE_SLACK, LONG_RECORD, NULL_EFFECT, CheckRun, add_note,
+                     better_model_fit, degenerate, held_fixed, judge_no_gain, loglik_at, refined_model, refit,
+                     refit_degenerate, refit_from)
 from .results import CheckRecord, Suggestion, change_words, effect_parameters, read_check
 from .screening import ScreenContext, new_label, screen_all
 from .screens import NotScreened
@@ -252,28 +251,7 @@ def _check_once(run: CheckRun, model, fit: Fit, wf, screen_level, candidates, in
                            "bound: not maximised on a long record); not suggested")
             continue
         if gain <= 0:
-            failed = row["statistic"] is not None and lr < 0.5 * row["statistic"] - FIT_FAILED_SLACK
-            at_screen = (loglik_at(alt, row["start"], y, h, inputs)
-                         if failed and row["test"].startswith("Whittle") and set(row.get("start") or ()) >= set(alt.names)
-                         else math.inf)
-            if at_screen < fit.loglik - BASE_SLACK:
-                # the screen's own point is below the model in the exact likelihood: the cheap likelihood's gain does
-                # not hold in the exact one (the optimiser is not what failed)
-                add_note(row, f"passed its screen (LR {row['statistic']:.1f}) on the Whittle likelihood, but the "
-                               "exact likelihood does not confirm it: at the screen's own point it is "
-                               f"{fit.loglik - at_screen:.1f} nats below the model's, and the exact refit gains only "
-                               f"{lr:.1f} in 2ℓ (BIC gain {gain:.1f}) — the two likelihoods disagree on this record "
-                               "(the Whittle likelihood takes it as stationary), which is no evidence for the effect; "
-                               "not suggested")
-                row["not_confirmed"] = True
-            elif failed:
-                add_note(row, f"passed its screen (LR {row['statistic']:.1f}), but the exact refit gains only "
-                               f"{lr:.1f} in 2ℓ (BIC gain {gain:.1f}): the refit failed to find what the screen "
-                               "saw — an optimiser's failure, not evidence against the effect; not suggested")
-                row["refit_failed"] = True
-            else:
-                add_note(row, f"passed the screen but the exact refit does not lower BIC (gain {gain:.1f}): "
-                               "not suggested")
+            judge_no_gain(run, row, fit, alt, gain, lr)
             continue
         _, d2, m2 = _assess(alt, f2.values, y, h, inputs, run.level)
         repairs = sorted(failed_before & {d.name for d in d2 if d.passed})
@@ -289,18 +267,7 @@ def _check_once(run: CheckRun, model, fit: Fit, wf, screen_level, candidates, in
             return None, (better, "a candidate's refit without its new component was a better point")
     suggestions = rank(suggestions, failed_before)
     if long and suggestions:  # the best suggestion refitted, from the start that ranked it
-        top = suggestions[0]
-        row = next(r for r in rows if r["effect"] == top.effect)
-        run.say(f"refitting {top.fit.model.spec}")
-        alt = top.fit.model
-        estimates, fixed = held_fixed(alt, top.label)
-        f2 = refit_from(run, alt, top.fit, fixed)
-        f2.count(estimates)
-        top.fit, top.gain = f2, float(fit.bic_exact - f2.bic_exact)
-        _, top.diagnostics, top.metrics = _assess(alt, f2.values, y, h, inputs, run.level)
-        top.repairs = sorted(failed_before & {d.name for d in top.diagnostics if d.passed})
-        row["note"] = row["note"].replace("; the best suggestion alone is refitted", "; refitted as the best suggestion")
-        suggestions = rank(suggestions, failed_before)
+        suggestions = _refit_best(run, fit, suggestions, rows, failed_before)
     if intervals and suggestions:  # the best suggestion's intervals (the observed information)
         run.say(f"intervals of {suggestions[0].fit.model.spec}")
         suggestions[0].fit = with_intervals(suggestions[0].fit, y, h, inputs)
@@ -309,3 +276,19 @@ def _check_once(run: CheckRun, model, fit: Fit, wf, screen_level, candidates, in
                        refits=refitted), None
 
 
+def _refit_best(run: CheckRun, fit: Fit, suggestions: list, rows: list, failed_before: set) -> list:
+    """On a long record (:data:`~.refits.LONG_RECORD`), the best suggestion — ranked by the exact likelihood at the
+    best of its starts — refitted from the start that ranked it, its gain, diagnostics and repairs anew, its screen's
+    row saying so; the suggestions ranked again."""
+    top = suggestions[0]
+    row = next(r for r in rows if r["effect"] == top.effect)
+    run.say(f"refitting {top.fit.model.spec}")
+    alt = top.fit.model
+    estimates, fixed = held_fixed(alt, top.label)
+    f2 = refit_from(run, alt, top.fit, fixed)
+    f2.count(estimates)
+    top.fit, top.gain = f2, float(fit.bic_exact - f2.bic_exact)
+    _, top.diagnostics, top.metrics = _assess(alt, f2.values, run.y, run.h, run.inputs, run.level)
+    top.repairs = sorted(failed_before & {d.name for d in top.diagnostics if d.passed})
+    row["note"] = row["note"].replace("; the best suggestion alone is refitted", "; refitted as the best suggestion")
+    return rank(suggestions, failed_before)

@@ -16,7 +16,7 @@ from ..fitting.starts import starts_of
 from .models import REFIT_TOLERANCE
 
 __all__ = ["CheckRun", "Clock", "refit", "refit_from", "held_fixed", "loglik_at", "refined_model", "better_model_fit",
-           "degenerate", "refit_degenerate", "add_note", "BASE_RESTARTS", "BASE_SLACK", "NESTED_SLACK", "LONG_RECORD",
+           "degenerate", "refit_degenerate", "add_note", "judge_no_gain", "BASE_RESTARTS", "BASE_SLACK", "NESTED_SLACK", "LONG_RECORD",
            "NULL_EFFECT", "FIT_FAILED_SLACK"]
 
 
@@ -157,47 +157,10 @@ def refit(run: CheckRun, model, alt, label, fit: Fit, wf, row: dict, fixed: list
     base = dict(fit.values)
     start = dict(row["start"])
     row.pop("metric", None)
-    starts = []
     if comp.kind in ("mean", "modifier"):
-        key = ("whittle", alt.spec)
-        if key not in cache:  # (a mean's own values are its least squares there; its noise starts at the grid —
-            # a mean the model lacked can have bent its order to the other mode of the order–pole ridge, and the
-            # extended model's optimum is then on the first — and at the model's Whittle fit)
-            cache[key] = whittle_fit(alt, [run.filled], h, inputs=run.inp_list, fractions=(0.5,),
-                                     starts=[[{**{n: start[n] for n in new},
-                                               **dict(zip(model.names, wf.values[0].tolist()))}]])
-        wfa = cache[key]
-        held = model.located()  # (a step's time, spikes: held where the model's fit has them)
-        noise = {n: x for n, x in zip(alt.names, wfa.values[0].tolist()) if n in model.names and n not in held}
-        starts.append(("the screen's start", {**start, **noise}))
-        starts.append(("the model's fit with the effect at the screen's estimate",
-                       {**base, **{n: start[n] for n in new if n in start}}))
-        for k, (u, _, _) in enumerate(wfa.modes[0][1:] if wfa.modes else []):  # (its best is the screen's start's)
-            other = {n: float(x) for n, x in zip(alt.names, alt.as_matrix(alt.from_unconstrained(u, h))[0])
-                     if n in model.names and n not in held}
-            starts.append((f"the extended model's Whittle mode {k + 2}", {**start, **other}))
+        starts = _mean_starts(run, model, alt, wf, base, start, new)
     else:
-        starts.append(("the screen's start", start))
-        # the model's exact fit with the new component at the screen's values: the screen's Whittle fit moves the
-        # model's own components too, which the exact likelihood need not follow (a resonance narrowed onto one
-        # periodogram ordinate)
-        starts.append(("the model's fit with the effect at the screen's values",
-                       {**base, **{n: start[n] for n in new if n in start}}))
-        vanish = starts_of(comp).vanishing(comp, label, model, base, h, len(y))
-        if vanish:
-            starts.append(("the model's fit with the effect vanishing", {**base, **vanish}))
-        for k, s_ in enumerate(starts_of(comp).strengths(comp, label, model, base, h, len(y))):
-            starts.append((f"the model's fit with the effect at strength {k + 1}", {**base, **s_}))
-        modes = row.pop("modes", None)  # (the Whittle screen's fits of the extended model)
-        if modes is None and alt.stationary and not np.isnan(y).any():
-            key = ("whittle", alt.spec)
-            if key not in cache:
-                cache[key] = whittle_fit(alt, [centred(model, y)], h, inputs=run.inp_list)
-            wfa = cache[key]
-            modes = [{**{n: float(x) for n, x in zip(alt.names, alt.as_matrix(alt.from_unconstrained(u, h))[0])},
-                      **wfa.means[0]} for u, _, _ in (wfa.modes[0] if wfa.modes else [])]
-        for k, v in enumerate(modes or []):
-            starts.append((f"the extended model's Whittle mode {k + 1}", v))
+        starts = _stochastic_starts(run, model, alt, label, comp, row, base, start, new)
     earlier = run.carry.get(row["effect"])
     if earlier is not None:  # the last step's refit of this effect: its values there, the model's here
         kept = {n: earlier.values[n] for n in new if n in earlier.values}
@@ -228,6 +191,63 @@ def refit(run: CheckRun, model, alt, label, fit: Fit, wf, row: dict, fixed: list
         add_note(row, f"every refit ended below the model's ℓ {fit.loglik:.2f} (best {f2.loglik:.2f}): an optimiser "
                        "failure (the models are nested)")
     return f2
+
+
+def _mean_starts(run: CheckRun, model, alt, wf, base: dict, start: dict, new: list) -> list:
+    """:func:`refit`'s starts for a mean or a modifier: the screen's values with the noise of the extended model's
+    Whittle fit, the model's fit with the effect at the screen's estimate, the extended model's other Whittle
+    modes."""
+    h, cache = run.h, run.cache
+    starts = []
+    key = ("whittle", alt.spec)
+    if key not in cache:  # (a mean's own values are its least squares there; its noise starts at the grid —
+        # a mean the model lacked can have bent its order to the other mode of the order–pole ridge, and the
+        # extended model's optimum is then on the first — and at the model's Whittle fit)
+        cache[key] = whittle_fit(alt, [run.filled], h, inputs=run.inp_list, fractions=(0.5,),
+                                 starts=[[{**{n: start[n] for n in new},
+                                           **dict(zip(model.names, wf.values[0].tolist()))}]])
+    wfa = cache[key]
+    held = model.located()  # (a step's time, spikes: held where the model's fit has them)
+    noise = {n: x for n, x in zip(alt.names, wfa.values[0].tolist()) if n in model.names and n not in held}
+    starts.append(("the screen's start", {**start, **noise}))
+    starts.append(("the model's fit with the effect at the screen's estimate",
+                   {**base, **{n: start[n] for n in new if n in start}}))
+    for k, (u, _, _) in enumerate(wfa.modes[0][1:] if wfa.modes else []):  # (its best is the screen's start's)
+        other = {n: float(x) for n, x in zip(alt.names, alt.as_matrix(alt.from_unconstrained(u, h))[0])
+                 if n in model.names and n not in held}
+        starts.append((f"the extended model's Whittle mode {k + 2}", {**start, **other}))
+    return starts
+
+
+def _stochastic_starts(run: CheckRun, model, alt, label: str, comp, row: dict, base: dict, start: dict,
+                       new: list) -> list:
+    """:func:`refit`'s starts for a stochastic effect: the screen's, the model's fit with the effect at the screen's
+    values, vanishing (:meth:`~torchtea.fitting.starts.Starts.vanishing`) and at its starting strengths, each mode of
+    the extended model's Whittle fit (the screen's, else its own)."""
+    y, h, cache = run.y, run.h, run.cache
+    starts = []
+    starts.append(("the screen's start", start))
+    # the model's exact fit with the new component at the screen's values: the screen's Whittle fit moves the
+    # model's own components too, which the exact likelihood need not follow (a resonance narrowed onto one
+    # periodogram ordinate)
+    starts.append(("the model's fit with the effect at the screen's values",
+                   {**base, **{n: start[n] for n in new if n in start}}))
+    vanish = starts_of(comp).vanishing(comp, label, model, base, h, len(y))
+    if vanish:
+        starts.append(("the model's fit with the effect vanishing", {**base, **vanish}))
+    for k, s_ in enumerate(starts_of(comp).strengths(comp, label, model, base, h, len(y))):
+        starts.append((f"the model's fit with the effect at strength {k + 1}", {**base, **s_}))
+    modes = row.pop("modes", None)  # (the Whittle screen's fits of the extended model)
+    if modes is None and alt.stationary and not np.isnan(y).any():
+        key = ("whittle", alt.spec)
+        if key not in cache:
+            cache[key] = whittle_fit(alt, [centred(model, y)], h, inputs=run.inp_list)
+        wfa = cache[key]
+        modes = [{**{n: float(x) for n, x in zip(alt.names, alt.as_matrix(alt.from_unconstrained(u, h))[0])},
+                  **wfa.means[0]} for u, _, _ in (wfa.modes[0] if wfa.modes else [])]
+    for k, v in enumerate(modes or []):
+        starts.append((f"the extended model's Whittle mode {k + 1}", v))
+    return starts
 
 
 def refit_from(run: CheckRun, alt, evaluated: Fit, fixed: list) -> Fit:
@@ -287,3 +307,33 @@ class Clock:
 
 def add_note(row: dict, text: str) -> None:
     row["note"] = f"{row['note']}; {text}" if row.get("note") else text
+
+
+def judge_no_gain(run: CheckRun, row: dict, fit: Fit, alt, gain: float, lr: float) -> None:
+    """Say in the screen's ``row`` why a passed screen's refit (of ``alt``; its likelihood-ratio ``lr`` over the model's
+    ``fit``) lowered no BIC (``gain`` ≤ 0): where the screen's statistic was far larger, either the Whittle screen's
+    own point lies below the model in the exact likelihood — the two likelihoods disagree on the record,
+    ``not_confirmed`` — or the refit failed to find what the screen saw — an optimiser's failure, ``refit_failed``;
+    otherwise the effect simply lowers no BIC."""
+    failed = row["statistic"] is not None and lr < 0.5 * row["statistic"] - FIT_FAILED_SLACK
+    at_screen = (loglik_at(alt, row["start"], run.y, run.h, run.inputs)
+                 if failed and row["test"].startswith("Whittle") and set(row.get("start") or ()) >= set(alt.names)
+                 else math.inf)
+    if at_screen < fit.loglik - BASE_SLACK:
+        # the screen's own point is below the model in the exact likelihood: the cheap likelihood's gain does
+        # not hold in the exact one (the optimiser is not what failed)
+        add_note(row, f"passed its screen (LR {row['statistic']:.1f}) on the Whittle likelihood, but the "
+                       "exact likelihood does not confirm it: at the screen's own point it is "
+                       f"{fit.loglik - at_screen:.1f} nats below the model's, and the exact refit gains only "
+                       f"{lr:.1f} in 2ℓ (BIC gain {gain:.1f}) — the two likelihoods disagree on this record "
+                       "(the Whittle likelihood takes it as stationary), which is no evidence for the effect; "
+                       "not suggested")
+        row["not_confirmed"] = True
+    elif failed:
+        add_note(row, f"passed its screen (LR {row['statistic']:.1f}), but the exact refit gains only "
+                       f"{lr:.1f} in 2ℓ (BIC gain {gain:.1f}): the refit failed to find what the screen "
+                       "saw — an optimiser's failure, not evidence against the effect; not suggested")
+        row["refit_failed"] = True
+    else:
+        add_note(row, f"passed the screen but the exact refit does not lower BIC (gain {gain:.1f}): "
+                       "not suggested")

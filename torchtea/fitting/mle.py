@@ -325,6 +325,29 @@ def profile_order(model, wf: WhittleFit, h: float, *, grid: int = 21, fixed: dic
 # --------------------------------------------------------------------------- the whole fit
 
 
+def _fit_arguments(model: NoiseModel, method: str, fixed: dict | None, series: list) -> tuple[dict, list]:
+    """:func:`fit_series`'s ``fixed`` and ``series`` checked against the model and the method (float64 arrays);
+    ``ValueError`` naming what is wrong: an unknown method, a fixed name the model lacks or its components cannot
+    hold, the Whittle method on a non-stationary model or on series with gaps."""
+    if method not in METHODS:
+        raise ValueError(f"method must be one of {METHODS}, got {method!r}")
+    fixed = dict(fixed or {})
+    unknown = set(fixed) - set(model.names)
+    if unknown:
+        raise ValueError(f"fixed parameters {sorted(unknown)} are not in model {model.spec!r} ({model.names})")
+    for label, comp in model.components:
+        comp.check_fixed(label, fixed)
+    series = [np.asarray(y, dtype=np.float64) for y in series]
+    if method == "whittle" and not model.stationary:
+        moving = ", ".join(c.name for _, c in model.components if not c.stationary)
+        raise ValueError(f"{moving} makes the model non-stationary: it is fitted by the exact likelihood only "
+                         "(--method exact)")
+    if method == "whittle" and any(bool(np.isnan(y).any()) for y in series):
+        raise ValueError("the Whittle method needs complete series; use --method exact for recordings with "
+                         "missing samples")
+    return fixed, series
+
+
 def fit_series(model, series: list, h: float, *, method: str = "exact", inputs: list | None = None,
                fixed: dict | None = None, memory=FIT_MEMORY, profile: bool | None = None,
                whittle: WhittleFit | None = None, intervals: bool = True) -> list[Fit]:
@@ -340,23 +363,7 @@ def fit_series(model, series: list, h: float, *, method: str = "exact", inputs: 
     if profile is None:
         profile = method == "whittle"
     model = parse_model(model)
-    if method not in METHODS:
-        raise ValueError(f"method must be one of {METHODS}, got {method!r}")
-    fixed = dict(fixed or {})
-    unknown = set(fixed) - set(model.names)
-    if unknown:
-        raise ValueError(f"fixed parameters {sorted(unknown)} are not in model {model.spec!r} ({model.names})")
-    for label, comp in model.components:
-        comp.check_fixed(label, fixed)
-    series = [np.asarray(y, dtype=np.float64) for y in series]
-    gaps = [bool(np.isnan(y).any()) for y in series]
-    if method == "whittle" and not model.stationary:
-        moving = ", ".join(c.name for _, c in model.components if not c.stationary)
-        raise ValueError(f"{moving} makes the model non-stationary: it is fitted by the exact likelihood only "
-                         "(--method exact)")
-    if method == "whittle" and any(gaps):
-        raise ValueError("the Whittle method needs complete series; use --method exact for recordings with "
-                         "missing samples")
+    fixed, series = _fit_arguments(model, method, fixed, series)
     filled = [np.where(np.isnan(y), np.nanmean(y), y) for y in series]
     wf = whittle_fit(model, filled, h, inputs=inputs, fixed=fixed) if whittle is None else whittle
     name = model.order_name

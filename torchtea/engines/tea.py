@@ -393,35 +393,13 @@ def run_tea(
     TEAResult
     """
     structure = structure or Structure.scalar_noise()
-    y = torch.as_tensor(y)
-    if not y.is_floating_point():
-        y = y.to(torch.float64)
+    y, params, inputs, batch, every = _batched(y, params, inputs, structure, record_every)
     dtype, device = y.dtype, y.device
     n, p, L, m = structure.n_states, structure.n_outputs, structure.n_estimated_orders, structure.n_params
-    if y.ndim < 2 or y.shape[-1] != p:
-        raise ValueError(f"y must have shape (*B, N, {p}), got {tuple(y.shape)}")
-    if int(record_every) < 1:
-        raise ValueError(f"record_every must be >= 1, got {record_every}")
-    every = int(record_every)
     N = y.shape[-2]
-    params = TEAParams(*[t.to(device=device, dtype=dtype) for t in params[:-1]], config=params.config)
-    shapes = [y.shape[:-2], params.x0.shape[:-1], params.R.shape[:-2], params.Ro.shape[:-2], params.Rw.shape[:-2],
-              params.alpha0.shape[:-1], params.w0.shape[:-1], params.P0.shape[:-2], params.Q.shape[:-2],
-              params.Qmax_o.shape, params.Qmax_w.shape]
-    if inputs is not None:
-        inputs = torch.as_tensor(inputs, dtype=dtype, device=device)
-        if inputs.shape[-2:] != (N, structure.n_inputs):
-            raise ValueError(f"inputs must have shape (*B, {N}, {structure.n_inputs}), got {tuple(inputs.shape)}")
-        shapes.append(inputs.shape[:-2])
-    batch = broadcast_shapes(*shapes)
     nb = len(batch)
     model, weights = _model_and_weights(structure, params, h, dtype, device)
-    cfg = params.config
-    memory = _make_memory(cfg, N, dtype, device)
-    y = y.expand(batch + (N, p))
-    if inputs is not None:
-        inputs = inputs.expand(batch + (N, structure.n_inputs))
-
+    memory = _make_memory(params.config, N, dtype, device)
     carry, first = _first_step(model, params, y[..., 0, :], batch)
     from .fast import run_tea_fast, use_compiled
 
@@ -433,9 +411,55 @@ def run_tea(
     n_out = (N - 1) // every + 1
     events = ((n,), (n, n), (L,), (L, L), (L, L), (m,), (m, m), (m, m), (p,), (p, p))
     out = {name: torch.empty(batch + (n_out,) + ev, dtype=dtype, device=device) for name, ev in zip(STEP_OUTPUTS, events)}
+    record_block = _recorder(out, every, nb, device)
+    record_block(0, _outputs(carry, first), False)
+    clamped = torch.zeros(batch, dtype=torch.long, device=device)
+    try:
+        completed, carry, diverged_at, clamped = _loop(
+            model, params, weights, memory, carry, y, inputs, batch, N, n, nb, device, dtype, progress, compile,
+            record_block, clamped)
+    except _Interrupted as stop:
+        if not partial:
+            raise KeyboardInterrupt from None
+        completed, carry, diverged_at, clamped = stop.state
+    return _result(out, completed, every, nb, N, diverged_at, clamped, memory, device)
+
+
+def _batched(y, params: TEAParams, inputs, structure: Structure, record_every):
+    """:func:`run_tea`'s arguments checked and broadcast to one batch: ``y`` ``(*batch, N, p)`` (float64 unless
+    floating already), ``params`` on its dtype and device, ``inputs`` ``(*batch, N, d)`` or None, the batch shape and
+    the recording stride; ``ValueError`` for a shape or a stride that does not fit."""
+    y = torch.as_tensor(y)
+    if not y.is_floating_point():
+        y = y.to(torch.float64)
+    dtype, device = y.dtype, y.device
+    p = structure.n_outputs
+    if y.ndim < 2 or y.shape[-1] != p:
+        raise ValueError(f"y must have shape (*B, N, {p}), got {tuple(y.shape)}")
+    if int(record_every) < 1:
+        raise ValueError(f"record_every must be >= 1, got {record_every}")
+    N = y.shape[-2]
+    params = TEAParams(*[t.to(device=device, dtype=dtype) for t in params[:-1]], config=params.config)
+    shapes = [y.shape[:-2], params.x0.shape[:-1], params.R.shape[:-2], params.Ro.shape[:-2], params.Rw.shape[:-2],
+              params.alpha0.shape[:-1], params.w0.shape[:-1], params.P0.shape[:-2], params.Q.shape[:-2],
+              params.Qmax_o.shape, params.Qmax_w.shape]
+    if inputs is not None:
+        inputs = torch.as_tensor(inputs, dtype=dtype, device=device)
+        if inputs.shape[-2:] != (N, structure.n_inputs):
+            raise ValueError(f"inputs must have shape (*B, {N}, {structure.n_inputs}), got {tuple(inputs.shape)}")
+        shapes.append(inputs.shape[:-2])
+    batch = broadcast_shapes(*shapes)
+    y = y.expand(batch + (N, p))
+    if inputs is not None:
+        inputs = inputs.expand(batch + (N, structure.n_inputs))
+    return y, params, inputs, batch, int(record_every)
+
+
+def _recorder(out: dict, every: int, nb: int, device):
+    """``record_block(k0, tensors, stacked)``: stores the outputs of steps k0 … (one step, or a block stacked along
+    dim ``nb``) in the preallocated ``out`` at the rows of every ``every``-th step."""
 
     def record_block(k0: int, tensors, stacked: bool):
-        """Store outputs of steps k0 … (one step, or a block stacked along dim nb)."""
         if not stacked:
             if k0 % every == 0:
                 for name, t in zip(STEP_OUTPUTS, tensors):
@@ -449,18 +473,14 @@ def run_tea(
         i0 = (k0 + first) // every
         for name, t in zip(STEP_OUTPUTS, tensors):
             out[name].narrow(nb, i0, rows.shape[0]).copy_(t.index_select(nb, rows))
+    return record_block
 
-    record_block(0, _outputs(carry, first), False)
-    clamped = torch.zeros(batch, dtype=torch.long, device=device)
-    try:
-        completed, carry, diverged_at, clamped = _loop(
-            model, params, weights, memory, carry, y, inputs, batch, N, n, nb, device, dtype, progress, compile,
-            record_block, clamped)
-    except _Interrupted as stop:
-        if not partial:
-            raise KeyboardInterrupt from None
-        completed, carry, diverged_at, clamped = stop.state
+
+def _result(out: dict, completed: int, every: int, nb: int, N: int, diverged_at, clamped, memory, device) -> TEAResult:
+    """The :class:`TEAResult` of the ``completed`` steps (the stored rows cut to them; interrupted when fewer than
+    ``N``)."""
     rows = (completed - 1) // every + 1
+    n_out = (N - 1) // every + 1
     if rows < n_out:
         out = {name: t.narrow(nb, 0, rows) for name, t in out.items()}
     diverged = (diverged_at >= 0) & (diverged_at < completed)
@@ -484,82 +504,99 @@ def _loop(model, params, weights, memory, carry, y, inputs, batch, N, n, nb, dev
     :class:`_Interrupted` with the state after the last step whose outputs were stored."""
     diverged_at = torch.where(carry.diverged, 0, torch.full(batch, -1, dtype=torch.long, device=device))
     u_at = (lambda k: None) if inputs is None else (lambda k: inputs[..., k, :])  # noqa: E731
-    stored = (1, carry, diverged_at, clamped)  # the state after the last step whose outputs are stored
+    state = [(1, carry, diverged_at, clamped)]  # the state after the last step whose outputs are stored
     try:
         if not memory.bounded:
-            # the KFx history is kept time-reversed so that each step reads one contiguous slice
-            xh = torch.zeros(batch + (n, N), dtype=dtype, device=device)
-            # P, and the gain's covariance Pg where it is kept apart ("paper-gain")
-            covs = lambda c: (c.P,) if c.Pg is None else (c.P, c.Pg)  # noqa: E731
-            Ps = [torch.zeros(batch + (n, n, N), dtype=dtype, device=device) for _ in covs(carry)]
-            xh[..., N - 1] = carry.x
-            for Ph, c in zip(Ps, covs(carry)):
-                Ph[..., N - 1] = c
-            for k in range(1, N):
-                carry, o = _tea_step(model, params, weights, memory, carry, y[..., k, :], u_at(k - 1),
-                                     (xh[..., N - k:],) + tuple(Ph[..., N - k:] for Ph in Ps), k, device.type != "cpu")
-                xh[..., N - 1 - k] = carry.x
-                for Ph, c in zip(Ps, covs(carry)):
-                    Ph[..., N - 1 - k] = c
-                record_block(k, _outputs(carry, o), False)
-                diverged_at = torch.where(carry.diverged & (diverged_at < 0), k, diverged_at)
-                stored = (k + 1, carry, diverged_at, clamped)
-                if progress is not None:
-                    progress(k, N)
-            return stored
-        hist = memory.push(memory.init(batch, n, dtype, device, carry.Pg is not None), carry.x, carry.P, 0, carry.Pg)
-
-        kernel_low, kernel_high = (-math.inf, math.inf) if memory.kernel is None else memory.kernel.order_range
-        scale_o = weights[0][2]
-
-        def one_step(carry, hist, diverged_at, clamped, y_k, u_prev, k, branchless):
-            # extreme KFo sigma orders, bounded through the diagonal of P̃ᵒ (conservative)
-            spread = (scale_o * torch.diagonal(carry.Po_own + carry.Qo, dim1=-2, dim2=-1)).clamp(min=0).sqrt()
-            outside = ((carry.alpha - spread) < kernel_low) | ((carry.alpha + spread) > kernel_high)
-            clamped = clamped + outside.any(-1).to(clamped.dtype)
-            carry, o = _tea_step(model, params, weights, memory, carry, y_k, u_prev, hist, k, branchless)
-            hist = memory.push(hist, carry.x, carry.P, k, carry.Pg)
-            diverged_at = torch.where(carry.diverged & (diverged_at < 0), k, diverged_at)
-            return carry, hist, diverged_at, clamped, _outputs(carry, o)
-
-        def advance(carry, hist, diverged_at, clamped, ys, us, k0):
-            """Steps k0 … k0+T−1 (T = ys.shape[nb]), branch-free for the compiler; outputs stacked along dim nb."""
-            rows = []
-            for t in range(ys.shape[nb]):
-                carry, hist, diverged_at, clamped, row = one_step(
-                    carry, hist, diverged_at, clamped, ys.select(nb, t), None if us is None else us.select(nb, t),
-                    k0 + t, True)
-                rows.append(row)
-            return carry, hist, diverged_at, clamped, tuple(torch.stack(r, dim=nb) for r in zip(*rows))
-
-        compiled = _compiled(advance) if compile else None
-        k = 1
-        while k < N:
-            if compiled is not None and k + COMPILE_BLOCK <= N:
-                try:
-                    carry, hist, diverged_at, clamped, rows = compiled(
-                        carry, hist, diverged_at, clamped, y.narrow(nb, k, COMPILE_BLOCK),
-                        None if inputs is None else inputs.narrow(nb, k - 1, COMPILE_BLOCK), torch.tensor(k, device=device))
-                except Exception as exc:  # noqa: BLE001 — any compiler failure: keep going in eager mode
-                    import warnings
-
-                    warnings.warn(f"torch.compile failed ({type(exc).__name__}: {exc}); continuing eagerly", stacklevel=2)
-                    compiled = None
-                    continue
-                record_block(k, rows, True)
-                k += COMPILE_BLOCK
-            else:
-                # off the CPU the guard is branch-free: no host-device synchronisation per step
-                carry, hist, diverged_at, clamped, row = one_step(carry, hist, diverged_at, clamped, y[..., k, :],
-                                                                  u_at(k - 1), k, device.type != "cpu")
-                record_block(k, row, False)
-                k += 1
-            stored = (k, carry, diverged_at, clamped)
-            if progress is not None:
-                progress(k - 1, N)
-        return stored
+            return _loop_full(model, params, weights, memory, carry, y, u_at, batch, N, n, device, dtype, progress,
+                              record_block, diverged_at, clamped, state)
+        return _loop_bounded(model, params, weights, memory, carry, y, inputs, u_at, batch, N, n, nb, device, dtype,
+                             progress, compile, record_block, diverged_at, clamped, state)
     except KeyboardInterrupt:
-        raise _Interrupted(stored) from None
+        raise _Interrupted(state[0]) from None
+
+
+def _loop_full(model, params, weights, memory, carry, y, u_at, batch, N, n, device, dtype, progress, record_block,
+               diverged_at, clamped, state):
+    """:func:`_loop` with the whole history: the KFx states and covariances kept time-reversed, so that each step reads
+    one contiguous slice; ``state[0]`` the state after the last stored step."""
+    # the KFx history is kept time-reversed so that each step reads one contiguous slice
+    xh = torch.zeros(batch + (n, N), dtype=dtype, device=device)
+    # P, and the gain's covariance Pg where it is kept apart ("paper-gain")
+    covs = lambda c: (c.P,) if c.Pg is None else (c.P, c.Pg)  # noqa: E731
+    Ps = [torch.zeros(batch + (n, n, N), dtype=dtype, device=device) for _ in covs(carry)]
+    xh[..., N - 1] = carry.x
+    for Ph, c in zip(Ps, covs(carry)):
+        Ph[..., N - 1] = c
+    for k in range(1, N):
+        carry, o = _tea_step(model, params, weights, memory, carry, y[..., k, :], u_at(k - 1),
+                             (xh[..., N - k:],) + tuple(Ph[..., N - k:] for Ph in Ps), k, device.type != "cpu")
+        xh[..., N - 1 - k] = carry.x
+        for Ph, c in zip(Ps, covs(carry)):
+            Ph[..., N - 1 - k] = c
+        record_block(k, _outputs(carry, o), False)
+        diverged_at = torch.where(carry.diverged & (diverged_at < 0), k, diverged_at)
+        state[0] = (k + 1, carry, diverged_at, clamped)
+        if progress is not None:
+            progress(k, N)
+    return state[0]
+
+
+def _loop_bounded(model, params, weights, memory, carry, y, inputs, u_at, batch, N, n, nb, device, dtype, progress,
+                  compile, record_block, diverged_at, clamped, state):
+    """:func:`_loop` with a bounded memory (exact lags and an exponential-sum tail, or a window), step by step or in
+    compiled blocks of :data:`COMPILE_BLOCK` steps; counts the steps whose KFo sigma orders leave the kernel's range;
+    ``state[0]`` the state after the last stored step."""
+    hist = memory.push(memory.init(batch, n, dtype, device, carry.Pg is not None), carry.x, carry.P, 0, carry.Pg)
+
+    kernel_low, kernel_high = (-math.inf, math.inf) if memory.kernel is None else memory.kernel.order_range
+    scale_o = weights[0][2]
+
+    def one_step(carry, hist, diverged_at, clamped, y_k, u_prev, k, branchless):
+        # extreme KFo sigma orders, bounded through the diagonal of P̃ᵒ (conservative)
+        spread = (scale_o * torch.diagonal(carry.Po_own + carry.Qo, dim1=-2, dim2=-1)).clamp(min=0).sqrt()
+        outside = ((carry.alpha - spread) < kernel_low) | ((carry.alpha + spread) > kernel_high)
+        clamped = clamped + outside.any(-1).to(clamped.dtype)
+        carry, o = _tea_step(model, params, weights, memory, carry, y_k, u_prev, hist, k, branchless)
+        hist = memory.push(hist, carry.x, carry.P, k, carry.Pg)
+        diverged_at = torch.where(carry.diverged & (diverged_at < 0), k, diverged_at)
+        return carry, hist, diverged_at, clamped, _outputs(carry, o)
+
+    def advance(carry, hist, diverged_at, clamped, ys, us, k0):
+        """Steps k0 … k0+T−1 (T = ys.shape[nb]), branch-free for the compiler; outputs stacked along dim nb."""
+        rows = []
+        for t in range(ys.shape[nb]):
+            carry, hist, diverged_at, clamped, row = one_step(
+                carry, hist, diverged_at, clamped, ys.select(nb, t), None if us is None else us.select(nb, t),
+                k0 + t, True)
+            rows.append(row)
+        return carry, hist, diverged_at, clamped, tuple(torch.stack(r, dim=nb) for r in zip(*rows))
+
+    compiled = _compiled(advance) if compile else None
+    k = 1
+    while k < N:
+        if compiled is not None and k + COMPILE_BLOCK <= N:
+            try:
+                carry, hist, diverged_at, clamped, rows = compiled(
+                    carry, hist, diverged_at, clamped, y.narrow(nb, k, COMPILE_BLOCK),
+                    None if inputs is None else inputs.narrow(nb, k - 1, COMPILE_BLOCK), torch.tensor(k, device=device))
+            except Exception as exc:  # noqa: BLE001 — any compiler failure: keep going in eager mode
+                import warnings
+
+                warnings.warn(f"torch.compile failed ({type(exc).__name__}: {exc}); continuing eagerly", stacklevel=2)
+                compiled = None
+                continue
+            record_block(k, rows, True)
+            k += COMPILE_BLOCK
+        else:
+            # off the CPU the guard is branch-free: no host-device synchronisation per step
+            carry, hist, diverged_at, clamped, row = one_step(carry, hist, diverged_at, clamped, y[..., k, :],
+                                                              u_at(k - 1), k, device.type != "cpu")
+            record_block(k, row, False)
+            k += 1
+        state[0] = (k, carry, diverged_at, clamped)
+        if progress is not None:
+            progress(k - 1, N)
+    return state[0]
 
 
 def _compiled(fn):

@@ -253,8 +253,7 @@ OVER_LIMIT = {
                   "torchtea/sensors/faults.py:find_faults", "torchtea/sensors/io.py:read_recording",
                   "torchtea/noise/simulate.py:simulate", "torchtea/noise/simulate.py:simulate_states",
                   "torchtea/noise/tea_exact.py:run_tea_exact", "torchtea/noise/model.py:state_space",
-                  "torchtea/likelihood/kalman.py:kalman_filter", "torchtea/fitting/scoring.py:score_batch",
-                  "torchtea/fitting/scoring.py:exact_refine"},
+                  "torchtea/likelihood/kalman.py:kalman_filter"},
 }
 
 

@@ -146,27 +146,59 @@ def score_batch(model, y, h, U0: Tensor, free: Tensor, inputs, memory, max_iter:
     f, g, info = vgi(X)
     if not len(idx):  # nothing free: the likelihood where it is
         return X, f, np.ones(K, dtype=bool), np.zeros(K, dtype=int)
-    # the metric of each start's steps: the scoring information, until the steps converge only linearly (each full
-    # step gains what the information predicts, but the prediction shrinks slowly: the information overstates the
-    # curvature along some direction — the misspecified part of a model, a mean's second derivatives), then
-    # BFGS-updated from the exact gradients' changes, which learn that curvature (back to the information when a
-    # learnt direction fails)
-    metric = info.copy()
-    history = [[x] for x in f]
-    learning = np.zeros(K, dtype=bool)
-    slow = np.zeros(K, dtype=int)
-    last_dec = np.full(K, np.inf)
-    mu = np.full(K, SCORING_DAMPING[0])
-    ok = np.zeros(K, dtype=bool)
-    done = f >= 1e300
-    stalls = np.zeros(K, dtype=int)
-    iterations = np.zeros(K, dtype=int)
-    tol = np.array([decrement_tolerance(x) if tolerance is None else tolerance for x in f])
+    b = _Batch(X, f, g, info, lim, tolerance)
     ts = np.array(SCORING_STEPS)
     for _ in range(max_iter):
-        active = np.nonzero(~done)[0]
+        active = np.nonzero(~b.done)[0]
         if not len(active):
             break
+        steps, decs = b.directions(active)
+        conv = (decs < b.tol[active]) & (b.mu[active] <= SCORING_DAMPING[0])
+        b.ok[active[conv]] = b.done[active[conv]] = True
+        keep = ~conv
+        active, decs = active[keep], decs[keep]
+        steps = np.stack([st for st, c in zip(steps, keep) if c]) if len(active) else None
+        if not len(active):
+            break
+        b.iterations[active] += 1
+        trials, moved, pick = b.line_search(active, steps, ts, values)
+        rows = active[moved]
+        if len(rows):
+            chosen = trials[moved, pick[moved]]
+            b.accept(rows, chosen, vgi(chosen), pick[moved] == 0, decs)  # (decs by active place: see accept)
+        b.refuse(active[~moved], decs[~moved])
+        b.race(active, decs, max_iter)
+    return b.X, b.f, b.ok, b.iterations
+
+
+class _Batch:
+    """The state of :func:`score_batch`'s starts: their free coordinates ``X``, −ℓ ``f``, gradients ``g``, scoring
+    information ``info``, the metric of their steps (the information, or BFGS-learnt), damping ``mu``, histories of
+    −ℓ, and which have finished (``done``) and converged (``ok``)."""
+
+    def __init__(self, X, f, g, info, lim, tolerance):
+        K = len(X)
+        self.X, self.f, self.g, self.info, self.lim = X, f, g, info, lim
+        # the metric of each start's steps: the scoring information, until the steps converge only linearly (each
+        # full step gains what the information predicts, but the prediction shrinks slowly: the information
+        # overstates the curvature along some direction — the misspecified part of a model, a mean's second
+        # derivatives), then BFGS-updated from the exact gradients' changes, which learn that curvature (back to the
+        # information when a learnt direction fails)
+        self.metric = info.copy()
+        self.history = [[x] for x in f]
+        self.learning = np.zeros(K, dtype=bool)
+        self.slow = np.zeros(K, dtype=int)
+        self.last_dec = np.full(K, np.inf)
+        self.mu = np.full(K, SCORING_DAMPING[0])
+        self.ok = np.zeros(K, dtype=bool)
+        self.done = f >= 1e300
+        self.stalls = np.zeros(K, dtype=int)
+        self.iterations = np.zeros(K, dtype=int)
+        self.tol = np.array([decrement_tolerance(x) if tolerance is None else tolerance for x in f])
+
+    def directions(self, active):
+        """Each active start's damped scoring step (capped at 3) and its decrement ½ gᵀ𝓘⁻¹g."""
+        X, g, metric, mu, lim = self.X, self.g, self.metric, self.mu, self.lim
         steps, decs = [], []
         for k in active:
             # a logit held at its bound while the gradient pushes it further out stays there: the step is the
@@ -184,69 +216,78 @@ def score_batch(model, y, h, U0: Tensor, free: Tensor, inputs, memory, max_iter:
             decs.append(-0.5 * float(g[k] @ step))
             big = float(np.max(np.abs(step))) if len(step) else 0.0
             steps.append(step * (3.0 / big) if big > 3.0 else step)
-        decs = np.array(decs)
-        conv = (decs < tol[active]) & (mu[active] <= SCORING_DAMPING[0])
-        ok[active[conv]] = done[active[conv]] = True
-        keep = ~conv
-        active, decs = active[keep], decs[keep]
-        steps = np.stack([st for st, c in zip(steps, keep) if c]) if len(active) else None
-        if not len(active):
-            break
-        iterations[active] += 1
+        return steps, np.array(decs)
+
+    def line_search(self, active, steps, ts, values):
+        """The trial points along each step (lengths ``ts``), the full steps of all starts in one batch of
+        likelihood values, the shorter ones only where the full one fails (Armijo); which starts moved and the
+        longest good step of each."""
+        X, f, g, lim = self.X, self.f, self.g, self.lim
         trials = np.clip(X[active][:, None, :] + ts[None, :, None] * steps[:, None, :], -lim, lim)  # (A, T, F)
         slope = np.einsum("af,af->a", g[active], steps)  # the directional derivative of −ℓ (negative)
-        # the full step of every start first, the shorter ones only for the starts where it fails
         fv = np.full((len(active), len(ts)), np.inf)
         fv[:, 0] = values(trials[:, 0])
         retry = ~(fv[:, 0] <= f[active] + 0.1 * slope)
         if retry.any():
             fv[retry, 1:] = values(trials[retry, 1:].reshape(-1, X.shape[1])).reshape(int(retry.sum()), len(ts) - 1)
         good = fv <= f[active][:, None] + 0.1 * ts[None, :] * slope[:, None]
-        moved = good.any(axis=1)
-        pick = np.argmax(good, axis=1)  # the longest step that is good enough
-        rows = active[moved]
-        if len(rows):
-            chosen = trials[moved, pick[moved]]
-            fn, gn, In = vgi(chosen)
-            for j, k in enumerate(rows):
-                if not fn[j] <= f[k]:  # (the two kernels' values differ by rounding: a tie at the noise)
-                    mu[k] *= 8.0
-                    continue
-                gained = f[k] - fn[j]
-                full = pick[moved][j] == 0
-                s_, y_ = chosen[j] - X[k], gn[j] - g[k]
-                if learning[k]:
-                    sy = float(s_ @ y_)
-                    if sy > 1e-12 * float(np.linalg.norm(s_) * np.linalg.norm(y_)):
-                        Ms = metric[k] @ s_
-                        metric[k] = metric[k] - np.outer(Ms, Ms) / float(s_ @ Ms) + np.outer(y_, y_) / sy
-                else:
-                    metric[k] = In[j]
-                    slow[k] = slow[k] + 1 if full and decs[j] > SLOW_RATIO * last_dec[k] else 0
-                    if slow[k] >= 2:
-                        learning[k] = True
-                last_dec[k] = decs[j]
-                X[k], f[k], g[k], info[k] = chosen[j], fn[j], gn[j], In[j]
-                mu[k] = max(mu[k] / 4.0, 1e-9) if full else mu[k]
-                stalls[k] = stalls[k] + 1 if gained < tol[k] else 0
-                if stalls[k] >= STALL_STEPS:
-                    ok[k] = done[k] = True
-        for j, k in enumerate(active[~moved]):
-            if decs[~moved][j] < NOISE_DECREMENTS * tol[k]:  # nothing to gain that ℓ's rounding can tell
-                ok[k] = done[k] = True
+        return trials, good.any(axis=1), np.argmax(good, axis=1)  # (the longest step that is good enough)
+
+    def accept(self, rows, chosen, evaluated, full, decs):
+        """The starts ``rows`` at their ``chosen`` points (``evaluated``: −ℓ, gradient and information there):
+        the metric updated (the information, or a BFGS step once learning), the damping shrunk after a full step,
+        a stall counted where the gain is below the tolerance. ``decs`` are the active starts' decrements, read at
+        the row's place among the moved ones ``decs[j]`` — as the scoring always read them (when some active start did
+        not move, that is another start's decrement; kept so that every fit is the same, see issue 47's note)."""
+        fn, gn, In = evaluated
+        X, f, g, metric, mu = self.X, self.f, self.g, self.metric, self.mu
+        for j, k in enumerate(rows):
+            if not fn[j] <= f[k]:  # (the two kernels' values differ by rounding: a tie at the noise)
+                mu[k] *= 8.0
                 continue
-            if learning[k]:  # the learnt metric failed: back to the scoring information
-                learning[k], slow[k], metric[k] = False, 0, info[k]
+            gained = f[k] - fn[j]
+            s_, y_ = chosen[j] - X[k], gn[j] - g[k]
+            if self.learning[k]:
+                sy = float(s_ @ y_)
+                if sy > 1e-12 * float(np.linalg.norm(s_) * np.linalg.norm(y_)):
+                    Ms = metric[k] @ s_
+                    metric[k] = metric[k] - np.outer(Ms, Ms) / float(s_ @ Ms) + np.outer(y_, y_) / sy
+            else:
+                metric[k] = In[j]
+                self.slow[k] = self.slow[k] + 1 if full[j] and decs[j] > SLOW_RATIO * self.last_dec[k] else 0
+                if self.slow[k] >= 2:
+                    self.learning[k] = True
+            self.last_dec[k] = decs[j]
+            X[k], f[k], g[k], self.info[k] = chosen[j], fn[j], gn[j], In[j]
+            mu[k] = max(mu[k] / 4.0, 1e-9) if full[j] else mu[k]
+            self.stalls[k] = self.stalls[k] + 1 if gained < self.tol[k] else 0
+            if self.stalls[k] >= STALL_STEPS:
+                self.ok[k] = self.done[k] = True
+
+    def refuse(self, rows, decs):
+        """The starts ``rows`` that found no step lowering −ℓ: converged when their decrement is at ℓ's rounding,
+        back to the information when a learnt metric failed, else damped more (finished once fully damped)."""
+        for j, k in enumerate(rows):
+            if decs[j] < NOISE_DECREMENTS * self.tol[k]:  # nothing to gain that ℓ's rounding can tell
+                self.ok[k] = self.done[k] = True
                 continue
-            mu[k] *= 8.0
-            if mu[k] >= SCORING_DAMPING[1]:  # no step lowers −ℓ: at the rounding noise of ℓ that is convergence
-                ok[k] = decs[~moved][j] < NOISE_DECREMENTS * tol[k]
-                done[k] = True
+            if self.learning[k]:  # the learnt metric failed: back to the scoring information
+                self.learning[k], self.slow[k], self.metric[k] = False, 0, self.info[k]
+                continue
+            self.mu[k] *= 8.0
+            if self.mu[k] >= SCORING_DAMPING[1]:  # no step lowers −ℓ: at the rounding noise of ℓ that is convergence
+                self.ok[k] = decs[j] < NOISE_DECREMENTS * self.tol[k]
+                self.done[k] = True
+
+    def race(self, active, decs, max_iter):
+        """A start crawling along a flat direction is converged; one that cannot end higher than a finished start
+        is left where it is (module docstring of :func:`score_batch`)."""
+        X, f, done, ok, history, tol = self.X, self.f, self.done, self.ok, self.history, self.tol
         # a start heading for the maximum a finished start has reached is left there: it cannot end higher. (A start
         # far below a finished one is not: its decrement, the −ℓ it can gain where ℓ is near quadratic, says nothing
         # of how far it climbs from far away — one 184 nats below a finished start ended 2.6 nats above it.)
-        # Nor is one that, at the pace of its last RACE_WINDOW iterations, cannot reach a finished start's ℓ within its
-        # iterations left: a start that wanders along a flat ridge far below.
+        # Nor is one that, at the pace of its last RACE_WINDOW iterations, cannot reach a finished start's ℓ within
+        # its iterations left: a start that wanders along a flat ridge far below.
         for j, k in enumerate(active):
             history[k].append(f[k])
             if (not done[k] and len(history[k]) > FLAT_WINDOW and decs[j] < FLAT_GAIN
@@ -257,16 +298,15 @@ def score_batch(model, y, h, U0: Tensor, free: Tensor, inputs, memory, max_iter:
             if done[k] or not len(finished):
                 continue
             top = finished[np.argmin(f[finished])]
-            near = any(f[k] >= f[j] and float(np.max(np.abs(np.clip(X[k], -8, 8) - np.clip(X[j], -8, 8))))
-                       <= MODE_DISTANCE for j in finished)
+            near = any(f[k] >= f[i] and float(np.max(np.abs(np.clip(X[k], -8, 8) - np.clip(X[i], -8, 8))))
+                       <= MODE_DISTANCE for i in finished)
             pace = (history[k][-RACE_WINDOW - 1] - f[k]) / RACE_WINDOW if len(history[k]) > RACE_WINDOW else np.inf
             gap = f[k] - f[top]
-            behind = gap > RACE_MARGIN + pace * (max_iter - iterations[k])
+            behind = gap > RACE_MARGIN + pace * (max_iter - self.iterations[k])
             crawling = gap > 0 and pace < NOISE_DECREMENTS * tol[k]  # below it and all but still
             caught = RACE_MARGIN >= gap > CATCH_SAFETY * max(decs[j], remaining(history[k]))
             if near or behind or crawling or caught:
                 done[k] = True
-    return X, f, ok, iterations
 
 
 def remaining(history: list) -> float:
@@ -296,6 +336,31 @@ def information_from_gradients(model, y, h, u: Tensor, free: Tensor, inputs, mem
     Hfull = torch.zeros(len(u), len(u), dtype=torch.float64)
     Hfull[np.ix_(idx, idx)] = torch.as_tensor(H)
     return Hfull
+
+
+def _start_metric(metric: Tensor, idx, x, batch):
+    """:func:`exact_refine`'s first metric: ``metric``'s block of the free coordinates ``idx``, the uncovered ones (a
+    zero or non-finite diagonal) by central differences of −ℓ (``batch``) at ``x``, without cross terms; None where
+    the result is not positive definite."""
+    M = metric[np.ix_(idx, idx)].numpy().copy()
+    missing = np.nonzero(~np.isfinite(np.diag(M)) | (np.diag(M) <= 0))[0]
+    if len(missing):  # the Hessian block of the uncovered coordinates by differences; no cross terms
+        M[missing, :] = 0.0
+        M[:, missing] = 0.0
+
+        def sub(points):
+            full = np.repeat(x[None], len(points), 0)
+            full[:, missing] = points
+            return batch(full)
+
+        Hm = fd_hessian(sub, x[missing])
+        if np.all(np.isfinite(Hm)) and np.all(np.linalg.eigvalsh(Hm) > 0):
+            M[np.ix_(missing, missing)] = Hm
+        else:
+            M[missing, missing] = np.where(np.isfinite(np.diag(Hm)) & (np.diag(Hm) > 0), np.diag(Hm), 1.0)
+    if not (np.all(np.isfinite(M)) and np.all(np.linalg.eigvalsh(M) > 0)):
+        return None
+    return M
 
 
 def exact_refine(model, y, h, u0: Tensor, free: Tensor, inputs, memory, metric: Tensor | None = None,
@@ -330,26 +395,7 @@ def exact_refine(model, y, h, u0: Tensor, free: Tensor, inputs, memory, metric: 
 
     x = u0[idx].numpy().copy()
     ok, iterations = False, 0
-    M = None
-    if metric is not None:
-        M = metric[np.ix_(idx, idx)].numpy().copy()
-        missing = np.nonzero(~np.isfinite(np.diag(M)) | (np.diag(M) <= 0))[0]
-        if len(missing):  # the Hessian block of the uncovered coordinates by differences; no cross terms
-            M[missing, :] = 0.0
-            M[:, missing] = 0.0
-
-            def sub(points):
-                full = np.repeat(x[None], len(points), 0)
-                full[:, missing] = points
-                return batch(full)
-
-            Hm = fd_hessian(sub, x[missing])
-            if np.all(np.isfinite(Hm)) and np.all(np.linalg.eigvalsh(Hm) > 0):
-                M[np.ix_(missing, missing)] = Hm
-            else:
-                M[missing, missing] = np.where(np.isfinite(np.diag(Hm)) & (np.diag(Hm) > 0), np.diag(Hm), 1.0)
-        if not (np.all(np.isfinite(M)) and np.all(np.linalg.eigvalsh(M) > 0)):
-            M = None
+    M = None if metric is None else _start_metric(metric, idx, x, batch)
     if M is not None:
         f, g = fun(x)
         tol = decrement_tolerance(f)

@@ -252,7 +252,7 @@ OVER_LIMIT = {
                   "torchtea/export/terms.py:axis_terms", "torchtea/estimation.py:estimate_file",
                   "torchtea/sensors/faults.py:find_faults", "torchtea/sensors/io.py:read_recording",
                   "torchtea/noise/simulate.py:simulate", "torchtea/noise/simulate.py:simulate_states",
-                  "torchtea/noise/tea_exact.py:run_tea_exact", "torchtea/noise/model.py:state_space",
+                  "torchtea/noise/model.py:state_space",
                   "torchtea/likelihood/kalman.py:kalman_filter"},
 }
 

@@ -21,6 +21,8 @@ The old tree is checked out with ``git worktree`` (removed afterwards); each cas
 * ``tea`` — the TEA's engines: the torch engine (exact and soe memory), the compiled one, the kernel's other branches
   (window memory, the paper's gain, constant truth, KFo's R from the innovations) on both, the paper's example 1 with
   its known input, a ``TEAStream`` step by step — every returned array;
+* ``tea_exact`` — the TEA with the exact filter as KFx (``run_tea_exact``) on a grown model's three series with a
+  missing sample: KFo and KFw apart and joint, one view per series, numeric R;
 * ``cli`` — ``torchtea fit --json`` of the bundled recording's first 3000 samples (the seconds, the command and
   the file's path — each tree's own — left out).
 
@@ -213,6 +215,35 @@ elif case == "tea":
     steps = [stream.step(y[0, k]) for k in range(300)]
     out["stream"] = digest([[getattr(part, k) for part in o for k in part._fields
                              if isinstance(getattr(part, k), torch.Tensor)] for o in steps])
+elif case == "tea_exact":
+    from dataclasses import replace
+    from torchtea.noise import simulate_model
+    from torchtea.noise.tea import tea_view
+    from torchtea.noise.tea_exact import run_tea_exact
+    GROWN = "fractional+white+random-walk"
+    V = {"fractional.order": 0.4, "fractional.pole": -2.0, "fractional.q": 0.02, "white.r": 1e-5, "random-walk.sigma": 0.05}
+    y = simulate_model(GROWN, V, n_steps=400, h=H, realisations=3, generator=torch.Generator().manual_seed(5))[0]
+    y = y - y.mean(-1, keepdim=True)
+    y[1, 200] = float("nan")
+    def view(values, **kfo):
+        v = tea_view(GROWN, values, H)
+        cfg = replace(v.config, memory=replace(v.config.memory, kind="soe"), kfx_filter="exact",
+                      kfo=replace(v.config.kfo, **dict({"R": "innovation", "Q0": 1e-5}, **kfo)),
+                      kfw=replace(v.config.kfw, R="innovation", Q0=1e-3, P0=0.05))
+        return replace(v, config=cfg)
+    start = dict(V, **{"fractional.order": 0.3, "fractional.pole": -1.5})
+    fields = ("x", "P", "alpha", "P_alpha", "w", "P_w", "innovation", "innovation_cov", "diverged", "diverged_at",
+              "memory_clamped")
+    def arrays(r):
+        return {k: getattr(r, k) for k in fields if getattr(r, k, None) is not None}
+    v = view(start, P0=2e-3)
+    out["separate"] = digest(arrays(run_tea_exact(v, y, h=H)))
+    out["joint"] = digest(arrays(run_tea_exact(replace(v, config=replace(v.config, kfo_kfw="joint")), y, h=H)))
+    per = [view(dict(start, **{"fractional.order": a}), P0=p0) for a, p0 in ((0.3, 2e-3), (0.35, 1e-3), (0.5, 4e-3))]
+    out["per series"] = digest(arrays(run_tea_exact(per, y, h=H)))
+    num = view(start, P0=2e-3, R=1e-4)
+    num = replace(num, config=replace(num.config, kfw=replace(num.config.kfw, R=1e-4)))
+    out["numeric R"] = digest(arrays(run_tea_exact(num, y[0], h=H)))
 elif case == "cli":
     import contextlib, io
     from torchtea.cli import main
@@ -239,7 +270,7 @@ def run(tree: Path, case: str) -> dict:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--old", default="a720df1", help="the commit before the refactor (default a720df1)")
-    ap.add_argument("--cases", default="components,fit,check,loop,cli,starts,tea")
+    ap.add_argument("--cases", default="components,fit,check,loop,cli,starts,tea,tea_exact")
     args = ap.parse_args()
     new = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
     if subprocess.run(["git", "status", "--porcelain", "--untracked-files=no", "--", ".",

@@ -126,6 +126,27 @@ def run_tea_exact(view, y, *, h: float, progress=None, partial: bool = False) ->
     :func:`~torchtea.engines.tea.run_tea` calls it; ``partial``: on Ctrl-C return the finished steps with
     ``interrupted=True`` instead of raising. Returns a :class:`TEAResult` with time at −2 (``memory_clamped``: steps
     at which a sigma order or α̂ left the kernel's range and its row was taken at the range's end)."""
+    views, y = _checked(view, y)
+    run = _ExactRun(views, y, h)
+    N = y.shape[1]
+    completed = 0  # steps whose outputs are stored: a Ctrl-C keeps them
+    try:
+        if progress is not None:
+            progress(0, N)  # the work starts (a progress clock starts with it)
+        for k in range(N):
+            run.step(k)
+            completed = k + 1
+            if progress is not None and (k % PROGRESS_STEPS == 0 or k == N - 1):
+                progress(k, N)
+    except KeyboardInterrupt:
+        if not partial:
+            raise
+    return run.result(completed)
+
+
+def _checked(view, y) -> tuple[list, Tensor]:
+    """The views (one, or one per series, sharing :func:`batch_key`) and the series ``(R, N)``, checked; ``ValueError``
+    naming what does not fit."""
     views = [view] if isinstance(view, TEAView) else list(view)
     if not views:
         raise ValueError("run_tea_exact needs a view")
@@ -137,177 +158,214 @@ def run_tea_exact(view, y, *, h: float, progress=None, partial: bool = False) ->
         if batch_key(v) != key:
             raise ValueError(f"view {i} ({v.model.spec!r}) differs from view 0 ({view.model.spec!r}) in its model, memory "
                              "or filters' form (batch_key): run them apart")
-    cfg = view.config
     y = torch.as_tensor(y, dtype=torch.float64)
     y = y.unsqueeze(0) if y.ndim == 1 else y
     if y.ndim != 2:
         raise ValueError(f"y must be (N,) or (R, N), got shape {tuple(y.shape)}")
-    Rn, N = y.shape
-    B = len(views)  # parameter sets: 1 (every series) or one per series
-    if B not in (1, Rn):
-        raise ValueError(f"{B} views for {Rn} series: give one view, or one per series")
-    model, label = view.model, view.orders[0]
-    comp = dict(model.components)[label]
-    mem = state_memory(cfg.memory, N, orders=KERNEL_ORDERS)
-    dicts = [model.as_dict(v.values) for v in views]
-    values = {k: torch.cat([d[k].reshape(-1) for d in dicts]) for k in dicts[0]}
-    ss = model.state_space(values, h, N, memory=mem)
-    sl = ss.blocks[label]
-    row0 = sl.start
-    F0, G0, C, r = ss.F, ss.G, ss.C, ss.R  # (B, D, D), (B, D, m), (B, D), (B,)
-    Q0 = G0 @ G0.mT
-    q = values[f"{label}.q"].reshape(B, 1)
-    c0 = C[:, row0:row0 + 1]  # (B, 1): the fractional state's loading on the output
-    D = F0.shape[-1]
-    k_lo, k_hi = (mem.kernel.order_range if mem.kernel is not None else (-torch.inf, torch.inf))
+    if len(views) not in (1, y.shape[0]):
+        raise ValueError(f"{len(views)} views for {y.shape[0]} series: give one view, or one per series")
+    return views, y
 
-    ko, kw = cfg.kfo, cfg.kfw
-    wm_o, wc_o, scale_o = ut_weights(1, ko.ut_alpha, ko.ut_beta, ko.kappa)
-    wm_w, wc_w, scale_w = ut_weights(1, kw.ut_alpha, kw.ut_beta, kw.kappa)
-    start = cfg.sigma_sum_start
 
-    def per_series(numbers) -> Tensor:
+class _ExactRun:
+    """One :func:`run_tea_exact`: the state space at the views' values (its transition with the fractional block's
+    varying row, :class:`_Transition`), KFo's and KFw's states (or the joint filter's), the exact filter's state and
+    covariance, and the outputs written in place step by step."""
+
+    def __init__(self, views: list, y: Tensor, h: float):
+        view = views[0]
+        self.views, self.y, self.h, self.cfg = views, y, h, view.config
+        self.Rn, self.N = y.shape
+        self.B = B = len(views)  # parameter sets: 1 (every series) or one per series
+        model, label = view.model, view.orders[0]
+        self.comp = dict(model.components)[label]
+        self.mem = mem = state_memory(self.cfg.memory, self.N, orders=KERNEL_ORDERS)
+        dicts = [model.as_dict(v.values) for v in views]
+        values = {k: torch.cat([d[k].reshape(-1) for d in dicts]) for k in dicts[0]}
+        ss = model.state_space(values, h, self.N, memory=mem)
+        self.sl = sl = ss.blocks[label]
+        self.row0 = row0 = sl.start
+        F0, G0, self.C, self.r = ss.F, ss.G, ss.C, ss.R  # (B, D, D), (B, D, m), (B, D), (B,)
+        self.Q0 = G0 @ G0.mT
+        self.q = values[f"{label}.q"].reshape(B, 1)
+        self.c0 = self.C[:, row0:row0 + 1]  # (B, 1): the fractional state's loading on the output
+        D = F0.shape[-1]
+        self.k_lo, self.k_hi = (mem.kernel.order_range if mem.kernel is not None else (-torch.inf, torch.inf))
+        self._filters()
+        self.trans = _Transition(F0, row0, sl)
+        # the exact filter from the model's initial state
+        g0 = ss.initial  # (B, D)
+        self.z = torch.zeros(self.Rn, D, dtype=torch.float64)
+        self.P = (g0.unsqueeze(-1) * g0.unsqueeze(-2)).expand(self.Rn, D, D).clone()
+        self.idx = idx = _state_index(view, ss)
+        n = len(idx)
+        # the outputs, written in place step by step (small tensors kept per step would pin the freed covariance
+        # temporaries in the heap: 20 GB for 32 × 12000 steps)
+        self.shapes = {"x": (n,), "P": (n, n), "alpha": (1,), "P_alpha": (1, 1), "Q_alpha": (1, 1), "w": (1,),
+                       "P_w": (1, 1), "Q_w": (1, 1), "innovation": (1,), "innovation_cov": (1, 1)}
+        self.out = {k: torch.empty((self.Rn, self.N) + sh, dtype=torch.float64) for k, sh in self.shapes.items()}
+        self.S_prev = None
+
+    def _filters(self) -> None:
+        """KFo's and KFw's weights, starts, P0, Q0, R and caps per series — or the joint filter's over (order,
+        pole) — and the order bounds."""
+        cfg = self.cfg
+        self.ko, self.kw = ko, kw = cfg.kfo, cfg.kfw
+        self.wm_o, self.wc_o, self.scale_o = ut_weights(1, ko.ut_alpha, ko.ut_beta, ko.kappa)
+        self.wm_w, self.wc_w, self.scale_w = ut_weights(1, kw.ut_alpha, kw.ut_beta, kw.kappa)
+        self.start = cfg.sigma_sum_start
+        col, sq = self.col, self.sq
+        self.alpha, self.Po, self.Qo = col(lambda c: c.kfo.x0), sq(lambda c: c.kfo.P0), sq(lambda c: c.kfo.Q0)
+        self.w, self.Pw, self.Qw = col(lambda c: c.kfw.x0), sq(lambda c: c.kfw.P0), sq(lambda c: c.kfw.Q0)
+        # KFo's and KFw's R: None for "innovation" (KFx's S of the step before), else a number per series
+        self.Ro_num = None if isinstance(ko.R, str) else sq(lambda c: _number(c.kfo.R, "kfo"))
+        self.Rw_num = None if isinstance(kw.R, str) else sq(lambda c: _number(c.kfw.R, "kfw"))
+        self.joint = cfg.kfo_kfw == "joint"
+        if self.joint:  # one filter over θ = (order, pole): KFo's settings, the two starts
+            self.wm_j, self.wc_j, self.scale_j = ut_weights(2, ko.ut_alpha, ko.ut_beta, ko.kappa)
+            self.theta = torch.cat([self.alpha, self.w], dim=-1)  # (R, 2)
+            self.Pj = torch.diag_embed(torch.cat([self.Po[..., 0], self.Pw[..., 0]], dim=-1))
+            self.Qj = torch.diag_embed(torch.cat([self.Qo[..., 0], self.Qw[..., 0]], dim=-1))
+            # KFo's cap over the 2 × 2 Q: its largest diagonal entry stays under it ("Q0": the larger of the two Q0)
+            self.qmax_o = self.qmax(lambda c: c.kfo.Q_max, lambda c: c.kfo.Q0, lambda c: c.kfw.Q0)
+        else:
+            self.qmax_o = self.qmax(lambda c: c.kfo.Q_max, lambda c: c.kfo.Q0)
+            self.qmax_w = self.qmax(lambda c: c.kfw.Q_max, lambda c: c.kfw.Q0)
+        self.lo, self.hi = col(lambda c: c.order_bounds[0]), col(lambda c: c.order_bounds[1])
+        self.clamped = torch.zeros(self.Rn, dtype=torch.int64)
+
+    def per_series(self, numbers) -> Tensor:
         """``(R,)``: one number per view, for every series (one view: the same for all)."""
-        t = torch.as_tensor(numbers, dtype=torch.float64).reshape(B)
-        return t.expand(Rn) if B == 1 else t
+        t = torch.as_tensor(numbers, dtype=torch.float64).reshape(self.B)
+        return t.expand(self.Rn) if self.B == 1 else t
 
-    def col(get):
+    def col(self, get):
         """``(R, 1)``: a number of each view's settings (``get(config)``), per series."""
-        return per_series([_first(get(v.config)) for v in views]).reshape(Rn, 1).clone()
+        return self.per_series([_first(get(v.config)) for v in self.views]).reshape(self.Rn, 1).clone()
 
-    def sq(get):
-        return col(get).unsqueeze(-1)
+    def sq(self, get):
+        return self.col(get).unsqueeze(-1)
 
-    alpha, Po, Qo = col(lambda c: c.kfo.x0), sq(lambda c: c.kfo.P0), sq(lambda c: c.kfo.Q0)
-    w, Pw, Qw = col(lambda c: c.kfw.x0), sq(lambda c: c.kfw.P0), sq(lambda c: c.kfw.Q0)
-    # KFo's and KFw's R: None for "innovation" (KFx's S of the step before), else a number per series
-    Ro_num = None if isinstance(ko.R, str) else sq(lambda c: _number(c.kfo.R, "kfo"))
-    Rw_num = None if isinstance(kw.R, str) else sq(lambda c: _number(c.kfw.R, "kfw"))
-    like = torch.zeros((), dtype=torch.float64)
-
-    def qmax(Q_max, *Q0s):
+    def qmax(self, Q_max, *Q0s):
         """The TEA's cap (``Q_max``: "none", "Q0" or a number) per series for a filter whose Q starts at ``Q0s`` (each
         ``get(config)``): a vector filter's caps its Q's largest diagonal entry (engines.tea.adapt_q)."""
-        return per_series([float(q_cap(Q_max(v.config), torch.diag(torch.tensor([_first(q(v.config)) for q in Q0s],
-                                                                                dtype=torch.float64)), like))
-                           for v in views])
+        like = torch.zeros((), dtype=torch.float64)
+        return self.per_series([float(q_cap(Q_max(v.config), torch.diag(torch.tensor(
+            [_first(q(v.config)) for q in Q0s], dtype=torch.float64)), like)) for v in self.views])
 
-    joint = cfg.kfo_kfw == "joint"
-    if joint:  # one filter over θ = (order, pole): KFo's settings, the two starts
-        wm_j, wc_j, scale_j = ut_weights(2, ko.ut_alpha, ko.ut_beta, ko.kappa)
-        theta = torch.cat([alpha, w], dim=-1)  # (R, 2)
-        Pj = torch.diag_embed(torch.cat([Po[..., 0], Pw[..., 0]], dim=-1))
-        Qj = torch.diag_embed(torch.cat([Qo[..., 0], Qw[..., 0]], dim=-1))
-        # KFo's cap over the 2 × 2 Q: its largest diagonal entry stays under it ("Q0": the larger of the two Q0)
-        qmax_o = qmax(lambda c: c.kfo.Q_max, lambda c: c.kfo.Q0, lambda c: c.kfw.Q0)
-    else:
-        qmax_o = qmax(lambda c: c.kfo.Q_max, lambda c: c.kfo.Q0)
-        qmax_w = qmax(lambda c: c.kfw.Q_max, lambda c: c.kfw.Q0)
-    lo, hi = col(lambda c: c.order_bounds[0]), col(lambda c: c.order_bounds[1])
-    clamped = torch.zeros(Rn, dtype=torch.int64)
-
-    def row(a, f):
+    def row(self, a, f):
         """The fractional block's first row ``(…, J + M)`` and noise loading under orders a and poles f."""
-        a_in = a.clamp(k_lo, k_hi)
-        return comp.first_row(a_in, f, q, h, mem)
+        a_in = a.clamp(self.k_lo, self.k_hi)
+        return self.comp.first_row(a_in, f, self.q, self.h, self.mem)
 
-    def dot_c(M):
+    def dot_c(self, M):
         """``C z`` for states ``M`` ``(R, D)`` (one parameter set: the product as it always was)."""
-        return M @ C[0] if B == 1 else (M.unsqueeze(-2) @ C.unsqueeze(-1))[..., 0, 0]
+        C = self.C
+        return M @ C[0] if self.B == 1 else (M.unsqueeze(-2) @ C.unsqueeze(-1))[..., 0, 0]
 
-    trans = _Transition(F0, row0, sl)
-    # the exact filter from the model's initial state
-    g0 = ss.initial  # (B, D)
-    z = torch.zeros(Rn, D, dtype=torch.float64)
-    P = (g0.unsqueeze(-1) * g0.unsqueeze(-2)).expand(Rn, D, D).clone()
-    idx = _state_index(view, ss)
-    n = len(idx)
-    # the outputs, written in place step by step (small tensors kept per step would pin the freed covariance
-    # temporaries in the heap: 20 GB for 32 × 12000 steps)
-    shapes = {"x": (n,), "P": (n, n), "alpha": (1,), "P_alpha": (1, 1), "Q_alpha": (1, 1), "w": (1,), "P_w": (1, 1),
-              "Q_w": (1, 1), "innovation": (1,), "innovation_cov": (1, 1)}
-    out = {k: torch.empty((Rn, N) + sh, dtype=torch.float64) for k, sh in shapes.items()}
-    S_prev = None
-    completed = 0  # steps whose outputs are stored: a Ctrl-C keeps them
-    try:
-        if progress is not None:
-            progress(0, N)  # the work starts (a progress clock starts with it)
-        for k in range(N):
-            yk = y[:, k:k + 1]
-            mask = ~torch.isnan(yk)
-            y0 = torch.where(mask, yk, torch.zeros_like(yk))
-            if k == 0:
-                z_pred, P_pred = z, P
-            else:
-                Fz = trans.constant(z.unsqueeze(-1))  # F ẑ but its varying row: every replica's and KFx's own
-                base = dot_c(Fz[..., 0])  # (R,): the output's part that no order or pole changes
-                zs = z[:, None, sl]  # (R, 1, J+M)
-                replica = lambda rows: (base.unsqueeze(-1) + c0 * (rows * zs).sum(-1)).unsqueeze(-1)  # noqa: E731
-                Ro = S_prev if Ro_num is None else Ro_num
-                observed = mask.any(-1)
-                if joint:  # one filter over (order, pole): sigma points (α, w)ᵢ, each a replica
-                    Pj_t = Pj + Qj
-                    sig = sigma_points(theta, Pj_t, scale_j)  # (R, 5, 2)
-                    out_o = (sig[..., 0] < k_lo) | (sig[..., 0] > k_hi)
-                    rj, _ = row(sig[..., 0], sig[..., 1])
-                    theta, Pj, Kj, ej, _, _ = ut_update(sig, replica(rj), theta, Pj_t, Ro, y0, mask, wm_j, wc_j, start)
-                    theta = torch.cat([theta[:, :1].clamp(lo, hi), theta[:, 1:]], dim=-1)
-                    Qj = adapt_q(Qj, Kj, ej, ko.delta, qmax_o, observed)
-                    alpha, w_new = theta[:, :1], theta[:, 1:]
-                    w_kfx = w_new  # KFx at α̂_k and ŵ_k
-                    Po, Qo, Pw, Qw = Pj[:, :1, :1], Qj[:, :1, :1], Pj[:, 1:, 1:], Qj[:, 1:, 1:]
-                else:
-                    Po_t, Pw_t = Po + Qo, Pw + Qw
-                    sig_o = sigma_points(alpha, Po_t, scale_o)  # (R, 3, 1)
-                    sig_w = sigma_points(w, Pw_t, scale_w)
-                    out_o = (sig_o[..., 0] < k_lo) | (sig_o[..., 0] > k_hi)
-                    ro, _ = row(sig_o[..., 0], w)  # KFo: sigma orders, ŵ_{k−1}
-                    rw, _ = row(alpha.expand(-1, sig_w.shape[-2]), sig_w[..., 0])  # KFw: α̂_{k−1}, sigma poles
-                    Yo, Yw = replica(ro), replica(rw)  # (R, 3, 1)
-                    Rw = S_prev if Rw_num is None else Rw_num
-                    alpha, Po, Ko, eo, _, _ = ut_update(sig_o, Yo, alpha, Po_t, Ro, y0, mask, wm_o, wc_o, start)
-                    alpha = alpha.clamp(lo, hi)
-                    Qo = adapt_q(Qo, Ko, eo, ko.delta, qmax_o, observed)
-                    w_new, Pw, Kw, ew, _, _ = ut_update(sig_w, Yw, w, Pw_t, Rw, y0, mask, wm_w, wc_w, start)
-                    Qw = adapt_q(Qw, Kw, ew, kw.delta, qmax_w, observed)
-                    w_kfx = w  # KFx at α̂_k and ŵ_{k−1}, as the paper's
-                out_o = out_o | (alpha < k_lo) | (alpha > k_hi)
-                step_clamped = out_o.any(-1).to(torch.int64)
-                # KFx: the exact filter's prediction under the estimates
-                ra, ga = row(alpha, w_kfx)
-                z_pred = trans.apply(z.unsqueeze(-1), ra[:, 0], Fz)[..., 0]
-                P_pred = trans.apply(trans.apply(P, ra[:, 0]).mT, ra[:, 0]) + Q0  # F P Fᵀ (P symmetric) + Q
-                P_pred[:, row0, row0] += (ga * ga)[:, 0] - Q0[:, row0, row0]
-                w = w_new
-            Pc = P_pred @ C[0] if B == 1 else (P_pred @ C.unsqueeze(-1))[..., 0]
-            S = ((C * Pc).sum(-1) + r).reshape(Rn, 1, 1)
-            e = torch.where(mask, yk - dot_c(z_pred).unsqueeze(-1), torch.zeros_like(yk))
-            K = torch.where(mask, Pc / S[:, :, 0], torch.zeros_like(Pc))
-            z = z_pred + K * e
-            P = P_pred - K.unsqueeze(-1) * Pc.unsqueeze(-2)
-            P = 0.5 * (P + P.mT)
-            S_prev = S
-            for name, t in zip(shapes, (z[:, idx], P[:, idx][:, :, idx], alpha, Po, Qo, w, Pw, Qw, e, S)):
-                out[name][:, k] = t
-            if k:
-                clamped += step_clamped  # counted with the step's outputs (a Ctrl-C drops the step it interrupts)
-            completed = k + 1
-            if progress is not None and (k % PROGRESS_STEPS == 0 or k == N - 1):
-                progress(k, N)
-    except KeyboardInterrupt:
-        if not partial:
-            raise
-    if completed < N:
-        out = {name: t[:, :completed] for name, t in out.items()}
-    # flagged as the TEA flags them (non-finite or beyond the limit), not frozen
-    lim = per_series([float(v.config.divergence_limit) for v in views]).reshape(Rn, 1, 1)
-    steps = torch.arange(completed)
-    finite = torch.stack([(out[k].flatten(2).abs() <= lim).all(-1)  # (Rn, completed), also for none
-                          for k in ("x", "P", "alpha", "w")]).all(0)
-    diverged = ~finite.all(-1)
-    first_bad = torch.where(~finite, steps, completed).amin(-1) if completed else torch.zeros(Rn, dtype=torch.long)
-    return TEAResult(**out, diverged=diverged, diverged_at=torch.where(diverged, first_bad, -1), steps=steps,
-                     memory_clamped=clamped if mem.kernel is not None else None, interrupted=completed < N)
+    def step(self, k: int) -> None:
+        """Step ``k``: KFo and KFw (k ≥ 1), KFx's prediction under their estimates and its update; the outputs
+        stored at ``k``."""
+        yk = self.y[:, k:k + 1]
+        mask = ~torch.isnan(yk)
+        y0 = torch.where(mask, yk, torch.zeros_like(yk))
+        if k == 0:
+            z_pred, P_pred = self.z, self.P
+        else:
+            z_pred, P_pred, step_clamped = self._predict(mask, y0)
+        C, z = self.C, self.z
+        Pc = P_pred @ C[0] if self.B == 1 else (P_pred @ C.unsqueeze(-1))[..., 0]
+        S = ((C * Pc).sum(-1) + self.r).reshape(self.Rn, 1, 1)
+        e = torch.where(mask, yk - self.dot_c(z_pred).unsqueeze(-1), torch.zeros_like(yk))
+        K = torch.where(mask, Pc / S[:, :, 0], torch.zeros_like(Pc))
+        z = z_pred + K * e
+        P = P_pred - K.unsqueeze(-1) * Pc.unsqueeze(-2)
+        P = 0.5 * (P + P.mT)
+        self.z, self.P, self.S_prev = z, P, S
+        idx = self.idx
+        for name, t in zip(self.shapes, (z[:, idx], P[:, idx][:, :, idx], self.alpha, self.Po, self.Qo, self.w,
+                                         self.Pw, self.Qw, e, S)):
+            self.out[name][:, k] = t
+        if k:
+            self.clamped += step_clamped  # counted with the step's outputs (a Ctrl-C drops the step it interrupts)
+
+    def _predict(self, mask, y0):
+        """KFo and KFw (or the joint filter) from the replicas of the output under their sigma points, then the exact
+        filter's prediction with their estimates: ``(ẑ, P̃, steps whose orders left the kernel's range)``."""
+        z, P, trans, k_lo, k_hi = self.z, self.P, self.trans, self.k_lo, self.k_hi
+        Fz = trans.constant(z.unsqueeze(-1))  # F ẑ but its varying row: every replica's and KFx's own
+        base = self.dot_c(Fz[..., 0])  # (R,): the output's part that no order or pole changes
+        zs = z[:, None, self.sl]  # (R, 1, J+M)
+        c0 = self.c0
+        replica = lambda rows: (base.unsqueeze(-1) + c0 * (rows * zs).sum(-1)).unsqueeze(-1)  # noqa: E731
+        Ro = self.S_prev if self.Ro_num is None else self.Ro_num
+        observed = mask.any(-1)
+        if self.joint:
+            out_o, w_kfx = self._joint(replica, Ro, y0, mask, observed)
+        else:
+            out_o, w_kfx = self._separate(replica, Ro, y0, mask, observed)
+        alpha = self.alpha
+        out_o = out_o | (alpha < k_lo) | (alpha > k_hi)
+        step_clamped = out_o.any(-1).to(torch.int64)
+        # KFx: the exact filter's prediction under the estimates
+        ra, ga = self.row(alpha, w_kfx)
+        z_pred = trans.apply(z.unsqueeze(-1), ra[:, 0], Fz)[..., 0]
+        Q0, row0 = self.Q0, self.row0
+        P_pred = trans.apply(trans.apply(P, ra[:, 0]).mT, ra[:, 0]) + Q0  # F P Fᵀ (P symmetric) + Q
+        P_pred[:, row0, row0] += (ga * ga)[:, 0] - Q0[:, row0, row0]
+        self.w = self.w_new
+        return z_pred, P_pred, step_clamped
+
+    def _joint(self, replica, Ro, y0, mask, observed):
+        """One unscented filter over (order, pole): sigma points (α, w)ᵢ, each a replica; KFx at α̂_k and ŵ_k."""
+        k_lo, k_hi = self.k_lo, self.k_hi
+        Pj_t = self.Pj + self.Qj
+        sig = sigma_points(self.theta, Pj_t, self.scale_j)  # (R, 5, 2)
+        out_o = (sig[..., 0] < k_lo) | (sig[..., 0] > k_hi)
+        rj, _ = self.row(sig[..., 0], sig[..., 1])
+        theta, Pj, Kj, ej, _, _ = ut_update(sig, replica(rj), self.theta, Pj_t, Ro, y0, mask, self.wm_j, self.wc_j,
+                                            self.start)
+        self.theta = theta = torch.cat([theta[:, :1].clamp(self.lo, self.hi), theta[:, 1:]], dim=-1)
+        self.Pj, self.Qj = Pj, Qj = Pj, adapt_q(self.Qj, Kj, ej, self.ko.delta, self.qmax_o, observed)
+        self.alpha, self.w_new = theta[:, :1], theta[:, 1:]
+        self.Po, self.Qo, self.Pw, self.Qw = Pj[:, :1, :1], Qj[:, :1, :1], Pj[:, 1:, 1:], Qj[:, 1:, 1:]
+        return out_o, self.w_new  # KFx at α̂_k and ŵ_k
+
+    def _separate(self, replica, Ro, y0, mask, observed):
+        """KFo over the sigma orders (with ŵ_{k−1}) and KFw over the sigma poles (with α̂_{k−1}), each from its
+        replicas; KFx at α̂_k and ŵ_{k−1}, as the paper's."""
+        k_lo, k_hi, alpha, w = self.k_lo, self.k_hi, self.alpha, self.w
+        Po_t, Pw_t = self.Po + self.Qo, self.Pw + self.Qw
+        sig_o = sigma_points(alpha, Po_t, self.scale_o)  # (R, 3, 1)
+        sig_w = sigma_points(w, Pw_t, self.scale_w)
+        out_o = (sig_o[..., 0] < k_lo) | (sig_o[..., 0] > k_hi)
+        ro, _ = self.row(sig_o[..., 0], w)  # KFo: sigma orders, ŵ_{k−1}
+        rw, _ = self.row(alpha.expand(-1, sig_w.shape[-2]), sig_w[..., 0])  # KFw: α̂_{k−1}, sigma poles
+        Yo, Yw = replica(ro), replica(rw)  # (R, 3, 1)
+        Rw = self.S_prev if self.Rw_num is None else self.Rw_num
+        alpha, self.Po, Ko, eo, _, _ = ut_update(sig_o, Yo, alpha, Po_t, Ro, y0, mask, self.wm_o, self.wc_o, self.start)
+        self.alpha = alpha.clamp(self.lo, self.hi)
+        self.Qo = adapt_q(self.Qo, Ko, eo, self.ko.delta, self.qmax_o, observed)
+        self.w_new, self.Pw, Kw, ew, _, _ = ut_update(sig_w, Yw, w, Pw_t, Rw, y0, mask, self.wm_w, self.wc_w,
+                                                      self.start)
+        self.Qw = adapt_q(self.Qw, Kw, ew, self.kw.delta, self.qmax_w, observed)
+        return out_o, w  # KFx at α̂_k and ŵ_{k−1}, as the paper's
+
+    def result(self, completed: int) -> TEAResult:
+        """The :class:`TEAResult` of the ``completed`` steps: flagged as the TEA flags them (non-finite or beyond the
+        limit), not frozen."""
+        out, Rn, N = self.out, self.Rn, self.N
+        if completed < N:
+            out = {name: t[:, :completed] for name, t in out.items()}
+        lim = self.per_series([float(v.config.divergence_limit) for v in self.views]).reshape(Rn, 1, 1)
+        steps = torch.arange(completed)
+        finite = torch.stack([(out[k].flatten(2).abs() <= lim).all(-1)  # (Rn, completed), also for none
+                              for k in ("x", "P", "alpha", "w")]).all(0)
+        diverged = ~finite.all(-1)
+        first_bad = torch.where(~finite, steps, completed).amin(-1) if completed else torch.zeros(Rn, dtype=torch.long)
+        return TEAResult(**out, diverged=diverged, diverged_at=torch.where(diverged, first_bad, -1), steps=steps,
+                         memory_clamped=self.clamped if self.mem.kernel is not None else None,
+                         interrupted=completed < N)
 
 
 class _Transition:

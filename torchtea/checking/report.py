@@ -144,9 +144,16 @@ def _band_average(I: np.ndarray, omega: np.ndarray, bins: int = 60):
 def figures(res: CheckResult, out: Path, tag: str, unit: str = "units") -> list[Path]:
     """The figures of one channel (``tag`` its label, ``unit`` its unit for the axes' labels)."""
     plt = pyplot()
-    h = res.h
-    paths = []
     alt = res.suggestions[0] if res.suggestions else None
+    paths = [_spectrum_figure(plt, res, out, tag, unit, alt), _allan_figure(plt, res, out, tag, unit, alt),
+             _innovations_figure(plt, res, out, tag), _acf_figure(plt, res, out, tag),
+             _temperature_figure(plt, res, out, tag)]
+    return [p for p in paths if p is not None]
+
+
+def _spectrum_figure(plt, res: CheckResult, out: Path, tag: str, unit: str, alt) -> Path:
+    """Writes ``spectrum_<tag>.png``: the data's band-averaged spectrum against the model's and its components'."""
+    h = res.h
     y = res.innovations.y
     resid = np.where(res.innovations.observed, y - res.innovations.mean, 0.0)
     # --- spectrum (one-sided PSD in units²/Hz: 2·2π·h·S(ω))
@@ -173,33 +180,43 @@ def figures(res: CheckResult, out: Path, tag: str, unit: str = "units") -> list[
     ax.set_ylabel(f"one-sided PSD (({unit})²/Hz)")
     ax.set_title(f"{tag}: spectrum (shaded: bands where the innovations fail)")
     ax.legend(fontsize=7)
-    paths.append(save_figure(plt, fig, out / f"spectrum_{tag}.png"))
+    return save_figure(plt, fig, out / f"spectrum_{tag}.png")
+
+
+def _allan_figure(plt, res: CheckResult, out: Path, tag: str, unit: str, alt) -> Path | None:
+    """Writes ``allan_<tag>.png`` (where the Allan diagnostic ran): the data's ADEV against the model's band."""
     # --- Allan
+    h = res.h
     da = res.diagnostic("allan")
-    if da.p_value is not None:
-        d = da.detail
-        tau = np.array(d["tau_s"])
-        fig, ax = plt.subplots(figsize=(8, 5))
-        ax.fill_between(tau, d["band_lo"], d["band_hi"], color="C0", alpha=0.2, label="model's band (Bonferroni)")
-        ax.loglog(tau, d["adev"], "ko", ms=4, label="data (overlapping ADEV)")
-        ax.loglog(tau, d["adev_model"], "C0", lw=2, label=f"model {res.model.spec}")
-        mm = np.rint(tau / h).astype(int)
-        for i, (label, cm, vals) in enumerate(_component_models(res)):
-            ax.loglog(tau, np.sqrt(allan.model_avar(cm, vals, h, mm)[0]), lw=1, ls=":", color=f"C{i + 2}",
-                      label=f"  {label}")
-        if alt is not None:
-            det = allan.deterministic_avar(alt.fit.model.mean(alt.fit.values, torch.arange(len(y)) * h,
-                                                              res.inputs).numpy()[0], mm)
-            ax.loglog(tau, np.sqrt(allan.model_avar(alt.fit.model, alt.fit.values, h, mm)[0] + det), "C1--",
-                      label=f"with {alt.effect}")
-        ax.set_xlabel("τ (s)")
-        ax.set_ylabel(f"Allan deviation ({unit})")
-        ax.set_title(f"{tag}: Allan deviation")
-        ax.legend(fontsize=7)
-        paths.append(save_figure(plt, fig, out / f"allan_{tag}.png"))
+    if da.p_value is None:
+        return None
+    d = da.detail
+    tau = np.array(d["tau_s"])
+    fig, ax = plt.subplots(figsize=(8, 5))
+    ax.fill_between(tau, d["band_lo"], d["band_hi"], color="C0", alpha=0.2, label="model's band (Bonferroni)")
+    ax.loglog(tau, d["adev"], "ko", ms=4, label="data (overlapping ADEV)")
+    ax.loglog(tau, d["adev_model"], "C0", lw=2, label=f"model {res.model.spec}")
+    mm = np.rint(tau / h).astype(int)
+    for i, (label, cm, vals) in enumerate(_component_models(res)):
+        ax.loglog(tau, np.sqrt(allan.model_avar(cm, vals, h, mm)[0]), lw=1, ls=":", color=f"C{i + 2}",
+                  label=f"  {label}")
+    if alt is not None:
+        det = allan.deterministic_avar(alt.fit.model.mean(alt.fit.values, torch.arange(len(res.innovations.y)) * h,
+                                                          res.inputs).numpy()[0], mm)
+        ax.loglog(tau, np.sqrt(allan.model_avar(alt.fit.model, alt.fit.values, h, mm)[0] + det), "C1--",
+                  label=f"with {alt.effect}")
+    ax.set_xlabel("τ (s)")
+    ax.set_ylabel(f"Allan deviation ({unit})")
+    ax.set_title(f"{tag}: Allan deviation")
+    ax.legend(fontsize=7)
+    return save_figure(plt, fig, out / f"allan_{tag}.png")
+
+
+def _innovations_figure(plt, res: CheckResult, out: Path, tag: str) -> Path:
+    """Writes ``innovations_<tag>.png``: the standardised innovations over time and the NIS per window."""
     # --- innovations over time
     z = res.innovations.z
-    t = np.arange(len(z)) * h
+    t = np.arange(len(z)) * res.h
     step = max(1, len(z) // 20000)
     fig, ax = plt.subplots(2, 1, figsize=(9, 6), sharex=True)
     ax[0].plot(t[::step], z[::step], lw=0.3, color="0.3")
@@ -214,7 +231,11 @@ def figures(res: CheckResult, out: Path, tag: str, unit: str = "units") -> list[
     ax[1].set_ylabel("NIS per window")
     ax[1].set_xlabel("t (s)")
     ax[0].set_title(f"{tag}: innovations (shaded: windows outside their band)")
-    paths.append(save_figure(plt, fig, out / f"innovations_{tag}.png"))
+    return save_figure(plt, fig, out / f"innovations_{tag}.png")
+
+
+def _acf_figure(plt, res: CheckResult, out: Path, tag: str) -> Path:
+    """Writes ``acf_<tag>.png``: the innovations' autocorrelation with the Ljung-Box band."""
     # --- ACF
     dl = res.diagnostic("ljung-box")
     r = np.array(dl.detail["acf"])
@@ -225,24 +246,30 @@ def figures(res: CheckResult, out: Path, tag: str, unit: str = "units") -> list[
     ax.set_xlabel("lag")
     ax.set_ylabel("autocorrelation of the innovations")
     ax.set_title(f"{tag}: {dl.summary}", fontsize=8)
-    paths.append(save_figure(plt, fig, out / f"acf_{tag}.png"))
+    return save_figure(plt, fig, out / f"acf_{tag}.png")
+
+
+def _temperature_figure(plt, res: CheckResult, out: Path, tag: str) -> Path | None:
+    """Writes ``temperature_<tag>.png`` (where the temperature diagnostic ran): innovations against temperature."""
     # --- temperature
     dt = res.diagnostic("temperature")
-    if dt.p_value is not None:
-        T = np.asarray(res.inputs["temperature"], dtype=np.float64)
-        fig, ax = plt.subplots(1, 2, figsize=(10, 4))
-        ax[0].plot(T[::step], z[::step], ",", color="0.3")
-        ax[0].set_xlabel("temperature (°C)")
-        ax[0].set_ylabel("standardised innovation")
-        ax[1].plot(dt.detail["lags_s"], dt.detail["xcorr_whitened"], color="C0")
-        n = int(res.innovations.observed.sum())
-        ax[1].axhline(2.576 / math.sqrt(n), color="k", ls="--", lw=0.8)
-        ax[1].axhline(-2.576 / math.sqrt(n), color="k", ls="--", lw=0.8)
-        ax[1].set_xlabel("lag (s)")
-        ax[1].set_ylabel("corr(innovation, whitened temperature)")
-        fig.suptitle(f"{tag}: {dt.summary}", fontsize=8)
-        paths.append(save_figure(plt, fig, out / f"temperature_{tag}.png"))
-    return paths
+    if dt.p_value is None:
+        return None
+    z = res.innovations.z
+    step = max(1, len(z) // 20000)
+    T = np.asarray(res.inputs["temperature"], dtype=np.float64)
+    fig, ax = plt.subplots(1, 2, figsize=(10, 4))
+    ax[0].plot(T[::step], z[::step], ",", color="0.3")
+    ax[0].set_xlabel("temperature (°C)")
+    ax[0].set_ylabel("standardised innovation")
+    ax[1].plot(dt.detail["lags_s"], dt.detail["xcorr_whitened"], color="C0")
+    n = int(res.innovations.observed.sum())
+    ax[1].axhline(2.576 / math.sqrt(n), color="k", ls="--", lw=0.8)
+    ax[1].axhline(-2.576 / math.sqrt(n), color="k", ls="--", lw=0.8)
+    ax[1].set_xlabel("lag (s)")
+    ax[1].set_ylabel("corr(innovation, whitened temperature)")
+    fig.suptitle(f"{tag}: {dt.summary}", fontsize=8)
+    return save_figure(plt, fig, out / f"temperature_{tag}.png")
 
 
 def _fmt(x, f=".4g"):
@@ -263,6 +290,19 @@ def write_report(out: Path, results: dict, meta: dict, plots: bool = True, datas
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     channels = meta.get("channels", {})
+    doc = _check_document(results, meta, datasheet)
+    lines = _header_lines(meta, next(iter(results.values())))
+    lines += _summary_lines(results, channels, doc)
+    for a, r in results.items():
+        lines += _channel_lines(r, a, channels.get(a, {}), doc["axes"][a], out, plots)
+    (out / "report.md").write_text("\n".join(lines))
+    write(out / "check.json", doc)
+    return doc
+
+
+def _check_document(results: dict, meta: dict, datasheet: dict | None) -> dict:
+    """Builds the ``check.json`` document: the recording's meta, the meanings and one document per channel."""
+    channels = meta.get("channels", {})
     doc = dict(meta)
     doc["meaning"] = dict(RECORDING_MEANING, **MEANING)
     doc["axes"] = {}
@@ -276,7 +316,11 @@ def write_report(out: Path, results: dict, meta: dict, plots: bool = True, datas
         doc["axes"][a] = d
     if len(results) == 1:
         doc.update(next(iter(doc["axes"].values())))
-    first = next(iter(results.values()))
+    return doc
+
+
+def _header_lines(meta: dict, first: CheckResult) -> list[str]:
+    """Writes the report's title, what its tests mean, the recording's faults and its warnings."""
     lines = [f"# torchtea check: {meta.get('recording', '')}", "",
              f"{meta.get('samples', '')} samples at {meta.get('rate_hz', 0):g} Hz. Each diagnostic is a test at level "
              f"{first.level:g} of 'the data came from the fitted model' (Bonferroni inside "
@@ -290,12 +334,17 @@ def write_report(out: Path, results: dict, meta: dict, plots: bool = True, datas
     for w in meta.get("warnings", []):
         if not w.startswith("recording fault"):
             lines.append(f"- warning: {w}")
+    return lines
+
+
+def _summary_lines(results: dict, channels: dict, doc: dict) -> list[str]:
+    """Writes the summary table, the sensors side by side."""
     by_sensor: dict = {}
     for a in results:
         by_sensor.setdefault(channels.get(a, {}).get("sensor", "signal"), []).append(a)
-    lines += ["## Summary, the sensors side by side", "",
-              "| sensor | channel | unit | model | verdict | failed diagnostics | white-noise density (unit/√Hz) | "
-              "fractional order | top suggestion (gain) |", "|---|---|---|---|---|---|---|---|---|"]
+    lines = ["## Summary, the sensors side by side", "",
+             "| sensor | channel | unit | model | verdict | failed diagnostics | white-noise density (unit/√Hz) | "
+             "fractional order | top suggestion (gain) |", "|---|---|---|---|---|---|---|---|---|"]
     for sensor, labels in by_sensor.items():
         for a in labels:
             r, d = results[a], doc["axes"][a]
@@ -305,98 +354,133 @@ def write_report(out: Path, results: dict, meta: dict, plots: bool = True, datas
                          f"| {', '.join(r.failed) or '—'} | {_fmt(d['white_noise_density'], '.4g')} | "
                          f"{_fmt(order, '.3f')} | {'—' if top is None else f'{top.effect} ({top.gain:.1f})'} |")
     lines.append("")
-    for a, r in results.items():
-        info = channels.get(a, {})
-        title = (f"{info['sensor']} {info['axis']} ({info['unit']}, column `{info['column']}`)"
-                 if info.get("sensor", "signal") != "signal" else f"column `{info.get('column', a)}`")
-        lines += [f"## {a}: {title}: model `{r.model.spec}` — {'adequate' if r.adequate else 'NOT adequate'}", ""]
-        if len(r.steps) > 2 or r.loop_end:
-            lines += ["The loop, one change per step — an effect added (+), taken away (−) or swapped (→) — (`gain`: "
-                      "the BIC it gained; `repaired`: failed before, pass now):", "",
-                      "| step | model | change | gain | nll/sample | psd misfit | adev misfit | failed | repaired |",
-                      "|---|---|---|---|---|---|---|---|---|"]
-            for k, st in enumerate(r.step_rows()):
-                lines.append(f"| {k} | `{st['model']}` | {change_words(st) if k else '—'} | "
-                             f"{_fmt(st.get('gain'), '.1f') if 'gain' in st else '—'} | {st['nll_per_sample']:.5f} | "
-                             f"{_fmt(st['psd_misfit'], '.4f')} | {_fmt(st['adev_misfit'], '.4f')} | "
-                             f"{', '.join(st['failed']) or 'none'} | {', '.join(st.get('repaired', [])) or '—'} |")
-            lines += ["", f"Loop end: {r.loop_end}." if r.loop_end else "", ""]
-            if r.ties:
-                lines += ["What this record cannot tell apart (BIC within "
-                          f"{CLOSE_BIC:g} of the model's; a longer record would):", ""]
-                lines += [f"- {t['words']} (`{t['model']}`)" for t in r.ties] + [""]
-        elif r.before is not None:
-            b = r.before
-            lines += ["| | model | nll/sample | psd misfit | adev misfit | failed |", "|---|---|---|---|---|---|",
-                      f"| before | `{b.model.spec}` | {b.metrics['nll_per_sample']:.5f} | {_fmt(b.metrics['psd_misfit'], '.4f')} "
-                      f"| {_fmt(b.metrics['adev_misfit'], '.4f')} | {', '.join(b.failed) or 'none'} |",
-                      f"| after | `{r.model.spec}` | {r.metrics['nll_per_sample']:.5f} | {_fmt(r.metrics['psd_misfit'], '.4f')} "
-                      f"| {_fmt(r.metrics['adev_misfit'], '.4f')} | {', '.join(r.failed) or 'none'} |", ""]
-        lines += [f"| parameter | value | 95 % interval | (units = {doc['axes'][a]['unit']}) |", "|---|---|---|---|"]
-        for n, v in r.fit.values.items():
-            ci = r.fit.ci95.get(n)
-            lines.append(f"| {n} | {v:.5g} | {'—' if ci is None else f'[{ci[0]:.4g}, {ci[1]:.4g}]'} | "
-                         f"{r.model.param_spec(n).unit} |")
-        lines += ["", "| diagnostic | domain | p-value | result |", "|---|---|---|---|"]
-        for d in r.diagnostics:
-            res_ = "not run" if d.passed is None else ("pass" if d.passed else "**FAIL**")
-            lines.append(f"| {d.name} | {d.domain} | {_fmt(d.p_value, '.3g')} | {res_}: {d.summary} |")
-        lines += ["", "Metrics: " + ", ".join(f"{k} {_fmt(v, '.5g')}" for k, v in r.metrics.items()), ""]
-        if r.suggestions:
-            lines += ["| suggestion | gain (ΔBIC) | screening p | parameters | failed after | repairs |",
-                      "|---|---|---|---|---|---|"]
-            for s in r.suggestions:
-                pars = ", ".join(f"{k} {v:.4g}" for k, v in s.parameters.items())
-                lines.append(f"| {s.effect} | {s.gain:.1f} | {s.p_value:.2g} | {pars} | "
-                             f"{', '.join(d.name for d in s.diagnostics if d.passed is False) or 'none'} | "
-                             f"{', '.join(s.repairs) or '—'} |")
-            lines.append("")
-            lines += [f"{s.effect}: {s.note}." for s in r.suggestions if s.note]
-            lines.append(f"Add the best with `--add {r.suggestions[0].effect}`.")
-        elif r.failed_refits or r.unconfirmed:
-            if r.failed_refits:
-                lines.append(f"The screens of {', '.join(r.failed_refits)} passed, but their refits failed to find "
-                             "what the screens saw: an optimiser's failure, not evidence against them (their rows "
-                             "below say what was tried).")
-            if r.unconfirmed:
-                lines.append(f"The Whittle screens of {', '.join(r.unconfirmed)} passed, but the exact likelihood does "
-                             "not confirm them: at the screens' own points it is below the model's, and their refits "
-                             "gain nothing. The two likelihoods disagree on this record (the Whittle likelihood takes "
-                             "it as stationary): no evidence for these effects (their rows below give the numbers).")
-        else:
-            lines.append("No effect of the library passes its screen: "
-                         + ("nothing is missing that torchtea can add." if r.adequate else
-                            "the model fails, and no candidate explains it."))
-        if r.unexplained:
-            lines += ["", "What no suggestion repairs — where the model fails, and what kind of effect would fit:", ""]
-            for u in r.unexplained:
-                lib = (f" Screened, not passing or not lowering BIC: {', '.join(u['in_library'])}."
-                       if u["in_library"] else "")
-                hand = (f" In the library, not screened (`--add`): {', '.join(u['add_by_hand'])}."
-                        if u["add_by_hand"] else "")
-                new = f" Not in the library: {', '.join(u['not_in_library'])}." if u["not_in_library"] else ""
-                leave = (f" If it is a disturbance of the recording (a knock, a shock), leave it out: "
-                         f"`{' '.join(u['exclude'][:3])}`." if u.get("exclude") else "")
-                lines.append(f"- **{u['diagnostic']}** ({u['where']}): {u['would_fit']}.{lib}{hand}{new}{leave}")
-        sheet = doc["axes"][a].get("datasheet")
-        if sheet:
-            lines += ["", f"Against the datasheet {sheet['file']} ({sheet['source']}; its values are typical ones):",
-                      ""]
-            lines += verdict_lines(a, sheet, markdown=True)
-        plan = doc["axes"][a].get("plan")
-        if plan and plan.get("rows"):
-            lines += ["", "How long to record — the expected 95 % intervals of this model's noise numbers, ± half "
-                          "the width over the value, if the model at these values is the truth (`torchtea plan`):", ""]
-            lines += plan_lines(a, plan, markdown=True)
-        lines += ["", "Screens: " + "; ".join(
-            f"{s['effect']} {('p ' + _fmt(s['p_value'], '.2g')) if s['p_value'] is not None else s['note']}"
-            for s in r.screens), ""]
-        for note in r.notes:
-            lines.append(f"Note: {note}")
-        if plots:
-            for p in figures(r, out, a, doc["axes"][a]["unit"]):
-                lines.append(f"![{p.stem}]({p.name})")
+    return lines
+
+
+def _channel_lines(r: CheckResult, a: str, info: dict, axis_doc: dict, out: Path, plots: bool) -> list[str]:
+    """Writes one channel's section (and its figures, with ``plots``)."""
+    title = (f"{info['sensor']} {info['axis']} ({info['unit']}, column `{info['column']}`)"
+             if info.get("sensor", "signal") != "signal" else f"column `{info.get('column', a)}`")
+    lines = [f"## {a}: {title}: model `{r.model.spec}` — {'adequate' if r.adequate else 'NOT adequate'}", ""]
+    lines += _loop_lines(r)
+    lines += _fit_lines(r, axis_doc["unit"])
+    lines += _suggestion_lines(r)
+    lines += _unexplained_lines(r)
+    lines += _datasheet_plan_lines(a, axis_doc)
+    lines += ["", "Screens: " + "; ".join(
+        f"{s['effect']} {('p ' + _fmt(s['p_value'], '.2g')) if s['p_value'] is not None else s['note']}"
+        for s in r.screens), ""]
+    for note in r.notes:
+        lines.append(f"Note: {note}")
+    if plots:
+        for p in figures(r, out, a, axis_doc["unit"]):
+            lines.append(f"![{p.stem}]({p.name})")
+    lines.append("")
+    return lines
+
+
+def _loop_lines(r: CheckResult) -> list[str]:
+    """Writes the loop's steps and what the record cannot tell apart, or (after --add) before against after."""
+    lines = []
+    if len(r.steps) > 2 or r.loop_end:
+        lines += ["The loop, one change per step — an effect added (+), taken away (−) or swapped (→) — (`gain`: "
+                  "the BIC it gained; `repaired`: failed before, pass now):", "",
+                  "| step | model | change | gain | nll/sample | psd misfit | adev misfit | failed | repaired |",
+                  "|---|---|---|---|---|---|---|---|---|"]
+        for k, st in enumerate(r.step_rows()):
+            lines.append(f"| {k} | `{st['model']}` | {change_words(st) if k else '—'} | "
+                         f"{_fmt(st.get('gain'), '.1f') if 'gain' in st else '—'} | {st['nll_per_sample']:.5f} | "
+                         f"{_fmt(st['psd_misfit'], '.4f')} | {_fmt(st['adev_misfit'], '.4f')} | "
+                         f"{', '.join(st['failed']) or 'none'} | {', '.join(st.get('repaired', [])) or '—'} |")
+        lines += ["", f"Loop end: {r.loop_end}." if r.loop_end else "", ""]
+        if r.ties:
+            lines += ["What this record cannot tell apart (BIC within "
+                      f"{CLOSE_BIC:g} of the model's; a longer record would):", ""]
+            lines += [f"- {t['words']} (`{t['model']}`)" for t in r.ties] + [""]
+    elif r.before is not None:
+        b = r.before
+        lines += ["| | model | nll/sample | psd misfit | adev misfit | failed |", "|---|---|---|---|---|---|",
+                  f"| before | `{b.model.spec}` | {b.metrics['nll_per_sample']:.5f} | {_fmt(b.metrics['psd_misfit'], '.4f')} "
+                  f"| {_fmt(b.metrics['adev_misfit'], '.4f')} | {', '.join(b.failed) or 'none'} |",
+                  f"| after | `{r.model.spec}` | {r.metrics['nll_per_sample']:.5f} | {_fmt(r.metrics['psd_misfit'], '.4f')} "
+                  f"| {_fmt(r.metrics['adev_misfit'], '.4f')} | {', '.join(r.failed) or 'none'} |", ""]
+    return lines
+
+
+def _fit_lines(r: CheckResult, unit: str) -> list[str]:
+    """Writes the parameter table, the diagnostics table and the metrics."""
+    lines = [f"| parameter | value | 95 % interval | (units = {unit}) |", "|---|---|---|---|"]
+    for n, v in r.fit.values.items():
+        ci = r.fit.ci95.get(n)
+        lines.append(f"| {n} | {v:.5g} | {'—' if ci is None else f'[{ci[0]:.4g}, {ci[1]:.4g}]'} | "
+                     f"{r.model.param_spec(n).unit} |")
+    lines += ["", "| diagnostic | domain | p-value | result |", "|---|---|---|---|"]
+    for d in r.diagnostics:
+        res_ = "not run" if d.passed is None else ("pass" if d.passed else "**FAIL**")
+        lines.append(f"| {d.name} | {d.domain} | {_fmt(d.p_value, '.3g')} | {res_}: {d.summary} |")
+    lines += ["", "Metrics: " + ", ".join(f"{k} {_fmt(v, '.5g')}" for k, v in r.metrics.items()), ""]
+    return lines
+
+
+def _suggestion_lines(r: CheckResult) -> list[str]:
+    """Writes the suggestions table, or why there is no suggestion."""
+    lines = []
+    if r.suggestions:
+        lines += ["| suggestion | gain (ΔBIC) | screening p | parameters | failed after | repairs |",
+                  "|---|---|---|---|---|---|"]
+        for s in r.suggestions:
+            pars = ", ".join(f"{k} {v:.4g}" for k, v in s.parameters.items())
+            lines.append(f"| {s.effect} | {s.gain:.1f} | {s.p_value:.2g} | {pars} | "
+                         f"{', '.join(d.name for d in s.diagnostics if d.passed is False) or 'none'} | "
+                         f"{', '.join(s.repairs) or '—'} |")
         lines.append("")
-    (out / "report.md").write_text("\n".join(lines))
-    write(out / "check.json", doc)
-    return doc
+        lines += [f"{s.effect}: {s.note}." for s in r.suggestions if s.note]
+        lines.append(f"Add the best with `--add {r.suggestions[0].effect}`.")
+    elif r.failed_refits or r.unconfirmed:
+        if r.failed_refits:
+            lines.append(f"The screens of {', '.join(r.failed_refits)} passed, but their refits failed to find "
+                         "what the screens saw: an optimiser's failure, not evidence against them (their rows "
+                         "below say what was tried).")
+        if r.unconfirmed:
+            lines.append(f"The Whittle screens of {', '.join(r.unconfirmed)} passed, but the exact likelihood does "
+                         "not confirm them: at the screens' own points it is below the model's, and their refits "
+                         "gain nothing. The two likelihoods disagree on this record (the Whittle likelihood takes "
+                         "it as stationary): no evidence for these effects (their rows below give the numbers).")
+    else:
+        lines.append("No effect of the library passes its screen: "
+                     + ("nothing is missing that torchtea can add." if r.adequate else
+                        "the model fails, and no candidate explains it."))
+    return lines
+
+
+def _unexplained_lines(r: CheckResult) -> list[str]:
+    """Writes the failures no suggestion repairs: where, what would fit, and the --exclude flags."""
+    lines = []
+    if r.unexplained:
+        lines += ["", "What no suggestion repairs — where the model fails, and what kind of effect would fit:", ""]
+        for u in r.unexplained:
+            lib = (f" Screened, not passing or not lowering BIC: {', '.join(u['in_library'])}."
+                   if u["in_library"] else "")
+            hand = (f" In the library, not screened (`--add`): {', '.join(u['add_by_hand'])}."
+                    if u["add_by_hand"] else "")
+            new = f" Not in the library: {', '.join(u['not_in_library'])}." if u["not_in_library"] else ""
+            leave = (f" If it is a disturbance of the recording (a knock, a shock), leave it out: "
+                     f"`{' '.join(u['exclude'][:3])}`." if u.get("exclude") else "")
+            lines.append(f"- **{u['diagnostic']}** ({u['where']}): {u['would_fit']}.{lib}{hand}{new}{leave}")
+    return lines
+
+
+def _datasheet_plan_lines(a: str, axis_doc: dict) -> list[str]:
+    """Writes the verdicts against the datasheet (--datasheet) and the plan of how long to record."""
+    lines = []
+    sheet = axis_doc.get("datasheet")
+    if sheet:
+        lines += ["", f"Against the datasheet {sheet['file']} ({sheet['source']}; its values are typical ones):",
+                  ""]
+        lines += verdict_lines(a, sheet, markdown=True)
+    plan = axis_doc.get("plan")
+    if plan and plan.get("rows"):
+        lines += ["", "How long to record — the expected 95 % intervals of this model's noise numbers, ± half "
+                      "the width over the value, if the model at these values is the truth (`torchtea plan`):", ""]
+        lines += plan_lines(a, plan, markdown=True)
+    return lines

@@ -95,19 +95,34 @@ def write_report(path, ident: Identification, summary: dict, figures: list, *, c
     figures (paths relative to the report)."""
     path = Path(path)
     rec = ident.recording
-    meta = rec.metadata
     n = ident.y.shape[-2]
     done = ident.steps
-    total = ident.measurements.total if ident.measurements is not None else rec.samples
-    stats = summary["statistics"]
-    span = summary["last_third"]
-    third = (f"last ⅓ = samples {span['first_sample']}–{span['last_sample']} "
-             f"({span['t0_s']:.2f}–{span['t1_s']:.2f} s)" if span["last_sample"] >= span["first_sample"]
-             else "last ⅓ = no samples (too few steps)")
     lines = [f"# Noise identification: {Path(rec.path).name}", ""]
     if ident.result.interrupted:
         lines += [f"**Interrupted (Ctrl-C) after {done} of {n} steps: every number below covers only those steps.**",
                   ""]
+    lines += _source_lines(ident, summary, command, config_source) + [""]
+    if summary.get("fit"):
+        lines += _fit_lines(ident, summary)
+    lines += _results_lines(ident, summary)
+    lines += _variance_lines(summary)
+    if figures:
+        lines += ["## Figures", ""]
+        for f in figures:
+            rel = Path(f).relative_to(path.parent) if Path(f).is_relative_to(path.parent) else Path(f)
+            lines += [f"![{rel.stem}]({rel.as_posix()})", ""]
+    lines += ["Trajectories: `trajectories.csv`; per-channel settings: `config_<channel>.toml` (reusable with "
+              "`torchtea estimate --config`); TensorBoard: `tensorboard --logdir " + str(path.parent / "tb") + "`.", ""]
+    path.write_text("\n".join(lines))
+    return path
+
+
+def _source_lines(ident: Identification, summary: dict, command: str, config_source: str | None) -> list[str]:
+    """Writes the list of what was measured: recording, channels, samples, time stamps, faults, missing samples."""
+    rec = ident.recording
+    meta = rec.metadata
+    n = ident.y.shape[-2]
+    total = ident.measurements.total if ident.measurements is not None else rec.samples
     src = [f"- **Recording**: `{rec.path}`"]
     if "sensor" in meta:
         src.append(f"- **Sensor**: {meta['sensor']}, digital low-pass {meta.get('dlpf_hz', '?')} Hz")
@@ -134,6 +149,12 @@ def write_report(path, ident: Identification, summary: dict, figures: list, *, c
     src.append("- **Missing samples** in the part used: " + (miss.describe() if miss is not None else "not checked")
                + ("; the filters predict through them and they are left out of every statistic"
                   if miss is not None and miss.count else ""))
+    return src + _settings_lines(ident, summary, command, config_source)
+
+
+def _settings_lines(ident: Identification, summary: dict, command: str, config_source: str | None) -> list[str]:
+    """Writes the settings used, what was changed in them and the command."""
+    src = []
     settings = ("- **Settings**: the paper's §5.1 MEMS settings with R = Rᵒ = Rʷ = "
                 + {"measured": "each axis's measured noise variance",
                    "fitted": "each axis's fitted white-noise variance r̂, KFx's Q = the fitted drive q̂, KFo and KFw "
@@ -150,44 +171,62 @@ def write_report(path, ident: Identification, summary: dict, figures: list, *, c
                    + "; ".join(f"`{c}`" for c in ident.changes))
     if command:
         src.append(f"- **Command**: `{command}`")
-    lines += src + [""]
-    if summary.get("fit"):
-        lines += ["## Fitted noise model (maximum likelihood, before the TEA)", "",
-                  (f"`{summary.get('model', 'fractional+white')}`" if summary.get("model") != "per channel" else
-                   "Each channel's model (below)") + " fitted to each channel by the exact likelihood (Kalman filter on the "
-                  "exponential-sum state; Whittle gives the start). Changed against the paper: the paper sets "
-                  "R = Rᵒ = Rʷ to the measurement noise and keeps Q = 0.01; here r and q are the values that make "
-                  "the model's innovations match the data (NIS of the fitted model ≈ 1), and KFo/KFw start at the "
-                  "fitted order and pole instead of 1 and 0. The TEA below then shows whether the order moves in "
-                  "time around that model.", "",
-                  "| channel | unit | α̂ [95 % CI] | f̂ ± se | q̂ [95 % CI] (unit²) | r̂ [95 % CI] (unit²) | white-noise density √(r̂h) (unit/√Hz) | other parameters | loglik | NIS (fit) |",
-                  "|---|---|---|---|---|---|---|---|---|---|"]
-        for a, fs in summary["fit"].items():
-            p_ = fs["parameters"]
+    return src
 
-            def ci(name, fmt):
-                c = p_[name]["ci95"]
-                return "no interval" if c is None else f"[{c[0]:{fmt}}, {c[1]:{fmt}}]"
-            se = p_["fractional.pole"]["se"]
-            lines.append(f"| {a} | {summary['axes'][a]['unit']} | {p_['fractional.order']['value']:.3f} {ci('fractional.order', '.3f')} | "
-                         f"{p_['fractional.pole']['value']:.3g}" + ("" if se is None else f" ± {se:.2g}")
-                         + f" | {p_['fractional.q']['value']:.3g} {ci('fractional.q', '.3g')} | "
-                         + (f"{p_['white.r']['value']:.3g} {ci('white.r', '.3g')} | "
-                            f"{math.sqrt(p_['white.r']['value'] * ident.h):.3g} | " if "white.r" in p_ else "— | — | ")
-                         + (", ".join(f"{n} {p_[n]['value']:.3g}" for n in p_
-                                      if not n.startswith("fractional.") and n != "white.r") or "—")
-                         + f" | {fs['loglik']:.1f} | {fs['nis']:.3f} |")
-        grown = [(a, v) for a, v in zip(ident.labels, ident.views) if v.model.spec != PAPER_MODEL]
-        if grown:
-            lines += ["", "How the TEA runs these models (each component's place in it):", ""]
-            lines += [f"- {a} (`{v.model.spec}`): " + "; ".join(f"`{lb}` {note}" for lb, note in v.notes.items())
-                      for a, v in grown]
-        lines += ["", "Intervals: Wald on the logit (order) or log (q, r) scale from the exact observed information; "
-                  "'no interval' where that information is not positive definite (an estimate on a boundary). "
-                  "The Whittle profile interval of the order is in `summary.json` (`fit.<axis>.order_profile`); "
-                  "`torchtea fit` adds the test of whether the fractional part is there at all.", ""]
+
+def _fit_lines(ident: Identification, summary: dict) -> list[str]:
+    """Writes the section of the fitted noise model: its table, how the TEA runs it, what the intervals are."""
+    lines = ["## Fitted noise model (maximum likelihood, before the TEA)", "",
+             (f"`{summary.get('model', 'fractional+white')}`" if summary.get("model") != "per channel" else
+              "Each channel's model (below)") + " fitted to each channel by the exact likelihood (Kalman filter on the "
+             "exponential-sum state; Whittle gives the start). Changed against the paper: the paper sets "
+             "R = Rᵒ = Rʷ to the measurement noise and keeps Q = 0.01; here r and q are the values that make "
+             "the model's innovations match the data (NIS of the fitted model ≈ 1), and KFo/KFw start at the "
+             "fitted order and pole instead of 1 and 0. The TEA below then shows whether the order moves in "
+             "time around that model.", "",
+             "| channel | unit | α̂ [95 % CI] | f̂ ± se | q̂ [95 % CI] (unit²) | r̂ [95 % CI] (unit²) | white-noise density √(r̂h) (unit/√Hz) | other parameters | loglik | NIS (fit) |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
+    for a, fs in summary["fit"].items():
+        lines.append(_fit_row(a, fs, summary["axes"][a]["unit"], ident.h))
+    grown = [(a, v) for a, v in zip(ident.labels, ident.views) if v.model.spec != PAPER_MODEL]
+    if grown:
+        lines += ["", "How the TEA runs these models (each component's place in it):", ""]
+        lines += [f"- {a} (`{v.model.spec}`): " + "; ".join(f"`{lb}` {note}" for lb, note in v.notes.items())
+                  for a, v in grown]
+    lines += ["", "Intervals: Wald on the logit (order) or log (q, r) scale from the exact observed information; "
+              "'no interval' where that information is not positive definite (an estimate on a boundary). "
+              "The Whittle profile interval of the order is in `summary.json` (`fit.<axis>.order_profile`); "
+              "`torchtea fit` adds the test of whether the fractional part is there at all.", ""]
+    return lines
+
+
+def _fit_row(a: str, fs: dict, unit: str, h: float) -> str:
+    """Writes one channel's row of the fitted noise model's table."""
+    p_ = fs["parameters"]
+
+    def ci(name, fmt):
+        c = p_[name]["ci95"]
+        return "no interval" if c is None else f"[{c[0]:{fmt}}, {c[1]:{fmt}}]"
+    se = p_["fractional.pole"]["se"]
+    return (f"| {a} | {unit} | {p_['fractional.order']['value']:.3f} {ci('fractional.order', '.3f')} | "
+            f"{p_['fractional.pole']['value']:.3g}" + ("" if se is None else f" ± {se:.2g}")
+            + f" | {p_['fractional.q']['value']:.3g} {ci('fractional.q', '.3g')} | "
+            + (f"{p_['white.r']['value']:.3g} {ci('white.r', '.3g')} | "
+               f"{math.sqrt(p_['white.r']['value'] * h):.3g} | " if "white.r" in p_ else "— | — | ")
+            + (", ".join(f"{n} {p_[n]['value']:.3g}" for n in p_
+                         if not n.startswith("fractional.") and n != "white.r") or "—")
+            + f" | {fs['loglik']:.1f} | {fs['nis']:.3f} |")
+
+
+def _results_lines(ident: Identification, summary: dict) -> list[str]:
+    """Writes the warnings and the results table of α̂ and ŵ, with its footnotes."""
+    stats = summary["statistics"]
+    span = summary["last_third"]
+    third = (f"last ⅓ = samples {span['first_sample']}–{span['last_sample']} "
+             f"({span['t0_s']:.2f}–{span['t1_s']:.2f} s)" if span["last_sample"] >= span["first_sample"]
+             else "last ⅓ = no samples (too few steps)")
     warns = summary.get("warnings", [])
-    lines += ["## Warnings", ""]
+    lines = ["## Warnings", ""]
     lines += [f"- {w}" for w in warns] if warns else [
         f"None: every axis has NIS over the last third within [{NIS_TRUST_BAND[0]:g}, {NIS_TRUST_BAND[1]:g}], α̂ off its "
         "bounds, α̂ and ŵ moved from their start values and no longer drift."]
@@ -207,10 +246,17 @@ def write_report(path, ident: Identification, summary: dict, figures: list, *, c
               "calibrated interval (the Monte Carlo studies in `experiments/montecarlo/README.md` measure its "
               "coverage).  ",
               f"³ The time from which α̂ stays within ±{SETTLE_BAND} of its last-third mean (—: not within the last third).",
-              "", "## Noise variances (in each channel's unit², the unit in the table) and filter consistency", "",
-              "| channel | unit | mean removed | noise variance, all samples used | std | R given to KFx | "
-              "mean squared innovation, last ⅓ | predicted S = C P̃ Cᵀ + R, last ⅓ | residual y − x̂ variance, last ⅓ | "
-              "NIS, last ⅓ | NIS, whole run |", "|---|---|---|---|---|---|---|---|---|---|---|"]
+              ""]
+    return lines
+
+
+def _variance_lines(summary: dict) -> list[str]:
+    """Writes the table of noise variances and filter consistency (NIS)."""
+    stats = summary["statistics"]
+    lines = ["## Noise variances (in each channel's unit², the unit in the table) and filter consistency", "",
+             "| channel | unit | mean removed | noise variance, all samples used | std | R given to KFx | "
+             "mean squared innovation, last ⅓ | predicted S = C P̃ Cᵀ + R, last ⅓ | residual y − x̂ variance, last ⅓ | "
+             "NIS, last ⅓ | NIS, whole run |", "|---|---|---|---|---|---|---|---|---|---|---|"]
     for a, s in summary["axes"].items():
         st = stats[a]
         lines.append(f"| {a} | {s['unit']} | {_fmt(s.get('mean_removed', math.nan), '.5g')} | {st['noise_var']:.4e} | "
@@ -219,15 +265,7 @@ def write_report(path, ident: Identification, summary: dict, figures: list, *, c
                      f"{_fmt(s['innovation_nis_last_third'], '.3f')} | {_fmt(s['innovation_nis'], '.3f')} |")
     lines += ["", "NIS: mean of e²/S over the observed samples (missing samples have no innovation and are left out); "
               f"1 for a consistent filter; outside [{NIS_TRUST_BAND[0]:g}, {NIS_TRUST_BAND[1]:g}] is warned about.", ""]
-    if figures:
-        lines += ["## Figures", ""]
-        for f in figures:
-            rel = Path(f).relative_to(path.parent) if Path(f).is_relative_to(path.parent) else Path(f)
-            lines += [f"![{rel.stem}]({rel.as_posix()})", ""]
-    lines += ["Trajectories: `trajectories.csv`; per-channel settings: `config_<channel>.toml` (reusable with "
-              "`torchtea estimate --config`); TensorBoard: `tensorboard --logdir " + str(path.parent / "tb") + "`.", ""]
-    path.write_text("\n".join(lines))
-    return path
+    return lines
 
 
 def orders_figure(path, ident: Identification) -> Path:

@@ -22,17 +22,41 @@ def estimate_file(file, config, *, column: str = "y", h: float | None = None, ou
     keeps what it computed (``interrupted``). ``log(line)`` takes the notes. ``exclude``: stretches ``(from_s, to_s)``
     of the series (seconds from its first sample) whose samples are made missing
     (:func:`~torchtea.sensors.measurements.exclusion_ranges`)."""
-    import numpy as np
     import torch
 
-    from .engines.config import write_config
     from .engines.structure import Structure
     from .engines.tea import make_params, run_tea
-    from .reports.identify import MIN_SAMPLES, summarise
-    from .sensors.datacheck import check_missing, check_timing, stamp_rate
-    from .sensors.io import InputError, read_series, write_columns
+    from .sensors.io import InputError
 
     say = log or (lambda line: None)
+    cols, missing = _read_column(file, column, allow_missing, say)
+    N = len(cols["y"])
+    y = torch.as_tensor(cols["y"]).unsqueeze(-1)
+    u = torch.as_tensor(cols["u"]).unsqueeze(-1) if "u" in cols else None
+    if u is not None and torch.isnan(u).any():
+        raise InputError(f"{file}: column 'u' has missing values; a known input cannot be missing", column="u")
+    h, h_source, timing = _sample_time(file, cols, h)
+    excluded = _exclude(file, y, exclude, h, N, say)
+    t0 = time.perf_counter()
+    res = run_tea(y.unsqueeze(0).to(device), h=h, params=make_params(config, Structure()),
+                  inputs=None if u is None else u.unsqueeze(0).to(device), progress=progress, compile=compile,
+                  partial=True)
+    res = res.to("cpu")
+    elapsed = time.perf_counter() - t0
+    done = int(res.alpha.shape[-2])
+    out = _write_run(file, out, cols, u is not None, res, done, h, config, source)
+    run = {"h": h, "h_source": h_source, "missing_samples": missing.count, "missing": missing.to_dict(),
+           "excluded": excluded, "timing": timing.to_dict() if timing is not None else None, "settings": source,
+           "memory": config.memory.spec(), "out": str(out), "seconds": round(elapsed, 3)}
+    return _summary(res, config, y, h, N, done, timing, run)
+
+
+def _read_column(file, column: str, allow_missing: bool, say: Callable) -> tuple:
+    """The file's column as ``y`` (with ``u`` and ``t`` where it has them), checked, and its missing samples."""
+    from .reports.identify import MIN_SAMPLES
+    from .sensors.datacheck import check_missing
+    from .sensors.io import InputError, read_series
+
     try:
         cols = read_series(file, [column], ["u", "t"], allow_missing=True)
     except InputError as exc:
@@ -49,10 +73,14 @@ def estimate_file(file, config, *, column: str = "y", h: float | None = None, ou
     missing = check_missing(file, cols["y"], [column], allow=allow_missing)
     if missing.count >= N - 1:
         raise InputError(f"{file}: column {column!r} has {N - missing.count} observed sample(s); nothing to estimate")
-    y = torch.as_tensor(cols["y"]).unsqueeze(-1)
-    u = torch.as_tensor(cols["u"]).unsqueeze(-1) if "u" in cols else None
-    if u is not None and torch.isnan(u).any():
-        raise InputError(f"{file}: column 'u' has missing values; a known input cannot be missing", column="u")
+    return cols, missing
+
+
+def _sample_time(file, cols: dict, h: float | None) -> tuple:
+    """``(h, h_source, timing)``: the sample time given or from column ``t``, and the check of its stamps."""
+    from .sensors.datacheck import check_timing, stamp_rate
+    from .sensors.io import InputError
+
     h_source = "--h"
     if h is None:
         rate = stamp_rate(cols["t"]) if "t" in cols else math.nan
@@ -60,6 +88,11 @@ def estimate_file(file, config, *, column: str = "y", h: float | None = None, ou
             raise InputError(f"{file}: give the sample time with --h (the file has no increasing time column 't')")
         h, h_source = 1.0 / rate, "the mean interval of column 't'"
     timing = check_timing(cols["t"], 1.0 / h, column="t", rate_source=h_source) if "t" in cols else None
+    return h, h_source, timing
+
+
+def _exclude(file, y, exclude, h: float, N: int, say: Callable) -> list:
+    """The stretches ``exclude`` asks for made missing in ``y`` (in place), as the summary lists them."""
     excluded = []
     if exclude:
         from .sensors.measurements import exclusion_ranges
@@ -69,16 +102,19 @@ def estimate_file(file, config, *, column: str = "y", h: float | None = None, ou
             y[e["first"]:e["last"] + 1] = float("nan")
             say(f"excluded on request (--exclude {e['from_s']:g}:{e['to_s']:g}): samples {e['first']}–{e['last']} "
                 f"({e['samples']}) made missing")
-    t0 = time.perf_counter()
-    res = run_tea(y.unsqueeze(0).to(device), h=h, params=make_params(config, Structure()),
-                  inputs=None if u is None else u.unsqueeze(0).to(device), progress=progress, compile=compile,
-                  partial=True)
-    res = res.to("cpu")
-    elapsed = time.perf_counter() - t0
-    done = int(res.alpha.shape[-2])
+    return excluded
+
+
+def _write_run(file, out, cols: dict, has_u: bool, res, done: int, h: float, config, source: str) -> Path:
+    """Write the run's trajectories (``out``, default the file's ``.tea.csv``) and its settings beside them."""
+    import numpy as np
+
+    from .engines.config import write_config
+    from .sensors.io import write_columns
+
     out = Path(out) if out else Path(file).with_suffix(".tea.csv")
     cols_out = {"t": np.arange(done) * h, "y": cols["y"][:done]}
-    if u is not None:
+    if has_u:
         cols_out["u"] = cols["u"][:done]
     cols_out.update({
         "x_hat": res.x[0, :, 0], "P": res.P[0, :, 0, 0], "alpha_hat": res.alpha[0, :, 0],
@@ -87,6 +123,13 @@ def estimate_file(file, config, *, column: str = "y", h: float | None = None, ou
     })
     write_columns(out, cols_out)
     write_config(out.with_suffix(".toml"), config, {"h": h, "source": source})
+    return out
+
+
+def _summary(res, config, y, h: float, N: int, done: int, timing, run: dict) -> dict:
+    """The summary of a run: its estimates, ``run``'s entries (sample time … seconds), meanings and warnings."""
+    from .reports.identify import summarise
+
     stats = summarise(res, (config,), y=y.unsqueeze(0), h=h, names=("y",), label="column 'y'")
     s = stats["axes"]["y"]
     summary = {
@@ -105,16 +148,7 @@ def estimate_file(file, config, *, column: str = "y", h: float | None = None, ou
         "samples": N,
         "steps_done": done,
         "interrupted": bool(res.interrupted),
-        "h": h,
-        "h_source": h_source,
-        "missing_samples": missing.count,
-        "missing": missing.to_dict(),
-        "excluded": excluded,
-        "timing": timing.to_dict() if timing is not None else None,
-        "settings": source,
-        "memory": config.memory.spec(),
-        "out": str(out),
-        "seconds": round(elapsed, 3),
+        **run,
         "last_third": stats["last_third"],
     }
     if "memory_clamped_steps" in s:

@@ -239,8 +239,31 @@ def identify(measurements: Measurements, *, model=PAPER_MODEL, r_mode: str = "fi
     m = measurements
     rec = m.recording
     N = m.samples
+    fits, plain = _checked_fits(m, model, r_mode, fits)
+    values = np.column_stack([c.values for c in m.channels])
+    means = np.nanmean(values, axis=0)
+    y = torch.as_tensor((values - means).T.copy(), dtype=torch.float64).unsqueeze(-1)  # (C, N, 1)
+    views, fitted_y = (), None
+    structures = [Structure()] * len(m.channels)
+    presets = [preset_for(c) for c in m.channels]
+    if r_mode == "fitted":
+        fits, views, structures, y, fitted_y = _fit_channels(m, model, plain, fits, presets, y, inputs)
+    fits = fits or ()
+    configs, changes = _channel_configs(m, y, r_mode, overrides, fits, presets, views, structures)
+    exact, exact_views = _exact_views(configs, views)
+    groups = _batches(structures, exact, exact_views)
+    results = _run_batches(groups, y, N, rec.h, configs, structures, exact, exact_views, progress=progress,
+                           compile=compile, partial=partial, device=device)
+    result = results[0] if len(groups) == 1 else _in_channel_order(results, groups)
+    return Identification(rec, rec.h, y, means, configs, result, m.missing, m.timing, changes, fits, m.channels, m,
+                          views, fitted_y)
+
+
+def _checked_fits(m: Measurements, model, r_mode: str, fits) -> tuple:
+    """identify's checks of the samples, the fits given and ``r_mode``: ``(fits, plain)``."""
+    N = m.samples
     if N < MIN_SAMPLES:
-        raise InputError(f"{rec.path}: {N} samples; identify needs at least {MIN_SAMPLES} (its estimates are "
+        raise InputError(f"{m.recording.path}: {N} samples; identify needs at least {MIN_SAMPLES} (its estimates are "
                          "summarised over the last third of the run)")
     given = fits is not None
     if given:
@@ -251,28 +274,34 @@ def identify(measurements: Measurements, *, model=PAPER_MODEL, r_mode: str = "fi
     if (given or not plain) and r_mode != "fitted":
         what = "the given fits" if given else f"model {model.spec!r}"
         raise ValueError(f"{what}: the noise levels come from the fit; use r_mode 'fitted'")
-    values = np.column_stack([c.values for c in m.channels])
-    means = np.nanmean(values, axis=0)
-    y = torch.as_tensor((values - means).T.copy(), dtype=torch.float64).unsqueeze(-1)  # (C, N, 1)
-    views, fitted_y = (), None
-    structures = [Structure()] * len(m.channels)
-    presets = [preset_for(c) for c in m.channels]
-    if r_mode == "fitted":
-        if not given:
-            from .fitting import fit_series
+    return fits, plain
 
-            fits = tuple(fit_series(model, [y[i, :, 0].numpy() for i in range(len(m.channels))], rec.h,
-                                    method="exact", profile=plain, inputs=None if inputs is None else
-                                    [inputs] * len(m.channels)))
-        # each channel's view on its own preset, once: its structure, and the settings axis_configs starts from
-        views = tuple(tea_view(f.model, f.values, rec.h, get_preset(p))  # refuses a model the TEA cannot run
-                      for f, p in zip(fits, presets))
-        structures = [v.structure for v in views]
-        if not plain:  # the model's means (a ramp, a line …) at their fitted values
-            fitted_y = y
-            t = np.arange(N) * rec.h
-            y = torch.stack([v.residual(y[i, :, 0], t, inputs) for i, v in enumerate(views)]).unsqueeze(-1)
-    fits = fits or ()
+
+def _fit_channels(m: Measurements, model, plain: bool, fits, presets: list, y: torch.Tensor, inputs) -> tuple:
+    """``r_mode="fitted"``: the fits (made where not given), their TEA views and structures, and the series."""
+    rec, N = m.recording, m.samples
+    fitted_y = None
+    if fits is None:
+        from .fitting import fit_series
+
+        fits = tuple(fit_series(model, [y[i, :, 0].numpy() for i in range(len(m.channels))], rec.h,
+                                method="exact", profile=plain, inputs=None if inputs is None else
+                                [inputs] * len(m.channels)))
+    # each channel's view on its own preset, once: its structure, and the settings axis_configs starts from
+    views = tuple(tea_view(f.model, f.values, rec.h, get_preset(p))  # refuses a model the TEA cannot run
+                  for f, p in zip(fits, presets))
+    structures = [v.structure for v in views]
+    if not plain:  # the model's means (a ramp, a line …) at their fitted values
+        fitted_y = y
+        t = np.arange(N) * rec.h
+        y = torch.stack([v.residual(y[i, :, 0], t, inputs) for i, v in enumerate(views)]).unsqueeze(-1)
+    return fits, views, structures, y, fitted_y
+
+
+def _channel_configs(m: Measurements, y: torch.Tensor, r_mode: str, overrides, fits, presets: list, views,
+                     structures: list) -> tuple:
+    """``(configs, changes)``: each channel's TEA settings (``soe`` memory for long inputs), what overrides changed."""
+    rec, N = m.recording, m.samples
     overrides = dict(overrides or {})
     if "memory" not in overrides and (N >= LONG_INPUT or overrides.get("kfx_filter") == "exact"):
         overrides["memory"] = {"kind": "soe"}  # an exact KFx carries its past in its state: soe keeps it small
@@ -283,16 +312,29 @@ def identify(measurements: Measurements, *, model=PAPER_MODEL, r_mode: str = "fi
         if st.n_states > 1 and cfg.noise_scaling != "scaled":  # the states' drives are h^α Q0 h^α (tea_view)
             raise ValueError(f"channel {c.label}: a model of several KFx states needs noise_scaling 'scaled' (its "
                              f"states' drives are written for it), not {cfg.noise_scaling!r}")
+    return configs, changes
+
+
+def _exact_views(configs: tuple, views) -> tuple:
+    """Which channels run an exact KFx (``kfx_filter = "exact"``), and their views, checked: ``(exact, views)``."""
     exact = [cfg.kfx_filter == "exact" for cfg in configs]
     if any(exact) and not views:
         raise ValueError("kfx_filter 'exact' runs the exact filter of the fitted model's state space: it needs "
                          "r_mode 'fitted'")
+    exact_views = {}
     if any(exact):
-        from .noise.tea_exact import batch_key, check_exact, run_tea_exact
+        from .noise.tea_exact import check_exact
 
         exact_views = {i: replace(views[i], config=configs[i]) for i, e in enumerate(exact) if e}
         for v in exact_views.values():  # every channel's settings and model, before any runs
             check_exact(v)
+    return exact, exact_views
+
+
+def _batches(structures: list, exact: list, exact_views: dict) -> list[list[int]]:
+    """The channels in batches that one run of the TEA can take, in the order of their first channels."""
+    if any(exact):
+        from .noise.tea_exact import batch_key
 
     def batch_with(i: int, j: int) -> bool:
         """Whether channels i and j run as one batch: the same structure, or (an exact KFx) the same batch_key."""
@@ -304,16 +346,24 @@ def identify(measurements: Measurements, *, model=PAPER_MODEL, r_mode: str = "fi
     for i in range(len(structures)):
         g = next((g for g in groups if batch_with(g[0], i)), None)
         (g.append(i) if g is not None else groups.append([i]))
+    return groups
+
+
+def _run_batches(groups: list, y: torch.Tensor, N: int, h: float, configs: tuple, structures: list, exact: list,
+                 exact_views: dict, *, progress, compile: bool, partial: bool, device) -> list:
+    """The TEA's results, batch after batch (after a Ctrl-C the later ones run the steps the interrupted one did)."""
+    if any(exact):
+        from .noise.tea_exact import run_tea_exact
     results = []
     steps, done = N, 0  # samples each group runs (after a Ctrl-C: those the interrupted group finished); steps done
     for g in groups:
         # progress over all groups: (steps done in every group so far, steps of all groups)
         prog = None if progress is None else (lambda k, _n, d=done: progress(d + k, len(groups) * (N - 1)))
         if exact[g[0]]:  # on the CPU, the channels of one model and filters' form as one batch
-            r = run_tea_exact([exact_views[i] for i in g], y[g, :steps, 0], h=rec.h, progress=prog, partial=partial)
+            r = run_tea_exact([exact_views[i] for i in g], y[g, :steps, 0], h=h, progress=prog, partial=partial)
         else:
             params = stack_params([make_params(configs[i], structures[i]) for i in g])
-            r = run_tea(y[g, :steps].to(device or "cpu"), h=rec.h, params=params, structure=structures[g[0]],
+            r = run_tea(y[g, :steps].to(device or "cpu"), h=h, params=params, structure=structures[g[0]],
                         progress=prog, compile=compile, partial=partial).to("cpu")
         results.append(r)
         done += r.alpha.shape[-2] - 1
@@ -321,9 +371,7 @@ def identify(measurements: Measurements, *, model=PAPER_MODEL, r_mode: str = "fi
             steps = r.alpha.shape[-2]
             if steps == 0:
                 raise KeyboardInterrupt
-    result = results[0] if len(groups) == 1 else _in_channel_order(results, groups)
-    return Identification(rec, rec.h, y, means, configs, result, m.missing, m.timing, changes, fits, m.channels, m,
-                          views, fitted_y)
+    return results
 
 
 def fits_for(doc: dict, fits: dict, measurements: Measurements) -> list:

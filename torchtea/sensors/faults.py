@@ -147,9 +147,20 @@ def find_faults(channels, *, h: float, temperature: np.ndarray | None = None,
     items = []
     N = len(channels[0].values)
     masks = {c.label: np.zeros(N, dtype=bool) for c in channels}
-    zero = np.zeros(N, dtype=bool)
     temp_rows = np.zeros(N, dtype=bool)
-    # --- zero rows: every channel (and the temperature) exactly 0
+    zero = _zero_rows(channels, temperature, h, items, masks, temp_rows)
+    _stuck(channels, zero, h, items, masks)
+    _clipping(channels, zero, h, items, masks)
+    if temperature is not None:
+        _temperature_steps(temperature, h, items, temp_rows)
+    if time_s is not None:
+        _time_jumps(time_s, h, items, N)
+    return Faults(tuple(items), masks, temp_rows, h)
+
+
+def _zero_rows(channels, temperature, h: float, items: list, masks: dict, temp_rows: np.ndarray) -> np.ndarray:
+    """Zero rows: every channel (and the temperature) exactly 0; their rows (all False with fewer than 2 columns)."""
+    zero = np.zeros(len(channels[0].values), dtype=bool)
     if len(channels) + (temperature is not None) >= 2:
         cols = [c.raw for c in channels] + ([temperature] if temperature is not None else [])
         zero = np.all(np.stack([c == 0.0 for c in cols]), axis=0)
@@ -164,7 +175,11 @@ def find_faults(channels, *, h: float, temperature: np.ndarray | None = None,
                 mk |= zero
             if temperature is not None:
                 temp_rows |= zero
-    # --- stuck: all channels of one sensor repeat their previous value
+    return zero
+
+
+def _stuck(channels, zero: np.ndarray, h: float, items: list, masks: dict) -> None:
+    """Stuck runs: all channels of one sensor repeat their previous value."""
     groups: dict = {}
     for c in channels:
         groups.setdefault(c.sensor if c.sensor != "signal" else c.name, []).append(c)
@@ -172,7 +187,7 @@ def find_faults(channels, *, h: float, temperature: np.ndarray | None = None,
         vals = np.stack([c.raw for c in cs])
         same = np.concatenate([[False], np.all(vals[:, 1:] == vals[:, :-1], axis=0)])
         same &= ~zero  # rows already explained as zero rows
-        L = stuck_min_run(_repeat_probability(same), N)
+        L = stuck_min_run(_repeat_probability(same), len(zero))
         runs = [[a - 1, b] for a, b in _runs(same) if b - a + 2 >= L]  # a run of repeats from the sample before
         if runs:
             count = sum(b - a + 1 for a, b in runs)
@@ -184,7 +199,24 @@ def find_faults(channels, *, h: float, temperature: np.ndarray | None = None,
             for a, b in runs:
                 for c in cs:
                     masks[c.label][a:b + 1] = True
-    # --- clipping: at the full scale, or a pile-up at an extreme
+
+
+def _pileup(raw: np.ndarray, ok: np.ndarray) -> np.ndarray:
+    """The samples piled up at a channel's extreme value (none for coarse data of few levels)."""
+    at = np.zeros(len(ok), dtype=bool)
+    if len(np.unique(raw[ok])) >= PILEUP_LEVELS:  # coarse data (a few levels) pile up at any value
+        top, bottom = np.max(raw[ok]), np.min(raw[ok])
+        for ext in (top, bottom):
+            on = ok & (raw == ext)
+            inner = raw[ok & (raw != ext)]
+            nxt = inner.max() if ext == top else inner.min()
+            if on.sum() >= PILEUP_MIN and on.sum() > 2 * np.sum(ok & (raw == nxt)):
+                at |= on
+    return at
+
+
+def _clipping(channels, zero: np.ndarray, h: float, items: list, masks: dict) -> None:
+    """Clipping: at the full scale, or a pile-up at an extreme."""
     for c in channels:
         raw = c.raw
         ok = np.isfinite(raw) & ~zero  # zero rows are a fault of their own, not a pile-up
@@ -195,15 +227,7 @@ def find_faults(channels, *, h: float, temperature: np.ndarray | None = None,
             at = ok & ((raw <= lo) | (raw >= hi))
             how = f"at the sensor's full scale ({lo:g} / {hi:g} in the file's {c.source_unit})"
         else:
-            at = np.zeros(N, dtype=bool)
-            if len(np.unique(raw[ok])) >= PILEUP_LEVELS:  # coarse data (a few levels) pile up at any value
-                top, bottom = np.max(raw[ok]), np.min(raw[ok])
-                for ext in (top, bottom):
-                    on = ok & (raw == ext)
-                    inner = raw[ok & (raw != ext)]
-                    nxt = inner.max() if ext == top else inner.min()
-                    if on.sum() >= PILEUP_MIN and on.sum() > 2 * np.sum(ok & (raw == nxt)):
-                        at |= on
+            at = _pileup(raw, ok)
             how = ("piled up at the channel's extreme value (more than twice as many samples on it as on the value "
                    "next to it: clipping at a full scale the file does not state)")
         if at.any():
@@ -213,45 +237,48 @@ def find_faults(channels, *, h: float, temperature: np.ndarray | None = None,
                                f"channel {c.label}: {count} samples {how} ({_where(runs, h)}): the sensor saturated "
                                "there, the values are not measurements"))
             masks[c.label] |= at
-    # --- temperature steps
-    if temperature is not None:
-        T = np.asarray(temperature, dtype=np.float64)
-        k = np.flatnonzero(np.isfinite(T))
-        if k.size > 2:
-            d = np.abs(np.diff(T[k]))
-            q = float(np.quantile(d, 0.999))
-            big = d > max(TEMPERATURE_STEP_C, 5.0 * q)
-            if big.any():
-                at = np.zeros(N, dtype=bool)
-                at[k[1:][big]] = True
-                # the samples between a step and the step back are faulty as well, when the temperature returns
-                runs = _runs(at)
-                count = int(at.sum())
-                items.append(Fault("temperature step", ("temperature",), runs, count,
-                                   f"the temperature jumps by up to {float(d[big].max()):.3g} °C from one sample to the "
-                                   f"next at {count} place(s) ({_where(runs, h)}), more than a die's temperature "
-                                   f"moves (threshold {max(TEMPERATURE_STEP_C, 5.0 * q):.3g} °C): a logging fault; "
-                                   "those temperature samples are treated as missing", treatment="temperature"))
-                temp_rows |= at
-    # --- time jumps
-    if time_s is not None:
-        t = np.asarray(time_s, dtype=np.float64)
-        k = np.flatnonzero(np.isfinite(t))
-        if k.size > 2:
-            dt = np.diff(t[k]) / np.diff(k)
-            q = float(np.quantile(dt, 0.999))
-            jump = (dt <= 0) | (dt > max(TIME_JUMP_FACTOR * q, 10.0 * h))
-            if jump.any():
-                at = np.zeros(N, dtype=bool)
-                at[k[1:][jump]] = True
-                runs = _runs(at)
-                back = int((dt <= 0).sum())
-                items.append(Fault("time jump", ("time",), runs, int(jump.sum()),
-                                   f"the time stamps jump at {int(jump.sum())} place(s) ({_where(runs, h)}; {back} "
-                                   f"backwards, largest step {float(np.max(np.abs(dt))):.3g} s against a 99.9 % "
-                                   f"quantile of {q:.3g} s): a clock fault or samples lost without a trace; reported "
-                                   "only", treatment="reported"))
-    return Faults(tuple(items), masks, temp_rows, h)
+
+
+def _temperature_steps(temperature: np.ndarray, h: float, items: list, temp_rows: np.ndarray) -> None:
+    """Temperature steps: a jump from one sample to the next that no die's temperature makes."""
+    T = np.asarray(temperature, dtype=np.float64)
+    k = np.flatnonzero(np.isfinite(T))
+    if k.size > 2:
+        d = np.abs(np.diff(T[k]))
+        q = float(np.quantile(d, 0.999))
+        big = d > max(TEMPERATURE_STEP_C, 5.0 * q)
+        if big.any():
+            at = np.zeros(len(temp_rows), dtype=bool)
+            at[k[1:][big]] = True
+            # the samples between a step and the step back are faulty as well, when the temperature returns
+            runs = _runs(at)
+            count = int(at.sum())
+            items.append(Fault("temperature step", ("temperature",), runs, count,
+                               f"the temperature jumps by up to {float(d[big].max()):.3g} °C from one sample to the "
+                               f"next at {count} place(s) ({_where(runs, h)}), more than a die's temperature "
+                               f"moves (threshold {max(TEMPERATURE_STEP_C, 5.0 * q):.3g} °C): a logging fault; "
+                               "those temperature samples are treated as missing", treatment="temperature"))
+            temp_rows |= at
+
+
+def _time_jumps(time_s: np.ndarray, h: float, items: list, N: int) -> None:
+    """Time jumps: stamps that go backwards or leap far beyond their usual interval (reported only)."""
+    t = np.asarray(time_s, dtype=np.float64)
+    k = np.flatnonzero(np.isfinite(t))
+    if k.size > 2:
+        dt = np.diff(t[k]) / np.diff(k)
+        q = float(np.quantile(dt, 0.999))
+        jump = (dt <= 0) | (dt > max(TIME_JUMP_FACTOR * q, 10.0 * h))
+        if jump.any():
+            at = np.zeros(N, dtype=bool)
+            at[k[1:][jump]] = True
+            runs = _runs(at)
+            back = int((dt <= 0).sum())
+            items.append(Fault("time jump", ("time",), runs, int(jump.sum()),
+                               f"the time stamps jump at {int(jump.sum())} place(s) ({_where(runs, h)}; {back} "
+                               f"backwards, largest step {float(np.max(np.abs(dt))):.3g} s against a 99.9 % "
+                               f"quantile of {q:.3g} s): a clock fault or samples lost without a trace; reported "
+                               "only", treatment="reported"))
 
 
 def apply_faults(channels, temperature, faults: Faults):

@@ -27,8 +27,8 @@ import numpy as np
 
 from .datacheck import stamp_rate
 from .errors import InputError
-from .text import (PLAUSIBLE_RATE_HZ, TIME_COLUMNS, _delimiter_hint, _head_lines, _is_number, _numeric_column, _parse_body,
-                   _seconds, _time_column, read_series)
+from .text import (PLAUSIBLE_RATE_HZ, TIME_COLUMNS, _delimiter_hint, _given_rate, _head_lines, _is_number,
+                   _numeric_column, _parse_body, _stamps_and_rate, _time_column, read_series)
 
 __all__ = ["RECORDER_COLUMNS", "InputError", "Channel", "Recording", "bundled_recording", "read_recording",
            "read_series", "write_columns", "STANDARD_GRAVITY", "BUNDLED", "TIME_COLUMNS", "UNITS", "SI_UNITS",
@@ -372,18 +372,26 @@ def read_recording(path=None, *, columns: Sequence[str] | None = None, units=Non
                                      lsb_per_dps)
     if segment is not None:
         raise InputError(f"{path}: not a torchtea recording, it has no segments")
+    return _read_csv(path, lines, columns, units, lsb_per_g, lsb_per_dps, rate_hz, time_column, temperature_column)
+
+
+def _header_row(path: Path, lines: list[str], columns) -> tuple[dict, int]:
+    """The ``key,value`` lines above a CSV's header row (the bundled format's ``Fs,100`` …) and the header's index."""
     meta: dict = {}
-    start = None
     for i, line in enumerate(lines):
         parts = [p.strip() for p in line.split(",")]
         if len(parts) == 2 and not (columns and all(c in parts for c in columns)) and not default_columns(parts) \
                 and not _is_number(parts[0]):
             meta[parts[0]] = parts[1]
             continue
-        start = i
-        break
-    if start is None:
-        raise InputError(f"{path}: no header row found")
+        return meta, i
+    raise InputError(f"{path}: no header row found")
+
+
+def _read_csv(path: Path, lines: list[str], columns, units, lsb_per_g, lsb_per_dps, rate_hz, time_column,
+              temperature_column) -> Recording:
+    """A generic CSV or the bundled format (:func:`read_recording`'s arguments; ``lines``: the file's first lines)."""
+    meta, start = _header_row(path, lines, columns)
     header = [h.strip() for h in lines[start].split(",")]
     wanted = list(columns) if columns else default_columns(header)
     if not wanted:
@@ -404,18 +412,7 @@ def read_recording(path=None, *, columns: Sequence[str] | None = None, units=Non
     if temperature_column is not None and temperature_column not in header:
         raise InputError(f"{path}: no temperature column {temperature_column!r} (the header has "
                          f"{', '.join(header[:12])}{' …' if len(header) > 12 else ''})")
-    rate_source = "--rate" if rate_hz is not None else ""
-    if rate_hz is None and bundled:
-        try:
-            rate_hz = float(meta["Fs"])
-        except ValueError:
-            raise InputError(f"{path}: sample rate 'Fs,{meta['Fs']}' is not a number") from None
-        rate_source = "the file's Fs line"
-    if rate_hz is not None and not (rate_hz > 0 and math.isfinite(rate_hz)):
-        raise InputError(f"{path}: sample rate must be positive, got {rate_hz}")
-    if rate_hz is None and tcol is None:
-        raise InputError(f"{path}: no sample rate in the file (an 'Fs,<Hz>' line or a time column named "
-                         f"{', '.join(TIME_COLUMNS[:8])} …); give it with --rate")
+    rate_hz, rate_source = _given_rate(path, meta, rate_hz, tcol, bundled)
     try:
         unit_list = parse_units(units, wanted)
     except ValueError as exc:
@@ -423,9 +420,9 @@ def read_recording(path=None, *, columns: Sequence[str] | None = None, units=Non
     if bundled:
         lsb_per_g = 16384.0 if lsb_per_g is None else lsb_per_g  # MPU-6050 library defaults: ±2 g …
         lsb_per_dps = 131.0 if lsb_per_dps is None else lsb_per_dps  # … and ±250 °/s
-    extra = [c for c in (tcol, temperature_column) if c is not None and c not in wanted]
+    names = wanted + [c for c in (tcol, temperature_column) if c is not None and c not in wanted]
     try:
-        data = _parse_body(path, start, header, wanted + extra)
+        data = _parse_body(path, start, header, names)
     except InputError as exc:
         if tcol is not None and exc.column == tcol:
             raise InputError(f"{exc}; time stamps must be seconds (--time-column none ignores them)", tcol) from None
@@ -433,37 +430,10 @@ def read_recording(path=None, *, columns: Sequence[str] | None = None, units=Non
     channels = _make_channels(path, wanted, data[:, :len(wanted)], unit_list, default_counts=bundled,
                               lsb_per_g=lsb_per_g, lsb_per_dps=lsb_per_dps,
                               full_scale=(-32768.0, 32767.0) if bundled else None)
-
-    def col(name):
-        return data[:, (wanted + extra).index(name)]
-
-    t = None
-    if tcol is not None:
-        t, unit_note = _seconds(tcol, col(tcol))
-        if unit_note:
-            meta["time_unit"] = unit_note
-        # rows in which every column read is exactly 0, the time stamp too, are a logging fault (zero-filled rows,
-        # found and made missing by the faults' check): their stamps are no clock, so they neither give nor
-        # contradict the rate
-        blank = np.all(data == 0.0, axis=1)
-        if blank.any():
-            t = np.where(blank, np.nan, t)
-            meta["time_zero_rows"] = (f"time column {tcol!r}: the stamps of the {int(blank.sum())} row(s) that are "
-                                      "0 in every column are ignored (a logging fault, not a clock)")
-    if rate_hz is None:
-        rate_hz = stamp_rate(t) if t is not None else math.nan
-        if not math.isfinite(rate_hz):
-            raise InputError(f"{path}: no sample rate in the file: no 'Fs,<Hz>' line, and time column {tcol!r} "
-                             "has fewer than two stamps or does not increase; give the rate with --rate")
-        if not PLAUSIBLE_RATE_HZ[0] <= rate_hz <= PLAUSIBLE_RATE_HZ[1]:
-            raise InputError(f"{path}: time column {tcol!r} gives a sample rate of {rate_hz:.4g} Hz, implausible for an "
-                             "IMU: time stamps are read as seconds; give the rate with --rate (and --time-column none "
-                             "if the stamps are in other units)")
-        rate_source = f"the mean rate of time column {tcol!r} over the whole file"
+    t, rate_hz, rate_source = _stamps_and_rate(path, tcol, data, names, meta, rate_hz, rate_source)
     return Recording(path=path, rate_hz=float(rate_hz), channels=channels, metadata=meta, time_s=t, time_column=tcol,
-                     rate_source=rate_source,
-                     temperature=None if temperature_column is None else col(temperature_column).copy(),
-                     temperature_column=temperature_column)
+                     rate_source=rate_source, temperature=None if temperature_column is None
+                     else data[:, names.index(temperature_column)].copy(), temperature_column=temperature_column)
 
 
 def _bag_recording(path: Path, bag: dict, rate_hz: float | None, time_column: str | None) -> Recording:

@@ -11,6 +11,7 @@ from typing import Sequence
 
 import numpy as np
 
+from .datacheck import stamp_rate
 from .errors import InputError
 
 __all__ = ["read_series", "TIME_COLUMNS", "TIME_UNITS", "PLAUSIBLE_RATE_HZ", "HEAD_LINES"]
@@ -169,6 +170,51 @@ def _time_column(path: Path, header: list, wanted) -> str | None:
     if wanted not in header:
         raise InputError(f"{path}: no time column {wanted!r}; the header has {', '.join(header[:12])}")
     return wanted
+
+
+def _given_rate(path: Path, meta: dict, rate_hz, tcol, bundled: bool) -> tuple:
+    """The sample rate given or in the file's ``Fs`` line (None: from the stamps), checked, and where it came from."""
+    rate_source = "--rate" if rate_hz is not None else ""
+    if rate_hz is None and bundled:
+        try:
+            rate_hz = float(meta["Fs"])
+        except ValueError:
+            raise InputError(f"{path}: sample rate 'Fs,{meta['Fs']}' is not a number") from None
+        rate_source = "the file's Fs line"
+    if rate_hz is not None and not (rate_hz > 0 and math.isfinite(rate_hz)):
+        raise InputError(f"{path}: sample rate must be positive, got {rate_hz}")
+    if rate_hz is None and tcol is None:
+        raise InputError(f"{path}: no sample rate in the file (an 'Fs,<Hz>' line or a time column named "
+                         f"{', '.join(TIME_COLUMNS[:8])} …); give it with --rate")
+    return rate_hz, rate_source
+
+
+def _stamps_and_rate(path: Path, tcol, data: np.ndarray, names: list, meta: dict, rate_hz, rate_source: str):
+    """``(t, rate_hz, rate_source)``: column ``tcol``'s stamps in seconds (notes: ``meta``), their rate if not given."""
+    t = None
+    if tcol is not None:
+        t, unit_note = _seconds(tcol, data[:, names.index(tcol)])
+        if unit_note:
+            meta["time_unit"] = unit_note
+        # rows in which every column read is exactly 0, the time stamp too, are a logging fault (zero-filled rows,
+        # found and made missing by the faults' check): their stamps are no clock, so they neither give nor
+        # contradict the rate
+        blank = np.all(data == 0.0, axis=1)
+        if blank.any():
+            t = np.where(blank, np.nan, t)
+            meta["time_zero_rows"] = (f"time column {tcol!r}: the stamps of the {int(blank.sum())} row(s) that are "
+                                      "0 in every column are ignored (a logging fault, not a clock)")
+    if rate_hz is None:
+        rate_hz = stamp_rate(t) if t is not None else math.nan
+        if not math.isfinite(rate_hz):
+            raise InputError(f"{path}: no sample rate in the file: no 'Fs,<Hz>' line, and time column {tcol!r} "
+                             "has fewer than two stamps or does not increase; give the rate with --rate")
+        if not PLAUSIBLE_RATE_HZ[0] <= rate_hz <= PLAUSIBLE_RATE_HZ[1]:
+            raise InputError(f"{path}: time column {tcol!r} gives a sample rate of {rate_hz:.4g} Hz, implausible for an "
+                             "IMU: time stamps are read as seconds; give the rate with --rate (and --time-column none "
+                             "if the stamps are in other units)")
+        rate_source = f"the mean rate of time column {tcol!r} over the whole file"
+    return t, rate_hz, rate_source
 
 
 def read_series(path, columns: Sequence[str], optional: Sequence[str] = (), *, allow_missing=False) -> dict:

@@ -1,6 +1,6 @@
 """The paper's engines on its DFVOSS model structure (:mod:`.structure`): the Triple Estimation Algorithm
 (:mod:`.tea`; its settings as tensors :mod:`.params`, its filters' linear algebra :mod:`.unscented`, its memory of
-the past states :mod:`.history`, what it returns :mod:`.results`), its compiled scalar engine (:mod:`.fast`), its
+the past states :mod:`.history`, its arguments and stored steps :mod:`.batch`, what it returns :mod:`.results`), its compiled scalar engine (:mod:`.fast`), its
 settings as dataclasses (:mod:`.settings`), TOML (:mod:`.config`) and named presets (:mod:`.presets`). The simulator (the paper's scalar model among every noise model's) is
 :mod:`torchtea.noise.simulate`; the noise-model engines — the exact Kalman filter and the Whittle likelihood — are
 in :mod:`torchtea.likelihood`.

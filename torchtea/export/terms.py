@@ -244,72 +244,20 @@ def axis_terms(fit, y: np.ndarray, h: float, sensor: str, label: str, horizon,
     n = len(y)
     m = _taus(horizon, h)
     tau = m * h
-    t = torch.arange(n, dtype=torch.float64) * h
-    inp = None if inputs is None else {k: torch.as_tensor(v, dtype=torch.float64) for k, v in inputs.items()}
     temperature = None if inputs is None else inputs.get("temperature")
-    from ..checking.diagnostics import stochastic_avar
-
-    parts = allan.model_avar(model, values, h, m, by_component=True)
-    parts = {k: v[0] for k, v in parts.items()}
-    mean_labels = [lb for lb, c in model.components if c.kind == "mean"]
-    byc = model._by_component(model.as_dict(values))
-    for lb in mean_labels:  # each mean's AVAR on the recording's samples (for the attribution)
-        d = dict(model.components)[lb].mean(byc[lb], t, inp or {})[0].numpy()
-        parts[lb] = allan.deterministic_avar(d - d.mean(), m)
-    det = model.mean(values, t, inp).numpy()[0] if mean_labels else np.zeros(n)
-    det_avar = allan.deterministic_avar(det - det.mean(), m)
-    stoch = stochastic_avar(model, values, h, m, temperature)
+    parts, det_avar, stoch = _model_avars(model, values, h, m, n, inputs, temperature)
     total = stoch + det_avar
 
     # bare values: N from the white measurement variance (white + quantisation), K from a random walk
-    r0 = float(model.measurement_variance(values)[0])
-    k_label = next((lb for lb, c in model.components if c.nav_term == "K"), None)
-    k0 = float(values[f"{k_label}.sigma"]) if k_label else 0.0
-    w_labels = [lb for lb, c in model.components if c.nav_term == "N"]
-    N0 = math.sqrt(r0 * h)
-    bare = {"N": Number(N0, _white_ci(fit, w_labels, h), units["N"],
-                        _how(fit, [f"{lb}.{p.name}" for lb in w_labels for p in dict(model.components)[lb].params],
-                             "√(r Δt), r the white variance per sample") if w_labels else
-                        "the model has no white noise: 0"),
-            "K": Number(k0, tuple(fit.ci95[f"{k_label}.sigma"]) if k_label and fit.ci95.get(f"{k_label}.sigma")
-                        else None, units["K"],
-                        _how(fit, [f"{k_label}.sigma"], "random-walk.sigma") if k_label else
-                        "the model has no random walk: 0")}
+    r0, k_label, k0, bare = _bare_numbers(fit, model, values, h, units)
 
     basis = format_avar(m, h)
     rc, kc2, binding = cover(total, basis, r0, k0)
-    forced = {}
-    other = {lb: parts[lb] for lb, c in model.components if c.nav_term not in IN_FORMATS and lb in parts}
-    if rc > r0 * (1 + 1e-6) and len(binding):
-        i = int(binding.min())
-        forced["N"] = {"tau_s": float(tau[i]), "component": _largest(other, i)}
-    if kc2 > k0 * k0 * (1 + 1e-6) and len(binding):
-        i = int(binding.max())
-        forced["K"] = {"tau_s": float(tau[i]), "component": _largest(other, i)}
+    forced = _forced(model, parts, tau, binding, rc, kc2, r0, k0)
 
-    # B: the stochastic ADEV's minimum over all τ the recording shows
-    mb = np.unique(np.rint(np.logspace(0, math.log10(max(1, n // 2)), 64)).astype(int))
-    avar_b = stochastic_avar(model, values, h, mb, temperature)
-    adev_b = np.sqrt(avar_b)
-    ib = int(np.argmin(adev_b))
-    b_how = (f"ADEV minimum {adev_b[ib]:.4g} at τ {mb[ib] * h:.4g} s / 0.664 (the model's stochastic part, τ from "
-             f"{h:g} s to {mb[-1] * h:.4g} s)")
-    if ib == len(mb) - 1:
-        b_how += "; the ADEV still falls at the longest τ the recording shows: B is an upper bound"
-
-    def derived(v: dict, avar_m=None, avar_mb=None) -> dict:
-        """B, the covered values and their factors at parameter values ``v`` (the deterministic part held);
-        ``avar_m``, ``avar_mb``: the stochastic AVAR at ``m`` and ``mb`` when already computed for ``v``."""
-        avar_m = stochastic_avar(model, v, h, m, temperature) if avar_m is None else avar_m
-        avar_mb = stochastic_avar(model, v, h, mb, temperature) if avar_mb is None else avar_mb
-        r, k = float(model.measurement_variance(v)[0]), float(v[f"{k_label}.sigma"]) if k_label else 0.0
-        a, b2, _ = cover(avar_m + det_avar, basis, r, k)
-        nc, kc = math.sqrt(a * h), math.sqrt(b2)
-        return {"N0": math.sqrt(r * h), "K0": k, "B": float(np.sqrt(avar_mb).min() / BIAS_INSTABILITY_FACTOR),
-                "Nc": nc, "Kc": kc, "fN": nc / math.sqrt(r * h) if r > 0 else None, "fK": kc / k if k > 0 else None}
-
-    point = derived(values, stoch, avar_b)  # (the point's AVARs, computed above)
-    ci, why, held = _delta_intervals(fit, h, derived, tuple(point))
+    mb, avar_b, b_how = _bias_instability(model, values, h, n, temperature)
+    point, ci, why, held = _derived_intervals(fit, values, h, m, mb, temperature, det_avar, basis, k_label,
+                                               stoch, avar_b)
     if why:
         notes.append(f"no intervals for B and the covered values: {why}")
     if held:
@@ -324,18 +272,123 @@ def axis_terms(fit, y: np.ndarray, h: float, sensor: str, label: str, horizon,
     factor = {t: None if point["f" + t] is None else  # (≥ 1 by construction: its interval is clipped there)
               Number(point["f" + t], None if ci["f" + t] is None else (max(1.0, ci["f" + t][0]), ci["f" + t][1]), "",
                      "covered / bare; " + how) for t in ("N", "K")}
-    B = point["B"]
+    ieee = _ieee(fit, model, values, units, bare, Number(point["B"], ci["B"], units["B"], b_how + "; " + how))
 
+    comps = _component_words(model, values, h)
+    if any(c.kind == "filter" for _, c in model.components):
+        notes.append(next(cc["words"] for cc, (_, c) in zip(comps, model.components) if c.kind == "filter"))
+
+    curves = _curves(y, h, m, tau, total, parts, basis, (r0, k0 * k0), (rc, kc2))
+    return AxisTerms(label, sensor, h, model.spec, tuple(horizon), bare, covered, factor, forced, ieee, comps,
+                     curves, notes)
+
+
+def _model_avars(model, values: dict, h: float, m: np.ndarray, n: int, inputs, temperature):
+    """Each component's AVAR at cluster sizes ``m`` (a mean's on the recording's samples), the deterministic part's
+    and the stochastic part's."""
+    t = torch.arange(n, dtype=torch.float64) * h
+    inp = None if inputs is None else {k: torch.as_tensor(v, dtype=torch.float64) for k, v in inputs.items()}
+    from ..checking.diagnostics import stochastic_avar
+
+    parts = allan.model_avar(model, values, h, m, by_component=True)
+    parts = {k: v[0] for k, v in parts.items()}
+    mean_labels = [lb for lb, c in model.components if c.kind == "mean"]
+    byc = model._by_component(model.as_dict(values))
+    for lb in mean_labels:  # each mean's AVAR on the recording's samples (for the attribution)
+        d = dict(model.components)[lb].mean(byc[lb], t, inp or {})[0].numpy()
+        parts[lb] = allan.deterministic_avar(d - d.mean(), m)
+    det = model.mean(values, t, inp).numpy()[0] if mean_labels else np.zeros(n)
+    det_avar = allan.deterministic_avar(det - det.mean(), m)
+    stoch = stochastic_avar(model, values, h, m, temperature)
+    return parts, det_avar, stoch
+
+
+def _bare_numbers(fit, model, values: dict, h: float, units: dict):
+    """The white variance r0, the random walk's label and K0, and the bare N and K (:class:`Number`)."""
+    r0 = float(model.measurement_variance(values)[0])
+    k_label = next((lb for lb, c in model.components if c.nav_term == "K"), None)
+    k0 = float(values[f"{k_label}.sigma"]) if k_label else 0.0
+    w_labels = [lb for lb, c in model.components if c.nav_term == "N"]
+    N0 = math.sqrt(r0 * h)
+    bare = {"N": Number(N0, _white_ci(fit, w_labels, h), units["N"],
+                        _how(fit, [f"{lb}.{p.name}" for lb in w_labels for p in dict(model.components)[lb].params],
+                             "√(r Δt), r the white variance per sample") if w_labels else
+                        "the model has no white noise: 0"),
+            "K": Number(k0, tuple(fit.ci95[f"{k_label}.sigma"]) if k_label and fit.ci95.get(f"{k_label}.sigma")
+                        else None, units["K"],
+                        _how(fit, [f"{k_label}.sigma"], "random-walk.sigma") if k_label else
+                        "the model has no random walk: 0")}
+    return r0, k_label, k0, bare
+
+
+def _forced(model, parts: dict, tau: np.ndarray, binding: np.ndarray, rc: float, kc2: float, r0: float,
+            k0: float) -> dict:
+    """Per term the cover raised: the τ that forced it and the component (outside the formats) largest there."""
+    forced = {}
+    other = {lb: parts[lb] for lb, c in model.components if c.nav_term not in IN_FORMATS and lb in parts}
+    if rc > r0 * (1 + 1e-6) and len(binding):
+        i = int(binding.min())
+        forced["N"] = {"tau_s": float(tau[i]), "component": _largest(other, i)}
+    if kc2 > k0 * k0 * (1 + 1e-6) and len(binding):
+        i = int(binding.max())
+        forced["K"] = {"tau_s": float(tau[i]), "component": _largest(other, i)}
+    return forced
+
+
+def _bias_instability(model, values: dict, h: float, n: int, temperature):
+    """B's cluster sizes (every τ the recording shows), the stochastic AVAR there and how B is made."""
+    from ..checking.diagnostics import stochastic_avar
+
+    # B: the stochastic ADEV's minimum over all τ the recording shows
+    mb = np.unique(np.rint(np.logspace(0, math.log10(max(1, n // 2)), 64)).astype(int))
+    avar_b = stochastic_avar(model, values, h, mb, temperature)
+    adev_b = np.sqrt(avar_b)
+    ib = int(np.argmin(adev_b))
+    b_how = (f"ADEV minimum {adev_b[ib]:.4g} at τ {mb[ib] * h:.4g} s / 0.664 (the model's stochastic part, τ from "
+             f"{h:g} s to {mb[-1] * h:.4g} s)")
+    if ib == len(mb) - 1:
+        b_how += "; the ADEV still falls at the longest τ the recording shows: B is an upper bound"
+    return mb, avar_b, b_how
+
+
+def _derived_intervals(fit, values: dict, h: float, m, mb, temperature, det_avar, basis, k_label, stoch, avar_b):
+    """The derived numbers at the estimate (the point's AVARs ``stoch``, ``avar_b``) and their delta-method
+    intervals: ``(point, intervals, why-none, the parameters held at a bound)``."""
+    from ..checking.diagnostics import stochastic_avar
+
+    model = fit.model
+
+    def derived(v: dict, avar_m=None, avar_mb=None) -> dict:
+        """B, the covered values and their factors at parameter values ``v`` (the deterministic part held);
+        ``avar_m``, ``avar_mb``: the stochastic AVAR at ``m`` and ``mb`` when already computed for ``v``."""
+        avar_m = stochastic_avar(model, v, h, m, temperature) if avar_m is None else avar_m
+        avar_mb = stochastic_avar(model, v, h, mb, temperature) if avar_mb is None else avar_mb
+        r, k = float(model.measurement_variance(v)[0]), float(v[f"{k_label}.sigma"]) if k_label else 0.0
+        a, b2, _ = cover(avar_m + det_avar, basis, r, k)
+        nc, kc = math.sqrt(a * h), math.sqrt(b2)
+        return {"N0": math.sqrt(r * h), "K0": k, "B": float(np.sqrt(avar_mb).min() / BIAS_INSTABILITY_FACTOR),
+                "Nc": nc, "Kc": kc, "fN": nc / math.sqrt(r * h) if r > 0 else None, "fK": kc / k if k > 0 else None}
+
+    point = derived(values, stoch, avar_b)  # (the point's AVARs, computed above)
+    ci, why, held = _delta_intervals(fit, h, derived, tuple(point))
+    return point, ci, why, held
+
+
+def _ieee(fit, model, values: dict, units: dict, bare: dict, B: Number) -> dict:
+    """IEEE Std 952's Q N B K R (Q not in any model; R a ramp's slope)."""
     ramp = next((lb for lb, c in model.components if c.nav_term == "R"), None)
-    ieee = {"Q": Number(None, None, units["Q"], "not in the model: no component has the τ⁻¹ ADEV slope of angle "
+    return {"Q": Number(None, None, units["Q"], "not in the model: no component has the τ⁻¹ ADEV slope of angle "
                                                 "quantisation (a rate's quantisation is white and counts in N)"),
-            "N": bare["N"], "B": Number(B, ci["B"], units["B"], b_how + "; " + how),
+            "N": bare["N"], "B": B,
             "K": bare["K"],
             "R": Number(abs(float(values[f"{ramp}.slope"])) if ramp else 0.0,
                         None if not ramp or not fit.ci95.get(f"{ramp}.slope") else
                         _abs_ci(fit.ci95[f"{ramp}.slope"]), units["R"],
                         _how(fit, [f"{ramp}.slope"], "|ramp.slope|") if ramp else "the model has no ramp: 0")}
 
+
+def _component_words(model, values: dict, h: float) -> list:
+    """Each component with its term, or what the formats miss of it."""
     comps = []
     for lb, c in model.components:
         v = {p.name: float(values[f"{lb}.{p.name}"]) for p in c.params if f"{lb}.{p.name}" in values}
@@ -349,11 +402,16 @@ def axis_terms(fit, y: np.ndarray, h: float, sensor: str, label: str, horizon,
         else:
             words = c.nav_note(lb, v, h)
         comps.append({"label": lb, "effect": c.name, "term": c.nav_term, "words": words})
-    if any(c.kind == "filter" for _, c in model.components):
-        notes.append(next(cc["words"] for cc, (_, c) in zip(comps, model.components) if c.kind == "filter"))
+    return comps
 
-    fmt = basis @ np.array([r0, k0 * k0])
-    fmt_c = basis @ np.array([rc, kc2])
+
+def _curves(y: np.ndarray, h: float, m: np.ndarray, tau: np.ndarray, total: np.ndarray, parts: dict,
+            basis: np.ndarray, bare: tuple, covered: tuple) -> dict:
+    """τ and the ADEVs for the report: the model's, its components', the format's bare and covered ((r, K²) each)
+    and the data's."""
+    n = len(y)
+    fmt = basis @ np.array([bare[0], bare[1]])
+    fmt_c = basis @ np.array([covered[0], covered[1]])
     curves = {"tau_s": tau.tolist(), "adev_model": np.sqrt(total).tolist(),
               "adev_components": {k: np.sqrt(np.maximum(v, 0)).tolist() for k, v in parts.items()},
               "adev_bare": np.sqrt(fmt).tolist(), "adev_covered": np.sqrt(fmt_c).tolist()}
@@ -363,8 +421,7 @@ def axis_terms(fit, y: np.ndarray, h: float, sensor: str, label: str, horizon,
         if ok.any():
             ad[ok] = allan.data_adev(y, h, m[ok])
         curves["adev_data"] = ad.tolist()
-    return AxisTerms(label, sensor, h, model.spec, tuple(horizon), bare, covered, factor, forced, ieee, comps,
-                     curves, notes)
+    return curves
 
 
 def _largest(parts: dict, i: int) -> str | None:

@@ -82,11 +82,12 @@ def kalman_filter(ss: StateSpace, y, mean=None, *, keep_states: bool = False, sm
     N = y.shape[-1]
     mu = torch.zeros_like(y) if mean is None else _as_series(mean, B).to(y)
     z = y.new_zeros(B, n)
-    w = y.new_zeros(B, n)
     g0 = ss.initial.to(y)
     P = g0.unsqueeze(-1) * g0.unsqueeze(-2)
-    es, Ss, preds, zs, Ps, zps, Pps, ws = [], [], [], [], [], [], [], []
-    sww, beta, rss = y.new_zeros(B), y.new_zeros(B), y.new_zeros(B)
+    es, Ss, preds, zs, Ps, zps, Pps = [], [], [], [], [], [], []
+    # the level's regressor w (the constant 1 through the filter) and its recursive least squares
+    lv = {"w": y.new_zeros(B, n), "ws": [], "sww": y.new_zeros(B), "beta": y.new_zeros(B),
+          "rss": y.new_zeros(B)} if level else None
     ll = y.new_zeros(B)
     observed = 0
     Ft = F.mT
@@ -101,70 +102,97 @@ def kalman_filter(ss: StateSpace, y, mean=None, *, keep_states: bool = False, sm
         ok = ~torch.isnan(e)
         if bool(ok.any()):
             observed += int(ok.sum())
-            e0 = torch.where(ok, e, torch.zeros_like(e))
-            K = Pc / S.unsqueeze(-1)
-            okf = ok.to(y.dtype).unsqueeze(-1)
-            z = z + okf * K * e0.unsqueeze(-1)
-            P = P - okf.unsqueeze(-1) * (K.unsqueeze(-1) * Pc.unsqueeze(-2))
-            P = 0.5 * (P + P.mT)
-            if level:
-                ll = ll - 0.5 * torch.where(ok, torch.log(2.0 * math.pi * S), torch.zeros_like(S))
-                ew = torch.where(ok, 1.0 - (C * w).sum(-1), torch.zeros_like(e0))
-                ws.append(ew)
-                # recursive weighted least squares of e on w, as the compiled filter does
-                started = sww > 0
-                d = e0 - beta * ew
-                safe = torch.where(started, sww, torch.ones_like(sww))
-                rss = rss + torch.where(started, d * d / (S + ew * ew / safe),
-                                        torch.where(ew != 0, torch.zeros_like(S), e0 * e0 / S))
-                sww_new = sww + ew * ew / S
-                beta = torch.where(started, beta + (ew / S) * d / torch.where(started, sww_new, torch.ones_like(sww)),
-                                   torch.where(ew != 0, e0 / torch.where(ew != 0, ew, torch.ones_like(ew)), beta))
-                sww = sww_new
-                w = w + okf * K * ew.unsqueeze(-1)
-            else:
-                ll = ll - 0.5 * torch.where(ok, torch.log(2.0 * math.pi * S) + e0 * e0 / S, torch.zeros_like(S))
+            z, P, ll = _update(z, P, ll, C, Pc, S, e, ok, lv)
         elif level:
-            ws.append(1.0 - (C * w).sum(-1))
+            lv["ws"].append(1.0 - (C * lv["w"]).sum(-1))
         es.append(e)
         Ss.append(S)
         preds.append(pred)
         if keep_states or smooth:
             zs.append(z)
             Ps.append(P)
-        Fk, Ftk, Qk = F, Ft, Q
-        if ss.varying is not None:  # a time-varying order: row i of F and Q[i, i] of this step
-            v = ss.varying
-            Fk, Qk = F.clone(), Q.clone()
-            Fk[:, v.i] = v.row(k)
-            Qk[:, v.i, v.i] = v.loading(k) ** 2
-            Ftk = Fk.mT
+        Fk, Ftk, Qk = _transition(ss, F, Ft, Q, k)
         z = (z.unsqueeze(-2) @ Ftk).squeeze(-2)
         if level:
-            w = (w.unsqueeze(-2) @ Ftk).squeeze(-2)
+            lv["w"] = (lv["w"].unsqueeze(-2) @ Ftk).squeeze(-2)
         P = Fk @ P @ Ftk + Qk
     filtered = torch.stack(zs, dim=1) if (keep_states or smooth) else None
-    smoothed = None
-    if smooth:
-        zsm = zs[-1]
-        Psm = Ps[-1]
-        out = [zsm]
-        for k in range(N - 2, -1, -1):
-            Pp = Pps[k + 1]
-            # J = P_k|k Fᵀ P_{k+1|k}⁺ (pseudo-inverse: the zero-variance start has singular predictions)
-            J = Ps[k] @ Ft @ torch.linalg.pinv(Pp, hermitian=True)
-            zsm = zs[k] + (J @ (zsm - zps[k + 1]).unsqueeze(-1)).squeeze(-1)
-            Psm = Ps[k] + J @ (Psm - Pp) @ J.mT
-            out.append(zsm)
-        smoothed = torch.stack(out[::-1], dim=1)
+    smoothed = _smooth(zs, Ps, zps, Pps, Ft, N) if smooth else None
     e_all, pred_all = torch.stack(es, 1), torch.stack(preds, 1)
     if level:
-        W = torch.stack(ws, 1)
-        e_all = e_all - beta.unsqueeze(-1) * W
-        pred_all = pred_all + beta.unsqueeze(-1) * W
-        ll = ll - 0.5 * rss + torch.where(sww > 0, 0.5 * torch.log(2.0 * math.pi / torch.where(sww > 0, sww, torch.ones_like(sww))),
-                                          torch.zeros_like(ll))
+        e_all, pred_all, ll = _level_result(e_all, pred_all, ll, lv)
     return FilterResult(e_all, torch.stack(Ss, 1), pred_all, ll, observed, filtered, smoothed)
+
+
+def _update(z, P, ll, C, Pc, S, e, ok, lv):
+    """The measurement update of one sample (where ``ok``: observed) of the state, its covariance and ℓ."""
+    e0 = torch.where(ok, e, torch.zeros_like(e))
+    K = Pc / S.unsqueeze(-1)
+    okf = ok.to(e.dtype).unsqueeze(-1)
+    z = z + okf * K * e0.unsqueeze(-1)
+    P = P - okf.unsqueeze(-1) * (K.unsqueeze(-1) * Pc.unsqueeze(-2))
+    P = 0.5 * (P + P.mT)
+    if lv is not None:
+        ll = ll - 0.5 * torch.where(ok, torch.log(2.0 * math.pi * S), torch.zeros_like(S))
+        _level_step(lv, C, S, e0, ok, okf, K)
+    else:
+        ll = ll - 0.5 * torch.where(ok, torch.log(2.0 * math.pi * S) + e0 * e0 / S, torch.zeros_like(S))
+    return z, P, ll
+
+
+def _level_step(lv: dict, C, S, e0, ok, okf, K) -> None:
+    """One observed sample's step of the level's regressor and its recursive least squares (``lv``, in place)."""
+    sww, beta, rss, w = lv["sww"], lv["beta"], lv["rss"], lv["w"]
+    ew = torch.where(ok, 1.0 - (C * w).sum(-1), torch.zeros_like(e0))
+    lv["ws"].append(ew)
+    # recursive weighted least squares of e on w, as the compiled filter does
+    started = sww > 0
+    d = e0 - beta * ew
+    safe = torch.where(started, sww, torch.ones_like(sww))
+    rss = rss + torch.where(started, d * d / (S + ew * ew / safe),
+                            torch.where(ew != 0, torch.zeros_like(S), e0 * e0 / S))
+    sww_new = sww + ew * ew / S
+    beta = torch.where(started, beta + (ew / S) * d / torch.where(started, sww_new, torch.ones_like(sww)),
+                       torch.where(ew != 0, e0 / torch.where(ew != 0, ew, torch.ones_like(ew)), beta))
+    lv["sww"], lv["beta"], lv["rss"] = sww_new, beta, rss
+    lv["w"] = w + okf * K * ew.unsqueeze(-1)
+
+
+def _transition(ss: StateSpace, F, Ft, Q, k: int):
+    """Step k's ``(F, Fᵀ, Q)``: with a time-varying order, row i of F and Q[i, i] of this step."""
+    if ss.varying is None:
+        return F, Ft, Q
+    v = ss.varying
+    Fk, Qk = F.clone(), Q.clone()
+    Fk[:, v.i] = v.row(k)
+    Qk[:, v.i, v.i] = v.loading(k) ** 2
+    return Fk, Fk.mT, Qk
+
+
+def _smooth(zs: list, Ps: list, zps: list, Pps: list, Ft, N: int) -> Tensor:
+    """The Rauch–Tung–Striebel smoothed means ``(B, N, n)`` from the filtered and predicted ones."""
+    zsm = zs[-1]
+    Psm = Ps[-1]
+    out = [zsm]
+    for k in range(N - 2, -1, -1):
+        Pp = Pps[k + 1]
+        # J = P_k|k Fᵀ P_{k+1|k}⁺ (pseudo-inverse: the zero-variance start has singular predictions)
+        J = Ps[k] @ Ft @ torch.linalg.pinv(Pp, hermitian=True)
+        zsm = zs[k] + (J @ (zsm - zps[k + 1]).unsqueeze(-1)).squeeze(-1)
+        Psm = Ps[k] + J @ (Psm - Pp) @ J.mT
+        out.append(zsm)
+    return torch.stack(out[::-1], dim=1)
+
+
+def _level_result(e_all, pred_all, ll, lv: dict):
+    """The innovations, predictions and ℓ with the level at its estimate (ℓ integrated over it)."""
+    W = torch.stack(lv["ws"], 1)
+    beta, rss, sww = lv["beta"], lv["rss"], lv["sww"]
+    e_all = e_all - beta.unsqueeze(-1) * W
+    pred_all = pred_all + beta.unsqueeze(-1) * W
+    ll = ll - 0.5 * rss + torch.where(sww > 0, 0.5 * torch.log(2.0 * math.pi / torch.where(sww > 0, sww, torch.ones_like(sww))),
+                                      torch.zeros_like(ll))
+    return e_all, pred_all, ll
 
 
 # --------------------------------------------------------------------------- the compiled fast path

@@ -403,37 +403,45 @@ class NoiseModel:
         C = torch.zeros(B, n, dtype=torch.float64)
         g0 = None
         if lowpass is not None:
-            if not outs_before and not bool((r_before > 0).any()):
-                raise ValueError(f"model {self.spec!r}: a {lowpass} needs components before it to filter")
-            # the filter's own states x_{k+1} = A x_k + b u_{k+1} (its output the last), driven by the sum of the
-            # components before it, u_{k+1} = s·(F z_k + ε_k) + ν_{k+1}: m more states, their noise correlated with
-            # the others' and, with white noise before the filter, one more noise column ν of variance r_before
-            A, b = dict(self.components)[lowpass].filter_block(byc[lowpass], h)  # (B, m, m), (B, m)
-            A, b = A.expand(B, -1, -1), b.expand(B, -1)
-            m_f = A.shape[-1]
-            s = torch.zeros(B, n, dtype=torch.float64)  # selects the sum of the components before it
-            s[:, outs_before] = 1.0
-            T = torch.cat([torch.eye(n, dtype=torch.float64).expand(B, n, n),
-                           b.unsqueeze(-1) * s.unsqueeze(1)], dim=1)  # (B, n+m, n)
-            F2 = torch.zeros(B, n + m_f, n + m_f, dtype=torch.float64)
-            F2[:, :, :n] = T @ F
-            F2[:, n:, n:] = A
-            F, G = F2, T @ G
-            if bool((r_before > 0).any()):
-                nu = torch.zeros(B, n + m_f, 1, dtype=torch.float64)
-                nu[:, n:, 0] = b * torch.sqrt(r_before).unsqueeze(-1)
-                G = torch.cat([G, nu], dim=-1)
-                # the filter starts from rest before the first sample: x_0 = b ν_0 (the states start at 0)
-                g0 = nu[..., 0].clone()
-            blocks[lowpass] = slice(n, n + m_f)
-            C = torch.zeros(B, n + m_f, dtype=torch.float64)
-            C[:, n + m_f - 1] = 1.0
-            C[:, outs_after] = 1.0
+            F, G, C, g0 = self._with_filter(byc, lowpass, h, B, F, G, blocks, outs_before, outs_after, r_before)
         else:
             C[:, outs_before] = 1.0
         varying = self._varying_order(byc, blocks, noise_cols, lowpass, h, n_steps, mem, inputs, B, F.shape[-1],
                                       orders)
         return StateSpace(F, G, C, (r_before + r_after if lowpass is None else r_after).clone(), blocks, varying, g0)
+
+    def _with_filter(self, byc, lowpass: str, h: float, B: int, F: Tensor, G: Tensor, blocks: dict,
+                     outs_before: list, outs_after: list, r_before: Tensor):
+        """The stacked ``(F, G, C, g0)`` with the sensor filter ``lowpass``'s states appended (``blocks`` updated)."""
+        n = F.shape[-1]
+        g0 = None
+        if not outs_before and not bool((r_before > 0).any()):
+            raise ValueError(f"model {self.spec!r}: a {lowpass} needs components before it to filter")
+        # the filter's own states x_{k+1} = A x_k + b u_{k+1} (its output the last), driven by the sum of the
+        # components before it, u_{k+1} = s·(F z_k + ε_k) + ν_{k+1}: m more states, their noise correlated with
+        # the others' and, with white noise before the filter, one more noise column ν of variance r_before
+        A, b = dict(self.components)[lowpass].filter_block(byc[lowpass], h)  # (B, m, m), (B, m)
+        A, b = A.expand(B, -1, -1), b.expand(B, -1)
+        m_f = A.shape[-1]
+        s = torch.zeros(B, n, dtype=torch.float64)  # selects the sum of the components before it
+        s[:, outs_before] = 1.0
+        T = torch.cat([torch.eye(n, dtype=torch.float64).expand(B, n, n),
+                       b.unsqueeze(-1) * s.unsqueeze(1)], dim=1)  # (B, n+m, n)
+        F2 = torch.zeros(B, n + m_f, n + m_f, dtype=torch.float64)
+        F2[:, :, :n] = T @ F
+        F2[:, n:, n:] = A
+        F, G = F2, T @ G
+        if bool((r_before > 0).any()):
+            nu = torch.zeros(B, n + m_f, 1, dtype=torch.float64)
+            nu[:, n:, 0] = b * torch.sqrt(r_before).unsqueeze(-1)
+            G = torch.cat([G, nu], dim=-1)
+            # the filter starts from rest before the first sample: x_0 = b ν_0 (the states start at 0)
+            g0 = nu[..., 0].clone()
+        blocks[lowpass] = slice(n, n + m_f)
+        C = torch.zeros(B, n + m_f, dtype=torch.float64)
+        C[:, n + m_f - 1] = 1.0
+        C[:, outs_after] = 1.0
+        return F, G, C, g0
 
     def _varying_order(self, byc, blocks, noise_cols, lowpass, h, n_steps, mem, inputs, B, n, orders=None):
         mods = [label for label, c in self.components if c.varies_order]

@@ -108,54 +108,11 @@ def simulate_states(model, values, *, n_steps: int, h: float, realisations: int 
     exact = (not parse_memory(memory).bounded and model.labels("state") == [frac] and not model.labels("filter")
              and not modified)
     if exact:  # the fractional component's own recursion over the whole past
-        xi, nu = _draws(draws, generator, B, R_, N, 1)
-        rv = model.measurement_variance(v)  # (B,): no filter, so all of it is measured
-        comp = dict(model.components)[frac]
-        fv = {k.split(".", 1)[1]: x for k, x in v.items() if k.startswith(frac + ".")}
-        alpha = run.to(device)
-        S = B * R_
-        fv = {k: x.repeat_interleave(R_).to(device) for k, x in fv.items()}
-        x = comp.run_exact(fv, alpha.repeat_interleave(R_, dim=0), h, xi.reshape(S, N).to(device),
-                           None if forcing is None else forcing.reshape(S, N).to(device),
-                           None if x0 is None else x0.reshape(S).to(device)).reshape(B, R_, N)
-        # the state space's exact memory holds x_k, x_{k-1}, ... (N - 1 states): state i at step k is x_{k-i}
-        lags = max(N - 1, 1)
-        idx = list(range(lags)) if keep == "all" else [int(i) for i in keep]
-        if any(not 0 <= i < lags for i in idx):
-            raise ValueError(f"keep: model {model.spec!r} has states 0 ... {lags - 1} under exact memory, not {keep!r}")
-        states = (torch.stack([torch.nn.functional.pad(x, (i, 0))[..., :N] for i in idx], -1) if idx
-                  else x.new_zeros(B, R_, N, 0))
-        out = x
-        alpha = alpha.unsqueeze(1).expand(B, R_, N).unsqueeze(-1)
+        xi, nu, rv, out, states, alpha = _states_exact(model, v, frac, run, h, B, R_, N, draws, generator, forcing,
+                                                       x0, keep, device)
     else:
-        mem = memory
-        if frac is not None and parse_memory(memory).bounded:  # a soe kernel for every order run (Example 3: up to 2)
-            mem = state_memory(memory, N, (float(run.min()), float(run.max())))
-        ss = model.state_space(v, h, N, mem, inputs=inputs, orders=orders)
-        n, m = ss.n, ss.G.shape[-1]
-        xi, nu = _draws(draws, generator, B, R_, N, m)
-        rv = ss.R  # the white noise after a sensor filter (before it, it is a state's drive)
-        z = torch.zeros(B, R_, n, dtype=torch.float64)
-        if ss.g0 is not None:  # a state that does not start at zero (a low-pass of white noise): drawn last
-            if draws is not None and len(draws) < 3:
-                raise ValueError(f"model {model.spec!r} starts from a draw (its sensor filter's first sample): give it "
-                                 "as the third of draws, (B, R), or draw from a generator")
-            z0 = (torch.as_tensor(draws[2], dtype=torch.float64).expand(B, R_).unsqueeze(-1) if draws is not None
-                  else torch.randn(B, R_, 1, generator=generator, dtype=torch.float64))
-            z = ss.g0.unsqueeze(1) * z0
-        row = -1 if frac is None else ss.blocks[frac].start
-        if x0 is not None:
-            z[..., row] = x0
-        idx = list(range(n)) if keep == "all" else [int(i) for i in keep]
-        if any(not 0 <= i < n for i in idx):
-            raise ValueError(f"keep: model {model.spec!r} has states 0 … {n - 1} under {memory!r} memory, not {keep!r}")
-        drive = None
-        if forcing is not None:  # enters the row as h^{α_{k+1}} u_k, like the drive
-            a_next = torch.cat([run[:, 1:], run[:, -1:]], dim=1)
-            drive = (torch.tensor(h, dtype=torch.float64) ** a_next).unsqueeze(1) * forcing
-        out, states = _run(ss, z, xi, idx, row if drive is not None else -1, drive)
-        alpha = (torch.zeros(B, R_, N, 0, dtype=torch.float64) if frac is None
-                 else run.unsqueeze(1).expand(B, R_, N).unsqueeze(-1))
+        xi, nu, rv, out, states, alpha = _states_stacked(model, v, frac, run, h, B, R_, N, memory, inputs, orders,
+                                                         draws, generator, forcing, x0, keep)
     dev = lambda a: a.to(device) if device is not None else a  # noqa: E731
     meas = torch.sqrt(rv).reshape(B, 1, 1) * nu
     y = dev(out) + dev(meas) + dev(mean).unsqueeze(1)
@@ -163,6 +120,64 @@ def simulate_states(model, values, *, n_steps: int, h: float, realisations: int 
                                                                              device=device)
     return Simulation(t=dev(t), u=u, x=dev(states), y=y.unsqueeze(-1), alpha=dev(alpha),
                       process_noise=dev(xi), measurement_noise=dev(meas).unsqueeze(-1))
+
+
+def _states_exact(model, v: dict, frac: str, run: Tensor, h: float, B: int, R_: int, N: int, draws, generator,
+                  forcing, x0, keep, device):
+    """:func:`simulate_states` by the fractional component's own recursion: ``(ξ, ν, R, outputs, states, orders)``."""
+    xi, nu = _draws(draws, generator, B, R_, N, 1)
+    rv = model.measurement_variance(v)  # (B,): no filter, so all of it is measured
+    comp = dict(model.components)[frac]
+    fv = {k.split(".", 1)[1]: x for k, x in v.items() if k.startswith(frac + ".")}
+    alpha = run.to(device)
+    S = B * R_
+    fv = {k: x.repeat_interleave(R_).to(device) for k, x in fv.items()}
+    x = comp.run_exact(fv, alpha.repeat_interleave(R_, dim=0), h, xi.reshape(S, N).to(device),
+                       None if forcing is None else forcing.reshape(S, N).to(device),
+                       None if x0 is None else x0.reshape(S).to(device)).reshape(B, R_, N)
+    # the state space's exact memory holds x_k, x_{k-1}, ... (N - 1 states): state i at step k is x_{k-i}
+    lags = max(N - 1, 1)
+    idx = list(range(lags)) if keep == "all" else [int(i) for i in keep]
+    if any(not 0 <= i < lags for i in idx):
+        raise ValueError(f"keep: model {model.spec!r} has states 0 ... {lags - 1} under exact memory, not {keep!r}")
+    states = (torch.stack([torch.nn.functional.pad(x, (i, 0))[..., :N] for i in idx], -1) if idx
+              else x.new_zeros(B, R_, N, 0))
+    alpha = alpha.unsqueeze(1).expand(B, R_, N).unsqueeze(-1)
+    return xi, nu, rv, x, states, alpha
+
+
+def _states_stacked(model, v: dict, frac, run: Tensor, h: float, B: int, R_: int, N: int, memory, inputs, orders,
+                    draws, generator, forcing, x0, keep):
+    """:func:`simulate_states` on the model's stacked state space: ``(ξ, ν, R, outputs, states, orders)``."""
+    mem = memory
+    if frac is not None and parse_memory(memory).bounded:  # a soe kernel for every order run (Example 3: up to 2)
+        mem = state_memory(memory, N, (float(run.min()), float(run.max())))
+    ss = model.state_space(v, h, N, mem, inputs=inputs, orders=orders)
+    n, m = ss.n, ss.G.shape[-1]
+    xi, nu = _draws(draws, generator, B, R_, N, m)
+    rv = ss.R  # the white noise after a sensor filter (before it, it is a state's drive)
+    z = torch.zeros(B, R_, n, dtype=torch.float64)
+    if ss.g0 is not None:  # a state that does not start at zero (a low-pass of white noise): drawn last
+        if draws is not None and len(draws) < 3:
+            raise ValueError(f"model {model.spec!r} starts from a draw (its sensor filter's first sample): give it "
+                             "as the third of draws, (B, R), or draw from a generator")
+        z0 = (torch.as_tensor(draws[2], dtype=torch.float64).expand(B, R_).unsqueeze(-1) if draws is not None
+              else torch.randn(B, R_, 1, generator=generator, dtype=torch.float64))
+        z = ss.g0.unsqueeze(1) * z0
+    row = -1 if frac is None else ss.blocks[frac].start
+    if x0 is not None:
+        z[..., row] = x0
+    idx = list(range(n)) if keep == "all" else [int(i) for i in keep]
+    if any(not 0 <= i < n for i in idx):
+        raise ValueError(f"keep: model {model.spec!r} has states 0 … {n - 1} under {memory!r} memory, not {keep!r}")
+    drive = None
+    if forcing is not None:  # enters the row as h^{α_{k+1}} u_k, like the drive
+        a_next = torch.cat([run[:, 1:], run[:, -1:]], dim=1)
+        drive = (torch.tensor(h, dtype=torch.float64) ** a_next).unsqueeze(1) * forcing
+    out, states = _run(ss, z, xi, idx, row if drive is not None else -1, drive)
+    alpha = (torch.zeros(B, R_, N, 0, dtype=torch.float64) if frac is None
+             else run.unsqueeze(1).expand(B, R_, N).unsqueeze(-1))
+    return xi, nu, rv, out, states, alpha
 
 
 def _draws(draws, generator, B: int, R_: int, N: int, m: int):
@@ -255,39 +270,15 @@ def simulate(structure, *, n_steps: int, h: float, order, parameters, process_no
     Simulation
         ``(*B, N, ·)``: ``x`` the fractional state, ``process_noise`` ω, ``measurement_noise`` ν.
     """
-    from ..engines.structure import Structure
-
     if n_steps < 1:
         raise ValueError("n_steps must be >= 1")
     n, p, d = structure.n_states, structure.n_outputs, structure.n_inputs
-    scalar = Structure()
-    if (n, p, d) != (1, 1, 1) or structure.n_params != 1 or not all(
-            torch.equal(a, b) for a, b in ((structure.A.base, scalar.A.base), (structure.A.basis, scalar.A.basis),
-                                           (structure.B, scalar.B), (structure.C, scalar.C))):
-        raise ValueError("simulate runs the paper's scalar structure (Structure()); simulate a model of several "
-                         "states from its noise model (torchtea.noise.simulate_states)")
+    _check_scalar(structure)
     cpu = torch.empty((), dtype=torch.float64)
-    w = torch.as_tensor(parameters, dtype=torch.float64).cpu()
-    if w.ndim == 0:
-        w = w.reshape(1)
-    alpha = order.values(n_steps, h, 1, inputs).to(cpu)  # (N, 1) or (*B, N, 1)
-    q = _variance(process_noise, "process_noise", cpu)
-    r = _variance(measurement_noise, "measurement_noise", cpu)
-    shapes = [tuple(batch_shape), w.shape[:-1], alpha.shape[:-2], q.shape, r.shape]
-    if inputs is not None:
-        inputs = torch.as_tensor(inputs).to(cpu)
-        if inputs.shape[-2:] != (n_steps, d):
-            raise ValueError(f"inputs must have shape (*B, {n_steps}, {d}), got {tuple(inputs.shape)}")
-        shapes.append(inputs.shape[:-2])
+    w, alpha, q, r, inputs, shapes = _scalar_arguments(order, parameters, process_noise, measurement_noise, inputs,
+                                                       n_steps, h, d, batch_shape, cpu)
     batch = broadcast_shapes(*shapes)
-    if standard_draws is None:
-        z_omega = torch.randn(batch + (n_steps, n), generator=generator, dtype=dtype, device=device)
-        z_nu = torch.randn(batch + (n_steps, p), generator=generator, dtype=dtype, device=device)
-    else:
-        z_omega, z_nu = (torch.as_tensor(z) for z in standard_draws)
-        if z_omega.shape[-2:] != (n_steps, n) or z_nu.shape[-2:] != (n_steps, p):
-            raise ValueError(f"standard_draws must have shapes (*B, {n_steps}, {n}) and (*B, {n_steps}, {p})")
-        batch = broadcast_shapes(batch, z_omega.shape[:-2], z_nu.shape[:-2])
+    z_omega, z_nu, batch = _standard_draws(standard_draws, generator, batch, n_steps, n, p, dtype, device)
     # one parameter set for the whole batch when nothing but the draws and the input varies; else one per member
     per_member = any(len(s) for s in shapes[1:5])
     S = math.prod(batch)
@@ -308,13 +299,62 @@ def simulate(structure, *, n_steps: int, h: float, order, parameters, process_no
                           orders=None if constant else a, forcing=forcing, draws=draws,
                           x0=None if x0 is None else _initial(x0, batch, B, R_),
                           keep=[0], device=device)
-    omega = sim.process_noise * torch.sqrt(values["fractional.q"]).to(sim.y).reshape(B, 1, 1, 1)
-    out = Simulation(t=sim.t, u=sim.u if inputs is not None else torch.zeros(B, R_, n_steps, d, device=sim.y.device,
-                                                                            dtype=torch.float64),
+    return _paper_result(sim, values["fractional.q"], inputs is not None, B, R_, n_steps, d, batch, dtype)
+
+
+def _paper_result(sim: Simulation, q: Tensor, has_inputs: bool, B: int, R_: int, n_steps: int, d: int, batch: tuple,
+                  dtype) -> Simulation:
+    """:func:`simulate`'s result from :func:`simulate_states`' ``sim``: ω scaled by √q, the batch ``batch``."""
+    omega = sim.process_noise * torch.sqrt(q).to(sim.y).reshape(B, 1, 1, 1)
+    out = Simulation(t=sim.t, u=sim.u if has_inputs else torch.zeros(B, R_, n_steps, d, device=sim.y.device,
+                                                                     dtype=torch.float64),
                      x=sim.x, y=sim.y, alpha=sim.alpha, process_noise=omega, measurement_noise=sim.measurement_noise)
     out = out.reshape(batch)
     return Simulation(*(t.to(dtype) for t in (out.t, out.u, out.x, out.y, out.alpha, out.process_noise,
                                               out.measurement_noise)))
+
+
+def _check_scalar(structure) -> None:
+    """Raise unless ``structure`` is the paper's scalar one (``Structure()``), the only one :func:`simulate` runs."""
+    from ..engines.structure import Structure
+
+    scalar = Structure()
+    if (structure.n_states, structure.n_outputs, structure.n_inputs) != (1, 1, 1) or structure.n_params != 1 or not all(
+            torch.equal(a, b) for a, b in ((structure.A.base, scalar.A.base), (structure.A.basis, scalar.A.basis),
+                                           (structure.B, scalar.B), (structure.C, scalar.C))):
+        raise ValueError("simulate runs the paper's scalar structure (Structure()); simulate a model of several "
+                         "states from its noise model (torchtea.noise.simulate_states)")
+
+
+def _scalar_arguments(order, parameters, process_noise, measurement_noise, inputs, n_steps: int, h: float, d: int,
+                      batch_shape, cpu: Tensor):
+    """:func:`simulate`'s ``f``, orders, ``q``, ``r`` and inputs on the CPU, and the batch shapes to broadcast."""
+    w = torch.as_tensor(parameters, dtype=torch.float64).cpu()
+    if w.ndim == 0:
+        w = w.reshape(1)
+    alpha = order.values(n_steps, h, 1, inputs).to(cpu)  # (N, 1) or (*B, N, 1)
+    q = _variance(process_noise, "process_noise", cpu)
+    r = _variance(measurement_noise, "measurement_noise", cpu)
+    shapes = [tuple(batch_shape), w.shape[:-1], alpha.shape[:-2], q.shape, r.shape]
+    if inputs is not None:
+        inputs = torch.as_tensor(inputs).to(cpu)
+        if inputs.shape[-2:] != (n_steps, d):
+            raise ValueError(f"inputs must have shape (*B, {n_steps}, {d}), got {tuple(inputs.shape)}")
+        shapes.append(inputs.shape[:-2])
+    return w, alpha, q, r, inputs, shapes
+
+
+def _standard_draws(standard_draws, generator, batch: tuple, n_steps: int, n: int, p: int, dtype, device):
+    """:func:`simulate`'s standard-normal ω and ν draws (given, or drawn in that order) and the batch with theirs."""
+    if standard_draws is None:
+        z_omega = torch.randn(batch + (n_steps, n), generator=generator, dtype=dtype, device=device)
+        z_nu = torch.randn(batch + (n_steps, p), generator=generator, dtype=dtype, device=device)
+    else:
+        z_omega, z_nu = (torch.as_tensor(z) for z in standard_draws)
+        if z_omega.shape[-2:] != (n_steps, n) or z_nu.shape[-2:] != (n_steps, p):
+            raise ValueError(f"standard_draws must have shapes (*B, {n_steps}, {n}) and (*B, {n_steps}, {p})")
+        batch = broadcast_shapes(batch, z_omega.shape[:-2], z_nu.shape[:-2])
+    return z_omega, z_nu, batch
 
 
 def _initial(x0, batch: tuple, B: int, R_: int) -> Tensor:

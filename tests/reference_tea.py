@@ -135,7 +135,7 @@ def tea_reference(y, u, h, s, *, honest: bool = False, r_from_kfx: bool = False)
 
 
 def settings_from_config(cfg) -> dict:
-    """Flatten a scalar :class:`torchtea.engines.tea.TEAConfig` into the reference's dict."""
+    """Flatten a scalar :class:`torchtea.engines.settings.TEAConfig` into the reference's dict."""
     f = lambda v: float(v)  # noqa: E731
     cap = lambda c: None if c.Q_max == "none" else (float(c.Q0) if c.Q_max == "Q0" else float(c.Q_max))  # noqa: E731
     return dict(

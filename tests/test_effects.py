@@ -17,7 +17,7 @@ from torchtea.checking.report import write_report
 from torchtea.effects import register, unregister
 from torchtea.fitting.mle import fit_series, regress_mean
 from torchtea.fitting.starts import Starts, initial_values, register_start, unregister_start
-from torchtea.fitting.starts.markov import band
+from torchtea.fitting.starts.markov import GaussMarkovStarts, band
 from torchtea.noise.components import COMPONENTS, Component, ParamSpec
 from torchtea.noise.model import parse_model
 from torchtea.noise.simulate import default_values, simulate_model, temperature_profile
@@ -385,8 +385,9 @@ def test_a_users_state_effect_without_strengths_is_screened():
         candidate = True
 
     @register_start(Plain)
-    class PlainStarts(Starts):  # (not the Gauss-Markov's, which give strengths)
-        pass
+    class PlainStarts(GaussMarkovStarts):  # the Gauss-Markov's starts, but no strengths
+        def strengths(self, comp, label, model, values, h, n):
+            return []
 
     register(Plain)
     try:

@@ -183,8 +183,8 @@ def test_no_module_takes_a_private_part_of_another_subpackage():
 
 
 def test_the_noise_layer_runs_no_statistical_test():
-    """Issue 47, item 4: the model's layer (``noise``) holds physics — spectra, state blocks, means, their fits'
-    starts — and no test: scipy's ``stats`` is the screens' and the diagnostics' (``checking``), not the effects'."""
+    """Issue 47, item 4: the model's layer (``noise``) holds physics — spectra, state blocks, means — and no
+    test (the fits' starts are fitting/starts/): scipy's ``stats`` is the screens' and the diagnostics' (``checking``), not the effects'."""
     hits = []
     for path in (ROOT / "noise").rglob("*.py"):
         for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):

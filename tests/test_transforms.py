@@ -103,3 +103,62 @@ def test_bic_is_one_formula_and_held_estimates_count_once():
     f.count(parse_model(m).held_estimates())
     assert f.k == k and isinstance(f, Fit)
     assert parse_model("fractional+white+temperature-bias").held_estimates() == {}  # a reference does not count
+
+
+def test_a_registered_start_replaces_a_built_in_one_only_when_asked_and_unregistering_restores_it():
+    """``register_start`` refuses to overwrite an effect's starts without ``replace=True``; ``unregister_start`` of a
+    built-in effect brings its own starts back (not the bare defaults); the effects page names a user's starts class
+    without a docstring instead of failing on it."""
+    from torchtea.fitting.starts import Starts, register_start, unregister_start
+    from torchtea.fitting.starts.markov import RandomWalkStarts
+    from torchtea.noise.components import RandomWalk
+    from torchtea.reference import effects_page
+
+    class Mine(Starts):
+        pass
+
+    with pytest.raises(ValueError, match="RandomWalk has starts already"):
+        register_start(RandomWalk)(Mine)
+    register_start(RandomWalk, replace=True)(Mine)
+    try:
+        assert type(starts_of(RandomWalk())) is Mine
+        assert "its own (Mine)" in effects_page()
+    finally:
+        unregister_start(RandomWalk)
+    assert type(starts_of(RandomWalk())) is RandomWalkStarts
+
+
+def test_the_default_starts_are_inside_every_kinds_range():
+    """The default start of each kind transforms to a finite unconstrained value: a pole's at half its stability
+    limit at the order started from (it was 0.5, a positive pole, whose transform is NaN); a 'bounded' parameter
+    needs finite bounds (register refuses others)."""
+    class Kinds(Component):
+        name = "test-kinds"
+        kind = "mean"
+        order_param = "order"
+        params = (ParamSpec("order", "bounded", "-", (0.0, 1.0)), ParamSpec("pole", "fraction", "1/s"),
+                  ParamSpec("level", "positive", "units"), ParamSpec("f", "nyquist", "Hz"),
+                  ParamSpec("x", "free", "units"))
+
+        def mean(self, v, t, inputs):
+            return v["x"].unsqueeze(-1) * t
+
+        def typical(self, param, h, t_ref):
+            return 0.0
+
+    class Unbounded(Chirp):
+        name = "test-unbounded"
+        params = (ParamSpec("share", "bounded", "-"),)
+
+    with pytest.raises(ValueError, match="'bounded' parameter needs finite bounds"):
+        register(Unbounded)
+    register(Kinds)
+    try:
+        m = parse_model("white+test-kinds")
+        y = torch.linspace(0.0, 1.0, 200, dtype=torch.float64)
+        start = initial_values(m, y, H)
+        assert start["test-kinds.pole"] == pytest.approx(-0.5 * 2 ** 0.3 / H ** 0.3)
+        u = m.to_unconstrained({n: [x] for n, x in start.items()}, H)
+        assert bool(torch.isfinite(u).all())
+    finally:
+        unregister("test-kinds")

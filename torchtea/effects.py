@@ -34,6 +34,7 @@ subclass); they are loaded the first time a model names a component that is not 
 """
 from __future__ import annotations
 
+import math
 from importlib import metadata
 
 from .noise.components import COMPONENTS, Component, ParamSpec
@@ -80,6 +81,9 @@ def register(effect, *, replace: bool = False):
     if any(p.kind not in SCALES for p in comp.params):
         raise ValueError(f"{where}: a parameter's kind must be one of {', '.join(SCALES)} (got "
                          f"{', '.join(sorted({p.kind for p in comp.params} - set(SCALES)))})")
+    if any(p.kind == "bounded" and not all(map(math.isfinite, p.bounds)) for p in comp.params):
+        raise ValueError(f"{where}: a 'bounded' parameter needs finite bounds (its transform is the logit of its "
+                         "share of the range); an unbounded one is 'free'")
     if any(p.kind == "fraction" for p in comp.params) and comp.order_param is None:
         raise ValueError(f"{where}: a 'fraction' parameter is a pole's fraction of the stability limit at the "
                          "effect's fractional order: the effect needs an order_param")

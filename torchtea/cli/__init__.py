@@ -2,7 +2,8 @@
 parses its flags, calls one library workflow (``estimate_file``, ``fit_recording``, ``check_measurements``,
 ``export_recording``, ``identify``, ``run_sweep`` …) and prints its lines.
 
-It may import every layer of torchtea; nothing in torchtea imports it (the top layer of tests/test_layers.py).
+It may import every layer of torchtea; nothing in torchtea imports it but the docs' reference pages
+(:mod:`torchtea.reference` reads the parser), the top layer of tests/test_layers.py.
 :mod:`~torchtea.cli.common` holds what the commands share (errors, help texts, argparse types, progress, the reading
 of a recording from its flags, the cluster flags); one module per group of commands adds their sub-parsers
 (``add_parsers``) and runs them (``cmd_*``): :mod:`~torchtea.cli.simulate` (simulate), :mod:`~torchtea.cli.tea`

@@ -1,6 +1,6 @@
 """The compiled kernel of :mod:`.fast` (numba), imported on first use: the torch step (:func:`.tea._tea_step`)
 for the scalar structure, written as one scalar twin per function of that step (``sigma_points`` for
-``tea.sigma_points``, …, ``guard`` for ``tea._guard``; ``mean_sums``, ``kfx_sums`` and ``push`` for the memory's methods),
+``unscented.sigma_points``, …, ``guard`` for ``tea._guard``; ``mean_sums``, ``kfx_sums`` and ``push`` for the memory's methods),
 which :func:`advance` calls in the torch step's order. tests/test_fast_twins.py checks each twin against its torch
 function on the same inputs and that order; the numerics inside the twins (``vexp``, ``tails3``, …) are checked
 through them.
@@ -175,7 +175,7 @@ def psd(v):
 
 @njit(cache=True, inline="always")
 def sigma_points(mean, prior_cov, scale, out):
-    """Sigma points (15)/(40) of a scalar filter (tea.sigma_points): ``mean, mean + r, mean − r`` into ``out``
+    """Sigma points (15)/(40) of a scalar filter (unscented.sigma_points): ``mean, mean + r, mean − r`` into ``out``
     with ``r = √(scale · prior_cov)``; returns ``r``."""
     r = math.sqrt(psd(scale * prior_cov))
     out[0], out[1], out[2] = mean, mean + r, mean - r
@@ -215,7 +215,7 @@ def replica(so, sw, w, x, up, h, ms, Y):
 
 @njit(cache=True, inline="always")
 def ut_update(Y, off, pts, mean, Pt, wm, wc, start, R, obs, yv):
-    """Unscented update (19)–(24) of one scalar filter (tea.ut_update): sigma points ``pts``, their predicted
+    """Unscented update (19)–(24) of one scalar filter (unscented.ut_update): sigma points ``pts``, their predicted
     outputs ``Y[off:off+3]``; returns (mean, covariance, gain, innovation, Pyy, Pxy)."""
     yp = wm[0] * Y[off] + wm[1] * Y[off + 1] + wm[2] * Y[off + 2]
     Pyy = 0.0
@@ -320,7 +320,7 @@ def kfx_update(x_pred, P_pred, R, obs, yv):
 
 @njit(cache=True, inline="always")
 def joseph(P, K, H, R):
-    """(1 − K H) P (1 − K H) + K R K, scalar (tea._joseph)."""
+    """(1 − K H) P (1 − K H) + K R K, scalar (unscented._joseph)."""
     g = 1.0 - K * H
     return g * P * g + K * R * K
 

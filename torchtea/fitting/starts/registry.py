@@ -32,13 +32,14 @@ class Starts:
 
     def start(self, comp, param: str, data: StartData) -> float:
         """A rough data-based value of ``param`` to start a fit from (not an estimate). Default: 0 for a free
-        parameter, 1 for a positive one, the middle of a bounded one's range, half the stability limit for a pole's
-        fraction, a quarter of the sampling rate for a frequency below Nyquist."""
+        parameter, 1 for a positive one, the middle of a bounded one's range, a pole at half its stability limit at
+        the order started from (``−½·2^α/h^α``, α ``data.order``), a quarter of the sampling rate for a frequency
+        below Nyquist."""
         spec = next(p for p in comp.params if p.name == param)
         if spec.kind == "positive":
             return 1.0
-        if spec.kind == "fraction":
-            return 0.5
+        if spec.kind == "fraction":  # (the value is the pole: its fraction of the limit is what the fits move)
+            return -0.5 * 2.0 ** data.order / data.h ** data.order
         if spec.kind == "nyquist":
             return 0.25 / data.h
         if spec.kind == "bounded":
@@ -118,25 +119,35 @@ class Starts:
 REGISTRY: dict = {}
 #: The defaults, for an effect without starts of its own.
 DEFAULT = Starts()
+#: The built-in effects' starts, as the package registers them (:func:`unregister_start` restores them).
+BUILT_IN: dict = {}
 
 
-def register_start(effect):
+def register_start(effect, *, replace: bool = False):
     """Class decorator: the :class:`Starts` subclass becomes the starts of the effect class ``effect`` (or of an
     effect instance's class). Register it in the module that defines the effect, so that whatever loads the effect
-    loads its starts too."""
+    loads its starts too. A class that has starts already (a built-in effect's) keeps them unless ``replace``."""
     cls = effect if isinstance(effect, type) else type(effect)
 
     def attach(starts: type) -> type:
         if not (isinstance(starts, type) and issubclass(starts, Starts)):
             raise TypeError(f"register_start({cls.__name__}) takes a Starts subclass, got {starts!r}")
+        if cls in REGISTRY and not replace:
+            raise ValueError(f"{cls.__name__} has starts already ({type(REGISTRY[cls]).__name__}); "
+                             "register_start(..., replace=True) replaces them")
         REGISTRY[cls] = starts()
         return starts
     return attach
 
 
 def unregister_start(effect) -> None:
-    """Remove the starts registered for the effect class ``effect`` (or an instance's class): the defaults are back."""
-    REGISTRY.pop(effect if isinstance(effect, type) else type(effect), None)
+    """Remove the starts registered for the effect class ``effect`` (or an instance's class): a built-in effect's own
+    starts are back where a user replaced them, the defaults elsewhere."""
+    cls = effect if isinstance(effect, type) else type(effect)
+    if cls in BUILT_IN:
+        REGISTRY[cls] = BUILT_IN[cls]
+    else:
+        REGISTRY.pop(cls, None)
 
 
 def starts_of(comp) -> Starts:

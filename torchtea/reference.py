@@ -127,7 +127,8 @@ def effects_page() -> str:
         if name in screened and test:
             lines += [f"**Screen**: {test}.", ""]
         own = type(starts_of(comp))
-        words = DEFAULT_START if own is Starts else rst_to_markdown((own.__doc__ or f"its own ({own.__name__}).").strip())
+        doc = own.__doc__ or f"its own ({own.__name__})."
+        words = DEFAULT_START if own is Starts else rst_to_markdown(doc.strip())
         lines += ["**Start**: " + words, ""]
     return "\n".join(lines) + "\n"
 

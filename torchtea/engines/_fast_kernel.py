@@ -1,7 +1,7 @@
 """The compiled kernel of :mod:`.fast` (numba), imported on first use: the torch step (:func:`.tea._tea_step`)
 for the scalar structure, written as one scalar twin per function of that step (``sigma_points`` for
-``unscented.sigma_points``, …, ``guard`` for ``tea._guard``; ``mean_sums``, ``kfx_sums`` and ``push`` for the memory's methods),
-which :func:`advance` calls in the torch step's order. tests/test_fast_twins.py checks each twin against its torch
+``unscented.sigma_points``, …, ``guard`` for ``tea._guard``; ``mean_sums``, ``kfx_sums`` and ``push`` for the
+memory's methods), which :func:`advance` calls in the torch step's order. tests/test_fast_twins.py checks each twin against its torch
 function on the same inputs and that order; the numerics inside the twins (``vexp``, ``tails3``, …) are checked
 through them.
 

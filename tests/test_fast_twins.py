@@ -64,10 +64,14 @@ def test_every_kernel_function_is_a_twin_or_a_part_of_one():
     compiled = {n for n, f in vars(kern).items() if hasattr(f, "py_func")}
     listed = set(STEP_TWINS) | set(MEMORY_TWINS) | PARTS
     assert compiled == listed, compiled ^ listed
-    # each twin's docstring names the torch function it mirrors (``tea.NAME``; the memory's method as ``memory's NAME``)
+    # each twin's docstring names the torch function it mirrors (``tea.NAME``, or ``unscented.NAME`` for the filters'
+    # linear algebra; the memory's method as ``memory's NAME``)
+    import torchtea.engines.unscented as unscented
+
     for k, t in STEP_TWINS.items():
         doc = getattr(kern, k).py_func.__doc__ or ""
-        assert (f"tea.{t}" in doc) if t != "kfx_sums" else (f"memory's ``{t}``" in doc), k
+        home = "unscented" if t in vars(unscented) else "tea"
+        assert (f"{home}.{t}" in doc) if t != "kfx_sums" else (f"memory's ``{t}``" in doc), k
 
 
 def _calls_in_order(fn, names) -> list:

@@ -233,7 +233,7 @@ def ut_update(Y, off, pts, mean, Pt, wm, wc, start, R, obs, yv):
 
 @njit(cache=True, inline="always")
 def adapt_q(Q, K, e, delta, qmax, obs):
-    """Robbins–Monro adaptation (25) with its cap (tea.adapt_q), scalar."""
+    """Robbins–Monro adaptation (25) with its cap (unscented.adapt_q), scalar."""
     if delta == 0.0:
         return Q
     Ke = K * e
@@ -327,7 +327,7 @@ def joseph(P, K, H, R):
 
 @njit(cache=True, inline="always")
 def constant_truth_cov(Sig, Pt, K, Pyy, Pxy):
-    """The error covariance of a scalar unscented filter for a constant truth (tea._constant_truth_cov):
+    """The error covariance of a scalar unscented filter for a constant truth (unscented._constant_truth_cov):
     (1 − K H)² Σ + K² (P_yy − H² P̃) with H = P_σy / P̃ (0 where P̃ is 0)."""
     Hh = Pxy / Pt if Pt > 0 else 0.0
     return psd(joseph(Sig, K, Hh, psd(Pyy - Hh * Pt * Hh)))
@@ -418,7 +418,7 @@ def advance(k0, k1, yoff, ooff, every, y, u, has_u,
             obs = not math.isnan(yk)
             yv = yk if obs else 0.0
             up = u[b, k - 1 - yoff] if has_u else 0.0
-            # the soe clamp count (tea._loop): extreme KFo sigma orders, before the step
+            # the soe clamp count (tea._loop_bounded): extreme KFo sigma orders, before the step
             spread = math.sqrt(psd(scale_o * (Pog + Qo)))
             if (al - spread) < count_lo or (al + spread) > count_hi:
                 clamp += 1

@@ -91,16 +91,16 @@ def register(effect, *, replace: bool = False):
         raise ValueError(f"{where}: a mean effect must define mean(v, t, inputs)")
     if comp.kind == "state" and (type(comp).block is Component.block or type(comp).spectrum is Component.spectrum):
         raise ValueError(f"{where}: a state effect must define block(v, h, memory) and spectrum(v, omega, h)")
-    def defined(hooks):
-        return [m for m in hooks if any(m in vars(c) for c in type(comp).__mro__[:-1] if c is not Component)]
-    if defined(SCREEN_HOOKS):
-        raise ValueError(f"{where}: {', '.join(defined(SCREEN_HOOKS))} on the class is no longer read — how check "
-                         "screens an effect is registered apart: torchtea.checking.screens.register_screen(YourEffect, "
-                         "test=…)")
-    if defined(START_HOOKS):
-        raise ValueError(f"{where}: {', '.join(defined(START_HOOKS))} on the class is no longer read — how the fits "
-                         "start an effect is registered apart: a torchtea.fitting.starts.Starts subclass with these "
-                         "methods (each taking the effect first), decorated @register_start(YourEffect)")
+    own = set().union(*(vars(c) for c in type(comp).__mro__[:-1] if c is not Component))  # the class's own names
+    old = [m for m in SCREEN_HOOKS if m in own]
+    if old:
+        raise ValueError(f"{where}: {', '.join(old)} on the class is no longer read — how check screens an effect is "
+                         "registered apart: torchtea.checking.screens.register_screen(YourEffect, test=…)")
+    old = [m for m in START_HOOKS if m in own]
+    if old:
+        raise ValueError(f"{where}: {', '.join(old)} on the class is no longer read — how the fits start an effect is "
+                         "registered apart: a torchtea.fitting.starts.Starts subclass with these methods (each taking "
+                         "the effect first), decorated @register_start(YourEffect)")
     if name in _BUILT_IN:
         raise ValueError(f"{where}: {name!r} is a built-in component and cannot be replaced")
     if name in COMPONENTS and not replace:

@@ -78,7 +78,7 @@ def refit_degenerate(run: CheckRun, model, fit: Fit, wf, intervals: bool) -> Fit
     # every distinct mode refined, however far below the degenerate fit it starts: a converged fit's ℓ against
     # unrefined starts' says nothing of where they climb
     new, _ = refine_best(model, y, h, starts, inputs=run.inputs, fixed=fixed, must=["the degenerate fit"],
-                         intervals=intervals, margin=math.inf)
+                         intervals=intervals, margin=math.inf, others=len(starts))
     if not new.loglik > fit.loglik + BASE_SLACK:
         return None
     new.count({n: w for n, w in located.items()})

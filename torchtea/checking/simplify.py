@@ -149,28 +149,34 @@ def _whittle_bic(model, wf, n) -> float:
     return bic(len([p for p in model.names if p not in model.references()]), n, float(wf.loglik[0]))
 
 
+def _model_starts(alt: Alternative, res) -> list:
+    """Starts of the alternative from the model's fit: its values for the parameters both have, each component the
+    alternative adds at its starting strengths against the model's spectrum (``(name, values)`` each; none where a
+    component it adds gives no strength)."""
+    m, current, h = alt.model, res.fit.values, res.h
+    carried = _carried(res.model, m, alt.removed)
+    shared = {f"{lb}.{p.name}": current[f"{carried[lb]}.{p.name}"] for lb, c in m.components if lb in carried
+              for p in c.params if f"{carried[lb]}.{p.name}" in current}
+    if len(shared) == len(m.names):
+        return [("the model's fit", shared)]
+    starts = []
+    new = [(lb, c) for lb, c in m.components if any(f"{lb}.{p.name}" not in shared for p in c.params)]
+    for lb, comp in new:  # (its strengths against the model's spectrum at its fit)
+        for k, st in enumerate(starts_of(comp).strengths(comp, lb, res.model, current, h, len(res.y))):
+            v = {**shared, **st}
+            if set(v) >= set(m.names):
+                starts.append((f"the model's fit with {comp.name} at strength {k + 1}", v))
+    return starts
+
+
 def _fit(alt: Alternative, res, wf) -> Fit:
     """The alternative's exact fit: from its Whittle modes (:func:`~torchtea.fitting.mle.fit_series`) and from the
-    model's fit (its values for the parameters both have, the new effect at its starting strengths), the best kept;
-    held estimates counted in BIC as the loop counts them."""
+    model's fit (:func:`_model_starts`), the best kept; held estimates counted in BIC as the loop counts them."""
     y, h, inputs = res.y, res.h, res.inputs
     inp_list = None if inputs is None else [inputs]
     m = alt.model
     best = fit_series(m, [y], h, method="exact", inputs=inp_list, profile=False, whittle=wf, intervals=False)[0]
-    current = res.fit.values
-    carried = _carried(res.model, m, alt.removed)
-    shared = {f"{lb}.{p.name}": current[f"{carried[lb]}.{p.name}"] for lb, c in m.components if lb in carried
-              for p in c.params if f"{carried[lb]}.{p.name}" in current}
-    starts = []
-    if len(shared) == len(m.names):
-        starts.append(("the model's fit", shared))
-    else:
-        new = [(lb, c) for lb, c in m.components if any(f"{lb}.{p.name}" not in shared for p in c.params)]
-        for lb, comp in new:  # (its strengths against the model's spectrum at its fit)
-            for k, s in enumerate(starts_of(comp).strengths(comp, lb, res.model, current, h, len(y))):
-                v = {**shared, **s}
-                if set(v) >= set(m.names):
-                    starts.append((f"the model's fit with {comp.name} at strength {k + 1}", v))
+    starts = _model_starts(alt, res)
     if starts:
         refs = m.references() | set(m.located())
         fixed = [n for n in m.names if n in refs]
@@ -213,8 +219,9 @@ def evaluate(res, progress=None) -> list[Alternative]:
     for a in alts:
         if progress is not None:
             progress(f"simplifying: {a.words} ({a.model.spec})")
-        try:
-            a.whittle = whittle_fit(a.model, [filled], h, inputs=inp_list)
+        try:  # (the grid, and the model's own values: a resonance stays where the model has it)
+            starts = [v for _, v in _model_starts(a, res)] if a.model.stationary else []
+            a.whittle = whittle_fit(a.model, [filled], h, inputs=inp_list, starts=[starts] if starts else None)
         except (ValueError, RuntimeError) as exc:
             a.rejected = f"not fitted: {exc}"
             continue

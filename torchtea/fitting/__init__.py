@@ -1,6 +1,6 @@
 """Fitting noise models: the Whittle and exact maximum likelihood (:mod:`.mle`), where they start (:mod:`.starts`, each
-effect's heuristics registered apart from its physics), the exact likelihood's optimiser (:mod:`.scoring`) and the
-batched Newton minimiser (:mod:`.optimize`), a fit's result with its intervals and BIC (:mod:`.results`), the exact
+effect's heuristics registered apart from its physics), the method of scoring both likelihoods' fits run on
+(:mod:`.scoring`), a fit's result with its intervals and BIC (:mod:`.results`), the exact
 likelihood and innovations at given values (:mod:`.exact`, :mod:`.innovations`), the test of whether the fractional
 component is there at all (:mod:`.presence`), how long to record (:mod:`.plan`), ``fit`` on a recording's channels
 (:mod:`.recording`, :mod:`.summary`).

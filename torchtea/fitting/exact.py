@@ -12,6 +12,7 @@ import torch
 from torch import Tensor
 
 from ..likelihood.kalman import filter_fast, loglik_fast
+from ..noise.derivatives import state_space_derivatives
 from ..noise.model import NoiseModel, StateSpace, parse_model, state_memory
 
 __all__ = ["FIT_MEMORY", "exact_loglik", "centred", "unknown_level", "ExactPass", "exact_pass", "exact_loglik_grad",
@@ -88,9 +89,9 @@ def exact_loglik_grad(model, U: Tensor, y, h: float, free, *, inputs: dict | Non
     """The exact log-likelihood ``(B,)`` of one series at ``B`` points ``U`` ``(B, P)`` of the unconstrained
     coordinates (:meth:`~torchtea.noise.model.NoiseModel.from_unconstrained`), its gradient ``(B, F)`` over the
     coordinates ``free`` (indices, F of them) and the scoring information ``(B, F, F)`` there — from the sensitivity
-    filter (:func:`torchtea.likelihood.gradient.loglik_grad`) on the state space's matrices and their derivatives by
-    forward-mode automatic differentiation (:func:`torch.func.jacfwd`) of the model's assembly. ``y`` as the likelihood
-    sees it (:func:`centred`); where :func:`gradient_supported` says why not, ``ValueError``."""
+    filter (:func:`torchtea.likelihood.gradient.loglik_grad`) on the state space's matrices and their derivatives,
+    assembled from each component's own (:func:`~torchtea.noise.derivatives.state_space_derivatives`; a mean's by
+    forward-mode automatic differentiation, :func:`torch.func.jacfwd`). ``y`` as the likelihood sees it (:func:`centred`); where :func:`gradient_supported` says why not, ``ValueError``."""
     from ..likelihood.gradient import loglik_grad
 
     model = parse_model(model)
@@ -109,16 +110,9 @@ def exact_loglik_grad(model, U: Tensor, y, h: float, free, *, inputs: dict | Non
     inp = None if inputs is None else {k: torch.as_tensor(v, dtype=torch.float64) for k, v in inputs.items()}
     kinds = {n: dict(model.components)[n.rsplit(".", 1)[0]].kind for n in model.names}
     mean_dirs = [q for q, i in enumerate(free.tolist()) if kinds[model.names[i]] == "mean"]
-    mats, means, dmeans = [], [], []
+    ss, dF, dG, dR, dg0 = state_space_derivatives(model, U, h, N, mem, free.tolist())
+    means, dmeans = [], []
     for u in U:
-        def assemble(uf, u=u):
-            full = u.index_put((free,), uf)
-            ss = model.state_space(model.from_unconstrained(full, h), h, N, mem, inputs=inputs)
-            out = (ss.F[0], ss.G[0], ss.C[0], ss.R[0], ss.initial[0])
-            return out, out
-
-        jac, val = torch.func.jacfwd(assemble, has_aux=True)(u[free])
-        mats.append((val, jac))
         means.append(model.mean(model.from_unconstrained(u, h), t, inp)[0])
         if mean_dirs:
             sub = free[mean_dirs]
@@ -133,12 +127,9 @@ def exact_loglik_grad(model, U: Tensor, y, h: float, free, *, inputs: dict | Non
                 eye = torch.eye(len(sub), dtype=torch.float64)
                 dmeans.append(torch.stack([torch.func.jvp(mean_of, (u[sub],), (eye[d],))[1]
                                            for d in range(len(sub))]))
-    stack = lambda k: torch.stack([m[0][k] for m in mats]).detach().numpy()  # noqa: E731
-    dstack = lambda k: torch.stack([m[1][k].movedim(-1, 0) for m in mats]).detach().numpy()  # noqa: E731
-    if np.any(dstack(2)):
-        raise ValueError(f"no sensitivity gradient for {model.spec}: its measurement row C depends on the parameters")
     row = np.full(len(free), -1, dtype=np.int64)
     row[mean_dirs] = np.arange(len(mean_dirs))
     dmean = torch.stack(dmeans).numpy() if mean_dirs else None
-    return loglik_grad(stack(0), dstack(0), stack(1), dstack(1), stack(2), stack(3), dstack(3), stack(4), dstack(4),
+    a = lambda x: x.detach().numpy()  # noqa: E731
+    return loglik_grad(a(ss.F), a(dF), a(ss.G), a(dG), a(ss.C), a(ss.R), a(dR), a(ss.initial), a(dg0),
                        y, torch.stack(means).detach().numpy(), dmean, row, level=unknown_level(model))

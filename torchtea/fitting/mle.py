@@ -5,15 +5,18 @@ The procedure, per series (axes and candidate models are batched):
 1. **Deterministic part** (offset, ramp, temperature bias, sinusoids) by least squares — a sinusoid's
    frequency from the periodogram's peak, refined — and removed (:func:`regress_mean`).
 2. **Whittle MLE** of the stochastic part from several starting orders and poles in one batch (the
-   likelihood has a second mode where order and pole trade, ALGORITHMS.md §7), by a batched damped
-   Newton with autograd derivatives (:mod:`.optimize`).
+   likelihood has a second mode where order and pole trade, ALGORITHMS.md §7), by the method of scoring
+   (:func:`~.scoring.score`) on the components' closed-form spectral derivatives
+   (:func:`~torchtea.noise.derivatives.spectrum_jacobian`): the gradient and the expected information of the
+   binned Whittle sum (:func:`~torchtea.likelihood.whittle.whittle_scores`), no automatic differentiation in the
+   loop; the starts race, and each distinct maximum is a mode.
 3. ``method="exact"``: from there, the **exact** likelihood (Kalman filter on the stacked state,
    :func:`~torchtea.likelihood.kalman.loglik_fast`) is maximised over all free parameters, the mean
-   parameters included: quasi-Newton steps on the Whittle fit's Hessian with central-difference gradients
-   (the difference points evaluated as one batch) — where that Hessian covers every free parameter, i.e.
-   the model has no mean or modifier parameters — else, or when those steps stall, L-BFGS-B.
-4. **Uncertainty**: standard errors from the observed information (the Hessian of −ℓ: autograd for
-   Whittle, central differences for exact) by the delta method from the unconstrained coordinates;
+   parameters included, by the method of scoring on the sensitivity filter's exact gradients
+   (:func:`~.scoring.score_batch`) — where the series has gaps or the order varies in time, quasi-Newton steps on
+   the Whittle fit's Hessian with central-difference gradients, and L-BFGS-B where those stall.
+4. **Uncertainty**: standard errors from the observed information (the Hessian of −ℓ: for Whittle by central
+   differences of its closed-form gradient, for exact of the exact gradients) by the delta method from the unconstrained coordinates;
    95 % intervals on those coordinates (log for positive values, logit for the order) so they respect
    the constraints; for the order also the **profile-likelihood** interval of the Whittle likelihood,
    which sees both modes. AIC = 2k − 2ℓ, BIC = k ln N − 2ℓ with k the free parameters.
@@ -31,10 +34,10 @@ from ..core.search import refine_frequency, remove_regressors
 from .exact import FIT_MEMORY, ExactPass, centred, exact_loglik, exact_pass, gradient_supported, unknown_level
 from .innovations import located_intervals
 from ..likelihood.settings import current as likelihood_settings
-from ..likelihood.whittle import RESOLUTION, WhittleData, periodogram, whittle_data
+from ..likelihood.whittle import RESOLUTION, WhittleData, periodogram, whittle_data, whittle_scores
+from ..noise.derivatives import spectrum_jacobian
 from ..noise.model import NoiseModel, parse_model
 from . import scoring
-from .optimize import newton
 from .results import Z95, Fit, bic, estimates_from_hessian, intervals_from_hessian
 from .scoring import decrement_tolerance
 from .starts import initial_values, starts_of
@@ -149,6 +152,12 @@ class WhittleFit(NamedTuple):
     modes: list | None = None
 
 
+#: The Whittle fits' starts race (:func:`~.scoring.score`): a start that cannot end higher than a finished one is
+#: left where it is, and is no mode.
+RACE = True
+
+FLOOR = 1e-6
+
 #: At most this many modes per series are kept (:attr:`WhittleFit.modes`).
 MAX_MODES = 4
 
@@ -161,12 +170,65 @@ def whittle_resolution() -> float | None:
     return None if how == "full" else RESOLUTION
 
 
-def _whittle_loss(model: NoiseModel, data: WhittleData, h: float):
-    """−ℓ_W of problems ``rows`` (series of ``data``) at parameters ``u`` (one row each), for :func:`newton`."""
-    def loss(u, rows):
-        d = data.rows(rows)
-        return -d.loglik(model.spectrum(model.from_unconstrained(u, h), d.frequencies(), h))
-    return loss
+class WhittleObjective:
+    """−ℓ_W of K starts (rows of ``U0`` ``(K, P)``, unconstrained; row k fits series ``owner[k]`` of ``data``) as the
+    method of scoring reads it (:func:`~.scoring.score`): over the coordinates ``idx``, the others held at ``U0``'s;
+    :meth:`vgi` with its gradient and expected information from the components' closed-form spectral derivatives
+    (:func:`~torchtea.noise.derivatives.spectrum_jacobian`, :func:`~torchtea.likelihood.whittle.whittle_scores`),
+    :meth:`values` the value alone. +1e300 (zero gradient and information) where ℓ_W is not finite."""
+
+    def __init__(self, model: NoiseModel, data: WhittleData, h: float, U0: Tensor, owner: Tensor, idx: np.ndarray):
+        self.model, self.data, self.h, self.idx = model, data, h, torch.as_tensor(idx, dtype=torch.long)
+        self.U0, self.owner = U0.detach().to(torch.float64), owner
+        self.one = bool((owner == owner[0]).all())  # one series: its frequencies broadcast over the rows
+        self.frequencies = data.frequencies()
+
+    def _at(self, points, rows):
+        rows = torch.as_tensor(np.asarray(rows), dtype=torch.long)
+        U = self.U0[rows].clone()
+        U[:, self.idx] = torch.as_tensor(np.asarray(points), dtype=torch.float64)
+        series = self.owner[rows[:1]] if self.one else self.owner[rows]
+        return U, self.frequencies[series], self.data.I[series]
+
+    def vgi(self, points, rows):
+        U, omega, I = self._at(points, rows)
+        S, dS = spectrum_jacobian(self.model, U, omega, self.h, self.idx.tolist())
+        f, g, info = (x.numpy() for x in whittle_scores(self.data.weight, I, S, dS))
+        bad = ~(np.isfinite(f) & np.isfinite(g).all(-1) & np.isfinite(info).all((-1, -2)))
+        return (np.where(bad, 1e300, f), np.where(bad[:, None], 0.0, g),
+                np.where(bad[:, None, None], 0.0, info))
+
+    def values(self, points, rows):
+        U, omega, I = self._at(points, rows)
+        S = self.model.spectrum(self.model.from_unconstrained(U, self.h), omega, self.h)
+        f = (-WhittleData(self.data.weight, omega[..., :self.data.terms], omega[..., self.data.terms:], I)
+             .loglik(S)).numpy()
+        return np.where(np.isfinite(f), f, 1e300)
+
+    def hessian(self, U: Tensor, rows) -> Tensor:
+        """The observed information (the Hessian of −ℓ_W) at the points ``U`` ``(k, P)`` of the starts ``rows``, over
+        the coordinates ``idx`` by central differences of the closed-form gradient (2F gradients in one batch,
+        step :data:`HESSIAN_STEP`), zero rows and columns for the others ``(k, P, P)``."""
+        k, F = U.shape[0], len(self.idx)
+        P = U.shape[-1]
+        H = torch.zeros(k, P, P, dtype=torch.float64)
+        if not F or not k:
+            return H
+        x = U[:, self.idx].numpy()
+        E = np.eye(F) * HESSIAN_STEP
+        points = np.concatenate([x[:, None, :] + E[None], x[:, None, :] - E[None]], axis=1).reshape(-1, F)
+        rows = np.repeat(np.asarray(rows), 2 * F)
+        _, g, _ = self.vgi(points, rows)
+        g = g.reshape(k, 2, F, F)
+        Hf = (g[:, 0] - g[:, 1]) / (2.0 * HESSIAN_STEP)
+        Hf = 0.5 * (Hf + np.swapaxes(Hf, -1, -2))
+        H[:, self.idx.unsqueeze(-1), self.idx] = torch.as_tensor(Hf)
+        return H
+
+
+#: Central-difference step (unconstrained coordinates) of the Whittle fit's observed information from its closed-form
+#: gradients: they carry no differencing error, so the step trades the truncation, O(step²), against their rounding.
+HESSIAN_STEP = 1e-4
 
 
 def whittle_fit(model, series: list, h: float, *, inputs: list | None = None, fixed: dict | None = None,
@@ -195,30 +257,42 @@ def whittle_fit(model, series: list, h: float, *, inputs: list | None = None, fi
     data = whittle_data(omega, torch.stack(Is), resolution)
     owner = torch.tensor(owner)
     free = _free_mask(model, fixed, True)
-    # every start to convergence (the binned sum makes it cheap): after a few iterations a start on the order–pole
-    # ridge can look better than one that converges to the higher mode
-    res = newton(_whittle_loss(model, data.rows(owner), h), torch.stack(rows_u), free)
-    finite = torch.where(torch.isfinite(res.loss), res.loss, torch.full_like(res.loss, math.inf))
+    U0 = torch.stack(rows_u)
+    # every start to convergence (scoring is cheap on the binned sum): after a few iterations a start on the order–pole
+    # ridge can look better than one that converges to the higher mode, and each distinct mode is a start of the
+    # exact fit; a start that has reached another's mode stops there
+    idx = free.nonzero().squeeze(-1).numpy()
+    objective = WhittleObjective(model, data, h, U0, owner, idx)
+    X, loss, converged, _ = scoring.score(objective.vgi, objective.values, U0[:, idx].numpy(),
+                                         scoring.logit_limits(model, idx), groups=owner.numpy(), race=RACE, pin=True,
+                                         floor=FLOOR)
+    U = U0.clone()
+    U[:, idx] = torch.as_tensor(X)
+    loss = torch.as_tensor(np.where(loss < 1e300, loss, np.inf))
     modes, best = [], []
     for s in range(len(series)):
         mine = (owner == s).nonzero().squeeze(-1)
-        order = mine[torch.argsort(finite[mine])]
+        order = mine[torch.argsort(loss[mine])]
         kept = []
         for i in order.tolist():
-            if not math.isfinite(float(finite[i])):
+            if not math.isfinite(float(loss[i])) or (kept and not converged[i]):  # (a start left in the race)
                 continue
             # distances on coordinates clipped to ±8: an order at its bound has a logit of 12 or 14 by rounding
-            if all(float((res.u[i].clamp(-8, 8) - res.u[j].clamp(-8, 8))[free].abs().max()) > scoring.MODE_DISTANCE
+            if all(float((U[i].clamp(-8, 8) - U[j].clamp(-8, 8))[free].abs().max()) > scoring.MODE_DISTANCE
                    for j in kept):
                 kept.append(i)
             if len(kept) == MAX_MODES:
                 break
         kept = kept or [int(order[0])]
         best.append(kept[0])
-        modes.append([(res.u[i].clone(), -float(res.loss[i]), res.hessian[i].clone()) for i in kept])
+        modes.append(kept)
+    flat = [i for kept in modes for i in kept]
+    H = dict(zip(flat, objective.hessian(U[flat], flat)))
+    modes = [[(U[i].clone(), -float(loss[i]), H[i]) for i in kept] for kept in modes]
     best = torch.tensor(best)
-    return WhittleFit(model.as_matrix(model.from_unconstrained(res.u[best], h)).detach(), -res.loss[best],
-                      res.u[best], res.hessian[best], mean_list, res.converged[best], free, data, modes)
+    return WhittleFit(model.as_matrix(model.from_unconstrained(U[best], h)).detach(), -loss[best],
+                      U[best], torch.stack([H[int(i)] for i in best]), mean_list, torch.as_tensor(converged)[best],
+                      free, data, modes)
 
 
 # --------------------------------------------------------------------------- exact
@@ -277,6 +351,7 @@ def profile_order(model, wf: WhittleFit, h: float, *, grid: int = 21, fixed: dic
     free = _free_mask(model, set(fixed or {}) | {name}, True)
     S = wf.u.shape[0]
     loss_grid = torch.full((S, grid), math.inf, dtype=torch.float64)
+    idx = free.nonzero().squeeze(-1).numpy()
     # continuation: from the grid point next to each series' MLE outwards, each point started from the last;
     # the upward and the downward chains advance together as one batch
     k0 = torch.argmin((alphas.unsqueeze(0) - wf.values[:, io].unsqueeze(-1)).abs(), dim=-1)
@@ -291,9 +366,13 @@ def profile_order(model, wf: WhittleFit, h: float, *, grid: int = 21, fixed: dic
         kk = torch.cat([k_up[up], k_down[down]])
         u0 = torch.cat([u_up[up], u_down[down]])
         u0[:, io] = ua[kk]
-        res = newton(_whittle_loss(model, wf.data.rows(rows), h), u0, free, max_iter=30, ftol=1e-9, dtol=1e-3)
-        u_up[up], u_down[down] = res.u[:len(up)], res.u[len(up):]
-        loss_grid[rows, kk] = res.loss
+        objective = WhittleObjective(model, wf.data, h, u0, rows, idx)
+        X, loss, _, _ = scoring.score(objective.vgi, objective.values, u0[:, idx].numpy(),
+                                      scoring.logit_limits(model, idx), max_iter=30, tolerance=1e-3,
+                                      groups=np.arange(len(rows)), race=False, pin=True)
+        u0[:, idx] = torch.as_tensor(X)
+        u_up[up], u_down[down] = u0[:len(up)], u0[len(up):]
+        loss_grid[rows, kk] = torch.as_tensor(np.where(loss < 1e300, loss, np.inf))
     out = []
     a = alphas.numpy()
     for s in range(S):

@@ -114,39 +114,64 @@ SLOW_RATIO = 0.5
 
 def score_batch(model, y, h, U0: Tensor, free: Tensor, inputs, memory, max_iter: int = 60,
                  tolerance: float | None = None):
-    r"""The method of scoring from K starts ``U0`` ``(K, P)`` at once (their likelihoods evaluated as one batch, the
-    finished ones left out): directions :math:`-(\mathcal I + \mu\,\mathrm{diag}\,\mathcal I)^{-1} g` on the
-    scoring information of the sensitivity filter (:func:`~.exact.exact_loglik_grad`), capped at 3 in the
-    unconstrained coordinates, and along each the longest of :data:`SCORING_STEPS` that lowers −ℓ by a tenth of what
-    the information predicts (Armijo: the full steps of all starts in one batch of likelihood values, the shorter
-    ones, in a second, only where the full one fails); each start's damping μ shrunk
-    after a full step and grown after none (Levenberg–Marquardt). A start has converged when its decrement
-    ½ gᵀ𝓘⁻¹g (the −ℓ still to gain on the information) is below :func:`decrement_tolerance`, or after
-    :data:`STALL_STEPS` steps in a row that each gained less, or once its last :data:`FLAT_WINDOW` steps together
-    gained less than :data:`FLAT_GAIN` with its decrement below that too (a crawl along a flat direction). A start still running is left where it is once it is
-    within :data:`MODE_DISTANCE` of a finished one, below it, or once at its recent pace it cannot reach a finished
-    one's ℓ in the iterations it has left (:data:`RACE_WINDOW`, :data:`RACE_MARGIN`), or it is below a finished one
-    and gains less per iteration than the tolerance's ten times: the batch does not wait for a start that cannot end
-    higher.
+    r"""The method of scoring on the exact likelihood from K starts ``U0`` ``(K, P)`` at once: :func:`score` with the
+    sensitivity filter's −ℓ, gradient and information (:func:`~.exact.exact_loglik_grad`) over the ``free``
+    coordinates, the starts' likelihoods evaluated as one batch.
     ``tolerance``: the decrement (nats) at which a start has converged, instead of :func:`decrement_tolerance`'s.
     Returns the free coordinates ``(K, F)``, −ℓ ``(K,)``, converged ``(K,)`` and iterations ``(K,)``."""
     idx = free.nonzero().squeeze(-1).numpy()
     U0 = U0.detach().to(torch.float64)
     if not bool((U0[:, ~free] == U0[0, ~free]).all()):
         raise ValueError("the starts of one scoring batch share their fixed coordinates")
-    vgi = scoring_objective(model, y, h, U0[0].clone(), idx, inputs, memory)
-    values = objective(model, y, h, U0[0].clone(), idx, inputs, memory)
-    X = U0[:, idx].numpy().copy()
+    exact = scoring_objective(model, y, h, U0[0].clone(), idx, inputs, memory)
+    batch = objective(model, y, h, U0[0].clone(), idx, inputs, memory)
+    return score(lambda points, rows: exact(points), lambda points, rows: batch(points), U0[:, idx].numpy().copy(),
+                 logit_limits(model, idx), max_iter=max_iter, tolerance=tolerance)
+
+
+def logit_limits(model, idx) -> np.ndarray:
+    """The bound of each free coordinate ``idx`` in the scoring iterations: :data:`LOGIT_BOUND` for a logit (a
+    bounded parameter's, a pole's fraction, a frequency's share of Nyquist), none for the others."""
+    bounded = np.array([model.param_spec(model.names[i]).scale == "logit" for i in idx], dtype=bool)
+    return np.where(bounded, LOGIT_BOUND, np.inf)
+
+
+def score(vgi, values, X0: np.ndarray, lim: np.ndarray, *, max_iter: int = 60, tolerance: float | None = None,
+          groups: np.ndarray | None = None, race: bool = True, margin: float | None = None, pin: bool = False,
+          floor: float | None = None):
+    r"""The method of scoring from K starts ``X0`` ``(K, F)`` at once. ``vgi(points, rows)`` gives −ℓ ``(k,)``, its
+    gradient ``(k, F)`` and the scoring information ``(k, F, F)`` of the starts ``rows`` at ``points`` ``(k, F)``
+    (+1e300, zero gradient and information where ℓ is not finite), ``values(points, rows)`` −ℓ alone; ``lim`` ``(F,)``
+    the bound of each coordinate (:func:`logit_limits`).
+
+    Directions :math:`-(\mathcal I + \mu\,\mathrm{diag}\,\mathcal I)^{-1} g`, capped at 3 in the unconstrained
+    coordinates, and along each the longest of :data:`SCORING_STEPS` that lowers −ℓ by a tenth of what the
+    information predicts (Armijo: the full steps of all starts in one batch of values, the shorter ones, in a second,
+    only where the full one fails); each start's damping μ shrunk after a full step and grown after none
+    (Levenberg–Marquardt). A start has converged when its decrement ½ gᵀ𝓘⁻¹g (the −ℓ still to gain on the
+    information) is below :func:`decrement_tolerance`, or after :data:`STALL_STEPS` steps in a row that each gained
+    less, or once its last :data:`FLAT_WINDOW` steps together gained less than :data:`FLAT_GAIN` with its decrement
+    below that too (a crawl along a flat direction). With ``race``, a start still running is left where it is once
+    it is within :data:`MODE_DISTANCE` of a finished one, below it, or once at its recent pace it cannot come within
+    ``margin`` nats (default :data:`RACE_MARGIN`) of a finished one's ℓ in the iterations it has left
+    (:data:`RACE_WINDOW`), or it is below a finished one and gains less per iteration than the tolerance's ten times,
+    or it is less than ``margin`` below and cannot gain the gap (:data:`CATCH_SAFETY`): the batch does not wait for a
+    start that cannot end higher (or within ``margin``). Without it, only the first of those: a start that has
+    reached a finished one's mode.
+    ``groups`` ``(K,)``: starts race only within their group (each series of a batch of several is its own).
+    ``pin``: a step longer than 3 pins its long coordinates at ±3 and takes the quadratic model's step in the others
+    (:func:`_pinned`) instead of shrinking every coordinate by its length.
+    ``tolerance``: the decrement (nats) at which a start has converged, instead of :func:`decrement_tolerance`'s.
+    Returns the coordinates ``(K, F)``, −ℓ ``(K,)``, converged ``(K,)`` and iterations ``(K,)``."""
+    X = np.clip(np.asarray(X0, dtype=np.float64), -lim, lim)
     K = len(X)
-    # a logit past ±LOGIT_BOUND is a parameter at its bound (an order within 6·10⁻⁶ of 0 or 1, a pole at its
-    # stability limit or at 0): the steps stop there instead of wandering along a flat boundary
-    bounded = np.array([model.param_spec(model.names[i]).scale == "logit" for i in idx])
-    lim = np.where(bounded, LOGIT_BOUND, np.inf)
-    X = np.clip(X, -lim, lim)
-    f, g, info = vgi(X)
-    if not len(idx):  # nothing free: the likelihood where it is
+    f, g, info = vgi(X, np.arange(K))
+    if not X.shape[1]:  # nothing free: the likelihood where it is
         return X, f, np.ones(K, dtype=bool), np.zeros(K, dtype=int)
-    b = _Batch(X, f, g, info, lim, tolerance)
+    b = _Batch(X, f, g, info, lim, tolerance, np.zeros(K, dtype=int) if groups is None else np.asarray(groups), race,
+               RACE_MARGIN if margin is None else margin)
+    b.pinning = pin
+    b.floor = 1e-12 if floor is None else floor
     ts = np.array(SCORING_STEPS)
     for _ in range(max_iter):
         active = np.nonzero(~b.done)[0]
@@ -165,7 +190,7 @@ def score_batch(model, y, h, U0: Tensor, free: Tensor, inputs, memory, max_iter:
         rows = active[moved]
         if len(rows):
             chosen = trials[moved, pick[moved]]
-            b.accept(rows, chosen, vgi(chosen), pick[moved] == 0, decs)  # (decs by active place: see accept)
+            b.accept(rows, chosen, vgi(chosen, rows), pick[moved] == 0, decs[moved])
         b.refuse(active[~moved], decs[~moved])
         b.race(active, decs, max_iter)
     return b.X, b.f, b.ok, b.iterations
@@ -176,9 +201,10 @@ class _Batch:
     information ``info``, the metric of their steps (the information, or BFGS-learnt), damping ``mu``, histories of
     −ℓ, and which have finished (``done``) and converged (``ok``)."""
 
-    def __init__(self, X, f, g, info, lim, tolerance):
+    def __init__(self, X, f, g, info, lim, tolerance, groups, race, margin):
         K = len(X)
         self.X, self.f, self.g, self.info, self.lim = X, f, g, info, lim
+        self.groups, self.racing, self.margin = groups, race, margin
         # the metric of each start's steps: the scoring information, until the steps converge only linearly (each
         # full step gains what the information predicts, but the prediction shrinks slowly: the information
         # overstates the curvature along some direction — the misspecified part of a model, a mean's second
@@ -207,7 +233,7 @@ class _Batch:
             move = ~held
             step = np.zeros_like(g[k])
             d = np.diag(metric[k])[move]
-            floor = 1e-12 * max(float(d.max()), 1e-300) if len(d) else 1.0
+            floor = self.floor * max(float(d.max()), 1e-300) if len(d) else 1.0
             A = metric[k][np.ix_(move, move)] + np.diag(mu[k] * np.maximum(d, floor) + floor)
             try:
                 step[move] = -np.linalg.solve(A, g[k][move])
@@ -215,7 +241,11 @@ class _Batch:
                 step[move] = -g[k][move] / (np.maximum(d, floor) * (1 + mu[k]))
             decs.append(-0.5 * float(g[k] @ step))
             big = float(np.max(np.abs(step))) if len(step) else 0.0
-            steps.append(step * (3.0 / big) if big > 3.0 else step)
+            if big > 3.0 and self.pinning:
+                step = _pinned(A, g[k], step, move)
+            elif big > 3.0:
+                step = step * (3.0 / big)
+            steps.append(step)
         return steps, np.array(decs)
 
     def line_search(self, active, steps, ts, values):
@@ -226,19 +256,19 @@ class _Batch:
         trials = np.clip(X[active][:, None, :] + ts[None, :, None] * steps[:, None, :], -lim, lim)  # (A, T, F)
         slope = np.einsum("af,af->a", g[active], steps)  # the directional derivative of −ℓ (negative)
         fv = np.full((len(active), len(ts)), np.inf)
-        fv[:, 0] = values(trials[:, 0])
+        fv[:, 0] = values(trials[:, 0], active)
         retry = ~(fv[:, 0] <= f[active] + 0.1 * slope)
         if retry.any():
-            fv[retry, 1:] = values(trials[retry, 1:].reshape(-1, X.shape[1])).reshape(int(retry.sum()), len(ts) - 1)
+            fv[retry, 1:] = values(trials[retry, 1:].reshape(-1, X.shape[1]),
+                                   np.repeat(active[retry], len(ts) - 1)).reshape(int(retry.sum()), len(ts) - 1)
         good = fv <= f[active][:, None] + 0.1 * ts[None, :] * slope[:, None]
         return trials, good.any(axis=1), np.argmax(good, axis=1)  # (the longest step that is good enough)
 
     def accept(self, rows, chosen, evaluated, full, decs):
         """The starts ``rows`` at their ``chosen`` points (``evaluated``: −ℓ, gradient and information there):
         the metric updated (the information, or a BFGS step once learning), the damping shrunk after a full step,
-        a stall counted where the gain is below the tolerance. ``decs`` are the active starts' decrements, read at
-        the row's place among the moved ones ``decs[j]`` — as the scoring always read them (when some active start did
-        not move, that is another start's decrement; kept so that every fit is the same, see issue 47's note)."""
+        a stall counted where the gain is below the tolerance. ``decs`` are the moved starts' decrements, ``decs[j]``
+        that of ``rows[j]``."""
         fn, gn, In = evaluated
         X, f, g, metric, mu = self.X, self.f, self.g, self.metric, self.mu
         for j, k in enumerate(rows):
@@ -295,18 +325,48 @@ class _Batch:
                 ok[k] = done[k] = True
         finished = np.nonzero(done & ok)[0]
         for j, k in enumerate(active):
-            if done[k] or not len(finished):
+            mine = finished[self.groups[finished] == self.groups[k]]
+            if done[k] or not len(mine):
                 continue
-            top = finished[np.argmin(f[finished])]
             near = any(f[k] >= f[i] and float(np.max(np.abs(np.clip(X[k], -8, 8) - np.clip(X[i], -8, 8))))
-                       <= MODE_DISTANCE for i in finished)
+                       <= MODE_DISTANCE for i in mine)
+            if not self.racing:
+                done[k] = near
+                continue
+            top = mine[np.argmin(f[mine])]
             pace = (history[k][-RACE_WINDOW - 1] - f[k]) / RACE_WINDOW if len(history[k]) > RACE_WINDOW else np.inf
             gap = f[k] - f[top]
-            behind = gap > RACE_MARGIN + pace * (max_iter - self.iterations[k])
+            behind = gap > self.margin + pace * (max_iter - self.iterations[k])
             crawling = gap > 0 and pace < NOISE_DECREMENTS * tol[k]  # below it and all but still
-            caught = RACE_MARGIN >= gap > CATCH_SAFETY * max(decs[j], remaining(history[k]))
+            caught = self.margin >= gap > CATCH_SAFETY * max(decs[j], remaining(history[k]))
             if near or behind or crawling or caught:
                 done[k] = True
+
+
+def _pinned(A: np.ndarray, g: np.ndarray, step: np.ndarray, move: np.ndarray) -> np.ndarray:
+    """The scoring step with each coordinate beyond ±3 pinned there and the others the minimiser of the quadratic
+    model ``gᵀd + ½ dᵀA d`` given the pinned ones (``A`` over the coordinates ``move``): a coordinate running off
+    (a variance collapsing, whose information vanishes with it) moves by 3 while the others take their own step,
+    instead of all of them shrunk by its length."""
+    out = step.copy()
+    where = np.nonzero(move)[0]
+    pinned = np.zeros(len(where), dtype=bool)
+    d = step[where]
+    for _ in range(len(where)):
+        over = ~pinned & (np.abs(d) > 3.0)
+        if not over.any():
+            break
+        pinned |= over
+        d = np.where(pinned, np.clip(d, -3.0, 3.0), d)
+        free = ~pinned
+        if free.any():
+            rhs = g[where][free] + A[np.ix_(free, pinned)] @ d[pinned]
+            try:
+                d[free] = -np.linalg.solve(A[np.ix_(free, free)], rhs)
+            except np.linalg.LinAlgError:
+                return step * (3.0 / float(np.max(np.abs(step))))
+    out[where] = d
+    return out
 
 
 def remaining(history: list) -> float:

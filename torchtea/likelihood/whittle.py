@@ -34,7 +34,7 @@ from torch import Tensor
 
 from dataclasses import dataclass
 
-__all__ = ["periodogram", "whittle_loglik", "WhittleData", "whittle_data", "RESOLUTION"]
+__all__ = ["periodogram", "whittle_loglik", "WhittleData", "whittle_data", "whittle_scores", "RESOLUTION"]
 
 #: Relative width of the binned Whittle sum's bins (:func:`whittle_data`).
 RESOLUTION = 1.0 / 200.0
@@ -130,3 +130,27 @@ def whittle_data(omega: Tensor, I: Tensor, resolution: float | None = RESOLUTION
     safe = torch.where(total > 0, total, torch.ones_like(total))
     omega_I = torch.where(total > 0, torch.exp(bin_sum(I * lw) / safe), omega_log.expand_as(total))
     return WhittleData(counts, omega_log, omega_I, total / counts)
+
+
+def whittle_scores(weight: Tensor, I: Tensor, spectrum: Tensor, derivatives: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+    r"""−ℓ_W ``(B,)`` of a (binned) Whittle sum, its gradient ``(B, F)`` and its expected information ``(B, F, F)`` from
+    the spectrum at :meth:`WhittleData.frequencies` ``(B, 2W)`` and its derivatives ``(B, F, 2W)`` along F
+    coordinates; ``weight`` ``(W,)`` and the mean ordinates ``I`` ``(B, W)`` (or ``(1, W)``) as
+    :class:`WhittleData` holds them. With :math:`d_j = \nabla\log S(\omega_j)`:
+
+    .. math::  \nabla(-\ell_W) = \sum_j m_j \big[d_j^{\log} - (\bar I_j/S_j^{I})\,d_j^{I}\big], \qquad
+               \mathcal I = \sum_j m_j\, d_j^{I} d_j^{I\,T},
+
+    the second the expectation of the Hessian where :math:`E\,\bar I_j = S_j` (the second derivatives of
+    :math:`\log S` cancel between the two terms: Whittle's Fisher information, as in Dzhaparidze, *Parameter
+    Estimation and Hypothesis Testing in Spectral Analysis of Stationary Time Series*, 1986): positive
+    semi-definite by construction, so the method of scoring takes no indefinite step."""
+    W = weight.shape[-1]
+    s_log, s_I = spectrum[..., :W], spectrum[..., W:]
+    ratio = I / s_I
+    value = (weight * (torch.log(4.0 * math.pi ** 2 * s_log) + ratio)).sum(-1)
+    d_log = derivatives[..., :W] / s_log.unsqueeze(-2)
+    d_I = derivatives[..., W:] / s_I.unsqueeze(-2)
+    grad = (d_log * weight).sum(-1) - (d_I * (weight * ratio).unsqueeze(-2)).sum(-1)
+    info = (d_I * weight) @ d_I.mT
+    return value, grad, info

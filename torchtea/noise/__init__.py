@@ -1,5 +1,5 @@
 """Noise models assembled from physical components (:mod:`.components`) into what every engine reads
-(:mod:`.model`), their simulation (:mod:`.simulate`) and the TEA's settings read from a model (:mod:`.tea`).
+(:mod:`.model`) and its derivatives (:mod:`.derivatives`), their simulation (:mod:`.simulate`) and the TEA's settings read from a model (:mod:`.tea`).
 
 Its layer is the model's: it may import :mod:`torchtea.core`, :mod:`torchtea.render`, the lowest layer of
 :mod:`torchtea.sensors` (its readers, and ``io.write_columns`` for a simulated recording) and :mod:`torchtea.engines` (the TEA's structures and GL kernels), never the likelihoods,

@@ -67,6 +67,27 @@ class ParamSpec:
             return -torch.sigmoid(u) * 2.0 ** order / h ** order
         return u
 
+    def derivative(self, u: Tensor, value: Tensor, h: float) -> Tensor:
+        """``∂value/∂u`` of :meth:`from_unconstrained` at ``u``, where it gave ``value`` (a pole fraction's at its order
+        held): ``value`` for a log, ``(hi − lo) s (1 − s)`` for a logit with ``s = sigmoid(u)``, ``s (1 − s)/(2h)`` for
+        a frequency, ``value (1 − s)`` for a pole's fraction, 1 for the identity."""
+        if self.kind == "positive":
+            return value
+        if self.kind in ("bounded", "nyquist", "fraction"):
+            s = torch.sigmoid(u)
+            if self.kind == "fraction":
+                return value * (1.0 - s)
+            scale = (self.bounds[1] - self.bounds[0]) if self.kind == "bounded" else 1.0 / (2.0 * h)
+            return scale * s * (1.0 - s)
+        return torch.ones_like(u)
+
+    def order_derivative(self, value: Tensor, h: float) -> Tensor:
+        """A pole fraction's ``∂value/∂order`` at its unconstrained coordinate held: the pole is ``−ρ 2^α/h^α``, so
+        ``value (ln 2 − ln h)``; zero for every other kind (no parameter but a pole moves with the order)."""
+        if self.kind != "fraction":
+            return torch.zeros_like(value)
+        return value * (math.log(2.0) - math.log(h))
+
 
 #: Each parameter kind's scale (:attr:`ParamSpec.scale`).
 SCALES = {"positive": "log", "bounded": "logit", "fraction": "logit", "nyquist": "logit", "free": "identity"}
@@ -102,6 +123,33 @@ def logit(p: Tensor) -> Tensor:
     return torch.log(p) - torch.log1p(-p)
 
 
+def forward_derivatives(function, params: tuple, v: dict, *args):
+    """``function(v, *args)`` — a tensor ``(B, …)`` or a tuple of them — and its derivatives with respect to each of
+    ``params`` (the values ``v[name]`` ``(B,)``), each ``(B, p, …)`` (a tuple of them for a tuple), by forward-mode
+    automatic differentiation (:func:`torch.func.jvp`, one pass per parameter): the default of the components'
+    derivative methods (:meth:`Component.spectrum_derivatives`, :meth:`Component.block_derivatives`, …)."""
+    names = [p.name for p in params]
+    primals = tuple(v[n] for n in names)
+
+    def of(*values):
+        return function({**v, **dict(zip(names, values))}, *args)
+
+    value, columns = None, []
+    for k in range(len(names)):
+        tangents = tuple(torch.ones_like(x) if j == k else torch.zeros_like(x) for j, x in enumerate(primals))
+        value, d = torch.func.jvp(of, primals, tangents)
+        columns.append(d)
+    if value is None:
+        value = of(*primals)
+    single = isinstance(value, Tensor)
+    values = (value,) if single else tuple(value)
+    if columns:
+        out = tuple(torch.stack([c if single else c[i] for c in columns], dim=1) for i in range(len(values)))
+    else:
+        out = tuple(x.new_zeros(x.shape[0], 0, *x.shape[1:]) for x in values)
+    return (value, out[0]) if single else (value, out)
+
+
 class Component:
     """Base class: a named part of the model. Subclasses set ``name``, ``kind`` and ``params``."""
 
@@ -127,6 +175,13 @@ class Component:
         """Two-sided spectral density at ω (rad/sample) for parameter values ``v`` (each ``(B,)``) → ``(B, W)``."""
         raise NotImplementedError
 
+    def spectrum_derivatives(self, v: dict, omega: Tensor, h: float) -> tuple[Tensor, Tensor]:
+        """The spectrum ``S`` ``(B, W)`` and its derivatives with respect to the component's parameters, in the order
+        of :attr:`params` and on their natural scale, ``(B, p, W)`` — what the Whittle fits' scoring reads at every
+        iteration. The built-in effects write them in closed form; this default differentiates :meth:`spectrum` by
+        forward-mode automatic differentiation (one pass per parameter), so that a user's effect needs none."""
+        return forward_derivatives(self.spectrum, self.params, v, omega, h)
+
     # ---- state blocks ---------------------------------------------------------------------------
     def n_states(self, memory) -> int:
         return 0
@@ -135,6 +190,19 @@ class Component:
         """Transition ``F`` ``(B, n, n)`` and noise loading ``G`` ``(B, n, m)`` of the block (process noise
         ``G ξ_k``, ξ standard normal, so ``Q = G Gᵀ``); the block's output is its state 0."""
         raise NotImplementedError
+
+    def block_derivatives(self, v: dict, h: float, memory) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+        """:meth:`block`'s ``F`` ``(B, n, n)`` and ``G`` ``(B, n, m)`` and their derivatives with respect to the
+        component's parameters (natural scale, :attr:`params` order), ``(B, p, n, n)`` and ``(B, p, n, m)``: the
+        exact likelihood's gradient (the sensitivity filter) reads them. Default: forward-mode automatic
+        differentiation of :meth:`block`; the built-in effects write them in closed form."""
+        (F, G), (dF, dG) = forward_derivatives(lambda values: self.block(values, h, memory), self.params, v)
+        return F, G, dF, dG
+
+    def variance_derivatives(self, v: dict) -> tuple[Tensor, Tensor]:
+        """A measurement component's :meth:`measurement_variance` ``(B,)`` and its derivatives ``(B, p)``. Default:
+        forward-mode automatic differentiation."""
+        return forward_derivatives(self.measurement_variance, self.params, v)
 
     # ---- means ------------------------------------------------------------------------------------
     def mean(self, v: dict, t: Tensor, inputs: dict) -> Tensor:

@@ -34,6 +34,17 @@ class LowPass(Component):
         a = self.coefficient(v, h).unsqueeze(-1)
         return ((1.0 - a) ** 2 / (1.0 - 2.0 * a * torch.cos(omega) + a * a)) ** self.stages
 
+    def gain_derivatives(self, v, omega, h) -> tuple[Tensor, Tensor]:
+        r""":meth:`gain` ``(B, W)`` and its derivative with respect to the cut-off ``(B, 1, W)``: with
+        :math:`a = e^{-2\pi f_c h}`, :math:`\partial_a \log G = m(-2/(1-a) - 2(a - \cos\omega)/(1 - 2a\cos\omega +
+        a^2))` for m stages and :math:`\partial_{f_c} a = -2\pi h a`."""
+        a = self.coefficient(v, h).unsqueeze(-1)
+        co = torch.cos(omega)
+        den = 1.0 - 2.0 * a * co + a * a
+        G = ((1.0 - a) ** 2 / den) ** self.stages
+        dlog_a = self.stages * (-2.0 / (1.0 - a) - 2.0 * (a - co) / den)
+        return G, (G * dlog_a * (-2.0 * math.pi * h * a)).unsqueeze(1)
+
     def coefficient(self, v, h):
         return torch.exp(-2.0 * math.pi * v["cutoff_hz"] * h)
 

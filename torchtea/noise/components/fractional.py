@@ -42,6 +42,31 @@ class Fractional(Component):
         im = mag * torch.sin(phase) + a * torch.sin(omega)
         return q * h ** (2.0 * alpha) / (2.0 * math.pi * (re * re + im * im))
 
+    def spectrum_derivatives(self, v, omega, h):
+        r"""With :math:`D = |(1-e^{-i\omega})^\alpha - a e^{-i\omega}|^2`, :math:`a = f h^\alpha` and
+        :math:`\log S = \log q + 2\alpha\log h - \log 2\pi - \log D`: :math:`\partial_q S = S/q`,
+        :math:`\partial_f S = -S\,\partial_f D/D`, :math:`\partial_\alpha S = S(2\log h - \partial_\alpha D/D)`, where
+        the real and imaginary parts of the difference move with α through its magnitude
+        :math:`(2\sin\tfrac\omega2)^\alpha`, its phase :math:`\alpha(\pi-\omega)/2` and :math:`a`."""
+        alpha, f, q = v["order"].unsqueeze(-1), v["pole"].unsqueeze(-1), v["q"].unsqueeze(-1)
+        hp = h ** alpha
+        a = f * hp
+        base = 2.0 * torch.sin(omega / 2.0)
+        mag = base ** alpha
+        turn = (math.pi - omega) / 2.0
+        phase = alpha * (math.pi - omega) / 2.0
+        cph, sph, co, so = torch.cos(phase), torch.sin(phase), torch.cos(omega), torch.sin(omega)
+        re = mag * cph - a * co
+        im = mag * sph + a * so
+        D = re * re + im * im
+        S = q * h ** (2.0 * alpha) / (2.0 * math.pi * D)
+        lh, lb = math.log(h), torch.log(base)
+        dre = mag * (lb * cph - turn * sph) - a * lh * co
+        dim = mag * (lb * sph + turn * cph) + a * lh * so
+        d_alpha = S * (2.0 * lh - 2.0 * (re * dre + im * dim) / D)
+        d_pole = -S * 2.0 * hp * (im * so - re * co) / D
+        return S, torch.stack([d_alpha, d_pole, S / q], dim=1)
+
     def n_states(self, memory) -> int:
         return memory.lags + memory.n_modes
 
@@ -101,6 +126,23 @@ class Fractional(Component):
             x[:, k + 1, :] = hpow[:, k + 1, :] * (drive + omega[:, k, :]) - (c * past).sum(-1)
             hist[..., N - 2 - k] = x[:, k + 1, :]
         return x[..., 0]
+
+    def block_derivatives(self, v, h, memory):
+        """Only the first row of F and G's one entry move: with respect to the pole, ``∂F[0, 0] = h^α``; to q,
+        ``∂G[0, 0] = h^α/(2√q)``; to the order, the row's GL and kernel weights by forward-mode differentiation of
+        :meth:`first_row` (n numbers) and ``∂G[0, 0] = G[0, 0] ln h``."""
+        F, G = self.block(v, h, memory)
+        alpha, f, q = v["order"], v["pole"], v["q"]
+        B, n = F.shape[0], F.shape[-1]
+        _, (d_row, d_g) = torch.func.jvp(lambda a: self.first_row(a, f, q, h, memory), (alpha,),
+                                         (torch.ones_like(alpha),))
+        dF = F.new_zeros(B, 3, n, n)
+        dG = G.new_zeros(B, 3, n, 1)
+        dF[:, 0, 0] = d_row
+        dG[:, 0, 0, 0] = d_g
+        dF[:, 1, 0, 0] = h ** alpha
+        dG[:, 2, 0, 0] = h ** alpha / (2.0 * torch.sqrt(q))
+        return F, G, dF, dG
 
     def block(self, v, h, memory):
         alpha, f, q = v["order"], v["pole"], v["q"]

@@ -25,6 +25,11 @@ class RandomWalk(Component):
         s = v["sigma"].unsqueeze(-1)
         return s * s * h / (2.0 * math.pi * 4.0 * torch.sin(omega / 2.0) ** 2)
 
+    def spectrum_derivatives(self, v, omega, h):
+        r""":math:`\partial_\sigma S = 2S/\sigma`."""
+        S = self.spectrum(v, omega, h)
+        return S, (2.0 * S / v["sigma"].unsqueeze(-1)).unsqueeze(1)
+
     def n_states(self, memory) -> int:
         return 1
 
@@ -37,6 +42,11 @@ class RandomWalk(Component):
         F = s.new_ones(s.shape[0], 1, 1)
         G = (s * math.sqrt(h)).reshape(-1, 1, 1)
         return F, G
+
+    def block_derivatives(self, v, h, memory):
+        """``∂G/∂σ = √h``."""
+        F, G = self.block(v, h, memory)
+        return F, G, F.new_zeros(F.shape[0], 1, 1, 1), G.new_full((G.shape[0], 1, 1, 1), math.sqrt(h))
 
 
 class GaussMarkov(Component):
@@ -61,6 +71,18 @@ class GaussMarkov(Component):
         s2 = (v["sigma"] ** 2).unsqueeze(-1)
         return s2 * (1.0 - a * a) / (2.0 * math.pi * (1.0 - 2.0 * a * torch.cos(omega) + a * a))
 
+    def spectrum_derivatives(self, v, omega, h):
+        r""":math:`\partial_\sigma S = 2S/\sigma`; through :math:`a = e^{-h/\tau}`, :math:`\partial_a \log S =
+        -2a/(1-a^2) - 2(a - \cos\omega)/(1 - 2a\cos\omega + a^2)` and :math:`\partial_\tau a = a h/\tau^2`."""
+        a = self.coefficient(v, h).unsqueeze(-1)
+        s2 = (v["sigma"] ** 2).unsqueeze(-1)
+        co = torch.cos(omega)
+        den = 1.0 - 2.0 * a * co + a * a
+        S = s2 * (1.0 - a * a) / (2.0 * math.pi * den)
+        tau = v["tau_s"].unsqueeze(-1)
+        dlog_a = -2.0 * a / (1.0 - a * a) - 2.0 * (a - co) / den
+        return S, torch.stack([2.0 * S / v["sigma"].unsqueeze(-1), S * dlog_a * a * h / (tau * tau)], dim=1)
+
     def n_states(self, memory) -> int:
         return 1
 
@@ -69,6 +91,17 @@ class GaussMarkov(Component):
         F = a.reshape(-1, 1, 1).clone()
         G = (v["sigma"] * torch.sqrt(1.0 - a * a)).reshape(-1, 1, 1)
         return F, G
+
+    def block_derivatives(self, v, h, memory):
+        """With ``a = e^{−h/τ}``, ``∂a/∂τ = a h/τ²``: ``∂F/∂τ = ∂a/∂τ``, ``∂G/∂σ = √(1 − a²)``,
+        ``∂G/∂τ = −σ a/√(1 − a²) ∂a/∂τ``."""
+        F, G = self.block(v, h, memory)
+        a, s, tau = self.coefficient(v, h), v["sigma"], v["tau_s"]
+        da = a * h / (tau * tau)
+        root = torch.sqrt(1.0 - a * a)
+        dF = torch.stack([torch.zeros_like(a), da], dim=1).reshape(-1, 2, 1, 1)
+        dG = torch.stack([root, -s * a / root * da], dim=1).reshape(-1, 2, 1, 1)
+        return F, G, dF, dG
 
     def typical(self, param, h, t_ref):
         return {"sigma": 5e-3, "tau_s": 20.0}[param]
@@ -115,6 +148,27 @@ class Resonance(Component):
         im = a1 * torch.sin(omega) + a2 * torch.sin(2.0 * omega)
         return g * g / (2.0 * math.pi * (re * re + im * im))
 
+    def spectrum_derivatives(self, v, omega, h):
+        r"""Through the AR(2)'s coefficients: :math:`\log S = \log g^2 - \log 2\pi - \log|A|^2`, with
+        :math:`\partial_{a_1}\log g^2 = -2a_1/((1-a_2)^2 - a_1^2)`, :math:`\partial_{a_2}\log g^2 = 1/(1+a_2) +
+        1/(1-a_2) - 2(1-a_2)/((1-a_2)^2 - a_1^2)`, :math:`\partial_\sigma \log g^2 = 2/\sigma`, and
+        :math:`a_1 = 2\rho\cos\theta`, :math:`a_2 = -\rho^2` moved by :math:`\theta = 2\pi f_r h` and
+        :math:`\rho = e^{-\pi B h}`."""
+        a1, a2, g = (c.unsqueeze(-1) for c in self.coefficients(v, h))
+        c1, c2, s1, s2 = torch.cos(omega), torch.cos(2.0 * omega), torch.sin(omega), torch.sin(2.0 * omega)
+        re = 1.0 - a1 * c1 - a2 * c2
+        im = a1 * s1 + a2 * s2
+        A2 = re * re + im * im
+        S = g * g / (2.0 * math.pi * A2)
+        det = (1.0 - a2) ** 2 - a1 * a1
+        d_a1 = -2.0 * a1 / det - 2.0 * (im * s1 - re * c1) / A2
+        d_a2 = 1.0 / (1.0 + a2) + 1.0 / (1.0 - a2) - 2.0 * (1.0 - a2) / det - 2.0 * (im * s2 - re * c2) / A2
+        rho = torch.exp(-math.pi * v["bandwidth_hz"] * h).unsqueeze(-1)
+        theta = (2.0 * math.pi * v["frequency_hz"] * h).unsqueeze(-1)
+        d_freq = d_a1 * (-2.0 * rho * torch.sin(theta) * 2.0 * math.pi * h)
+        d_band = d_a1 * (2.0 * torch.cos(theta) * (-math.pi * h * rho)) + d_a2 * (2.0 * math.pi * h * rho * rho)
+        return S, torch.stack([S * d_freq, S * d_band, 2.0 * S / v["sigma"].unsqueeze(-1)], dim=1)
+
     def n_states(self, memory) -> int:
         return 2
 
@@ -126,6 +180,28 @@ class Resonance(Component):
         G = a1.new_zeros(B, 2, 1)
         G[:, 0, 0] = g
         return F, G
+
+    def block_derivatives(self, v, h, memory):
+        """Through ``a₁ = 2ρ cos θ``, ``a₂ = −ρ²`` (θ = 2π f_r h, ρ = e^{−πBh}) and ``g = √g²``, ``∂g = g ∂log g²/2``
+        with :meth:`spectrum_derivatives`' ``∂log g²``."""
+        F, G = self.block(v, h, memory)
+        a1, a2, g = self.coefficients(v, h)
+        rho = torch.exp(-math.pi * v["bandwidth_hz"] * h)
+        theta = 2.0 * math.pi * v["frequency_hz"] * h
+        zero = torch.zeros_like(rho)
+        da1 = torch.stack([-2.0 * rho * torch.sin(theta) * 2.0 * math.pi * h,
+                           2.0 * torch.cos(theta) * (-math.pi * h * rho), zero], dim=1)
+        da2 = torch.stack([zero, 2.0 * math.pi * h * rho * rho, zero], dim=1)
+        det = (1.0 - a2) ** 2 - a1 * a1
+        dlog = ((-2.0 * a1 / det).unsqueeze(-1) * da1
+                + (1.0 / (1.0 + a2) + 1.0 / (1.0 - a2) - 2.0 * (1.0 - a2) / det).unsqueeze(-1) * da2)
+        dlog[:, 2] = 2.0 / v["sigma"]
+        B = a1.shape[0]
+        dF = F.new_zeros(B, 3, 2, 2)
+        dF[:, :, 0, 0], dF[:, :, 0, 1] = da1, da2
+        dG = G.new_zeros(B, 3, 2, 1)
+        dG[:, :, 0, 0] = 0.5 * g.unsqueeze(-1) * dlog
+        return F, G, dF, dG
 
     def typical(self, param, h, t_ref):
         return {"frequency_hz": min(30.0, 0.3 / h), "bandwidth_hz": min(3.0, 0.03 / h), "sigma": 2e-3}[param]

@@ -3,6 +3,8 @@ from __future__ import annotations
 
 import math
 
+import torch
+
 from .base import Component, ParamSpec
 
 
@@ -21,12 +23,19 @@ class White(Component):
     def measurement_variance(self, v):
         return v["r"]
 
+    def variance_derivatives(self, v):
+        return v["r"], torch.ones_like(v["r"]).unsqueeze(-1)
+
     def typical(self, param, h, t_ref):
         return 1e-3
 
 
     def spectrum(self, v, omega, h):
         return (v["r"] / (2.0 * math.pi)).unsqueeze(-1).expand(-1, omega.shape[-1])
+
+    def spectrum_derivatives(self, v, omega, h):
+        S = self.spectrum(v, omega, h)
+        return S, torch.full_like(S, 1.0 / (2.0 * math.pi)).unsqueeze(1)
 
 
 class Quantisation(Component):
@@ -41,6 +50,9 @@ class Quantisation(Component):
     def measurement_variance(self, v):
         return v["step"] ** 2 / 12.0
 
+    def variance_derivatives(self, v):
+        return self.measurement_variance(v), (v["step"] / 6.0).unsqueeze(-1)
+
     def typical(self, param, h, t_ref):
         return 0.01
 
@@ -53,3 +65,7 @@ class Quantisation(Component):
 
     def spectrum(self, v, omega, h):
         return (self.measurement_variance(v) / (2.0 * math.pi)).unsqueeze(-1).expand(-1, omega.shape[-1])
+
+    def spectrum_derivatives(self, v, omega, h):
+        S = self.spectrum(v, omega, h)
+        return S, (2.0 * S / v["step"].unsqueeze(-1)).unsqueeze(1)

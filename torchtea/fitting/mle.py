@@ -34,15 +34,15 @@ from ..core.search import refine_frequency, remove_regressors
 from .exact import FIT_MEMORY, ExactPass, centred, exact_loglik, exact_pass, gradient_supported, unknown_level
 from .innovations import located_intervals
 from ..likelihood.settings import current as likelihood_settings
-from ..likelihood.whittle import RESOLUTION, WhittleData, periodogram, whittle_data, whittle_scores
-from ..noise.derivatives import spectrum_jacobian
+from ..likelihood.whittle import RESOLUTION, WhittleData, periodogram, whittle_data
 from ..noise.model import NoiseModel, parse_model
 from . import scoring
 from .results import Z95, Fit, bic, estimates_from_hessian, intervals_from_hessian
 from .scoring import decrement_tolerance
 from .starts import initial_values, starts_of
+from .whittle_objective import WhittleObjective, whittle_value
 
-__all__ = ["Fit", "WhittleFit", "fit_series", "located_intervals", "refine_exact", "refine_best", "regress_mean", "whittle_fit", "exact_loglik", "profile_order", "METHODS",
+__all__ = ["Fit", "WhittleFit", "WhittleObjective", "whittle_value", "fit_series", "located_intervals", "refine_exact", "refine_best", "regress_mean", "whittle_fit", "exact_loglik", "profile_order", "METHODS",
            "Z95", "CHI2_95", "bic", "decrement_tolerance",
            # defined in .exact, .innovations and core.search, imported from here too
            "FIT_MEMORY", "ExactPass", "exact_pass", "centred", "unknown_level", "refine_frequency", "remove_regressors"]
@@ -156,6 +156,10 @@ class WhittleFit(NamedTuple):
 #: left where it is, and is no mode.
 RACE = True
 
+#: The Whittle fits' absolute damping floor (:func:`~.scoring.score`'s ``floor``): a direction whose information is
+#: below this fraction of the largest is damped — a variance collapsing along a flat direction stays near where it
+#: stopped mattering (measured: a fit's collapsed white noise ran to e⁻²² without it, and the exact fit started
+#: there could not come back, 12 nats below the one started at e⁻¹¹; 10⁻⁴ moved the optima by 0.002 nats).
 FLOOR = 1e-6
 
 #: At most this many modes per series are kept (:attr:`WhittleFit.modes`).
@@ -168,67 +172,6 @@ def whittle_resolution() -> float | None:
     if how not in ("binned", "full"):
         raise ValueError(f"likelihood setting whittle must be 'binned' or 'full', got {how!r}")
     return None if how == "full" else RESOLUTION
-
-
-class WhittleObjective:
-    """−ℓ_W of K starts (rows of ``U0`` ``(K, P)``, unconstrained; row k fits series ``owner[k]`` of ``data``) as the
-    method of scoring reads it (:func:`~.scoring.score`): over the coordinates ``idx``, the others held at ``U0``'s;
-    :meth:`vgi` with its gradient and expected information from the components' closed-form spectral derivatives
-    (:func:`~torchtea.noise.derivatives.spectrum_jacobian`, :func:`~torchtea.likelihood.whittle.whittle_scores`),
-    :meth:`values` the value alone. +1e300 (zero gradient and information) where ℓ_W is not finite."""
-
-    def __init__(self, model: NoiseModel, data: WhittleData, h: float, U0: Tensor, owner: Tensor, idx: np.ndarray):
-        self.model, self.data, self.h, self.idx = model, data, h, torch.as_tensor(idx, dtype=torch.long)
-        self.U0, self.owner = U0.detach().to(torch.float64), owner
-        self.one = bool((owner == owner[0]).all())  # one series: its frequencies broadcast over the rows
-        self.frequencies = data.frequencies()
-
-    def _at(self, points, rows):
-        rows = torch.as_tensor(np.asarray(rows), dtype=torch.long)
-        U = self.U0[rows].clone()
-        U[:, self.idx] = torch.as_tensor(np.asarray(points), dtype=torch.float64)
-        series = self.owner[rows[:1]] if self.one else self.owner[rows]
-        return U, self.frequencies[series], self.data.I[series]
-
-    def vgi(self, points, rows):
-        U, omega, I = self._at(points, rows)
-        S, dS = spectrum_jacobian(self.model, U, omega, self.h, self.idx.tolist())
-        f, g, info = (x.numpy() for x in whittle_scores(self.data.weight, I, S, dS))
-        bad = ~(np.isfinite(f) & np.isfinite(g).all(-1) & np.isfinite(info).all((-1, -2)))
-        return (np.where(bad, 1e300, f), np.where(bad[:, None], 0.0, g),
-                np.where(bad[:, None, None], 0.0, info))
-
-    def values(self, points, rows):
-        U, omega, I = self._at(points, rows)
-        S = self.model.spectrum(self.model.from_unconstrained(U, self.h), omega, self.h)
-        f = (-WhittleData(self.data.weight, omega[..., :self.data.terms], omega[..., self.data.terms:], I)
-             .loglik(S)).numpy()
-        return np.where(np.isfinite(f), f, 1e300)
-
-    def hessian(self, U: Tensor, rows) -> Tensor:
-        """The observed information (the Hessian of −ℓ_W) at the points ``U`` ``(k, P)`` of the starts ``rows``, over
-        the coordinates ``idx`` by central differences of the closed-form gradient (2F gradients in one batch,
-        step :data:`HESSIAN_STEP`), zero rows and columns for the others ``(k, P, P)``."""
-        k, F = U.shape[0], len(self.idx)
-        P = U.shape[-1]
-        H = torch.zeros(k, P, P, dtype=torch.float64)
-        if not F or not k:
-            return H
-        x = U[:, self.idx].numpy()
-        E = np.eye(F) * HESSIAN_STEP
-        points = np.concatenate([x[:, None, :] + E[None], x[:, None, :] - E[None]], axis=1).reshape(-1, F)
-        rows = np.repeat(np.asarray(rows), 2 * F)
-        _, g, _ = self.vgi(points, rows)
-        g = g.reshape(k, 2, F, F)
-        Hf = (g[:, 0] - g[:, 1]) / (2.0 * HESSIAN_STEP)
-        Hf = 0.5 * (Hf + np.swapaxes(Hf, -1, -2))
-        H[:, self.idx.unsqueeze(-1), self.idx] = torch.as_tensor(Hf)
-        return H
-
-
-#: Central-difference step (unconstrained coordinates) of the Whittle fit's observed information from its closed-form
-#: gradients: they carry no differencing error, so the step trades the truncation, O(step²), against their rounding.
-HESSIAN_STEP = 1e-4
 
 
 def whittle_fit(model, series: list, h: float, *, inputs: list | None = None, fixed: dict | None = None,

@@ -66,13 +66,18 @@ def whittle_loglik(spectrum: Tensor, I: Tensor) -> Tensor:
 class WhittleData:
     """The terms of a (binned) Whittle sum of ``S`` series: per term its number of Fourier ordinates ``weight``
     ``(W,)``, the frequency of its log-spectrum ``omega_log`` ``(W,)``, the frequency of its ratio term ``omega_I``
-    ``(S, W)`` and the mean periodogram ordinate ``I`` ``(S, W)``. With ``weight`` all ones and both frequencies
-    the Fourier frequencies it is the full sum."""
+    ``(S, W)`` and the mean periodogram ordinate ``I`` ``(S, W)``; and the sum's full resolution: each term's first
+    ordinate ``first`` ``(W,)``, every ordinate's frequency ``omega_full`` ``(W₀,)`` and periodogram ``I_full``
+    ``(S, W₀)`` (a rough bin is summed from them, :meth:`rough`). With ``weight`` all ones and both frequencies the
+    Fourier frequencies it is the full sum."""
 
     weight: Tensor
     omega_log: Tensor
     omega_I: Tensor
     I: Tensor
+    first: Tensor
+    omega_full: Tensor
+    I_full: Tensor
 
     @property
     def terms(self) -> int:
@@ -80,7 +85,8 @@ class WhittleData:
 
     def rows(self, rows: Tensor) -> "WhittleData":
         """The data of series ``rows``."""
-        return WhittleData(self.weight, self.omega_log, self.omega_I[rows], self.I[rows])
+        return WhittleData(self.weight, self.omega_log, self.omega_I[rows], self.I[rows], self.first,
+                           self.omega_full, self.I_full[rows])
 
     def frequencies(self) -> Tensor:
         """``(S, 2W)``: where a spectrum must be evaluated — the log frequencies, then the ratio frequencies."""
@@ -88,10 +94,38 @@ class WhittleData:
         return torch.cat([self.omega_log.expand(S, -1), self.omega_I], dim=-1)
 
     def loglik(self, spectrum: Tensor) -> Tensor:
-        """``ℓ_W`` ``(S,)`` from the spectrum evaluated at :meth:`frequencies` ``(S, 2W)`` (or ``(B, 2W)`` with B = S)."""
+        """``ℓ_W`` ``(S,)`` of the binned terms from the spectrum evaluated at :meth:`frequencies` ``(S, 2W)`` (or
+        ``(B, 2W)`` with B = S) — without the full resolution of rough bins (:meth:`rough`; the fits add it)."""
         W = self.terms
         s_log, s_I = spectrum[..., :W], spectrum[..., W:]
         return -(self.weight * (torch.log(4.0 * math.pi ** 2 * s_log) + self.I / s_I)).sum(-1)
+
+    def rough(self, spectrum: Tensor) -> Tensor:
+        """``(B, W)``: the bins (of more than one ordinate) across which the spectrum at :meth:`frequencies` ``(B,
+        2W)`` is not smooth — its logarithm at the ratio term's frequency more than :data:`ROUGHNESS` from its
+        logarithm at the log term's (a smooth spectrum moves by about its log-log slope times a 200th there), or its
+        log-log slope to a neighbouring term steeper than :data:`STEEP`. A
+        bin's terms hold only where the spectrum is smooth across it: a narrow band of the model inside a bin —
+        a resonance narrower than the bin, placed on the ratio term's frequency — would take the bin's ratio term
+        without paying its log term. The fits sum a rough bin at full resolution (:meth:`ordinates`)."""
+        W = self.terms
+        log_s = torch.log(spectrum[..., :W])
+        rough = torch.log(spectrum[..., W:] / spectrum[..., :W]).abs() > ROUGHNESS
+        slope = (torch.diff(log_s, dim=-1) / torch.diff(torch.log(self.omega_log))).abs() > STEEP
+        rough[..., :-1] |= slope
+        rough[..., 1:] |= slope
+        return rough & (self.weight > 1)
+
+    def ordinates(self, terms: Tensor) -> Tensor:
+        """The indices (into :attr:`omega_full`, :attr:`I_full`) of every ordinate of the terms ``terms``."""
+        ends = torch.cat([self.first[1:], self.first.new_tensor([self.omega_full.shape[-1]])])
+        return torch.cat([torch.arange(int(self.first[t]), int(ends[t])) for t in terms.tolist()])
+
+
+#: A bin is rough (:meth:`WhittleData.rough`) where the log-spectrum differs by more than ROUGHNESS between its two
+#: frequencies, or where its log-log slope to a neighbouring term is steeper than STEEP (a sensor's two-stage filter
+#: falls at −4, a power law at −2α: only a band's flanks are steeper).
+ROUGHNESS, STEEP = 0.05, 10.0
 
 
 def bin_edges(W: int, resolution: float | None) -> Tensor:
@@ -115,7 +149,8 @@ def whittle_data(omega: Tensor, I: Tensor, resolution: float | None = RESOLUTION
     omega = torch.as_tensor(omega, dtype=torch.float64)
     W = omega.shape[-1]
     if resolution is None:
-        return WhittleData(torch.ones(W, dtype=torch.float64), omega, omega.expand(I.shape[0], -1).clone(), I)
+        return WhittleData(torch.ones(W, dtype=torch.float64), omega, omega.expand(I.shape[0], -1).clone(), I,
+                           torch.arange(W), omega, I)
     edges = bin_edges(W, resolution)
     counts = (edges[1:] - edges[:-1]).to(torch.float64)
     starts = edges[:-1].numpy()
@@ -129,14 +164,15 @@ def whittle_data(omega: Tensor, I: Tensor, resolution: float | None = RESOLUTION
     total = bin_sum(I)
     safe = torch.where(total > 0, total, torch.ones_like(total))
     omega_I = torch.where(total > 0, torch.exp(bin_sum(I * lw) / safe), omega_log.expand_as(total))
-    return WhittleData(counts, omega_log, omega_I, total / counts)
+    return WhittleData(counts, omega_log, omega_I, total / counts, edges[:-1].clone(), omega, I)
 
 
 def whittle_scores(weight: Tensor, I: Tensor, spectrum: Tensor, derivatives: Tensor) -> tuple[Tensor, Tensor, Tensor]:
     r"""−ℓ_W ``(B,)`` of a (binned) Whittle sum, its gradient ``(B, F)`` and its expected information ``(B, F, F)`` from
     the spectrum at :meth:`WhittleData.frequencies` ``(B, 2W)`` and its derivatives ``(B, F, 2W)`` along F
-    coordinates; ``weight`` ``(W,)`` and the mean ordinates ``I`` ``(B, W)`` (or ``(1, W)``) as
-    :class:`WhittleData` holds them. With :math:`d_j = \nabla\log S(\omega_j)`:
+    coordinates; ``weight`` ``(W,)`` (or ``(B, W)``: a row's own, 0 for a term summed apart) and the mean ordinates
+    ``I`` ``(B, W)`` (or ``(1, W)``) as :class:`WhittleData` holds them; for the full sum both frequencies are the
+    same and ``spectrum`` may be given once, ``(B, W)``. With :math:`d_j = \nabla\log S(\omega_j)`:
 
     .. math::  \nabla(-\ell_W) = \sum_j m_j \big[d_j^{\log} - (\bar I_j/S_j^{I})\,d_j^{I}\big], \qquad
                \mathcal I = \sum_j m_j\, d_j^{I} d_j^{I\,T},
@@ -145,12 +181,14 @@ def whittle_scores(weight: Tensor, I: Tensor, spectrum: Tensor, derivatives: Ten
     :math:`\log S` cancel between the two terms: Whittle's Fisher information, as in Dzhaparidze, *Parameter
     Estimation and Hypothesis Testing in Spectral Analysis of Stationary Time Series*, 1986): positive
     semi-definite by construction, so the method of scoring takes no indefinite step."""
-    W = weight.shape[-1]
-    s_log, s_I = spectrum[..., :W], spectrum[..., W:]
+    W = I.shape[-1]
+    once = spectrum.shape[-1] == W
+    s_log, s_I = (spectrum, spectrum) if once else (spectrum[..., :W], spectrum[..., W:])
     ratio = I / s_I
     value = (weight * (torch.log(4.0 * math.pi ** 2 * s_log) + ratio)).sum(-1)
-    d_log = derivatives[..., :W] / s_log.unsqueeze(-2)
-    d_I = derivatives[..., W:] / s_I.unsqueeze(-2)
-    grad = (d_log * weight).sum(-1) - (d_I * (weight * ratio).unsqueeze(-2)).sum(-1)
-    info = (d_I * weight) @ d_I.mT
+    d_log = (derivatives if once else derivatives[..., :W]) / s_log.unsqueeze(-2)
+    d_I = d_log if once else derivatives[..., W:] / s_I.unsqueeze(-2)
+    w = weight.unsqueeze(-2)
+    grad = (d_log * w).sum(-1) - (d_I * (weight * ratio).unsqueeze(-2)).sum(-1)
+    info = (d_I * w) @ d_I.mT
     return value, grad, info

@@ -313,7 +313,7 @@ def test_a_refit_starts_from_several_places_and_keeps_the_best(monkeypatch):
     (whose ℓ is the model's) and, for a stochastic effect, from the extended model's own Whittle fits; the best is kept.
     With the screen's start corrupted so that no optimiser can move from it (both variances zero: ℓ is −∞ there),
     another start wins, the screen's row names it, and the ramp's ℓ is still above the model's."""
-    ck = importlib.import_module("torchtea.checking.refits")  # (where check's refits run their optimiser)
+    ck = importlib.import_module("torchtea.checking.models")  # (where check's refits run their optimiser)
     m = "fractional+white+ramp"
     v = default_values(m, H)
     v["ramp.slope"] = 2e-3
@@ -578,7 +578,7 @@ def test_a_refit_that_loses_what_the_screen_saw_is_a_failed_fit_not_evidence(mon
     optimiser made to fail): the screen passed with a large statistic, the refit gains nothing, so the row is
     ``refit_failed``, the effect is in ``failed_refits``, and the terminal lines and report.md say an optimiser
     failed; with the optimiser left alone the same data get the ramp suggested."""
-    ck = importlib.import_module("torchtea.checking.refits")  # (where check's refits run their optimiser)
+    ck = importlib.import_module("torchtea.checking.models")  # (where check's refits run their optimiser)
     y = _ramp_case()
     real = ck.refine_best
 
@@ -611,7 +611,7 @@ def test_a_whittle_screen_the_exact_likelihood_does_not_confirm_is_said_so(monke
     with a random walk; the screen's own point is moved off (its walk 10³× stronger: far below the model in the
     exact likelihood) and the refit kept from iterating, as on a record that is not stationary."""
     ck = importlib.import_module("torchtea.checking.check")  # the module (the package exports the function check)
-    rf = importlib.import_module("torchtea.checking.refits")
+    rf = importlib.import_module("torchtea.checking.models")  # (where check's refits run their optimiser)
     m = "fractional+white+random-walk"
     v = default_values(m, H)
     v["random-walk.sigma"] = 8e-3

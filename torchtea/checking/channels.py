@@ -15,17 +15,19 @@ __all__ = ["check_measurements", "check_channel", "summary_lines"]
 def check_channel(values, h: float, model, *, inputs: dict | None = None, add: Iterable[str] = (), auto: bool = False,
                   max_steps: int = 6, strong: float | None = None, intervals: bool = True, levels: dict | None = None,
                   progress: Callable | None = None, threads: int | None = None, effects: tuple = (),
-                  simplify: bool = True) -> CheckResult:
+                  simplify: bool = True, fits: str = "auto") -> CheckResult:
     """One channel's workflow: :func:`check` of ``model``, the ``add`` effects in order, then (``auto``) the loop
     (:meth:`CheckResult.auto`, taking away and swapping unless ``simplify`` is False). ``progress(line)``: each stage as it starts. ``threads``: numba's threads
     (:func:`~torchtea.core.threads.engine_threads`; torch runs on one). ``effects``: users' modules of effects to
-    import first (:func:`torchtea.effects.import_effects`: a Dask worker has not imported them)."""
+    import first (:func:`torchtea.effects.import_effects`: a Dask worker has not imported them). ``fits``: how the loop
+    fits (:func:`check`'s)."""
     from ..effects import import_effects
 
     for name in effects:
         import_effects(name)
     with engine_threads(threads):
-        r = check(values, h, model=model, inputs=inputs, intervals=intervals, progress=progress, **(levels or {}))
+        r = check(values, h, model=model, inputs=inputs, intervals=intervals, progress=progress, fits=fits,
+                  **(levels or {}))
         for effect in add:
             r = r.add(effect, intervals=intervals, progress=progress)
         if auto:
@@ -37,7 +39,7 @@ def check_measurements(m, model=None, *, inputs: dict | None = None, add: Iterab
                        max_steps: int = 6, strong: float | None = None, intervals: bool = True, simplify: bool = True,
                        levels: dict | None = None, progress: Callable | None = None,
                        log: Callable | None = None, client=None, threads: int | None = None,
-                       effects: tuple = (), stages: Callable | None = None) -> dict:
+                       effects: tuple = (), stages: Callable | None = None, fits: str = "auto") -> dict:
     """Check each channel of ``m`` (:class:`~torchtea.sensors.measurements.Measurements`) with ``model`` (default
     :data:`PAPER_MODEL`): :func:`check_channel` with ``add``, ``auto``, ``max_steps``, ``strong``, ``simplify``; ``levels``: check's
     ``level``/``screen_level`` where given. ``progress(done, total)`` after each channel; ``log(line)`` before each
@@ -49,7 +51,7 @@ def check_measurements(m, model=None, *, inputs: dict | None = None, add: Iterab
     way). ``effects``: users' modules of effects each task imports first. Returns label → result."""
     model = model or PAPER_MODEL
     kw = dict(inputs=inputs, add=tuple(add), auto=auto, max_steps=max_steps, strong=strong, intervals=intervals,
-              simplify=simplify, levels=levels, effects=tuple(effects))
+              simplify=simplify, levels=levels, effects=tuple(effects), fits=fits)
     if client is not None:
         return _on_cluster(m, model, kw, client, 1 if threads is None else threads, progress, log)
     results = {}

@@ -1,6 +1,8 @@
 r"""``check``: fit a noise model, test it against the measurements, and rank the effects it is missing.
 
-1. **Fit** the model by exact maximum likelihood (:func:`~torchtea.fitting.fit_series`).
+1. **Fit** the model by exact maximum likelihood (:func:`~torchtea.fitting.fit_series`) — on a long record by the
+   Whittle likelihood, the exact one evaluated at each point the loop compares (``fits``,
+   :mod:`torchtea.fitting.whittle_path`).
 2. **Diagnose** it (:mod:`.diagnostics`): the standardised innovations in time, lag and frequency, the Allan
    deviation against the model's band, the innovations against the temperature. ``adequate`` when every
    diagnostic that ran passed at its level.
@@ -46,13 +48,13 @@ import time
 import numpy as np
 import torch
 
-from ..fitting.mle import Fit, fit_series, whittle_fit
+from ..fitting.mle import Fit, whittle_fit
 from ..noise.components import COMPONENTS
 from ..noise.components import candidates as candidates_all
 from ..noise.model import PAPER_MODEL, parse_model
 from . import screens
 from .diagnostics import LEVEL
-from .models import extend, with_intervals
+from .models import extend, model_fit, with_intervals
 from .models import assess as _assess
 from .ranking import CLOSE_BIC, EXPLAIN_WINDOW, STRONG_BIC, rank
 from .refits import (BASE_RESTARTS, BASE_SLACK, LONG_RECORD, NULL_EFFECT, CheckRun, add_note,
@@ -95,7 +97,7 @@ class CheckResult(CheckRecord):
         start = next((s.fit for s in self.suggestions if s.fit.model.spec == alt.spec), None)
         carry = {e: f for e, f in self.refits.items() if e != effect}
         res = check(self.y, self.h, model=alt, inputs=self.inputs, level=self.level,
-                    screen_level=self.screen_level, fit=start, carry=carry, **kw)
+                    screen_level=self.screen_level, fit=start, carry=carry, fits=self.fits, **kw)
         res.before = self
         return res
 
@@ -103,7 +105,7 @@ class CheckResult(CheckRecord):
         """:func:`check` of another ``model`` on the same series, inputs and levels, from its exact ``fit`` and Whittle
         fit when given and with this result's refits carried as starts (the loop's simplification, :mod:`.simplify`)."""
         return check(self.y, self.h, model=model, inputs=self.inputs, level=self.level,
-                     screen_level=self.screen_level, fit=fit, carry=self.refits, whittle=whittle, **kw)
+                     screen_level=self.screen_level, fit=fit, carry=self.refits, whittle=whittle, fits=self.fits, **kw)
 
     def auto(self, max_steps: int = 6, strong: float | None = None, simplify: bool = True, **kw) -> "CheckResult":
         """Run the loop to its end: add the best suggestion and check again (:meth:`add`, ``kw`` passed on), until
@@ -128,7 +130,7 @@ class CheckResult(CheckRecord):
 
 def check(y, h: float, model=PAPER_MODEL, inputs: dict | None = None, *, level: float = LEVEL,
           screen_level: float = 0.05, candidates=None, fit: Fit | None = None, intervals: bool = True,
-          progress=None, carry: dict | None = None, whittle=None) -> CheckResult:
+          progress=None, carry: dict | None = None, whittle=None, fits: str = "auto") -> CheckResult:
     """Fit ``model`` to the series ``y`` (NaN = missing, sample time ``h``), run the diagnostics and rank the
     missing effects (module docstring). ``inputs``: ``{"temperature": (N,)}`` (°C) when there is a temperature
     channel. ``candidates``: the effects to screen (default: every registered candidate,
@@ -140,7 +142,11 @@ def check(y, h: float, model=PAPER_MODEL, inputs: dict | None = None, *, level: 
     with that effect (:attr:`CheckResult.refits`): one more start for its refit here, the effect at the values it
     had there (what the loop knows carries to its next step). ``whittle``: the model's Whittle fit on this series
     (:func:`~torchtea.fitting.mle.whittle_fit` of the model on the mean-filled series, the default grid), already
-    made (:attr:`CheckResult.whittle`; the loop's simplification fits each alternative so).
+    made (:attr:`CheckResult.whittle`; the loop's simplification fits each alternative so). ``fits``: how the loop
+    fits (:data:`~torchtea.fitting.whittle_path.FITS`): ``"auto"`` by the exact likelihood up to
+    :data:`~torchtea.fitting.whittle_path.WHITTLE_PATH_SAMPLES` samples and on the long-record path above (the Whittle
+    likelihood, the exact one evaluated at the points compared, :mod:`torchtea.fitting.whittle_path`), ``"exact"``
+    or ``"whittle"`` whatever the length (a model without a spectrum, or a series with gaps, is fitted exactly).
 
     The model's exact likelihood can have several maxima (a fractional order bent to ≈ 1 mimics a random walk
     or a low-pass). Every candidate's refit starts from several places (:func:`refit`); when a refit, with its new
@@ -156,7 +162,7 @@ def check(y, h: float, model=PAPER_MODEL, inputs: dict | None = None, *, level: 
         for k, v in inputs.items():
             if len(v) != len(y):
                 raise ValueError(f"input channel {k!r} has {len(v)} values, the series {len(y)}")
-    run = CheckRun(y, h, inputs, level, progress)
+    run = CheckRun(y, h, inputs, level, progress, fits)
     run.carry = dict(carry or {})
     say = run.say
     if whittle is not None:
@@ -165,22 +171,23 @@ def check(y, h: float, model=PAPER_MODEL, inputs: dict | None = None, *, level: 
         say(f"fitting {model.spec} (Whittle)")
         run.cache[("whittle", model.spec)] = whittle_fit(model, [run.filled], h, inputs=run.inp_list)
     wf = run.cache[("whittle", model.spec)]
+    how = "exact" if run.exact(model) else "Whittle"
     if fit is None or fit.model.spec != model.spec:
-        say(f"fitting {model.spec} (exact likelihood)")
-        fit = fit_series(model, [y], h, method="exact", inputs=run.inp_list, profile=False, whittle=wf,
-                         intervals=intervals)[0]
+        if run.exact(model):
+            say(f"fitting {model.spec} (exact likelihood)")
+        fit = model_fit(model, y, h, inputs=inputs, whittle=wf, intervals=intervals, fits=fits)
     notes = []
     why = degenerate(model, fit, h, len(y))
     if why:
         say(f"refitting {model.spec} from other modes ({'; '.join(why)})")
         better = refit_degenerate(run, model, fit, wf, intervals)
         if better is not None:
-            notes.append(f"the exact fit of {model.spec} was degenerate ({'; '.join(why)}; ℓ {fit.loglik:.2f}): "
+            notes.append(f"the {how} fit of {model.spec} was degenerate ({'; '.join(why)}; ℓ {fit.loglik_exact:.2f}): "
                          f"refitted from the other modes of its likelihood before anything was screened, the best "
-                         f"({better.notes[0] if better.notes else 'ℓ ' + format(better.loglik, '.2f')}) kept")
+                         f"({better.notes[0] if better.notes else 'ℓ ' + format(better.loglik_exact, '.2f')}) kept")
             fit = better
         else:
-            notes.append(f"the exact fit of {model.spec} is degenerate ({'; '.join(why)}): refitted from the other "
+            notes.append(f"the {how} fit of {model.spec} is degenerate ({'; '.join(why)}): refitted from the other "
                          "modes of its likelihood, none higher — the data put it there")
     run.clock("fit")
     for attempt in range(BASE_RESTARTS + 1):
@@ -188,15 +195,16 @@ def check(y, h: float, model=PAPER_MODEL, inputs: dict | None = None, *, level: 
                                   restart=attempt < BASE_RESTARTS)
         if better is None:
             break
-        notes.append(f"the exact fit of {model.spec} was not its maximum (ℓ {fit.loglik:.2f}): {better[1]} (ℓ "
-                     f"{better[0].loglik:.2f} after refining), and the check was run from there")
+        notes.append(f"the {how} fit of {model.spec} was not its maximum (ℓ {fit.loglik_exact:.2f}): {better[1]} (ℓ "
+                     f"{better[0].loglik_exact:.2f} after refining), and the check was run from there")
         fit = better[0]
     res.notes[:0] = notes
     if not res.fit.converged:
-        res.notes.append("the exact fit did not report convergence: diagnostics are at the last iterate")
+        res.notes.append(f"the {how} fit did not report convergence: diagnostics are at the last iterate")
     res.seconds = time.perf_counter() - t0
     res.timings = run.clock.laps
     res.whittle = wf
+    res.fits = fits
     return res
 
 
@@ -223,7 +231,7 @@ def _check_once(run: CheckRun, model, fit: Fit, wf, screen_level, candidates, in
         row["passed"] = bool(row["p_value"] < threshold)
         row["threshold"] = threshold
     passed = [r for r in screened if r["passed"]]
-    long = len(y) > LONG_RECORD and len(passed) > 1
+    long = run.exact(model) and len(y) > LONG_RECORD and len(passed) > 1
     for k, row in enumerate(passed):
         run.say(f"{'evaluating' if long else 'refitting'} {model.spec}+{row['effect']} ({k + 1}/{len(passed)})")
         alt = extend(model, row["token"])
@@ -240,11 +248,11 @@ def _check_once(run: CheckRun, model, fit: Fit, wf, screen_level, candidates, in
         lr = 2.0 * (f2.loglik_exact - fit.loglik_exact)
         if restart:  # the effect at its null value: what the refit gained is the model's own
             base_there = loglik_at(model, f2.values, y, h, inputs)  # the model's part of the refit
-            if base_there > fit.loglik + BASE_SLACK and f2.loglik - base_there < NULL_EFFECT:
-                better = refined_model(model, fit, f2, y, h, inputs, intervals)
+            if base_there > fit.loglik_exact + BASE_SLACK and f2.loglik_exact - base_there < NULL_EFFECT:
+                better = refined_model(model, fit, f2, y, h, inputs, intervals, run.fits)
                 if better is not None:
                     return None, (better, f"{row['effect']}'s refit put {row['effect']} at its null value (its "
-                                          f"share of ℓ {f2.loglik - base_there:.2f} nats), the rest at a better "
+                                          f"share of ℓ {f2.loglik_exact - base_there:.2f} nats), the rest at a better "
                                           "point of the model's own likelihood")
         if gain <= 0 and long:
             add_note(row, f"at the best of its starts the exact likelihood lowers no BIC (gain {gain:.1f}, a lower "
@@ -262,7 +270,7 @@ def _check_once(run: CheckRun, model, fit: Fit, wf, screen_level, candidates, in
             row.pop(k, None)
     clock("refits")
     if refits and restart:
-        better = better_model_fit(model, fit, refits, y, h, inputs, intervals)
+        better = better_model_fit(model, fit, refits, y, h, inputs, intervals, run.fits)
         if better is not None:
             return None, (better, "a candidate's refit without its new component was a better point")
     suggestions = rank(suggestions, failed_before)
@@ -270,7 +278,7 @@ def _check_once(run: CheckRun, model, fit: Fit, wf, screen_level, candidates, in
         suggestions = _refit_best(run, fit, suggestions, rows, failed_before)
     if intervals and suggestions:  # the best suggestion's intervals (the observed information)
         run.say(f"intervals of {suggestions[0].fit.model.spec}")
-        suggestions[0].fit = with_intervals(suggestions[0].fit, y, h, inputs)
+        suggestions[0].fit = with_intervals(suggestions[0].fit, y, h, inputs, run.fits)
     clock("intervals")
     return CheckResult(y, h, inputs, fit, inn, diags, mets, rows, suggestions, run.level, screen_level, 0.0, [],
                        refits=refitted), None

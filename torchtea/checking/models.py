@@ -1,15 +1,19 @@
 """The models check's loop moves between and how it compares them: a model extended by an effect, the estimates a
-model's components hold and how they count in BIC, an exact fit with its intervals, a model's diagnostics at a fit.
-Used by :mod:`.check` (adding) and :mod:`.simplify` (taking away and swapping)."""
+model's components hold and how they count in BIC, a model's diagnostics at a fit, and how the loop fits — by the
+exact likelihood, or on a long record by the Whittle likelihood with the exact one evaluated at the points it
+compares (:mod:`torchtea.fitting.whittle_path`): the model's fit (:func:`model_fit`), its fit from several starts
+(:func:`refine`, :func:`refine_one`) and its intervals (:func:`with_intervals`). Used by :mod:`.check` (adding) and
+:mod:`.simplify` (taking away and swapping)."""
 from __future__ import annotations
 
-from ..fitting.mle import Fit, located_intervals, refine_exact
+from ..fitting.mle import Fit, fit_series, located_intervals, refine_best, refine_exact
+from ..fitting.whittle_path import exact_information, uses_exact, whittle_estimate, whittle_refine
 from ..noise.components import COMPONENTS
 from ..noise.components import candidates as candidates_all
 from ..noise.model import NoiseModel, parse_model
 from .diagnostics import innovations, metrics, run_diagnostics
 
-__all__ = ["extend", "assess", "with_intervals", "REFIT_TOLERANCE"]
+__all__ = ["extend", "assess", "with_intervals", "model_fit", "refine", "refine_one", "REFIT_TOLERANCE"]
 
 #: A candidate's refit has converged when it can gain less than this many nats: its BIC gain is then known to 10⁻³
 #: (the ranking needs 0.1; the suggestion the loop adds is refined to :func:`~torchtea.fitting.mle.decrement_tolerance`
@@ -42,9 +46,44 @@ def assess(model, values, y, h, inputs, level):
     return inn, diags, metrics(inn, diags)
 
 
-def with_intervals(f: Fit, y, h, inputs) -> Fit:
-    """The exact fit ``f`` refined with its intervals (the observed information), what it holds fixed kept fixed and
-    its held estimates counted; a located parameter's interval from its own profile."""
+def model_fit(model, y, h, *, inputs: dict | None = None, whittle=None, intervals: bool = True,
+              fits: str = "auto") -> Fit:
+    """The model's fit to ``y``: by the exact likelihood from its Whittle fit's modes
+    (:func:`~torchtea.fitting.mle.fit_series`), or on the long-record path its Whittle estimate
+    (:func:`~torchtea.fitting.whittle_path.whittle_estimate`) — ``fits`` decides (:func:`~torchtea.fitting.
+    whittle_path.uses_exact`)."""
+    if uses_exact(model, y, fits):
+        return fit_series(model, [y], h, method="exact", inputs=None if inputs is None else [inputs], profile=False,
+                          whittle=whittle, intervals=intervals)[0]
+    return whittle_estimate(model, y, h, inputs=inputs, whittle=whittle, intervals=intervals)
+
+
+def refine(model, y, h, starts: list, *, fits: str = "auto", **kw) -> tuple[Fit, list]:
+    """The model's fit from several starts: :func:`~torchtea.fitting.mle.refine_best`, or on the long-record path
+    :func:`~torchtea.fitting.whittle_path.whittle_refine` (the same arguments and return)."""
+    if uses_exact(model, y, fits):
+        return refine_best(model, y, h, starts, **kw)
+    return whittle_refine(model, y, h, starts, **kw)
+
+
+def refine_one(model, y, h, start: dict, *, inputs: dict | None = None, fixed=(), metric=None, intervals: bool = True,
+               fits: str = "auto") -> Fit:
+    """The model's fit from one start (:func:`~torchtea.fitting.mle.refine_exact`, or on the long-record path its
+    Whittle fit from there, the start kept where its exact likelihood is higher)."""
+    if uses_exact(model, y, fits):
+        return refine_exact(model, y, h, start, inputs=inputs, fixed=fixed, metric=metric, intervals=intervals)
+    fit, _ = whittle_refine(model, y, h, [("the start", start)], inputs=inputs, fixed=fixed, must=["the start"],
+                            intervals=intervals)
+    return fit
+
+
+def with_intervals(f: Fit, y, h, inputs, fits: str = "auto") -> Fit:
+    """The fit ``f`` with its intervals: refined by the exact likelihood with the observed information, what it holds
+    fixed kept fixed and its held estimates counted, a located parameter's interval from its own profile; on the
+    long-record path at its point, from the exact likelihood's information there
+    (:func:`~torchtea.fitting.whittle_path.exact_information`)."""
+    if not uses_exact(f.model, y, fits):
+        return exact_information(f, y, h, inputs)
     kept = f.model.held_estimates()
     fixed = [n for n in f.model.names if n not in f.free or n in kept]
     out = refine_exact(f.model, y, h, f.values, inputs=inputs, fixed=fixed, metric=f.hessian, intervals=True)

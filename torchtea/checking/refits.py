@@ -11,8 +11,10 @@ import time
 import numpy as np
 import torch
 
-from ..fitting.mle import Fit, centred, exact_loglik, refine_best, refine_exact, whittle_fit
+from ..fitting.mle import Fit, centred, exact_loglik, whittle_fit
 from ..fitting.starts import starts_of
+from ..fitting.whittle_path import uses_exact
+from . import models
 from .models import REFIT_TOLERANCE
 
 __all__ = ["CheckRun", "Clock", "refit", "refit_from", "held_fixed", "loglik_at", "refined_model", "better_model_fit",
@@ -77,9 +79,9 @@ def refit_degenerate(run: CheckRun, model, fit: Fit, wf, intervals: bool) -> Fit
     fixed = [n for n in model.names if n not in fit.free or n in located or n in model.references()]
     # every distinct mode refined, however far below the degenerate fit it starts: a converged fit's ℓ against
     # unrefined starts' says nothing of where they climb
-    new, _ = refine_best(model, y, h, starts, inputs=run.inputs, fixed=fixed, must=["the degenerate fit"],
-                         intervals=intervals, margin=math.inf, others=len(starts))
-    if not new.loglik > fit.loglik + BASE_SLACK:
+    new, _ = models.refine(model, y, h, starts, fits=run.fits, inputs=run.inputs, fixed=fixed, must=["the degenerate fit"],
+                    intervals=intervals, margin=math.inf, others=len(starts))
+    if not new.loglik_exact > fit.loglik_exact + BASE_SLACK:
         return None
     new.count({n: w for n, w in located.items()})
     return new
@@ -90,14 +92,19 @@ class CheckRun:
     the cache of fits that do not depend on the model's exact fit (the Whittle fits, screens and refits from the same
     starts), the clock and the progress callback."""
 
-    def __init__(self, y, h, inputs, level, progress):
-        self.y, self.h, self.inputs, self.level = y, h, inputs, level
+    def __init__(self, y, h, inputs, level, progress, fits: str = "auto"):
+        self.y, self.h, self.inputs, self.level, self.fits = y, h, inputs, level, fits
         self.inp_list = None if inputs is None else [inputs]
         self.filled = np.where(np.isnan(y), np.nanmean(y), y)
         self.cache = {}
         self.clock = Clock()
         self.progress = progress
         self.carry = {}
+
+    def exact(self, model) -> bool:
+        """Whether this check fits ``model`` by the exact likelihood (else on the long-record path:
+        :func:`~torchtea.fitting.whittle_path.uses_exact`)."""
+        return uses_exact(model, self.y, self.fits)
 
     def say(self, line: str) -> None:
         if self.progress is not None:
@@ -176,8 +183,8 @@ def refit(run: CheckRun, model, alt, label, fit: Fit, wf, row: dict, fixed: list
                 "screen's values", "the model's fit with the effect vanishing"]
         if comp.kind in ("mean", "modifier"):
             must.append("the screen's start")
-        cache[key] = refine_best(alt, y, h, starts, inputs=inputs, fixed=fixed, must=must, others=1,
-                                 tolerance=REFIT_TOLERANCE, refine=refine)
+        cache[key] = models.refine(alt, y, h, starts, fits=run.fits, inputs=inputs, fixed=fixed, must=must,
+                                   others=1, tolerance=REFIT_TOLERANCE, refine=refine)
     f2, tried = cache[key]
     f2 = copy.deepcopy(f2)
     winner = max(tried, key=lambda t: t[2])
@@ -187,7 +194,7 @@ def refit(run: CheckRun, model, alt, label, fit: Fit, wf, row: dict, fixed: list
             f"{there:.2f}" if math.isfinite(there) else "−∞: no finite likelihood")
         add_note(row, f"refitted from {len(tried)} starts; the best from {winner[0]} (ℓ {winner[2]:.2f}; from the "
                        f"screen's start {there})")
-    if refine and not f2.loglik >= fit.loglik - NESTED_SLACK:
+    if refine and run.exact(alt) and not f2.loglik >= fit.loglik - NESTED_SLACK:
         add_note(row, f"every refit ended below the model's ℓ {fit.loglik:.2f} (best {f2.loglik:.2f}): an optimiser "
                        "failure (the models are nested)")
     return f2
@@ -252,8 +259,8 @@ def _stochastic_starts(run: CheckRun, model, alt, label: str, comp, row: dict, b
 
 def refit_from(run: CheckRun, alt, evaluated: Fit, fixed: list) -> Fit:
     """A long record's best suggestion: its exact maximum from the start that ranked it."""
-    fit, _ = refine_best(alt, run.y, run.h, [("the start that ranked it", dict(evaluated.values))],
-                         inputs=run.inputs, fixed=fixed, tolerance=REFIT_TOLERANCE)
+    fit, _ = models.refine(alt, run.y, run.h, [("the start that ranked it", dict(evaluated.values))], fits=run.fits,
+                    inputs=run.inputs, fixed=fixed, must=["the start that ranked it"], tolerance=REFIT_TOLERANCE)
     return fit
 
 
@@ -270,18 +277,19 @@ def loglik_at(model, values: dict, y, h, inputs) -> float:
     return float(ll[0]) if np.isfinite(ll[0]) else -math.inf
 
 
-def refined_model(model, fit: Fit, f2: Fit, y, h, inputs, intervals: bool) -> Fit | None:
-    """The model refined from the values a refit gives its parameters, if that beats ``fit`` by more than
-    :data:`BASE_SLACK` (else None)."""
+def refined_model(model, fit: Fit, f2: Fit, y, h, inputs, intervals: bool, fits: str = "auto") -> Fit | None:
+    """The model refined from the values a refit gives its parameters (:func:`~.models.refine_one`), if that beats
+    ``fit`` by more than :data:`BASE_SLACK` in the exact likelihood (else None)."""
     located = model.located()
     fixed = [n for n in model.names if n not in fit.free or n in located]
-    new = refine_exact(model, y, h, {n: f2.values[n] for n in model.names}, inputs=inputs, fixed=fixed,
-                       metric=fit.hessian, intervals=intervals)
+    new = models.refine_one(model, y, h, {n: f2.values[n] for n in model.names}, inputs=inputs, fixed=fixed,
+                            metric=fit.hessian, intervals=intervals, fits=fits)
     new.count(located)
-    return new if new.loglik > fit.loglik + BASE_SLACK else None
+    return new if new.loglik_exact > fit.loglik_exact + BASE_SLACK else None
 
 
-def better_model_fit(model, fit: Fit, refits: list, y, h, inputs, intervals: bool) -> Fit | None:
+def better_model_fit(model, fit: Fit, refits: list, y, h, inputs, intervals: bool,
+                     fits: str = "auto") -> Fit | None:
     """The model refined from the best of the refits' values of its own parameters, if that beats ``fit`` by
     more than :data:`BASE_SLACK` (else None)."""
     points = [{n: f.values[n] for n in model.names} for f in refits]
@@ -289,9 +297,9 @@ def better_model_fit(model, fit: Fit, refits: list, y, h, inputs, intervals: boo
     ll = exact_loglik(model, vals, centred(model, y), h, inputs=inputs)
     ll = np.where(np.isfinite(ll), ll, -np.inf)
     best = int(np.argmax(ll))
-    if not ll[best] > fit.loglik + BASE_SLACK:
+    if not ll[best] > fit.loglik_exact + BASE_SLACK:
         return None
-    return refined_model(model, fit, refits[best], y, h, inputs, intervals)
+    return refined_model(model, fit, refits[best], y, h, inputs, intervals, fits)
 
 
 class Clock:
@@ -319,12 +327,12 @@ def judge_no_gain(run: CheckRun, row: dict, fit: Fit, alt, gain: float, lr: floa
     at_screen = (loglik_at(alt, row["start"], run.y, run.h, run.inputs)
                  if failed and row["test"].startswith("Whittle") and set(row.get("start") or ()) >= set(alt.names)
                  else math.inf)
-    if at_screen < fit.loglik - BASE_SLACK:
+    if at_screen < fit.loglik_exact - BASE_SLACK:
         # the screen's own point is below the model in the exact likelihood: the cheap likelihood's gain does
         # not hold in the exact one (the optimiser is not what failed)
         add_note(row, f"passed its screen (LR {row['statistic']:.1f}) on the Whittle likelihood, but the "
                        "exact likelihood does not confirm it: at the screen's own point it is "
-                       f"{fit.loglik - at_screen:.1f} nats below the model's, and the exact refit gains only "
+                       f"{fit.loglik_exact - at_screen:.1f} nats below the model's, and the exact refit gains only "
                        f"{lr:.1f} in 2ℓ (BIC gain {gain:.1f}) — the two likelihoods disagree on this record "
                        "(the Whittle likelihood takes it as stationary), which is no evidence for the effect; "
                        "not suggested")

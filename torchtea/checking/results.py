@@ -88,6 +88,8 @@ class CheckRecord:
     #: The model's Whittle fit on this series (:func:`~torchtea.fitting.mle.whittle_fit`), which the loop's
     #: simplification compares its alternatives with.
     whittle: object = None
+    #: How the loop fits (:data:`~torchtea.fitting.whittle_path.FITS`; :func:`~.check.check`'s ``fits``).
+    fits: str = "auto"
 
     @property
     def model(self) -> NoiseModel:

@@ -26,12 +26,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..fitting.mle import Fit, bic, fit_series, refine_best, whittle_fit
+from ..fitting.mle import Fit, bic, refine_best, whittle_fit
 from ..fitting.plan import duration, tie_length
 from ..fitting.starts import starts_of
+from ..fitting.whittle_path import uses_exact, whittle_refine
 from ..noise.components import COMPONENTS
 from ..noise.model import NoiseModel, parse_model
-from .models import REFIT_TOLERANCE, assess, extend, with_intervals
+from .models import REFIT_TOLERANCE, assess, extend, model_fit, with_intervals
 
 __all__ = ["Alternative", "alternatives", "evaluate", "simplify", "ties", "WHITTLE_WINDOW", "MAX_CHANGES"]
 
@@ -173,22 +174,32 @@ def _fit(alt: Alternative, res, wf) -> Fit:
     """The alternative's exact fit: from its Whittle modes (:func:`~torchtea.fitting.mle.fit_series`) and from the
     model's fit (:func:`_model_starts`), the best kept; held estimates counted in BIC as the loop counts them."""
     y, h, inputs = res.y, res.h, res.inputs
-    inp_list = None if inputs is None else [inputs]
     m = alt.model
-    best = fit_series(m, [y], h, method="exact", inputs=inp_list, profile=False, whittle=wf, intervals=False)[0]
     starts = _model_starts(alt, res)
+    refs = m.references() | set(m.located())
+    fixed = [n for n in m.names if n in refs]
+    if not uses_exact(m, y, res.fits):  # (its Whittle modes and the model's starts, by the exact ℓ there)
+        best, _ = whittle_refine(m, y, h, starts or [("its Whittle fit", _mode_values(m, wf, h))], inputs=inputs,
+                                 fixed=fixed, must=[name for name, _ in starts], whittle=wf)
+        best = copy.deepcopy(best)
+        best.count(m.held_estimates())
+        return best
+    best = model_fit(m, y, h, inputs=inputs, whittle=wf, intervals=False, fits="exact")
     if starts:
-        refs = m.references() | set(m.located())
-        fixed = [n for n in m.names if n in refs]
         try:
             other, _ = refine_best(m, y, h, starts, inputs=inputs, fixed=fixed, tolerance=REFIT_TOLERANCE)
         except (ValueError, RuntimeError):
             other = None
-        if other is not None and other.loglik > best.loglik:
+        if other is not None and other.loglik_exact > best.loglik_exact:
             best = other
     best = copy.deepcopy(best)
     best.count(m.held_estimates())
     return best
+
+
+def _mode_values(model, wf, h) -> dict:
+    """The values of the best mode of the Whittle fit ``wf`` (its means included)."""
+    return {**{n: float(x) for n, x in zip(model.names, wf.values[0].tolist())}, **wf.means[0]}
 
 
 def _as_counted(fit: Fit) -> Fit:
@@ -254,7 +265,7 @@ def simplify(res, **kw):
             break
         if progress is not None:
             progress(f"checking {a.model.spec} ({a.words}: BIC {current - a.bic:.1f} lower)")
-        fit = with_intervals(a.fit, res.y, res.h, res.inputs) if kw.get("intervals", True) else a.fit
+        fit = with_intervals(a.fit, res.y, res.h, res.inputs, res.fits) if kw.get("intervals", True) else a.fit
         new = res.recheck(a.model, fit, a.whittle, **kw)
         if new.adequate or (not res.adequate and set(new.failed) <= set(res.failed)):
             new.before = res

@@ -96,6 +96,11 @@ def _add_check(sub) -> None:
     ck.add_argument("--screen-level", type=float, default=0.05,
                     help="family level of the effect screens (default 0.05: on data from the model, at most "
                          "5 %% of checks suggest anything)")
+    ck.add_argument("--fits", choices=("auto", "exact", "whittle"), default="auto",
+                    help="how the loop fits: auto (default: the exact likelihood up to 10000 samples, "
+                         "fitting.whittle_path.WHITTLE_PATH_SAMPLES; above, the Whittle likelihood with the exact "
+                         "one evaluated at each point the loop compares — the long-record path), exact or whittle "
+                         "whatever the length")
     ck.add_argument("--no-intervals", action="store_true", help="skip the finite-difference intervals (faster)")
     ck.add_argument("--out", help="output directory (default check-<recording name>)")
     ck.add_argument("--no-plots", action="store_true")

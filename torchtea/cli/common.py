@@ -428,7 +428,7 @@ def _check_channels(args, m, inputs, *, auto: bool, intervals: bool) -> dict:
                                      max_steps=getattr(args, "max_steps", 6), strong=getattr(args, "strong", None),
                                      simplify=not getattr(args, "no_simplify", False),
                                      intervals=intervals, levels=levels, progress=step, log=_note, stages=_note,
-                                     client=client,
+                                     client=client, fits=getattr(args, "fits", "auto"),
                                      threads=args.threads_per_worker, effects=tuple(args.effects))
     finally:
         close()

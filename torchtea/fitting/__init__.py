@@ -1,4 +1,6 @@
-"""Fitting noise models: the Whittle and exact maximum likelihood (:mod:`.mle`), where they start (:mod:`.starts`, each
+"""Fitting noise models: the Whittle and exact maximum likelihood (:mod:`.mle`; the Whittle sum as the scoring reads
+it, :mod:`.whittle_objective`; the long-record path that fits by the Whittle likelihood and evaluates the exact one,
+:mod:`.whittle_path`), where they start (:mod:`.starts`, each
 effect's heuristics registered apart from its physics), the method of scoring both likelihoods' fits run on
 (:mod:`.scoring`), a fit's result with its intervals and BIC (:mod:`.results`), the exact
 likelihood and innovations at given values (:mod:`.exact`, :mod:`.innovations`), the test of whether the fractional

@@ -1,0 +1,156 @@
+"""The long-record path: where a record is long enough that optimising the exact likelihood is what a check costs
+(:data:`WHITTLE_PATH_SAMPLES`, measured), every fit of the loop is a Whittle fit — the log-binned periodogram, the
+means by least squares — and the exact filter runs once per point the loop compares: for the exact log-likelihood
+its BIC reads (:attr:`~.results.Fit.bic_exact`), the innovations its diagnostics read, and, for the model it ends
+with, the exact likelihood's scoring information its intervals come from (one pass of the sensitivity filter).
+
+:func:`uses_exact` decides, per model and series; :func:`whittle_estimate` is the model's fit there,
+:func:`whittle_refine` the counterpart of :func:`~.mle.refine_best` (a model's fit from several starts: its Whittle
+fit from them, the exact likelihood evaluated at its modes and at the starts that must be kept, the highest kept)
+and :func:`exact_information` the intervals of a fit at its point. A model whose dynamics vary in time (no spectrum),
+or a series with missing samples (no periodogram), is fitted exactly whatever its length."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import torch
+
+from ..noise.model import NoiseModel, parse_model
+from .exact import FIT_MEMORY, centred, exact_loglik, exact_loglik_grad, gradient_supported
+from .results import Fit, estimates_from_hessian
+
+__all__ = ["FITS", "WHITTLE_PATH_SAMPLES", "uses_exact", "whittle_estimate", "whittle_refine", "exact_information"]
+
+#: How ``check`` fits: ``"auto"`` (the Whittle path above :data:`WHITTLE_PATH_SAMPLES`), ``"exact"``, ``"whittle"``.
+FITS = ("auto", "exact", "whittle")
+
+#: Above this many samples ``check --fits auto`` runs the loop on the Whittle likelihood.
+WHITTLE_PATH_SAMPLES = 10_000
+
+
+def uses_exact(model, y, fits: str = "auto") -> bool:
+    """Whether ``check`` fits ``model`` to ``y`` by the exact likelihood: always with ``fits="exact"``, and for a model
+    without a spectrum (its dynamics vary in time) or a series with missing samples; with ``"auto"``, also up to
+    :data:`WHITTLE_PATH_SAMPLES` samples."""
+    if fits not in FITS:
+        raise ValueError(f"fits must be one of {FITS}, got {fits!r}")
+    model = parse_model(model)
+    y = np.asarray(y, dtype=np.float64)
+    if fits == "exact" or not model.stationary or bool(np.isnan(y).any()):
+        return True
+    return fits == "auto" and len(y) <= WHITTLE_PATH_SAMPLES
+
+
+def _held(model: NoiseModel, fixed=()) -> list:
+    """The parameters no fit moves: ``fixed``, the references (a temperature's ``t_ref``) and the estimates the
+    components hold where the data put them (a step's time, a line's frequency)."""
+    held = set(fixed) | model.references() | set(model.located()) | set(model.held_estimates())
+    return [n for n in model.names if n in held]
+
+
+def whittle_estimate(model, y, h: float, *, inputs: dict | None = None, whittle=None, intervals: bool = False,
+                     memory=FIT_MEMORY) -> Fit:
+    """The model's fit on the Whittle path: its Whittle MLE (``whittle``: a :func:`~.mle.whittle_fit` of it already
+    made), the means by least squares, the exact log-likelihood there, and with ``intervals`` those of
+    :func:`exact_information`. ``loglik`` is the Whittle one; the estimated parameters (the means' too) count in k."""
+    from .mle import whittle_fit
+
+    model = parse_model(model)
+    y = np.asarray(y, dtype=np.float64)
+    wf = whittle if whittle is not None else whittle_fit(model, [y], h, inputs=None if inputs is None else [inputs])
+    values = {**{n: float(x) for n, x in zip(model.names, wf.values[0].tolist())}, **wf.means[0]}
+    return _fit_at(model, y, h, values, float(wf.loglik[0]), inputs, bool(wf.converged[0]), intervals, memory,
+                   ["fitted by the Whittle likelihood (the long-record path): the exact likelihood evaluated at "
+                    "the estimate"])
+
+
+def _fit_at(model, y, h, values: dict, ll_whittle: float, inputs, converged: bool, intervals: bool, memory,
+            notes: list, ll_exact: float | None = None) -> Fit:
+    held = _held(model)
+    free = [n for n in model.names if n not in held]
+    if ll_exact is None:
+        ll_exact = float(exact_loglik(model, {n: [values[n]] for n in model.names}, centred(model, y), h,
+                                      inputs=inputs, memory=memory)[0])
+    u = model.to_unconstrained(values, h)[0]
+    how = {n: "not computed (intervals=False)" if n in free else "fixed" for n in model.names}
+    fit = Fit(model, "whittle", dict(values), {n: None for n in model.names}, {n: None for n in model.names}, how,
+              ll_whittle, ll_exact, int(np.sum(~np.isnan(y))), free, converged, None, list(notes), u, None)
+    fit.count({**model.held_estimates(), **model.located()})
+    return exact_information(fit, y, h, inputs, memory) if intervals else fit
+
+
+def exact_information(fit: Fit, y, h: float, inputs: dict | None = None, memory=FIT_MEMORY) -> Fit:
+    """``fit`` with standard errors and 95 % intervals from the exact likelihood's scoring information at its point
+    (one pass of the sensitivity filter, :func:`~.exact.exact_loglik_grad`: the expected information of the
+    innovations, Harvey 1989, §3.4.6) over its estimated parameters, by the delta method as
+    :func:`~.results.intervals_from_hessian`; where the sensitivity filter does not apply, the observed information
+    by central differences (:func:`~.scoring.exact_hessian`). The intervals' words say which."""
+    from . import scoring
+
+    model = fit.model
+    yc = centred(model, y)
+    held = _held(model)
+    mask = torch.tensor([n in fit.free and n not in held for n in model.names])
+    idx = mask.nonzero().squeeze(-1)
+    P = len(model.names)
+    if gradient_supported(model, yc) is None:
+        _, _, info = exact_loglik_grad(model, fit.u.unsqueeze(0), yc, h, idx.numpy(), inputs=inputs, memory=memory)
+        H = torch.zeros(P, P, dtype=torch.float64)
+        H[idx.unsqueeze(-1), idx] = torch.as_tensor(info[0])
+        words = "the exact likelihood's scoring information"
+    else:
+        H = scoring.exact_hessian(model, yc, h, fit.u, mask, inputs, memory)
+        words = "the exact likelihood's observed information"
+    values, se, ci, how = estimates_from_hessian(model, fit.u, H, mask, h)
+    out = Fit(model, fit.method, values, se, ci, dict(fit.ci95_method), fit.loglik, fit.loglik_exact, fit.n,
+              list(fit.free), fit.converged, fit.profile, list(fit.notes), fit.u, H)
+    for n in model.names:
+        if mask[model.names.index(n)]:
+            out.ci95_method[n] = f"{how[n]}, from {words} at the {fit.method} estimate"
+    return out
+
+
+def whittle_refine(model, y, h: float, starts: list, *, inputs: dict | None = None, fixed=(), must=(),
+                   intervals: bool = False, others: int | None = None, tolerance: float | None = None,
+                   refine: bool = True, margin: float = math.inf, whittle=None,
+                   memory=FIT_MEMORY) -> tuple[Fit, list]:
+    """The long-record counterpart of :func:`~.mle.refine_best`, with its arguments and return: the model's Whittle
+    fit from ``starts`` (``(name, values)`` each; the names in ``fixed`` held at the first start's values) and from
+    its grid, then the exact log-likelihood at each distinct Whittle mode and at the starts ``must`` names (one
+    batch), the highest kept — a lower bound of the exact maximum, as the exact refit's gain is one of the
+    ``refine=False`` kind (``others``, ``tolerance`` and ``margin`` are the exact refinement's and unused here).
+    ``refine=False``: the starts alone, evaluated. ``whittle``: the model's Whittle fit from these starts, already
+    made (its modes are used). Returns the :class:`~.results.Fit` (method ``"whittle"``; its notes
+    say which point won) and per point ``(name, ℓ there, ℓ there)``."""
+    from .mle import whittle_fit, whittle_value
+
+    model = parse_model(model)
+    y = np.asarray(y, dtype=np.float64)
+    fixed = [n for n in model.names if n in set(fixed)]
+    first = starts[0][1]
+    points = [(name, {**v, **{n: first[n] for n in fixed}}) for name, v in starts]
+    wf = None
+    candidates = [(name, v) for name, v in points if name in must or not refine]
+    if refine:
+        inp = None if inputs is None else [inputs]
+        wf = whittle if whittle is not None else whittle_fit(
+            model, [np.where(np.isnan(y), np.nanmean(y), y)], h, inputs=inp, fixed={n: first[n] for n in fixed},
+            starts=[[v for _, v in points]])
+        for k, (u, _, _) in enumerate(wf.modes[0] if wf.modes else [(wf.u[0], None, None)]):
+            vals = {n: float(x) for n, x in zip(model.names, model.as_matrix(model.from_unconstrained(u, h))[0])}
+            candidates.append((f"the Whittle fit's mode {k + 1}", {**vals, **wf.means[0],
+                                                                    **{n: first[n] for n in fixed}}))
+    if not candidates:
+        candidates = points[:1]
+    yc = centred(model, y)
+    ll = exact_loglik(model, {n: [v[n] for _, v in candidates] for n in model.names}, yc, h, inputs=inputs,
+                      memory=memory)
+    ll = np.where(np.isfinite(ll), ll, -np.inf)
+    b = int(np.argmax(ll))
+    name, values = candidates[b]
+    ll_w = whittle_value(model, wf.data, values, h) if wf is not None else math.nan
+    notes = [f"fitted by the Whittle likelihood (the long-record path); the best of {len(candidates)} points by the "
+             f"exact likelihood: {name} (ℓ {ll[b]:.2f})"]
+    fit = _fit_at(model, y, h, values, ll_w, inputs, True, intervals, memory, notes, float(ll[b]))
+    return fit, [(n, float(x), float(x)) for (n, _), x in zip(candidates, ll)]

@@ -176,10 +176,12 @@ def whittle_resolution() -> float | None:
 
 def whittle_fit(model, series: list, h: float, *, inputs: list | None = None, fixed: dict | None = None,
                 orders=START_ORDERS, fractions=START_FRACTIONS, starts: list | None = None,
-                grid: bool = True) -> WhittleFit:
+                grid: bool = True, tolerance: float | None = None) -> WhittleFit:
     """Whittle MLEs of several series at once (:class:`WhittleFit`): the mean components by least squares,
     then the stochastic part from every start of the multi-start grid (``grid``) and of ``starts`` (per
-    series a list of dicts of values of the stochastic parameters)."""
+    series a list of dicts of values of the stochastic parameters). ``tolerance``: the decrement (nats) at which a start has
+    converged (default :func:`~.scoring.decrement_tolerance`'s; a screen, which reads the likelihood-ratio to a tenth,
+    asks for less)."""
     model = parse_model(model)
     fixed = dict(fixed or {})
     rows_u, owner, mean_list, Is = [], [], [], []
@@ -201,19 +203,42 @@ def whittle_fit(model, series: list, h: float, *, inputs: list | None = None, fi
     owner = torch.tensor(owner)
     free = _free_mask(model, fixed, True)
     U0 = torch.stack(rows_u)
-    # every start to convergence (scoring is cheap on the binned sum): after a few iterations a start on the order–pole
-    # ridge can look better than one that converges to the higher mode, and each distinct mode is a start of the
-    # exact fit; a start that has reached another's mode stops there
     idx = free.nonzero().squeeze(-1).numpy()
+    # every start to convergence: after a few iterations a start on the order–pole ridge can look better than one that
+    # converges to the higher mode, and each distinct mode is a start of the exact fit; a start that has reached
+    # another's mode stops there
     objective = WhittleObjective(model, data, h, U0, owner, idx)
+    U, loss, converged = _scored(model, data, h, U0, owner, idx, RACE, objective, tolerance)
+    modes = _distinct(U, loss, converged, owner, free, len(series))
+    best = [kept[0] for kept in modes]
+    flat = [i for kept in modes for i in kept]
+    H = dict(zip(flat, objective.hessian(U[flat], flat)))
+    modes = [[(U[i].clone(), -float(loss[i]), H[i]) for i in kept] for kept in modes]
+    best = torch.tensor(best)
+    return WhittleFit(model.as_matrix(model.from_unconstrained(U[best], h)).detach(), -loss[best],
+                      U[best], torch.stack([H[int(i)] for i in best]), mean_list, torch.as_tensor(converged)[best],
+                      free, data, modes)
+
+
+def _scored(model, data: WhittleData, h: float, U0: Tensor, owner: Tensor, idx, race: bool, objective=None,
+            tolerance: float | None = None):
+    """The starts ``U0`` (series ``owner``) scored to their maxima of ``data``'s Whittle sum: ``(U, −ℓ_W (inf where
+    not finite), converged)``."""
+    objective = objective or WhittleObjective(model, data, h, U0, owner, idx)
     X, loss, converged, _ = scoring.score(objective.vgi, objective.values, U0[:, idx].numpy(),
-                                         scoring.logit_limits(model, idx), groups=owner.numpy(), race=RACE, pin=True,
-                                         floor=FLOOR)
+                                         scoring.logit_limits(model, idx), groups=owner.numpy(), race=race, pin=True,
+                                         floor=FLOOR, tolerance=tolerance)
     U = U0.clone()
     U[:, idx] = torch.as_tensor(X)
-    loss = torch.as_tensor(np.where(loss < 1e300, loss, np.inf))
-    modes, best = [], []
-    for s in range(len(series)):
+    return U, torch.as_tensor(np.where(loss < 1e300, loss, np.inf)), converged
+
+
+def _distinct(U: Tensor, loss: Tensor, converged, owner: Tensor, free: Tensor, series: int) -> list:
+    """Per series, its distinct maxima among the scored starts (indices, the best first, at most
+    :data:`MAX_MODES`): a start left in the race is none, and two within :data:`~.scoring.MODE_DISTANCE` of each other
+    are one."""
+    modes = []
+    for s in range(series):
         mine = (owner == s).nonzero().squeeze(-1)
         order = mine[torch.argsort(loss[mine])]
         kept = []
@@ -226,16 +251,8 @@ def whittle_fit(model, series: list, h: float, *, inputs: list | None = None, fi
                 kept.append(i)
             if len(kept) == MAX_MODES:
                 break
-        kept = kept or [int(order[0])]
-        best.append(kept[0])
-        modes.append(kept)
-    flat = [i for kept in modes for i in kept]
-    H = dict(zip(flat, objective.hessian(U[flat], flat)))
-    modes = [[(U[i].clone(), -float(loss[i]), H[i]) for i in kept] for kept in modes]
-    best = torch.tensor(best)
-    return WhittleFit(model.as_matrix(model.from_unconstrained(U[best], h)).detach(), -loss[best],
-                      U[best], torch.stack([H[int(i)] for i in best]), mean_list, torch.as_tensor(converged)[best],
-                      free, data, modes)
+        modes.append(kept or [int(order[0])])
+    return modes
 
 
 # --------------------------------------------------------------------------- exact

@@ -266,7 +266,7 @@ def _check_once(run: CheckRun, model, fit: Fit, wf, screen_level, candidates, in
         suggestions.append(Suggestion(row["effect"], float(gain), row["p_value"], row["test"], f2, d2, m2, repairs,
                                       label))
     for row in rows:
-        for k in ("metric", "start", "modes"):
+        for k in ("start", "modes"):
             row.pop(k, None)
     clock("refits")
     if refits and restart:

@@ -163,7 +163,6 @@ def refit(run: CheckRun, model, alt, label, fit: Fit, wf, row: dict, fixed: list
     new = [n for n in alt.names if n not in model.names]
     base = dict(fit.values)
     start = dict(row["start"])
-    row.pop("metric", None)
     if comp.kind in ("mean", "modifier"):
         starts = _mean_starts(run, model, alt, wf, base, start, new)
     else:

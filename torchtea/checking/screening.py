@@ -128,7 +128,7 @@ def whittle_screens(model, base, rows_alts, y, h, inputs, cache: dict):
         # component may give no strength: the grid alone then)
         comp = dict(alt.components)[label]
         strengths = starts_of(comp).strengths(comp, label, model, base_values, h, len(y))
-        wf = whittle_fit(alt, [yy], h, inputs=inp, fractions=(0.5,), tolerance=SCREEN_TOLERANCE,
+        wf = whittle_fit(alt, [yy], h, inputs=inp, fractions=(0.5,), tolerance=SCREEN_TOLERANCE, hessian=False,
                          starts=[[{**base_values, **o} for o in strengths]] if strengths else None)
         lr = max(0.0, 2.0 * float(wf.loglik[0] - base.loglik[0]))
         logp = boundary_logsf(lr, screens.screen_df(dict(alt.components)[label]))
@@ -137,6 +137,6 @@ def whittle_screens(model, base, rows_alts, y, h, inputs, cache: dict):
         modes = [{**{n: float(x) for n, x in zip(alt.names, alt.as_matrix(alt.from_unconstrained(u, h))[0])},
                   **wf.means[0]} for u, _, _ in (wf.modes[0] if wf.modes else [])]
         found = dict(statistic=lr, p_value=float(math.exp(logp)), log10_p=float(logp / math.log(10)),
-                     start=vals, metric=wf.hessian[0], modes=modes)
+                     start=vals, modes=modes)
         cache[key] = found
         row.update(found)

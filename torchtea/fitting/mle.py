@@ -176,12 +176,13 @@ def whittle_resolution() -> float | None:
 
 def whittle_fit(model, series: list, h: float, *, inputs: list | None = None, fixed: dict | None = None,
                 orders=START_ORDERS, fractions=START_FRACTIONS, starts: list | None = None,
-                grid: bool = True, tolerance: float | None = None) -> WhittleFit:
+                grid: bool = True, tolerance: float | None = None, hessian: bool = True) -> WhittleFit:
     """Whittle MLEs of several series at once (:class:`WhittleFit`): the mean components by least squares,
     then the stochastic part from every start of the multi-start grid (``grid``) and of ``starts`` (per
     series a list of dicts of values of the stochastic parameters). ``tolerance``: the decrement (nats) at which a start has
     converged (default :func:`~.scoring.decrement_tolerance`'s; a screen, which reads the likelihood-ratio to a tenth,
-    asks for less)."""
+    asks for less). ``hessian=False``: the observed information is not computed (zeros: a screen reads the
+    likelihood and the modes alone)."""
     model = parse_model(model)
     fixed = dict(fixed or {})
     rows_u, owner, mean_list, Is = [], [], [], []
@@ -212,7 +213,9 @@ def whittle_fit(model, series: list, h: float, *, inputs: list | None = None, fi
     modes = _distinct(U, loss, converged, owner, free, len(series))
     best = [kept[0] for kept in modes]
     flat = [i for kept in modes for i in kept]
-    H = dict(zip(flat, objective.hessian(U[flat], flat)))
+    P = U.shape[-1]
+    H = dict(zip(flat, objective.hessian(U[flat], flat) if hessian else torch.zeros(len(flat), P, P,
+                                                                                   dtype=torch.float64)))
     modes = [[(U[i].clone(), -float(loss[i]), H[i]) for i in kept] for kept in modes]
     best = torch.tensor(best)
     return WhittleFit(model.as_matrix(model.from_unconstrained(U[best], h)).detach(), -loss[best],

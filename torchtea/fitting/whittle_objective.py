@@ -42,13 +42,11 @@ class WhittleObjective:
         rough = self.data.rough(S)
         weight = self.data.weight * ~rough
         f, g, info = whittle_scores(weight, I, S, dS)
-        for b in rough.any(-1).nonzero().squeeze(-1).tolist():  # (rough bins at full resolution)
-            series, ords = self._series(rows, b), self.data.ordinates(rough[b].nonzero().squeeze(-1))
-            Sj, dSj = spectrum_jacobian(self.model, U[b:b + 1], self.data.omega_full[ords], self.h,
-                                        self.idx.tolist())
-            fj, gj, ij = whittle_scores(torch.ones(len(ords), dtype=torch.float64),
-                                        self.data.I_full[series, ords].unsqueeze(0), Sj, dSj)
-            f[b], g[b], info[b] = f[b] + fj[0], g[b] + gj[0], info[b] + ij[0]
+        some, ords, mask, Ij = self._rough(rough, rows)
+        if some is not None:  # (rough bins at full resolution: every row that has one in one batch)
+            Sj, dSj = spectrum_jacobian(self.model, U[some], self.data.omega_full[ords], self.h, self.idx.tolist())
+            fj, gj, ij = whittle_scores(mask.to(torch.float64), Ij, Sj, dSj)
+            f[some], g[some], info[some] = f[some] + fj, g[some] + gj, info[some] + ij
         f, g, info = f.numpy(), g.numpy(), info.numpy()
         bad = ~(np.isfinite(f) & np.isfinite(g).all(-1) & np.isfinite(info).all((-1, -2)))
         return (np.where(bad, 1e300, f), np.where(bad[:, None], 0.0, g),
@@ -67,16 +65,23 @@ class WhittleObjective:
         W = self.data.terms
         weight = self.data.weight * ~rough
         f = (weight * (torch.log(4.0 * math.pi ** 2 * S[..., :W]) + I / S[..., W:])).sum(-1)
-        for b in rough.any(-1).nonzero().squeeze(-1).tolist():
-            series, ords = self._series(rows, b), self.data.ordinates(rough[b].nonzero().squeeze(-1))
-            Sj = self.model.spectrum({k: x[b:b + 1] for k, x in values.items()}, self.data.omega_full[ords], self.h)
-            f[b] = f[b] + (torch.log(4.0 * math.pi ** 2 * Sj) + self.data.I_full[series, ords] / Sj).sum()
+        some, ords, mask, Ij = self._rough(rough, rows)
+        if some is not None:
+            Sj = self.model.spectrum({k: x[some] for k, x in values.items()}, self.data.omega_full[ords], self.h)
+            f[some] = f[some] + (mask * (torch.log(4.0 * math.pi ** 2 * Sj) + Ij / Sj)).sum(-1)
         f = f.numpy()
         return np.where(np.isfinite(f), f, 1e300)
 
-    def _series(self, rows, b: int) -> int:
-        """The series the ``b``-th of ``rows`` fits."""
-        return int(self.owner[int(np.asarray(rows)[b])])
+    def _rough(self, rough: Tensor, rows):
+        """The rows with a rough bin ``(k,)``, the ordinates of every rough bin of any of them ``(K,)``, which are
+        each row's ``(k, K)`` and their periodogram ``(k, K)``; ``(None, …)`` where no bin is rough."""
+        some = rough.any(-1).nonzero().squeeze(-1)
+        if not len(some):
+            return None, None, None, None
+        ords = self.data.ordinates(rough[some].any(0))
+        mask = rough[some][:, self.data.term_of[ords]]
+        series = self.owner[torch.as_tensor(np.asarray(rows), dtype=torch.long)[some]]
+        return some, ords, mask, self.data.I_full[series][:, ords]
 
     def hessian(self, U: Tensor, rows) -> Tensor:
         """The observed information (the Hessian of −ℓ_W) at the points ``U`` ``(k, P)`` of the starts ``rows``, over

@@ -26,6 +26,7 @@ every ordinate (the full sum above, term for term).
 """
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -117,9 +118,15 @@ class WhittleData:
         return rough & (self.weight > 1)
 
     def ordinates(self, terms: Tensor) -> Tensor:
-        """The indices (into :attr:`omega_full`, :attr:`I_full`) of every ordinate of the terms ``terms``."""
-        ends = torch.cat([self.first[1:], self.first.new_tensor([self.omega_full.shape[-1]])])
-        return torch.cat([torch.arange(int(self.first[t]), int(ends[t])) for t in terms.tolist()])
+        """The indices (into :attr:`omega_full`, :attr:`I_full`) of every ordinate of the terms where ``terms``
+        ``(W,)`` (a mask) is set."""
+        return terms[self.term_of].nonzero().squeeze(-1)
+
+    @functools.cached_property
+    def term_of(self) -> Tensor:
+        """``(W₀,)``: each ordinate's term."""
+        return torch.repeat_interleave(torch.arange(self.terms), torch.diff(torch.cat([
+            self.first, self.first.new_tensor([self.omega_full.shape[-1]])])))
 
 
 #: A bin is rough (:meth:`WhittleData.rough`) where the log-spectrum differs by more than ROUGHNESS between its two

@@ -169,15 +169,33 @@ def _chain(model: NoiseModel, label: str, comp: Component, d: Tensor, u: Tensor,
     share through its order (:meth:`~torchtea.noise.components.ParamSpec.order_derivative`)."""
     d = d.expand(out.shape[0], *d.shape[1:]) if d.shape[0] != out.shape[0] else d
     tail = (1,) * (d.dim() - 2)
-    for k, p in enumerate(comp.params):
-        name = f"{label}.{p.name}"
-        i = model.names.index(name)
-        spec = model.param_spec(name)
+    for k, name, i, spec, order in _parameters(model, label):
         if name in where:
             out[:, where[name]] += d[:, k] * spec.derivative(u[:, i], v[name], h).reshape(-1, *tail)
-        order = model._order_of.get(name)
-        if order is not None and order in where:
-            j = model.names.index(order)
-            dorder = model.param_spec(order).derivative(u[:, j], v[order], h)
-            out[:, where[order]] += d[:, k] * (spec.order_derivative(v[name], h) * dorder).reshape(-1, *tail)
+        if order is not None and order[0] in where:
+            name_o, j, spec_o = order
+            dorder = spec_o.derivative(u[:, j], v[name_o], h)
+            out[:, where[name_o]] += d[:, k] * (spec.order_derivative(v[name], h) * dorder).reshape(-1, *tail)
     return out
+
+
+def _parameters(model: NoiseModel, label: str) -> list:
+    """The component ``label``'s parameters as :func:`_chain` reads them: ``(k, name, index, spec, order)`` with
+    ``order`` the ``(name, index, spec)`` of the order a pole's fraction moves with, else None (remembered per model
+    and label)."""
+    comp = dict(model.components)[label]
+    key = (tuple(model.names), label, type(comp), comp.params)
+    if key not in _PARAMETERS:
+        names = model.names
+        out = []
+        for k, p in enumerate(comp.params):
+            name = f"{label}.{p.name}"
+            o = model._order_of.get(name)
+            out.append((k, name, names.index(name), model.param_spec(name),
+                        None if o is None else (o, names.index(o), model.param_spec(o))))
+        _PARAMETERS[key] = out
+    return _PARAMETERS[key]
+
+
+#: :func:`_parameters`' memory (a model's parameter names and a component's class and parameters fix them).
+_PARAMETERS: dict = {}

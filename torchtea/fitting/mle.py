@@ -42,7 +42,7 @@ from .scoring import decrement_tolerance
 from .starts import initial_values, starts_of
 from .whittle_objective import WhittleObjective, whittle_value
 
-__all__ = ["Fit", "WhittleFit", "WhittleObjective", "whittle_value", "fit_series", "located_intervals", "refine_exact", "refine_best", "regress_mean", "whittle_fit", "exact_loglik", "profile_order", "METHODS",
+__all__ = ["Fit", "WhittleFit", "WhittleObjective", "whittle_value", "linear_mean", "fit_series", "located_intervals", "refine_exact", "refine_best", "regress_mean", "whittle_fit", "exact_loglik", "profile_order", "METHODS",
            "Z95", "CHI2_95", "bic", "decrement_tolerance",
            # defined in .exact, .innovations and core.search, imported from here too
            "FIT_MEMORY", "ExactPass", "exact_pass", "centred", "unknown_level", "refine_frequency", "remove_regressors"]
@@ -81,12 +81,32 @@ def regress_mean(model: NoiseModel, y, h: float, inputs: dict | None = None) -> 
         if comp.kind == "mean" and start is None:
             start = initial_values(model, torch.as_tensor(np.where(ok, y, np.nanmean(y))), h)
         vals.update(starts_of(comp).fit_residual(comp, label, resid, t, ok, h, start or {}, inputs))
-    # the level: the mean of what is left plus what was removed
+    _level(model, y, vals, t, ok)
+    return vals, resid
+
+
+def _level(model: NoiseModel, y: np.ndarray, vals: dict, t: np.ndarray, ok: np.ndarray) -> None:
+    """The level (an ``offset``'s) in ``vals``, in place: the mean of what is left plus what was removed."""
     for label, comp in model.components:
         if comp.level:
             m = model.mean({**{n: 0.0 for n in model.names}, **vals}, torch.as_tensor(t)).numpy()[0]
             vals[f"{label}.{comp.params[0].name}"] = float(np.mean((y - m)[ok]))
-    return vals, resid
+
+
+def linear_mean(model: NoiseModel, y, h: float, inputs: dict | None = None) -> tuple[list, np.ndarray]:
+    """The linear part of the model's mean (:meth:`~.starts.Starts.regressors`: a ramp's slope, a bias per °C):
+    its coefficients' names and their regressors ``(p, N)``, centred over the observed samples as the least squares
+    of :func:`regress_mean` centres them."""
+    y = np.asarray(y, dtype=np.float64)
+    t = np.arange(len(y)) * h
+    ok = ~np.isnan(y)
+    names, cols = [], []
+    for label, comp in model.components:
+        for name, col in starts_of(comp).regressors(comp, label, t, inputs, ok)[1]:
+            names.append(name)
+            cols.append(np.asarray(col, dtype=np.float64))
+    X = np.stack(cols) if cols else np.zeros((0, len(y)))
+    return names, X - (X[:, ok].mean(1, keepdims=True) if cols else 0.0)
 
 
 # --------------------------------------------------------------------------- Whittle
@@ -177,19 +197,26 @@ def whittle_resolution() -> float | None:
 def whittle_fit(model, series: list, h: float, *, inputs: list | None = None, fixed: dict | None = None,
                 orders=START_ORDERS, fractions=START_FRACTIONS, starts: list | None = None,
                 grid: bool = True, tolerance: float | None = None, hessian: bool = True) -> WhittleFit:
-    """Whittle MLEs of several series at once (:class:`WhittleFit`): the mean components by least squares,
-    then the stochastic part from every start of the multi-start grid (``grid``) and of ``starts`` (per
+    """Whittle MLEs of several series at once (:class:`WhittleFit`): the mean components by least squares — the
+    linear ones (:func:`linear_mean`) then profiled out of the Whittle sum under each spectrum, so that their values
+    are its generalised least squares at the fit —, then the stochastic part from every start of the multi-start grid (``grid``) and of ``starts`` (per
     series a list of dicts of values of the stochastic parameters). ``tolerance``: the decrement (nats) at which a start has
     converged (default :func:`~.scoring.decrement_tolerance`'s; a screen, which reads the likelihood-ratio to a tenth,
     asks for less). ``hessian=False``: the observed information is not computed (zeros: a screen reads the
     likelihood and the modes alone)."""
     model = parse_model(model)
     fixed = dict(fixed or {})
-    rows_u, owner, mean_list, Is = [], [], [], []
+    rows_u, owner, mean_list, Is, before, regs = [], [], [], [], [], []
     omega = None
     resolution = whittle_resolution()
     for s, y in enumerate(series):
         mean_vals, resid = regress_mean(model, y, h, None if inputs is None else inputs[s])
+        names, X = linear_mean(model, y, h, None if inputs is None else inputs[s])
+        left = resid + np.array([mean_vals[n] for n in names]) @ X  # (the linear mean left in)
+        if model.diffuse and not any(_is_trend(x) for x in X):
+            X = np.vstack([X, _trend(y, h)])
+        before.append(left)
+        regs.append(X)
         mean_list.append(mean_vals)
         omega, I = periodogram(torch.as_tensor(resid))
         Is.append(I)
@@ -200,7 +227,12 @@ def whittle_fit(model, series: list, h: float, *, inputs: list | None = None, fi
         for v in points:
             rows_u.append(model.to_unconstrained(v, h)[0])
             owner.append(s)
-    data = whittle_data(omega, torch.stack(Is), resolution)
+    # the linear mean's coefficients profiled out under each spectrum (generalised least squares in the frequency
+    # domain), the least squares above only placing the terms' frequencies and starting the means; a model with a
+    # random walk has a trend profiled out too, a parameter of no model (a walk's periodogram holds its whole
+    # increment over the record as a trend's, twice its spectrum at every Fourier frequency: profiled, none of it)
+    data = whittle_data(omega, torch.stack(Is), resolution, residual=torch.as_tensor(np.stack(before)),
+                        columns=torch.as_tensor(np.stack(regs)))
     owner = torch.tensor(owner)
     free = _free_mask(model, fixed, True)
     U0 = torch.stack(rows_u)
@@ -213,6 +245,14 @@ def whittle_fit(model, series: list, h: float, *, inputs: list | None = None, fi
     modes = _distinct(U, loss, converged, owner, free, len(series))
     best = [kept[0] for kept in modes]
     flat = [i for kept in modes for i in kept]
+    if names:  # each mode at its own coefficients, each series' means at its best mode's
+        beta = objective.beta(U[flat], flat)[:, :len(names)]
+        for k, i in enumerate(flat):
+            U[i, [model.names.index(n) for n in names]] = beta[k]
+        for s, kept in enumerate(modes):
+            mean_list[s].update(zip(names, beta[flat.index(kept[0])].tolist()))
+            _level(model, np.asarray(series[s], dtype=np.float64), mean_list[s], np.arange(len(series[s])) * h,
+                   ~np.isnan(np.asarray(series[s], dtype=np.float64)))
     P = U.shape[-1]
     H = dict(zip(flat, objective.hessian(U[flat], flat) if hessian else torch.zeros(len(flat), P, P,
                                                                                    dtype=torch.float64)))
@@ -221,6 +261,18 @@ def whittle_fit(model, series: list, h: float, *, inputs: list | None = None, fi
     return WhittleFit(model.as_matrix(model.from_unconstrained(U[best], h)).detach(), -loss[best],
                       U[best], torch.stack([H[int(i)] for i in best]), mean_list, torch.as_tensor(converged)[best],
                       free, data, modes)
+
+
+def _trend(y: np.ndarray, h: float) -> np.ndarray:
+    """``(1, N)``: time, centred over the observed samples (a trend's regressor)."""
+    t = np.arange(len(y)) * h
+    return (t - t[~np.isnan(np.asarray(y, dtype=np.float64))].mean())[None]
+
+
+def _is_trend(x: np.ndarray) -> bool:
+    """A regressor that is a trend (a ramp's: its differences all but constant)."""
+    d = np.diff(x)
+    return bool(np.ptp(d) <= 1e-9 * max(float(np.abs(d).max()), 1e-300))
 
 
 def _scored(model, data: WhittleData, h: float, U0: Tensor, owner: Tensor, idx, race: bool, objective=None,
@@ -484,13 +536,14 @@ START_MARGIN = 10.0
 def refine_best(model, y, h: float, starts: list, *, inputs: dict | None = None, fixed=(), must=(),
                 memory=FIT_MEMORY, intervals: bool = False, others: int = MAX_MODES,
                 tolerance: float | None = None, refine: bool = True,
-                margin: float = START_MARGIN) -> tuple[Fit, list]:
+                margin: float = START_MARGIN, max_iter: int = 60) -> tuple[Fit, list]:
     """The exact MLE of one series from several starts, the best kept: ``starts`` a list of ``(name, values)``
     (values of every parameter of ``model``; the names in ``fixed`` stay at the first start's values). The exact ℓ is
     evaluated at every start in one batch; those whose names are in ``must`` and the best ``others`` of the rest
     within ``margin`` nats (:data:`START_MARGIN`) of the best (distinct) are refined — as one batch of scoring iterations
     where the sensitivity filter applies (:func:`~.scoring.score_batch`), else one after another — and the highest maximum
-    kept (``tolerance``: the decrement at which a start has converged, :func:`~.scoring.score_batch`). ``refine=False``:
+    kept (``tolerance``: the decrement at which a start has converged, ``max_iter`` the most scoring iterations,
+    :func:`~.scoring.score_batch`). ``refine=False``:
     the best start as it is, no iteration (its ℓ a lower bound of the maximum's). Returns the
     :class:`Fit` (its notes say which start won) and per refined start ``(name, ℓ at the start, ℓ at its
     maximum)``."""
@@ -517,7 +570,8 @@ def refine_best(model, y, h: float, starts: list, *, inputs: dict | None = None,
     if not refine:
         runs = [(U[i].clone(), float(ll0[i]), False) for i in chosen]
     elif gradient_supported(model, yc) is None:
-        X, f, ok, _ = scoring.score_batch(model, yc, h, U[chosen], free, inputs, memory, tolerance=tolerance)
+        X, f, ok, _ = scoring.score_batch(model, yc, h, U[chosen], free, inputs, memory, max_iter=max_iter,
+                                          tolerance=tolerance)
         runs = []
         for k, i in enumerate(chosen):
             u = U[i].clone()

@@ -34,18 +34,22 @@ class WhittleObjective:
         U = self.U0[rows].clone()
         U[:, self.idx] = torch.as_tensor(np.asarray(points), dtype=torch.float64)
         series = self.owner[rows[:1]] if self.one else self.owner[rows]
-        return U, self.frequencies[series], self.data.I[series]
+        return U, self.frequencies[series], series
+
+    def _spectrum(self, U: Tensor, omega: Tensor, grad: bool):
+        """The model's spectrum at ``omega`` and, with ``grad``, its derivatives (else None)."""
+        if grad:
+            return spectrum_jacobian(self.model, U, omega, self.h, self.idx.tolist())
+        return self.model.spectrum(self.model.from_unconstrained(U, self.h), omega, self.h), None
 
     def vgi(self, points, rows):
-        U, omega, I = self._at(points, rows)
-        S, dS = spectrum_jacobian(self.model, U, omega, self.h, self.idx.tolist())
-        rough = self.data.rough(S)
-        weight = self.data.weight * ~rough
-        f, g, info = whittle_scores(weight, I, S, dS)
-        some, ords, mask, Ij = self._rough(rough, rows)
-        if some is not None:  # (rough bins at full resolution: every row that has one in one batch)
-            Sj, dSj = spectrum_jacobian(self.model, U[some], self.data.omega_full[ords], self.h, self.idx.tolist())
-            fj, gj, ij = whittle_scores(mask.to(torch.float64), Ij, Sj, dSj)
+        U, omega, series = self._at(points, rows)
+        S, dS = self._spectrum(U, omega, True)
+        t = self._terms(U, rows, S, grad=True)
+        f, g, info = whittle_scores(self.data.weight * ~t.rough, t.I, S, dS)
+        if t.some is not None:  # (rough bins at full resolution: every row that has one in one batch)
+            fj, gj, ij = whittle_scores(t.mask.to(torch.float64), t.Ij, t.Sj, t.dSj)
+            some = t.some
             f[some], g[some], info[some] = f[some] + fj, g[some] + gj, info[some] + ij
         f, g, info = f.numpy(), g.numpy(), info.numpy()
         bad = ~(np.isfinite(f) & np.isfinite(g).all(-1) & np.isfinite(info).all((-1, -2)))
@@ -53,35 +57,70 @@ class WhittleObjective:
                 np.where(bad[:, None, None], 0.0, info))
 
     def values(self, points, rows):
-        U, omega, I = self._at(points, rows)
-        return self.minus_loglik(U, omega, I, rows)
+        U, omega, _ = self._at(points, rows)
+        return self.minus_loglik(U, omega, rows)
 
-    def minus_loglik(self, U: Tensor, omega: Tensor, I: Tensor, rows) -> np.ndarray:
-        """−ℓ_W ``(k,)`` at the points ``U`` ``(k, P)`` of the starts ``rows``, their frequencies ``omega`` and mean
-        ordinates ``I``: the binned terms, a rough bin's at full resolution (+1e300 where not finite)."""
-        values = self.model.from_unconstrained(U, self.h)
-        S = self.model.spectrum(values, omega, self.h)
-        rough = self.data.rough(S)
+    def minus_loglik(self, U: Tensor, omega: Tensor, rows) -> np.ndarray:
+        """−ℓ_W ``(k,)`` at the points ``U`` ``(k, P)`` of the starts ``rows`` and their frequencies ``omega``: the
+        binned terms, a rough bin's at full resolution, a linear mean's coefficients profiled out (+1e300 where not
+        finite)."""
+        S, _ = self._spectrum(U, omega, False)
+        t = self._terms(U, rows, S, grad=False)
         W = self.data.terms
-        weight = self.data.weight * ~rough
-        f = (weight * (torch.log(4.0 * math.pi ** 2 * S[..., :W]) + I / S[..., W:])).sum(-1)
-        some, ords, mask, Ij = self._rough(rough, rows)
-        if some is not None:
-            Sj = self.model.spectrum({k: x[some] for k, x in values.items()}, self.data.omega_full[ords], self.h)
-            f[some] = f[some] + (mask * (torch.log(4.0 * math.pi ** 2 * Sj) + Ij / Sj)).sum(-1)
+        f = (self.data.weight * ~t.rough * (torch.log(4.0 * math.pi ** 2 * S[..., :W]) + t.I / S[..., W:])).sum(-1)
+        if t.some is not None:
+            f[t.some] = f[t.some] + (t.mask * (torch.log(4.0 * math.pi ** 2 * t.Sj) + t.Ij / t.Sj)).sum(-1)
         f = f.numpy()
         return np.where(np.isfinite(f), f, 1e300)
 
-    def _rough(self, rough: Tensor, rows):
-        """The rows with a rough bin ``(k,)``, the ordinates of every rough bin of any of them ``(K,)``, which are
-        each row's ``(k, K)`` and their periodogram ``(k, K)``; ``(None, …)`` where no bin is rough."""
+    def beta(self, U: Tensor, rows) -> Tensor:
+        """The linear mean's coefficients ``(k, p)`` the sum is profiled over at the points ``U`` of the starts
+        ``rows`` (``(k, 0)`` without regressors)."""
+        rows = torch.as_tensor(np.asarray(rows), dtype=torch.long)
+        omega = self.frequencies[self.owner[rows]]
+        S, _ = self._spectrum(U, omega, False)
+        return self._terms(U, rows, S, grad=False).beta
+
+    def _terms(self, U: Tensor, rows, S: Tensor, grad: bool) -> "_Terms":
+        """What the sum's terms read at the points ``U`` whose spectrum at the terms is ``S`` ``(k, 2W)``: which bins
+        are rough, each rough row's ordinates, their spectrum (and its derivatives with ``grad``), and the
+        periodogram of the terms and of those ordinates — with regressors, at the generalised-least-squares
+        coefficients under this spectrum (:class:`~torchtea.likelihood.whittle.Regressors`)."""
+        data, W = self.data, self.data.terms
+        rows = torch.as_tensor(np.asarray(rows), dtype=torch.long)
+        series = self.owner[rows]
+        rough = data.rough(S)
         some = rough.any(-1).nonzero().squeeze(-1)
-        if not len(some):
-            return None, None, None, None
-        ords = self.data.ordinates(rough[some].any(0))
-        mask = rough[some][:, self.data.term_of[ords]]
-        series = self.owner[torch.as_tensor(np.asarray(rows), dtype=torch.long)[some]]
-        return some, ords, mask, self.data.I_full[series][:, ords]
+        t = _Terms(rough, data.I[series[:1]] if self.one else data.I[series])
+        if len(some):
+            t.some = some
+            t.ords = data.ordinates(rough[some].any(0))
+            t.mask = rough[some][:, data.term_of[t.ords]]
+            t.Ij = data.I_full[series[some]][:, t.ords]
+            t.Sj, t.dSj = self._spectrum(U[some], data.omega_full[t.ords], grad)
+        reg = data.regressors
+        if reg is None:
+            t.beta = U.new_zeros(len(rows), 0)
+            return t
+        # the coefficients under this spectrum: Σ (M β − c)/S = 0 over the smooth terms and the rough ordinates
+        q = (~rough) / S[..., W:]
+        G = torch.einsum("kw,kpqw->kpq", q, reg.M[series])
+        r = torch.einsum("kw,kpw->kp", q, reg.c[series])
+        if t.some is not None:
+            Aj, cj, Mj = reg.ordinates(series[t.some], t.ords)
+            qj = t.mask / t.Sj
+            G[t.some] += torch.einsum("kj,kpqj->kpq", qj, Mj)
+            r[t.some] += torch.einsum("kj,kpj->kp", qj, cj)
+        beta = torch.linalg.solve(G, r.unsqueeze(-1)).squeeze(-1)
+        t.beta = beta
+        fitted = (reg.A[series] - 2.0 * torch.einsum("kpw,kp->kw", reg.c[series], beta)
+                  + torch.einsum("kp,kpqw,kq->kw", beta, reg.M[series], beta))
+        t.I = torch.clamp(fitted / data.weight, min=0.0)
+        if t.some is not None:
+            b = beta[t.some]
+            t.Ij = torch.clamp(Aj - 2.0 * torch.einsum("kpj,kp->kj", cj, b)
+                               + torch.einsum("kp,kpqj,kq->kj", b, Mj, b), min=0.0)
+        return t
 
     def hessian(self, U: Tensor, rows) -> Tensor:
         """The observed information (the Hessian of −ℓ_W) at the points ``U`` ``(k, P)`` of the starts ``rows``, over
@@ -108,9 +147,21 @@ def whittle_value(model: NoiseModel, data: WhittleData, values: dict, h: float) 
     """ℓ_W of the first series of ``data`` at ``values`` (a rough bin at full resolution, as the fits sum it)."""
     U = model.to_unconstrained({n: [values[n]] for n in model.names}, h)
     objective = WhittleObjective(model, data, h, U, torch.zeros(1, dtype=torch.long), np.zeros(0, dtype=np.int64))
-    return -float(objective.minus_loglik(U, data.frequencies()[:1], data.I[:1], [0])[0])
+    return -float(objective.minus_loglik(U, data.frequencies()[:1], [0])[0])
 
 
 #: Central-difference step (unconstrained coordinates) of the Whittle fit's observed information from its closed-form
 #: gradients: they carry no differencing error, so the step trades the truncation, O(step²), against their rounding.
 HESSIAN_STEP = 1e-4
+
+
+class _Terms:
+    """What :meth:`WhittleObjective._terms` found: ``rough`` ``(k, W)``, the terms' periodogram ``I`` ``(k, W)`` (or
+    ``(1, W)``), the coefficients ``beta`` ``(k, p)``, and for the rows ``some`` with a rough bin their ordinates
+    ``ords`` ``(K,)``, which are each row's ``mask`` ``(k', K)``, their periodogram ``Ij``, spectrum ``Sj`` and its
+    derivatives ``dSj``."""
+
+    def __init__(self, rough: Tensor, I: Tensor):
+        self.rough, self.I = rough, I
+        self.some = self.ords = self.mask = self.Ij = self.Sj = self.dSj = None
+        self.beta = None

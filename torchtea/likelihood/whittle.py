@@ -35,7 +35,8 @@ from torch import Tensor
 
 from dataclasses import dataclass
 
-__all__ = ["periodogram", "whittle_loglik", "WhittleData", "whittle_data", "whittle_scores", "RESOLUTION"]
+__all__ = ["periodogram", "whittle_loglik", "WhittleData", "whittle_data", "whittle_scores", "Regressors",
+           "regressors_data", "RESOLUTION"]
 
 #: Relative width of the binned Whittle sum's bins (:func:`whittle_data`).
 RESOLUTION = 1.0 / 200.0
@@ -79,6 +80,8 @@ class WhittleData:
     first: Tensor
     omega_full: Tensor
     I_full: Tensor
+    #: a linear mean's regressors in the frequency domain (the sum is profiled over their coefficients), or None
+    regressors: "Regressors | None" = None
 
     @property
     def terms(self) -> int:
@@ -87,7 +90,8 @@ class WhittleData:
     def rows(self, rows: Tensor) -> "WhittleData":
         """The data of series ``rows``."""
         return WhittleData(self.weight, self.omega_log, self.omega_I[rows], self.I[rows], self.first,
-                           self.omega_full, self.I_full[rows])
+                           self.omega_full, self.I_full[rows],
+                           None if self.regressors is None else self.regressors.rows(rows))
 
     def frequencies(self) -> Tensor:
         """``(S, 2W)``: where a spectrum must be evaluated — the log frequencies, then the ratio frequencies."""
@@ -148,17 +152,23 @@ def bin_edges(W: int, resolution: float | None) -> Tensor:
     return torch.tensor(edges)
 
 
-def whittle_data(omega: Tensor, I: Tensor, resolution: float | None = RESOLUTION) -> WhittleData:
+def whittle_data(omega: Tensor, I: Tensor, resolution: float | None = RESOLUTION, *, residual: Tensor | None = None,
+                 columns: Tensor | None = None) -> WhittleData:
     """:class:`WhittleData` of periodograms ``I`` ``(S, W)`` (or ``(W,)``) at Fourier frequencies ``omega`` ``(W,)``,
-    binned at ``resolution`` (module docstring; None: every ordinate its own term)."""
+    binned at ``resolution`` (module docstring; None: every ordinate its own term). With ``columns`` ``(S, p, N)``, a
+    linear mean's centred regressors, and ``residual`` ``(S, N)``, the series with the rest of its mean removed
+    (``I`` then the periodogram of its least-squares residual, which places the ratio terms' frequencies), the sum is
+    profiled over the regressors' coefficients (:class:`Regressors`)."""
     I = torch.as_tensor(I, dtype=torch.float64)
     I = I.unsqueeze(0) if I.ndim == 1 else I
     omega = torch.as_tensor(omega, dtype=torch.float64)
     W = omega.shape[-1]
+    edges = torch.arange(W + 1) if resolution is None else bin_edges(W, resolution)
+    reg = None if columns is None or columns.shape[-2] == 0 else regressors_data(
+        torch.as_tensor(residual, dtype=torch.float64), torch.as_tensor(columns, dtype=torch.float64), edges)
     if resolution is None:
         return WhittleData(torch.ones(W, dtype=torch.float64), omega, omega.expand(I.shape[0], -1).clone(), I,
-                           torch.arange(W), omega, I)
-    edges = bin_edges(W, resolution)
+                           torch.arange(W), omega, I, reg)
     counts = (edges[1:] - edges[:-1]).to(torch.float64)
     starts = edges[:-1].numpy()
     lw = torch.log(omega)
@@ -171,7 +181,54 @@ def whittle_data(omega: Tensor, I: Tensor, resolution: float | None = RESOLUTION
     total = bin_sum(I)
     safe = torch.where(total > 0, total, torch.ones_like(total))
     omega_I = torch.where(total > 0, torch.exp(bin_sum(I * lw) / safe), omega_log.expand_as(total))
-    return WhittleData(counts, omega_log, omega_I, total / counts, edges[:-1].clone(), omega, I)
+    return WhittleData(counts, omega_log, omega_I, total / counts, edges[:-1].clone(), omega, I, reg)
+
+
+@dataclass(frozen=True)
+class Regressors:
+    r"""A linear mean's regressors in the frequency domain: the Whittle sum of :math:`y - Xeta` profiled over
+    :math:`eta` (generalised least squares under the spectrum, not ordinary least squares before it — a trend
+    removed by the latter takes a random walk's slow power with it). Per series the transforms of the series with
+    the rest of its mean removed ``Y`` ``(S, W₀)`` and of its p centred regressors ``X`` ``(S, p, W₀)`` at the Fourier
+    ordinates (complex, over :math:`\sqrt{2\pi N}`, so that :math:`|Y_j|^2` is the periodogram), and per term the
+    sums ``A`` ``(S, W)`` of :math:`|Y_j|^2`, ``c`` ``(S, p, W)`` of :math:`\mathrm{Re}\,ar Y_j X_j` and ``M``
+    ``(S, p, p, W)`` of :math:`\mathrm{Re}\,ar X_j X_j^T`: a term's periodogram at β is
+    :math:`(A - 2c^Teta + eta^T M eta)/m`."""
+
+    Y: Tensor
+    X: Tensor
+    A: Tensor
+    c: Tensor
+    M: Tensor
+
+    def rows(self, rows: Tensor) -> "Regressors":
+        return Regressors(self.Y[rows], self.X[rows], self.A[rows], self.c[rows], self.M[rows])
+
+    def ordinates(self, series: Tensor, ords: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+        r"""At the ordinates ``ords`` ``(K,)`` of the series ``series`` ``(k,)``: :math:`|Y_j|^2` ``(k, K)``,
+        :math:`\mathrm{Re}\,\bar Y_j X_j` ``(k, p, K)`` and :math:`\mathrm{Re}\,\bar X_j X_j^T` ``(k, p, p, K)``."""
+        Y, X = self.Y[series][:, ords], self.X[series][..., ords]
+        return ((Y.conj() * Y).real, (Y.conj().unsqueeze(1) * X).real,
+                (X.conj().unsqueeze(2) * X.unsqueeze(1)).real)
+
+
+def regressors_data(residual: Tensor, columns: Tensor, edges: Tensor) -> Regressors:
+    """:class:`Regressors` of series ``residual`` ``(S, N)`` (the rest of the mean removed) and their centred
+    regressors ``columns`` ``(S, p, N)``, summed over the terms that start at ``edges`` (:func:`bin_edges`)."""
+    N = residual.shape[-1]
+    j = torch.arange(1, (N - 1) // 2 + 1)
+    scale = math.sqrt(2.0 * math.pi * N)
+    Y = torch.fft.rfft(residual, dim=-1)[..., j] / scale
+    X = torch.fft.rfft(columns, dim=-1)[..., j] / scale
+    starts = edges[:-1].numpy()
+
+    def bin_sum(x):
+        return torch.from_numpy(np.add.reduceat(x.numpy(), starts, axis=-1))
+
+    A = bin_sum((Y.conj() * Y).real)
+    c = bin_sum((Y.conj().unsqueeze(1) * X).real)
+    M = bin_sum((X.conj().unsqueeze(2) * X.unsqueeze(1)).real)
+    return Regressors(Y, X, A, c, M)
 
 
 def whittle_scores(weight: Tensor, I: Tensor, spectrum: Tensor, derivatives: Tensor) -> tuple[Tensor, Tensor, Tensor]:

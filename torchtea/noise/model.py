@@ -211,6 +211,12 @@ class NoiseModel:
         return all(c.stationary for _, c in self.components)
 
     @property
+    def diffuse(self) -> bool:
+        """A component does not return to a mean (a random walk): the Whittle fits profile a trend out
+        (:attr:`~torchtea.noise.components.Component.diffuse`)."""
+        return any(c.diffuse for _, c in self.components)
+
+    @property
     def has_level(self) -> bool:
         """A component carries the series' constant level (an ``offset``): the fits do not centre the series."""
         return any(comp.level for _, comp in self.components)

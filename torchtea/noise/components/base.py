@@ -165,6 +165,11 @@ class Component:
     stationary: bool = True
     #: True for a modifier that drives the order of the model's fractional component in time (``orders(v, α₀, T)``)
     varies_order: bool = False
+    #: True for a component that does not return to a mean (a random walk): the transform of a series holding it
+    #: carries the whole excursion over the record at every Fourier frequency, as a trend's would — its periodogram
+    #: twice the spectrum there —, so the Whittle fits profile a trend out of its models (generalised least squares
+    #: under each spectrum, :class:`~torchtea.likelihood.whittle.Regressors`)
+    diffuse: bool = False
 
     def check_fixed(self, label: str, fixed) -> None:
         """Raise ``ValueError`` when the parameter names ``fixed`` hold some of this component's parameters in a way

@@ -13,7 +13,7 @@ import torch
 
 from ..fitting.mle import Fit, centred, exact_loglik, whittle_fit
 from ..fitting.starts import starts_of
-from ..fitting.whittle_path import uses_exact
+from ..fitting.whittle_path import exact_optimised, uses_exact
 from . import models
 from .models import REFIT_TOLERANCE
 
@@ -102,9 +102,9 @@ class CheckRun:
         self.carry = {}
 
     def exact(self, model) -> bool:
-        """Whether this check fits ``model`` by the exact likelihood (else on the long-record path:
-        :func:`~torchtea.fitting.whittle_path.uses_exact`)."""
-        return uses_exact(model, self.y, self.fits)
+        """Whether this check fits ``model`` by maximising the exact likelihood (else on the long-record path:
+        :func:`~torchtea.fitting.whittle_path.uses_exact`, :func:`~torchtea.fitting.whittle_path.exact_optimised`)."""
+        return uses_exact(model, self.y, self.fits) and exact_optimised(self.y, self.fits)
 
     def say(self, line: str) -> None:
         if self.progress is not None:

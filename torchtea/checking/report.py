@@ -54,7 +54,10 @@ MEANING = {
                     "the screen's statistic and lowered no BIC: the fit failed, which is no evidence against it",
     "model": "the model the check ended with (with --auto: the loop's last), as a spec (components joined by +)",
     "base": "that model's fit: the metrics, failed diagnostics, parameters with se, ci95 and ci95_method, exact "
-            "loglik, bic and observed",
+            "loglik, bic and observed, and its method",
+    "method": "how the model was fitted: exact (the exact likelihood's maximum) or whittle (the long-record path: "
+              "the Whittle likelihood's, the exact log-likelihood evaluated there — loglik and bic are the exact ones, "
+              "the intervals from the exact likelihood's information at the estimate)",
     "diagnostics": "one row per diagnostic: name, domain, statistic, p_value, level, passed (null: not run), "
                    "summary, and where it fails (ranges in unit, directions: high = the data above the model)",
     "screens": "one row per effect screened: its test, statistic, p_value (log10_p), whether it passed, and why "

@@ -185,7 +185,7 @@ class CheckRecord:
                 "base": dict(self.metrics, failed=self.failed, failing_ranges_s=self.failing_ranges_s,
                              parameters=self.fit.values, se=self.fit.se, ci95=self.fit.ci95,
                              ci95_method=self.fit.ci95_method, loglik=self.fit.loglik_exact, bic=self.fit.bic_exact,
-                             observed=self.fit.n),
+                             observed=self.fit.n, method=self.fit.method),
                 "diagnostics": [d.as_dict() for d in self.diagnostics],
                 "screens": self.screens,
                 "suggestions": [s.as_dict() for s in self.suggestions],
@@ -237,7 +237,8 @@ def read_check(path) -> tuple[dict, dict]:
             se = {k: None if v is None else float(v) for k, v in base["se"].items()}
             ci = {k: None if v is None else (float(v[0]), float(v[1])) for k, v in base["ci95"].items()}
             loglik = float(base["loglik"])
-            fits[label] = Fit(model, "exact", {k: float(v) for k, v in base["parameters"].items()}, se, ci,
+            fits[label] = Fit(model, base.get("method", "exact"), {k: float(v) for k, v in base["parameters"].items()},
+                              se, ci,
                               dict(base["ci95_method"]), loglik, loglik, int(base.get("observed", n)),
                               [f"{lb}.{p.name}" for lb, c in model.components for p in c.params
                                if p.name not in c.held], True,

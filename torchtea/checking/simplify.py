@@ -11,7 +11,8 @@ model a loop ended with, each **alternative** (:func:`alternatives`):
 
 Each alternative is fitted (its Whittle likelihood first: those whose Whittle BIC is more than
 :data:`WHITTLE_WINDOW` above the model's are not refitted; then the exact likelihood from its Whittle modes and from
-the model's own fit), and those with a BIC below the model's are checked in order of BIC (:func:`~.check.check`: the
+the model's own fit — on the long-record path every alternative, its exact likelihood evaluated at its Whittle modes
+and the model's starts), and those with a BIC below the model's are checked in order of BIC (:func:`~.check.check`: the
 diagnostics, the screens); the first that keeps the model adequate (or, for a model that was not, fails nothing
 more) is kept, and the search goes on from there. Each kept change is a step of the loop like an addition.
 
@@ -29,7 +30,7 @@ import numpy as np
 from ..fitting.mle import Fit, bic, refine_best, whittle_fit
 from ..fitting.plan import duration, tie_length
 from ..fitting.starts import starts_of
-from ..fitting.whittle_path import uses_exact, whittle_refine
+from ..fitting.whittle_path import exact_optimised, polished, uses_exact, whittle_refine
 from ..noise.components import COMPONENTS
 from ..noise.model import NoiseModel, parse_model
 from .models import REFIT_TOLERANCE, assess, extend, model_fit, with_intervals
@@ -170,17 +171,24 @@ def _model_starts(alt: Alternative, res) -> list:
     return starts
 
 
-def _fit(alt: Alternative, res, wf) -> Fit:
+def _fit(alt: Alternative, res, wf, polish: bool = True) -> Fit:
     """The alternative's exact fit: from its Whittle modes (:func:`~torchtea.fitting.mle.fit_series`) and from the
-    model's fit (:func:`_model_starts`), the best kept; held estimates counted in BIC as the loop counts them."""
+    model's fit (:func:`_model_starts`), the best kept; held estimates counted in BIC as the loop counts them.
+    ``polish=False``: on the long-record path, the best point unrefined."""
     y, h, inputs = res.y, res.h, res.inputs
     m = alt.model
     starts = _model_starts(alt, res)
     refs = m.references() | set(m.located())
     fixed = [n for n in m.names if n in refs]
-    if not uses_exact(m, y, res.fits):  # (its Whittle modes and the model's starts, by the exact ℓ there)
-        best, _ = whittle_refine(m, y, h, starts or [("its Whittle fit", _mode_values(m, wf, h))], inputs=inputs,
-                                 fixed=fixed, must=[name for name, _ in starts], whittle=wf)
+    if not (uses_exact(m, y, res.fits) and exact_optimised(y, res.fits)):  # (the long-record path: its Whittle
+        # modes and the model's starts, by the exact ℓ there; without a spectrum, the starts evaluated)
+        points = starts or [("its Whittle fit", _mode_values(m, wf, h))]
+        if uses_exact(m, y, res.fits):
+            best, _ = refine_best(m, y, h, points, inputs=inputs, fixed=fixed, must=[n for n, _ in points],
+                                  refine=False)
+        else:
+            best, _ = whittle_refine(m, y, h, points, inputs=inputs, fixed=fixed, must=[n for n, _ in starts],
+                                     whittle=wf, polish=polish, fits=res.fits)
         best = copy.deepcopy(best)
         best.count(m.held_estimates())
         return best
@@ -218,7 +226,8 @@ def _bic_of(fit: Fit) -> float:
 
 def evaluate(res, progress=None) -> list[Alternative]:
     """Every alternative to ``res.model`` (:func:`alternatives`), fitted where its Whittle BIC is within
-    :data:`WHITTLE_WINDOW` of the model's (``fit``, ``bic``); sorted by BIC, the lowest first."""
+    :data:`WHITTLE_WINDOW` of the model's or the check is on the long-record path (``fit``, ``bic``); sorted by BIC,
+    the lowest first."""
     y, h = res.y, res.h
     filled = np.where(np.isnan(y), np.nanmean(y), y)  # (as check fits the Whittle likelihood: CheckResult.whittle)
     inp_list = None if res.inputs is None else [res.inputs]
@@ -227,6 +236,7 @@ def evaluate(res, progress=None) -> list[Alternative]:
     if not alts:
         return []
     here = _whittle_bic(res.model, res.whittle or whittle_fit(res.model, [filled], h, inputs=inp_list), n)
+    here_exact = _bic_of(res.fit)
     for a in alts:
         if progress is not None:
             progress(f"simplifying: {a.words} ({a.model.spec})")
@@ -237,9 +247,16 @@ def evaluate(res, progress=None) -> list[Alternative]:
             a.rejected = f"not fitted: {exc}"
             continue
         a.whittle_delta = _whittle_bic(a.model, a.whittle, n) - here
-        if a.whittle_delta > WHITTLE_WINDOW:
-            continue
-        a.fit = _fit(a, res, a.whittle)
+        if uses_exact(a.model, y, res.fits) and exact_optimised(y, res.fits):
+            if a.whittle_delta > WHITTLE_WINDOW:
+                continue  # (the window spares exact refits)
+            a.fit = _fit(a, res, a.whittle)
+        else:  # (the long-record path: every alternative evaluated at its best Whittle point, one exact pass — the
+            # Whittle BICs of a ramp and a random walk disagree with the exact ones by more than the window — and
+            # refined only where that comes within the window by the exact BIC)
+            a.fit = _fit(a, res, a.whittle, polish=False)
+            if _bic_of(a.fit) <= here_exact + WHITTLE_WINDOW and not uses_exact(a.model, y, res.fits):
+                a.fit = polished(a.model, y, a.fit, h, inputs=res.inputs, fits=res.fits)
         a.bic = _bic_of(a.fit)
     return sorted(alts, key=lambda a: a.bic)
 

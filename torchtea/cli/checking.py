@@ -97,10 +97,12 @@ def _add_check(sub) -> None:
                     help="family level of the effect screens (default 0.05: on data from the model, at most "
                          "5 %% of checks suggest anything)")
     ck.add_argument("--fits", choices=("auto", "exact", "whittle"), default="auto",
-                    help="how the loop fits: auto (default: the exact likelihood up to 10000 samples, "
-                         "fitting.whittle_path.WHITTLE_PATH_SAMPLES; above, the Whittle likelihood with the exact "
-                         "one evaluated at each point the loop compares — the long-record path), exact or whittle "
-                         "whatever the length")
+                    help="how the loop fits: auto (default: the exact likelihood's maximum from several starts up "
+                         "to 10000 samples; above, the long-record path: the Whittle likelihood, the exact one "
+                         "evaluated at each point the loop compares and, up to 100000 samples, refined from the best "
+                         "of them to its maximum), exact (the exact likelihood's maximum whatever the length) or "
+                         "whittle (the long-record path without the refinement, whatever the length: the Whittle "
+                         "estimates as they are)")
     ck.add_argument("--no-intervals", action="store_true", help="skip the finite-difference intervals (faster)")
     ck.add_argument("--out", help="output directory (default check-<recording name>)")
     ck.add_argument("--no-plots", action="store_true")

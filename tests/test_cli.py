@@ -241,7 +241,7 @@ def test_identify_runs_a_check_grown_model(tmp_path, capsys):
 def test_identify_from_a_checks_json(tmp_path, capsys):
     """``identify --from-check``: each channel runs the model its check ended with, at the check's values, no refit;
     channels of different models run as separate batches and come back in channel order (a channel's estimates are
-    those of a run of it alone, to rounding), the shorter state NaN-padded; the check's recording and samples are required."""
+    those of a run of it alone: a channel of the paper's model keeps its series), the shorter state NaN-padded; the check's recording and samples are required."""
     for spec, out in (("fractional+white+random-walk", "a"), ("fractional+white", "b")):
         assert run("check", "--samples", 1000, "--columns", "ax,gy", "--model", spec, "--no-plots",
                    "--out", tmp_path / out) == 0
@@ -259,8 +259,8 @@ def test_identify_from_a_checks_json(tmp_path, capsys):
     assert run("identify", "--json", "--samples", 1000, "--from-check", mixed, "--columns", "gy",
                "--out", tmp_path / "gy") == 0
     alone = json.loads(capsys.readouterr().out)
-    for key in ("alpha", "param", "alpha_final", "innovation_nis"):  # to rounding: the mixed run takes the series
-        assert out["axes"]["gy"][key] == pytest.approx(alone["axes"]["gy"][key], rel=1e-10)  # mean off once more
+    for key in ("alpha", "param", "alpha_final", "innovation_nis"):  # the same series, the same run
+        assert out["axes"]["gy"][key] == pytest.approx(alone["axes"]["gy"][key], rel=1e-12)
     d = np.genfromtxt(tmp_path / "id" / "trajectories.csv", delimiter=",", names=True)
     assert len(d) == 1000 and np.isfinite(d["x_hat_ax"]).all() and np.isfinite(d["x_hat_gy"]).all()
     assert run("identify", "--samples", 1100, "--from-check", mixed, "--out", tmp_path / "c") == 2

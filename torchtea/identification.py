@@ -241,7 +241,7 @@ def identify(measurements: Measurements, *, model=PAPER_MODEL, r_mode: str = "fi
     N = m.samples
     fits, plain = _checked_fits(m, model, r_mode, fits)
     values = np.column_stack([c.values for c in m.channels])
-    means = np.nanmean(values, axis=0)
+    means = np.array([np.nanmean(c.values) for c in m.channels])  # each on its own: the same with other channels
     y = torch.as_tensor((values - means).T.copy(), dtype=torch.float64).unsqueeze(-1)  # (C, N, 1)
     views, fitted_y = (), None
     structures = [Structure()] * len(m.channels)
@@ -291,10 +291,11 @@ def _fit_channels(m: Measurements, model, plain: bool, fits, presets: list, y: t
     views = tuple(tea_view(f.model, f.values, rec.h, get_preset(p))  # refuses a model the TEA cannot run
                   for f, p in zip(fits, presets))
     structures = [v.structure for v in views]
-    if not plain:  # the model's means (a ramp, a line …) at their fitted values
-        fitted_y = y
+    if not plain:  # the model's means (a ramp, a line …) at their fitted values; a channel of the paper's model
+        fitted_y = y  # keeps its series as it is (its mean is off already), as when it is identified alone
         t = np.arange(N) * rec.h
-        y = torch.stack([v.residual(y[i, :, 0], t, inputs) for i, v in enumerate(views)]).unsqueeze(-1)
+        y = torch.stack([y[i, :, 0] if f.model.spec == PAPER_MODEL else v.residual(y[i, :, 0], t, inputs)
+                         for i, (f, v) in enumerate(zip(fits, views))]).unsqueeze(-1)
     return fits, views, structures, y, fitted_y
 
 

@@ -30,6 +30,9 @@ def test_which_fits_take_the_long_record_path():
     # threshold (above, evaluated at its best start)
     assert wp.uses_exact(varying, long) and wp.uses_exact(varying, long, "whittle")
     assert wp.exact_optimised(short) and not wp.exact_optimised(long) and wp.exact_optimised(long, "exact")
+    varying = "fractional+white+temperature-order"  # no spectrum: optimised exactly up to the polish's length
+    assert wp.exact_optimised(long, model=varying) and not wp.exact_optimised(long, "whittle", varying)
+    assert not wp.exact_optimised(np.zeros(wp.POLISH_SAMPLES + 1), model=varying)
     with pytest.raises(ValueError, match="fits must be one of"):
         wp.uses_exact(stationary, short, "fast")
 

@@ -52,7 +52,7 @@ def model_fit(model, y, h, *, inputs: dict | None = None, whittle=None, interval
     (:func:`~torchtea.fitting.mle.fit_series`), or on the long-record path its Whittle estimate
     (:func:`~torchtea.fitting.whittle_path.whittle_estimate`) — ``fits`` decides (:func:`~torchtea.fitting.
     whittle_path.uses_exact`)."""
-    if uses_exact(model, y, fits) and exact_optimised(y, fits):
+    if uses_exact(model, y, fits) and exact_optimised(y, fits, model):
         return fit_series(model, [y], h, method="exact", inputs=None if inputs is None else [inputs], profile=False,
                           whittle=whittle, intervals=intervals)[0]
     return whittle_estimate(model, y, h, inputs=inputs, whittle=whittle, intervals=intervals, fits=fits)
@@ -62,7 +62,7 @@ def refine(model, y, h, starts: list, *, fits: str = "auto", **kw) -> tuple[Fit,
     """The model's fit from several starts: :func:`~torchtea.fitting.mle.refine_best`, or on the long-record path
     :func:`~torchtea.fitting.whittle_path.whittle_refine` (the same arguments and return)."""
     if uses_exact(model, y, fits):
-        if not exact_optimised(y, fits):  # (a long record, a model without a spectrum: the starts evaluated)
+        if not exact_optimised(y, fits, model):  # (a longer record, no spectrum: the starts evaluated)
             kw["refine"] = False
         return refine_best(model, y, h, starts, **kw)
     return whittle_refine(model, y, h, starts, fits=fits, **kw)
@@ -72,7 +72,7 @@ def refine_one(model, y, h, start: dict, *, inputs: dict | None = None, fixed=()
                fits: str = "auto") -> Fit:
     """The model's fit from one start (:func:`~torchtea.fitting.mle.refine_exact`, or on the long-record path its
     Whittle fit from there, the start kept where its exact likelihood is higher)."""
-    if uses_exact(model, y, fits) and exact_optimised(y, fits):
+    if uses_exact(model, y, fits) and exact_optimised(y, fits, model):
         return refine_exact(model, y, h, start, inputs=inputs, fixed=fixed, metric=metric, intervals=intervals)
     if uses_exact(model, y, fits):  # (a long record, a model without a spectrum: the start evaluated)
         fit, _ = refine_best(model, y, h, [("the start", start)], inputs=inputs, fixed=fixed, must=["the start"],
@@ -88,7 +88,7 @@ def with_intervals(f: Fit, y, h, inputs, fits: str = "auto") -> Fit:
     fixed kept fixed and its held estimates counted, a located parameter's interval from its own profile; on the
     long-record path at its point, from the exact likelihood's information there
     (:func:`~torchtea.fitting.whittle_path.exact_information`)."""
-    if not (uses_exact(f.model, y, fits) and exact_optimised(y, fits)):
+    if not (uses_exact(f.model, y, fits) and exact_optimised(y, fits, f.model)):
         return exact_information(f, y, h, inputs)
     kept = f.model.held_estimates()
     fixed = [n for n in f.model.names if n not in f.free or n in kept]

@@ -104,7 +104,7 @@ class CheckRun:
     def exact(self, model) -> bool:
         """Whether this check fits ``model`` by maximising the exact likelihood (else on the long-record path:
         :func:`~torchtea.fitting.whittle_path.uses_exact`, :func:`~torchtea.fitting.whittle_path.exact_optimised`)."""
-        return uses_exact(model, self.y, self.fits) and exact_optimised(self.y, self.fits)
+        return uses_exact(model, self.y, self.fits) and exact_optimised(self.y, self.fits, model)
 
     def say(self, line: str) -> None:
         if self.progress is not None:

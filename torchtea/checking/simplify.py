@@ -180,7 +180,7 @@ def _fit(alt: Alternative, res, wf, polish: bool = True) -> Fit:
     starts = _model_starts(alt, res)
     refs = m.references() | set(m.located())
     fixed = [n for n in m.names if n in refs]
-    if not (uses_exact(m, y, res.fits) and exact_optimised(y, res.fits)):  # (the long-record path: its Whittle
+    if not (uses_exact(m, y, res.fits) and exact_optimised(y, res.fits, m)):  # (the long-record path: its Whittle
         # modes and the model's starts, by the exact ℓ there; without a spectrum, the starts evaluated)
         points = starts or [("its Whittle fit", _mode_values(m, wf, h))]
         if uses_exact(m, y, res.fits):
@@ -247,7 +247,7 @@ def evaluate(res, progress=None) -> list[Alternative]:
             a.rejected = f"not fitted: {exc}"
             continue
         a.whittle_delta = _whittle_bic(a.model, a.whittle, n) - here
-        if uses_exact(a.model, y, res.fits) and exact_optimised(y, res.fits):
+        if uses_exact(a.model, y, res.fits) and exact_optimised(y, res.fits, a.model):
             if a.whittle_delta > WHITTLE_WINDOW:
                 continue  # (the window spares exact refits)
             a.fit = _fit(a, res, a.whittle)

@@ -10,8 +10,8 @@ fit from them, the exact likelihood evaluated at its modes and at the starts tha
 and :func:`exact_information` the intervals of a fit at its point. Up to :data:`POLISH_SAMPLES` the point a fit
 ends at is :func:`polished`: scoring on the exact likelihood from there, one start instead of the exact path's
 several (a Whittle mode can lie tens of nats below the exact maximum beside it where a narrow resonance is fitted).
-A model whose dynamics vary in time (no spectrum) is fitted exactly up to :data:`WHITTLE_PATH_SAMPLES`, and above
-evaluated at its best start; a series with missing samples is fitted by the Whittle likelihood of the series with its
+A model whose dynamics vary in time (no spectrum) is fitted exactly up to :data:`POLISH_SAMPLES` (with ``fits="whittle"``
+up to :data:`WHITTLE_PATH_SAMPLES`), and above evaluated at its best start; a series with missing samples is fitted by the Whittle likelihood of the series with its
 gaps filled by its mean, the exact likelihood evaluated with the gaps."""
 from __future__ import annotations
 
@@ -55,11 +55,15 @@ def uses_exact(model, y, fits: str = "auto") -> bool:
     return fits == "auto" and len(y) <= WHITTLE_PATH_SAMPLES
 
 
-def exact_optimised(y, fits: str = "auto") -> bool:
+def exact_optimised(y, fits: str = "auto", model=None) -> bool:
     """Whether the exact likelihood may be optimised on ``y``: with ``fits="exact"``, or up to
-    :data:`WHITTLE_PATH_SAMPLES` samples. Above (the long-record path), a model :func:`uses_exact` fits exactly (no
-    spectrum) is evaluated at its best start, not optimised: its gain is a lower bound."""
-    return fits == "exact" or len(y) <= WHITTLE_PATH_SAMPLES
+    :data:`WHITTLE_PATH_SAMPLES` samples; for a ``model`` whose dynamics vary in time (no spectrum, no Whittle fit to
+    stand in), up to :data:`POLISH_SAMPLES` unless ``fits="whittle"``. Above, a model :func:`uses_exact` fits
+    exactly is evaluated at its best start, not optimised: its gain is a lower bound."""
+    if fits == "exact" or len(y) <= WHITTLE_PATH_SAMPLES:
+        return True
+    return (model is not None and fits == "auto" and not parse_model(model).stationary
+            and len(y) <= POLISH_SAMPLES)
 
 
 def polished(model, y, fit: Fit, h: float, *, inputs: dict | None = None, fixed=(), tolerance: float | None = None,
@@ -143,7 +147,7 @@ def exact_information(fit: Fit, y, h: float, inputs: dict | None = None, memory=
     mask = torch.tensor([n in fit.free and n not in held for n in model.names])
     idx = mask.nonzero().squeeze(-1)
     P = len(model.names)
-    if gradient_supported(model, yc) is not None and not exact_optimised(y):  # (1 + 2k² passes of hours: none)
+    if gradient_supported(model, yc) is not None and not exact_optimised(y, model=model):  # (1 + 2k² passes of hours: none)
         out = Fit(model, fit.method, fit.values, fit.se, fit.ci95, dict(fit.ci95_method), fit.loglik,
                   fit.loglik_exact, fit.n, list(fit.free), fit.converged, fit.profile, list(fit.notes), fit.u, None)
         for n in model.names:

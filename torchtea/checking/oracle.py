@@ -1,4 +1,4 @@
-"""The studies' reference for what a record can show (issue 45): an **oracle** that knows the true structure of a
+"""The studies' reference for what a record can show: an **oracle** that knows the true structure of a
 simulated recording and asks the exact likelihood, not the check, whether each hidden effect is visible beside the
 others.
 

@@ -1,4 +1,4 @@
-"""A check's loop in TensorBoard (issue 46, item 5): ``check --logdir DIR`` (and ``export``) writes one run per
+"""A check's loop in TensorBoard: ``check --logdir DIR`` (and ``export``) writes one run per
 channel (``DIR/<label>``), each step of the loop a global step:
 
 - scalars ``loop/nll_per_sample`` (the exact −ℓ per observed sample), ``loop/psd_misfit``, ``loop/adev_misfit``,

@@ -9,7 +9,7 @@ side; it was not large enough to turn on by default there.
 
 A Dask nanny starts its workers with ``MALLOC_TRIM_THRESHOLD_=65536``, which also switches off glibc's dynamic
 mmap threshold: a check on a worker then took 47 million page faults and 90 s of system time where the same
-check in one process took 0.3 million and 2.5 s (the bundled recording, two workers, issue 44), and each channel
+check in one process took 0.3 million and 2.5 s (the bundled recording, two workers), and each channel
 2–2.5× as long. The channels' tasks (:func:`torchtea.checking.channels.check_channel`,
 :func:`torchtea.fitting.recording.fit_channel`) therefore call :func:`tune_allocator` wherever they run.
 """

@@ -2,7 +2,7 @@
 
 A check's torch work is small (a few thousand spectrum terms, matrices of tens of rows): torch's threads only wait
 for each other, and OpenMP's waiting threads spin — beside another job a one-channel check burnt 4.7× the CPU of its
-one-thread run (issue 44). Its compiled likelihood kernels run parameter sets in parallel (numba's ``prange``), one set
+one-thread run. Its compiled likelihood kernels run parameter sets in parallel (numba's ``prange``), one set
 per thread, so their results do not depend on the number of threads; they get the cores the machine has free."""
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-r"""The TEA for the paper's scalar noise model, compiled by numba on the CPU (issue 13).
+r"""The TEA for the paper's scalar noise model, compiled by numba on the CPU.
 
 The batched torch engine (:mod:`.tea`) takes any :class:`~torchtea.engines.structure.Structure` on any device,
 but one step is ~1000 small tensor operations; for a scalar model (one state, one order, one parameter

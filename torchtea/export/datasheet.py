@@ -1,4 +1,4 @@
-"""The fitted numbers held against a datasheet's (issue 46, item 2): "is it my recording or my IMU?".
+"""The fitted numbers held against a datasheet's: "is it my recording or my IMU?".
 
 For each IEEE 952 term the datasheet gives (:func:`~torchtea.fitting.plan.read_datasheet`: N the noise density, B
 the bias instability as IEEE 952's coefficient, K the rate random walk, in SI), the axis's fitted value with its 95 %

@@ -1,4 +1,4 @@
-r"""How long to record (issue 45, item 3): the expected 95 % interval of a model's numbers as a function of the
+r"""How long to record: the expected 95 % interval of a model's numbers as a function of the
 record's length, the length a target asks for, and the length at which two models the record cannot tell apart
 would be told apart.
 

@@ -46,7 +46,7 @@ class Truth:
 
     ``memory``: how the truth's GL sums are computed — ``"soe"`` (default: exponential sums, O(1) per step, every
     coefficient to relative 1e-8; :mod:`torchtea.core.memory`) or ``"exact"`` (the full history, O(N²) per
-    realisation, what studies used before issue 13)."""
+    realisation)."""
 
     h: float
     n_steps: int

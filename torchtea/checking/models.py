@@ -7,7 +7,8 @@ compares (:mod:`torchtea.fitting.whittle_path`): the model's fit (:func:`model_f
 from __future__ import annotations
 
 from ..fitting.mle import Fit, fit_series, located_intervals, refine_best, refine_exact
-from ..fitting.whittle_path import exact_information, exact_optimised, uses_exact, whittle_estimate, whittle_refine
+from ..fitting.whittle_path import (exact_information, exact_optimised, fits_exactly, uses_exact, whittle_estimate,
+                                    whittle_refine)
 from ..noise.components import COMPONENTS
 from ..noise.components import candidates as candidates_all
 from ..noise.model import NoiseModel, parse_model
@@ -52,7 +53,7 @@ def model_fit(model, y, h, *, inputs: dict | None = None, whittle=None, interval
     (:func:`~torchtea.fitting.mle.fit_series`), or on the long-record path its Whittle estimate
     (:func:`~torchtea.fitting.whittle_path.whittle_estimate`) — ``fits`` decides (:func:`~torchtea.fitting.
     whittle_path.uses_exact`)."""
-    if uses_exact(model, y, fits) and exact_optimised(y, fits, model):
+    if fits_exactly(model, y, fits):
         return fit_series(model, [y], h, method="exact", inputs=None if inputs is None else [inputs], profile=False,
                           whittle=whittle, intervals=intervals)[0]
     return whittle_estimate(model, y, h, inputs=inputs, whittle=whittle, intervals=intervals, fits=fits)
@@ -72,7 +73,7 @@ def refine_one(model, y, h, start: dict, *, inputs: dict | None = None, fixed=()
                fits: str = "auto") -> Fit:
     """The model's fit from one start (:func:`~torchtea.fitting.mle.refine_exact`, or on the long-record path its
     Whittle fit from there, the start kept where its exact likelihood is higher)."""
-    if uses_exact(model, y, fits) and exact_optimised(y, fits, model):
+    if fits_exactly(model, y, fits):
         return refine_exact(model, y, h, start, inputs=inputs, fixed=fixed, metric=metric, intervals=intervals)
     if uses_exact(model, y, fits):  # (a long record, a model without a spectrum: the start evaluated)
         fit, _ = refine_best(model, y, h, [("the start", start)], inputs=inputs, fixed=fixed, must=["the start"],
@@ -88,7 +89,7 @@ def with_intervals(f: Fit, y, h, inputs, fits: str = "auto") -> Fit:
     fixed kept fixed and its held estimates counted, a located parameter's interval from its own profile; on the
     long-record path at its point, from the exact likelihood's information there
     (:func:`~torchtea.fitting.whittle_path.exact_information`)."""
-    if not (uses_exact(f.model, y, fits) and exact_optimised(y, fits, f.model)):
+    if not fits_exactly(f.model, y, fits):
         return exact_information(f, y, h, inputs)
     kept = f.model.held_estimates()
     fixed = [n for n in f.model.names if n not in f.free or n in kept]

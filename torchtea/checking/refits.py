@@ -13,7 +13,7 @@ import torch
 
 from ..fitting.mle import Fit, centred, exact_loglik, whittle_fit
 from ..fitting.starts import starts_of
-from ..fitting.whittle_path import exact_optimised, uses_exact
+from ..fitting.whittle_path import fits_exactly
 from . import models
 from .models import REFIT_TOLERANCE
 
@@ -42,7 +42,7 @@ def degenerate(model, fit: Fit, h: float, n: int) -> list[str]:
     :data:`DEGENERATE_LOGIT`), a stochastic component collapsed (its
     spectrum below :data:`DEGENERATE_SHARE` of the model's at every Fourier frequency of ``n`` samples) — one
     component standing in for another, as the fractional part at order 1 with a collapsed white noise stands in for
-    a band and the white noise at once (issue 44)."""
+    a band and the white noise at once."""
     out = []
     u = fit.u
     for i, name in enumerate(model.names):
@@ -102,9 +102,9 @@ class CheckRun:
         self.carry = {}
 
     def exact(self, model) -> bool:
-        """Whether this check fits ``model`` by maximising the exact likelihood (else on the long-record path:
-        :func:`~torchtea.fitting.whittle_path.uses_exact`, :func:`~torchtea.fitting.whittle_path.exact_optimised`)."""
-        return uses_exact(model, self.y, self.fits) and exact_optimised(self.y, self.fits, model)
+        """Whether this check fits ``model`` by maximising the exact likelihood, else on the long-record path
+        (:func:`~torchtea.fitting.whittle_path.fits_exactly`)."""
+        return fits_exactly(model, self.y, self.fits)
 
     def say(self, line: str) -> None:
         if self.progress is not None:
@@ -118,7 +118,7 @@ NESTED_SLACK = 0.5
 
 #: Above this many samples a check ranks the passing candidates by the exact likelihood at the best of their starts
 #: (a lower bound of each refit's gain: the screen's Whittle fit, the model's fit with the effect at the screen's
-#: values, …) and refits only the best: on 2.16·10⁶ samples one exact refit takes minutes (issue 44).
+#: values, …) and refits only the best: on 2.16·10⁶ samples one exact refit takes minutes.
 LONG_RECORD = 500_000
 
 

@@ -1,4 +1,4 @@
-"""The loop's other half (issue 45): after adding, take away and swap.
+"""The loop's other half: after adding, take away and swap.
 
 A loop that only adds keeps whatever it took first: a fractional part at order 1 with its pole at 0 standing in for
 a random walk, a random walk added before the temperature effect the data hold. :func:`simplify` tries, from the
@@ -30,7 +30,7 @@ import numpy as np
 from ..fitting.mle import Fit, bic, refine_best, whittle_fit
 from ..fitting.plan import duration, tie_length
 from ..fitting.starts import starts_of
-from ..fitting.whittle_path import exact_optimised, polished, uses_exact, whittle_refine
+from ..fitting.whittle_path import fits_exactly, polished, uses_exact, whittle_refine
 from ..noise.components import COMPONENTS
 from ..noise.model import NoiseModel, parse_model
 from .models import REFIT_TOLERANCE, assess, extend, model_fit, with_intervals
@@ -180,7 +180,7 @@ def _fit(alt: Alternative, res, wf, polish: bool = True) -> Fit:
     starts = _model_starts(alt, res)
     refs = m.references() | set(m.located())
     fixed = [n for n in m.names if n in refs]
-    if not (uses_exact(m, y, res.fits) and exact_optimised(y, res.fits, m)):  # (the long-record path: its Whittle
+    if not fits_exactly(m, y, res.fits):  # (the long-record path: its Whittle
         # modes and the model's starts, by the exact ℓ there; without a spectrum, the starts evaluated)
         points = starts or [("its Whittle fit", _mode_values(m, wf, h))]
         if uses_exact(m, y, res.fits):
@@ -247,7 +247,7 @@ def evaluate(res, progress=None) -> list[Alternative]:
             a.rejected = f"not fitted: {exc}"
             continue
         a.whittle_delta = _whittle_bic(a.model, a.whittle, n) - here
-        if uses_exact(a.model, y, res.fits) and exact_optimised(y, res.fits, a.model):
+        if fits_exactly(a.model, y, res.fits):
             if a.whittle_delta > WHITTLE_WINDOW:
                 continue  # (the window spares exact refits)
             a.fit = _fit(a, res, a.whittle)

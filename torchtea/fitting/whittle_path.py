@@ -24,7 +24,7 @@ from ..noise.model import NoiseModel, parse_model
 from .exact import FIT_MEMORY, centred, exact_loglik, exact_loglik_grad, gradient_supported
 from .results import Fit, estimates_from_hessian
 
-__all__ = ["FITS", "WHITTLE_PATH_SAMPLES", "POLISH_SAMPLES", "uses_exact", "exact_optimised", "polished",
+__all__ = ["FITS", "WHITTLE_PATH_SAMPLES", "POLISH_SAMPLES", "uses_exact", "exact_optimised", "fits_exactly", "polished",
            "whittle_estimate", "whittle_refine", "exact_information"]
 
 #: How ``check`` fits: ``"auto"`` (the Whittle path above :data:`WHITTLE_PATH_SAMPLES`), ``"exact"``, ``"whittle"``.
@@ -64,6 +64,13 @@ def exact_optimised(y, fits: str = "auto", model=None) -> bool:
         return True
     return (model is not None and fits == "auto" and not parse_model(model).stationary
             and len(y) <= POLISH_SAMPLES)
+
+
+def fits_exactly(model, y, fits: str = "auto") -> bool:
+    """Whether ``check`` optimises the exact likelihood of ``model`` on ``y`` — the exact path: :func:`uses_exact` and
+    :func:`exact_optimised` both (else the long-record path: a Whittle fit, or a model without a spectrum evaluated at
+    its best start)."""
+    return uses_exact(model, y, fits) and exact_optimised(y, fits, model)
 
 
 def polished(model, y, fit: Fit, h: float, *, inputs: dict | None = None, fixed=(), tolerance: float | None = None,

@@ -159,7 +159,9 @@ class WhittleFit(NamedTuple):
     the ``free`` mask ``(P,)``, the terms of the Whittle sums of the residual series ``data``
     (:class:`~torchtea.likelihood.whittle.WhittleData`, binned as the likelihood settings say), and per series
     its distinct local maxima ``modes`` (a list of ``(u (P,), loglik, hessian (P, P))``, best first; the first is
-    the estimate) — the starts of the exact fit's multi-start."""
+    the estimate) — the starts of the exact fit's multi-start —, and per series the grid's ``starts`` ``(k, P)`` (unconstrained;
+    the exact fit's multi-start also runs from them where the model has a fractional order: the Whittle sum and the
+    exact likelihood need not share their modes on the order–pole ridge)."""
 
     values: Tensor
     loglik: Tensor
@@ -170,6 +172,7 @@ class WhittleFit(NamedTuple):
     free: Tensor
     data: WhittleData
     modes: list | None = None
+    starts: list | None = None
 
 
 #: The Whittle fits' starts race (:func:`~.scoring.score`): a start that cannot end higher than a finished one is
@@ -206,7 +209,7 @@ def whittle_fit(model, series: list, h: float, *, inputs: list | None = None, fi
     likelihood and the modes alone)."""
     model = parse_model(model)
     fixed = dict(fixed or {})
-    rows_u, owner, mean_list, Is, before, regs = [], [], [], [], [], []
+    rows_u, owner, mean_list, Is, before, regs, grids = [], [], [], [], [], [], []
     omega = None
     resolution = whittle_resolution()
     for s, y in enumerate(series):
@@ -221,6 +224,7 @@ def whittle_fit(model, series: list, h: float, *, inputs: list | None = None, fi
         omega, I = periodogram(torch.as_tensor(resid))
         Is.append(I)
         points = _starts(model, resid, h, omega, I, mean_vals, fixed, orders, fractions) if grid else []
+        grids.append(len(points))
         points += [{**v, **mean_vals, **fixed} for v in (starts[s] if starts is not None else [])]
         if not points:
             raise ValueError("whittle_fit: no starting values (grid=False and no starts)")
@@ -258,9 +262,10 @@ def whittle_fit(model, series: list, h: float, *, inputs: list | None = None, fi
                                                                                    dtype=torch.float64)))
     modes = [[(U[i].clone(), -float(loss[i]), H[i]) for i in kept] for kept in modes]
     best = torch.tensor(best)
+    first = [int((owner == s).nonzero()[0]) for s in range(len(series))]
     return WhittleFit(model.as_matrix(model.from_unconstrained(U[best], h)).detach(), -loss[best],
                       U[best], torch.stack([H[int(i)] for i in best]), mean_list, torch.as_tensor(converged)[best],
-                      free, data, modes)
+                      free, data, modes, [U0[i:i + k] for i, k in zip(first, grids)])
 
 
 def _trend(y: np.ndarray, h: float) -> np.ndarray:
@@ -318,10 +323,18 @@ def _distinct(U: Tensor, loss: Tensor, converged, owner: Tensor, free: Tensor, s
 EXACT_MODE_MARGIN = 10.0
 
 
-def _exact_multistart(model, y, h, modes: list, free: Tensor, inputs, memory, hessian: bool):
+#: A maximum reached from the grid replaces the best reached from the Whittle modes only where it is higher by more
+#: than this (nats): the same maximum reached twice differs by the convergence tolerance.
+GRID_GAIN = 0.01
+
+
+def _exact_multistart(model, y, h, modes: list, free: Tensor, inputs, memory, hessian: bool, grid: Tensor | None = None):
     """:func:`~.scoring.exact_refine` from the Whittle ``modes`` (``(u, ℓ_W, H_W)`` each) whose exact ℓ is within
-    :data:`EXACT_MODE_MARGIN` of the best; the best exact maximum, with its Hessian when ``hessian``. Returns
-    ``(u, ℓ, H or None, converged, notes)``."""
+    :data:`EXACT_MODE_MARGIN` of the best; the best exact maximum, with its Hessian when ``hessian``. ``grid``
+    ``(k, P)``: the Whittle fit's grid of starts, raced beside the modes (one batch of scoring iterations) where the
+    model's fractional order is free and the exact gradient applies — on a short record the exact likelihood's
+    order–pole ridge can hold a higher maximum than any the Whittle sum leads to. Returns ``(u, ℓ, H or None,
+    converged, notes)``."""
     notes = []
     if len(modes) > 1:
         U = torch.stack([m[0] for m in modes])
@@ -329,21 +342,39 @@ def _exact_multistart(model, y, h, modes: list, free: Tensor, inputs, memory, he
         ll0 = np.where(np.isfinite(ll0), ll0, -np.inf)
         order = [int(i) for i in np.argsort(-ll0) if ll0[i] >= ll0.max() - EXACT_MODE_MARGIN]
         modes = [modes[i] for i in order]
-    if len(modes) == 1 or gradient_supported(model, y) is not None:
+    batched = gradient_supported(model, y) is None
+    name = model.order_name
+    if grid is not None and (not batched or name is None or not bool(free[model.names.index(name)])):
+        grid = None
+    if grid is None and (len(modes) == 1 or not batched):
         runs = [scoring.exact_refine(model, y, h, m[0].clone(), free, inputs, memory, m[2], hessian=False) for m in modes]
-    else:  # every mode's scoring iterations as one batch
+    else:  # every mode's (and the grid's) scoring iterations as one batch
         U0 = torch.stack([m[0] for m in modes])
+        if grid is not None:
+            G = grid.clone().to(U0)
+            G[:, ~free] = U0[0, ~free]  # (the held coordinates are the modes')
+            U0 = torch.cat([U0, G])
         X, f, ok, its = scoring.score_batch(model, y, h, U0, free, inputs, memory)
         runs = []
-        for k in range(len(modes)):
+        for k in range(len(U0)):
             u = U0[k].clone()
             u[free] = torch.as_tensor(X[k])
             runs.append((u, -float(f[k]), None, bool(ok[k]), int(its[k])))
-    best = max(range(len(runs)), key=lambda i: runs[i][1] if math.isfinite(runs[i][1]) else -math.inf)
+    def top(rows):
+        return max(rows, key=lambda i: runs[i][1] if math.isfinite(runs[i][1]) else -math.inf)
+
+    best = top(range(len(modes)))
+    if len(runs) > len(modes):  # a grid start's maximum only where it is higher by more than rounding
+        other = top(range(len(modes), len(runs)))
+        best = other if runs[other][1] > runs[best][1] + GRID_GAIN else best
     u, ll, _, ok, _ = runs[best]
-    if best != 0:
+    if best >= len(modes):
+        a0 = float(model.from_unconstrained(U0[best][None], h)[name][0])
+        notes.append(f"the exact likelihood's best maximum (ℓ {ll:.2f}) came from the start at order {a0:.1f} of the "
+                     f"grid, not from the Whittle fit's modes (the best of those ℓ {max(r[1] for r in runs[:len(modes)]):.2f})")
+    elif best != 0:
         notes.append(f"the exact likelihood's best maximum (ℓ {ll:.2f}) came from the Whittle fit's mode number "
-                     f"{best + 1} of {len(runs)}, not from its best one (exact ℓ there {runs[0][1]:.2f})")
+                     f"{best + 1} of {len(modes)}, not from its best one (exact ℓ there {runs[0][1]:.2f})")
     H = scoring.exact_hessian(model, y, h, u, free, inputs, memory) if hessian else None
     return u, ll, H, ok, notes
 
@@ -487,7 +518,8 @@ def fit_series(model, series: list, h: float, *, method: str = "exact", inputs: 
         else:
             free = torch.tensor([n not in fx for n in model.names])
             modes = wf.modes[s] if wf.modes else [(wf.u[s], float(wf.loglik[s]), wf.hessian[s])]
-            u, ll, H, ok, more = _exact_multistart(model, y_exact, h, modes, free, inp, memory, intervals)
+            u, ll, H, ok, more = _exact_multistart(model, y_exact, h, modes, free, inp, memory, intervals,
+                                                   wf.starts[s] if wf.starts else None)
             notes += more
             vals, se, ci, how = estimates_from_hessian(model, u, H, free, h)
             ll_exact = ll

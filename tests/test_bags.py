@@ -14,7 +14,7 @@ from rosbags.rosbag2 import StoragePlugin, Writer as Writer2  # noqa: E402
 from rosbags.typesys import Stores, get_typestore  # noqa: E402
 
 from torchtea.cli import main  # noqa: E402
-from torchtea.sensors.bags import bag_topics, is_bag  # noqa: E402
+from torchtea.sensors.bags import bag_topics, is_bag, read_bag  # noqa: E402
 from torchtea.sensors.io import InputError, read_recording, write_columns  # noqa: E402
 
 KINDS = {"ros1": "imu.bag", "db3": "imu_db3", "mcap": "imu_mcap"}
@@ -162,6 +162,37 @@ def test_the_refusals_name_the_bag_the_topic_and_what_the_bag_has(tmp_path, caps
                        units="ms2", topic="/imu/data")
 
 
+def test_a_damaged_ros1_bag_reads_as_rosbags_reads_it(tmp_path, monkeypatch):
+    """A ROS 1 bag read by its own index gives what rosbags gives on damaged files too: junk inside a chunk (the same
+    values, ROS 1 has no checksums), a truncated file and a damaged index (the same one refusal, from rosbags: the
+    own index steps aside)."""
+    from torchtea.sensors import bags
+
+    t_ns, acc, gyr, temp = _data(3000)
+    good = write_bag(tmp_path / "good.bag", "ros1", t_ns, acc, gyr, temp).read_bytes()
+    junk = bytearray(good)
+    junk[200_000:200_050] = b"\x13" * 50
+    index = bytearray(good)
+    index[-300:-200] = bytes(100)
+    for name, data in (("junk", bytes(junk)), ("truncated", good[:len(good) // 2]), ("index", bytes(index))):
+        path = tmp_path / f"{name}.bag"
+        path.write_bytes(data)
+        results = []
+        for own in (True, False):
+            if not own:
+                monkeypatch.setattr(bags, "ros1_index", lambda p: None)
+            try:
+                d = read_bag(path)
+                results.append([d["time_s"], d["temperature"], *(c[3] for c in d["channels"])])
+            except InputError as e:
+                results.append(str(e))
+            monkeypatch.undo()
+        a, b = results
+        assert type(a) is type(b), (name, a, b)
+        assert a == b if isinstance(a, str) else all(np.array_equal(x, y, equal_nan=True) for x, y in zip(a, b))
+    assert isinstance(a, str) and "not a readable ROS bag" in a
+
+
 def _varied_bag(path, kind, n=700, compression=None):
     """A bag of ``kind`` whose Imu messages carry frame ids of every length from 0 to 9 (CDR pads the float64 fields
     to 8 bytes after them, so their offsets move) and values that use every bit, beside a second Imu topic, a
@@ -202,7 +233,7 @@ def _varied_bag(path, kind, n=700, compression=None):
             if k % 3 == 0:
                 writer.write(c2, 1_000 + 10 * k, ser(msg, Imu.__msgtype__))
             if k % 7 == 0:
-                writer.write(ct, 1_001 + 10 * k, ser(Temp(header=header(k, "t"), temperature=25.0 + k / n,
+                writer.write(ct, 1_001 + 10 * k, ser(Temp(header=header(k, "temp_frame"[:k % 11]), temperature=25.0 + k / n,
                                                           variance=0.0), Temp.__msgtype__))
                 writer.write(cs, 1_002 + 10 * k, ser(Str(data="x" * (k % 13)), Str.__msgtype__))
     return Path(path)
@@ -211,11 +242,12 @@ def _varied_bag(path, kind, n=700, compression=None):
 @pytest.mark.parametrize("kind,compression", [("ros1", None), ("ros1", "BZ2"), ("ros1", "LZ4"), ("db3", None),
                                               ("mcap", None)])
 def test_the_array_decoder_is_the_generic_reader(tmp_path, kind, compression, monkeypatch):
-    """``sensor_msgs/Imu`` decoded at array speed (``bag_arrays``) against rosbags' generic reader, message by
-    message, on every format: the same header stamps, receive times and fields, bit for bit, with frame ids of every
-    length and other topics interleaved; and ``read_bag`` gives the same recording either way."""
+    """``sensor_msgs/Imu`` and ``sensor_msgs/Temperature`` decoded at array speed (``bag_arrays``) against rosbags'
+    generic reader, message by message, on every format: the same header stamps, receive times and fields, bit for
+    bit, with frame ids of every length and other topics interleaved; and ``read_bag`` gives the same recording
+    either way."""
     from torchtea.sensors import bags
-    from torchtea.sensors.bag_arrays import imu_arrays
+    from torchtea.sensors.bag_arrays import imu_arrays, temperature_arrays
     from torchtea.sensors.bags import IMU_FIELDS, _reader, read_bag
 
     path = _varied_bag(tmp_path / (KINDS[kind] if compression is None else f"{compression}.bag"), kind,
@@ -235,8 +267,34 @@ def test_the_array_decoder_is_the_generic_reader(tmp_path, kind, compression, mo
         reader.close()
     assert np.array_equal(fast[0], stamps) and np.array_equal(fast[1], received)
     assert np.array_equal(fast[2], np.array(values))
+    reader = _reader(path)
+    try:  # the temperature topic's the same way
+        conns = [c for c in reader.connections if c.topic == "/imu/temperature"]
+        fast = temperature_arrays(reader, conns)
+        assert fast is not None, "no array path for the temperature"
+        slow = [(reader.deserialize(raw, conn.msgtype), t_ns) for conn, t_ns, raw in reader.messages(connections=conns)]
+    finally:
+        reader.close()
+    assert np.array_equal(fast[0], [m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec for m, _ in slow])
+    assert np.array_equal(fast[1], [t for _, t in slow])
+    assert np.array_equal(fast[2][:, 0], [m.temperature for m, _ in slow])
+    if kind == "ros1":  # the bag's own index read without rosbags: its topics and both decoders the same
+        from torchtea.sensors.bag_ros1 import ros1_index
+
+        index, reader = ros1_index(path), _reader(path)
+        assert index is not None, "the ROS 1 index was not read"
+        try:
+            assert bags._topics(index) == bags._topics(reader)
+            for topic, decode in (("/imu/data", imu_arrays), ("/imu/temperature", temperature_arrays)):
+                own = decode(index, [c for c in index.connections if c.topic == topic])
+                theirs = decode(reader, [c for c in reader.connections if c.topic == topic])
+                assert own is not None and all(np.array_equal(x, y) for x, y in zip(own, theirs))
+        finally:
+            index.close()
+            reader.close()
     a = read_bag(path, topic="/imu/data", columns=["gz", "ax"])
     monkeypatch.setattr(bags, "imu_arrays", lambda reader, conns: None)
+    monkeypatch.setattr(bags, "temperature_arrays", lambda reader, conns: None)
     b = read_bag(path, topic="/imu/data", columns=["gz", "ax"])
     assert np.array_equal(a["time_s"], b["time_s"]) and np.array_equal(a["temperature"], b["temperature"])
     assert [c[:3] for c in a["channels"]] == [c[:3] for c in b["channels"]]

@@ -1,6 +1,7 @@
-"""``sensor_msgs/Imu`` messages of a ROS bag decoded at array speed: the messages' bytes gathered from the bag's own
-index without decoding one message at a time, and the fields a recording needs — the header stamp, the linear
-acceleration and the angular velocity — read from all of them at once with NumPy.
+"""``sensor_msgs/Imu`` and ``sensor_msgs/Temperature`` messages of a ROS bag decoded at array speed: the messages'
+bytes gathered from the bag's own index without decoding one message at a time, and the fields a recording needs —
+the header stamp, the linear acceleration and the angular velocity, or the temperature — read from all of them at
+once with NumPy.
 
 Where the bytes come from (through the ``rosbags`` readers' open bags):
 
@@ -14,8 +15,9 @@ Where the bytes come from (through the ``rosbags`` readers' open bags):
 How a message is laid out: ROS 1 serialisation writes ``seq``, the stamp's ``sec``/``nsec`` (uint32), the frame
 id's length and bytes, then the float64 fields without padding; CDR (ROS 2, little-endian) writes a 4-byte
 encapsulation header, the stamp's ``sec`` (int32) and ``nanosec``, the frame id's length (its NUL included) and
-bytes, padding to 8 bytes from the payload's start, then the float64 fields — orientation (4), its covariance (9),
-the angular velocity (3), its covariance, the linear acceleration (3), its covariance. Every message's length is
+bytes, padding to 8 bytes from the payload's start, then the float64 fields — for an Imu the orientation (4), its
+covariance (9), the angular velocity (3), its covariance, the linear acceleration (3), its covariance; for a
+Temperature the temperature and its variance. Every message's length is
 checked against that layout. Anything else — a compression or storage the readers do not expose, a big-endian CDR
 message, an index that points elsewhere, a length that does not fit — returns None, and the bag is read one message
 at a time by the generic path (:mod:`.bags`); the tests hold the two to each other on every format."""
@@ -23,11 +25,14 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["imu_arrays"]
+__all__ = ["imu_arrays", "temperature_arrays"]
 
-#: Offsets of the angular velocity and the linear acceleration after the frame id (orientation and its covariance
-#: before them, the angular velocity's covariance between them), and the bytes from there to the message's end.
-_ANGULAR, _LINEAR, _TAIL = 104, 200, 296
+#: Where the float64 values a recording needs lie after a message's frame id (bytes), and the bytes from there to the
+#: message's end: an Imu's linear acceleration (after the orientation, its covariance, the angular velocity and its
+#: covariance) and angular velocity (after the orientation and its covariance); a Temperature's temperature (its
+#: variance after it).
+_IMU = ((200, 208, 216, 104, 112, 120), 296)
+_TEMPERATURE = ((0,), 16)
 
 
 def imu_arrays(reader, connections) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
@@ -36,13 +41,26 @@ def imu_arrays(reader, connections) -> tuple[np.ndarray, np.ndarray, np.ndarray]
     yields them (receive time); the values' columns: the linear acceleration's x, y, z, the angular velocity's x, y,
     z. None where the bag's storage or a message's layout has no array path (the caller reads it message by
     message)."""
+    return _arrays(reader, connections, _IMU)
+
+
+def temperature_arrays(reader, connections) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """As :func:`imu_arrays`, of ``sensor_msgs/Temperature`` messages: values ``(N, 1)``, the temperature (°C)."""
+    return _arrays(reader, connections, _TEMPERATURE)
+
+
+def _arrays(reader, connections, layout):
+    from .bag_ros1 import Ros1Index
+
+    if connections and all(isinstance(c.owner, Ros1Index) for c in connections):
+        return _indexed(connections[0].owner, [c.id for c in connections], layout)
     raw = _gather(reader, connections)
     if raw is None:
         return None
     received, buf, starts, lengths, ros1 = raw
     if not len(starts):
         return None
-    decoded = _decode_ros1(buf, starts, lengths) if ros1 else _decode_cdr(buf, starts, lengths)
+    decoded = (_decode_ros1 if ros1 else _decode_cdr)(buf, starts, lengths, layout)
     if decoded is None:
         return None
     stamps, values = decoded
@@ -62,33 +80,28 @@ def _f64(buf: np.ndarray, pos: np.ndarray) -> np.ndarray:
     return buf[pos[..., None] + np.arange(8)].view("<f8")[..., 0]
 
 
-def _fields(buf: np.ndarray, base: np.ndarray) -> np.ndarray:
-    """The linear acceleration and the angular velocity ``(N, 6)`` of messages whose orientation starts at ``base``."""
-    three = np.arange(3) * 8
-    pos = np.concatenate([base[:, None] + _LINEAR + three, base[:, None] + _ANGULAR + three], axis=1)
-    return _f64(buf, pos)
-
-
-def _decode_ros1(buf, starts, lengths):
+def _decode_ros1(buf, starts, lengths, layout):
+    offsets, tail = layout
     length = _u32(buf, starts + 12)
     base = starts + 16 + length
-    if np.any(base + _TAIL != starts + lengths):
+    if np.any(base + tail != starts + lengths):
         return None
     stamps = _u32(buf, starts + 4) * 1_000_000_000 + _u32(buf, starts + 8)
-    return stamps, _fields(buf, base)
+    return stamps, _f64(buf, base[:, None] + np.array(offsets))
 
 
-def _decode_cdr(buf, starts, lengths):
+def _decode_cdr(buf, starts, lengths, layout):
+    offsets, tail = layout
     if np.any(buf[starts] != 0) or np.any(buf[starts + 1] != 1):  # (CDR little-endian only)
         return None
     payload = starts + 4
     length = _u32(buf, payload + 8)
     base = payload + (12 + length + 7) // 8 * 8
-    if np.any(base + _TAIL != starts + lengths):
+    if np.any(base + tail != starts + lengths):
         return None
     sec = buf[payload[:, None] + np.arange(4)].view("<i4").reshape(-1).astype(np.int64)
     stamps = sec * 1_000_000_000 + _u32(buf, payload + 4)
-    return stamps, _fields(buf, base)
+    return stamps, _f64(buf, base[:, None] + np.array(offsets))
 
 
 def _gather(reader, connections):
@@ -136,6 +149,13 @@ def _ros1(bag, ids: list):
         base += len(data)
     buf = np.frombuffer(b"".join(pieces), dtype=np.uint8)
     rec = offset + np.array([where[p] for p in chunk.tolist()], dtype=np.int64)
+    found = _ros1_records(buf, rec, ids)
+    return None if found is None else (time, buf, *found, True)
+
+
+def _ros1_records(buf: np.ndarray, rec: np.ndarray, ids) -> tuple[np.ndarray, np.ndarray] | None:
+    """The data's starts and lengths of the ROS 1 message data records at ``rec`` in ``buf``, or None where one is
+    not a message data record of the connections ``ids``."""
     if np.any(rec + 4 > len(buf)):
         return None
     header = _u32(buf, rec)
@@ -154,7 +174,29 @@ def _ros1(bag, ids: list):
     starts = rec + 8 + header
     if np.any(starts + length > len(buf)):
         return None
-    return time, buf, starts, length, True
+    return starts, length
+
+
+def _indexed(index, ids: list, layout):
+    """:func:`_arrays` of a ROS 1 bag read by its own index (:class:`~.bag_ros1.Ros1Index`): each chunk decoded as
+    it is read (one chunk's bytes held at a time), then all in the generic reader's order (time, chunk, offset)."""
+    from .bag_ros1 import _Unreadable
+
+    parts = []
+    try:
+        for pos, buf, time, offset in index.chunks(ids):
+            found = _ros1_records(buf, offset, ids)
+            decoded = None if found is None else _decode_ros1(buf, *found, layout)
+            if decoded is None:
+                return None
+            parts.append((time, np.full(len(time), pos, dtype=np.int64), offset, *decoded))
+    except _Unreadable:
+        return None
+    if not parts:
+        return None
+    time, chunk, offset, stamps, values = (np.concatenate(x) for x in zip(*parts))
+    order = np.lexsort((offset, chunk, time))
+    return stamps[order], time[order], values[order]
 
 
 def _sqlite(storage, ids: list):

@@ -12,8 +12,8 @@ Which topic: ``topic`` names it; without, the bag's only ``sensor_msgs/Imu`` top
 a topic of another type, several IMU topics and none named, no messages, header stamps that go back — is one
 :class:`~torchtea.sensors.errors.InputError` naming the bag, the topic and what the bag has.
 
-Speed and memory: an IMU topic is decoded at array speed from the bag's own index (:mod:`.bag_arrays`: about a
-microsecond a message, the stored bytes held once while they are decoded); where the bag's storage has no such
+Speed and memory: an IMU topic and a temperature topic are decoded at array speed from the bag's own index
+(:mod:`.bag_arrays`: a few microseconds a message, the stored bytes held once while they are decoded); where the bag's storage has no such
 path, the messages are read one at a time into arrays sized from the bag's index (seven float64 per message:
 56 MB an hour at 250 Hz … 0.8 GB for 3.7 h at 2 kHz, the size of the recording itself).
 """
@@ -24,7 +24,8 @@ from typing import Sequence
 
 import numpy as np
 
-from .bag_arrays import imu_arrays
+from .bag_arrays import imu_arrays, temperature_arrays
+from .bag_ros1 import ros1_index
 from .errors import InputError
 
 __all__ = ["BAG_SUFFIXES", "IMU_TYPE", "TEMPERATURE_TYPE", "is_bag", "bag_topics", "read_bag"]
@@ -58,10 +59,15 @@ def _reader(path: Path):
     return reader
 
 
+def _open(path: Path):
+    """The bag opened: a ROS 1 bag by its own index where it can be (:mod:`.bag_ros1`), else by ``rosbags``."""
+    return ros1_index(path) or _reader(path)
+
+
 def bag_topics(path) -> list[tuple[str, str, int]]:
     """The bag's topics: ``(topic, message type, messages)``, sorted by topic."""
     path = Path(path)
-    reader = _reader(path)
+    reader = _open(path)
     try:
         return _topics(reader)
     finally:
@@ -107,14 +113,15 @@ def _stamp(msg) -> int:
     return int(s.sec) * 1_000_000_000 + int(s.nanosec)
 
 
-def _read_topic(reader, path: Path, topic: str, fields, columns=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``(header stamps ns, receive times ns, values (N, F))`` of every message of ``topic``: a ``sensor_msgs/Imu``
-    topic's ``columns`` (indices into :data:`IMU_FIELDS`) decoded at array speed where the bag allows it
-    (:func:`~.bag_arrays.imu_arrays`), else — and any other topic — read one message at a time, ``fields(msg)``
-    giving a message's values."""
+def _read_topic(reader, path: Path, topic: str, fields, columns=None,
+                arrays=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(header stamps ns, receive times ns, values (N, F))`` of every message of ``topic``: its ``columns`` of what
+    ``arrays`` decodes at array speed (default :func:`~.bag_arrays.imu_arrays`: indices into :data:`IMU_FIELDS`;
+    :func:`~.bag_arrays.temperature_arrays`) where the bag allows it, else read one message at a time,
+    ``fields(msg)`` giving a message's values."""
     conns = [c for c in reader.connections if c.topic == topic]
     if columns is not None:
-        fast = imu_arrays(reader, conns)
+        fast = (arrays or imu_arrays)(reader, conns)
         if fast is not None:
             stamps, received, values = fast
             return stamps, received, np.ascontiguousarray(values[:, columns])
@@ -157,7 +164,7 @@ def read_bag(path, *, topic: str | None = None, temperature_topic: str | None = 
     stamp, "temperature": (N,) °C or None, "metadata"}`` — :func:`~torchtea.sensors.io.read_recording` makes the
     :class:`~torchtea.sensors.io.Recording` of it."""
     path = Path(path)
-    reader = _reader(path)
+    reader = _open(path)
     try:
         topics = _topics(reader)
         if not any(n for _, _, n in topics):
@@ -202,7 +209,7 @@ def read_bag(path, *, topic: str | None = None, temperature_topic: str | None = 
                 meta["temperature_skipped"] = ("several sensor_msgs/Temperature topics and none named: no "
                                                "temperature input (choose one with --temperature)")
             if ttopic is not None:
-                ts, tr, tv = _read_topic(reader, path, ttopic, lambda m: [m.temperature])
+                ts, tr, tv = _read_topic(reader, path, ttopic, lambda m: [m.temperature], [0], temperature_arrays)
                 ts = tr if np.all(ts == 0) else ts
                 order = np.argsort(ts, kind="stable")
                 tsec = (ts[order] - stamps[0]).astype(np.float64) * 1e-9

@@ -133,6 +133,10 @@ def test_linear_lr_is_the_exact_likelihood_ratio_with_the_level_free(spec):
     l0, _ = _max_quadratic(lambda p: ll(np.column_stack([p[:, 0], np.zeros(len(p))])), [y.mean()], [0.01])
     assert abs(lr - 2 * (l1 - l0)) < 1e-5 * max(1.0, lr), (lr, 2 * (l1 - l0))
     assert abs(beta[0] - x1[1]) < 1e-6 * max(1.0, abs(x1[1]))
+    # the whitened constant is kept after the first call: a second call is the same as on fresh innovations
+    assert inn.level is not None
+    ramp = np.linspace(-1.0, 1.0, n)
+    assert linear_lr(inn, ramp) == linear_lr(innovations(model, v, y, H), ramp)
 
 
 def _false_alarms(n_series=300, n=4000):

@@ -7,7 +7,7 @@ components' screens read them — the screens through the :class:`Innovations` t
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy import stats
@@ -38,6 +38,8 @@ class Innovations:
     h: float | None = None
     inputs: dict | None = None
     memory: object = FIT_MEMORY
+    #: the whitened constant, once a regressor has been whitened beside it (:func:`whiten_with_level`)
+    level: np.ndarray | None = field(default=None, repr=False)
 
     def linear_lr(self, columns: np.ndarray) -> tuple[float, np.ndarray]:
         """:func:`linear_lr` of these innovations (a component's screen reads it as ``ctx.inn.linear_lr(X)``)."""
@@ -130,9 +132,14 @@ def scan_lr(inn: Innovations, columns: np.ndarray, *, draws: int = 20_000, seed:
 
 
 def whiten_with_level(inn: Innovations, columns: np.ndarray) -> np.ndarray:
-    """The whitened regressors ``columns`` ``(m, N)`` and, as the last row, the whitened constant (one filter pass)."""
+    """The whitened regressors ``columns`` ``(m, N)`` and, as the last row, the whitened constant (one filter pass;
+    the constant's is kept in ``inn`` and not filtered again)."""
     X = np.atleast_2d(np.asarray(columns, dtype=np.float64))
-    return whiten(inn, np.concatenate([X, np.ones((1, X.shape[1]))]))
+    if inn.level is not None:
+        return np.concatenate([whiten(inn, X), inn.level[None]])
+    w = whiten(inn, np.concatenate([X, np.ones((1, X.shape[1]))]))
+    inn.level = w[-1].copy()
+    return w
 
 
 def located_intervals(model, values: dict, y, h: float, inputs: dict | None = None) -> dict:

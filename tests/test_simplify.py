@@ -63,8 +63,8 @@ H = 0.005
 K_TRUE = 2e-5
 
 
-def _white_and_walk(n=20000, seed=3):
-    v = {"white.r": torch.tensor([(1.7e-4) ** 2 / H]), "random-walk.sigma": torch.tensor([K_TRUE])}
+def _white_and_walk(n=20000, seed=3, k=K_TRUE):
+    v = {"white.r": torch.tensor([(1.7e-4) ** 2 / H]), "random-walk.sigma": torch.tensor([k])}
     return simulate_model("white+random-walk", v, n_steps=n, h=H,
                           generator=torch.Generator().manual_seed(seed))[0, 0].numpy()
 
@@ -86,6 +86,41 @@ def test_white_noise_and_a_random_walk_end_as_white_plus_random_walk():
     assert "1 change(s) taking away or swapping" in res.loop_end
     doc = json.loads(json.dumps(res.as_dict(), default=float))
     assert doc["steps"][-1]["change"] == "simpler" and {a["kind"] for a in doc["alternatives"]} == {"drop"}
+
+
+def _fitted_on_the_way(res) -> set:
+    return {f.model.spec for st in res.steps
+            for f in [st.fit] + [s.fit for s in st.suggestions] + [a.fit for a in st.alternatives if a.fit is not None]}
+
+
+def test_a_weak_effect_never_fitted_on_the_way_is_named_as_a_tie():
+    """White noise + a weak walk (K 8·10⁻⁶, seed 0): the loop ends `white+random-walk`; a ramp's screen does not pass
+    and the loop never fits it, but its likelihood ratio says the model with it would be within the tie margin — it
+    is refitted at the loop's end and named: the record cannot tell whether a ramp is there."""
+    from torchtea.checking.ranking import CLOSE_BIC
+
+    res = check(_white_and_walk(seed=0, k=8e-6), H).auto()
+    assert res.model.spec == "white+random-walk" and res.adequate
+    ramp = next(r for r in res.screens if r["effect"] == "ramp")
+    assert not ramp["passed"]
+    tie = next(t for t in res.ties if t["effects"] == ["ramp"])
+    assert tie["kind"] == "add" and 0 <= tie["bic_difference"] < CLOSE_BIC and not tie["fails"]
+    assert tie["model"] not in _fitted_on_the_way(res) and "ramp" in res.near
+    assert "with or without ramp" in tie["words"] and tie["words"] in res.loop_end
+
+
+def test_a_lower_bic_alternative_that_fails_a_diagnostic_is_named():
+    """White noise + a weak walk (K 8·10⁻⁶, seed 7): white alone has the lower BIC but fails the change test (the drift
+    it sees is the walk's), so the loop keeps `white+random-walk` — and says that by BIC the record cannot tell
+    whether the walk is there, naming the diagnostic."""
+    res = check(_white_and_walk(seed=7, k=8e-6), H).auto()
+    assert res.model.spec == "white+random-walk" and res.adequate
+    tie = next(t for t in res.ties if t["model"] == "white")
+    assert tie["kind"] == "drop" and tie["effects"] == ["random-walk"]
+    assert tie["bic_difference"] < 0 and tie["fails"] == ["change"]
+    assert "fails change" in tie["words"] and "whether random-walk is there" in tie["words"]
+    doc = json.loads(json.dumps(res.as_dict(), default=float))
+    assert doc["ties"][0]["fails"] == ["change"]
 
 
 @pytest.mark.slow

@@ -265,6 +265,7 @@ def _check_once(run: CheckRun, model, fit: Fit, wf, screen_level, candidates, in
         repairs = sorted(failed_before & {d.name for d in d2 if d.passed})
         suggestions.append(Suggestion(row["effect"], float(gain), row["p_value"], row["test"], f2, d2, m2, repairs,
                                       label))
+    near = [dict(r) for r in screened if _near(r, model, fit.n)]
     for row in rows:
         for k in ("start", "modes"):
             row.pop(k, None)
@@ -281,22 +282,49 @@ def _check_once(run: CheckRun, model, fit: Fit, wf, screen_level, candidates, in
         suggestions[0].fit = with_intervals(suggestions[0].fit, y, h, inputs, run.fits)
     clock("intervals")
     return CheckResult(y, h, inputs, fit, inn, diags, mets, rows, suggestions, run.level, screen_level, 0.0, [],
-                       refits=refitted), None
+                       refits=refitted, near_rows=near), None
 
 
-def _refit_best(run: CheckRun, fit: Fit, suggestions: list, rows: list, failed_before: set) -> list:
-    """On a long record (:data:`~.refits.LONG_RECORD`), the best suggestion — ranked by the exact likelihood at the
-    best of its starts — refitted from the start that ranked it, its gain, diagnostics and repairs anew, its screen's
-    row saying so; the suggestions ranked again."""
-    top = suggestions[0]
-    row = next(r for r in rows if r["effect"] == top.effect)
-    run.say(f"refitting {top.fit.model.spec}")
-    alt = top.fit.model
-    estimates, fixed = held_fixed(alt, top.label)
-    f2 = refit_from(run, alt, top.fit, fixed)
-    f2.count(estimates)
-    top.fit, top.gain = f2, float(fit.bic_exact - f2.bic_exact)
-    _, top.diagnostics, top.metrics = _assess(alt, f2.values, run.y, run.h, run.inputs, run.level)
-    top.repairs = sorted(failed_before & {d.name for d in top.diagnostics if d.passed})
-    row["note"] = row["note"].replace("; the best suggestion alone is refitted", "; refitted as the best suggestion")
-    return rank(suggestions, failed_before)
+#: A candidate whose screen did not pass is refitted for the ties when its likelihood-ratio statistic puts the model
+#: with it within the tie margin (:data:`~.ranking.CLOSE_BIC`) plus this much of BIC (the screen's statistic is the
+#: Whittle likelihood's, or the exact one's at the model's noise values: the refit's can be a few units higher).
+NEAR_SLACK = 3.0
+
+
+def _near(row: dict, model, n: int) -> bool:
+    """Whether a screen that did not pass puts the model with its effect within the tie margin of BIC by its
+    likelihood-ratio statistic ``LR``: k·ln n − LR below :data:`~.ranking.CLOSE_BIC` + :data:`NEAR_SLACK`, k the
+    parameters the effect adds (its references not counted)."""
+    if row["passed"] or row.get("statistic") is None or "LR" not in row["test"] or not row.get("start"):
+        return False
+    alt = extend(model, row["token"])
+    k = len([n_ for n_ in alt.names if n_ not in model.names and n_ not in alt.references()])
+    return k * np.log(max(n, 2)) - float(row["statistic"]) < CLOSE_BIC + NEAR_SLACK
+
+
+def near_fits(res: CheckResult, progress=None) -> dict:
+    """The loop's last result's near candidates (:attr:`~.results.CheckRecord.near_rows`: screens that did not pass,
+    whose statistic says the model with the effect would be within the tie margin) refitted as a passing one is
+    (:func:`~.refits.refit`; evaluated at the best of its starts, not maximised, where the exact likelihood has no
+    gradient to score with or on the long-record path): effect → its fit, kept where its exact BIC is within
+    :data:`~.ranking.CLOSE_BIC` of the model's, either side. A weak effect the loop never fits still has its tie
+    named (:func:`~.simplify.ties`)."""
+    from ..fitting.exact import centred, gradient_supported
+
+    run = CheckRun(res.y, res.h, res.inputs, res.level, progress, res.fits)
+    run.carry = dict(res.refits)
+    model, fit, out = res.model, res.fit, {}
+    for row in res.near_rows:
+        alt = extend(model, row["token"])
+        label = new_label(model, alt)
+        estimates, fixed = held_fixed(alt, label)
+        cheap = run.exact(alt) and gradient_supported(alt, centred(alt, res.y)) is None
+        run.say(f"fitting {alt.spec} for the ties")
+        try:
+            f2 = refit(run, model, alt, label, fit, res.whittle, dict(row), fixed, refine=cheap)
+        except (ValueError, RuntimeError):
+            continue
+        f2.count(estimates)
+        if abs(f2.bic_exact - fit.bic_exact) < CLOSE_BIC:
+            out[row["effect"]] = f2
+    return out

@@ -3,6 +3,7 @@ away and swap while BIC falls and the model stays adequate (:mod:`.simplify`), a
 from __future__ import annotations
 
 import copy
+import time
 
 from . import simplify as simplifying
 from .ranking import CLOSE_BIC, STRONG_BIC
@@ -33,6 +34,14 @@ def run_loop(start, max_steps: int = 6, strong: float | None = None, simplify: b
         res = copy.copy(start)
         res.timings, res.alternatives = dict(start.timings), list(start.alternatives)
         start.seconds, start.timings, start.alternatives, start.loop_end, start.ties = saved
+    if simplify:  # (the near candidates' refits counted in this step's seconds, as the simplification's are)
+        from .check import near_fits
+
+        t0 = time.perf_counter()
+        res.near = near_fits(res, kw.get("progress"))
+        dt = time.perf_counter() - t0
+        res.seconds += dt
+        res.timings["ties"] = res.timings.get("ties", 0.0) + dt
     res.ties = simplifying.ties(res, CLOSE_BIC) if simplify else []
     res.loop_end = loop_end(res, added, changes, max_steps, strong)
     return res

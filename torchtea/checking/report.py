@@ -81,8 +81,11 @@ MEANING = {
     "axes": "one document per channel, by label (a single channel's is also at the top level)",
     "ties": "what the record cannot tell apart from the model the loop ended with: models fitted on the way whose "
             "BIC is within 6 above its own and that are adequate where it is (kind swap: one component for another; "
-            "add: one more; drop: one fewer; other), and the last step's suggestions that gain less than 6 (kind add, "
-            "bic_difference below 0); bic_difference: BIC of that model − BIC of this one; resolve_samples, "
+            "add: one more; drop: one fewer; other), the last step's suggestions that gain less than 6 (kind add, "
+            "bic_difference below 0), the model with an effect whose screen did not pass but whose refit is within 6 "
+            "either side (kind add), and the alternatives up to 6 lower by BIC that fail a diagnostic the model "
+            "passes (fails: those diagnostics; empty for the others); bic_difference: BIC of that model − BIC of "
+            "this one; resolve_samples, "
             "resolve_seconds: the record length at which their BIC difference is expected to reach 12 (for add and "
             "drop: if the extra effect is there)",
     "alternatives": "the models the loop's simplification tried from this one (each component dropped, replaced by "

@@ -58,6 +58,8 @@ class Alternative:
     fit: Fit | None = None
     bic: float = math.inf
     whittle_delta: float = math.inf
+    #: the diagnostics it failed where the model passed them, when its BIC was lower but it was not kept
+    fails: list | None = None
     #: its Whittle fit (what :func:`~.check.check` of it would make first)
     whittle: object = None
     #: why it was not kept though its BIC is lower (the diagnostics it fails)
@@ -289,7 +291,8 @@ def simplify(res, **kw):
             new.change = {"kind": a.kind, "removed": a.removed, "added": a.added}
             spent(new)
             return new
-        a.rejected = f"BIC {current - a.bic:.1f} lower, but fails {', '.join(sorted(set(new.failed) - set(res.failed)))}"
+        a.fails = sorted(set(new.failed) - set(res.failed))
+        a.rejected = f"BIC {current - a.bic:.1f} lower, but fails {', '.join(a.fails)}"
     spent()
     return res
 
@@ -297,11 +300,15 @@ def simplify(res, **kw):
 def ties(res, close: float) -> list[dict]:
     """What the record cannot tell apart from the final model ``res``: every model the loop fitted on its way — the
     alternatives tried at each step (:attr:`~.check.CheckResult.alternatives`), each step's suggestions, the steps
-    themselves — whose BIC is within ``close`` above the final one's and that is adequate where it is, and the final
-    step's suggestions that gain less than ``close`` (the loop stopped short of them). Each: ``kind`` (swap: one
-    component for another; add: one more; drop: one fewer; other), ``effects``, ``model``, ``bic_difference`` (its BIC
-    − the final model's; below 0 for such a suggestion), the record length expected to tell them apart
-    (``resolve_samples``, ``resolve_seconds``) and the sentence to show."""
+    themselves — whose BIC is within ``close`` above the final one's and that is adequate where it is; the final
+    step's suggestions that gain less than ``close`` (the loop stopped short of them); the final model with an effect
+    whose screen did not pass but whose refit is within ``close`` either side (:attr:`~.check.CheckResult.near`: a
+    weak effect the loop never fitted on its way); and the final model's alternatives whose BIC is up to ``close``
+    *lower* but that fail a diagnostic the model passes (``fails``: the record cannot tell whether the part they lack
+    is there, or only what the diagnostic sees). Each: ``kind`` (swap: one component for another; add: one more; drop:
+    one fewer; other), ``effects``, ``model``, ``bic_difference`` (its BIC − the final model's; below 0 for a suggestion,
+    a near effect or an alternative that fails a diagnostic), ``fails`` (those diagnostics, or none), the record length
+    expected to tell them apart (``resolve_samples``, ``resolve_seconds``) and the sentence to show."""
     out = []
     here = _as_counted(res.fit)
     current = here.bic_exact
@@ -313,13 +320,20 @@ def ties(res, close: float) -> list[dict]:
             b = f.bic_exact
             if f.model.spec != res.model.spec and (f.model.spec not in pool or b < pool[f.model.spec][0]):
                 pool[f.model.spec] = (b, f)
+    near = {f.model.spec for f in res.near.values()}
+    for f in map(_as_counted, res.near.values()):
+        if f.model.spec not in pool or f.bic_exact < pool[f.model.spec][0]:
+            pool[f.model.spec] = (f.bic_exact, f)
+    failing = {a.fit.model.spec: a.fails for a in res.alternatives if a.fails and a.fit is not None}
     final = [c.name for _, c in res.model.components]
     suggested = {s.fit.model.spec for s in res.suggestions}  # (the loop stopped short of them: gain under strong)
     for spec, (b, f) in sorted(pool.items(), key=lambda kv: kv[1][0]):
         d = b - current
-        if not (math.isfinite(d) and (0.0 <= d < close or (spec in suggested and -close < d < 0.0))):
+        fails = failing.get(spec) if -close < d < 0.0 else None
+        if not (math.isfinite(d) and (0.0 <= d < close or fails
+                                      or ((spec in suggested or spec in near) and -close < d < 0.0))):
             continue
-        if res.adequate:
+        if res.adequate and not fails:
             _, diags, _ = assess(f.model, f.values, res.y, res.h, res.inputs, res.level)
             if any(x.passed is False for x in diags):
                 continue
@@ -328,19 +342,33 @@ def ties(res, close: float) -> list[dict]:
         new = [c for c in other if c not in final or other.count(c) > final.count(c)]
         if len(gone) == 1 and len(new) == 1:
             kind, effects = "swap", [gone[0], new[0]]
-            words = f"{gone[0]} or {new[0]}: this record cannot tell them apart (BIC within {d:.1f})"
+            words = f"{gone[0]} or {new[0]}: this record cannot tell them apart (BIC within {abs(d):.1f})"
         elif not gone and len(new) == 1:
             kind, effects = "add", new
             words = (f"with or without {new[0]}: this record cannot tell (BIC {abs(d):.1f} "
                      f"{'higher' if d >= 0 else 'lower'} with it)")
         elif len(gone) == 1 and not new:
             kind, effects = "drop", gone
-            words = f"{gone[0]} or without it: this record cannot tell (BIC {d:.1f} higher without it)"
+            words = (f"{gone[0]} or without it: this record cannot tell (BIC {abs(d):.1f} "
+                     f"{'higher' if d >= 0 else 'lower'} without it)")
         else:
             kind, effects = "other", sorted(set(gone) | set(new))
-            words = f"{spec} fits about as well (BIC within {d:.1f})"
-        out.append(_with_length({"kind": kind, "effects": effects, "model": spec, "bic_difference": d,
-                                 "words": words}, d, f.k - here.k, n0, res.h, close))
+            words = f"{spec} fits about as well (BIC within {abs(d):.1f})"
+        if fails:  # (lower by BIC, not kept: it fails what the model passes)
+            if kind == "drop":
+                what, whether = f"without {effects[0]} ({spec})", f"whether {effects[0]} is there"
+            elif kind == "add":
+                what, whether = f"with {effects[0]} ({spec})", f"whether {effects[0]} is there"
+            elif kind == "swap":
+                what, whether = f"{effects[1]} in place of {effects[0]} ({spec})", "which of the two it holds"
+            else:
+                what, whether = spec, "which of the two models it holds"
+            words = (f"{what}: BIC {-d:.1f} lower, but it fails {', '.join(fails)}, which the model passes (kept for "
+                     f"that); by BIC this record cannot tell {whether}")
+        tie = _with_length({"kind": kind, "effects": effects, "model": spec, "bic_difference": d, "words": words},
+                           d, f.k - here.k, n0, res.h, close)
+        tie["fails"] = list(fails or [])
+        out.append(tie)
     return out
 
 

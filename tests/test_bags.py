@@ -180,7 +180,7 @@ def test_a_damaged_ros1_bag_reads_as_rosbags_reads_it(tmp_path, monkeypatch):
         results = []
         for own in (True, False):
             if not own:
-                monkeypatch.setattr(bags, "ros1_index", lambda p: None)
+                monkeypatch.setattr(bags, "ros1_index", lambda p, opener: None)
             try:
                 d = read_bag(path)
                 results.append([d["time_s"], d["temperature"], *(c[3] for c in d["channels"])])
@@ -281,7 +281,7 @@ def test_the_array_decoder_is_the_generic_reader(tmp_path, kind, compression, mo
     if kind == "ros1":  # the bag's own index read without rosbags: its topics and both decoders the same
         from torchtea.sensors.bag_ros1 import ros1_index
 
-        index, reader = ros1_index(path), _reader(path)
+        index, reader = ros1_index(path, _reader), _reader(path)
         assert index is not None, "the ROS 1 index was not read"
         try:
             assert bags._topics(index) == bags._topics(reader)

@@ -644,3 +644,39 @@ def test_a_whittle_screen_the_exact_likelihood_does_not_confirm_is_said_so(monke
     assert r.unconfirmed == ["random-walk"] and r.failed_refits == []
     lines = "\n".join(channels_mod._channel_lines("ax", "x", r))
     assert "exact likelihood does not confirm them" in lines and "no effect of the library passes" not in lines
+
+
+def _settling(seed=0, n=7000, amp=4.0, tau=3.0):
+    """White noise + a weak random walk (70 s at 100 Hz) whose first 10 s carry extra noise that dies away (a sensor
+    settling: up to 4× the white level, time constant 3 s)."""
+    v = {"white.r": torch.tensor([(2e-3) ** 2]), "random-walk.sigma": torch.tensor([2e-5])}
+    y = simulate_model("white+random-walk", v, n_steps=n, h=H,
+                       generator=torch.Generator().manual_seed(seed))[0, 0].numpy().copy()
+    t = np.arange(n) * H
+    return y + 2e-3 * amp * np.exp(-t / tau) * (t < 10) * np.random.default_rng(seed + 100).standard_normal(n)
+
+
+def test_a_disturbed_start_up_stretch_is_found_as_a_stretch_not_as_a_run_of_spikes(tmp_path):
+    """The settling record: the spikes screen finds 17 outliers, all in the first 10 s, where the windowed NIS fails
+    as a whole. The loop adds neither those spikes nor steps at their edge (it did: spikes:17, or two steps at 0.01
+    and 0.14 s swapped in), names the stretch with the flag that leaves it out, and is not adequate. With
+    --exclude-start it leaves the stretch out and ends at the truth's model, adequate, saying so — in the CLI's
+    check.json too."""
+    from torchtea.sensors.io import write_columns
+
+    y = _settling()
+    res = check(y, H).auto()
+    assert not any(c.name in ("spikes", "step") for _, c in res.model.components), res.model.spec
+    st = res.stretch
+    assert st is not None and st["from_s"] == 0.0 and st["to_s"] == pytest.approx(10.0) and st["spikes"] >= 3
+    assert not res.adequate and "a stretch that differs" in res.loop_end and "--exclude 0:10" in res.loop_end
+    r = channels_mod.check_channel(y, H, "fractional+white", auto=True, exclude_start=True)
+    assert r.adequate and r.model.spec == "white+random-walk" and r.stretch["left_out"]
+    assert np.isnan(r.y[:1000]).all() and not np.isnan(r.y[1001:]).any()
+    csv = write_columns(tmp_path / "settling.csv", {"t": np.arange(len(y)) * H, "gz": y})
+    out = tmp_path / "out"
+    assert main(["check", str(csv), "--units", "rad/s", "--auto", "--exclude-start", "--no-plots",
+                 "--out", str(out)]) == 0
+    doc = json.loads((out / "check.json").read_text())
+    doc = doc["axes"]["gz"] if "axes" in doc else doc
+    assert doc["adequate"] and doc["stretch"]["left_out"] and "left out (--exclude-start)" in doc["loop_end"]

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 from typing import Callable, Iterable
 
+import numpy as np
+
 from ..core.threads import engine_threads
 from ..noise.model import PAPER_MODEL
 from .check import CheckResult, change_words, check
@@ -15,34 +17,61 @@ __all__ = ["check_measurements", "check_channel", "summary_lines"]
 def check_channel(values, h: float, model, *, inputs: dict | None = None, add: Iterable[str] = (), auto: bool = False,
                   max_steps: int = 6, strong: float | None = None, intervals: bool = True, levels: dict | None = None,
                   progress: Callable | None = None, threads: int | None = None, effects: tuple = (),
-                  simplify: bool = True, fits: str = "auto") -> CheckResult:
+                  simplify: bool = True, fits: str = "auto", exclude_start: bool = False) -> CheckResult:
     """One channel's workflow: :func:`check` of ``model``, the ``add`` effects in order, then (``auto``) the loop
     (:meth:`CheckResult.auto`, taking away and swapping unless ``simplify`` is False). ``progress(line)``: each stage as it starts. ``threads``: numba's threads
     (:func:`~torchtea.core.threads.engine_threads`; torch runs on one). ``effects``: users' modules of effects to
     import first (:func:`torchtea.effects.import_effects`: a Dask worker has not imported them). ``fits``: how the loop
-    fits (:func:`check`'s)."""
+    fits (:func:`check`'s). ``exclude_start``: where the loop ends naming a stretch that differs at the record's start
+    (:attr:`~.results.CheckRecord.stretch`: a sensor settling), that stretch is left out — its samples missing, as
+    ``--exclude`` leaves one out — and the workflow runs again; the result's ``stretch`` says so (``left_out``)."""
     from ..effects import import_effects
 
     for name in effects:
         import_effects(name)
-    with engine_threads(threads):
-        r = check(values, h, model=model, inputs=inputs, intervals=intervals, progress=progress, fits=fits,
+
+    def workflow(y):
+        r = check(y, h, model=model, inputs=inputs, intervals=intervals, progress=progress, fits=fits,
                   **(levels or {}))
         for effect in add:
             r = r.add(effect, intervals=intervals, progress=progress)
         if auto:
             r = r.auto(max_steps=max_steps, strong=strong, intervals=intervals, progress=progress, simplify=simplify)
+        return r
+
+    with engine_threads(threads):
+        r = workflow(values)
+        st = r.stretch
+        if exclude_start and auto and st is not None and st["from_s"] <= START_SLACK * len(values) * h:
+            y = np.array(values, dtype=np.float64, copy=True)
+            y[:int(np.ceil(st["to_s"] / h)) + 1] = np.nan
+            if progress is not None:
+                progress(f"leaving out the start-up stretch 0–{st['to_s']:.4g} s and checking again")
+            first = r
+            r = workflow(y)
+            left = {**st, "from_s": 0.0, "left_out": True,
+                    "words": (f"the start-up stretch 0–{st['to_s']:.4g} s was left out (--exclude-start): the check "
+                              f"of the whole record ended {first.model.spec} with {st['spikes']} of its outliers "
+                              "there, a stretch that differs; its samples are missing here")}
+            r.notes.append(left["words"])
+            r.stretch = left if r.stretch is None else r.stretch
+            r.loop_end = f"{r.loop_end}; {left['words']}"
     return r
+
+
+#: ``exclude_start`` leaves a stretch out only where it starts within this share of the record from its first sample.
+START_SLACK = 0.02
 
 
 def check_measurements(m, model=None, *, inputs: dict | None = None, add: Iterable[str] = (), auto: bool = False,
                        max_steps: int = 6, strong: float | None = None, intervals: bool = True, simplify: bool = True,
                        levels: dict | None = None, progress: Callable | None = None,
                        log: Callable | None = None, client=None, threads: int | None = None,
-                       effects: tuple = (), stages: Callable | None = None, fits: str = "auto") -> dict:
+                       effects: tuple = (), stages: Callable | None = None, fits: str = "auto",
+                       exclude_start: bool = False) -> dict:
     """Check each channel of ``m`` (:class:`~torchtea.sensors.measurements.Measurements`) with ``model`` (default
     :data:`PAPER_MODEL`): :func:`check_channel` with ``add``, ``auto``, ``max_steps``, ``strong``, ``simplify``; ``levels``: check's
-    ``level``/``screen_level`` where given. ``progress(done, total)`` after each channel; ``log(line)`` before each
+    ``level``/``screen_level`` where given; ``exclude_start``: :func:`check_channel`'s. ``progress(done, total)`` after each channel; ``log(line)`` before each
     channel; ``stages(line)`` at each stage within one (in this process).
 
     ``client``: a ``distributed.Client``: each channel is one task on its workers (``threads`` numba threads each,
@@ -51,7 +80,7 @@ def check_measurements(m, model=None, *, inputs: dict | None = None, add: Iterab
     way). ``effects``: users' modules of effects each task imports first. Returns label → result."""
     model = model or PAPER_MODEL
     kw = dict(inputs=inputs, add=tuple(add), auto=auto, max_steps=max_steps, strong=strong, intervals=intervals,
-              simplify=simplify, levels=levels, effects=tuple(effects), fits=fits)
+              simplify=simplify, levels=levels, effects=tuple(effects), fits=fits, exclude_start=exclude_start)
     if client is not None:
         return _on_cluster(m, model, kw, client, 1 if threads is None else threads, progress, log)
     results = {}
@@ -97,8 +126,9 @@ def _channel_lines(a: str, title: str, r: CheckResult) -> list[str]:
         for k, st in enumerate(r.step_rows()):
             what = ("start" if k == 0 else
                     f"{change_words(st)} (gain {st['gain']:.1f}, repaired {', '.join(st['repaired']) or '—'})")
-            out.append(f"  step {k}: {what}: nll/sample {st['nll_per_sample']:.5f}, psd misfit {st['psd_misfit']:.4f}, "
-                       f"adev misfit {st['adev_misfit']:.4f}, failed {', '.join(st['failed']) or 'none'}")
+            out.append(f"  step {k}: {what}: nll/sample {st['nll_per_sample']:.5f}, psd misfit "
+                       f"{_number(st['psd_misfit'])}, adev misfit {_number(st['adev_misfit'])}, failed "
+                       f"{', '.join(st['failed']) or 'none'}")
         if r.loop_end:
             out.append(f"  loop end: {r.loop_end}")
         for t in r.ties:
@@ -131,3 +161,8 @@ def _channel_lines(a: str, title: str, r: CheckResult) -> list[str]:
             more.append(f"a disturbance of the recording there? leave it out with {' '.join(u['exclude'][:3])}")
         out.append(f"  unexplained {u['diagnostic']}: {u['would_fit']}" + (f" ({'; '.join(more)})" if more else ""))
     return out
+
+
+def _number(x, f: str = ".4f") -> str:
+    """A misfit for the summary: "—" where there is none (a record with missing samples has no PSD or Allan misfit)."""
+    return "—" if x is None or not np.isfinite(x) else format(x, f)

@@ -60,6 +60,7 @@ from .ranking import CLOSE_BIC, EXPLAIN_WINDOW, STRONG_BIC, rank
 from .refits import (BASE_RESTARTS, BASE_SLACK, LONG_RECORD, NULL_EFFECT, CheckRun, add_note,
                      better_model_fit, degenerate, held_fixed, judge_no_gain, loglik_at, refined_model, refit,
                      refit_degenerate, refit_from)
+from .refits import near as near_candidate
 from .results import CheckRecord, Suggestion, change_words, effect_parameters, read_check
 from .screening import ScreenContext, new_label, screen_all
 from .screens import NotScreened
@@ -265,7 +266,7 @@ def _check_once(run: CheckRun, model, fit: Fit, wf, screen_level, candidates, in
         repairs = sorted(failed_before & {d.name for d in d2 if d.passed})
         suggestions.append(Suggestion(row["effect"], float(gain), row["p_value"], row["test"], f2, d2, m2, repairs,
                                       label))
-    near = [dict(r) for r in screened if _near(r, model, fit.n)]
+    near = [dict(r) for r in screened if near_candidate(r, model, fit.n)]
     for row in rows:
         for k in ("start", "modes"):
             row.pop(k, None)
@@ -283,48 +284,3 @@ def _check_once(run: CheckRun, model, fit: Fit, wf, screen_level, candidates, in
     clock("intervals")
     return CheckResult(y, h, inputs, fit, inn, diags, mets, rows, suggestions, run.level, screen_level, 0.0, [],
                        refits=refitted, near_rows=near), None
-
-
-#: A candidate whose screen did not pass is refitted for the ties when its likelihood-ratio statistic puts the model
-#: with it within the tie margin (:data:`~.ranking.CLOSE_BIC`) plus this much of BIC (the screen's statistic is the
-#: Whittle likelihood's, or the exact one's at the model's noise values: the refit's can be a few units higher).
-NEAR_SLACK = 3.0
-
-
-def _near(row: dict, model, n: int) -> bool:
-    """Whether a screen that did not pass puts the model with its effect within the tie margin of BIC by its
-    likelihood-ratio statistic ``LR``: k·ln n − LR below :data:`~.ranking.CLOSE_BIC` + :data:`NEAR_SLACK`, k the
-    parameters the effect adds (its references not counted)."""
-    if row["passed"] or row.get("statistic") is None or "LR" not in row["test"] or not row.get("start"):
-        return False
-    alt = extend(model, row["token"])
-    k = len([n_ for n_ in alt.names if n_ not in model.names and n_ not in alt.references()])
-    return k * np.log(max(n, 2)) - float(row["statistic"]) < CLOSE_BIC + NEAR_SLACK
-
-
-def near_fits(res: CheckResult, progress=None) -> dict:
-    """The loop's last result's near candidates (:attr:`~.results.CheckRecord.near_rows`: screens that did not pass,
-    whose statistic says the model with the effect would be within the tie margin) refitted as a passing one is
-    (:func:`~.refits.refit`; evaluated at the best of its starts, not maximised, where the exact likelihood has no
-    gradient to score with or on the long-record path): effect → its fit, kept where its exact BIC is within
-    :data:`~.ranking.CLOSE_BIC` of the model's, either side. A weak effect the loop never fits still has its tie
-    named (:func:`~.simplify.ties`)."""
-    from ..fitting.exact import centred, gradient_supported
-
-    run = CheckRun(res.y, res.h, res.inputs, res.level, progress, res.fits)
-    run.carry = dict(res.refits)
-    model, fit, out = res.model, res.fit, {}
-    for row in res.near_rows:
-        alt = extend(model, row["token"])
-        label = new_label(model, alt)
-        estimates, fixed = held_fixed(alt, label)
-        cheap = run.exact(alt) and gradient_supported(alt, centred(alt, res.y)) is None
-        run.say(f"fitting {alt.spec} for the ties")
-        try:
-            f2 = refit(run, model, alt, label, fit, res.whittle, dict(row), fixed, refine=cheap)
-        except (ValueError, RuntimeError):
-            continue
-        f2.count(estimates)
-        if abs(f2.bic_exact - fit.bic_exact) < CLOSE_BIC:
-            out[row["effect"]] = f2
-    return out

@@ -13,13 +13,16 @@ import torch
 
 from ..fitting.mle import Fit, centred, exact_loglik, whittle_fit
 from ..fitting.starts import starts_of
+from ..fitting.exact import gradient_supported
 from ..fitting.whittle_path import fits_exactly
 from . import models
 from .models import REFIT_TOLERANCE
+from .ranking import CLOSE_BIC
+from .screening import new_label
 
 __all__ = ["CheckRun", "Clock", "refit", "refit_from", "held_fixed", "loglik_at", "refined_model", "better_model_fit",
            "degenerate", "refit_degenerate", "add_note", "judge_no_gain", "BASE_RESTARTS", "BASE_SLACK", "NESTED_SLACK", "LONG_RECORD",
-           "NULL_EFFECT", "FIT_FAILED_SLACK"]
+           "NULL_EFFECT", "FIT_FAILED_SLACK", "near", "near_fits", "NEAR_SLACK"]
 
 
 #: How many times :func:`check` refines the model from a candidate's better point and starts again.
@@ -344,3 +347,46 @@ def judge_no_gain(run: CheckRun, row: dict, fit: Fit, alt, gain: float, lr: floa
     else:
         add_note(row, f"passed the screen but the exact refit does not lower BIC (gain {gain:.1f}): "
                        "not suggested")
+
+
+#: A candidate whose screen did not pass is refitted for the ties when its likelihood-ratio statistic puts the model
+#: with it within the tie margin (:data:`~.ranking.CLOSE_BIC`) plus this much of BIC (the screen's statistic is the
+#: Whittle likelihood's, or the exact one's at the model's noise values: the refit's can be a few units higher).
+NEAR_SLACK = 3.0
+
+
+def near(row: dict, model, n: int) -> bool:
+    """Whether a screen that did not pass puts the model with its effect within the tie margin of BIC by its
+    likelihood-ratio statistic ``LR``: k·ln n − LR below :data:`~.ranking.CLOSE_BIC` + :data:`NEAR_SLACK`, k the
+    parameters the effect adds (its references not counted)."""
+    if row["passed"] or row.get("statistic") is None or "LR" not in row["test"] or not row.get("start"):
+        return False
+    alt = models.extend(model, row["token"])
+    k = len([n_ for n_ in alt.names if n_ not in model.names and n_ not in alt.references()])
+    return k * np.log(max(n, 2)) - float(row["statistic"]) < CLOSE_BIC + NEAR_SLACK
+
+
+def near_fits(res, progress=None) -> dict:
+    """The loop's last result's near candidates (:attr:`~.results.CheckRecord.near_rows`: screens that did not pass,
+    whose statistic says the model with the effect would be within the tie margin) refitted as a passing one is
+    (:func:`~.refits.refit`; evaluated at the best of its starts, not maximised, where the exact likelihood has no
+    gradient to score with or on the long-record path): effect → its fit, kept where its exact BIC is within
+    :data:`~.ranking.CLOSE_BIC` of the model's, either side. A weak effect the loop never fits still has its tie
+    named (:func:`~.simplify.ties`)."""
+    run = CheckRun(res.y, res.h, res.inputs, res.level, progress, res.fits)
+    run.carry = dict(res.refits)
+    model, fit, out = res.model, res.fit, {}
+    for row in res.near_rows:
+        alt = models.extend(model, row["token"])
+        label = new_label(model, alt)
+        estimates, fixed = held_fixed(alt, label)
+        cheap = run.exact(alt) and gradient_supported(alt, centred(alt, res.y)) is None
+        run.say(f"fitting {alt.spec} for the ties")
+        try:
+            f2 = refit(run, model, alt, label, fit, res.whittle, dict(row), fixed, refine=cheap)
+        except (ValueError, RuntimeError):
+            continue
+        f2.count(estimates)
+        if abs(f2.bic_exact - fit.bic_exact) < CLOSE_BIC:
+            out[row["effect"]] = f2
+    return out

@@ -88,6 +88,10 @@ MEANING = {
             "this one; resolve_samples, "
             "resolve_seconds: the record length at which their BIC difference is expected to reach 12 (for add and "
             "drop: if the extra effect is there)",
+    "stretch": "(the end of a loop) a stretch that differs which the loop did not fill with spikes or steps: "
+               "from_s, to_s (s from the first sample; a range whose windowed NIS fails), spikes of the of outliers "
+               "the spikes screen found lie there, exclude the flag that leaves it out; left_out and words where "
+               "--exclude-start left it out and checked again; null when there is none",
     "alternatives": "the models the loop's simplification tried from this one (each component dropped, replaced by "
                     "its special cases, each added effect swapped): bic = exact-likelihood BIC (null: not refitted, its "
                     "Whittle BIC more than 20 above the model's), rejected = why one with a lower BIC was not kept",

@@ -96,6 +96,9 @@ class CheckRecord:
     #: :func:`~.simplify.ties`).
     near_rows: list = field(default_factory=list)
     near: dict = field(default_factory=dict)
+    #: (the end of a loop) the stretch that differs which the loop did not fill with spikes
+    #: (:func:`~.loop.stretch_of`), or None.
+    stretch: dict | None = None
 
     @property
     def model(self) -> NoiseModel:
@@ -198,7 +201,7 @@ class CheckRecord:
                 "level": self.level, "screen_level": self.screen_level,
                 "seconds": sum(r.seconds for r in self.steps), "seconds_this_step": self.seconds,
                 "notes": self.notes, "steps": self.step_rows(), "loop_end": self.loop_end,
-                "unexplained": self.unexplained, "ties": self.ties,
+                "unexplained": self.unexplained, "ties": self.ties, "stretch": self.stretch,
                 "alternatives": [a.as_dict() for a in self.alternatives]}
 
 

@@ -263,6 +263,24 @@ def evaluate(res, progress=None) -> list[Alternative]:
     return sorted(alts, key=lambda a: a.bic)
 
 
+def located_times(fit: Fit, labels) -> list:
+    """The times (s from the first sample) at which the components ``labels`` of ``fit``'s model are located (a
+    spike's, a step's)."""
+    m = fit.model
+    return [v for n, v in fit.values.items()
+            if n.split(".", 1)[0] in labels and "from the first sample" in m.param_spec(n).unit]
+
+
+def patches(stretch: dict | None, model: NoiseModel, fit: Fit) -> bool:
+    """Whether ``fit`` (of a model grown from ``model``) only papers over the ``stretch`` that differs (the loop's,
+    :func:`~.loop.stretch_of`): every time its new components are located at lies in the stretch."""
+    if stretch is None:
+        return False
+    new = {label for label, _ in fit.model.components} - {label for label, _ in model.components}
+    times = located_times(fit, new)
+    return bool(times) and all(stretch["from_s"] <= t <= stretch["to_s"] for t in times)
+
+
 def simplify(res, **kw):
     """One change from the loop's result ``res`` (:class:`~.check.CheckResult`): the alternative with the lowest BIC
     below the model's that stays adequate (or, for a model that was not, fails nothing more), checked
@@ -282,6 +300,9 @@ def simplify(res, **kw):
     for a in alts:
         if not a.bic < current:
             break
+        if patches(res.stretch, res.model, a.fit):
+            a.rejected = "only papers over the stretch that differs (everything it adds is located there)"
+            continue
         if progress is not None:
             progress(f"checking {a.model.spec} ({a.words}: BIC {current - a.bic:.1f} lower)")
         fit = with_intervals(a.fit, res.y, res.h, res.inputs, res.fits) if kw.get("intervals", True) else a.fit

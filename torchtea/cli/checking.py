@@ -89,6 +89,10 @@ def _add_check(sub) -> None:
     ck.add_argument("--no-simplify", action="store_true",
                     help="--auto only adds: no component taken away, replaced by its special case (the fractional "
                          "part by a random walk) or swapped for another that passed its screen, and no ties named")
+    ck.add_argument("--exclude-start", action="store_true",
+                    help="--auto: where the loop ends naming a stretch that differs at the record's start (a sensor "
+                         "settling: its innovations larger than the model allows over the whole stretch), leave that "
+                         "stretch out and check the channel again, saying so")
     ck.add_argument("--strong", type=float, default=None, metavar="BIC",
                     help="--auto goes on past an adequate model while the best suggestion gains at least this much "
                          "BIC (default 10, checking.check.STRONG_BIC: very strong evidence; inf stops at adequacy)")

@@ -427,6 +427,7 @@ def _check_channels(args, m, inputs, *, auto: bool, intervals: bool) -> dict:
         results = check_measurements(m, args.model, inputs=inputs, add=getattr(args, "add", []), auto=auto,
                                      max_steps=getattr(args, "max_steps", 6), strong=getattr(args, "strong", None),
                                      simplify=not getattr(args, "no_simplify", False),
+                                     exclude_start=getattr(args, "exclude_start", False),
                                      intervals=intervals, levels=levels, progress=step, log=_note, stages=_note,
                                      client=client, fits=getattr(args, "fits", "auto"),
                                      threads=args.threads_per_worker, effects=tuple(args.effects))

@@ -30,6 +30,7 @@ def _add_export(sub) -> None:
     ex.add_argument("--strong", type=float, default=None, metavar="BIC", help="as check --strong")
     ex.add_argument("--max-steps", type=_steps, default=6, help="as check --max-steps")
     ex.add_argument("--no-simplify", action="store_true", help="as check --no-simplify")
+    ex.add_argument("--exclude-start", action="store_true", help="as check --exclude-start")
     ex.add_argument("--fits", choices=("auto", "exact", "whittle"), default="auto", help="as check --fits")
     ex.add_argument("--out", help="output directory (default export-<recording name>)")
     ex.add_argument("--no-plots", action="store_true")

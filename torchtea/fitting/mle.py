@@ -32,6 +32,7 @@ from torch import Tensor
 
 from ..core.search import refine_frequency, remove_regressors
 from .exact import FIT_MEMORY, ExactPass, centred, exact_loglik, exact_pass, gradient_supported, unknown_level
+from .multistart import exact_multistart
 from .innovations import located_intervals
 from ..likelihood.settings import current as likelihood_settings
 from ..likelihood.whittle import RESOLUTION, WhittleData, periodogram, whittle_data
@@ -318,67 +319,6 @@ def _distinct(U: Tensor, loss: Tensor, converged, owner: Tensor, free: Tensor, s
 # --------------------------------------------------------------------------- exact
 
 
-#: The exact fit's multi-start refines every Whittle mode whose exact ℓ at the Whittle optimum is within this many
-#: nats of the best one's (at most :data:`MAX_MODES`), and keeps the highest exact maximum.
-EXACT_MODE_MARGIN = 10.0
-
-
-#: A maximum reached from the grid replaces the best reached from the Whittle modes only where it is higher by more
-#: than this (nats): the same maximum reached twice differs by the convergence tolerance.
-GRID_GAIN = 0.01
-
-
-def _exact_multistart(model, y, h, modes: list, free: Tensor, inputs, memory, hessian: bool, grid: Tensor | None = None):
-    """:func:`~.scoring.exact_refine` from the Whittle ``modes`` (``(u, ℓ_W, H_W)`` each) whose exact ℓ is within
-    :data:`EXACT_MODE_MARGIN` of the best; the best exact maximum, with its Hessian when ``hessian``. ``grid``
-    ``(k, P)``: the Whittle fit's grid of starts, raced beside the modes (one batch of scoring iterations) where the
-    model's fractional order is free and the exact gradient applies — on a short record the exact likelihood's
-    order–pole ridge can hold a higher maximum than any the Whittle sum leads to. Returns ``(u, ℓ, H or None,
-    converged, notes)``."""
-    notes = []
-    if len(modes) > 1:
-        U = torch.stack([m[0] for m in modes])
-        ll0 = exact_loglik(model, model.from_unconstrained(U, h), y, h, inputs=inputs, memory=memory)
-        ll0 = np.where(np.isfinite(ll0), ll0, -np.inf)
-        order = [int(i) for i in np.argsort(-ll0) if ll0[i] >= ll0.max() - EXACT_MODE_MARGIN]
-        modes = [modes[i] for i in order]
-    batched = gradient_supported(model, y) is None
-    name = model.order_name
-    if grid is not None and (not batched or name is None or not bool(free[model.names.index(name)])):
-        grid = None
-    if grid is None and (len(modes) == 1 or not batched):
-        runs = [scoring.exact_refine(model, y, h, m[0].clone(), free, inputs, memory, m[2], hessian=False) for m in modes]
-    else:  # every mode's (and the grid's) scoring iterations as one batch
-        U0 = torch.stack([m[0] for m in modes])
-        if grid is not None:
-            G = grid.clone().to(U0)
-            G[:, ~free] = U0[0, ~free]  # (the held coordinates are the modes')
-            U0 = torch.cat([U0, G])
-        X, f, ok, its = scoring.score_batch(model, y, h, U0, free, inputs, memory)
-        runs = []
-        for k in range(len(U0)):
-            u = U0[k].clone()
-            u[free] = torch.as_tensor(X[k])
-            runs.append((u, -float(f[k]), None, bool(ok[k]), int(its[k])))
-    def top(rows):
-        return max(rows, key=lambda i: runs[i][1] if math.isfinite(runs[i][1]) else -math.inf)
-
-    best = top(range(len(modes)))
-    if len(runs) > len(modes):  # a grid start's maximum only where it is higher by more than rounding
-        other = top(range(len(modes), len(runs)))
-        best = other if runs[other][1] > runs[best][1] + GRID_GAIN else best
-    u, ll, _, ok, _ = runs[best]
-    if best >= len(modes):
-        a0 = float(model.from_unconstrained(U0[best][None], h)[name][0])
-        notes.append(f"the exact likelihood's best maximum (ℓ {ll:.2f}) came from the start at order {a0:.1f} of the "
-                     f"grid, not from the Whittle fit's modes (the best of those ℓ {max(r[1] for r in runs[:len(modes)]):.2f})")
-    elif best != 0:
-        notes.append(f"the exact likelihood's best maximum (ℓ {ll:.2f}) came from the Whittle fit's mode number "
-                     f"{best + 1} of {len(modes)}, not from its best one (exact ℓ there {runs[0][1]:.2f})")
-    H = scoring.exact_hessian(model, y, h, u, free, inputs, memory) if hessian else None
-    return u, ll, H, ok, notes
-
-
 # --------------------------------------------------------------------------- uncertainty
 
 
@@ -518,8 +458,8 @@ def fit_series(model, series: list, h: float, *, method: str = "exact", inputs: 
         else:
             free = torch.tensor([n not in fx for n in model.names])
             modes = wf.modes[s] if wf.modes else [(wf.u[s], float(wf.loglik[s]), wf.hessian[s])]
-            u, ll, H, ok, more = _exact_multistart(model, y_exact, h, modes, free, inp, memory, intervals,
-                                                   wf.starts[s] if wf.starts else None)
+            u, ll, H, ok, more = exact_multistart(model, y_exact, h, modes, free, inp, memory, intervals,
+                                                  wf.starts[s] if wf.starts else None)
             notes += more
             vals, se, ci, how = estimates_from_hessian(model, u, H, free, h)
             ll_exact = ll

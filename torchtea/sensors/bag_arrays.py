@@ -50,9 +50,7 @@ def temperature_arrays(reader, connections) -> tuple[np.ndarray, np.ndarray, np.
 
 
 def _arrays(reader, connections, layout):
-    from .bag_ros1 import Ros1Index
-
-    if connections and all(isinstance(c.owner, Ros1Index) for c in connections):
+    if connections and all(getattr(c.owner, "own_index", False) for c in connections):
         return _indexed(connections[0].owner, [c.id for c in connections], layout)
     raw = _gather(reader, connections)
     if raw is None:
@@ -179,9 +177,8 @@ def _ros1_records(buf: np.ndarray, rec: np.ndarray, ids) -> tuple[np.ndarray, np
 
 def _indexed(index, ids: list, layout):
     """:func:`_arrays` of a ROS 1 bag read by its own index (:class:`~.bag_ros1.Ros1Index`): each chunk decoded as
-    it is read (one chunk's bytes held at a time), then all in the generic reader's order (time, chunk, offset)."""
-    from .bag_ros1 import _Unreadable
-
+    it is read (one chunk's bytes held at a time), then all in the generic reader's order (time, chunk, offset); None
+    where the index does not add up (its ``ValueError``)."""
     parts = []
     try:
         for pos, buf, time, offset in index.chunks(ids):
@@ -190,7 +187,7 @@ def _indexed(index, ids: list, layout):
             if decoded is None:
                 return None
             parts.append((time, np.full(len(time), pos, dtype=np.int64), offset, *decoded))
-    except _Unreadable:
+    except ValueError:
         return None
     if not parts:
         return None

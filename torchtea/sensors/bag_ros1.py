@@ -13,7 +13,7 @@ is a header (its length, then ``name=value`` fields each with its length) and da
 :class:`Ros1Index` reads those records alone — a few per chunk — where ``rosbags`` builds an object for every
 message's index entry when it opens a bag, which costs more than decoding the messages themselves. Anything it does
 not know (another version, an unindexed bag, a compression other than none, bz2 or lz4, an index that does not add
-up) makes :func:`ros1_index` return None, and the bag is opened by ``rosbags``; the message-by-message reading (a
+up; a ``ValueError`` where found while the chunks are read) makes :func:`ros1_index` return None, and the bag is opened by ``rosbags``; the message-by-message reading (a
 topic the array path does not decode) always goes through ``rosbags``."""
 from __future__ import annotations
 
@@ -27,7 +27,7 @@ __all__ = ["Ros1Index", "ros1_index"]
 _MAGIC = b"#ROSBAG V2.0\n"
 
 
-class _Unreadable(Exception):
+class _Unreadable(ValueError):
     """The index is not one this reader knows: the bag is left to ``rosbags``."""
 
 
@@ -38,14 +38,14 @@ class _Connection:
         self.id, self.topic, self.msgtype, self.owner, self.msgcount = cid, topic, msgtype, owner, 0
 
 
-def ros1_index(path) -> Ros1Index | None:
+def ros1_index(path, opener) -> Ros1Index | None:
     """The index of the ROS 1 bag at ``path`` (:class:`Ros1Index`), or None where it is not a ``.bag`` file whose
-    index this module reads."""
+    index this module reads. ``opener(path)``: opens it with ``rosbags`` for what this module does not read."""
     path = Path(path)
     if path.suffix != ".bag" or not path.is_file():
         return None
     try:
-        return Ros1Index(path)
+        return Ros1Index(path, opener)
     except (_Unreadable, OSError, struct.error, ValueError, UnicodeDecodeError):
         return None
 
@@ -86,8 +86,11 @@ class Ros1Index:
     ``rosbags`` reader's. ``chunks(ids)`` yields, per chunk holding messages of the connections ``ids``, its
     uncompressed bytes and the receive times and record offsets of those messages."""
 
-    def __init__(self, path: Path):
-        self.path = path
+    #: (what :mod:`.bag_arrays` asks of a connection's owner: its messages' bytes come from :meth:`chunks`)
+    own_index = True
+
+    def __init__(self, path: Path, opener):
+        self.path, self._opener = path, opener
         self._f = open(path, "rb")
         self._fallback = None
         try:
@@ -185,9 +188,7 @@ class Ros1Index:
 
     def _rosbags(self):
         if self._fallback is None:
-            from .bags import _reader
-
-            self._fallback = _reader(self.path)
+            self._fallback = self._opener(self.path)
         return self._fallback
 
     def messages(self, connections):

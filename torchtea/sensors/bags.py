@@ -61,7 +61,7 @@ def _reader(path: Path):
 
 def _open(path: Path):
     """The bag opened: a ROS 1 bag by its own index where it can be (:mod:`.bag_ros1`), else by ``rosbags``."""
-    return ros1_index(path) or _reader(path)
+    return ros1_index(path, _reader) or _reader(path)
 
 
 def bag_topics(path) -> list[tuple[str, str, int]]:

@@ -656,20 +656,24 @@ def _settling(seed=0, n=7000, amp=4.0, tau=3.0):
     return y + 2e-3 * amp * np.exp(-t / tau) * (t < 10) * np.random.default_rng(seed + 100).standard_normal(n)
 
 
-def test_a_disturbed_start_up_stretch_is_found_as_a_stretch_not_as_a_run_of_spikes(tmp_path):
+def test_a_disturbed_start_up_stretch_is_found_as_a_stretch_not_as_a_run_of_spikes():
     """The settling record: the spikes screen finds 17 outliers, all in the first 10 s, where the windowed NIS fails
     as a whole. The loop adds neither those spikes nor steps at their edge (it did: spikes:17, or two steps at 0.01
-    and 0.14 s swapped in), names the stretch with the flag that leaves it out, and is not adequate. With
-    --exclude-start it leaves the stretch out and ends at the truth's model, adequate, saying so — in the CLI's
-    check.json too."""
-    from torchtea.sensors.io import write_columns
-
-    y = _settling()
-    res = check(y, H).auto()
+    and 0.14 s swapped in), names the stretch with the flag that leaves it out, and is not adequate."""
+    res = check(_settling(), H).auto()
     assert not any(c.name in ("spikes", "step") for _, c in res.model.components), res.model.spec
     st = res.stretch
     assert st is not None and st["from_s"] == 0.0 and st["to_s"] == pytest.approx(10.0) and st["spikes"] >= 3
     assert not res.adequate and "a stretch that differs" in res.loop_end and "--exclude 0:10" in res.loop_end
+
+
+@pytest.mark.slow
+def test_exclude_start_leaves_a_disturbed_start_up_stretch_out_and_says_so(tmp_path):
+    """The settling record with --exclude-start: the stretch left out, the loop ends at the truth's model, adequate,
+    saying so — through the API and in the CLI's check.json."""
+    from torchtea.sensors.io import write_columns
+
+    y = _settling()
     r = channels_mod.check_channel(y, H, "fractional+white", auto=True, exclude_start=True)
     assert r.adequate and r.model.spec == "white+random-walk" and r.stretch["left_out"]
     assert np.isnan(r.y[:1000]).all() and not np.isnan(r.y[1001:]).any()

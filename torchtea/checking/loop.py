@@ -18,7 +18,8 @@ def run_loop(start, max_steps: int = 6, strong: float | None = None, simplify: b
     strong = STRONG_BIC if strong is None else float(strong)
     # (a loop that adds and changes nothing still ends in a result of its own: this one, when it is not a step of
     # the loop's path, gets back what the search wrote on it)
-    saved = (start.seconds, dict(start.timings), list(start.alternatives), start.loop_end, list(start.ties))
+    saved = (start.seconds, dict(start.timings), list(start.alternatives), start.loop_end, list(start.ties),
+             start.stretch)
     res = start
     added = changes = 0
     stretch = None
@@ -39,7 +40,7 @@ def run_loop(start, max_steps: int = 6, strong: float | None = None, simplify: b
     if res is start:
         res = copy.copy(start)
         res.timings, res.alternatives = dict(start.timings), list(start.alternatives)
-        start.seconds, start.timings, start.alternatives, start.loop_end, start.ties = saved
+        start.seconds, start.timings, start.alternatives, start.loop_end, start.ties, start.stretch = saved
     if simplify:  # (the near candidates' refits counted in this step's seconds, as the simplification's are)
         t0 = time.perf_counter()
         res.near = near_fits(res, kw.get("progress"))

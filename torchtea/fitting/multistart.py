@@ -28,9 +28,10 @@ GRID_GAIN = 0.01
 def exact_multistart(model, y, h, modes: list, free: Tensor, inputs, memory, hessian: bool, grid: Tensor | None = None):
     """:func:`~.scoring.exact_refine` from the Whittle ``modes`` (``(u, ℓ_W, H_W)`` each) whose exact ℓ is within
     :data:`EXACT_MODE_MARGIN` of the best; the best exact maximum, with its Hessian when ``hessian``. ``grid``
-    ``(k, P)``: the Whittle fit's grid of starts, raced beside the modes (one batch of scoring iterations) where the
+    ``(k, P)``: the Whittle fit's grid of starts, also refined where the
     model's fractional order is free and the exact gradient applies — on a short record the exact likelihood's
-    order–pole ridge can hold a higher maximum than any the Whittle sum leads to. Returns ``(u, ℓ, H or None,
+    order–pole ridge can hold a higher maximum than any the Whittle sum leads to —, as a batch of their own (the modes
+    run as without them), their best kept where higher than the modes' by :data:`GRID_GAIN`. Returns ``(u, ℓ, H or None,
     converged, notes)``."""
     notes = []
     if len(modes) > 1:
@@ -43,20 +44,17 @@ def exact_multistart(model, y, h, modes: list, free: Tensor, inputs, memory, hes
     name = model.order_name
     if grid is not None and (not batched or name is None or not bool(free[model.names.index(name)])):
         grid = None
-    if grid is None and (len(modes) == 1 or not batched):
+    if len(modes) == 1 or not batched:
         runs = [scoring.exact_refine(model, y, h, m[0].clone(), free, inputs, memory, m[2], hessian=False) for m in modes]
-    else:  # every mode's (and the grid's) scoring iterations as one batch
-        U0 = torch.stack([m[0] for m in modes])
-        if grid is not None:
-            G = grid.clone().to(U0)
-            G[:, ~free] = U0[0, ~free]  # (the held coordinates are the modes')
-            U0 = torch.cat([U0, G])
-        X, f, ok, its = scoring.score_batch(model, y, h, U0, free, inputs, memory)
-        runs = []
-        for k in range(len(U0)):
-            u = U0[k].clone()
-            u[free] = torch.as_tensor(X[k])
-            runs.append((u, -float(f[k]), None, bool(ok[k]), int(its[k])))
+    else:  # every mode's scoring iterations as one batch
+        runs = _batch(model, y, h, torch.stack([m[0] for m in modes]), free, inputs, memory)
+    U0 = torch.stack([r[0] for r in runs])
+    if grid is not None:  # the grid's starts as a batch of their own (racing the modes would cut a mode short)
+        G = grid.clone().to(U0)
+        G[:, ~free] = U0[0, ~free]  # (the held coordinates are the modes')
+        runs += _batch(model, y, h, G, free, inputs, memory)
+        U0 = torch.cat([U0, G])
+
     def top(rows):
         return max(rows, key=lambda i: runs[i][1] if math.isfinite(runs[i][1]) else -math.inf)
 
@@ -74,3 +72,15 @@ def exact_multistart(model, y, h, modes: list, free: Tensor, inputs, memory, hes
                      f"{best + 1} of {len(modes)}, not from its best one (exact ℓ there {runs[0][1]:.2f})")
     H = scoring.exact_hessian(model, y, h, u, free, inputs, memory) if hessian else None
     return u, ll, H, ok, notes
+
+
+def _batch(model, y, h, U0: Tensor, free: Tensor, inputs, memory) -> list:
+    """The starts ``U0`` scored as one batch (:func:`~.scoring.score_batch`): per start ``(u, ℓ, None, converged,
+    iterations)``."""
+    X, f, ok, its = scoring.score_batch(model, y, h, U0, free, inputs, memory)
+    runs = []
+    for k in range(len(U0)):
+        u = U0[k].clone()
+        u[free] = torch.as_tensor(X[k])
+        runs.append((u, -float(f[k]), None, bool(ok[k]), int(its[k])))
+    return runs

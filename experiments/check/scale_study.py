@@ -9,7 +9,7 @@ sensible pair of them and clean records, on local processes or a Dask cluster, r
 Each case — a set and a seed — is one task: the loop (``random_study.run_case``: ``check`` from ``fractional+white``
 with the temperature, the loop to its end) and then the oracle (``oracle_study.run_oracle``: the true model and the
 model without each hidden effect fitted by exact likelihood, each rival in its place). Each result is written as soon
-as it is done (``<dir>/<set>_<n>_<h>_<seed>.json``, ``<dir>/oracle/…``, the formats of those two scripts), so a
+as it is done (a case that raises, its traceback in ``<dir>/errors/``, the others going on) (``<dir>/<set>_<n>_<h>_<seed>.json``, ``<dir>/oracle/…``, the formats of those two scripts), so a
 stopped run resumes where it stopped: a case whose files exist is not run again. Cases run seed by seed across the
 sets (seed 0 of every set first), so a run cut short covers every set evenly.
 
@@ -34,11 +34,14 @@ import numpy as np
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 
-#: Pairs left out, and why: the two are one physical effect seen twice, so a record cannot hold both as separate
-#: effects (each is the other's rival in the oracle's singles).
+#: Pairs left out, and why: one physical effect seen twice, so a record cannot hold both as separate effects (each is
+#: the other's rival in the oracle's singles), or a pair the library's models cannot hold.
 LEFT_OUT = {("digital-filter", "low-pass"): "the sensor's one output filter, as an analogue or a digital one",
             ("temperature-bias", "thermal-lag"): "a bias per °C, seen at once or through the housing's lag",
-            ("spikes", "spikes"): "(not a pair)"}
+            ("digital-filter", "temperature-order"): "the library's models do not put a time-varying order beside a "
+                                                     "sensor filter",
+            ("low-pass", "temperature-order"): "the library's models do not put a time-varying order beside a sensor "
+                                               "filter"}
 
 
 def all_sets() -> list[list[str]]:
@@ -57,15 +60,27 @@ def _name(effects: list) -> str:
 def run_one(effects: list, seed: int, n: int, h: float, max_steps: int, d: str) -> dict:
     """One case (the loop, then the oracle), each written as it is done; what was run and its seconds."""
     os.environ.setdefault("NUMBA_NUM_THREADS", "1")
+    d = Path(d)
+    stem = f"{_name(effects)}_{n}_{h:g}_{seed:03d}.json"
+    case_path, oracle_path = d / stem, d / "oracle" / stem
+    out = {"case": stem, "loop_s": None, "oracle_s": None}
+    try:
+        _run_one(effects, seed, n, h, max_steps, case_path, oracle_path, out)
+    except Exception as exc:  # (a case that fails is a finding: kept, and the others go on)
+        import traceback
+
+        (d / "errors").mkdir(exist_ok=True)
+        (d / "errors" / stem.replace(".json", ".txt")).write_text(traceback.format_exc())
+        out["error"] = f"{type(exc).__name__}: {exc}"
+    return out
+
+
+def _run_one(effects, seed, n, h, max_steps, case_path: Path, oracle_path: Path, out: dict) -> None:
     from oracle_study import run_oracle
     from random_study import run_case
 
     from torchtea.core.threads import engine_threads
 
-    d = Path(d)
-    stem = f"{_name(effects)}_{n}_{h:g}_{seed:03d}.json"
-    case_path, oracle_path = d / stem, d / "oracle" / stem
-    out = {"case": stem, "loop_s": None, "oracle_s": None}
     with engine_threads(1):
         if not case_path.exists():
             case = run_case(effects, seed, n, h, max_steps)
@@ -76,7 +91,6 @@ def run_one(effects: list, seed: int, n: int, h: float, max_steps: int, d: str) 
             orc = run_oracle(case)
             oracle_path.write_text(json.dumps(orc, default=float))
             out["oracle_s"] = orc["seconds"]
-    return out
 
 
 def _ci(k: int, n: int) -> str:
@@ -136,6 +150,9 @@ def tables(d: Path, wall: float | None = None) -> str:
         base = {"fractional", "white"}
         out += ["", "Clean records that end with no effect added (the final model of fractional noise and white "
                     f"noise, or either): {_ci(sum(set(c['model'].split('+')) <= base for c, _, _ in clean), len(clean))}"]
+    errors = sorted(p.stem for p in (d / "errors").glob("*.txt")) if (d / "errors").exists() else []
+    if errors:
+        out += ["", f"Cases that failed ({len(errors)}; the tracebacks in errors/): " + ", ".join(errors)]
     cpu = sum(c["seconds"] for c, _, _ in rows) + sum(o["seconds"] for _, _, o in rows)
     out += ["", f"{len(rows)} cases, {cpu / 3600:.1f} CPU-hours in the loops and oracles"
             + (f", {wall / 3600:.1f} h of wall clock in this directory's runs" if wall else ""), "",
@@ -196,7 +213,8 @@ def _run(todo: list, args, d: Path) -> None:
     def report(r):
         nonlocal done
         done += 1
-        print(f"[{done}/{len(calls)}] {r['case']}: loop {r['loop_s'] or 0:.0f} s, oracle {r['oracle_s'] or 0:.0f} s",
+        print(f"[{done}/{len(calls)}] {r['case']}: " + (f"FAILED ({r['error']})" if r.get("error") else
+                                                          f"loop {r['loop_s'] or 0:.0f} s, oracle {r['oracle_s'] or 0:.0f} s"),
               flush=True)
 
     if args.scheduler:

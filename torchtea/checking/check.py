@@ -284,3 +284,21 @@ def _check_once(run: CheckRun, model, fit: Fit, wf, screen_level, candidates, in
     clock("intervals")
     return CheckResult(y, h, inputs, fit, inn, diags, mets, rows, suggestions, run.level, screen_level, 0.0, [],
                        refits=refitted, near_rows=near), None
+
+
+def _refit_best(run: CheckRun, fit: Fit, suggestions: list, rows: list, failed_before: set) -> list:
+    """On a long record (:data:`~.refits.LONG_RECORD`), the best suggestion — ranked by the exact likelihood at the
+    best of its starts — refitted from the start that ranked it, its gain, diagnostics and repairs anew, its screen's
+    row saying so; the suggestions ranked again."""
+    top = suggestions[0]
+    row = next(r for r in rows if r["effect"] == top.effect)
+    run.say(f"refitting {top.fit.model.spec}")
+    alt = top.fit.model
+    estimates, fixed = held_fixed(alt, top.label)
+    f2 = refit_from(run, alt, top.fit, fixed)
+    f2.count(estimates)
+    top.fit, top.gain = f2, float(fit.bic_exact - f2.bic_exact)
+    _, top.diagnostics, top.metrics = _assess(alt, f2.values, run.y, run.h, run.inputs, run.level)
+    top.repairs = sorted(failed_before & {d.name for d in top.diagnostics if d.passed})
+    row["note"] = row["note"].replace("; the best suggestion alone is refitted", "; refitted as the best suggestion")
+    return rank(suggestions, failed_before)

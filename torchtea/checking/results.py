@@ -91,7 +91,7 @@ class CheckRecord:
     #: How the loop fits (:data:`~torchtea.fitting.whittle_path.FITS`; :func:`~.check.check`'s ``fits``).
     fits: str = "auto"
     #: Candidates whose screen did not pass but whose likelihood-ratio statistic puts the model with them within the
-    #: tie margin of BIC: their screens' rows with their starts (:func:`~.check.near_fits` refits them at the loop's
+    #: tie margin of BIC: their screens' rows with their starts (:func:`~.refits.near_fits` refits them at the loop's
     #: end), and those refits that stayed within it (effect → :class:`~torchtea.fitting.mle.Fit`; the ties read them,
     #: :func:`~.simplify.ties`).
     near_rows: list = field(default_factory=list)

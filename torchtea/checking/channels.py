@@ -10,6 +10,7 @@ import numpy as np
 from ..core.threads import engine_threads
 from ..noise.model import PAPER_MODEL
 from .check import CheckResult, change_words, check
+from .report import _fmt
 
 __all__ = ["check_measurements", "check_channel", "summary_lines"]
 
@@ -127,7 +128,7 @@ def _channel_lines(a: str, title: str, r: CheckResult) -> list[str]:
             what = ("start" if k == 0 else
                     f"{change_words(st)} (gain {st['gain']:.1f}, repaired {', '.join(st['repaired']) or '—'})")
             out.append(f"  step {k}: {what}: nll/sample {st['nll_per_sample']:.5f}, psd misfit "
-                       f"{_number(st['psd_misfit'])}, adev misfit {_number(st['adev_misfit'])}, failed "
+                       f"{_fmt(st['psd_misfit'], '.4f')}, adev misfit {_fmt(st['adev_misfit'], '.4f')}, failed "
                        f"{', '.join(st['failed']) or 'none'}")
         if r.loop_end:
             out.append(f"  loop end: {r.loop_end}")
@@ -161,8 +162,3 @@ def _channel_lines(a: str, title: str, r: CheckResult) -> list[str]:
             more.append(f"a disturbance of the recording there? leave it out with {' '.join(u['exclude'][:3])}")
         out.append(f"  unexplained {u['diagnostic']}: {u['would_fit']}" + (f" ({'; '.join(more)})" if more else ""))
     return out
-
-
-def _number(x, f: str = ".4f") -> str:
-    """A misfit for the summary: "—" where there is none (a record with missing samples has no PSD or Allan misfit)."""
-    return "—" if x is None or not np.isfinite(x) else format(x, f)

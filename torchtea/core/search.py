@@ -87,6 +87,30 @@ def against_neighbours(u: np.ndarray, neighbours: int = 50, guard: int = 2):
     return idx, ratio, stats.f.logsf(ratio, 2, 2 * K)
 
 
+#: the fewest cycles per record at which :func:`slow_line` looks for a line: at one or two cycles a line cannot be
+#: told from a drift
+SLOW_CYCLES = 3
+
+
+def slow_line(z: np.ndarray, h: float, neighbours: int = 50, guard: int = 2) -> dict:
+    """The largest periodogram ordinate of the standardised innovations ``z`` below the range
+    :func:`against_neighbours` tests (from :data:`SLOW_CYCLES` up to ``guard + neighbours`` cycles per record), against
+    the model itself: each ordinate is Exp(1) under the model, so the largest of M has
+    P = 1 − (1 − e^{−u})^M. There a line has no neighbours on both sides to be weighed against; a drift the model
+    lacks raises these ordinates too, so this is a screen's statistic (the likelihood then decides), not a
+    diagnostic's. ``{"peak_hz", "cycles", "ordinate", "log_p"}``; ``log_p`` 0 when the record is too short."""
+    j, u = innovation_periodogram(z)
+    top = min(guard + neighbours, len(u))
+    band = np.arange(SLOW_CYCLES - 1, top)
+    if len(band) == 0:
+        return {"peak_hz": float("nan"), "cycles": 0, "ordinate": 0.0, "log_p": 0.0}
+    k = int(band[np.argmax(u[band])])
+    tail = -float(u[k])  # log P(Exp(1) > u)
+    log_p = math.log(len(band)) + tail if tail < -30 else math.log(max(-np.expm1(len(band) * np.log1p(-math.exp(tail))),
+                                                                       1e-300))
+    return {"peak_hz": float(j[k] / (len(z) * h)), "cycles": int(j[k]), "ordinate": float(u[k]), "log_p": log_p}
+
+
 #: :func:`chirp_search` remembers its last results by their input (the loop's fits of models with a drifting line
 #: search the same residual again)
 _CHIRP_MEMO: dict = {}

@@ -63,6 +63,7 @@ class GaussMarkov(Component):
     params = (ParamSpec("sigma", "positive", "σ (units), stationary standard deviation"),
               ParamSpec("tau_s", "positive", "τ (s), correlation time"))
     screen_order = 15
+    add_again = True  # a second one of another correlation time (a sensor's bias instability is often two)
 
     def coefficient(self, v, h):
         return torch.exp(-h / v["tau_s"])

@@ -123,6 +123,20 @@ def test_a_lower_bic_alternative_that_fails_a_diagnostic_is_named():
     assert doc["ties"][0]["fails"] == ["change"]
 
 
+def test_a_kept_effect_whose_drop_is_within_the_tie_margin_but_fails_a_diagnostic_is_named():
+    """White noise + a walk (K 2·10⁻⁵, seed 1009): the loop ends `white+random-walk`; white alone is only 2.1 higher by
+    BIC (inside the tie margin) and fails the change test. The walk is kept, and the verdict says that by BIC the
+    record cannot tell, and which diagnostic points to the walk."""
+    from torchtea.checking.ranking import CLOSE_BIC
+
+    res = check(_white_and_walk(seed=1009), H).auto()
+    assert res.model.spec == "white+random-walk" and res.adequate
+    tie = next(t for t in res.ties if t["model"] == "white")
+    assert tie["kind"] == "drop" and tie["effects"] == ["random-walk"]
+    assert 0 < tie["bic_difference"] < CLOSE_BIC and tie["fails"] == ["change"]
+    assert "by BIC this record cannot tell" in tie["words"] and "fails change" in tie["words"]
+
+
 @pytest.mark.slow
 def test_a_temperature_effect_masked_by_a_random_walk_added_first_is_swapped_in():
     """A bias of 0.004 per °C over an 8 °C warm-up and white noise, no walk: with a random walk added first (as a

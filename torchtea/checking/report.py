@@ -83,8 +83,9 @@ MEANING = {
             "BIC is within 6 above its own and that are adequate where it is (kind swap: one component for another; "
             "add: one more; drop: one fewer; other), the last step's suggestions that gain less than 6 (kind add, "
             "bic_difference below 0), the model with an effect whose screen did not pass but whose refit is within 6 "
-            "either side (kind add), and the alternatives up to 6 lower by BIC that fail a diagnostic the model "
-            "passes (fails: those diagnostics; empty for the others); bic_difference: BIC of that model − BIC of "
+            "either side (kind add), the alternatives up to 6 lower by BIC that fail a diagnostic the model "
+            "passes, and the model without one of its effects up to 6 higher by BIC that fails a diagnostic (kind "
+            "drop) (fails: those diagnostics; empty for the others); bic_difference: BIC of that model − BIC of "
             "this one; resolve_samples, "
             "resolve_seconds: the record length at which their BIC difference is expected to reach 12 (for add and "
             "drop: if the extra effect is there)",

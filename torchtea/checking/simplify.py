@@ -326,7 +326,9 @@ def ties(res, close: float) -> list[dict]:
     whose screen did not pass but whose refit is within ``close`` either side (:attr:`~.check.CheckResult.near`: a
     weak effect the loop never fitted on its way); and the final model's alternatives whose BIC is up to ``close``
     *lower* but that fail a diagnostic the model passes (``fails``: the record cannot tell whether the part they lack
-    is there, or only what the diagnostic sees). Each: ``kind`` (swap: one component for another; add: one more; drop:
+    is there, or only what the diagnostic sees), and the final model without one of its effects up to ``close``
+    *higher* that fails a diagnostic (``fails``: by BIC the record cannot tell; the diagnostic points to the effect).
+    Each: ``kind`` (swap: one component for another; add: one more; drop:
     one fewer; other), ``effects``, ``model``, ``bic_difference`` (its BIC − the final model's; below 0 for a suggestion,
     a near effect or an alternative that fails a diagnostic), ``fails`` (those diagnostics, or none), the record length
     expected to tell them apart (``resolve_samples``, ``resolve_seconds``) and the sentence to show."""
@@ -354,13 +356,15 @@ def ties(res, close: float) -> list[dict]:
         if not (math.isfinite(d) and (0.0 <= d < close or fails
                                       or ((spec in suggested or spec in near) and -close < d < 0.0))):
             continue
-        if res.adequate and not fails:
-            _, diags, _ = assess(f.model, f.values, res.y, res.h, res.inputs, res.level)
-            if any(x.passed is False for x in diags):
-                continue
         other = [c.name for _, c in f.model.components]
         gone = [c for c in final if c not in other or final.count(c) > other.count(c)]
         new = [c for c in other if c not in final or other.count(c) > final.count(c)]
+        worse_fails = []  # (the final model without one effect, higher by BIC within close, failing a diagnostic)
+        if res.adequate and not fails:
+            _, diags, _ = assess(f.model, f.values, res.y, res.h, res.inputs, res.level)
+            worse_fails = [x.name for x in diags if x.passed is False]
+            if worse_fails and not (len(gone) == 1 and not new and d >= 0.0):
+                continue
         if len(gone) == 1 and len(new) == 1:
             kind, effects = "swap", [gone[0], new[0]]
             words = f"{gone[0]} or {new[0]}: this record cannot tell them apart (BIC within {abs(d):.1f})"
@@ -368,6 +372,10 @@ def ties(res, close: float) -> list[dict]:
             kind, effects = "add", new
             words = (f"with or without {new[0]}: this record cannot tell (BIC {abs(d):.1f} "
                      f"{'higher' if d >= 0 else 'lower'} with it)")
+        elif len(gone) == 1 and not new and worse_fails:
+            kind, effects = "drop", gone
+            words = (f"{gone[0]} or without it: by BIC this record cannot tell (BIC {d:.1f} higher without it); "
+                     f"without it the model fails {', '.join(worse_fails)}, which points to {gone[0]}")
         elif len(gone) == 1 and not new:
             kind, effects = "drop", gone
             words = (f"{gone[0]} or without it: this record cannot tell (BIC {abs(d):.1f} "
@@ -388,7 +396,7 @@ def ties(res, close: float) -> list[dict]:
                      f"that); by BIC this record cannot tell {whether}")
         tie = _with_length({"kind": kind, "effects": effects, "model": spec, "bic_difference": d, "words": words},
                            d, f.k - here.k, n0, res.h, close)
-        tie["fails"] = list(fails or [])
+        tie["fails"] = list(fails or worse_fails)
         out.append(tie)
     return out
 

@@ -57,7 +57,7 @@ def _name(effects: list) -> str:
     return "+".join(effects) or "none"
 
 
-def run_one(effects: list, seed: int, n: int, h: float, max_steps: int, d: str) -> dict:
+def run_one(effects: list, seed: int, n: int, h: float, max_steps: int, d: str, code: str = "") -> dict:
     """One case (the loop, then the oracle), each written as it is done; what was run and its seconds."""
     os.environ.setdefault("NUMBA_NUM_THREADS", "1")
     d = Path(d)
@@ -65,7 +65,7 @@ def run_one(effects: list, seed: int, n: int, h: float, max_steps: int, d: str) 
     case_path, oracle_path = d / stem, d / "oracle" / stem
     out = {"case": stem, "loop_s": None, "oracle_s": None}
     try:
-        _run_one(effects, seed, n, h, max_steps, case_path, oracle_path, out)
+        _run_one(effects, seed, n, h, max_steps, case_path, oracle_path, out, code)
     except Exception as exc:  # (a case that fails is a finding: kept, and the others go on)
         import traceback
 
@@ -75,7 +75,7 @@ def run_one(effects: list, seed: int, n: int, h: float, max_steps: int, d: str) 
     return out
 
 
-def _run_one(effects, seed, n, h, max_steps, case_path: Path, oracle_path: Path, out: dict) -> None:
+def _run_one(effects, seed, n, h, max_steps, case_path: Path, oracle_path: Path, out: dict, code: str) -> None:
     from oracle_study import run_oracle
     from random_study import run_case
 
@@ -84,13 +84,27 @@ def _run_one(effects, seed, n, h, max_steps, case_path: Path, oracle_path: Path,
     with engine_threads(1):
         if not case_path.exists():
             case = run_case(effects, seed, n, h, max_steps)
+            case["code"] = code
             case_path.write_text(json.dumps(case, default=float))
             out["loop_s"] = case["seconds"]
         case = json.loads(case_path.read_text())
         if not oracle_path.exists():
             orc = run_oracle(case)
+            orc["code"] = code
             oracle_path.write_text(json.dumps(orc, default=float))
             out["oracle_s"] = orc["seconds"]
+
+
+def code_version() -> str:
+    """The commit the cases are run with (``+changes`` where the package or the studies differ from it): each case
+    keeps it, so that a directory filled over several runs says which code made each of its rows."""
+    import subprocess
+
+    def git(*a):
+        return subprocess.run(["git", "-C", str(HERE), *a], capture_output=True, text=True).stdout.strip()
+
+    head = git("rev-parse", "--short", "HEAD") or "unknown"
+    return head + ("+changes" if git("status", "--porcelain", "--", "../../torchtea", ".") else "")
 
 
 def _ci(k: int, n: int) -> str:
@@ -153,6 +167,10 @@ def tables(d: Path, wall: float | None = None) -> str:
     errors = sorted(p.stem for p in (d / "errors").glob("*.txt")) if (d / "errors").exists() else []
     if errors:
         out += ["", f"Cases that failed ({len(errors)}; the tracebacks in errors/): " + ", ".join(errors)]
+    codes = {}
+    for c, _, _ in rows:
+        codes[c.get("code") or "not recorded"] = codes.get(c.get("code") or "not recorded", 0) + 1
+    out += ["", "Code the cases were run with: " + ", ".join(f"{k} ({v} cases)" for k, v in sorted(codes.items()))]
     cpu = sum(c["seconds"] for c, _, _ in rows) + sum(o["seconds"] for _, _, o in rows)
     out += ["", f"{len(rows)} cases, {cpu / 3600:.1f} CPU-hours in the loops and oracles"
             + (f", {wall / 3600:.1f} h of wall clock in this directory's runs" if wall else ""), "",
@@ -207,7 +225,9 @@ def main():
 
 
 def _run(todo: list, args, d: Path) -> None:
-    calls = [(effects, seed, args.n, args.h, args.max_steps, str(d)) for effects, seed in todo]
+    code = code_version()
+    print(f"code: {code}", flush=True)
+    calls = [(effects, seed, args.n, args.h, args.max_steps, str(d), code) for effects, seed in todo]
     done = 0
 
     def report(r):

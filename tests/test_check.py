@@ -667,6 +667,21 @@ def test_a_disturbed_start_up_stretch_is_found_as_a_stretch_not_as_a_run_of_spik
     assert not res.adequate and "a stretch that differs" in res.loop_end and "--exclude 0:10" in res.loop_end
 
 
+def test_spikes_close_together_are_spikes_not_a_stretch():
+    """The settling record's rival: the same white noise + walk, undisturbed, with five spikes of 8σ three of which lie
+    within 5 s (the windowed NIS fails there because of them). With the spikes in the model the window is back in
+    its band, so they are spikes: the loop adds all five and ends adequate, naming no stretch."""
+    y = _settling(amp=0.0)
+    times = (12.0, 14.0, 17.0, 41.0, 60.0)
+    for k, t in enumerate(times):
+        y[round(t / H)] += (-1) ** k * 8 * 2e-3
+    res = check(y, H).auto()
+    assert res.stretch is None and res.adequate, res.loop_end
+    assert "spikes:5" in res.model.spec.split("+"), res.model.spec
+    fitted = sorted(v for k, v in res.fit.values.items() if k.startswith("spikes.t"))
+    assert fitted == pytest.approx(times, abs=H / 2)
+
+
 @pytest.mark.slow
 def test_exclude_start_leaves_a_disturbed_start_up_stretch_out_and_says_so(tmp_path):
     """The settling record with --exclude-start: the stretch left out, the loop ends at the truth's model, adequate,

@@ -107,7 +107,8 @@ STRETCH_SHARE = 0.5
 def stretch_of(res, sug, known: dict | None = None) -> dict | None:
     """The stretch that differs that the suggestion ``sug`` of ``res`` would only paper over, or None: where it is
     spikes of which at least :data:`STRETCH_SPIKES` lie in one range where the windowed NIS fails
-    (``res.failing_ranges_s``) no longer than :data:`STRETCH_SHARE` of the record — ``{"from_s", "to_s", "spikes"
+    (``res.failing_ranges_s``) no longer than :data:`STRETCH_SHARE` of the record, and fails there still with the
+    spikes in the model (spikes that bring the window's NIS back into its band are spikes) — ``{"from_s", "to_s", "spikes"
     (inside), "of" (found), "exclude" (the flag that leaves it out)}` — or where a stretch is ``known`` and every time
     the suggestion's effect is located at (a spike's, a step's) lies in it (that stretch). The innovations there are
     larger than the model allows as a whole, not at a few samples: a disturbance of the recording (a sensor settling,
@@ -118,10 +119,12 @@ def stretch_of(res, sug, known: dict | None = None) -> dict | None:
     if sug.effect != "spikes":
         return None
     span = len(res.y) * res.h
+    after = [r for d in sug.diagnostics if d.name == "nis" for r in d.ranges]  # (with the spikes in the model)
     for a, b in res.failing_ranges_s:
         a, b = float(a), float(b)
         inside = [t for t in times if a <= t <= b]
-        if b - a <= STRETCH_SHARE * span and len(inside) >= STRETCH_SPIKES:
+        still = any(lo < b and hi > a for lo, hi in after)  # (spikes that explain the window are spikes)
+        if b - a <= STRETCH_SHARE * span and len(inside) >= STRETCH_SPIKES and still:
             return {"from_s": a, "to_s": b, "spikes": len(inside), "of": len(times),
                     "exclude": f"--exclude {a:.4g}:{b:.4g}"}
     return None

@@ -188,6 +188,15 @@ def refit(run: CheckRun, model, alt, label, fit: Fit, wf, row: dict, fixed: list
         cache[key] = models.refine(alt, y, h, starts, fits=run.fits, inputs=inputs, fixed=fixed, must=must,
                                    others=1, tolerance=REFIT_TOLERANCE, refine=refine)
     f2, tried = cache[key]
+    if refine and comp.kind not in ("mean", "modifier") and not fixed and _short_of_screen(f2, fit, row):
+        # what the screen saw not found from these starts (the Whittle likelihood's modes can lie where the exact
+        # one has none): the extended model's own fit, from its own Whittle grid and exact multi-start
+        own = ("own fit", alt.spec)
+        if own not in cache:
+            cache[own] = models.model_fit(alt, y, h, inputs=inputs, intervals=False, fits=run.fits)
+        if cache[own].loglik > f2.loglik:
+            f2 = cache[own]
+            tried = [*tried, ("the extended model's own fit", float("nan"), f2.loglik)]
     f2 = copy.deepcopy(f2)
     winner = max(tried, key=lambda t: t[2])
     if winner[0] != starts[0][0]:
@@ -200,6 +209,13 @@ def refit(run: CheckRun, model, alt, label, fit: Fit, wf, row: dict, fixed: list
         add_note(row, f"every refit ended below the model's ℓ {fit.loglik:.2f} (best {f2.loglik:.2f}): an optimiser "
                        "failure (the models are nested)")
     return f2
+
+
+def _short_of_screen(f2: Fit, fit: Fit, row: dict) -> bool:
+    """Whether the refit ``f2``'s likelihood-ratio over the model's ``fit`` falls :data:`FIT_FAILED_SLACK` short of half
+    its screen's statistic (a likelihood-ratio of a cheaper likelihood or with the model held)."""
+    stat = row.get("statistic")
+    return stat is not None and 2.0 * (f2.loglik - fit.loglik) < 0.5 * stat - FIT_FAILED_SLACK
 
 
 def _mean_starts(run: CheckRun, model, alt, wf, base: dict, start: dict, new: list) -> list:

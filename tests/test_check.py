@@ -5,6 +5,7 @@ from __future__ import annotations
 import importlib
 import json
 import math
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -311,6 +312,7 @@ def test_check_names_the_hidden_effect(effect, seed):
             assert abs(top.parameters[p] - true) < HIDDEN_TOLERANCE[p], (p, top.parameters[p], true)
 
 
+@pytest.mark.slow
 def test_a_refit_starts_from_several_places_and_keeps_the_best(monkeypatch):
     """The extended model contains the model, so its maximum ℓ is at least the model's (issue 30, item 5; issue 44,
     item 1). A refit is started from the screen's start, from the model's fit with the effect at the screen's estimate
@@ -513,6 +515,7 @@ def test_an_effect_that_explains_a_failed_diagnostic_comes_first_within_the_wind
     assert out[0].effect == "ramp" and out[0].close == ["random-walk"] and "random-walk (gain 95.0)" in out[0].note
 
 
+@pytest.mark.slow
 def test_a_degenerate_base_is_refitted_before_the_screens_and_the_band_is_suggested():
     """Issue 44, item 1: a band at 20 Hz beside fractional+white, and the model's exact fit handed to check at a
     degenerate point — the order at its bound (0.9999) and the white noise collapsed (10⁻⁶ of its value), the
@@ -613,7 +616,7 @@ def test_a_whittle_screen_the_exact_likelihood_does_not_confirm_is_said_so(monke
     """A Whittle screen that passes, whose point the exact likelihood puts below the model and whose refit gains
     nothing, is not an optimiser's failure: the two likelihoods disagree on the record (``not_confirmed``). Data
     with a random walk; the screen's own point is moved off (its walk 10³× stronger: far below the model in the
-    exact likelihood) and the refit kept from iterating, as on a record that is not stationary."""
+    exact likelihood) and the refit kept from iterating — its own fit too —, as on a record that is not stationary."""
     ck = importlib.import_module("torchtea.checking.check")  # the module (the package exports the function check)
     rf = importlib.import_module("torchtea.checking.models")  # (where check's refits run their optimiser)
     m = "fractional+white+random-walk"
@@ -634,9 +637,20 @@ def test_a_whittle_screen_the_exact_likelihood_does_not_confirm_is_said_so(monke
             kw = dict(kw, refine=False, must=["no walk"])
         return real_best(model, yy, h, starts, **kw)
 
+    asked = []
+
+    def no_better_own_fit(model, yy, h, **kw):  # (a refit far short of its screen is fitted on its own: no higher)
+        if model.spec.endswith("+random-walk"):
+            asked.append(model.spec)
+            return SimpleNamespace(loglik=-math.inf)
+        return real_fit(model, yy, h, **kw)
+
+    real_fit = rf.model_fit
     monkeypatch.setattr(ck, "refit", screen_point_off)
     monkeypatch.setattr(rf, "refine_best", no_optimiser)
+    monkeypatch.setattr(rf, "model_fit", no_better_own_fit)
     r = check(y, H, intervals=False, candidates=["random-walk"])
+    assert asked == ["fractional+white+random-walk"]
     row = next(s for s in r.screens if s["effect"] == "random-walk")
     assert row["passed"] and row["test"].startswith("Whittle"), row
     assert row.get("not_confirmed") and not row.get("refit_failed"), row
@@ -667,6 +681,7 @@ def test_a_disturbed_start_up_stretch_is_found_as_a_stretch_not_as_a_run_of_spik
     assert not res.adequate and "a stretch that differs" in res.loop_end and "--exclude 0:10" in res.loop_end
 
 
+@pytest.mark.slow
 def test_spikes_close_together_are_spikes_not_a_stretch():
     """The settling record's rival: the same white noise + walk, undisturbed, with five spikes of 8σ three of which lie
     within 5 s (the windowed NIS fails there because of them). With the spikes in the model the window is back in

@@ -397,6 +397,7 @@ def test_bundled_recordings_read_completely():
     assert len(lines) == 5 + 9986
 
 
+@pytest.mark.slow
 def test_identify_warns_about_long_recordings(tmp_path, capsys, monkeypatch):
     import torchtea.identification as identification
 

@@ -71,6 +71,7 @@ def test_a_user_effect_is_simulated_and_fitted_like_a_built_in_one(warm_up):
     assert f.ci95_method["warm-up.tau_s"] == "Wald on the log scale"  # its ParamSpec's transform
 
 
+@pytest.mark.slow
 def test_a_user_effect_goes_through_check_and_its_report(warm_up, tmp_path):
     m, v, y = _series(n=6000, seed=4)
     r = check(y, H, model=m, intervals=False)
@@ -175,6 +176,7 @@ def test_the_command_line_takes_a_users_effects_module(tmp_path, capsys):
     assert "broken.py" in err and "ModuleNotFoundError" in err
 
 
+@pytest.mark.slow
 def test_check_screens_and_suggests_a_users_effect(warm_up):
     """A registered mean effect is a candidate of check's screen (its default screen: the exact LR at its
     least-squares values, the model held), after the built-in ones; hidden in the data it is suggested first, with
@@ -315,6 +317,7 @@ def test_gauss_markov_is_the_dense_gaussian_and_its_fit_finds_sigma_and_tau():
         assert abs(f.values[name] - x) < 4 * f.se[name], (name, f.values[name], f.se[name])
 
 
+@pytest.mark.slow
 def test_thermal_lag_follows_the_lagged_temperature_and_its_fit_finds_the_lag():
     """thermal-lag: its mean is β (T^τ − T_ref) with T^τ the temperature through a first-order lag (held to a plain
     loop of the recursion); on 30 000 samples with a 140 s lag the exact fit finds β and τ within 4 standard
@@ -598,6 +601,7 @@ def test_check_finds_isolated_spikes_lists_their_times_and_ends_adequate():
     assert abs(last.fit.values["white.r"] - c.fit.values["white.r"]) < r.fit.values["white.r"] - c.fit.values["white.r"]
 
 
+@pytest.mark.slow
 def test_spikes_and_the_digital_filter_on_the_command_line(tmp_path, capsys):
     """``simulate --model fractional+white+spikes:3`` puts three spikes at their typical samples; ``check --add
     spikes`` finds them (the count from the data) and writes their times in check.json and report.md; ``fit --model

@@ -72,6 +72,7 @@ def study_blocks(study):
     return parse_model(tr.model).state_space(tr.values, tr.h, tr.n_steps, tr.memory).blocks
 
 
+@pytest.mark.slow
 def test_a_model_study_is_chunk_invariant_and_the_grown_estimator_is_consistent(tmp_path):
     """A chunk's realisations are those of the whole batch: the truths exactly, the TEA's estimates to rounding
     (the torch engine's batched reductions are not bitwise batch-invariant, and with the MEMS preset's Qᵒ = 0.1 KFo

@@ -61,6 +61,7 @@ def test_check_on_a_cluster_is_the_check_in_this_process(cluster, tmp_path):
     assert "random-walk" in models["gx"] and "sinusoid" in models["gy"], models
 
 
+@pytest.mark.slow
 def test_fit_on_local_workers_is_the_fit_in_this_process(tmp_path):
     """``fit --workers 2`` starts a local cluster, fits each channel there and writes the document of the run here."""
     path = _recording(tmp_path, n=2000)

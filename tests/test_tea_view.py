@@ -94,6 +94,7 @@ def test_means_leave_the_series_and_the_modifier_is_noted():
     assert v.structure.n_states == 1 and "KFo" in v.notes["temperature-order"]
 
 
+@pytest.mark.slow
 def test_the_grown_model_makes_kfx_consistent_where_the_plain_one_is_not():
     """Data with a random walk (σ 0.05 units/√s beside the fractional part): KFx with the order and pole held at the
     truth predicts its innovations (mean NIS near 1: 0.96 in a trial) with the grown model's view; the plain

@@ -158,6 +158,7 @@ def test_check_timing_regular_mismatched_and_bursty():
                                                                              rate_source="--rate").warnings)
 
 
+@pytest.mark.slow
 def test_time_column_is_read_and_checked_in_identify(tmp_path, capsys):
     stamps = np.arange(400) * 0.01 * 1.0068  # 400 samples whose stamps run 0.68 % long
     f = bundled_csv(tmp_path, 400, time=stamps)

@@ -69,6 +69,7 @@ def test_the_long_record_path_estimates_are_the_exact_path_s(spec, seed, values)
     assert auto.loglik_exact >= exact.loglik_exact - 0.02
 
 
+@pytest.mark.slow
 def test_the_loop_on_the_long_record_path_ends_where_the_exact_loop_does():
     """A random walk in white noise: the Whittle path's loop passes through a ramp (a walk's excursion looks like
     one to the Whittle sum of a model without a walk) and must take it away again — every alternative of a long

@@ -365,40 +365,48 @@ def ties(res, close: float) -> list[dict]:
             worse_fails = [x.name for x in diags if x.passed is False]
             if worse_fails and not (len(gone) == 1 and not new and d >= 0.0):
                 continue
-        if len(gone) == 1 and len(new) == 1:
-            kind, effects = "swap", [gone[0], new[0]]
-            words = f"{gone[0]} or {new[0]}: this record cannot tell them apart (BIC within {abs(d):.1f})"
-        elif not gone and len(new) == 1:
-            kind, effects = "add", new
-            words = (f"with or without {new[0]}: this record cannot tell (BIC {abs(d):.1f} "
-                     f"{'higher' if d >= 0 else 'lower'} with it)")
-        elif len(gone) == 1 and not new and worse_fails:
-            kind, effects = "drop", gone
-            words = (f"{gone[0]} or without it: by BIC this record cannot tell (BIC {d:.1f} higher without it); "
-                     f"without it the model fails {', '.join(worse_fails)}, which points to {gone[0]}")
-        elif len(gone) == 1 and not new:
-            kind, effects = "drop", gone
-            words = (f"{gone[0]} or without it: this record cannot tell (BIC {abs(d):.1f} "
-                     f"{'higher' if d >= 0 else 'lower'} without it)")
-        else:
-            kind, effects = "other", sorted(set(gone) | set(new))
-            words = f"{spec} fits about as well (BIC within {abs(d):.1f})"
-        if fails:  # (lower by BIC, not kept: it fails what the model passes)
-            if kind == "drop":
-                what, whether = f"without {effects[0]} ({spec})", f"whether {effects[0]} is there"
-            elif kind == "add":
-                what, whether = f"with {effects[0]} ({spec})", f"whether {effects[0]} is there"
-            elif kind == "swap":
-                what, whether = f"{effects[1]} in place of {effects[0]} ({spec})", "which of the two it holds"
-            else:
-                what, whether = spec, "which of the two models it holds"
-            words = (f"{what}: BIC {-d:.1f} lower, but it fails {', '.join(fails)}, which the model passes (kept for "
-                     f"that); by BIC this record cannot tell {whether}")
+        kind, effects, words = _tie_words(spec, gone, new, d, fails, worse_fails)
         tie = _with_length({"kind": kind, "effects": effects, "model": spec, "bic_difference": d, "words": words},
                            d, f.k - here.k, n0, res.h, close)
         tie["fails"] = list(fails or worse_fails)
         out.append(tie)
     return out
+
+
+def _tie_words(spec: str, gone: list, new: list, d: float, fails, worse_fails: list) -> tuple[str, list, str]:
+    """A tie's ``(kind, effects, words)`` from what the other model ``spec`` lacks (``gone``) and has more (``new``)
+    than the final one, its BIC difference ``d``, the diagnostics it fails where it is lower by BIC (``fails``) or,
+    the final model without one effect, higher (``worse_fails``)."""
+    if len(gone) == 1 and len(new) == 1:
+        kind, effects = "swap", [gone[0], new[0]]
+        words = f"{gone[0]} or {new[0]}: this record cannot tell them apart (BIC within {abs(d):.1f})"
+    elif not gone and len(new) == 1:
+        kind, effects = "add", new
+        words = (f"with or without {new[0]}: this record cannot tell (BIC {abs(d):.1f} "
+                 f"{'higher' if d >= 0 else 'lower'} with it)")
+    elif len(gone) == 1 and not new and worse_fails:
+        kind, effects = "drop", gone
+        words = (f"{gone[0]} or without it: by BIC this record cannot tell (BIC {d:.1f} higher without it); "
+                 f"without it the model fails {', '.join(worse_fails)}, which points to {gone[0]}")
+    elif len(gone) == 1 and not new:
+        kind, effects = "drop", gone
+        words = (f"{gone[0]} or without it: this record cannot tell (BIC {abs(d):.1f} "
+                 f"{'higher' if d >= 0 else 'lower'} without it)")
+    else:
+        kind, effects = "other", sorted(set(gone) | set(new))
+        words = f"{spec} fits about as well (BIC within {abs(d):.1f})"
+    if fails:  # (lower by BIC, not kept: it fails what the model passes)
+        if kind == "drop":
+            what, whether = f"without {effects[0]} ({spec})", f"whether {effects[0]} is there"
+        elif kind == "add":
+            what, whether = f"with {effects[0]} ({spec})", f"whether {effects[0]} is there"
+        elif kind == "swap":
+            what, whether = f"{effects[1]} in place of {effects[0]} ({spec})", "which of the two it holds"
+        else:
+            what, whether = spec, "which of the two models it holds"
+        words = (f"{what}: BIC {-d:.1f} lower, but it fails {', '.join(fails)}, which the model passes (kept for "
+                 f"that); by BIC this record cannot tell {whether}")
+    return kind, effects, words
 
 
 #: A tie is told apart in most records once the expected BIC difference is this many times the strong-evidence level

@@ -11,6 +11,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from ..core import forward
 from ..likelihood.kalman import filter_fast, loglik_fast
 from ..noise.derivatives import state_space_derivatives
 from ..noise.model import NoiseModel, StateSpace, parse_model, state_memory
@@ -121,11 +122,11 @@ def exact_loglik_grad(model, U: Tensor, y, h: float, free, *, inputs: dict | Non
                 return model.mean(model.from_unconstrained(u.index_put((sub,), um), h), t, inp)[0]
 
             try:  # every direction in one batched forward-mode pass …
-                dmeans.append(torch.func.jacfwd(mean_of)(u[sub]).mT)  # (D, N)
+                dmeans.append(forward.jacfwd(mean_of)(u[sub]).mT)  # (D, N)
             except RuntimeError:  # … or one pass each, where a mean holds a function of its own derivative (a
                 # thermal lag's filter) that vmap cannot batch
                 eye = torch.eye(len(sub), dtype=torch.float64)
-                dmeans.append(torch.stack([torch.func.jvp(mean_of, (u[sub],), (eye[d],))[1]
+                dmeans.append(torch.stack([forward.jvp(mean_of, (u[sub],), (eye[d],))[1]
                                            for d in range(len(sub))]))
     row = np.full(len(free), -1, dtype=np.int64)
     row[mean_dirs] = np.arange(len(mean_dirs))

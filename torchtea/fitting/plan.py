@@ -47,6 +47,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from ..core import forward
 from ..noise.model import NoiseModel, parse_model
 
 __all__ = ["PlanRow", "plan", "B_CONVENTIONS", "length_for", "tie_length", "datasheet_model", "read_datasheet", "EXACT_ORDINATES",
@@ -117,7 +118,7 @@ def information(model, values: dict, h: float, n: int, fixed=()) -> tuple[list[s
         u[idx] = us
         return torch.log(model.spectrum(model.from_unconstrained(u.unsqueeze(0), h), omega, h)[0])
 
-    J = torch.func.jacfwd(log_s)(u0[idx]).numpy()  # (W, F)
+    J = forward.jacfwd(log_s)(u0[idx]).numpy()  # (W, F)
     wt = torch.as_tensor(w).numpy()
     return names, (J * wt[:, None]).T @ J
 

@@ -9,6 +9,8 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
+from ...core import forward
+
 #: Orders the ``fractional`` component may take: open interval, the kernel is designed on it.
 ORDER_BOUNDS = (0.0, 1.0)
 
@@ -137,7 +139,7 @@ def forward_derivatives(function, params: tuple, v: dict, *args):
     value, columns = None, []
     for k in range(len(names)):
         tangents = tuple(torch.ones_like(x) if j == k else torch.zeros_like(x) for j, x in enumerate(primals))
-        value, d = torch.func.jvp(of, primals, tangents)
+        value, d = forward.jvp(of, primals, tangents)
         columns.append(d)
     if value is None:
         value = of(*primals)

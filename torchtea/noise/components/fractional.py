@@ -6,6 +6,7 @@ import math
 import torch
 from torch import Tensor
 
+from ...core import forward
 from ...core.gl import gl_tail_coefficients
 from .base import Component, ORDER_BOUNDS, ParamSpec, TEAPart
 
@@ -134,8 +135,8 @@ class Fractional(Component):
         F, G = self.block(v, h, memory)
         alpha, f, q = v["order"], v["pole"], v["q"]
         B, n = F.shape[0], F.shape[-1]
-        _, (d_row, d_g) = torch.func.jvp(lambda a: self.first_row(a, f, q, h, memory), (alpha,),
-                                         (torch.ones_like(alpha),))
+        _, (d_row, d_g) = forward.jvp(lambda a: self.first_row(a, f, q, h, memory), (alpha,),
+                                      (torch.ones_like(alpha),))
         dF = F.new_zeros(B, 3, n, n)
         dG = G.new_zeros(B, 3, n, 1)
         dF[:, 0, 0] = d_row

@@ -140,6 +140,35 @@ def _text(page: str) -> str:
     return re.sub(r"[ \t]+", " ", html.unescape(re.sub(r"<[^>]+>", "", page)))
 
 
+#: What the users' pages (home, tutorial, guide, how-to, explanation, reference; not the studies) must not say: the
+#: project's history and its test files, on the built HTML's text
+HISTORY = {"an issue number": r"\bissues? \d+", "a machine": r"\b\d-core\b|\bthis (?:VM|machine)\b",
+           "a test file": r"\btests/test_\w+\.py\b|\btest_\w{12,}\b",
+           "a commit hash": r"\b(?=[0-9a-f]*[a-f])(?=[0-9a-f]*\d)[0-9a-f]{7,12}\b"}
+
+
+def _users_pages_speak_of_the_tool(site) -> None:
+    found = []
+    for page in sorted(site.rglob("index.html")):
+        rel = page.relative_to(site).as_posix()
+        if rel.startswith(("studies/", "search/", "assets/")):
+            continue
+        text = _text(re.sub(r"<(script|style)\b.*?</\1>", "", page.read_text(), flags=re.S))
+        found += [f"{rel}: {what}: {m.group(0)!r}" for what, rx in HISTORY.items() for m in re.finditer(rx, text)]
+    assert not found, "\n".join(found)
+
+
+def test_the_history_phrases_are_found_where_they_are():
+    """The phrases the built site is held to find what they are for, and not the tool's own words."""
+    said = {"an issue number": "as issue 44 found", "a machine": "on this 2-core machine",
+            "a test file": "tests/test_check.py holds it", "a commit hash": "since 3e7b008"}
+    for what, rx in HISTORY.items():
+        assert re.search(rx, said[what]), what
+    for words in ("fractional+white+random-walk", "the 2 cores of a machine", "a test of the data",
+                  "a 0.05 level", "deadbeef is a word", "f0_hz 12.45"):
+        assert not any(re.search(rx, words) for rx in HISTORY.values()), words
+
+
 @pytest.mark.slow
 def test_the_site_builds_with_warnings_as_errors_and_runs_the_tutorial(tmp_path):
     """``mkdocs build --strict`` from the repository: every link and reference resolves, the reference pages are
@@ -168,6 +197,7 @@ def test_the_site_builds_with_warnings_as_errors_and_runs_the_tutorial(tmp_path)
         assert (site / page.replace(".md", "") / "index.html").is_file(), page
     assert "warm-up.amplitude" in _text((site / "howto" / "own-effect" / "index.html").read_text())
     assert "oracle" in _text((site / "studies" / "check" / "index.html").read_text())
+    _users_pages_speak_of_the_tool(site)
     api = (site / "reference" / "api" / "index.html").read_text()
     assert "run the diagnostics and rank the missing effects" in re.sub(r"\s+", " ", _text(api))
     assert ":func:" not in api and "<code>candidates</code>" in api  # the docstrings' roles shown as Sphinx would

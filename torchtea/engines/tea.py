@@ -379,7 +379,7 @@ def run_tea(
         Long recordings need not keep millions of rows.
     compile : bool
         ``soe``/``window`` memory only: run blocks of :data:`COMPILE_BLOCK` steps through
-        ``torch.compile`` (worth it for long series: compiling takes ~1 min on a 2-core CPU, then
+        ``torch.compile`` (worth it for long series: compiling takes about a minute on two CPU cores, then
         steps are several times cheaper). Falls back to eager with a warning if compiling fails.
     partial : bool
         On Ctrl-C (``KeyboardInterrupt``), return the steps that finished, with ``interrupted=True``,

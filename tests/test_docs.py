@@ -88,6 +88,23 @@ def test_the_cli_page_has_every_command_and_flag():
                 assert flag in section, (name, flag)
 
 
+def test_the_cli_page_fits_the_column():
+    """The parser's help on the command-line page is printed 80 columns wide, so it does not scroll sideways."""
+    page = reference.cli_page()
+    lines = [ln for block in re.findall(r"```text\n(.*?)```", page, re.S) for ln in block.splitlines()]
+    assert lines and max(map(len, lines)) <= 80
+
+
+def test_design_note_citations_link_to_the_algorithms_page_by_title():
+    """A docstring's ``ALGORITHMS.md §5`` reads on the site as the algorithms page's section by its title, linked to
+    its anchor; a section the page does not have, and a bare citation, link to the page."""
+    got = reference.link_design_notes("Spectrum (ALGORITHMS.md §5); `ALGORITHMS.md` §4, §99; ALGORITHMS.md.", "../")
+    page = "../explanation/algorithms.md"
+    assert got == (f"Spectrum ([Algorithms §5: Spectrum, stability, Allan deviation, likelihoods]({page}#5-spectrum-"
+                   f"stability-allan-deviation-likelihoods)); [Algorithms §4: The history as a sum of exponentials]"
+                   f"({page}#4-the-history-as-a-sum-of-exponentials), [Algorithms §99]({page}); [Algorithms]({page}).")
+
+
 def test_the_json_page_has_every_field_each_file_describes():
     from torchtea.checking.report import MEANING
     from torchtea.export.run import EXPORT_MEANING

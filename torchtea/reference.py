@@ -9,6 +9,7 @@ import argparse
 import inspect
 import os
 import re
+from pathlib import Path
 
 __all__ = ["rst_to_markdown", "sane_lists", "link_design_notes", "effects_page", "diagnostics_page", "cli_page", "json_page", "PAGES"]
 
@@ -63,11 +64,37 @@ def sane_lists(text: str) -> str:
     return "\n".join(out)
 
 
+#: A citation of the design notes, in code or not, with the sections it names (``ALGORITHMS.md §5, §7``)
+_NOTES = re.compile(r"`?ALGORITHMS\.md`?((?:,? ?§\d+)*)")
+
+
+def algorithm_sections() -> dict:
+    """``{number: (title, anchor)}`` of the numbered sections of the site's algorithms page (the design notes'
+    numbering), read from the page beside the package; empty where it is not there (an installed package)."""
+    from markdown.extensions.toc import slugify
+
+    page = Path(__file__).resolve().parents[1] / "docs" / "explanation" / "algorithms.md"
+    if not page.is_file():
+        return {}
+    heads = re.findall(r"^## ((\d+)\. (.+))$", page.read_text(encoding="utf-8"), re.M)
+    return {n: (title, slugify(head, "-")) for head, n, title in heads}
+
+
 def link_design_notes(text: str, to_site_root: str) -> str:
-    """``text`` with its citations of the design notes (``ALGORITHMS.md``, in code or not) linked to the site's
-    algorithms page, ``to_site_root`` the relative path from the page to the site's root (``"../"``)."""
-    return text.replace("`ALGORITHMS.md`", "ALGORITHMS.md").replace(
-        "ALGORITHMS.md", f"[ALGORITHMS.md]({to_site_root}explanation/algorithms.md)")
+    """``text`` with its citations of the design notes (``ALGORITHMS.md §n``, in code or not) as links to the site's
+    algorithms page by its title and the section's (``[Algorithms §5: Spectrum, …](…#5-spectrum-…)``),
+    ``to_site_root`` the relative path from the page to the site's root (``"../"``)."""
+    sections = algorithm_sections()
+    page = f"{to_site_root}explanation/algorithms.md"
+
+    def cite(m: re.Match) -> str:
+        numbers = re.findall(r"§(\d+)", m.group(1))
+        if not numbers:
+            return f"[Algorithms]({page})"
+        return ", ".join(f"[Algorithms §{n}: {sections[n][0]}]({page}#{sections[n][1]})" if n in sections
+                         else f"[Algorithms §{n}]({page})" for n in numbers)
+
+    return _NOTES.sub(cite, text)
 
 
 def _cell(x) -> str:
@@ -166,7 +193,7 @@ def cli_page() -> str:
     from .cli import build_parser
 
     old = os.environ.get("COLUMNS")
-    os.environ["COLUMNS"] = "110"
+    os.environ["COLUMNS"] = "80"
     try:
         parser = build_parser()
         lines = ["# Command line", "",

@@ -33,7 +33,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--effects", action="append", default=[], metavar="MODULE",
                    help="import MODULE (a module name or a .py file) before the command: the effects it registers "
                         "(torchtea.effects.register) can be named in --model and --add; may be repeated")
-    sub = p.add_subparsers(dest="command", required=True)
+    sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for commands in (simulate, tea, checking, export, studies):  # the order --help lists them in
         commands.add_parsers(sub)
     return p

@@ -29,7 +29,24 @@ def test_rst_to_markdown():
     text = "The ``y`` of :func:`~torchtea.noise.simulate_model` and :class:`torchtea.checking.check.CheckResult`, " \
            ":math:`\\sigma^2 h`::\n\n        code\n    end"
     assert reference.rst_to_markdown(text) == ("The `y` of `simulate_model` and `torchtea.checking.check.CheckResult`, "
-                                              "`\\sigma^2 h`:\n\n    code\nend")
+                                              "$\\sigma^2 h$:\n\n    code\nend")
+    block = "Its variance\n\n.. math::  \\sigma^2 = \\int S,\n   d\\omega\n\nis"
+    assert reference.rst_to_markdown(block) == "Its variance\n\n$$\n\\sigma^2 = \\int S, d\\omega\n$$\n\nis"
+
+
+def test_maths_is_written_out_as_mathml():
+    """The site's hook turns arithmatex's spans and a docstring's ``:math:`` role into MathML, the page's HTML
+    escapes read back as the LaTeX they were."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("site_hooks", ROOT / "docs" / "hooks.py")
+    hooks = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(hooks)
+    page = ('<p>a <span class="arithmatex">\\(x &lt; h^{\\alpha}\\)</span> b</p><div class="arithmatex">\\[\\sum_j c_j'
+            '\\]</div> :math:<code>\\sigma</code> :func:<code>~a.b</code>')
+    out = hooks.on_page_content(page)
+    assert out.count("<math") == 3 and 'display="block"' in out and "<code>b</code>" in out
+    assert "arithmatex" not in out and "\\alpha" not in out and "<mo>&#x0003C;</mo>" in out  # (the page's &lt;)
 
 
 def test_sane_lists_reads_github_lists_as_github_does():
@@ -215,6 +232,9 @@ def test_the_site_builds_with_warnings_as_errors_and_runs_the_tutorial(tmp_path)
     assert "warm-up.amplitude" in _text((site / "howto" / "own-effect" / "index.html").read_text())
     assert "oracle" in _text((site / "studies" / "check" / "index.html").read_text())
     _users_pages_speak_of_the_tool(site)
+    for page in ("reference/effects", "explanation/model"):  # maths as MathML, no LaTeX left in code spans
+        built = (site / page / "index.html").read_text()
+        assert built.count("<math") >= 5 and not re.search(r"\\(alpha|omega|sum|frac)\b", _text(built)), page
     api = (site / "reference" / "api" / "index.html").read_text()
     assert "run the diagnostics and rank the missing effects" in re.sub(r"\s+", " ", _text(api))
     assert ":func:" not in api and "<code>candidates</code>" in api  # the docstrings' roles shown as Sphinx would

@@ -17,8 +17,9 @@ _ROLE = re.compile(r":(?:func|class|meth|attr|data|mod|obj|exc):`~?([^`]+)`")
 
 
 def rst_to_markdown(text: str | None) -> str:
-    """A docstring in the package's reStructuredText habits as Markdown: ``literal`` and :math:`x` as code, a
-    cross-reference as the name it points to (``~`` keeps the last part, as Sphinx shows it), ``::`` as ``:``."""
+    """A docstring in the package's reStructuredText habits as Markdown: ``literal`` as code, :math:`x` as inline
+    maths (``$x$``) and a ``.. math::`` block as display maths (``$$ … $$``), a cross-reference as the name it points
+    to (``~`` keeps the last part, as Sphinx shows it), ``::`` as ``:``."""
     if not text:
         return ""
     text = inspect.cleandoc(text)
@@ -29,7 +30,11 @@ def rst_to_markdown(text: str | None) -> str:
         return f"`{shown}`"
 
     text = _ROLE.sub(role, text)
-    text = re.sub(r":math:`([^`]+)`", r"`\1`", text)
+    text = re.sub(r":math:`([^`]+)`", r"$\1$", text)
+    text = re.sub(r"^( *)\.\. math:: *(.*)$((?:\n\1 {3,}\S.*)*)",
+                  lambda m: f"{m.group(1)}$$\n" + " ".join([m.group(2).strip()] + [
+                      x.strip() for x in m.group(3).splitlines() if x.strip()]).strip() + f"\n{m.group(1)}$$",
+                  text, flags=re.M)
     text = re.sub(r"``([^`]+)``", r"`\1`", text)
     return text.replace("::\n", ":\n")
 

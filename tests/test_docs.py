@@ -232,6 +232,10 @@ def test_the_site_builds_with_warnings_as_errors_and_runs_the_tutorial(tmp_path)
     assert "warm-up.amplitude" in _text((site / "howto" / "own-effect" / "index.html").read_text())
     assert "oracle" in _text((site / "studies" / "check" / "index.html").read_text())
     _users_pages_speak_of_the_tool(site)
+    for page, figs, words in (("guide/check", 2, "the diagnostic fails"), ("guide/export", 1,
+                                                                            "accelerometer_noise_density:")):
+        built = (site / page / "index.html").read_text()  # figures (and a file) made by the build from runs
+        assert built.count("data:image/png;base64,") == figs and words in _text(built), page
     home = (site / "index.html").read_text()  # the loop's diagram drawn at build time, no script from elsewhere
     assert "mermaid" not in home and 'src="assets/loop.svg"' in home
     assert "<svg" in (site / "assets" / "loop.svg").read_text() and "take away and swap" in (

@@ -178,7 +178,7 @@ def _text(page: str) -> str:
 #: project's history and its test files, on the built HTML's text
 HISTORY = {"an issue number": r"\bissues? \d+", "a machine": r"\b\d-core\b|\bthis (?:VM|machine)\b",
            "a test file": r"\btests/test_\w+\.py\b|\btest_\w{12,}\b",
-           "a commit hash": r"\b(?=[0-9a-f]*[a-f])(?=[0-9a-f]*\d)[0-9a-f]{7,12}\b"}
+           "a commit hash": r"(?<![.\d])\b(?=[0-9a-f]*[a-f])(?=[0-9a-f]*\d)[0-9a-f]{7,12}\b(?![-+]?\d)"}
 
 
 def _users_pages_speak_of_the_tool(site) -> None:
@@ -199,7 +199,7 @@ def test_the_history_phrases_are_found_where_they_are():
     for what, rx in HISTORY.items():
         assert re.search(rx, said[what]), what
     for words in ("fractional+white+random-walk", "the 2 cores of a machine", "a test of the data",
-                  "a 0.05 level", "deadbeef is a word", "f0_hz 12.45"):
+                  "a 0.05 level", "deadbeef is a word", "f0_hz 12.45", "density: 6.247739e-03"):
         assert not any(re.search(rx, words) for rx in HISTORY.values()), words
 
 

@@ -43,7 +43,7 @@ import torch
 from scipy import stats
 
 from ..core.search import (BAND_WIDTHS, against_neighbours, band_search, chirp_search, innovation_periodogram,
-                           max_abs_bound, max_abs_logp, max_abs_p, refine_chirp)
+                           max_abs_bound, max_abs_logp, max_abs_p, refine_chirp, smallest_of_logp)
 from ..fitting.innovations import (Innovations, gls_statistic, innovations, linear_lr, scan_lr, whiten,
                                    whiten_with_level)
 from . import allan
@@ -364,9 +364,8 @@ def lines(z: np.ndarray, h: float, level: float = LEVEL, neighbours: int = 50, g
         raise ValueError(f"the lines diagnostic needs more than {4 * (guard + neighbours)} samples, got {N}")
     M = len(idx)
     i = int(np.argmin(logp))
-    # P(min over M of p_j ≤ p) = 1 − (1 − p)^M, computed in logs
-    p_any = float(-np.expm1(M * np.log1p(-math.exp(logp[i]))))
-    log_p_any = float(logp[i] + math.log(M)) if logp[i] < -30 else math.log(max(p_any, 1e-300))
+    p_any = float(-np.expm1(M * np.log1p(-math.exp(logp[i]))))  # P(min over M of p_j ≤ p) = 1 − (1 − p)^M
+    log_p_any = smallest_of_logp(float(logp[i]), M)
     thr = math.log(level / M)
     hits = np.nonzero(logp < thr)[0]
     f_hz = j[idx] / (N * h)

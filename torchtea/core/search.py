@@ -11,7 +11,7 @@ import math
 import numpy as np
 from scipy import stats
 
-__all__ = ["max_abs_p", "max_abs_logp", "max_abs_bound", "innovation_periodogram", "BAND_WIDTHS", "band_search",
+__all__ = ["max_abs_p", "max_abs_logp", "smallest_of_logp", "max_abs_bound", "innovation_periodogram", "BAND_WIDTHS", "band_search",
            "against_neighbours", "chirp_search", "search_chirps", "refine_chirp", "refine_frequency", "remove_regressors"]
 
 
@@ -24,6 +24,14 @@ def max_abs_logp(m: float, n: int) -> float:
     """log :func:`max_abs_p`, by its first-order bound n·2Φ(−m) in logs where the probability is below 10⁻¹²."""
     p = max_abs_p(m, n)
     return math.log(p) if p > 1e-12 else math.log(n) + math.log(2.0) + float(stats.norm.logsf(m))
+
+
+def smallest_of_logp(log_p: float, m: int) -> float:
+    """log P(the smallest of ``m`` independent p-values ≤ exp(``log_p``)) = log(1 − (1 − p)^m), computed in logs; by
+    its first-order bound log p + log m below p = e⁻³⁰."""
+    if log_p < -30:
+        return float(log_p + math.log(m))
+    return math.log(max(float(-np.expm1(m * np.log1p(-math.exp(log_p)))), 1e-300))
 
 
 def max_abs_bound(n: int, level: float) -> float:
@@ -105,9 +113,7 @@ def slow_line(z: np.ndarray, h: float, neighbours: int = 50, guard: int = 2) -> 
     if len(band) == 0:
         return {"peak_hz": float("nan"), "cycles": 0, "ordinate": 0.0, "log_p": 0.0}
     k = int(band[np.argmax(u[band])])
-    tail = -float(u[k])  # log P(Exp(1) > u)
-    log_p = math.log(len(band)) + tail if tail < -30 else math.log(max(-np.expm1(len(band) * np.log1p(-math.exp(tail))),
-                                                                       1e-300))
+    log_p = smallest_of_logp(-float(u[k]), len(band))  # (log P(Exp(1) > u) = −u)
     return {"peak_hz": float(j[k] / (len(z) * h)), "cycles": int(j[k]), "ordinate": float(u[k]), "log_p": log_p}
 
 

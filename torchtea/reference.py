@@ -6,6 +6,7 @@ is imported. Each ``*_page`` function returns one page's Markdown."""
 from __future__ import annotations
 
 import argparse
+import functools
 import inspect
 import os
 import re
@@ -73,9 +74,10 @@ def sane_lists(text: str) -> str:
 _NOTES = re.compile(r"`?ALGORITHMS\.md`?((?:,? ?§\d+)*)")
 
 
+@functools.cache
 def algorithm_sections() -> dict:
     """``{number: (title, anchor)}`` of the numbered sections of the site's algorithms page (the design notes'
-    numbering), read from the page beside the package; empty where it is not there (an installed package)."""
+    numbering), read once from the page beside the package; empty where it is not there (an installed package)."""
     from markdown.extensions.toc import slugify
 
     page = Path(__file__).resolve().parents[1] / "docs" / "explanation" / "algorithms.md"

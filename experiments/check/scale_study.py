@@ -27,6 +27,7 @@ import json
 import os
 import sys
 import time
+from collections import Counter
 from pathlib import Path
 
 import numpy as np
@@ -167,9 +168,7 @@ def tables(d: Path, wall: float | None = None) -> str:
     errors = sorted(p.stem for p in (d / "errors").glob("*.txt")) if (d / "errors").exists() else []
     if errors:
         out += ["", f"Cases that failed ({len(errors)}; the tracebacks in errors/): " + ", ".join(errors)]
-    codes = {}
-    for c, _, _ in rows:
-        codes[c.get("code") or "not recorded"] = codes.get(c.get("code") or "not recorded", 0) + 1
+    codes = Counter(c.get("code") or "not recorded" for c, _, _ in rows)
     out += ["", "Code the cases were run with: " + ", ".join(f"{k} ({v} cases)" for k, v in sorted(codes.items()))]
     cpu = sum(c["seconds"] for c, _, _ in rows) + sum(o["seconds"] for _, _, o in rows)
     out += ["", f"{len(rows)} cases, {cpu / 3600:.1f} CPU-hours in the loops and oracles"

@@ -7,23 +7,19 @@ user of torchtea can act on. It is set aside here, for that one loading only; ev
 included, reaches the user as before."""
 from __future__ import annotations
 
+import functools
 import warnings
 
 import torch
 
 __all__ = ["jvp", "jacfwd"]
 
-_loaded = False
 
-
+@functools.cache
 def _load_rules() -> None:
-    global _loaded
-    if _loaded:
-        return
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", message=r"`torch\.jit\.script` is deprecated")
         import torch._decomp.decompositions_for_jvp  # noqa: F401  (torch's forward-mode rules, loaded once)
-    _loaded = True
 
 
 def jvp(func, primals, tangents, **kw):

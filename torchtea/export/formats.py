@@ -125,7 +125,7 @@ class Kalibr(Format):
     def extra(self, axes, meta, before):
         if not before:
             return []
-        return [f"rostopic: {meta.get('rostopic', '/imu0')}",
+        return [f"rostopic: {meta.get('topic') or '/imu0'}",
                 f"update_rate: {1.0 / axes[0].h:.6g}  # Hz, the recording's sample rate"]
 
 
@@ -183,7 +183,7 @@ class OpenVins(Format):
                  "imu0:", "  T_i_b:", *eye(4)]
         for key, v in self.fields(axes, which):
             lines += [f"  {key}: {_fmt(v['value'])}"] + _comment(v, which)
-        lines += [f"  rostopic: {meta.get('rostopic', '/imu0')}", "  time_offset: 0.0",
+        lines += [f"  rostopic: {meta.get('topic') or '/imu0'}", "  time_offset: 0.0",
                   f"  update_rate: {1.0 / axes[0].h:.6g}  # Hz, the recording's sample rate",
                   "# the IMU intrinsics OpenVINS reads with the noise: identity (torchtea does not estimate them; "
                   "keep your own if you have them)",

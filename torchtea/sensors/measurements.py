@@ -99,7 +99,7 @@ class Measurements:
         """The JSON entry: the recording, its channels with units, the faults, missing samples and timing (each key
         described in :data:`RECORDING_MEANING`)."""
         rec = self.recording
-        return {"recording": str(rec.path), "rate_hz": rec.rate_hz, "rate_source": rec.rate_source,
+        return {"recording": str(rec.path), "topic": rec.metadata.get("topic"), "rate_hz": rec.rate_hz, "rate_source": rec.rate_source,
                 "samples": self.samples, "samples_in_recording": self.total, "channels": {c.label: c.describe() for c in self.channels},
                 "temperature_column": rec.temperature_column, "faults": self.faults.to_dict(),
                 "missing_samples": self.missing.count, "missing": self.missing.to_dict(),
@@ -122,6 +122,7 @@ class Measurements:
 #: (``check.json``, ``fit --json``, ``export.json``, ``summary.json``).
 RECORDING_MEANING = {
     "recording": "the file (or bag) read",
+    "topic": "a ROS bag's sensor_msgs/Imu topic read (null: a file that is not a bag)",
     "rate_hz": "the sample rate in use, Hz",
     "rate_source": "where rate_hz came from (--rate, the file's time column, its header)",
     "samples": "the samples used (the first --samples of the recording, less a cut at the end by --exclude)",

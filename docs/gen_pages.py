@@ -16,9 +16,9 @@ for path, page in PAGES.items():
 
 index = (EXPERIMENTS / "README.md").read_text(encoding="utf-8")
 folders = sorted(d for d in EXPERIMENTS.iterdir() if (d / "README.md").is_file())
-index = index.replace("# Experiments", "# Studies\n\nThe reproductions, studies and benchmarks of `experiments/`, each "
-                      "folder's README as the folder has it (its command is named in it; run outputs stay out of git). "
-                      "By folder: " + ", ".join(f"[{d.name}]({d.name}/index.md)" for d in folders) + ".", 1)
+index = index.replace("# Experiments", "# Studies", 1)
+for d in folders:  # (the index's folders as links to their pages)
+    index = index.replace(f"| `{d.name}/` |", f"| [{d.name}]({d.name}/index.md) |")
 
 
 def studies_page(text: str, depth: int) -> str:
@@ -30,6 +30,8 @@ with mkdocs_gen_files.open("studies/index.md", "w") as f:
     f.write(studies_page(index, 1))
 for d in folders:
     for md in sorted(d.glob("*.md")):
+        if md.name == "LOG.md":  # (a folder's development log stays in the repository)
+            continue
         name = "index.md" if md.name == "README.md" else md.name
         with mkdocs_gen_files.open(f"studies/{d.name}/{name}", "w") as f:
             f.write(studies_page(md.read_text(encoding="utf-8"), 2))

@@ -4,7 +4,7 @@
 # fractional+white fitted to the same channels (`identify`, plain), and the checked models again with KFo and KFw set
 # for a constant order and pole (constant.toml: R = "innovation", Q0 = 1e-5). Outputs in real/ (regenerated, not in
 # git); then
-# python experiments/tea_models/real_table.py > experiments/tea_models/real.md
+# python experiments/tea_models/real_table.py   # prints the table of real.md (paste it under the page's title and reading)
 set -e
 cd "$(dirname "$0")"
 mkdir -p real

@@ -10,7 +10,8 @@ import pytest
 
 pytest.importorskip("rosbags")
 from rosbags.rosbag1 import Writer as Writer1  # noqa: E402
-from rosbags.rosbag2 import StoragePlugin, Writer as Writer2  # noqa: E402
+from rosbags.rosbag2 import StoragePlugin  # noqa: E402
+from rosbags.rosbag2 import Writer as Writer2
 from rosbags.typesys import Stores, get_typestore  # noqa: E402
 
 from torchtea.cli import main  # noqa: E402

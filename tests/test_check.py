@@ -13,15 +13,26 @@ import torch
 
 from torchtea.checking import allan, check, extend
 from torchtea.checking import channels as channels_mod
-from torchtea.checking.report import write_report
 from torchtea.checking.check import STRONG_BIC
+from torchtea.checking.diagnostics import (
+    LEVEL,
+    change,
+    innovations,
+    linear_lr,
+    lines,
+    ljung_box,
+    nis_windows,
+    run_diagnostics,
+    spectrum_bands,
+    stochastic_avar,
+    temperature_view,
+)
 from torchtea.checking.hidden import HIDDEN_STRENGTH, hidden_case
-from torchtea.checking.diagnostics import (LEVEL, stochastic_avar, change, innovations, linear_lr, lines, ljung_box, nis_windows,
-                                           run_diagnostics, spectrum_bands, temperature_view)
+from torchtea.checking.report import write_report
+from torchtea.checking.screens import temperature as temperature_screens
 from torchtea.cli import main
 from torchtea.fitting.mle import exact_loglik, fit_series, refine_exact
 from torchtea.noise import default_values, parse_model, simulate_model, temperature_profile
-from torchtea.checking.screens import temperature as temperature_screens
 
 H = 0.01
 

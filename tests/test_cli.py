@@ -10,10 +10,10 @@ import pytest
 import torch
 
 from torchtea.cli import main
-
-AXES = ("ax", "ay", "az")  # identify's default channels: the accelerometer's
 from torchtea.core.gl import difference
 from torchtea.sensors.io import bundled_recording
+
+AXES = ("ax", "ay", "az")  # identify's default channels: the accelerometer's
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "data" / "mpu6050_arduino_100hz"
 
@@ -466,9 +466,10 @@ def test_memory_option_on_estimate_identify_simulate(tmp_path, capsys, monkeypat
 def test_compiled_bounded_loop_equals_eager(monkeypatch, kfx_uncertainty):
     """torch.compile of blocks of steps gives the eager numbers (blocks of 2 here to keep compiling short); with
     "paper-gain" the compiled blocks carry the gain's covariance and its history as well."""
+    from dataclasses import replace
+
     import torchtea.engines.tea as tea
     from torchtea import SCENARIOS, MemoryConfig, Structure, gaussian_input, get_preset, make_params, run_tea, simulate
-    from dataclasses import replace
 
     monkeypatch.setattr(tea, "COMPILE_BLOCK", 2)
     sc = SCENARIOS["paper-example1"]

@@ -10,8 +10,8 @@ import pytest
 import torch
 
 from torchtea.engines.presets import get_preset
-from torchtea.studies.montecarlo import Study, StudyResult, Truth, summarise
 from torchtea.studies.cluster import run_study
+from torchtea.studies.montecarlo import Study, StudyResult, Truth, summarise
 
 distributed = pytest.importorskip("distributed")
 

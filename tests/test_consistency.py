@@ -1,9 +1,8 @@
 """KFx with the order's and parameter's uncertainty: TEAConfig.kfx_uncertainty = "propagated" (in the prediction,
 so in the gain) and "paper-gain" (the paper's gain, with the covariance of that filter's error reported); KFo's and
 KFw's covariances for a constant truth: TEAConfig.estimate_uncertainty = "constant-truth"."""
-from dataclasses import replace
-
 import math
+from dataclasses import replace
 
 import pytest
 import torch
@@ -12,10 +11,17 @@ from torchtea.core.gl import gl_coefficients
 from torchtea.core.memory import parse_memory
 from torchtea.engines.presets import SCENARIOS, get_preset
 from torchtea.engines.settings import TEAConfig, UnscentedConfig
-from torchtea.noise.simulate import gaussian_input, simulate
 from torchtea.engines.structure import Structure
-from torchtea.engines.tea import (_constant_truth_cov, _estimate_uncertainty, sigma_points, ut_update, make_params,
-                                  run_tea, ut_weights)
+from torchtea.engines.tea import (
+    _constant_truth_cov,
+    _estimate_uncertainty,
+    make_params,
+    run_tea,
+    sigma_points,
+    ut_update,
+    ut_weights,
+)
+from torchtea.noise.simulate import gaussian_input, simulate
 
 from .test_fast import _same
 

@@ -4,7 +4,6 @@ automatic differentiation of the whole assembly, a user's effect that gives none
 read them."""
 import math
 
-import numpy as np
 import pytest
 import torch
 

@@ -12,8 +12,8 @@ import torch
 
 import torchtea.effects as effects
 from torchtea.checking import check
-from torchtea.checking.screens.outliers import find as find_spikes
 from torchtea.checking.report import write_report
+from torchtea.checking.screens.outliers import find as find_spikes
 from torchtea.effects import register, unregister
 from torchtea.fitting.mle import fit_series, regress_mean
 from torchtea.fitting.starts import Starts, initial_values, register_start, unregister_start
@@ -243,7 +243,7 @@ def test_a_class_with_the_old_screen_hooks_is_refused_not_silently_defaulted():
         register(OldStyle)
     assert "old-style" not in COMPONENTS
     with pytest.raises(AttributeError, match="moved to torchtea.checking.screens.NotScreened"):
-        components.NotScreened
+        _ = components.NotScreened
 
 
 def test_a_class_with_the_old_start_hooks_is_refused_and_registered_starts_are_used(warm_up):

@@ -8,9 +8,9 @@ import torch
 
 from torchtea.core.memory import parse_memory
 from torchtea.engines.presets import SCENARIOS, get_preset
-from torchtea.noise.simulate import gaussian_input, simulate
 from torchtea.engines.structure import ConstantOrder, Structure
 from torchtea.engines.tea import TEAStream, make_params, run_tea, stack_params
+from torchtea.noise.simulate import gaussian_input, simulate
 
 FIELDS = ("x", "P", "alpha", "P_alpha", "Q_alpha", "w", "P_w", "Q_w", "innovation", "innovation_cov")
 

@@ -1,7 +1,6 @@
 """The history sums: exponential sums (soe) and windows against the exact full-history sums."""
 from __future__ import annotations
 
-import math
 from dataclasses import replace
 
 import mpmath as mp
@@ -11,9 +10,9 @@ import torch
 from torchtea import SCENARIOS, MemoryConfig, Structure, gaussian_input, get_preset, make_params, run_tea, simulate
 from torchtea.core.gl import gl_tail_coefficients
 from torchtea.core.memory import BoundedHistory, cov_tail_mass, design_kernel, gl_coefficients_at, parse_memory
-from torchtea.engines.structure import LinearOrder, ParabolicOrder
 from torchtea.engines.history import _ExactMemory
-from torchtea.engines.tea import _guard, _kfx_update, _Model, _tea_step, Carry, StepOutput, ut_weights
+from torchtea.engines.structure import LinearOrder, ParabolicOrder
+from torchtea.engines.tea import Carry, _kfx_update, _Model, _tea_step, ut_weights
 
 F64 = torch.float64
 
@@ -299,10 +298,10 @@ def test_stream_equals_run_tea_with_bounded_memory():
     """TEAStream fed sample by sample (with a missing sample) gives run_tea's trajectories exactly."""
     from dataclasses import replace
 
-    from torchtea.identification import axis_configs
-    from torchtea.sensors.io import read_recording
     from torchtea.engines.structure import Structure
     from torchtea.engines.tea import TEAStream, make_params, run_tea, stack_params
+    from torchtea.identification import axis_configs
+    from torchtea.sensors.io import read_recording
 
     acc = read_recording().accel_ms2()[:400]
     y = torch.as_tensor((acc - acc.mean(0)).T.copy()).unsqueeze(-1)

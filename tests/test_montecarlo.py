@@ -4,10 +4,10 @@ import math
 import pytest
 import torch
 
-from torchtea.studies.montecarlo import Study, Truth, draw_realisation, realisation_seed, summarise
-from torchtea.studies.cluster import run_study
-from torchtea.engines.presets import get_preset
 from torchtea.core.stats import over_realisations
+from torchtea.engines.presets import get_preset
+from torchtea.studies.cluster import run_study
+from torchtea.studies.montecarlo import Study, Truth, draw_realisation, realisation_seed, summarise
 
 from .procs import sigint_as_in_a_terminal, wait_for_progress
 
@@ -341,7 +341,7 @@ def test_consistent_prior_draws_follow_the_estimators_priors_around_the_truth():
     against 4000 draws (means within 5 standard errors, covariances within 5 SE of the sample covariance); a zero
     P₀ gives the truth itself; the draws use a stream of their own."""
     from torchtea.engines.structure import Structure
-    from torchtea.engines.tea import sqrt_psd, make_params
+    from torchtea.engines.tea import make_params, sqrt_psd
     from torchtea.studies.montecarlo import draw_prior
 
     params = make_params(get_preset("paper-example1"), Structure())

@@ -3,9 +3,9 @@ noise simulator, estimated by the TEA through an estimator model's view."""
 from __future__ import annotations
 
 import json
-import tomllib
 
 import pytest
+import tomllib
 import torch
 
 from torchtea.cli import main

@@ -7,8 +7,8 @@ import pytest
 import torch
 
 from torchtea.cli import main
-from torchtea.fitting import fit_series
 from torchtea.core.gl import gl_tail_coefficients
+from torchtea.fitting import fit_series
 from torchtea.likelihood import filter_fast, kalman_filter, loglik_fast, periodogram, whittle_loglik
 from torchtea.noise import parse_model, simulate_model
 
@@ -323,10 +323,10 @@ def test_tea_reads_the_simulators_model():
     16 realisations × the last third of 2000 steps, NIS sd across realisations ≈ 0.3."""
     from dataclasses import replace
 
-    from torchtea.engines.structure import Structure
-    from torchtea.noise.tea import tea_view
     from torchtea.core.stats import last_third, mean_nis
+    from torchtea.engines.structure import Structure
     from torchtea.engines.tea import make_params, run_tea
+    from torchtea.noise.tea import tea_view
 
     m = parse_model("fractional+white")
     N, B = 2000, 16

@@ -2,7 +2,6 @@
 hidden effect, at the check's screen level, and the BIC of a rival that could stand in for an effect."""
 import math
 
-import numpy as np
 import pytest
 import torch
 from scipy import stats

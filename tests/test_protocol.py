@@ -5,8 +5,18 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from torchtea.sensors.fakeimu import DEFAULT_META, FakeIMU, parse_fault
-from torchtea.sensors.protocol import (COLUMNS, MAGIC, U32, Assembler, Header, Parser, Sample, checksum, format_header,
-                               format_line)
+from torchtea.sensors.protocol import (
+    COLUMNS,
+    MAGIC,
+    U32,
+    Assembler,
+    Header,
+    Parser,
+    Sample,
+    checksum,
+    format_header,
+    format_line,
+)
 
 META = {k: v for k, v in DEFAULT_META.items()}
 

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from torchtea.checking.check import check, change_words
+from torchtea.checking.check import change_words, check
 from torchtea.checking.simplify import _carried, alternatives, simplify
 from torchtea.noise.model import parse_model
 from torchtea.noise.simulate import simulate_model, temperature_profile

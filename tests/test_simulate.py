@@ -6,8 +6,15 @@ import pytest
 import torch
 
 from torchtea.core.gl import difference
-from torchtea.engines.structure import (ConstantOrder, FunctionOrder, InputOrder, LinearOrder, ParabolicOrder, Structure,
-                            parse_order_spec)
+from torchtea.engines.structure import (
+    ConstantOrder,
+    FunctionOrder,
+    InputOrder,
+    LinearOrder,
+    ParabolicOrder,
+    Structure,
+    parse_order_spec,
+)
 from torchtea.noise.simulate import gaussian_input, simulate
 
 

@@ -6,12 +6,12 @@ import numpy as np
 import pytest
 import torch
 
-from torchtea.engines.structure import ConstantOrder, Structure
-from torchtea.engines.presets import SCENARIOS, get_preset
-from torchtea.noise.simulate import gaussian_input, simulate
 from torchtea.engines.history import _ExactMemory
-from torchtea.engines.tea import _replica, _Model, sigma_points, make_params, run_tea, stack_params, ut_weights
+from torchtea.engines.presets import SCENARIOS, get_preset
 from torchtea.engines.settings import TEAConfig
+from torchtea.engines.structure import ConstantOrder, Structure
+from torchtea.engines.tea import _Model, _replica, make_params, run_tea, sigma_points, stack_params, ut_weights
+from torchtea.noise.simulate import gaussian_input, simulate
 
 from .reference_tea import settings_from_config, tea_reference
 

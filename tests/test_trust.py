@@ -10,10 +10,10 @@ import pytest
 import torch
 
 from torchtea.cli import main
+from torchtea.render.strictjson import dumps, strict
 from torchtea.sensors.datacheck import check_timing, find_missing
 from torchtea.sensors.io import read_recording
 from torchtea.sensors.measurements import prepare
-from torchtea.render.strictjson import dumps, strict
 
 SHARED_TEMP = Path(__file__).resolve().parents[2] / "shared" / "data" / "mpu6050_sensor_fusion_temperature"
 
@@ -305,9 +305,9 @@ def test_consistent_filter_on_its_own_model_gives_no_warning(tmp_path, capsys):
 
 
 def test_not_settled_is_warned_about():
-    from torchtea.reports.identify import summarise
     from torchtea.engines.presets import get_preset
     from torchtea.engines.tea import TEAResult
+    from torchtea.reports.identify import summarise
 
     N = 300
     drift = torch.linspace(0.2, 0.8, N, dtype=torch.float64)  # α̂ still climbing at the end
@@ -402,8 +402,8 @@ def test_progress_lines_when_stderr_is_not_a_terminal(tmp_path, capsys, monkeypa
 @pytest.mark.parametrize("engine", ["torch", "numba"])
 def test_run_tea_partial_equals_the_first_steps_of_a_full_run(engine, monkeypatch):
     import torchtea.engines.fast as fast
-    from torchtea.engines.structure import Structure
     from torchtea.engines.presets import get_preset
+    from torchtea.engines.structure import Structure
     from torchtea.engines.tea import make_params, run_tea
 
     monkeypatch.setattr(fast, "BLOCK", 8)  # the compiled engine reports after steps 8, 16, …, 120, …

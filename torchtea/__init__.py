@@ -15,12 +15,21 @@ Batch convention (used everywhere)
 """
 from .core.gl import difference, gl_coefficients, history_sum
 from .core.memory import MemoryConfig, parse_memory
-from .engines.structure import (ConstantOrder, FunctionOrder, InputOrder, LinearOrder, OrderSchedule, ParabolicOrder,
-                    ParametricMatrix, Structure, parse_order_spec)
 from .engines.presets import PRESETS, SCENARIOS, get_preset
-from .noise.simulate import Simulation, gaussian_input, simulate
-from .engines.tea import TEAParams, TEAResult, make_params, run_tea, stack_params
 from .engines.settings import StateFilterConfig, TEAConfig, UnscentedConfig
+from .engines.structure import (
+    ConstantOrder,
+    FunctionOrder,
+    InputOrder,
+    LinearOrder,
+    OrderSchedule,
+    ParabolicOrder,
+    ParametricMatrix,
+    Structure,
+    parse_order_spec,
+)
+from .engines.tea import TEAParams, TEAResult, make_params, run_tea, stack_params
+from .noise.simulate import Simulation, gaussian_input, simulate
 
 __version__ = "0.1.0"
 

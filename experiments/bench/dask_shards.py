@@ -27,9 +27,9 @@ from __future__ import annotations
 
 import argparse
 import os
-from dataclasses import replace
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -40,9 +40,8 @@ sys.path.insert(0, str(HERE.parents[1]))
 from experiments.common import machine, write_json  # noqa: E402
 from torchtea.core.memory import MemoryConfig  # noqa: E402
 from torchtea.engines.presets import get_preset  # noqa: E402
-from torchtea.studies.cluster import local_cluster, plan_shards  # noqa: E402
+from torchtea.studies.cluster import local_cluster, plan_shards, run_study  # noqa: E402
 from torchtea.studies.montecarlo import Study, Truth, run_range, summarise  # noqa: E402
-from torchtea.studies.cluster import run_study  # noqa: E402
 
 MEMS = Truth(h=0.01, n_steps=3000, order="0.4", param=-4.0, q=0.01, r=4e-4)
 
@@ -156,7 +155,7 @@ def main():
             cl.close()
     best_single = min(walls["single"])
     row("single process", wall_s=[round(w, 2) for w in walls["single"]], threads=cores)
-    for name, workers, shard in runs[1:]:
+    for name, _workers, _shard in runs[1:]:
         d = detail[name][int(np.argmin(walls[name]))]
         row(name, wall_s=[round(w, 2) for w in walls[name]], best_vs_best_single=round(min(walls[name]) / best_single, 3),
             **d)

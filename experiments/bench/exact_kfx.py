@@ -24,8 +24,9 @@ import torch
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parents[1]))
 sys.path.insert(0, str(HERE.parents[1] / "experiments" / "tea_models"))
-from experiments.common import machine, write_json  # noqa: E402
 from grown_model import FW, H, tea_config  # noqa: E402
+
+from experiments.common import machine, write_json  # noqa: E402
 from torchtea.core.stats import last_third  # noqa: E402
 from torchtea.engines.tea import make_params, run_tea  # noqa: E402
 from torchtea.noise import simulate_model  # noqa: E402

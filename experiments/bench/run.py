@@ -34,11 +34,19 @@ import torch
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parents[1]))
 from experiments.common import machine, write_json  # noqa: E402
-from torchtea.studies.perf import tune_allocator  # noqa: E402
 from tests.reference_tea import settings_from_config, tea_reference  # noqa: E402
-from torchtea import (SCENARIOS, ConstantOrder, MemoryConfig, Structure, gaussian_input, get_preset,  # noqa: E402
-                      make_params, simulate)
+from torchtea import (  # noqa: E402
+    SCENARIOS,
+    ConstantOrder,
+    MemoryConfig,
+    Structure,
+    gaussian_input,
+    get_preset,
+    make_params,
+    simulate,
+)
 from torchtea import run_tea as _run_tea  # noqa: E402
+from torchtea.studies.perf import tune_allocator  # noqa: E402
 
 
 def run_tea(*args, **kw):

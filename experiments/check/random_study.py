@@ -154,7 +154,7 @@ def tables(d: Path) -> str:
     out += ["", "**The hidden effects' parameters at the loop's end against the truth** ((fitted − truth)/|truth|, "
                 "median [quartiles], over the cases whose loop added the effect):", "",
             "| hidden | parameter | cases | relative error |", "|---|---|---|---|"]
-    for (effects, n, h), rs in sorted(groups.items()):
+    for (effects, _n, _h), rs in sorted(groups.items()):
         for name, errs in sorted(_relative_errors(rs).items()):
             out.append(f"| {'+'.join(effects)} | {name} | {len(errs)} | {_iqr(errs)} |")
     spikes = [(effects, n, h, _spike_rows(rs)) for (effects, n, h), rs in sorted(groups.items())]
@@ -163,7 +163,7 @@ def tables(d: Path) -> str:
         out += ["", "**Spikes at the loop's end against the truth** (a spike found: one at its sample; false: one where "
                     "there was none):", "", "| hidden | seeds | spikes | found | false | size error median [quartiles] |",
                 "|---|---|---|---|---|---|"]
-        for effects, n, h, sr in spikes:
+        for effects, _n, _h, sr in spikes:
             errs = [e for x in sr for e in x["size_err"]]
             out.append(f"| {'+'.join(effects)} | {len(sr)} | {sum(x['true'] for x in sr)} | "
                        f"{_pct(sum(x['found'] for x in sr), sum(x['true'] for x in sr))} | {sum(x['false'] for x in sr)} "

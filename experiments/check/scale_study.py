@@ -247,8 +247,9 @@ def _run(todo: list, args, d: Path) -> None:
                 report(f.result())
         return
     os.environ["NUMBA_NUM_THREADS"] = os.environ["OMP_NUM_THREADS"] = "1"  # (the children inherit it)
-    from concurrent.futures import ProcessPoolExecutor, as_completed as completed
     import multiprocessing as mp
+    from concurrent.futures import ProcessPoolExecutor
+    from concurrent.futures import as_completed as completed
 
     with ProcessPoolExecutor(args.workers, mp_context=mp.get_context("spawn")) as pool:
         for f in completed([pool.submit(run_one, *c) for c in calls]):

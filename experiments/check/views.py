@@ -61,8 +61,7 @@ def main():
             ax.set(xlabel="Hz", ylabel="PSD (m/s²)²/Hz", title="Welch spectrum (4096-sample segments)")
             ratio = p[1:] / p0[1:]
             view = {"view": "Welch PSD with/without", "max_ratio": float(ratio.max()), "min_ratio": float(ratio.min()),
-                    "segments_scatter": "±{:.0%} (1 sd of a Welch estimate of {} segments)".format(
-                        1 / np.sqrt(2 * len(y) // 4096), 2 * len(y) // 4096)}
+                    "segments_scatter": f"±{1 / np.sqrt(2 * len(y) // 4096):.0%} (1 sd of a Welch estimate of {2 * len(y) // 4096} segments)"}
         elif e == "random-walk":
             taus = np.logspace(-2, 2, 25)
             tt, ad, _, _ = allantools.oadev(y, rate=1 / H, data_type="freq", taus=taus)

@@ -43,14 +43,14 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from torchtea.core.stats import last_third
+from torchtea.engines.presets import get_preset
+from torchtea.engines.structure import Structure
+from torchtea.engines.tea import make_params, run_tea
 from torchtea.fitting import fit_series
 from torchtea.fitting.presence import fractional_test
-from torchtea.engines.structure import Structure
 from torchtea.noise import parse_model, simulate_model
 from torchtea.noise.tea import tea_view
-from torchtea.engines.presets import get_preset
-from torchtea.core.stats import last_third
-from torchtea.engines.tea import make_params, run_tea
 
 HERE = Path(__file__).resolve().parent
 H, N, R_WHITE, RHO = 0.01, 30_000, 1e-3, 0.4

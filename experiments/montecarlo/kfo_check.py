@@ -20,8 +20,8 @@ sys.path.insert(0, str(HERE))
 sys.path.insert(0, str(HERE.parents[1]))
 from consistency import SETTINGS  # noqa: E402
 
-from torchtea.studies.montecarlo import build_study  # noqa: E402
 from torchtea.studies.cluster import run_study  # noqa: E402
+from torchtea.studies.montecarlo import build_study  # noqa: E402
 
 CASES = [("example1", None), ("example1", 0.1), ("mems", None), ("mems", 0.1)]
 

@@ -25,8 +25,8 @@ from consistency import MEMS_TRUTH, SETTINGS  # noqa: E402
 
 from torchtea import TEAConfig, get_preset  # noqa: E402
 from torchtea.render import strictjson  # noqa: E402
-from torchtea.studies.montecarlo import Study, Truth, summarise  # noqa: E402
 from torchtea.studies.cluster import run_study  # noqa: E402
+from torchtea.studies.montecarlo import Study, Truth, summarise  # noqa: E402
 
 PRESET, _, SEED = SETTINGS["mems"]
 ALPHA, PARAM = float(MEMS_TRUTH["order"]), MEMS_TRUTH["param"]

@@ -32,9 +32,8 @@ sys.path.insert(0, str(HERE.parents[1]))
 from consistency import MEMS_TRUTH  # noqa: E402
 
 from torchtea.engines.structure import ConstantOrder  # noqa: E402
-from torchtea.noise.simulate import simulate_noise_model  # noqa: E402
 from torchtea.fitting.mle import fit_series  # noqa: E402
-
+from torchtea.noise.simulate import simulate_noise_model  # noqa: E402
 
 VARIANTS = {"all free": {}, "q, r fixed at the truth": {"fractional.q": MEMS_TRUTH["q"], "white.r": MEMS_TRUTH["r"]}}
 

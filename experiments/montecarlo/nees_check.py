@@ -11,8 +11,8 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 from torchtea import TEAConfig, get_preset  # noqa: E402
-from torchtea.studies.montecarlo import Study, Truth, summarise  # noqa: E402
 from torchtea.studies.cluster import run_study  # noqa: E402
+from torchtea.studies.montecarlo import Study, Truth, summarise  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 

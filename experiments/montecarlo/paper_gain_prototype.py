@@ -31,11 +31,10 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 from tests.reference_tea import settings_from_config, tea_reference  # noqa: E402
 from torchtea.engines.presets import get_preset  # noqa: E402
-from torchtea.studies.montecarlo import Study, Truth, draw_realisation  # noqa: E402
-from torchtea.studies.cluster import run_study  # noqa: E402
-from torchtea.noise.simulate import simulate  # noqa: E402
 from torchtea.engines.structure import Structure  # noqa: E402
-
+from torchtea.noise.simulate import simulate  # noqa: E402
+from torchtea.studies.cluster import run_study  # noqa: E402
+from torchtea.studies.montecarlo import Study, Truth, draw_realisation  # noqa: E402
 
 SETTINGS = {
     "example1": (dict(h=1e-3, order="0.35", param=-1.0, q=1e-4, r=1e-3, input_std=1.0), "paper-example1"),

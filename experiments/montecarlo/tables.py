@@ -24,7 +24,7 @@ def main():
         nis_txt = "–" if not s.get("nis") else f"{s['nis']['mean']:.2f}"
         print(f"| {name} | {s['realisations']} | {s['diverged_fraction']:.1%} | "
               f"{o['bias']:+.4f} / {o['std']:.4f} / {o['rmse']:.4f} | {o['coverage_2sigma']:.3f} | "
-              f"{o['converged_fraction']:.1%}, {('%.2f s' % conv) if conv is not None else '–'} | "
+              f"{o['converged_fraction']:.1%}, {f'{conv:.2f} s' if conv is not None else '–'} | "
               f"{p['bias']:+.3f} / {p['std']:.3f} / {p['rmse']:.3f} | {nees_txt} | {nis_txt} | "
               f"{s.get('wall_seconds', s.get('seconds'))} |")
 

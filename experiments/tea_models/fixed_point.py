@@ -34,8 +34,8 @@ import time
 from dataclasses import replace
 
 import torch
+from grown_model import FW, SIGMAS, H, arguments, data, tea_config, write_outputs
 
-from grown_model import FW, H, SIGMAS, arguments, data, tea_config, write_outputs
 from torchtea.core.stats import last_third
 from torchtea.engines.tea import make_params, run_tea
 from torchtea.likelihood.kalman import kalman_filter

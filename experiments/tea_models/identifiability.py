@@ -26,8 +26,8 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
+from grown_model import FW, SETTINGS, H, arguments, data, tea_config
 
-from grown_model import FW, H, SETTINGS, arguments, data, tea_config
 from torchtea.core.stats import last_third
 from torchtea.engines.tea import make_params, run_tea
 from torchtea.fitting import fit_series

@@ -26,8 +26,8 @@ import time
 from dataclasses import replace
 
 import torch
-
 from grown_model import FW, H, arguments, data, tea_config, write_outputs
+
 from torchtea.core.stats import last_third
 from torchtea.fitting.mle import exact_loglik
 from torchtea.noise.tea import tea_view

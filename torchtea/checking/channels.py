@@ -3,7 +3,7 @@ check, the effects added by hand, then the loop) — channel after channel in th
 of a Dask cluster —, and its summary as text lines."""
 from __future__ import annotations
 
-from typing import Callable, Iterable
+from collections.abc import Callable, Iterable
 
 import numpy as np
 

@@ -54,12 +54,26 @@ from ..noise.components import candidates as candidates_all
 from ..noise.model import PAPER_MODEL, parse_model
 from . import screens
 from .diagnostics import LEVEL
-from .models import extend, model_fit, with_intervals
 from .models import assess as _assess
+from .models import extend, model_fit, with_intervals
 from .ranking import CLOSE_BIC, EXPLAIN_WINDOW, STRONG_BIC, rank
-from .refits import (BASE_RESTARTS, BASE_SLACK, LONG_RECORD, NULL_EFFECT, CheckRun, add_note,
-                     better_model_fit, degenerate, held_fixed, judge_no_gain, loglik_at, refined_model, refit,
-                     refit_degenerate, refit_from)
+from .refits import (
+    BASE_RESTARTS,
+    BASE_SLACK,
+    LONG_RECORD,
+    NULL_EFFECT,
+    CheckRun,
+    add_note,
+    better_model_fit,
+    degenerate,
+    held_fixed,
+    judge_no_gain,
+    loglik_at,
+    refined_model,
+    refit,
+    refit_degenerate,
+    refit_from,
+)
 from .refits import near as near_candidate
 from .results import CheckRecord, Suggestion, change_words, effect_parameters, read_check
 from .screening import ScreenContext, new_label, screen_all
@@ -79,7 +93,7 @@ class CheckResult(CheckRecord):
     """What :func:`check` found (:class:`~.results.CheckRecord`) and the loop's verbs: :meth:`add` an effect and check
     again, :meth:`recheck` another model on the same series, :meth:`auto` the whole loop."""
 
-    def add(self, effect: str, **kw) -> "CheckResult":
+    def add(self, effect: str, **kw) -> CheckResult:
         """Check the model with ``effect`` added (reusing the suggestion's fit when there is one): a name, the
         suggestion's model when it suggested that effect, else the component configured on these data
         (:func:`.screens.configure`: how many spikes); or a token ``name:argument``."""
@@ -102,13 +116,13 @@ class CheckResult(CheckRecord):
         res.before = self
         return res
 
-    def recheck(self, model, fit: Fit | None = None, whittle=None, **kw) -> "CheckResult":
+    def recheck(self, model, fit: Fit | None = None, whittle=None, **kw) -> CheckResult:
         """:func:`check` of another ``model`` on the same series, inputs and levels, from its exact ``fit`` and Whittle
         fit when given and with this result's refits carried as starts (the loop's simplification, :mod:`.simplify`)."""
         return check(self.y, self.h, model=model, inputs=self.inputs, level=self.level,
                      screen_level=self.screen_level, fit=fit, carry=self.refits, whittle=whittle, fits=self.fits, **kw)
 
-    def auto(self, max_steps: int = 6, strong: float | None = None, simplify: bool = True, **kw) -> "CheckResult":
+    def auto(self, max_steps: int = 6, strong: float | None = None, simplify: bool = True, **kw) -> CheckResult:
         """Run the loop to its end: add the best suggestion and check again (:meth:`add`, ``kw`` passed on), until
         no effect passes its screen and lowers BIC, the model is adequate and no suggestion gains ``strong`` BIC
         or more (default :data:`STRONG_BIC`), or ``max_steps`` effects were added; then (``simplify``) take away and

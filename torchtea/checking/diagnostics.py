@@ -42,10 +42,19 @@ import numpy as np
 import torch
 from scipy import stats
 
-from ..core.search import (BAND_WIDTHS, against_neighbours, band_search, chirp_search, innovation_periodogram,
-                           max_abs_bound, max_abs_logp, max_abs_p, refine_chirp, smallest_of_logp)
-from ..fitting.innovations import (Innovations, gls_statistic, innovations, linear_lr, scan_lr, whiten,
-                                   whiten_with_level)
+from ..core.search import (
+    BAND_WIDTHS,
+    against_neighbours,
+    band_search,
+    chirp_search,
+    innovation_periodogram,
+    max_abs_bound,
+    max_abs_logp,
+    max_abs_p,
+    refine_chirp,
+    smallest_of_logp,
+)
+from ..fitting.innovations import Innovations, gls_statistic, innovations, linear_lr, scan_lr, whiten, whiten_with_level
 from . import allan
 
 __all__ = ["Diagnostic", "Innovations", "innovations", "whiten", "run_diagnostics", "metrics", "DIAGNOSTICS", "FUNCTIONS",
@@ -94,7 +103,7 @@ class Diagnostic:
         return SIGNATURES[self.name](self)
 
 
-def _where(d: "Diagnostic") -> str:
+def _where(d: Diagnostic) -> str:
     return "; ".join(f"{a:.3g}–{b:.3g} {d.unit}" if a != b else f"{a:.3g} {d.unit}" for a, b in d.ranges[:4])
 
 

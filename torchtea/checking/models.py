@@ -7,8 +7,14 @@ compares (:mod:`torchtea.fitting.whittle_path`): the model's fit (:func:`model_f
 from __future__ import annotations
 
 from ..fitting.mle import Fit, fit_series, located_intervals, refine_best, refine_exact
-from ..fitting.whittle_path import (exact_information, exact_optimised, fits_exactly, uses_exact, whittle_estimate,
-                                    whittle_refine)
+from ..fitting.whittle_path import (
+    exact_information,
+    exact_optimised,
+    fits_exactly,
+    uses_exact,
+    whittle_estimate,
+    whittle_refine,
+)
 from ..noise.components import COMPONENTS
 from ..noise.components import candidates as candidates_all
 from ..noise.model import NoiseModel, parse_model

@@ -11,9 +11,9 @@ import time
 import numpy as np
 import torch
 
+from ..fitting.exact import gradient_supported
 from ..fitting.mle import Fit, centred, exact_loglik, whittle_fit
 from ..fitting.starts import starts_of
-from ..fitting.exact import gradient_supported
 from ..fitting.whittle_path import fits_exactly
 from . import models
 from .models import REFIT_TOLERANCE

@@ -16,8 +16,8 @@ import torch
 from scipy import stats
 
 from ..fitting.plan import plan_document, plan_lines, verdict_lines
-from ..noise.model import parse_model
 from ..likelihood.whittle import periodogram
+from ..noise.model import parse_model
 from ..render.plots import pyplot, save_figure
 from ..render.strictjson import write
 from ..sensors.measurements import DOCUMENT_MEANING, RECORDING_MEANING
@@ -68,11 +68,7 @@ MEANING = {
     "level": "the level of each diagnostic (Bonferroni inside it)",
     "screen_level": "the screens' family level: an effect passes below screen_level / (effects screened)",
     "notes": "what the check did that its numbers alone do not say (refits, restarts, effects skipped)",
-    "alternatives": "the models the loop's simplification fitted from this one (a component dropped, swapped or "
-                    "simplified), lowest BIC first, with their adequacy",
     "before": "(after --add) the model before the effect, its metrics, failed diagnostics and bic",
-    "plan": "how long to record: the expected 95 % intervals of the model's noise numbers on this record, 4× and 10× "
-            "it, taking the fitted model as the truth (torchtea plan)",
     "sensor": "accelerometer, gyroscope or signal",
     "column": "the recording's column (or bag field) the channel came from",
     "white_noise_density": "√(r h) of the fitted white noise: its density in unit/√Hz",
@@ -185,7 +181,7 @@ def _spectrum_figure(plt, res: CheckResult, out: Path, tag: str, unit: str, alt)
     if alt is not None:
         s2 = alt.fit.model.spectrum(alt.fit.values, torch.as_tensor(w), h)[0].numpy()
         ax.loglog(w * to_hz, s2 * to_psd, "C1--", lw=1.5, label=f"with {alt.effect}")
-    for (a, b), d in zip(res.diagnostic("spectrum").ranges, res.diagnostic("spectrum").directions):
+    for (a, b), _direction in zip(res.diagnostic("spectrum").ranges, res.diagnostic("spectrum").directions):
         ax.axvspan(a, b, color="red", alpha=0.08)
     ax.set_xlabel("frequency (Hz)")
     ax.set_ylabel(f"one-sided PSD (({unit})²/Hz)")

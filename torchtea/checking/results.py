@@ -70,7 +70,7 @@ class CheckRecord:
     screen_level: float
     seconds: float
     notes: list = field(default_factory=list)
-    before: "CheckRecord | None" = None
+    before: CheckRecord | None = None
     #: Seconds per stage (fit, diagnostics, screen, refits, intervals) and exact-likelihood evaluations.
     timings: dict = field(default_factory=dict)
     #: Why :meth:`auto` stopped here ("" when this result is not the end of a loop).

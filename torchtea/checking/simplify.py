@@ -115,7 +115,7 @@ def alternatives(res) -> list[Alternative]:
 
     for i, (label, comp) in enumerate(model.components):
         rest = tokens[:i] + tokens[i + 1:]
-        push("drop", label, None, lambda: parse_model("+".join(rest)))
+        push("drop", label, None, lambda rest=rest: parse_model("+".join(rest)))
         for kind, effects in (("simpler", comp.special_cases), ("swap", swaps.get(label, ()))):
             for e in effects:
                 if e not in COMPONENTS or (e in names and not COMPONENTS[e].add_again):
@@ -123,7 +123,7 @@ def alternatives(res) -> list[Alternative]:
                 # a special case in the component's place where a filter after it filtered it; else (and a swapped
                 # effect) where it goes by itself (a low-pass after the stochastic parts), failing that in its place
                 filtered = kind == "simpler" and any(c.kind == "filter" for _, c in model.components[i + 1:])
-                push(kind, label, e, lambda e=e, f=filtered: _replaced(rest, tokens, i, e, f))
+                push(kind, label, e, lambda e=e, f=filtered, rest=rest, i=i: _replaced(rest, tokens, i, e, f))
     return out
 
 

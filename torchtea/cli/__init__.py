@@ -16,8 +16,7 @@ import argparse
 import sys
 
 from . import checking, export, simulate, studies, tea
-from .common import (BOOTSTRAP_LIMIT, ESTIMATE_UNCERTAINTY_CHOICES, KFX_UNCERTAINTY_CHOICES, PRIOR_CHOICES,
-                     CLIError)
+from .common import BOOTSTRAP_LIMIT, ESTIMATE_UNCERTAINTY_CHOICES, KFX_UNCERTAINTY_CHOICES, PRIOR_CHOICES, CLIError
 
 __all__ = ["main", "build_parser", "CLIError", "BOOTSTRAP_LIMIT", "PRIOR_CHOICES", "ESTIMATE_UNCERTAINTY_CHOICES",
            "KFX_UNCERTAINTY_CHOICES"]

@@ -6,8 +6,22 @@ import sys
 import time
 from pathlib import Path
 
-from .common import (BOOTSTRAP_LIMIT, CLIError, _check_channels, _check_cluster_flags, _cluster, _cluster_flags,
-                     _measurements, _model_inputs, _note, _progress, _recording_flags, _steps, _tensorboard, _units_of)
+from .common import (
+    BOOTSTRAP_LIMIT,
+    CLIError,
+    _check_channels,
+    _check_cluster_flags,
+    _cluster,
+    _cluster_flags,
+    _measurements,
+    _model_inputs,
+    _note,
+    _progress,
+    _recording_flags,
+    _steps,
+    _tensorboard,
+    _units_of,
+)
 from .export import _datasheet_verdicts, _export, _export_flags, _export_plan, _print_verdicts, _sheets
 
 

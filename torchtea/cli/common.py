@@ -12,7 +12,6 @@ from pathlib import Path
 
 from ..render import strictjson
 
-
 #: torchtea.fitting.recording.BOOTSTRAP_LIMIT, for fit's help without importing the fitting layer (which takes about
 #: a second: the help of every command is built at start-up); tests/test_workflows.py checks that the two agree.
 BOOTSTRAP_LIMIT = 200_000

@@ -5,8 +5,18 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from .common import (CLIError, _check_channels, _check_cluster_flags, _cluster, _cluster_flags, _measurements, _note,
-                     _recording_flags, _steps, _tensorboard)
+from .common import (
+    CLIError,
+    _check_channels,
+    _check_cluster_flags,
+    _cluster,
+    _cluster_flags,
+    _measurements,
+    _note,
+    _recording_flags,
+    _steps,
+    _tensorboard,
+)
 
 
 def add_parsers(sub) -> None:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import sys
 
-from .common import CLIError, MEMORY_HELP, _count, _device, _finite_float, _memory, _nonneg_float, _positive_float
+from .common import MEMORY_HELP, CLIError, _count, _device, _finite_float, _memory, _nonneg_float, _positive_float
 
 
 def add_parsers(sub) -> None:
@@ -52,9 +52,9 @@ def cmd_simulate(args) -> int:
     if absent:
         raise CLIError(f"simulate needs {', '.join(absent)} (the paper's model), or --model SPEC")
 
-    from ..sensors.io import write_columns
     from ..engines.structure import parse_order_spec
     from ..noise.simulate import simulate_noise_model
+    from ..sensors.io import write_columns
 
     try:
         order = parse_order_spec(args.order)

@@ -8,9 +8,23 @@ from pathlib import Path
 
 from ..render import strictjson
 from ..render.text import num as _num
-from .common import (CLIError, DEVICE_HELP, MEMORY_HELP, PRIOR_CHOICES, _add_uncertainty_flags, _cluster, _count,
-                     _device, _device_name, _finite_float, _memory, _nonneg_float, _positive_float, _progress,
-                     _uncertainty_flags)
+from .common import (
+    DEVICE_HELP,
+    MEMORY_HELP,
+    PRIOR_CHOICES,
+    CLIError,
+    _add_uncertainty_flags,
+    _cluster,
+    _count,
+    _device,
+    _device_name,
+    _finite_float,
+    _memory,
+    _nonneg_float,
+    _positive_float,
+    _progress,
+    _uncertainty_flags,
+)
 
 
 def add_parsers(sub) -> None:

@@ -7,9 +7,27 @@ import time
 from pathlib import Path
 
 from ..render import strictjson
-from .common import (ALLOW_MISSING_HELP, CLIError, COMPILE_HELP, DEVICE_HELP, EXCLUDE_HELP, MEMORY_HELP,
-                     _add_uncertainty_flags, _device, _measurements, _memory, _model_inputs, _note, _positive_float,
-                     _progress, _recording_flags, _report, _stretch, _uncertainty_flags, _with_memory)
+from .common import (
+    ALLOW_MISSING_HELP,
+    COMPILE_HELP,
+    DEVICE_HELP,
+    EXCLUDE_HELP,
+    MEMORY_HELP,
+    CLIError,
+    _add_uncertainty_flags,
+    _device,
+    _measurements,
+    _memory,
+    _model_inputs,
+    _note,
+    _positive_float,
+    _progress,
+    _recording_flags,
+    _report,
+    _stretch,
+    _uncertainty_flags,
+    _with_memory,
+)
 
 
 def add_parsers(sub) -> None:
@@ -181,10 +199,9 @@ def _match_check(args, doc: dict, fits: dict, m) -> list:
 
 def cmd_identify(args) -> int:
     from ..identification import LONG_INPUT, identify, memory_note
+    from ..noise import parse_model
     from ..reports.identify import MIN_SAMPLES, identify_lines
     from ..reports.report import save_identification
-
-    from ..noise import parse_model
 
     dev = _device(args.device)  # before any work
     model = parse_model(args.model)

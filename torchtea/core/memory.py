@@ -109,7 +109,7 @@ class MemoryConfig:
         return d
 
     @classmethod
-    def from_dict(cls, data: dict) -> "MemoryConfig":
+    def from_dict(cls, data: dict) -> MemoryConfig:
         data = dict(data)
         if "order_range" in data and data["order_range"] is not None:
             data["order_range"] = tuple(data["order_range"])
@@ -343,11 +343,11 @@ class BoundedHistory(NamedTuple):
     modes: Tensor
 
     @classmethod
-    def zeros(cls, batch, n: int, lags: int, n_modes: int, *, dtype, device) -> "BoundedHistory":
+    def zeros(cls, batch, n: int, lags: int, n_modes: int, *, dtype, device) -> BoundedHistory:
         return cls(torch.zeros(tuple(batch) + (n, lags), dtype=dtype, device=device),
                    torch.zeros(tuple(batch) + (n, n_modes), dtype=dtype, device=device))
 
-    def push(self, x: Tensor, decay: Tensor | None, inject: Tensor | None) -> "BoundedHistory":
+    def push(self, x: Tensor, decay: Tensor | None, inject: Tensor | None) -> BoundedHistory:
         """Append ``x`` ``(*B, n)`` as the newest state; the oldest windowed state moves into the modes."""
         window = torch.cat([x.unsqueeze(-1), self.window[..., :-1]], dim=-1)
         if self.modes.shape[-1] == 0:
@@ -355,7 +355,7 @@ class BoundedHistory(NamedTuple):
         dropped = self.window[..., -1:]
         return BoundedHistory(window, torch.addcmul(self.modes * decay, inject, dropped))
 
-    def sum(self, coeffs: Tensor, orders: Tensor | None = None, kernel: "SOEKernel | None" = None,
+    def sum(self, coeffs: Tensor, orders: Tensor | None = None, kernel: SOEKernel | None = None,
             weights: Tensor | None = None) -> Tensor:
         r""":math:`\sum_j c_j x_{k+1-j}` for ``S`` orders: coeffs ``(*B, S, n, J)`` (lags 1…J) and, with a
         kernel, the exponential-sum part for ``orders`` ``(*B, S, n)`` → ``(*B, S, n)``; or with the mode

@@ -9,7 +9,7 @@ References: NEES/NIS consistency tests and their χ² acceptance bands, Bar-Shal
 from __future__ import annotations
 
 import math
-from typing import Sequence
+from collections.abc import Sequence
 
 import torch
 from torch import Tensor

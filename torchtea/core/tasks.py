@@ -1,7 +1,7 @@
 """Independent tasks (a recording's channels) on a Dask cluster: submitted together, gathered in their own order."""
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 

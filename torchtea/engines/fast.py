@@ -292,7 +292,7 @@ class FastTEA:
                      S=m(s.SS) if self.innovation else None)
 
 
-def block_steps(eng: "FastTEA", k: int, B: int) -> int:
+def block_steps(eng: FastTEA, k: int, B: int) -> int:
     """Steps of the next compiled call: :data:`BLOCK`, fewer where a block would take more than about half a
     second (progress and Ctrl-C act between calls) — ``exact`` memory costs ~4·k·B multiply-adds per step,
     bounded memory ~0.5 µs per realisation and step."""

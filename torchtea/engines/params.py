@@ -4,8 +4,9 @@ for a :class:`~.structure.Structure`, a drive's cap, several configurations stac
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import replace
-from typing import NamedTuple, Sequence
+from typing import NamedTuple
 
 import torch
 from torch import Tensor

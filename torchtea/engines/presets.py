@@ -11,8 +11,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from .structure import ConstantOrder, LinearOrder, OrderSchedule, ParabolicOrder
 from .settings import StateFilterConfig, TEAConfig, UnscentedConfig
+from .structure import ConstantOrder, LinearOrder, OrderSchedule, ParabolicOrder
 
 __all__ = ["Scenario", "PRESETS", "SCENARIOS", "get_preset", "PRESET_H"]
 

@@ -108,7 +108,7 @@ class TEAResult:
     memory_clamped: Tensor | None = None
     interrupted: bool = False
 
-    def to(self, device) -> "TEAResult":
+    def to(self, device) -> TEAResult:
         """The same result with every tensor on ``device`` (e.g. back to the CPU for a report)."""
         from dataclasses import fields
 

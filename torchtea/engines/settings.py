@@ -235,7 +235,7 @@ class TEAConfig:
         return self.kfo.uses_innovation or self.kfw.uses_innovation
 
     @classmethod
-    def from_dict(cls, data: dict, base: "TEAConfig | None" = None) -> "TEAConfig":
+    def from_dict(cls, data: dict, base: TEAConfig | None = None) -> TEAConfig:
         """Build from a nested dict (e.g. parsed TOML), overriding ``base`` (default settings)."""
         base = base or cls()
         known = {f.name for f in fields(cls)}

@@ -14,8 +14,8 @@ Shapes: ``n`` states, ``m`` parameters, ``d`` inputs, ``p`` outputs.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable
 
 import torch
 from torch import Tensor
@@ -68,7 +68,7 @@ class ParametricMatrix:
         return self.basis.shape[0]
 
     @classmethod
-    def scalar(cls) -> "ParametricMatrix":
+    def scalar(cls) -> ParametricMatrix:
         """``A(w) = w`` for one state and one parameter (the paper's ``f``)."""
         return cls(torch.zeros(1, 1, dtype=torch.float64), torch.ones(1, 1, 1, dtype=torch.float64))
 
@@ -151,7 +151,7 @@ class Structure:
         return out
 
     @classmethod
-    def scalar_noise(cls) -> "Structure":
+    def scalar_noise(cls) -> Structure:
         """The paper's noise model (43)–(45): ``A = f`` (estimated), ``B = C = 1``."""
         return cls()
 

@@ -38,8 +38,19 @@ from .history import _make_memory
 from .params import TEAParams, make_params, q_cap, stack_params
 from .results import STEP_OUTPUTS, Carry, StepOutput, TEAResult, ut_weights
 from .structure import Structure
-from .unscented import (_constant_truth_cov, _gain, _joseph, _mm, _over_cov, _psd, _symmetrise, adapt_q, sigma_points,
-                        sqrt_psd, ut_update)
+from .unscented import (
+    _constant_truth_cov,
+    _gain,
+    _joseph,
+    _mm,
+    _over_cov,
+    _psd,
+    _symmetrise,
+    adapt_q,
+    sigma_points,
+    sqrt_psd,
+    ut_update,
+)
 
 __all__ = [
     "TEAParams",

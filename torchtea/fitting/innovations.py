@@ -49,7 +49,7 @@ class Innovations:
         """:func:`scan_lr` of these innovations."""
         return scan_lr(self, columns, **kw)
 
-    def again(self, y) -> "Innovations":
+    def again(self, y) -> Innovations:
         """The same model and values filtered on the series ``y`` (e.g. with samples set missing)."""
         return innovations(self.model, self.values, y, self.h, self.inputs, self.memory)
 

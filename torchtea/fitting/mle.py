@@ -31,13 +31,13 @@ import torch
 from torch import Tensor
 
 from ..core.search import refine_frequency, remove_regressors
-from .exact import FIT_MEMORY, ExactPass, centred, exact_loglik, exact_pass, gradient_supported, unknown_level
-from .multistart import exact_multistart
-from .innovations import located_intervals
 from ..likelihood.settings import current as likelihood_settings
 from ..likelihood.whittle import RESOLUTION, WhittleData, periodogram, whittle_data
 from ..noise.model import NoiseModel, parse_model
 from . import scoring
+from .exact import FIT_MEMORY, ExactPass, centred, exact_loglik, exact_pass, gradient_supported, unknown_level
+from .innovations import located_intervals
+from .multistart import exact_multistart
 from .results import Z95, Fit, bic, estimates_from_hessian, intervals_from_hessian
 from .scoring import decrement_tolerance
 from .starts import initial_values, starts_of

@@ -37,6 +37,7 @@ variance is :math:`N^2/\tau`, and flicker :math:`B^2/(2\pi f)`, whose Allan devi
 from __future__ import annotations
 
 import math
+
 try:
     import tomllib
 except ImportError:  # (Python 3.10)

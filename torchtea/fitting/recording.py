@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import math
 import time
-from typing import Callable
+from collections.abc import Callable
 
 from ..render.text import num
-from .mle import Fit, fit_series
 from ..sensors.measurements import DOCUMENT_MEANING, RECORDING_MEANING
+from .mle import Fit, fit_series
 from .summary import MEANING, axis_summary, fit_nis
 
 __all__ = ["FIT_MEANING", "fit_recording", "fit_channel", "fit_lines", "BOOTSTRAP_LIMIT", "bootstrap_replicates"]

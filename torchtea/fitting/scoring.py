@@ -459,7 +459,7 @@ def exact_refine(model, y, h, u0: Tensor, free: Tensor, inputs, memory, metric: 
     if M is not None:
         f, g = fun(x)
         tol = decrement_tolerance(f)
-        for iterations in range(1, max_iter + 1):
+        for iterations in range(1, max_iter + 1):  # noqa: B007 (the count is read after the loop)
             step = -np.linalg.solve(M, g)
             decrement = -0.5 * float(g @ step)
             if decrement < tol:  # the exact −ℓ still to gain (on this metric) is below what ℓ's rounding can tell

@@ -81,7 +81,7 @@ class WhittleObjective:
         S, _ = self._spectrum(U, omega, False)
         return self._terms(U, rows, S, grad=False).beta
 
-    def _terms(self, U: Tensor, rows, S: Tensor, grad: bool) -> "_Terms":
+    def _terms(self, U: Tensor, rows, S: Tensor, grad: bool) -> _Terms:
         """What the sum's terms read at the points ``U`` whose spectrum at the terms is ``S`` ``(k, 2W)``: which bins
         are rough, each rough row's ordinates, their spectrum (and its derivatives with ``grad``), and the
         periodogram of the terms and of those ordinates — with regressors, at the generalised-least-squares

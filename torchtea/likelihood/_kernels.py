@@ -179,7 +179,7 @@ def _jacobi_eigh(T, V):
     for i in range(r):
         for j in range(r):
             V[i, j] = 1.0 if i == j else 0.0
-    for sweep in range(60):
+    for _sweep in range(60):
         off = 0.0
         tot = 0.0
         for i in range(r):
@@ -308,7 +308,6 @@ def chandrasekhar_one(indptr, indices, fval, L0, M0, b0, S0, C, cidx, R, y, mu, 
     sww = 0.0
     beta = 0.0
     rss = 0.0
-    width = 2 if lvl else 1
     for k in range(N):
         pred = mu[k]
         ew = 1.0

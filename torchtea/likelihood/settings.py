@@ -26,7 +26,7 @@ class LikelihoodSettings:
     whittle: str = "binned"
 
 
-_CURRENT = contextvars.ContextVar("torchtea_likelihood", default=LikelihoodSettings())
+_CURRENT = contextvars.ContextVar("torchtea_likelihood", default=LikelihoodSettings())  # noqa: B039 (frozen)
 
 
 def current() -> LikelihoodSettings:

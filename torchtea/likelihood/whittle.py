@@ -28,12 +28,11 @@ from __future__ import annotations
 
 import functools
 import math
+from dataclasses import dataclass
 
 import numpy as np
 import torch
 from torch import Tensor
-
-from dataclasses import dataclass
 
 __all__ = ["periodogram", "whittle_loglik", "WhittleData", "whittle_data", "whittle_scores", "Regressors",
            "regressors_data", "RESOLUTION"]
@@ -81,13 +80,13 @@ class WhittleData:
     omega_full: Tensor
     I_full: Tensor
     #: a linear mean's regressors in the frequency domain (the sum is profiled over their coefficients), or None
-    regressors: "Regressors | None" = None
+    regressors: Regressors | None = None
 
     @property
     def terms(self) -> int:
         return int(self.weight.shape[-1])
 
-    def rows(self, rows: Tensor) -> "WhittleData":
+    def rows(self, rows: Tensor) -> WhittleData:
         """The data of series ``rows``."""
         return WhittleData(self.weight, self.omega_log, self.omega_I[rows], self.I[rows], self.first,
                            self.omega_full, self.I_full[rows],
@@ -201,7 +200,7 @@ class Regressors:
     c: Tensor
     M: Tensor
 
-    def rows(self, rows: Tensor) -> "Regressors":
+    def rows(self, rows: Tensor) -> Regressors:
         return Regressors(self.Y[rows], self.X[rows], self.A[rows], self.c[rows], self.M[rows])
 
     def ordinates(self, series: Tensor, ords: Tensor) -> tuple[Tensor, Tensor, Tensor]:

@@ -112,7 +112,7 @@ class VaryingRow:
         """Every step's row ``(B, N, n)`` (O(N n) memory: for short series and tests)."""
         return torch.stack([self.row(k) for k in range(self.index.shape[1])], dim=1)
 
-    def expand(self, m: int) -> "VaryingRow":
+    def expand(self, m: int) -> VaryingRow:
         return VaryingRow(self.i, self.table.expand(m, -1, -1), self.loading_table.expand(m, -1),
                           self.index.expand(m, -1), self.frac.expand(m, -1), self.column)
 
@@ -156,7 +156,7 @@ class StateSpace:
         """``g0`` ``(B, n)`` (zeros when every state starts at zero)."""
         return self.F.new_zeros(self.F.shape[0], self.F.shape[-1]) if self.g0 is None else self.g0
 
-    def expand(self, m: int) -> "StateSpace":
+    def expand(self, m: int) -> StateSpace:
         """The one parameter set of a batch of one repeated ``m`` times (views, no copies): to filter ``m``
         series, e.g. regressors, with the same gains."""
         if self.F.shape[0] != 1:
@@ -243,7 +243,7 @@ class NoiseModel:
     def param_spec(self, name: str):
         return self._specs[name]
 
-    def without(self, name: str) -> "NoiseModel":
+    def without(self, name: str) -> NoiseModel:
         """The same model without every component called ``name`` (the null of a presence test)."""
         name = name.partition(":")[0]  # (a token, spikes:3, names its component)
         kept = [c.token for _, c in self.components if c.name != name]

@@ -49,14 +49,14 @@ class Simulation:
     process_noise: Tensor
     measurement_noise: Tensor
 
-    def reshape(self, batch: tuple) -> "Simulation":
+    def reshape(self, batch: tuple) -> Simulation:
         """The same realisations with the batch dimensions ``batch`` (as many realisations in all)."""
         def r(t):
             return t.reshape(tuple(batch) + t.shape[-2:])
         return Simulation(self.t, r(self.u), r(self.x), r(self.y), r(self.alpha), r(self.process_noise),
                           r(self.measurement_noise))
 
-    def to(self, device) -> "Simulation":
+    def to(self, device) -> Simulation:
         return Simulation(*(t.to(device) for t in (self.t, self.u, self.x, self.y, self.alpha, self.process_noise,
                                                    self.measurement_noise)))
 
@@ -391,8 +391,7 @@ def _run(ss, z0: torch.Tensor, xi: torch.Tensor, keep: list, fr_i: int, forcing)
     seconds and little memory."""
     import numpy as np
 
-    from .simulate_kernel import csr
-    from .simulate_kernel import simulate_batch
+    from .simulate_kernel import csr, simulate_batch
 
     F = ss.F.detach().cpu().numpy()
     B, R_, N, _ = xi.shape

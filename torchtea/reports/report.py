@@ -6,11 +6,11 @@ from pathlib import Path
 
 import numpy as np
 
-from ..sensors.datacheck import MISSING_POLICY
-from ..identification import Identification
-from .identify import NIS_TRUST_BAND, SETTLE_BAND, filter_sd_label, mean_or_nan, settle_time
 from ..core.stats import last_third
+from ..identification import Identification
 from ..noise.model import PAPER_MODEL
+from ..sensors.datacheck import MISSING_POLICY
+from .identify import NIS_TRUST_BAND, SETTLE_BAND, filter_sd_label, mean_or_nan, settle_time
 
 __all__ = ["settle_time", "axis_statistics", "write_report", "log_identification", "orders_figure",
            "save_identification", "SUMMARY_MEANING"]

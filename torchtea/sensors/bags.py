@@ -19,8 +19,8 @@ path, the messages are read one at a time into arrays sized from the bag's index
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Sequence
 
 import numpy as np
 

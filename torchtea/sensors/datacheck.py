@@ -74,7 +74,7 @@ class Missing:
                 "ranges": [list(r) for r in self.ranges]}
 
     @classmethod
-    def from_dict(cls, d: dict) -> "Missing":
+    def from_dict(cls, d: dict) -> Missing:
         """The inverse of :meth:`to_dict`."""
         return cls(samples=d["of"], count=d["count"], per_column=dict(d["per_column"]),
                    ranges=[list(r) for r in d["ranges"]])

@@ -65,9 +65,9 @@ def synthetic_counts(n: int, *, rate_hz: float = 100.0, lsb_per_g: float = 4096.
     constant temperature."""
     import torch
 
-    from .io import STANDARD_GRAVITY
     from ..engines.structure import ConstantOrder, Structure
     from ..noise.simulate import simulate
+    from .io import STANDARD_GRAVITY
 
     g = torch.Generator().manual_seed(seed)
     sim = simulate(Structure(), n_steps=n, h=1.0 / rate_hz, order=ConstantOrder(order), parameters=[param],

@@ -18,17 +18,28 @@ from __future__ import annotations
 import json
 import math
 import re
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
-from typing import Sequence
 
 import numpy as np
 
 from .datacheck import stamp_rate
 from .errors import InputError
-from .text import (PLAUSIBLE_RATE_HZ, TIME_COLUMNS, _delimiter_hint, _given_rate, _head_lines, _is_number,
-                   _numeric_column, _parse_body, _stamps_and_rate, _time_column, read_series)
+from .text import (
+    PLAUSIBLE_RATE_HZ,
+    TIME_COLUMNS,
+    _delimiter_hint,
+    _given_rate,
+    _head_lines,
+    _is_number,
+    _numeric_column,
+    _parse_body,
+    _stamps_and_rate,
+    _time_column,
+    read_series,
+)
 
 __all__ = ["RECORDER_COLUMNS", "InputError", "Channel", "Recording", "bundled_recording", "read_recording",
            "read_series", "write_columns", "STANDARD_GRAVITY", "BUNDLED", "TIME_COLUMNS", "UNITS", "SI_UNITS",
@@ -108,12 +119,12 @@ class Channel:
         return {"column": self.name, "sensor": self.sensor, "axis": self.axis, "unit": self.unit,
                 "file_unit": self.source_unit, "full_scale": None if self.full_scale is None else list(self.full_scale)}
 
-    def head(self, n: int | None) -> "Channel":
+    def head(self, n: int | None) -> Channel:
         """The first ``n`` samples (all for None)."""
         return Channel(self.name, self.sensor, self.axis, self.values[:n], self.source_unit, self.scale,
                        self.full_scale)
 
-    def with_values(self, values: np.ndarray) -> "Channel":
+    def with_values(self, values: np.ndarray) -> Channel:
         return Channel(self.name, self.sensor, self.axis, values, self.source_unit, self.scale, self.full_scale)
 
 
@@ -192,7 +203,7 @@ class Recording:
         except ValueError:
             return None
 
-    def head(self, n: int | None) -> "Recording":
+    def head(self, n: int | None) -> Recording:
         """The recording's first ``n`` samples (all for None)."""
         if n is None:
             return self

@@ -20,12 +20,12 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ..identification import axis_configs
-from ..reports.identify import AXES
 from ..core.memory import parse_memory
 from ..engines.structure import Structure
-from .recorder import physical_row
 from ..engines.tea import TEAStream, make_params, stack_params
+from ..identification import axis_configs
+from ..reports.identify import AXES
+from .recorder import physical_row
 
 __all__ = ["LiveEstimator"]
 

@@ -14,19 +14,19 @@ through the TEA's view of an estimator model (``[estimator] model``, default the
 from __future__ import annotations
 
 import math
-from pathlib import Path
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 import torch
 from torch import Tensor
 
 from ..core.memory import parse_memory
-from ..engines.structure import OrderSchedule, Structure, parse_order_spec
-from ..noise.simulate import Simulation, simulate
 from ..core.stats import chi2_band, convergence_time, coverage, nees, nis, over_realisations
-from ..engines.tea import make_params, run_tea
 from ..engines.settings import TEAConfig
+from ..engines.structure import OrderSchedule, Structure, parse_order_spec
+from ..engines.tea import make_params, run_tea
+from ..noise.simulate import Simulation, simulate
 from .results import FINALS, StudyResult, logged_steps
 
 __all__ = ["Truth", "Study", "StudyResult", "realisation_seed", "draw_realisation", "draw_prior", "run_range", "auto_chunk", "logged_steps", "summarise", "build_study", "save_study", "STUDY_KEYS", "PRIORS"]

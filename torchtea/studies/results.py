@@ -5,9 +5,13 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import torch
 from torch import Tensor
+
+if TYPE_CHECKING:
+    from .montecarlo import Study
 
 __all__ = ["StudyResult", "logged_steps", "LOGGED_BYTES", "TRAJECTORIES", "FINALS"]
 
@@ -72,7 +76,7 @@ class StudyResult:
         return int((~self.diverged).sum())
 
     @classmethod
-    def empty(cls, study: Study, *, trajectories: bool = False, interrupted: bool = True) -> "StudyResult":
+    def empty(cls, study: Study, *, trajectories: bool = False, interrupted: bool = True) -> StudyResult:
         """A result with no finished realisation (of the study's shapes)."""
         N = study.truth.n_steps
         steps = torch.tensor(logged_steps(study))
@@ -87,7 +91,7 @@ class StudyResult:
                    interrupted=interrupted, trajectories={k: f64(0, N) for k in TRAJECTORIES} if trajectories else None)
 
     @classmethod
-    def concat(cls, parts, *, interrupted: bool = False) -> "StudyResult":
+    def concat(cls, parts, *, interrupted: bool = False) -> StudyResult:
         """One result from parts holding disjoint realisations of the same study (in any order)."""
         parts = sorted(parts, key=lambda p: int(p.index[0]) if p.finished else -1)
         parts = [p for p in parts if p.finished] or parts[:1]
@@ -98,11 +102,11 @@ class StudyResult:
         cat = lambda get: torch.cat([get(p) for p in parts])  # noqa: E731
         trajectories = None
         if all(p.trajectories is not None for p in parts):
-            trajectories = {k: cat(lambda p: p.trajectories[k]) for k in TRAJECTORIES}
+            trajectories = {k: cat(lambda p, k=k: p.trajectories[k]) for k in TRAJECTORIES}
         return cls(study=first.study, t=first.t, index=index, diverged=cat(lambda p: p.diverged),
-                   final={k: cat(lambda p: p.final[k]) for k in FINALS},
-                   converged_at={k: cat(lambda p: p.converged_at[k]) for k in ("order", "param")},
-                   covered={k: cat(lambda p: p.covered[k]) for k in ("order", "param")},
+                   final={k: cat(lambda p, k=k: p.final[k]) for k in FINALS},
+                   converged_at={k: cat(lambda p, k=k: p.converged_at[k]) for k in ("order", "param")},
+                   covered={k: cat(lambda p, k=k: p.covered[k]) for k in ("order", "param")},
                    nees_sum=_sum(p.nees_sum for p in parts), nis_sum=_sum(p.nis_sum for p in parts),
                    covered_steps={k: _sum(p.covered_steps[k] for p in parts) for k in ("order", "param")},
                    steps=first.steps, logged={"alpha": cat(lambda p: p.logged["alpha"]),

@@ -15,9 +15,24 @@ screen starts where the fits do), and reads the rest through the check's context
 from __future__ import annotations
 
 from . import levels, lines, markov, outliers, temperature  # noqa: F401  (the built-in screens register themselves)
-from .registry import (MEAN_SCREEN, REGISTRY, WHITTLE_SCREEN, WHITTLE_SCREEN_2, NotScreened, Screen, boundary_logsf,
-                       configure, mean_screen, register_screen, run_screen, screen_df, screen_of, screen_test,
-                       unregister_screen, whittle_screened)
+from .registry import (
+    MEAN_SCREEN,
+    REGISTRY,
+    WHITTLE_SCREEN,
+    WHITTLE_SCREEN_2,
+    NotScreened,
+    Screen,
+    boundary_logsf,
+    configure,
+    mean_screen,
+    register_screen,
+    run_screen,
+    screen_df,
+    screen_of,
+    screen_test,
+    unregister_screen,
+    whittle_screened,
+)
 
 __all__ = ["Screen", "REGISTRY", "register_screen", "unregister_screen", "screen_of", "screen_df", "screen_test", "whittle_screened",
            "run_screen", "configure", "mean_screen", "boundary_logsf", "NotScreened", "WHITTLE_SCREEN",

@@ -16,8 +16,7 @@ what its caller gives (``innovations(values)``)."""
 from __future__ import annotations
 
 from . import filters, fractional, levels, lines, markov, measurement, outliers, thermal  # noqa: F401  (register)
-from .registry import (BUILT_IN, REGISTRY, StartData, Starts, initial_values, register_start, starts_of,
-                       unregister_start)
+from .registry import BUILT_IN, REGISTRY, StartData, Starts, initial_values, register_start, starts_of, unregister_start
 
 BUILT_IN.update(REGISTRY)
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+
 import torch
 from torch import Tensor
 
@@ -220,7 +221,7 @@ class Component:
         raise NotImplementedError
 
     # ---- how the TEA runs it (torchtea.noise.tea) ----------------------------------------------------------
-    def tea_part(self, label: str, v: dict, h: float) -> "TEAPart | None":
+    def tea_part(self, label: str, v: dict, h: float) -> TEAPart | None:
         """Its place in the TEA's model for one parameter set ``v`` (each ``(1,)``). A state of integer order:
         its block ``z_{k+1} = F z_k + G ξ_k`` is the A-type model's order-1 form ``x_{k+1} = h(A x_k + ω_k) + x_k``
         with ``A = (F − I)/h`` and ``Q0 = G Gᵀ/h²`` — exactly (the same transition and drive). A measurement
@@ -296,7 +297,7 @@ class Component:
         argument (``spikes:13``, :meth:`configured`)."""
         return self.name
 
-    def configured(self, argument: str) -> "Component":
+    def configured(self, argument: str) -> Component:
         """The component configured by the spec's ``name:argument`` (a spikes component's count); raises
         ``ValueError`` for a component that takes no argument."""
         raise ValueError(f"component {self.name!r} takes no argument (got {self.name}:{argument})")

@@ -8,7 +8,7 @@ from torch import Tensor
 
 from ...core import forward
 from ...core.gl import gl_tail_coefficients
-from .base import Component, ORDER_BOUNDS, ParamSpec, TEAPart
+from .base import ORDER_BOUNDS, Component, ParamSpec, TEAPart
 
 
 class Fractional(Component):

@@ -94,7 +94,7 @@ def test_the_registry_refuses_what_it_cannot_use():
     for attrs, words in [({"name": "Warm Up"}, "lower-case"), ({"name": "a+b"}, "'+'"), ({"name": "drift2"}, "digit"),
                          ({"kind": "noise"}, "kind 'noise'"), ({"kind": "filter"}, "built into the state-space"),
                          ({"kind": "modifier"}, "built into the state-space"), ({"params": ()}, "ParamSpec"),
-                         ({"name": "white"}, "built-in")]:
+                         ({"name": "white"}, "registered already (White, built in)")]:
         with pytest.raises(ValueError, match="effect Bad") as info:
             register(effect(**attrs))
         assert words in str(info.value)
@@ -112,7 +112,7 @@ def test_the_registry_refuses_what_it_cannot_use():
         unregister("warm-up")
     with pytest.raises(ValueError, match="unknown component 'warm-up'"):
         parse_model("fractional+white+warm-up")
-    with pytest.raises(ValueError, match="built-in"):
+    with pytest.raises(ValueError, match="built in and cannot be removed"):
         unregister("white")
 
 

@@ -117,7 +117,7 @@ def test_a_registered_start_replaces_a_built_in_one_only_when_asked_and_unregist
     class Mine(Starts):
         pass
 
-    with pytest.raises(ValueError, match="RandomWalk has starts already"):
+    with pytest.raises(ValueError, match="RandomWalk has its starts registered already"):
         register_start(RandomWalk)(Mine)
     register_start(RandomWalk, replace=True)(Mine)
     try:

@@ -48,7 +48,6 @@ ENTRY_POINTS = "torchtea.effects"
 #: The kinds of a user's effect that the filters and fits run generically; a ``filter`` (the low-pass) and a
 #: ``modifier`` (the temperature-driven order) are built into the state-space assembly and cannot be added.
 KINDS = ("state", "measurement", "mean")
-_BUILT_IN = frozenset(COMPONENTS)
 #: The screen methods a component class had before screens were registered apart (torchtea.checking.screens): a
 #: user's class that still defines one is refused by :func:`register`, not silently screened by the default.
 SCREEN_HOOKS = ("screen", "screen_test", "screen_df", "configure")
@@ -63,7 +62,7 @@ def register(effect, *, replace: bool = False):
     """Register a :class:`~torchtea.noise.components.Component` subclass (or an instance of one) under its
     ``name``; returns what it was given, so it serves as a class decorator. Raises ``ValueError`` naming the
     effect when its name, kind or parameters are not usable, or when the name is taken (``replace=True`` replaces
-    a user's effect; the built-in ones cannot be replaced)."""
+    the effect of that name, a built-in one too, until :func:`unregister`)."""
     comp = effect() if isinstance(effect, type) else effect
     if not isinstance(comp, Component):
         raise TypeError(f"register() takes a Component subclass, got {effect!r}")
@@ -101,20 +100,17 @@ def register(effect, *, replace: bool = False):
         raise ValueError(f"{where}: {', '.join(old)} on the class is no longer read — how the fits start an effect is "
                          "registered apart: a torchtea.fitting.starts.Starts subclass with these methods (each taking "
                          "the effect first), decorated @register_start(YourEffect)")
-    if name in _BUILT_IN:
-        raise ValueError(f"{where}: {name!r} is a built-in component and cannot be replaced")
-    if name in COMPONENTS and not replace:
-        raise ValueError(f"{where}: {name!r} is registered already ({type(COMPONENTS[name]).__name__}); "
-                         "replace=True replaces it")
-    COMPONENTS[name] = comp
+    try:
+        COMPONENTS.add(name, comp, replace=replace)
+    except ValueError as e:
+        raise ValueError(f"{where}: {e}") from None
     return effect
 
 
 def unregister(name: str) -> None:
-    """Remove a user's effect from the registry (the built-in ones stay)."""
-    if name in _BUILT_IN:
-        raise ValueError(f"{name!r} is a built-in component and cannot be removed")
-    COMPONENTS.pop(name, None)
+    """Remove a user's effect from the registry; where it had replaced a built-in effect of that name, the built-in
+    one is back (a built-in effect itself stays: ``ValueError``)."""
+    COMPONENTS.remove(name)
 
 
 def registered() -> dict:

@@ -13,9 +13,10 @@ from __future__ import annotations
 import csv
 import io
 
+from ..core.registry import Registry
 from .terms import IN_FORMATS
 
-__all__ = ["Format", "FORMATS", "register_format", "sensor_values", "per_axis", "FormatError"]
+__all__ = ["Format", "FORMATS", "register_format", "unregister_format", "sensor_values", "per_axis", "FormatError"]
 
 
 class FormatError(ValueError):
@@ -297,16 +298,27 @@ class GtsamPython(GtsamYaml):
         return "\n".join(lines) + "\n"
 
 
-#: The formats by name (a user's: :func:`register_format`).
-FORMATS: dict = {}
+#: The formats by name (a user's: :func:`register_format`; the rule of :class:`~torchtea.core.registry.Registry` for
+#: registering again and unregistering).
+FORMATS = Registry("format")
 
 
-def register_format(cls) -> type:
+def register_format(cls: type, *, replace: bool = False) -> type:
+    """Class decorator: the :class:`Format` subclass becomes the export format of its ``name`` (a name that has a
+    format already, a built-in one's included, needs ``replace=True``: ``register_format(Mine, replace=True)``)."""
+    if not (isinstance(cls, type) and issubclass(cls, Format)):
+        raise TypeError(f"register_format takes a Format subclass, got {cls!r}")
     if not cls.name or not cls.filename:
         raise ValueError(f"{cls.__name__}: a format needs a name and a filename")
-    FORMATS[cls.name] = cls()
+    FORMATS.add(cls.name, cls(), replace=replace)
     return cls
+
+
+def unregister_format(name: str) -> None:
+    """Remove a user's format (where it had replaced a built-in one of that name, the built-in one is back)."""
+    FORMATS.remove(name)
 
 
 for _cls in (Kalibr, Vins, OrbSlam3, Ieee952, GtsamYaml, GtsamPython, OpenVins):
     register_format(_cls)
+FORMATS.seal()

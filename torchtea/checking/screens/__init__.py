@@ -34,6 +34,8 @@ from .registry import (
     whittle_screened,
 )
 
+REGISTRY.seal()  # (the built-in screens: unregistering one a user replaced brings it back)
+
 __all__ = ["Screen", "REGISTRY", "register_screen", "unregister_screen", "screen_of", "screen_df", "screen_test", "whittle_screened",
            "run_screen", "configure", "mean_screen", "boundary_logsf", "NotScreened", "WHITTLE_SCREEN",
            "WHITTLE_SCREEN_2", "MEAN_SCREEN"]

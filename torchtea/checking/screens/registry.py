@@ -10,6 +10,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from ...core.registry import Registry
 from ...core.search import remove_regressors
 from ...fitting.starts import initial_values, starts_of
 
@@ -62,35 +63,34 @@ class Screen:
 #: The kinds of effect whose default screen is the Whittle likelihood-ratio (the others': a mean's :func:`mean_screen`).
 STOCHASTIC = ("state", "measurement", "filter")
 
-#: The screens by the effect's class (a subclass inherits its parent's unless it registers its own).
-REGISTRY: dict = {}
+#: The screens by the effect's class (a subclass inherits its parent's unless it registers its own; the rule of
+#: :class:`~torchtea.core.registry.Registry` for registering again and unregistering).
+REGISTRY = Registry("screen")
 
 
-def register_screen(effect, test: str, configure: Callable | None = None):
-    """Decorator: the function becomes the screen of the effect class ``effect`` (a built-in one's or a user's, or
-    the class of an effect instance given; as ``torch.distributions.register_kl`` attaches a divergence to a pair of
-    classes). Register it in the module that defines the effect, so that whatever loads the effect — ``--effects``,
-    a Dask worker, an entry point — loads its screen too."""
+def register_screen(effect, test: str, configure: Callable | None = None, *, replace: bool = False):
+    """Decorator: the function becomes the screen of the effect class ``effect`` (a user's, or the class of an effect
+    instance given; a class that has a screen already — a built-in effect's — needs ``replace=True``), as
+    ``torch.distributions.register_kl`` attaches a divergence to a pair of classes. Register it in the module that
+    defines the effect, so that whatever loads the effect — ``--effects``, a Dask worker, an entry point — loads its
+    screen too."""
     cls = effect if isinstance(effect, type) else type(effect)
 
     def attach(run: Callable) -> Callable:
-        REGISTRY[cls] = Screen(run, test, configure)
+        REGISTRY.add(cls, Screen(run, test, configure), replace=replace)
         return run
     return attach
 
 
 def unregister_screen(effect) -> None:
-    """Remove the screen registered for the effect class ``effect`` (or an instance's class): its kind's default is
-    back."""
-    REGISTRY.pop(effect if isinstance(effect, type) else type(effect), None)
+    """Remove the screen a user registered for the effect class ``effect`` (or an instance's class): its kind's
+    default is back, or the built-in screen it had replaced."""
+    REGISTRY.remove(effect if isinstance(effect, type) else type(effect))
 
 
 def screen_of(comp) -> Screen | None:
     """The screen registered for ``comp``'s class or its nearest parent; None: the default one."""
-    for cls in type(comp).__mro__:
-        if cls in REGISTRY:
-            return REGISTRY[cls]
-    return None
+    return REGISTRY.find(type(comp))
 
 
 def screen_df(comp) -> int:

@@ -16,8 +16,8 @@ what its caller gives (``innovations(values)``)."""
 from __future__ import annotations
 
 from . import filters, fractional, levels, lines, markov, measurement, outliers, thermal  # noqa: F401  (register)
-from .registry import BUILT_IN, REGISTRY, StartData, Starts, initial_values, register_start, starts_of, unregister_start
+from .registry import REGISTRY, StartData, Starts, initial_values, register_start, starts_of, unregister_start
 
-BUILT_IN.update(REGISTRY)
+REGISTRY.seal()  # (the built-in starts: unregistering one a user replaced brings it back)
 
 __all__ = ["Starts", "StartData", "REGISTRY", "register_start", "unregister_start", "starts_of", "initial_values"]

@@ -7,6 +7,7 @@ from typing import NamedTuple
 import torch
 from torch import Tensor
 
+from ...core.registry import Registry
 from ...noise.model import NoiseModel
 
 __all__ = ["Starts", "StartData", "REGISTRY", "register_start", "unregister_start", "starts_of", "initial_values"]
@@ -115,12 +116,11 @@ class Starts:
         return {}
 
 
-#: The starts by the effect's class (a subclass inherits its parent's unless it registers its own).
-REGISTRY: dict = {}
+#: The starts by the effect's class (a subclass inherits its parent's unless it registers its own; the rule of
+#: :class:`~torchtea.core.registry.Registry` for registering again and unregistering).
+REGISTRY = Registry("starts")
 #: The defaults, for an effect without starts of its own.
 DEFAULT = Starts()
-#: The built-in effects' starts, as the package registers them (:func:`unregister_start` restores them).
-BUILT_IN: dict = {}
 
 
 def register_start(effect, *, replace: bool = False):
@@ -132,30 +132,20 @@ def register_start(effect, *, replace: bool = False):
     def attach(starts: type) -> type:
         if not (isinstance(starts, type) and issubclass(starts, Starts)):
             raise TypeError(f"register_start({cls.__name__}) takes a Starts subclass, got {starts!r}")
-        if cls in REGISTRY and not replace:
-            raise ValueError(f"{cls.__name__} has starts already ({type(REGISTRY[cls]).__name__}); "
-                             "register_start(..., replace=True) replaces them")
-        REGISTRY[cls] = starts()
+        REGISTRY.add(cls, starts(), replace=replace)
         return starts
     return attach
 
 
 def unregister_start(effect) -> None:
-    """Remove the starts registered for the effect class ``effect`` (or an instance's class): a built-in effect's own
-    starts are back where a user replaced them, the defaults elsewhere."""
-    cls = effect if isinstance(effect, type) else type(effect)
-    if cls in BUILT_IN:
-        REGISTRY[cls] = BUILT_IN[cls]
-    else:
-        REGISTRY.pop(cls, None)
+    """Remove the starts a user registered for the effect class ``effect`` (or an instance's class): a built-in
+    effect's own starts are back where a user replaced them, the defaults elsewhere."""
+    REGISTRY.remove(effect if isinstance(effect, type) else type(effect))
 
 
 def starts_of(comp) -> Starts:
     """The starts registered for ``comp``'s class or its nearest parent; the defaults (:class:`Starts`) otherwise."""
-    for cls in type(comp).__mro__:
-        if cls in REGISTRY:
-            return REGISTRY[cls]
-    return DEFAULT
+    return REGISTRY.find(type(comp), DEFAULT)
 
 
 def initial_values(model, y: Tensor, h: float, order: float = 0.3) -> dict:

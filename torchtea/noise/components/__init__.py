@@ -34,6 +34,7 @@ the searches on a series), numpy, torch and scipy's filters and optimisers (no s
 """
 from __future__ import annotations
 
+from ...core.registry import Registry
 from .base import ORDER_BOUNDS, Component, ParamSpec, TEAPart, TEAUnsupported, logit
 from .filters import DigitalFilter, LowPass
 from .fractional import Fractional
@@ -62,9 +63,15 @@ def __getattr__(name: str):
     raise AttributeError(f"module 'torchtea.noise.components' has no attribute {name!r}")
 
 
-COMPONENTS = {c.name: c for c in (Fractional(), White(), Quantisation(), RandomWalk(), LowPass(), Offset(), Ramp(),
-                                  Sinusoid(), TemperatureBias(), TemperatureOrder(), GaussMarkov(), ThermalLag(),
-                                  Step(), DriftingLine(), DigitalFilter(), Spikes(), Resonance())}
+#: The effects by name (:func:`torchtea.effects.register` adds a user's, under the rule of
+#: :class:`~torchtea.core.registry.Registry` for registering again and unregistering).
+COMPONENTS = Registry("effect")
+for _c in (Fractional(), White(), Quantisation(), RandomWalk(), LowPass(), Offset(), Ramp(), Sinusoid(),
+           TemperatureBias(), TemperatureOrder(), GaussMarkov(), ThermalLag(), Step(), DriftingLine(), DigitalFilter(),
+           Spikes(), Resonance()):
+    COMPONENTS.add(_c.name, _c)
+COMPONENTS.seal()
+del _c
 
 
 def candidates() -> tuple:

@@ -228,37 +228,9 @@ def test_a_users_effect_may_register_its_own_screen(warm_up):
     assert screen_test(warm_up) == MEAN_SCREEN
 
 
-def test_a_class_with_the_old_screen_hooks_is_refused_not_silently_defaulted():
-    """Before screens were registered apart, a class carried its own ``screen``/``screen_test``/``configure``;
-    register refuses one that still does, naming the new way, and the moved names say where they went."""
-    import torchtea.noise.components as components
-
-    class OldStyle(WarmUp):
-        name = "old-style"
-
-        def screen(self, ctx):
-            return 0.0, 0.0, {}, ""
-
-    with pytest.raises(ValueError, match="screen on the class is no longer read.*register_screen"):
-        register(OldStyle)
-    assert "old-style" not in COMPONENTS
-    with pytest.raises(AttributeError, match="moved to torchtea.checking.screens.NotScreened"):
-        _ = components.NotScreened
-
-
-def test_a_class_with_the_old_start_hooks_is_refused_and_registered_starts_are_used(warm_up):
-    """Before starts were registered apart, a class carried its own ``start``/``fit_residual``/…; register refuses
-    one that still does, naming the new way. Starts registered for the effect (the how-to's) are what the fits
-    start from, and unregistering them brings the defaults back."""
-    class OldStart(WarmUp):
-        name = "old-start"
-
-        def start(self, param, data):
-            return 0.0
-
-    with pytest.raises(ValueError, match="start on the class is no longer read.*register_start"):
-        register(OldStart)
-    assert "old-start" not in COMPONENTS
+def test_registered_starts_are_what_the_fits_start_from(warm_up):
+    """Starts registered for the effect (the how-to's) are what the fits start from, and unregistering them brings
+    the defaults back."""
     m, _, y = _series(n=3000)
     model = parse_model(m)
     assert initial_values(model, torch.as_tensor(y), H)["warm-up.tau_s"] == 1.0  # the default for a positive value

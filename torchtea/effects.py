@@ -48,13 +48,6 @@ ENTRY_POINTS = "torchtea.effects"
 #: The kinds of a user's effect that the filters and fits run generically; a ``filter`` (the low-pass) and a
 #: ``modifier`` (the temperature-driven order) are built into the state-space assembly and cannot be added.
 KINDS = ("state", "measurement", "mean")
-#: The screen methods a component class had before screens were registered apart (torchtea.checking.screens): a
-#: user's class that still defines one is refused by :func:`register`, not silently screened by the default.
-SCREEN_HOOKS = ("screen", "screen_test", "screen_df", "configure")
-#: The start methods a component class had before starts were registered apart (torchtea.fitting.starts): refused the
-#: same way, rather than silently replaced by the defaults.
-START_HOOKS = ("start", "grid_start", "scale_drive", "strengths", "vanishing", "regressors", "fit_residual",
-               "located_intervals")
 _loaded_entry_points = False
 
 
@@ -90,16 +83,6 @@ def register(effect, *, replace: bool = False):
         raise ValueError(f"{where}: a mean effect must define mean(v, t, inputs)")
     if comp.kind == "state" and (type(comp).block is Component.block or type(comp).spectrum is Component.spectrum):
         raise ValueError(f"{where}: a state effect must define block(v, h, memory) and spectrum(v, omega, h)")
-    own = set().union(*(vars(c) for c in type(comp).__mro__[:-1] if c is not Component))  # the class's own names
-    old = [m for m in SCREEN_HOOKS if m in own]
-    if old:
-        raise ValueError(f"{where}: {', '.join(old)} on the class is no longer read — how check screens an effect is "
-                         "registered apart: torchtea.checking.screens.register_screen(YourEffect, test=…)")
-    old = [m for m in START_HOOKS if m in own]
-    if old:
-        raise ValueError(f"{where}: {', '.join(old)} on the class is no longer read — how the fits start an effect is "
-                         "registered apart: a torchtea.fitting.starts.Starts subclass with these methods (each taking "
-                         "the effect first), decorated @register_start(YourEffect)")
     try:
         COMPONENTS.add(name, comp, replace=replace)
     except ValueError as e:

@@ -13,7 +13,7 @@ Cases (issue 4):
    each (plot ``step_time.png``).
 4. Accuracy: max |α̂_soe − α̂_exact|, |x̂_soe − x̂_exact| on the same data (case 1's batches and
    paper Example 1), and how much the TEA itself amplifies a 1e−12 change of the data on the MEMS setting.
-Also: glibc's allocator defaults against ``torchtea.studies.perf.tune_allocator`` (fresh processes).
+Also: glibc's allocator defaults against ``torchtea.core.alloc.tune_allocator`` (fresh processes).
 
 Prints a table and writes ``experiments/bench/results.json``.
 """
@@ -46,7 +46,7 @@ from torchtea import (  # noqa: E402
     simulate,
 )
 from torchtea import run_tea as _run_tea  # noqa: E402
-from torchtea.studies.perf import tune_allocator  # noqa: E402
+from torchtea.core.alloc import tune_allocator  # noqa: E402
 
 
 def run_tea(*args, **kw):

@@ -85,8 +85,8 @@ RACE_WINDOW, RACE_MARGIN = 5, 2.0
 
 #: The scoring iterations keep every logit (a bounded parameter's, the pole's fraction, a frequency's share of
 #: Nyquist) within ±this (:func:`score_batch`): an order within 6·10⁻⁶ of 0 or 1 is at its bound. Measured: on a
-#: ramp's data, fractional+white's order bent to its bound gains 0.3 nats more at a logit of 18 (the fit before issue
-#: 44 went there) and costs 42 scoring iterations at a bound of 16 against 9 at 12 (bundled gy).
+#: ramp's data, fractional+white's order bent to its bound gains 0.3 nats more at a logit of 18 and costs 42 scoring
+#: iterations at a bound of 16 against 9 at 12 (bundled gy).
 LOGIT_BOUND = 12.0
 
 

@@ -53,16 +53,6 @@ __all__ = ["ParamSpec", "Component", "TEAPart", "TEAUnsupported", "COMPONENTS", 
            "DigitalFilter", "Spikes", "Resonance"]
 
 
-#: Names this module exported before the screens moved to :mod:`torchtea.checking.screens`.
-MOVED = frozenset({"NotScreened", "WHITTLE_SCREEN", "WHITTLE_SCREEN_2", "MEAN_SCREEN", "boundary_logsf"})
-
-
-def __getattr__(name: str):
-    if name in MOVED:
-        raise AttributeError(f"torchtea.noise.components.{name} moved to torchtea.checking.screens.{name}")
-    raise AttributeError(f"module 'torchtea.noise.components' has no attribute {name!r}")
-
-
 #: The effects by name (:func:`torchtea.effects.register` adds a user's, under the rule of
 #: :class:`~torchtea.core.registry.Registry` for registering again and unregistering).
 COMPONENTS = Registry("effect")

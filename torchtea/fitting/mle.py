@@ -33,6 +33,7 @@ from torch import Tensor
 from ..core.search import refine_frequency, remove_regressors
 from ..likelihood.settings import current as likelihood_settings
 from ..likelihood.whittle import RESOLUTION, WhittleData, periodogram, whittle_data
+from ..noise.components import STOCHASTIC_KINDS
 from ..noise.model import NoiseModel, parse_model
 from . import scoring
 from .exact import FIT_MEMORY, ExactPass, centred, exact_loglik, exact_pass, gradient_supported, unknown_level
@@ -114,7 +115,7 @@ def linear_mean(model: NoiseModel, y, h: float, inputs: dict | None = None) -> t
 
 def _stochastic(model: NoiseModel, name: str) -> bool:
     label = name.rsplit(".", 1)[0]
-    return dict(model.components)[label].kind in ("state", "measurement", "filter")
+    return dict(model.components)[label].kind in STOCHASTIC_KINDS
 
 
 def _starts(model: NoiseModel, y: np.ndarray, h: float, omega: Tensor, I: Tensor, mean_vals: dict,

@@ -49,6 +49,7 @@ import numpy as np
 import torch
 
 from ..core import forward
+from ..noise.components import STOCHASTIC_KINDS
 from ..noise.model import NoiseModel, parse_model
 
 __all__ = ["PlanRow", "plan", "B_CONVENTIONS", "length_for", "tie_length", "datasheet_model", "read_datasheet", "EXACT_ORDINATES",
@@ -66,7 +67,7 @@ EXACT_ORDINATES = 1_000_000
 def _stochastic(model: NoiseModel) -> list[str]:
     """The parameters of the model's noise (state, measurement and filter components), not its references."""
     refs = model.references()
-    return [f"{lb}.{p.name}" for lb, c in model.components if c.kind in ("state", "measurement", "filter")
+    return [f"{lb}.{p.name}" for lb, c in model.components if c.kind in STOCHASTIC_KINDS
             for p in c.params if f"{lb}.{p.name}" not in refs]
 
 

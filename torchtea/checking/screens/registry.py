@@ -13,6 +13,7 @@ import torch
 from ...core.registry import Registry
 from ...core.search import remove_regressors
 from ...fitting.starts import initial_values, starts_of
+from ...noise.components import STOCHASTIC_KINDS
 
 __all__ = ["Screen", "REGISTRY", "register_screen", "unregister_screen", "screen_of", "screen_df", "screen_test", "whittle_screened",
            "run_screen", "configure", "mean_screen", "boundary_logsf", "NotScreened", "WHITTLE_SCREEN",
@@ -60,8 +61,6 @@ class Screen:
     configure: Callable | None = None
 
 
-#: The kinds of effect whose default screen is the Whittle likelihood-ratio (the others': a mean's :func:`mean_screen`).
-STOCHASTIC = ("state", "measurement", "filter")
 
 #: The screens by the effect's class (a subclass inherits its parent's unless it registers its own; the rule of
 #: :class:`~torchtea.core.registry.Registry` for registering again and unregistering).
@@ -101,7 +100,7 @@ def screen_df(comp) -> int:
 def whittle_screened(comp) -> bool:
     """A stochastic effect (a state, measurement or filter) without a screen of its own: ``check`` screens it by the
     Whittle likelihood-ratio, all of them on one periodogram."""
-    return comp.kind in STOCHASTIC and screen_of(comp) is None
+    return comp.kind in STOCHASTIC_KINDS and screen_of(comp) is None
 
 
 def screen_test(comp) -> str | None:
@@ -110,7 +109,7 @@ def screen_test(comp) -> str | None:
     own = screen_of(comp)
     if own is not None:
         return own.test
-    if comp.kind in STOCHASTIC:
+    if comp.kind in STOCHASTIC_KINDS:
         df = screen_df(comp)
         return WHITTLE_SCREEN if df == 1 else WHITTLE_SCREEN_2 if df == 2 else f"Whittle LR, ½χ²{df - 1}+½χ²{df}"
     return MEAN_SCREEN if comp.kind == "mean" else None

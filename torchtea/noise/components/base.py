@@ -153,6 +153,12 @@ def forward_derivatives(function, params: tuple, v: dict, *args):
     return (value, out[0]) if single else (value, out)
 
 
+#: The kinds of component that are noise — a state, a measurement's white part, a sensor filter — as against a mean
+#: (a deterministic function of time and inputs) and a modifier (it changes another component): what the Whittle
+#: likelihood sees, what screens by its likelihood ratio, what the plan's intervals are about.
+STOCHASTIC_KINDS = ("state", "measurement", "filter")
+
+
 class Component:
     """Base class: a named part of the model. Subclasses set ``name``, ``kind`` and ``params``."""
 

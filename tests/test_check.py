@@ -27,12 +27,12 @@ from torchtea.checking.diagnostics import (
     stochastic_avar,
     temperature_view,
 )
-from torchtea.checking.hidden import HIDDEN_STRENGTH, hidden_case
 from torchtea.checking.report import write_report
 from torchtea.checking.screens import temperature as temperature_screens
 from torchtea.cli import main
 from torchtea.fitting.mle import exact_loglik, fit_series, refine_exact
 from torchtea.noise import default_values, parse_model, simulate_model, temperature_profile
+from torchtea.studies.hidden import HIDDEN_STRENGTH, hidden_case
 
 H = 0.01
 
@@ -714,7 +714,7 @@ def test_a_refit_that_misses_what_its_screen_saw_is_fitted_on_its_own_too():
     from the screen's starts its exact refit stays where the filter vanishes (the Whittle modes lie where the exact
     likelihood has none). The extended model's own fit finds its maximum 14 nats up, 2.0 in BIC from the low-pass —
     so the loop ends with the low-pass and names the tie, as the oracle calls it."""
-    from torchtea.checking.hidden import random_case
+    from torchtea.studies.hidden import random_case
 
     y, T, _ = random_case(["low-pass"], 0)
     first = check(y, H, inputs={"temperature": T}, intervals=False)

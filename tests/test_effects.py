@@ -441,11 +441,11 @@ def test_a_scan_over_regressors_is_each_ones_exact_lr_and_its_maximum_is_calibra
                                     pytest.param("drifting-line", marks=pytest.mark.slow),
                                     pytest.param("digital-filter", marks=pytest.mark.slow)])
 def test_check_names_each_new_effect_first_on_a_recording_of_the_random_study(effect):
-    """One case of each new effect from the randomised study's draws (:func:`~torchtea.checking.hidden.random_case`,
+    """One case of each new effect from the randomised study's draws (:func:`~torchtea.studies.hidden.random_case`,
     a seed where it is well inside its range): check screens it, suggests it first, and its refitted parameters are
     near the truth — a step's time to within 50 samples, the others within 25 % (the spread of their fits in
     experiments/check/random_study.md)."""
-    from torchtea.checking.hidden import random_case
+    from torchtea.studies.hidden import random_case
 
     seed = {"step": 0, "gauss-markov": 2, "thermal-lag": 4, "drifting-line": 0, "digital-filter": 0}[effect]
     y, T, truth = random_case([effect], seed)
@@ -535,7 +535,7 @@ def test_check_finds_isolated_spikes_lists_their_times_and_ends_adequate():
     samples (every time found is a true one, and every spike whose own standardised innovation is beyond the bound n
     samples allow by a margin is found), their sizes within 4 standard errors, and the loop ends adequate with the noise fitted as on the clean
     recording (the white level within 5 %)."""
-    from torchtea.checking.hidden import random_case
+    from torchtea.studies.hidden import random_case
 
     y, T, truth = random_case(["spikes"], 3)
     times = {round(truth[n] / H): truth[n.replace(".t", ".size")] for n in truth if n.startswith("spikes.t")}
@@ -646,7 +646,7 @@ def test_the_band_search_holds_its_level_on_noise_and_check_names_a_hidden_reson
     of the random study with a vibration band hidden (the draws of ``DRAWS["resonance"]``), check suggests the
     resonance first, with its centre within two bandwidths of the truth, and the loop ends adequate."""
     from torchtea.checking.diagnostics import band_search
-    from torchtea.checking.hidden import random_case
+    from torchtea.studies.hidden import random_case
 
     small = sum(band_search(np.random.default_rng(i).standard_normal(4000), H)["log_p"] < math.log(0.05)
                 for i in range(200))

@@ -7,12 +7,12 @@ import numpy as np
 import pytest
 import torch
 
-from torchtea.checking.hidden import hidden_case
 from torchtea.fitting.mle import exact_loglik, fit_series, whittle_fit
 from torchtea.likelihood import filter_fast, loglik_fast, periodogram, whittle_loglik
 from torchtea.likelihood.settings import current, using
 from torchtea.likelihood.whittle import bin_edges, whittle_data
 from torchtea.noise import default_values, parse_model, simulate_model, temperature_profile
+from torchtea.studies.hidden import hidden_case
 
 H = 0.01
 

@@ -7,9 +7,9 @@ import torch
 from scipy import stats
 
 from torchtea.checking.check import CANDIDATES
-from torchtea.checking.oracle import effect_df, oracle
 from torchtea.noise import simulate_model
 from torchtea.noise.model import parse_model
+from torchtea.studies.oracle import effect_df, oracle
 
 H, N = 0.01, 3000
 
@@ -91,7 +91,7 @@ def _orc(lr, gain, screen=True, rivals=None):
 ])
 def test_the_judge_scores_the_loops_end_by_what_the_record_shows(orc, model, ties, status, right):
     """oracle.judge: each status of a hidden effect and what end of the loop is right for it."""
-    from torchtea.checking.oracle import judge
+    from torchtea.studies.oracle import judge
 
     j = judge({"effects": ["gauss-markov"], "model": model, "ties": ties}, orc)
     assert j["status"] == {"gauss-markov": status} and j["right"] is right

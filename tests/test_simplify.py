@@ -9,7 +9,7 @@ import pytest
 import torch
 
 from torchtea.checking.check import change_words, check
-from torchtea.checking.simplify import _carried, alternatives, simplify
+from torchtea.checking.simplify import alternatives, carried_labels, simplify
 from torchtea.noise.model import parse_model
 from torchtea.noise.simulate import simulate_model, temperature_profile
 
@@ -49,13 +49,13 @@ def test_the_alternatives_are_each_component_dropped_its_special_cases_and_the_a
 
 def test_a_component_left_by_a_drop_is_started_from_its_own_values_not_the_dropped_ones():
     """Labels are numbered anew (without the first of two lines the second is ``sinusoid``): the alternative's fit
-    starts each component left from its own values in the model (:func:`_carried` maps the labels), not from the
+    starts each component left from its own values in the model (:func:`carried_labels` maps the labels), not from the
     values of the one that had its label."""
     m = parse_model("fractional+white+sinusoid+sinusoid")
     one = parse_model("fractional+white+sinusoid")
-    assert _carried(m, one, "sinusoid") == {"fractional": "fractional", "white": "white", "sinusoid": "sinusoid2"}
-    assert _carried(m, one, "sinusoid2") == {"fractional": "fractional", "white": "white", "sinusoid": "sinusoid"}
-    assert _carried(m, parse_model("white+random-walk+sinusoid+sinusoid"), "fractional") == {
+    assert carried_labels(m, one, "sinusoid") == {"fractional": "fractional", "white": "white", "sinusoid": "sinusoid2"}
+    assert carried_labels(m, one, "sinusoid2") == {"fractional": "fractional", "white": "white", "sinusoid": "sinusoid"}
+    assert carried_labels(m, parse_model("white+random-walk+sinusoid+sinusoid"), "fractional") == {
         "white": "white", "sinusoid": "sinusoid", "sinusoid2": "sinusoid2"}
 
 

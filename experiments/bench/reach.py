@@ -63,7 +63,7 @@ def child(case: str, arg: str) -> dict:
     """Run one case in this process (on whichever torchtea is importable) and return its numbers."""
     if case == "check30k":
         from torchtea.checking import check
-        from torchtea.checking.hidden import hidden_case
+        from torchtea.studies.hidden import hidden_case
 
         effect, seed = arg.split(":")
         y, T, _ = hidden_case(effect, int(seed))

@@ -38,7 +38,7 @@ def main():
             r = check(y, H, inputs={"temperature": T}, intervals=intervals)
             rows.append({"case": name, "intervals": intervals, "seconds": r.seconds, "timings": r.timings,
                          "top": r.suggestions[0].effect if r.suggestions else None, "adequate": r.adequate})
-    from torchtea.checking.hidden import hidden_case
+    from torchtea.studies.hidden import hidden_case
 
     y, T, _ = hidden_case("random-walk", 7)
     r = check(y, H, inputs={"temperature": T}, intervals=False)

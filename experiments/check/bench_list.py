@@ -15,8 +15,8 @@ from pathlib import Path
 import torch
 
 from torchtea.checking import check
-from torchtea.checking.hidden import hidden_case
 from torchtea.noise.components import candidates
+from torchtea.studies.hidden import hidden_case
 
 HERE = Path(__file__).resolve().parent
 H = 0.01

@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from torchtea.checking import check
-from torchtea.checking.hidden import BASE_MODEL, HIDDEN_STRENGTH, hidden_case
+from torchtea.studies.hidden import BASE_MODEL, HIDDEN_STRENGTH, hidden_case
 
 HERE = Path(__file__).resolve().parent
 H, N = 0.01, 30_000

@@ -7,7 +7,7 @@ only where the record could show it.
     # two processes, one thread each: --shard 0/2 and --shard 1/2
 
 For every case that ``random_study.py`` saved (``<dir>/*.json``) the recording is drawn again from its seed
-(:func:`torchtea.checking.hidden.random_case`) and :func:`torchtea.checking.oracle.oracle` fits the true model and
+(:func:`torchtea.studies.hidden.random_case`) and :func:`torchtea.studies.oracle.oracle` fits the true model and
 the model without each hidden effect by exact likelihood; its result goes to ``<dir>/oracle/``. An effect is
 **resolved** when the likelihood ratio passes the check's screen level (0.05 over the candidates screened, χ² with
 the effect's parameters). For a single effect with a rival that could stand in for it (:data:`RIVALS`: a
@@ -29,9 +29,9 @@ from pathlib import Path
 
 import numpy as np
 
-from torchtea.checking.hidden import BASE_MODEL, random_case
-from torchtea.checking.oracle import judge, oracle
 from torchtea.noise.components import COMPONENTS
+from torchtea.studies.hidden import BASE_MODEL, random_case
+from torchtea.studies.oracle import judge, oracle
 
 #: The effects that can stand in for a hidden one on a record of a few minutes (issue 30's and 45's findings).
 RIVALS = {"gauss-markov": ["random-walk"], "thermal-lag": ["temperature-bias", "ramp"], "low-pass": ["digital-filter"],

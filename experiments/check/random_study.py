@@ -1,5 +1,5 @@
 """Randomised hidden-effect study of ``check --auto`` (issue 30): every seed draws its own base noise, temperature
-profile and effect strengths (:func:`torchtea.checking.hidden.random_case`), so a rate is over a range of sensors,
+profile and effect strengths (:func:`torchtea.studies.hidden.random_case`), so a rate is over a range of sensors,
 not one setting.
 
     python experiments/check/random_study.py --sets step,gauss-markov,thermal-lag --dir /tmp/rs   # each effect alone
@@ -29,8 +29,8 @@ import numpy as np
 
 from torchtea.checking import check
 from torchtea.checking.check import CLOSE_BIC
-from torchtea.checking.hidden import BASE_MODEL, random_case
 from torchtea.noise.components import COMPONENTS
+from torchtea.studies.hidden import BASE_MODEL, random_case
 
 HERE = Path(__file__).resolve().parent
 

@@ -15,7 +15,7 @@ sets (seed 0 of every set first), so a run cut short covers every set evenly.
 
 The tables (``<dir>.md`` beside the cases): per set, the cases where the oracle shows every hidden effect and of
 those the ones whose loop ends with all of them; the other cases and of those the ones whose end is right by the
-oracle (:func:`torchtea.checking.oracle.judge`); the cases where the oracle calls an effect a tie (with its rival,
+oracle (:func:`torchtea.studies.oracle.judge`); the cases where the oracle calls an effect a tie (with its rival,
 or too weak to lower BIC by the tie window) and of those the ones whose loop names it; every rate with its 95 %
 Clopper–Pearson interval; the totals over singles, pairs and clean records; and the time the cases took.
 """
@@ -47,7 +47,7 @@ LEFT_OUT = {("digital-filter", "low-pass"): "the sensor's one output filter, as 
 
 def all_sets() -> list[list[str]]:
     """Clean records, every single effect, every pair not in :data:`LEFT_OUT` (sorted names)."""
-    from torchtea.checking.hidden import DRAWS
+    from torchtea.studies.hidden import DRAWS
 
     names = sorted(DRAWS)
     pairs = [list(p) for p in itertools.combinations(names, 2) if p not in LEFT_OUT]
@@ -128,7 +128,7 @@ def _tie_cases(j: dict, case: dict) -> tuple[bool, bool]:
 
 
 def tables(d: Path, wall: float | None = None) -> str:
-    from torchtea.checking.oracle import judge
+    from torchtea.studies.oracle import judge
 
     rows = []
     for p in sorted(d.glob("*.json")):

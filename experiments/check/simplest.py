@@ -6,7 +6,7 @@
   scaled to the white noise) that the record may or may not resolve.
 
 For each seed: the model the loop ends with, whether it is adequate, its ties, and whether the truth's components
-are all there; and the oracle (:func:`torchtea.checking.oracle.oracle`): whether the record resolves the walk (the
+are all there; and the oracle (:func:`torchtea.studies.oracle.oracle`): whether the record resolves the walk (the
 likelihood ratio of the truth against it without the walk at the check's screen level). Usage::
 
     python experiments/check/simplest.py [--seeds 5] [--truths white+random-walk] [--out simplest.json] [--table]
@@ -22,8 +22,8 @@ from pathlib import Path
 import torch
 
 from torchtea.checking.check import CANDIDATES, CLOSE_BIC, check
-from torchtea.checking.oracle import oracle
 from torchtea.noise.simulate import default_values, simulate_model
+from torchtea.studies.oracle import oracle
 
 HERE = Path(__file__).resolve().parent
 H = 0.005
@@ -43,7 +43,7 @@ def truth(spec: str) -> dict:
 
 
 def _resolved(o: dict, n: int) -> bool:
-    """The oracle's rule (:mod:`torchtea.checking.oracle`): p under the screen level and a BIC gain (LR − ln n for
+    """The oracle's rule (:mod:`torchtea.studies.oracle`): p under the screen level and a BIC gain (LR − ln n for
     the walk's one parameter) of at least CLOSE_BIC — recomputed from the stored LR and p."""
     return o["p"] < 0.05 / len(CANDIDATES) and o["lr"] - math.log(n) >= CLOSE_BIC
 

@@ -15,8 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
-from torchtea.checking.hidden import random_case
 from torchtea.fitting.mle import located_intervals
+from torchtea.studies.hidden import random_case
 
 
 def main():

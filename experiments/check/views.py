@@ -23,7 +23,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from scipy.signal import welch  # noqa: E402
 
-from torchtea.checking.hidden import HIDDEN_STRENGTH, hidden_case  # noqa: E402
+from torchtea.studies.hidden import HIDDEN_STRENGTH, hidden_case  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 H = 0.01

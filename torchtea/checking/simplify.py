@@ -136,7 +136,7 @@ def _replaced(rest: list, tokens: list, i: int, effect: str, in_place: bool) -> 
     return parse_model("+".join(tokens[:i] + [effect] + tokens[i + 1:]))
 
 
-def _carried(model: NoiseModel, alt: NoiseModel, removed: str) -> dict:
+def carried_labels(model: NoiseModel, alt: NoiseModel, removed: str) -> dict:
     """Which component of ``model`` each component of the alternative ``alt`` is (its label in ``alt`` → its label
     in ``model``), ``removed`` taken out: the k-th of a name in ``alt`` is the k-th of that name left in ``model``
     (labels are numbered anew: without the first of two lines, the second is ``sinusoid``). A component ``alt``
@@ -158,7 +158,7 @@ def _model_starts(alt: Alternative, res) -> list:
     alternative adds at its starting strengths against the model's spectrum (``(name, values)`` each; none where a
     component it adds gives no strength)."""
     m, current, h = alt.model, res.fit.values, res.h
-    carried = _carried(res.model, m, alt.removed)
+    carried = carried_labels(res.model, m, alt.removed)
     shared = {f"{lb}.{p.name}": current[f"{carried[lb]}.{p.name}"] for lb, c in m.components if lb in carried
               for p in c.params if f"{carried[lb]}.{p.name}" in current}
     if len(shared) == len(m.names):

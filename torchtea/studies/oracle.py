@@ -6,7 +6,7 @@ For a recording made by ``base + e₁ + … + e_m`` (:func:`~.hidden.random_case
 each model with one hidden effect taken out by exact maximum likelihood, and calls effect eᵢ **resolved** when the
 likelihood ratio LR = 2(ℓ_true − ℓ_without eᵢ) passes the check's own screen level: p = P(χ²_df > LR) below
 ``screen_level`` / (number of candidates screened), df the number of parameters the check would estimate for eᵢ.
-An effect that passes that test (``screen``) but gains less than :data:`~.check.CLOSE_BIC` in BIC (``bic_gain`` =
+An effect that passes that test (``screen``) but gains less than :data:`~torchtea.checking.check.CLOSE_BIC` in BIC (``bic_gain`` =
 LR − df·ln n) is one the check cannot keep by its own rule — it keeps an effect that lowers BIC and names a tie
 within 6 — so **resolved** asks for both: p under the screen level and a BIC gain of at least CLOSE_BIC. A hidden
 effect counts as missed by the check only where the oracle resolves it; where it does not, the record cannot show
@@ -32,9 +32,9 @@ import math
 import numpy as np
 from scipy import stats
 
+from ..checking.check import CANDIDATES, CLOSE_BIC
 from ..fitting.mle import fit_series, refine_best
 from ..noise.model import parse_model
-from .check import CANDIDATES, CLOSE_BIC
 
 __all__ = ["oracle", "effect_df", "status", "judge"]
 
@@ -58,10 +58,10 @@ def _fixed(model) -> list:
 def _restricted(values: dict, model, m, removed: str | None, partial: bool = False) -> dict:
     """``values`` of ``model``'s parameters as ``m``'s (``model`` without the component ``removed``, or ``m`` itself
     for None): each of ``m``'s components takes the values of the one of ``model`` it is (labels are numbered anew
-    after a drop: :func:`~.simplify._carried`). ``partial``: only those ``values`` has."""
-    from .simplify import _carried
+    after a drop: :func:`~torchtea.checking.simplify.carried_labels`). ``partial``: only those ``values`` has."""
+    from ..checking.simplify import carried_labels
 
-    carried = _carried(model, m, removed) if removed is not None else {lb: lb for lb, _ in m.components}
+    carried = carried_labels(model, m, removed) if removed is not None else {lb: lb for lb, _ in m.components}
     out = {}
     for lb, c in m.components:
         for p in c.params:
@@ -75,9 +75,9 @@ def _restricted(values: dict, model, m, removed: str | None, partial: bool = Fal
 
 def _put_back(values: dict, model, m, removed: str) -> dict:
     """The values of ``m`` (``model`` without ``removed``) under ``model``'s labels."""
-    from .simplify import _carried
+    from ..checking.simplify import carried_labels
 
-    return {f"{old}.{n.split('.', 1)[1]}": v for lb, old in _carried(model, m, removed).items()
+    return {f"{old}.{n.split('.', 1)[1]}": v for lb, old in carried_labels(model, m, removed).items()
             for n, v in values.items() if n.split(".", 1)[0] == lb}
 
 
@@ -104,7 +104,7 @@ def oracle(y, h: float, truth: dict, model, inputs: dict | None = None, base: st
     ``rivals``: hidden effect's label → effects that could stand in its place (a Gauss–Markov bias → a random walk).
     Each rival model (the true model with the effect swapped for the rival, not nested in it) is fitted too;
     ``"rivals"`` in the result gives per label and rival its ℓ and ``bic_difference`` (the rival's BIC − the true
-    model's): the check cannot tell them apart where that is under :data:`~.check.CLOSE_BIC`."""
+    model's): the check cannot tell them apart where that is under :data:`~torchtea.checking.check.CLOSE_BIC`."""
     from .hidden import BASE_MODEL
     model = parse_model(model)
     base = parse_model(base or BASE_MODEL)

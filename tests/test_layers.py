@@ -276,7 +276,7 @@ def test_files_and_functions_stay_within_the_size_limits():
 
 
 def test_every_registry_follows_one_rule():
-    """Effects, screens, starts and export formats are kept in one kind of registry
+    """Effects, screens, starts, navigation terms and export formats are kept in one kind of registry
     (:class:`torchtea.core.registry.Registry`), and a user meets one rule through each one's own functions: a key
     that has an entry (a built-in one's) is refused without ``replace=True``, replaced with it, and unregistering the
     replacement brings the built-in entry back; a built-in entry itself is not removed."""
@@ -287,6 +287,7 @@ def test_every_registry_follows_one_rule():
     from torchtea.core.registry import Registry
     from torchtea.export import formats
     from torchtea.fitting import starts
+    from torchtea.noise import navigation
     from torchtea.noise.components import COMPONENTS, RandomWalk, Step, White
 
     class MyWhite(White):
@@ -311,6 +312,9 @@ def test_every_registry_follows_one_rule():
             MyStarts), lambda: starts.unregister_start(RandomWalk)),
         "formats": (formats.FORMATS, "kalibr", lambda replace: formats.register_format(MyKalibr, replace=replace),
                     lambda: formats.unregister_format("kalibr")),
+        "navigation terms": (navigation.NAV_TERMS, RandomWalk,
+                             lambda replace: navigation.register_nav_term(RandomWalk, "R", replace=replace),
+                             lambda: navigation.unregister_nav_term(RandomWalk)),
     }
     for what, (registry, key, register, unregister) in cases.items():
         assert isinstance(registry, Registry), what

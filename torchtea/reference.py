@@ -125,6 +125,7 @@ def effects_page() -> str:
     from .checking.screens import screen_test
     from .fitting.starts import Starts, starts_of
     from .noise.components import COMPONENTS, candidates
+    from .noise.navigation import nav_term_of
 
     screened = candidates()
     lines = ["# Effects", "",
@@ -142,7 +143,7 @@ def effects_page() -> str:
         facts = [f"kind **{comp.kind}**"]
         if comp.inputs:
             facts.append("reads the input " + ", ".join(f"`{i}`" for i in comp.inputs))
-        term = getattr(comp, "nav_term", None)
+        term = nav_term_of(comp).term
         if term:
             facts.append(f"IEEE 952 term **{term}**")
         if comp.order_param:

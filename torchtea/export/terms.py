@@ -39,6 +39,7 @@ import numpy as np
 import torch
 
 from ..checking import allan
+from ..noise.navigation import nav_note, nav_term_of
 
 __all__ = ["AxisTerms", "axis_terms", "parse_horizon", "DEFAULT_HORIZON", "UNITS", "BIAS_INSTABILITY_FACTOR"]
 
@@ -306,9 +307,9 @@ def _model_avars(model, values: dict, h: float, m: np.ndarray, n: int, inputs, t
 def _bare_numbers(fit, model, values: dict, h: float, units: dict):
     """The white variance r0, the random walk's label and K0, and the bare N and K (:class:`Number`)."""
     r0 = float(model.measurement_variance(values)[0])
-    k_label = next((lb for lb, c in model.components if c.nav_term == "K"), None)
+    k_label = next((lb for lb, c in model.components if nav_term_of(c).term == "K"), None)
     k0 = float(values[f"{k_label}.sigma"]) if k_label else 0.0
-    w_labels = [lb for lb, c in model.components if c.nav_term == "N"]
+    w_labels = [lb for lb, c in model.components if nav_term_of(c).term == "N"]
     N0 = math.sqrt(r0 * h)
     bare = {"N": Number(N0, _white_ci(fit, w_labels, h), units["N"],
                         _how(fit, [f"{lb}.{p.name}" for lb in w_labels for p in dict(model.components)[lb].params],
@@ -325,7 +326,7 @@ def _forced(model, parts: dict, tau: np.ndarray, binding: np.ndarray, rc: float,
             k0: float) -> dict:
     """Per term the cover raised: the τ that forced it and the component (outside the formats) largest there."""
     forced = {}
-    other = {lb: parts[lb] for lb, c in model.components if c.nav_term not in IN_FORMATS and lb in parts}
+    other = {lb: parts[lb] for lb, c in model.components if nav_term_of(c).term not in IN_FORMATS and lb in parts}
     if rc > r0 * (1 + 1e-6) and len(binding):
         i = int(binding.min())
         forced["N"] = {"tau_s": float(tau[i]), "component": _largest(other, i)}
@@ -376,7 +377,7 @@ def _derived_intervals(fit, values: dict, h: float, m, mb, temperature, det_avar
 
 def _ieee(fit, model, values: dict, units: dict, bare: dict, B: Number) -> dict:
     """IEEE Std 952's Q N B K R (Q not in any model; R a ramp's slope)."""
-    ramp = next((lb for lb, c in model.components if c.nav_term == "R"), None)
+    ramp = next((lb for lb, c in model.components if nav_term_of(c).term == "R"), None)
     return {"Q": Number(None, None, units["Q"], "not in the model: no component has the τ⁻¹ ADEV slope of angle "
                                                 "quantisation (a rate's quantisation is white and counts in N)"),
             "N": bare["N"], "B": B,
@@ -392,16 +393,17 @@ def _component_words(model, values: dict, h: float) -> list:
     comps = []
     for lb, c in model.components:
         v = {p.name: float(values[f"{lb}.{p.name}"]) for p in c.params if f"{lb}.{p.name}" in values}
-        if c.nav_term in ("N", "K"):
-            words = f"{lb}: the format's {'white noise density N' if c.nav_term == 'N' else 'bias random walk K'}"
-        elif c.nav_term == "bias":
+        term = nav_term_of(c).term
+        if term in ("N", "K"):
+            words = f"{lb}: the format's {'white noise density N' if term == 'N' else 'bias random walk K'}"
+        elif term == "bias":
             words = f"{lb}: a constant level, which the filter's bias state holds"
-        elif c.nav_term == "R":
+        elif term == "R":
             words = (f"{lb}: a rate ramp, IEEE 952's R (slope {v['slope']:.4g}); Kalibr, VINS and ORB-SLAM3 have no "
                      "term for it: covered by raising K")
         else:
-            words = c.nav_note(lb, v, h)
-        comps.append({"label": lb, "effect": c.name, "term": c.nav_term, "words": words})
+            words = nav_note(c, lb, v, h)
+        comps.append({"label": lb, "effect": c.name, "term": term, "words": words})
     return comps
 
 

@@ -51,6 +51,7 @@ import torch
 from ..core import forward
 from ..noise.components import STOCHASTIC_KINDS
 from ..noise.model import NoiseModel, parse_model
+from ..noise.navigation import nav_term_of, nav_value
 
 __all__ = ["PlanRow", "plan", "B_CONVENTIONS", "length_for", "tie_length", "datasheet_model", "read_datasheet", "EXACT_ORDINATES",
            "DATASHEET_UNITS", "nav_numbers", "plan_document", "plan_lines", "plan_table", "parse_target",
@@ -150,17 +151,18 @@ class PlanRow:
 
 def nav_numbers(model, values: dict, h: float) -> dict:
     """The IEEE 952 numbers the model has directly, each from one parameter (its components'
-    :meth:`~torchtea.noise.components.Component.nav_value`: ``N`` √(r h) of its white noise, ``K`` σ of its random
+    :func:`~torchtea.noise.navigation.nav_value`: ``N`` √(r h) of its white noise, ``K`` σ of its random
     walk): term → (value, the parameter, the power it enters with). With two components of one term (white and
     quantisation noise both N) the term is not one parameter's, and is left out."""
     model = parse_model(model)
     out, seen = {}, {}
     for lb, c in model.components:
-        if c.nav_term in ("N", "K"):
-            seen[c.nav_term] = seen.get(c.nav_term, 0) + 1
-            got = c.nav_value(lb, values, h)
+        term = nav_term_of(c).term
+        if term in ("N", "K"):
+            seen[term] = seen.get(term, 0) + 1
+            got = nav_value(c, lb, values, h)
             if got is not None:
-                out[c.nav_term] = got
+                out[term] = got
     return {t: x for t, x in out.items() if seen[t] == 1}
 
 

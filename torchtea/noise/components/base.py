@@ -253,24 +253,6 @@ class Component:
                 "state": "a KFx state of order 1 (its transition and drive as the exact filter has them)"
                 }.get(self.kind, "")
 
-    # ---- how a navigation filter's noise model sees it (torchtea.export) ----------------------------------
-    #: the IEEE Std 952 term it is: ``"N"`` (white rate noise: a noise density), ``"K"`` (rate random walk: a bias
-    #: random walk), ``"R"`` (rate ramp), ``"bias"`` (a constant level: a filter's bias state holds it), or None.
-    #: Kalibr, VINS and ORB-SLAM3 know N and K only: export names every other component and covers it.
-    nav_term: str | None = None
-
-    def nav_value(self, label: str, v: dict, h: float) -> tuple[float, str, float] | None:
-        """Its :attr:`nav_term`'s value at the values ``v`` (name → float) as ``(value, the parameter it follows,
-        the power it follows it with)`` — N = √(r h) follows r to the power ½, K = σ to the power 1 — for a plan's
-        intervals (:mod:`torchtea.fitting.plan`); None where it has none or it is not one parameter's power."""
-        return None
-
-    def nav_note(self, label: str, v: dict, h: float) -> str:
-        """What a white-noise + random-walk filter misses of this component (export's list); ``v``: its values
-        (floats)."""
-        shown = ", ".join(f"{p.name} {v[p.name]:.4g}" for p in self.params if p.name in v)
-        return f"{label}: no term in a white-noise + random-walk model ({shown}); covered by raising N or K"
-
     # ---- how check screens it -----------------------------------------------------------------------------
     #: ``check`` screens it when the model lacks it (the base parts — fractional, white, offset — are not)
     candidate: bool = True

@@ -23,13 +23,6 @@ class LowPass(Component):
     #: first-order stages in cascade, each with the cut-off ``cutoff_hz``
     stages = 1
 
-    def nav_note(self, label, v, h):
-        fc = v["cutoff_hz"]
-        return (f"{label}: the sensor filters its output at {fc:.4g} Hz ({self.stages} stage(s); Nyquist "
-                f"{0.5 / h:g} Hz): above the cut-off the noise is not white, so σ_d = N/√Δt at the IMU rate "
-                f"overstates the noise of one sample and ignores that neighbouring samples are correlated "
-                f"(over about {1 / (2 * math.pi * fc):.3g} s); the density N holds below the cut-off")
-
     def gain(self, v, omega, h):
         a = self.coefficient(v, h).unsqueeze(-1)
         return ((1.0 - a) ** 2 / (1.0 - 2.0 * a * torch.cos(omega) + a * a)) ** self.stages

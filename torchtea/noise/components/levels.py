@@ -9,7 +9,6 @@ from .base import Component, ParamSpec
 class Offset(Component):
     name = "offset"
     kind = "mean"
-    nav_term = "bias"
     candidate = False
     params = (ParamSpec("value", "free", "units"),)
     level = True
@@ -27,7 +26,6 @@ class Ramp(Component):
 
     name = "ramp"
     kind = "mean"
-    nav_term = "R"
     params = (ParamSpec("slope", "free", "units/s"),)
 
     def mean(self, v, t, inputs):

@@ -14,11 +14,8 @@ class RandomWalk(Component):
 
     name = "random-walk"
     kind = "state"
-    nav_term = "K"
     diffuse = True
 
-    def nav_value(self, label, v, h):
-        return float(v[f"{label}.sigma"]), f"{label}.sigma", 1.0
     screen_order = 10
     params = (ParamSpec("sigma", "positive", "K (units/√s)"),)
 

@@ -13,12 +13,8 @@ class White(Component):
 
     name = "white"
     kind = "measurement"
-    nav_term = "N"
     candidate = False
     params = (ParamSpec("r", "positive", "variance (units²)"),)
-
-    def nav_value(self, label, v, h):
-        return math.sqrt(float(v[f"{label}.r"]) * h), f"{label}.r", 0.5
 
     def measurement_variance(self, v):
         return v["r"]
@@ -43,7 +39,6 @@ class Quantisation(Component):
 
     name = "quantisation"
     kind = "measurement"
-    nav_term = "N"  # (white: Δ²/12 adds to the white variance)
     screen_order = 70
     params = (ParamSpec("step", "positive", "Δ (units)"),)
 

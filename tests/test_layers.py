@@ -224,7 +224,8 @@ def f():
 def test_no_engine_switches_on_a_components_name():
     """Outside noise/components/ no module asks a component for its name to decide what to do
     (``c.name == "fractional"``, ``model.has("temperature-order")``, ``COMPONENTS["white"]``): the engines ask the
-    component's own attributes (``order_param``, ``stationary``, ``varies_order``, ``tea_part`` …)."""
+    component's own attributes (``order_param``, ``stationary``, ``varies_order`` …) or what is registered for its
+    class (its place in the TEA, its navigation term)."""
     import re
 
     from torchtea.noise.components import COMPONENTS
@@ -287,8 +288,8 @@ def test_every_registry_follows_one_rule():
     from torchtea.core.registry import Registry
     from torchtea.export import formats
     from torchtea.fitting import starts
-    from torchtea.noise import navigation
-    from torchtea.noise.components import COMPONENTS, RandomWalk, Step, White
+    from torchtea.noise import navigation, tea
+    from torchtea.noise.components import COMPONENTS, LowPass, RandomWalk, Step, White
 
     class MyWhite(White):
         pass
@@ -312,6 +313,9 @@ def test_every_registry_follows_one_rule():
             MyStarts), lambda: starts.unregister_start(RandomWalk)),
         "formats": (formats.FORMATS, "kalibr", lambda replace: formats.register_format(MyKalibr, replace=replace),
                     lambda: formats.unregister_format("kalibr")),
+        "TEA roles": (tea.TEA_ROLES, LowPass, lambda replace: tea.register_tea_role(LowPass, refusal="mine",
+                                                                                     replace=replace),
+                      lambda: tea.unregister_tea_role(LowPass)),
         "navigation terms": (navigation.NAV_TERMS, RandomWalk,
                              lambda replace: navigation.register_nav_term(RandomWalk, "R", replace=replace),
                              lambda: navigation.unregister_nav_term(RandomWalk)),

@@ -4,7 +4,7 @@ only read.
 
 The TEA (:mod:`torchtea.engines.tea`) runs an A-type model (paper (9)–(10)): every state follows
 :math:`x_{k+1} = h^{\alpha}(A x_k + \omega_k) - \sum_j c_j(\alpha) x_{k+1-j}` and ``y_k = C x_k + ν_k``. Each
-component says what it is there (:meth:`~torchtea.noise.components.Component.tea_part`):
+component's place there is :func:`tea_part`'s, by its kind, or registered for its class (:func:`register_tea_role`):
 
 * a ``fractional`` component is a state whose order KFo estimates and whose pole KFw estimates (both starting at
   the values given), with KFx's drive ``Q0 = q`` — the TEA's ``noise_scaling = "scaled"`` adds
@@ -22,18 +22,123 @@ TEA ran with before this view existed, number for number (tests/test_tea_view.py
 """
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 
 import torch
 from torch import Tensor
 
+from ..core.registry import Registry
 from ..engines.presets import get_preset
 from ..engines.settings import TEAConfig
 from ..engines.structure import ParametricMatrix, Structure
-from .components import TEAPart
+from .components import Fractional, LowPass, TemperatureOrder
 from .model import NoiseModel, parse_model
 
-__all__ = ["TEAView", "tea_view", "same_structure"]
+__all__ = ["TEAView", "tea_view", "same_structure", "TEAPart", "TEAUnsupported", "TEARole", "TEA_ROLES",
+           "register_tea_role", "unregister_tea_role", "tea_part", "tea_note"]
+
+
+@dataclass(frozen=True)
+class TEAPart:
+    r"""A state component's place in the TEA's A-type model (paper (9)–(10)): its ``n`` states follow
+    :math:`x_{k+1} = h^{\alpha}(A x_k + \omega_k) - \sum_{j\ge1} c_j(\alpha) x_{k+1-j}` with
+    :math:`\omega_k \sim N(0, Q_0)` — KFx's ``Q0`` in the TEA's ``"scaled"`` convention, where the drive enters
+    as :math:`h^\alpha Q_0 h^\alpha` — and its output is its state 0.
+
+    ``order``: the states' order (a number; every state of the part has it). ``estimated``: KFo estimates it (from
+    ``order``). ``pole``: the value KFw estimates as ``A[0, 0]``'s parameter (``A`` then holds 0 there), or None.
+    An integer-order part (``order`` 1) is exact whatever the memory: ``c_1(1) = −1`` and ``c_j(1) = 0`` for j ≥ 2."""
+
+    A: Tensor  # (n, n)
+    Q0: Tensor  # (n, n)
+    order: float = 1.0
+    estimated: bool = False
+    pole: float | None = None
+
+    @property
+    def n(self) -> int:
+        return self.A.shape[0]
+
+
+class TEAUnsupported(ValueError):
+    """Raised by :func:`tea_part` when the TEA's A-type model has no place for the component."""
+
+
+@dataclass(frozen=True)
+class TEARole:
+    """A component's place in the TEA where its kind's default is not it. ``part(comp, label, v, h)`` → its
+    :class:`TEAPart` for one parameter set ``v`` (each ``(1,)``), None where it is not a state (None here: the
+    kind's default); ``note``: what the TEA does with it, in the identification's report (None: the kind's);
+    ``refusal``: why the TEA has no place for it (a filter's or a modifier's default refusal says this)."""
+
+    part: Callable | None = None
+    note: str | None = None
+    refusal: str | None = None
+
+
+#: The components' places in the TEA by class, where the kind's default is not it (a subclass has its parent's).
+TEA_ROLES = Registry("TEA role")
+_DEFAULT = TEARole()
+#: What the TEA does with a component of each kind by default, in the identification's report.
+KIND_NOTES = {"measurement": "in KFx's R (and KFo's, KFw's)", "mean": "removed from the series at its fitted values",
+              "state": "a KFx state of order 1 (its transition and drive as the exact filter has them)"}
+
+
+def register_tea_role(effect, part: Callable | None = None, note: str | None = None, refusal: str | None = None,
+                      *, replace: bool = False) -> None:
+    """The effect class ``effect`` (or an instance's class) has the place in the TEA that :class:`TEARole` says."""
+    cls = effect if isinstance(effect, type) else type(effect)
+    TEA_ROLES.add(cls, TEARole(part, note, refusal), replace=replace)
+
+
+def unregister_tea_role(effect) -> None:
+    """Remove what a user registered for the effect class ``effect`` (a built-in entry it replaced is back)."""
+    TEA_ROLES.remove(effect if isinstance(effect, type) else type(effect))
+
+
+def tea_part(comp, label: str, v: dict, h: float) -> TEAPart | None:
+    """``comp``'s place in the TEA's model for one parameter set ``v`` (each ``(1,)``): its registered part, else by
+    its kind. A state of integer order: its block ``z_{k+1} = F z_k + G ξ_k`` is the A-type model's order-1 form
+    ``x_{k+1} = h(A x_k + ω_k) + x_k`` with ``A = (F − I)/h`` and ``Q0 = G Gᵀ/h²`` — exactly (the same transition and
+    drive). A measurement noise is KFx's R, a mean is taken from the series before the TEA runs (None for both). A
+    filter or a modifier has no general place: :class:`TEAUnsupported`, saying why."""
+    role = TEA_ROLES.find(type(comp), _DEFAULT)
+    if role.part is not None:
+        return role.part(comp, label, v, h)
+    if comp.kind in ("measurement", "mean"):
+        return None
+    if comp.kind == "state":
+        F, G = comp.block(v, h, None)
+        F, G = F[0], G[0]
+        eye = torch.eye(F.shape[-1], dtype=F.dtype)
+        return TEAPart((F - eye) / h, G @ G.mT / h ** 2)
+    raise TEAUnsupported(f"{comp.name} ({comp.kind}) has no place in the TEA's A-type model "
+                         f"x_(k+1) = h^a (A x_k + w_k) - sum c_j x_(k+1-j): "
+                         f"{role.refusal or 'no state-space form of this kind'}")
+
+
+def tea_note(comp) -> str:
+    """What the TEA does with ``comp``, in the identification's report."""
+    role = TEA_ROLES.find(type(comp), _DEFAULT)
+    return role.note if role.note is not None else KIND_NOTES.get(comp.kind, "")
+
+
+def _fractional_part(comp, label, v, h):
+    """The paper's (43)–(45) itself: order and pole estimated (KFo, KFw, starting at the fitted values), its drive
+    ``Q0 = q``."""
+    return TEAPart(torch.zeros(1, 1, dtype=torch.float64), v["q"].reshape(1, 1).to(torch.float64),
+                   order=float(v["order"][0]), estimated=True, pole=float(v["pole"][0]))
+
+
+register_tea_role(Fractional, _fractional_part,
+                  note="KFx's fractional state: KFo estimates its order, KFw its pole, from the fitted values")
+register_tea_role(TemperatureOrder, lambda comp, label, v, h: None,
+                  note="not a state: KFo estimates the order's variation in time itself (its estimate can be read "
+                       "against the temperature); the fitted slope per °C is not used")
+register_tea_role(LowPass, refusal="its state is driven by the next value of the states before it, whose row "
+                                   "depends on the estimated order: no fixed A holds it")
+TEA_ROLES.seal()
 
 
 @dataclass(frozen=True)
@@ -84,8 +189,8 @@ def tea_view(model, values, h: float, base: TEAConfig | None = None) -> TEAView:
     parts: list[tuple[str, TEAPart]] = []
     notes = {}
     for label, comp in model.components:
-        part = comp.tea_part(label, byc[label], h)
-        notes[label] = comp.tea_note
+        part = tea_part(comp, label, byc[label], h)
+        notes[label] = tea_note(comp)
         if part is not None:
             parts.append((label, part))
     fractional = sum(p.estimated for _, p in parts)

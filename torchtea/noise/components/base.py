@@ -1,5 +1,5 @@
 """The base of every effect: :class:`Component` (what the model, the fits, the screens, the TEA and the exports ask
-of an effect), its parameters (:class:`ParamSpec`) and its place in the TEA (:class:`TEAPart`). How ``check``
+of an effect), its parameters (:class:`ParamSpec`). Its place in the TEA is :mod:`torchtea.noise.tea`'s. How ``check``
 screens an effect is not here (:mod:`torchtea.checking.screens`), nor how the fits start it
 (:mod:`torchtea.fitting.starts`)."""
 from __future__ import annotations
@@ -94,32 +94,6 @@ class ParamSpec:
 
 #: Each parameter kind's scale (:attr:`ParamSpec.scale`).
 SCALES = {"positive": "log", "bounded": "logit", "fraction": "logit", "nyquist": "logit", "free": "identity"}
-
-
-@dataclass(frozen=True)
-class TEAPart:
-    r"""A state component's place in the TEA's A-type model (paper (9)–(10)): its ``n`` states follow
-    :math:`x_{k+1} = h^{\alpha}(A x_k + \omega_k) - \sum_{j\ge1} c_j(\alpha) x_{k+1-j}` with
-    :math:`\omega_k \sim N(0, Q_0)` — KFx's ``Q0`` in the TEA's ``"scaled"`` convention, where the drive enters
-    as :math:`h^\alpha Q_0 h^\alpha` — and its output is its state 0.
-
-    ``order``: the states' order (a number; every state of the part has it). ``estimated``: KFo estimates it (from
-    ``order``). ``pole``: the value KFw estimates as ``A[0, 0]``'s parameter (``A`` then holds 0 there), or None.
-    An integer-order part (``order`` 1) is exact whatever the memory: ``c_1(1) = −1`` and ``c_j(1) = 0`` for j ≥ 2."""
-
-    A: Tensor  # (n, n)
-    Q0: Tensor  # (n, n)
-    order: float = 1.0
-    estimated: bool = False
-    pole: float | None = None
-
-    @property
-    def n(self) -> int:
-        return self.A.shape[0]
-
-
-class TEAUnsupported(ValueError):
-    """Raised by :meth:`Component.tea_part` when the TEA's A-type model has no place for the component."""
 
 
 def logit(p: Tensor) -> Tensor:
@@ -225,33 +199,6 @@ class Component:
 
     def measurement_variance(self, v: dict) -> Tensor:
         raise NotImplementedError
-
-    # ---- how the TEA runs it (torchtea.noise.tea) ----------------------------------------------------------
-    def tea_part(self, label: str, v: dict, h: float) -> TEAPart | None:
-        """Its place in the TEA's model for one parameter set ``v`` (each ``(1,)``). A state of integer order:
-        its block ``z_{k+1} = F z_k + G ξ_k`` is the A-type model's order-1 form ``x_{k+1} = h(A x_k + ω_k) + x_k``
-        with ``A = (F − I)/h`` and ``Q0 = G Gᵀ/h²`` — exactly (the same transition and drive). A measurement
-        noise is KFx's R, a mean is taken from the series before the TEA runs (None for both). A filter or a
-        modifier has no general place: refused (a subclass that has one overrides this)."""
-        if self.kind in ("measurement", "mean"):
-            return None
-        if self.kind == "state":
-            F, G = self.block(v, h, None)
-            F, G = F[0], G[0]
-            eye = torch.eye(F.shape[-1], dtype=F.dtype)
-            return TEAPart((F - eye) / h, G @ G.mT / h ** 2)
-        raise TEAUnsupported(f"{self.name} ({self.kind}) has no place in the TEA's A-type model "
-                             f"x_(k+1) = h^a (A x_k + w_k) - sum c_j x_(k+1-j): {self.tea_refusal}")
-
-    #: why the TEA refuses it (the default :meth:`tea_part` of a filter or a modifier says this)
-    tea_refusal = "no state-space form of this kind"
-
-    @property
-    def tea_note(self) -> str:
-        """What the TEA does with it, in the identification's report."""
-        return {"measurement": "in KFx's R (and KFo's, KFw's)", "mean": "removed from the series at its fitted values",
-                "state": "a KFx state of order 1 (its transition and drive as the exact filter has them)"
-                }.get(self.kind, "")
 
     # ---- how check screens it -----------------------------------------------------------------------------
     #: ``check`` screens it when the model lacks it (the base parts — fractional, white, offset — are not)

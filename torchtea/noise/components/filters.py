@@ -16,8 +16,6 @@ class LowPass(Component):
 
     name = "low-pass"
     kind = "filter"
-    tea_refusal = ("its state is driven by the next value of the states before it, whose row depends on the "
-                   "estimated order: no fixed A holds it")
     screen_order = 50
     params = (ParamSpec("cutoff_hz", "positive", "f_c (Hz)"),)
     #: first-order stages in cascade, each with the cut-off ``cutoff_hz``

@@ -8,7 +8,7 @@ from torch import Tensor
 
 from ...core import forward
 from ...core.gl import gl_tail_coefficients
-from .base import ORDER_BOUNDS, Component, ParamSpec, TEAPart
+from .base import ORDER_BOUNDS, Component, ParamSpec
 
 
 class Fractional(Component):
@@ -86,14 +86,6 @@ class Fractional(Component):
         a = 0.3  # the Monte Carlo studies' part: order 0.3, pole at 40 % of its stability limit, q = r / h^{2α}
         return {"order": a, "pole": -0.4 * 2 ** a / h ** a, "q": 1e-3 / h ** (2 * a)}[param]
 
-
-    tea_note = "KFx's fractional state: KFo estimates its order, KFw its pole, from the fitted values"
-
-    def tea_part(self, label, v, h):
-        """The paper's (43)–(45) itself: order and pole estimated (KFo, KFw, starting at the fitted values), its
-        drive ``Q0 = q``."""
-        return TEAPart(torch.zeros(1, 1, dtype=torch.float64), v["q"].reshape(1, 1).to(torch.float64),
-                       order=float(v["order"][0]), estimated=True, pole=float(v["pole"][0]))
 
     def run_exact(self, v: dict, alpha: Tensor, h: float, xi: Tensor, forcing: Tensor | None = None,
                   x0: Tensor | None = None) -> Tensor:

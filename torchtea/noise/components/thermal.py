@@ -117,11 +117,6 @@ class TemperatureOrder(Component):
     kind = "modifier"
     stationary = False
     varies_order = True
-    tea_note = ("not a state: KFo estimates the order's variation in time itself (its estimate can be read against "
-                "the temperature); the fitted slope per °C is not used")
-
-    def tea_part(self, label, v, h):
-        return None
     inputs = ("temperature",)
     held = {"t_ref": None}
     params = (ParamSpec("order_per_degC", "free", "1/°C"), ParamSpec("t_ref", "free", "T_ref (°C)"))

@@ -15,11 +15,11 @@ import torch
 
 from torchtea import reference
 from torchtea.checking import check, diagnostics
-from torchtea.checking.screens import screen_test
+from torchtea.checking.screens import candidates, screen_test
 from torchtea.cli import build_parser
 from torchtea.effects import register, unregister
 from torchtea.noise import default_values, simulate_model
-from torchtea.noise.components import COMPONENTS, Component, ParamSpec, candidates
+from torchtea.noise.components import COMPONENTS, Component, ParamSpec
 
 ROOT = Path(__file__).resolve().parent.parent
 DOCS = ROOT / "docs"

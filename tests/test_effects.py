@@ -13,6 +13,7 @@ import torch
 import torchtea.effects as effects
 from torchtea.checking import check
 from torchtea.checking.report import write_report
+from torchtea.checking.screens import screening_of
 from torchtea.checking.screens.outliers import find as find_spikes
 from torchtea.effects import register, unregister
 from torchtea.fitting.mle import fit_series, regress_mean
@@ -357,7 +358,6 @@ def test_a_users_state_effect_without_strengths_is_screened():
 
     class Plain(GaussMarkov):
         name = "my-gm"
-        candidate = True
 
     @register_start(Plain)
     class PlainStarts(GaussMarkovStarts):  # the Gauss-Markov's starts, but no strengths
@@ -636,7 +636,7 @@ def test_a_resonance_is_the_dense_gaussian_and_its_fit_finds_the_band():
     assert f.converged
     for name, x in truth.items():
         assert abs(f.values[name] - x) < 4 * f.se[name], (name, f.values[name], f.se[name])
-    assert COMPONENTS["resonance"].candidate
+    assert screening_of(COMPONENTS["resonance"]).candidate
 
 
 @pytest.mark.slow

@@ -8,10 +8,11 @@ import numpy as np
 import pytest
 import torch
 
+from torchtea.checking.screens import candidates
 from torchtea.fitting.exact import centred, exact_loglik, exact_loglik_grad, gradient_supported
 from torchtea.fitting.mle import fit_series, refine_best
 from torchtea.fitting.scoring import fd_hessian, information_from_gradients, objective
-from torchtea.noise.components import COMPONENTS, candidates
+from torchtea.noise.components import COMPONENTS
 from torchtea.noise.model import parse_model
 from torchtea.noise.simulate import default_values, simulate_model
 from torchtea.studies.hidden import temperature_profile

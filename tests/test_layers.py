@@ -277,7 +277,8 @@ def test_files_and_functions_stay_within_the_size_limits():
 
 
 def test_every_registry_follows_one_rule():
-    """Effects, screens, starts, navigation terms and export formats are kept in one kind of registry
+    """Effects, screens and screening, starts, TEA roles, navigation terms and export formats are kept in one kind of
+    registry
     (:class:`torchtea.core.registry.Registry`), and a user meets one rule through each one's own functions: a key
     that has an entry (a built-in one's) is refused without ``replace=True``, replaced with it, and unregistering the
     replacement brings the built-in entry back; a built-in entry itself is not removed."""
@@ -309,6 +310,8 @@ def test_every_registry_follows_one_rule():
         "screens": (screens.REGISTRY, Step,
                     lambda replace: screens.register_screen(Step, "mine", replace=replace)(my_screen),
                     lambda: screens.unregister_screen(Step)),
+        "screening": (screens.SCREENING, Step, lambda replace: screens.register_screening(Step, order=1, replace=replace),
+                      lambda: screens.unregister_screening(Step)),
         "starts": (starts.REGISTRY, RandomWalk, lambda replace: starts.register_start(RandomWalk, replace=replace)(
             MyStarts), lambda: starts.unregister_start(RandomWalk)),
         "formats": (formats.FORMATS, "kalibr", lambda replace: formats.register_format(MyKalibr, replace=replace),

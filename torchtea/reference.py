@@ -122,9 +122,9 @@ DEFAULT_START = ("the defaults: 0 for a free parameter, 1 for a positive one, th
 def effects_page() -> str:
     """Every registered effect: its kind, inputs, IEEE 952 term, parameters (kind, unit, bounds), physics (its
     docstring), for those ``check`` screens the screen's test, and how the fits start it."""
-    from .checking.screens import screen_test
+    from .checking.screens import candidates, screen_test
     from .fitting.starts import Starts, starts_of
-    from .noise.components import COMPONENTS, candidates
+    from .noise.components import COMPONENTS
     from .noise.navigation import nav_term_of
 
     screened = candidates()

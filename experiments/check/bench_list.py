@@ -15,7 +15,7 @@ from pathlib import Path
 import torch
 
 from torchtea.checking import check
-from torchtea.noise.components import candidates
+from torchtea.checking.screens import candidates
 from torchtea.studies.hidden import hidden_case
 
 HERE = Path(__file__).resolve().parent

@@ -23,6 +23,7 @@ import collections
 import json
 from pathlib import Path
 
+from torchtea.checking.screens import screening_of
 from torchtea.noise.components import COMPONENTS
 
 HERE = Path(__file__).resolve().parent
@@ -41,7 +42,8 @@ def top(case: dict, rule: str) -> str:
     failed = set(case["failed"] if "failed" in case else case["failed_first"])
 
     def key(x):
-        explains = bool(set(COMPONENTS[x["effect"]].explains) & failed & set(x["repairs"])) and x["gain"] >= best - window
+        explains = (bool(set(screening_of(COMPONENTS[x["effect"]]).explains) & failed & set(x["repairs"]))
+                    and x["gain"] >= best - window)
         return explains, x["gain"]
 
     return max(s, key=key)["effect"]

@@ -50,7 +50,6 @@ import torch
 
 from ..fitting.mle import Fit, whittle_fit
 from ..noise.components import COMPONENTS
-from ..noise.components import candidates as candidates_all
 from ..noise.model import PAPER_MODEL, parse_model
 from . import screens
 from .diagnostics import LEVEL
@@ -77,12 +76,13 @@ from .refits import (
 from .refits import near as near_candidate
 from .results import CheckRecord, Suggestion, change_words, effect_parameters, read_check
 from .screening import ScreenContext, new_label, screen_all
-from .screens import NotScreened
+from .screens import NotScreened, screening_of
+from .screens import candidates as candidates_all
 
 __all__ = ["check", "CheckResult", "Suggestion", "read_check", "CANDIDATES", "extend", "SCREENS", "effect_parameters",
            "rank", "change_words", "degenerate", "EXPLAIN_WINDOW", "STRONG_BIC", "CLOSE_BIC"]
 
-#: The built-in effects check screens, in the order of its table; :func:`~torchtea.noise.components.candidates` gives
+#: The built-in effects check screens, in the order of its table; :func:`~torchtea.checking.screens.candidates` gives
 #: every registered one (a user's too) at call time.
 CANDIDATES = candidates_all()
 #: What each built-in effect's screen computes (:func:`.screens.screen_test`).
@@ -149,7 +149,7 @@ def check(y, h: float, model=PAPER_MODEL, inputs: dict | None = None, *, level: 
     """Fit ``model`` to the series ``y`` (NaN = missing, sample time ``h``), run the diagnostics and rank the
     missing effects (module docstring). ``inputs``: ``{"temperature": (N,)}`` (°C) when there is a temperature
     channel. ``candidates``: the effects to screen (default: every registered candidate,
-    :func:`~torchtea.noise.components.candidates`). ``fit``: an existing exact fit of ``model`` to ``y`` to use.
+    :func:`~torchtea.checking.screens.candidates`). ``fit``: an existing exact fit of ``model`` to ``y`` to use.
     ``intervals``: compute the intervals of
     the model's parameters and of the best suggestion's (the observed information, from exact gradients where the
     sensitivity filter applies); the other suggestions' parameters come without. ``progress(line)``: called with a
@@ -232,7 +232,7 @@ def _check_once(run: CheckRun, model, fit: Fit, wf, screen_level, candidates, in
     inn, diags, mets = _assess(model, fit.values, y, h, inputs, run.level)
     clock("diagnostics")
     effects = [c for c in (candidates_all() if candidates is None else candidates)
-               if c in COMPONENTS and COMPONENTS[c].candidate]
+               if c in COMPONENTS and screening_of(COMPONENTS[c]).candidate]
     run.say(f"screening {len(effects)} effects")
     rows = screen_all(model, fit, wf, inn, diags, y, h, inputs, effects, cache)
     clock("screen")

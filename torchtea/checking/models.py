@@ -16,9 +16,10 @@ from ..fitting.whittle_path import (
     whittle_refine,
 )
 from ..noise.components import COMPONENTS
-from ..noise.components import candidates as candidates_all
 from ..noise.model import NoiseModel, parse_model
 from .diagnostics import innovations, metrics, run_diagnostics
+from .screens import candidates as candidates_all
+from .screens import screening_of
 
 __all__ = ["extend", "assess", "with_intervals", "model_fit", "refine", "refine_one", "REFIT_TOLERANCE"]
 
@@ -38,7 +39,7 @@ def extend(model: NoiseModel, effect: str) -> NoiseModel:
         raise ValueError(f"unknown effect {effect!r}; choose from: {', '.join(candidates_all())}")
     comp = COMPONENTS[name]
     names = [c.name for _, c in model.components]
-    if name in names and not comp.add_again:
+    if name in names and not screening_of(comp).add_again:
         raise ValueError(f"model {model.spec!r} already has {name!r}")
     tokens = [c.token for _, c in model.components]
     tokens.insert(comp.position(model), effect)

@@ -4,11 +4,12 @@ diagnostic it explains comes first within :data:`EXPLAIN_WINDOW`; and the thresh
 from __future__ import annotations
 
 from ..noise.components import COMPONENTS
+from .screens import screening_of
 
 __all__ = ["rank", "EXPLAIN_WINDOW", "STRONG_BIC", "CLOSE_BIC"]
 
 
-#: A suggestion that repairs a failed diagnostic its effect explains (``Component.explains``: a temperature effect
+#: A suggestion that repairs a failed diagnostic its effect explains (its screening's ``explains``, :class:`~.screens.Screening`: a temperature effect
 #: the temperature diagnostic, a line the lines test) is ranked before the others unless one
 #: of them gains more than this much BIC (2 nats of likelihood ≈ a factor 150 of evidence at 10): where the data
 #: cannot tell a lagged temperature from a drift, the effect that names the failure comes first. Chosen by replaying
@@ -36,7 +37,7 @@ def rank(suggestions: list, failed: set, window: float = EXPLAIN_WINDOW) -> list
     best = max(s.gain for s in suggestions)
 
     def explained(s):
-        return sorted(set(COMPONENTS[s.effect].explains) & set(failed) & set(s.repairs))
+        return sorted(set(screening_of(COMPONENTS[s.effect]).explains) & set(failed) & set(s.repairs))
 
     def key(s):
         return bool(explained(s)) and s.gain >= best - window, s.gain

@@ -11,6 +11,7 @@ from ..fitting.mle import Fit
 from ..noise.components import COMPONENTS
 from ..noise.model import NoiseModel, parse_model
 from .diagnostics import Diagnostic, Innovations
+from .screens import screening_of
 
 __all__ = ["Suggestion", "CheckRecord", "effect_parameters", "change_words", "read_check"]
 
@@ -155,10 +156,10 @@ class CheckRecord:
                         # a failure located in time may be a disturbance of the recording: how to leave it out
                         "exclude": [f"--exclude {a:.4g}:{b:.4g}" for a, b in d.ranges if b > a]
                         if d.domain == "time" else [],  # (a change at one instant is no stretch to leave out)
-                        "in_library": [n for n in names if n in COMPONENTS and COMPONENTS[n].candidate and (
-                            n not in have or COMPONENTS[n].add_again)],
-                        "add_by_hand": [n for n in names if n in COMPONENTS and not COMPONENTS[n].candidate
-                                        and n not in have],
+                        "in_library": [n for n in names if n in COMPONENTS and screening_of(COMPONENTS[n]).candidate
+                                       and (n not in have or screening_of(COMPONENTS[n]).add_again)],
+                        "add_by_hand": [n for n in names if n in COMPONENTS
+                                        and not screening_of(COMPONENTS[n]).candidate and n not in have],
                         "not_in_library": [n for n in names if n not in COMPONENTS]})
         return out
 

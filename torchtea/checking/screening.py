@@ -87,7 +87,7 @@ def screen_all(model: NoiseModel, fit: Fit, wf, inn: Innovations, diags, y, h, i
         label = new_label(model, alt)
         ctx.alt, ctx.label = alt, label
         missing = [k for k in comp.inputs if inputs is None or inputs.get(k) is None]
-        reason = f"needs the {' and '.join(missing)} channel" if missing else comp.not_screened(model)
+        reason = f"needs the {' and '.join(missing)} channel" if missing else screens.screening_of(comp).why_not(comp, model)
         if reason:
             row["note"] = f"not screened: {reason}"
             continue

@@ -34,6 +34,7 @@ from ..fitting.whittle_path import fits_exactly, polished, uses_exact, whittle_r
 from ..noise.components import COMPONENTS
 from ..noise.model import NoiseModel, parse_model
 from .models import REFIT_TOLERANCE, assess, extend, model_fit, with_intervals
+from .screens import screening_of
 
 __all__ = ["Alternative", "alternatives", "evaluate", "simplify", "ties", "WHITTLE_WINDOW", "MAX_CHANGES"]
 
@@ -116,9 +117,9 @@ def alternatives(res) -> list[Alternative]:
     for i, (label, comp) in enumerate(model.components):
         rest = tokens[:i] + tokens[i + 1:]
         push("drop", label, None, lambda rest=rest: parse_model("+".join(rest)))
-        for kind, effects in (("simpler", comp.special_cases), ("swap", swaps.get(label, ()))):
+        for kind, effects in (("simpler", screening_of(comp).special_cases), ("swap", swaps.get(label, ()))):
             for e in effects:
-                if e not in COMPONENTS or (e in names and not COMPONENTS[e].add_again):
+                if e not in COMPONENTS or (e in names and not screening_of(COMPONENTS[e]).add_again):
                     continue
                 # a special case in the component's place where a filter after it filtered it; else (and a swapped
                 # effect) where it goes by itself (a low-pass after the stochastic parts), failing that in its place

@@ -13,9 +13,10 @@ import torch
 from ...core.registry import Registry
 from ...core.search import remove_regressors
 from ...fitting.starts import initial_values, starts_of
-from ...noise.components import STOCHASTIC_KINDS
+from ...noise.components import COMPONENTS, STOCHASTIC_KINDS
 
-__all__ = ["Screen", "REGISTRY", "register_screen", "unregister_screen", "screen_of", "screen_df", "screen_test", "whittle_screened",
+__all__ = ["Screening", "SCREENING", "register_screening", "unregister_screening", "screening_of", "candidates",
+           "Screen", "REGISTRY", "register_screen", "unregister_screen", "screen_of", "screen_df", "screen_test", "whittle_screened",
            "run_screen", "configure", "mean_screen", "boundary_logsf", "NotScreened", "WHITTLE_SCREEN",
            "WHITTLE_SCREEN_2", "MEAN_SCREEN"]
 
@@ -90,6 +91,64 @@ def unregister_screen(effect) -> None:
 def screen_of(comp) -> Screen | None:
     """The screen registered for ``comp``'s class or its nearest parent; None: the default one."""
     return REGISTRY.find(type(comp))
+
+
+@dataclass(frozen=True)
+class Screening:
+    """How ``check`` treats an effect as a candidate (its screen apart, :class:`Screen`). ``candidate``: ``check``
+    screens it where the model lacks it (the base parts — fractional, white, offset — are not); ``order``: its row in
+    check's table (the built-in ones 10 … 70, a user's effect 100: after them); ``explains``: the diagnostics whose
+    failure it explains physically (a temperature effect the ``temperature`` diagnostic): where it repairs such a
+    failed diagnostic, ``check`` ranks it before a suggestion that only soaks up slow variance, unless that one gains
+    clearly more (``EXPLAIN_WINDOW``); ``special_cases``: the simpler effects it contains, which the loop's
+    simplification tries in its place (dropping it is always tried); ``add_again``: ``check`` may add it to a model
+    that has it already (a second line); ``not_screened(comp, model)``: why ``model`` cannot be screened for it
+    (None: it can)."""
+
+    candidate: bool = True
+    order: int = 100
+    explains: tuple = ()
+    special_cases: tuple = ()
+    add_again: bool = False
+    not_screened: Callable | None = None
+
+    def why_not(self, comp, model) -> str | None:
+        """Why ``model`` cannot be screened for ``comp`` (None: it can); ``check`` skips it with this note."""
+        return None if self.not_screened is None else self.not_screened(comp, model)
+
+
+#: How check treats each effect as a candidate, by class (a subclass has its parent's unless it registers its own).
+SCREENING = Registry("screening")
+DEFAULT_SCREENING = Screening()
+
+
+def register_screening(effect, *, candidate: bool = True, order: int = 100, explains: tuple = (),
+                       special_cases: tuple = (), add_again: bool = False, not_screened: Callable | None = None,
+                       replace: bool = False) -> None:
+    """How ``check`` treats the effect class ``effect`` (or an instance's class) as a candidate: see
+    :class:`Screening`. An effect without it is screened with the defaults (a candidate, after the built-in ones,
+    explaining no diagnostic in particular)."""
+    cls = effect if isinstance(effect, type) else type(effect)
+    SCREENING.add(cls, Screening(candidate, order, tuple(explains), tuple(special_cases), add_again, not_screened),
+                  replace=replace)
+
+
+def unregister_screening(effect) -> None:
+    """Remove what a user registered for the effect class ``effect`` (a built-in entry it replaced is back)."""
+    SCREENING.remove(effect if isinstance(effect, type) else type(effect))
+
+
+def screening_of(comp) -> Screening:
+    """How ``check`` treats ``comp`` as a candidate: its class's entry or its nearest parent's, else the defaults."""
+    return SCREENING.find(type(comp), DEFAULT_SCREENING)
+
+
+def candidates() -> tuple:
+    """The effects ``check`` screens, in the order of its table: every registered component that is a candidate, by
+    its screening's ``order`` (a user's effects after the built-in ones)."""
+    names = list(COMPONENTS)
+    return tuple(sorted((n for n, c in COMPONENTS.items() if screening_of(c).candidate),
+                        key=lambda n: (screening_of(COMPONENTS[n]).order, names.index(n))))
 
 
 def screen_df(comp) -> int:

@@ -46,7 +46,6 @@ from .outliers import Spikes
 from .thermal import TemperatureBias, TemperatureOrder, ThermalLag
 
 __all__ = ["ParamSpec", "Component", "STOCHASTIC_KINDS", "COMPONENTS", "ORDER_BOUNDS", "logit",
-           "candidates",
            # the built-in effects
            "Fractional", "White", "Quantisation", "RandomWalk", "LowPass", "Offset", "Ramp", "Sinusoid",
            "TemperatureBias", "TemperatureOrder", "GaussMarkov", "ThermalLag", "Step", "DriftingLine",
@@ -62,10 +61,3 @@ for _c in (Fractional(), White(), Quantisation(), RandomWalk(), LowPass(), Offse
     COMPONENTS.add(_c.name, _c)
 COMPONENTS.seal()
 del _c
-
-
-def candidates() -> tuple:
-    """The effects ``check`` screens, in the order of its table: every registered component with ``candidate``
-    set, by ``screen_order`` (a user's effects after the built-in ones)."""
-    return tuple(sorted((n for n, c in COMPONENTS.items() if c.candidate),
-                        key=lambda n: (COMPONENTS[n].screen_order, list(COMPONENTS).index(n))))

@@ -200,23 +200,6 @@ class Component:
     def measurement_variance(self, v: dict) -> Tensor:
         raise NotImplementedError
 
-    # ---- how check screens it -----------------------------------------------------------------------------
-    #: ``check`` screens it when the model lacks it (the base parts — fractional, white, offset — are not)
-    candidate: bool = True
-    #: the simpler effects it contains as special cases, which the loop's simplification tries in its place
-    #: (:mod:`torchtea.checking.simplify`; dropping it is always tried)
-    special_cases: tuple = ()
-    #: the order of the screens in check's table (the built-in ones 10 … 70; a user's effect after them)
-    screen_order: int = 100
-    #: the diagnostics whose failure this effect explains physically (a temperature effect the ``temperature``
-    #: diagnostic, a line the ``lines`` one): where it repairs such a failed diagnostic, ``check`` ranks it before a
-    #: suggestion that only soaks up slow variance, unless that one gains clearly more (``EXPLAIN_WINDOW``)
-    explains: tuple = ()
-
-    def not_screened(self, model) -> str | None:
-        """Why ``model`` cannot be screened for it (None: it can); ``check`` skips it with this note."""
-        return None
-
     #: Parameters the exact fits hold where the data put them, name → None for a reference (not an estimate:
     #: the temperature's ``t_ref``) or the words the report gives for its interval (an estimate made elsewhere —
     #: a line's frequency at the refined periodogram peak — which counts as estimated in BIC).
@@ -247,8 +230,6 @@ class Component:
     # ---- how a model holds it ---------------------------------------------------------------------------
     #: at most one in a model (``parse_model`` refuses a second)
     single: bool = False
-    #: ``check`` may add it to a model that has it already (a second line)
-    add_again: bool = False
     #: it carries the series' constant level: the fits do not centre the series (``offset``)
     level: bool = False
 

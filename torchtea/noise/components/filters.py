@@ -16,7 +16,6 @@ class LowPass(Component):
 
     name = "low-pass"
     kind = "filter"
-    screen_order = 50
     params = (ParamSpec("cutoff_hz", "positive", "f_c (Hz)"),)
     #: first-order stages in cascade, each with the cut-off ``cutoff_hz``
     stages = 1
@@ -89,7 +88,6 @@ class DigitalFilter(LowPass):
 
     name = "digital-filter"
     stages = 2
-    screen_order = 55
     params = (ParamSpec("cutoff_hz", "positive", "f_c (Hz), each of the two stages"),)
 
     def typical(self, param, h, t_ref):

@@ -18,11 +18,9 @@ class Fractional(Component):
 
     name = "fractional"
     kind = "state"
-    candidate = False
     order_param = "order"
     #: order 1 with its pole at 0 is a random walk, order 1 with a pole a first-order Gauss–Markov bias (at order 0
     #: it is white noise: dropping it beside a white component)
-    special_cases = ("random-walk", "gauss-markov")
 
     def check_fixed(self, label, fixed):
         if f"{label}.pole" in fixed and f"{label}.order" not in fixed:

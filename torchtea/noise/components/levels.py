@@ -9,7 +9,6 @@ from .base import Component, ParamSpec
 class Offset(Component):
     name = "offset"
     kind = "mean"
-    candidate = False
     params = (ParamSpec("value", "free", "units"),)
     level = True
 
@@ -35,9 +34,6 @@ class Ramp(Component):
         return 1e-4
 
 
-    screen_order = 60
-
-
 class Step(Component):
     r"""A level step at an unknown time (a knock, a mounting shift): ``size`` added from ``t_step`` (s from the first
     sample) on. The time is the least-squares location of one step in the residual (the split k that maximises
@@ -49,8 +45,6 @@ class Step(Component):
     params = (ParamSpec("size", "free", "units"), ParamSpec("t_step", "free", "t₀ (s from the first sample)"))
     held = {"t_step": "least-squares location of one step (held in the fits): no interval"}
     located = ("t_step",)
-    add_again = True
-    screen_order = 65
     # (explains nothing: the change test fails on any slow wander — a random walk's too; in the hidden-effect study
     # ranking a step first for it took a random-walk seed whose walk gained 8 more)
 

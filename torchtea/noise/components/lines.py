@@ -17,7 +17,6 @@ class Sinusoid(Component):
     params = (ParamSpec("frequency_hz", "positive", "f₀ (Hz)"), ParamSpec("amplitude", "positive", "A (units)"),
               ParamSpec("phase", "free", "φ (rad)"))
 
-    add_again = True  # a second line
 
     def mean(self, v, t, inputs):
         return v["amplitude"].unsqueeze(-1) * torch.sin(2.0 * math.pi * v["frequency_hz"].unsqueeze(-1) * t
@@ -27,8 +26,6 @@ class Sinusoid(Component):
         return {"frequency_hz": 3.37, "amplitude": 0.01, "phase": 0.0}[param]
 
 
-    screen_order = 20
-    explains = ("lines",)
     # the frequency at the refined periodogram peak (asymptotically efficient in coloured noise, Hannan 1973)
     held = {"frequency_hz": "refined periodogram peak (held in the exact refit): no interval"}
 
@@ -48,9 +45,6 @@ class DriftingLine(Component):
               ParamSpec("amplitude", "positive", "A (units)"), ParamSpec("phase", "free", "φ (rad)"))
     held = {"frequency_hz": "chirp search, refined (held in the exact refit): no interval",
             "rate_hz_per_s": "chirp search, refined (held in the exact refit): no interval"}
-    add_again = True
-    screen_order = 25
-    explains = ("spectrum",)
 
     def mean(self, v, t, inputs):
         tau = t - t.mean()

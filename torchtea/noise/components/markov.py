@@ -16,7 +16,6 @@ class RandomWalk(Component):
     kind = "state"
     diffuse = True
 
-    screen_order = 10
     params = (ParamSpec("sigma", "positive", "K (units/√s)"),)
 
     def spectrum(self, v, omega, h):
@@ -59,8 +58,6 @@ class GaussMarkov(Component):
     kind = "state"
     params = (ParamSpec("sigma", "positive", "σ (units), stationary standard deviation"),
               ParamSpec("tau_s", "positive", "τ (s), correlation time"))
-    screen_order = 15
-    add_again = True  # a second one of another correlation time (a sensor's bias instability is often two)
 
     def coefficient(self, v, h):
         return torch.exp(-h / v["tau_s"])
@@ -125,9 +122,6 @@ class Resonance(Component):
 
     name = "resonance"
     kind = "state"
-    add_again = True
-    screen_order = 27
-    explains = ("spectrum",)
     params = (ParamSpec("frequency_hz", "nyquist", "f_r (Hz), centre of the band"),
               ParamSpec("bandwidth_hz", "positive", "B (Hz), half-power width"),
               ParamSpec("sigma", "positive", "σ (units), stationary standard deviation"))

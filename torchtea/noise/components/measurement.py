@@ -13,7 +13,6 @@ class White(Component):
 
     name = "white"
     kind = "measurement"
-    candidate = False
     params = (ParamSpec("r", "positive", "variance (units²)"),)
 
     def measurement_variance(self, v):
@@ -39,7 +38,6 @@ class Quantisation(Component):
 
     name = "quantisation"
     kind = "measurement"
-    screen_order = 70
     params = (ParamSpec("step", "positive", "Δ (units)"),)
 
     def measurement_variance(self, v):
@@ -50,12 +48,6 @@ class Quantisation(Component):
 
     def typical(self, param, h, t_ref):
         return 0.01
-
-
-    def not_screened(self, model):
-        if any(c.kind == "measurement" and type(c) is not type(self) for _, c in model.components):
-            return "quantisation noise is white, indistinguishable from the white component"
-        return None
 
 
     def spectrum(self, v, omega, h):

@@ -21,9 +21,6 @@ class Spikes(Component):
 
     name = "spikes"
     kind = "mean"
-    add_again = True
-    screen_order = 60
-    explains = ("extremes",)
     needs_argument = "spikes need their count: spikes:K (check finds the spikes and their count itself)"
     #: more outliers than this are not isolated spikes but heavy-tailed noise, which no mean term describes
     MAX_SPIKES = 50

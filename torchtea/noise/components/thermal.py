@@ -27,10 +27,6 @@ class TemperatureBias(Component):
         return {"bias_per_degC": 0.02, "t_ref": t_ref}[param]
 
 
-    screen_order = 30
-    explains = ("temperature",)
-
-
 class _FirstOrderLag(torch.autograd.Function):
     r""":math:`y_k = a y_{k-1} + (1-a) T_k`, :math:`y_0 = T_0`, for each coefficient of ``a`` ``(B,)`` (``scipy.signal.
     lfilter``), with its derivative in ``a`` for both modes of automatic differentiation: :math:`z_k = \partial y_k /
@@ -79,8 +75,6 @@ class ThermalLag(Component):
     params = (ParamSpec("bias_per_degC", "free", "units/°C"), ParamSpec("tau_s", "positive", "τ (s), thermal lag"),
               ParamSpec("t_ref", "free", "T_ref (°C)"))
     held = {"t_ref": None}
-    screen_order = 35
-    explains = ("temperature",)
 
     @staticmethod
     def lags(h: float, n: int) -> np.ndarray:
@@ -137,11 +131,6 @@ class TemperatureOrder(Component):
 
     def typical(self, param, h, t_ref):
         return {"order_per_degC": 0.03, "t_ref": t_ref}[param]
-
-
-    screen_order = 40
-    explains = ("temperature",)
-
 
     def orders(self, v: dict, alpha0: Tensor, T: Tensor) -> Tensor:
         """``(B, N)`` orders α_k for ``(B,)`` α₀ and the temperature ``(N,)``."""

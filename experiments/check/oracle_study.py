@@ -30,6 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from torchtea.noise.components import COMPONENTS
+from torchtea.noise.grammar import token_for
 from torchtea.studies.hidden import BASE_MODEL, random_case
 from torchtea.studies.oracle import judge, oracle
 
@@ -41,7 +42,7 @@ RIVALS = {"gauss-markov": ["random-walk"], "thermal-lag": ["temperature-bias", "
 def run_oracle(case: dict) -> dict:
     effects, seed, n, h = case["effects"], case["seed"], case["n"], case["h"]
     y, T, truth = random_case(effects, seed, n, h)
-    spec = "+".join([BASE_MODEL, *(COMPONENTS[e].token_for(e, truth) for e in effects)])
+    spec = "+".join([BASE_MODEL, *(token_for(COMPONENTS[e], e, truth) for e in effects)])
     rivals = {e: [r for r in RIVALS[e] if r not in effects] for e in effects if e in RIVALS}
     t0 = time.perf_counter()
     out = oracle(y, h, truth, spec, inputs={"temperature": T}, rivals=rivals)

@@ -30,6 +30,7 @@ import numpy as np
 from torchtea.checking import check
 from torchtea.checking.check import CLOSE_BIC
 from torchtea.noise.components import COMPONENTS
+from torchtea.noise.grammar import grammar_of
 from torchtea.studies.hidden import BASE_MODEL, random_case
 
 HERE = Path(__file__).resolve().parent
@@ -70,7 +71,7 @@ def _relative_errors(rows: list) -> dict:
             comp = name.split(".", 1)[0]
             if comp not in r["effects"] or name.endswith("t_ref") or name.endswith("phase") or name not in fitted:
                 continue
-            if COMPONENTS[comp.rstrip("0123456789")].needs_argument:  # spikes: a set of times (_spike_rows)
+            if grammar_of(COMPONENTS[comp.rstrip("0123456789")]).needs_argument:  # spikes: a set of times (_spike_rows)
                 continue
             if name.split(".", 1)[1] in COMPONENTS[comp.rstrip("0123456789")].located:  # a time: in samples
                 out.setdefault(f"{name} (samples)", []).append((fitted[name] - true) / r["h"])

@@ -16,6 +16,7 @@ from ..fitting.whittle_path import (
     whittle_refine,
 )
 from ..noise.components import COMPONENTS
+from ..noise.grammar import position, token
 from ..noise.model import NoiseModel, parse_model
 from .diagnostics import innovations, metrics, run_diagnostics
 from .screens import candidates as candidates_all
@@ -30,7 +31,7 @@ REFIT_TOLERANCE = 1e-3
 
 
 def extend(model: NoiseModel, effect: str) -> NoiseModel:
-    """``model`` with one more component, where the component's :meth:`~torchtea.noise.components.Component.position`
+    """``model`` with one more component, where the component's :func:`~torchtea.noise.grammar.position`
     puts it (a ``low-pass`` right after the last stochastic component, anything else at the end). ``effect``: a name,
     or a spec token ``name:argument`` (``spikes:3``)."""
     model = parse_model(model)
@@ -41,8 +42,8 @@ def extend(model: NoiseModel, effect: str) -> NoiseModel:
     names = [c.name for _, c in model.components]
     if name in names and not screening_of(comp).add_again:
         raise ValueError(f"model {model.spec!r} already has {name!r}")
-    tokens = [c.token for _, c in model.components]
-    tokens.insert(comp.position(model), effect)
+    tokens = [token(c) for _, c in model.components]
+    tokens.insert(position(comp, model), effect)
     return parse_model("+".join(tokens))
 
 

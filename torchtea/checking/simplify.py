@@ -32,6 +32,7 @@ from ..fitting.plan import duration, tie_length
 from ..fitting.starts import starts_of
 from ..fitting.whittle_path import fits_exactly, polished, uses_exact, whittle_refine
 from ..noise.components import COMPONENTS
+from ..noise.grammar import token
 from ..noise.model import NoiseModel, parse_model
 from .models import REFIT_TOLERANCE, assess, extend, model_fit, with_intervals
 from .screens import screening_of
@@ -100,7 +101,7 @@ def _swaps(res) -> dict:
 def alternatives(res) -> list[Alternative]:
     """The models :func:`simplify` tries in place of ``res.model`` (a :class:`~.check.CheckResult`), each once."""
     model = res.model
-    tokens = [c.token for _, c in model.components]
+    tokens = [token(c) for _, c in model.components]
     names = [c.name for _, c in model.components]
     swaps = _swaps(res)
     out, seen = [], {model.spec}

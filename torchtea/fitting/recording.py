@@ -6,6 +6,7 @@ import math
 import time
 from collections.abc import Callable
 
+from ..noise.grammar import token
 from ..render.text import num
 from ..sensors.measurements import DOCUMENT_MEANING, RECORDING_MEANING
 from .mle import Fit, fit_series
@@ -93,7 +94,7 @@ def fit_recording(m, model, *, inputs: dict | None = None, method: str = "exact"
                 # with the order constant (a temperature-driven order is not part of the test)
                 import torch
 
-                tested = parse_model("+".join(c.token for _, c in model.components if not c.inputs))
+                tested = parse_model("+".join(token(c) for _, c in model.components if not c.inputs))
                 t = torch.arange(m.samples, dtype=torch.float64) * m.h
                 test_series = [y - model.mean(f.values, t, inputs).numpy()[0] for y, f in zip(series, fits)]
             tests = fractional_test(tested, test_series, m.h, n_boot=n_boot, seed=seed)

@@ -27,6 +27,7 @@ from torch import Tensor
 
 from ..core.gl import broadcast_shapes
 from ..core.memory import MemoryConfig, SOEKernel, memory_plan, parse_memory
+from . import grammar
 from .components import COMPONENTS, ORDER_BOUNDS, Component
 
 __all__ = ["NoiseModel", "PAPER_MODEL", "parse_model", "StateSpace", "VaryingRow", "StateMemory", "state_memory",
@@ -246,7 +247,7 @@ class NoiseModel:
     def without(self, name: str) -> NoiseModel:
         """The same model without every component called ``name`` (the null of a presence test)."""
         name = name.partition(":")[0]  # (a token, spikes:3, names its component)
-        kept = [c.token for _, c in self.components if c.name != name]
+        kept = [grammar.token(c) for _, c in self.components if c.name != name]
         if not kept:
             raise ValueError(f"the model {self.spec!r} has nothing left without {name!r}")
         return parse_model("+".join(kept))
@@ -543,17 +544,17 @@ def parse_model(spec) -> NoiseModel:
             raise ValueError(f"unknown component {p!r} in model {spec!r}; choose from: {', '.join(COMPONENTS)}")
         comp = COMPONENTS[p]
         if argument:
-            comp = comp.configured(argument)
-        elif comp.needs_argument:
-            raise ValueError(f"model {spec!r}: {comp.needs_argument}")
+            comp = grammar.configured(comp, argument)
+        elif grammar.grammar_of(comp).needs_argument:
+            raise ValueError(f"model {spec!r}: {grammar.grammar_of(comp).needs_argument}")
         seen[p] = seen.get(p, 0) + 1
         label = p if seen[p] == 1 else f"{p}{seen[p]}"
         comps.append((label, comp))
     for p, count in seen.items():
-        if count > 1 and COMPONENTS[p].single:
+        if count > 1 and grammar.grammar_of(COMPONENTS[p]).single:
             raise ValueError(f"model {spec!r}: at most one {p}")
     if not any(c.kind in ("state", "measurement") for _, c in comps):
         raise ValueError(f"model {spec!r} has no stochastic component (fractional, white, random-walk …)")
     for _, comp in comps:
-        comp.validate(comps, spec)
-    return NoiseModel(comps, "+".join(c.token for _, c in comps))
+        grammar.validate(comp, comps, spec)
+    return NoiseModel(comps, "+".join(grammar.token(c) for _, c in comps))

@@ -16,6 +16,7 @@ import torch
 
 from ..noise import default_values, parse_model, simulate_model, temperature_profile
 from ..noise.components import COMPONENTS
+from ..noise.grammar import token_for
 from ..noise.model import PAPER_MODEL
 
 __all__ = ["HIDDEN_STRENGTH", "BASE_MODEL", "hidden_model", "hidden_case", "DRAWS", "random_case"]
@@ -130,7 +131,7 @@ def random_case(effects, seed: int, n: int = 30_000, h: float = 0.01):
     drawn = {}
     for e in effects:
         drawn.update(DRAWS[e](g, math.sqrt(r), h, span, dT))
-    model = parse_model("+".join([BASE_MODEL, *(COMPONENTS[e].token_for(e, drawn) for e in effects)]))
+    model = parse_model("+".join([BASE_MODEL, *(token_for(COMPONENTS[e], e, drawn) for e in effects)]))
     values = default_values(model, h, T)
     values.update(base)
     values.update(drawn)

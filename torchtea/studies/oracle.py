@@ -34,13 +34,14 @@ from scipy import stats
 
 from ..checking.check import CANDIDATES, CLOSE_BIC
 from ..fitting.mle import fit_series, refine_best
+from ..noise.grammar import token
 from ..noise.model import parse_model
 
 __all__ = ["oracle", "effect_df", "status", "judge"]
 
 
 def _tokens_without(model, label: str) -> str:
-    return "+".join(c.token for lb, c in model.components if lb != label)
+    return "+".join(token(c) for lb, c in model.components if lb != label)
 
 
 def effect_df(model, label: str) -> int:
@@ -156,7 +157,7 @@ def _rival(model, label, rival, y, h, inputs, full, without, n) -> dict:
     its typical values and at a tenth and ten times its scale parameters, and from its own exact fit where the
     model is stationary."""
     from ..noise import default_values
-    tokens = [c.token if lb != label else rival for lb, c in model.components]
+    tokens = [token(c) if lb != label else rival for lb, c in model.components]
     m = parse_model("+".join(tokens))
     T = None if inputs is None else inputs.get("temperature")
     typical = default_values(m, h, T)

@@ -8,6 +8,7 @@ import torch
 from torch import Tensor
 
 from ...core.registry import Registry
+from ...noise.grammar import token
 from ...noise.model import NoiseModel
 
 __all__ = ["Starts", "StartData", "REGISTRY", "register_start", "unregister_start", "starts_of", "initial_values"]
@@ -88,7 +89,7 @@ class Starts:
         tt = torch.as_tensor(t, dtype=torch.float64)
         inp = None if inputs is None else {k: torch.as_tensor(x, dtype=torch.float64) for k, x in inputs.items()}
 
-        alone = NoiseModel([(label, comp)], comp.token)  # (its parameters' transforms, as a model has them)
+        alone = NoiseModel([(label, comp)], token(comp))  # (its parameters' transforms, as a model has them)
 
         def natural(u):
             v = alone.from_unconstrained(torch.as_tensor(u, dtype=torch.float64), h)

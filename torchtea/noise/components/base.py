@@ -208,39 +208,9 @@ class Component:
     #: move them): at the value the least-squares start found (:meth:`~torchtea.fitting.starts.Starts.fit_residual`), counted as estimated in BIC.
     located: tuple = ()
 
-    # ---- its spec token ----------------------------------------------------------------------------------
-    @property
-    def token(self) -> str:
-        """How the component is written in a model's spec: its name, or ``name:argument`` for one configured by an
-        argument (``spikes:13``, :meth:`configured`)."""
-        return self.name
-
-    def configured(self, argument: str) -> Component:
-        """The component configured by the spec's ``name:argument`` (a spikes component's count); raises
-        ``ValueError`` for a component that takes no argument."""
-        raise ValueError(f"component {self.name!r} takes no argument (got {self.name}:{argument})")
-
-    #: it needs an argument in a spec (``spikes:K``): the bare name is refused, with these words
-    needs_argument: str = ""
-
-    def token_for(self, label: str, values: dict) -> str:
-        """The token of the component ``label`` whose parameter values are ``values`` (a simulation's truth)."""
-        return self.name
-
     # ---- how a model holds it ---------------------------------------------------------------------------
-    #: at most one in a model (``parse_model`` refuses a second)
-    single: bool = False
     #: it carries the series' constant level: the fits do not centre the series (``offset``)
     level: bool = False
-
-    def validate(self, components: list, spec: str) -> None:
-        """Raise ``ValueError`` (naming the model ``spec``) when the model's ``(label, component)`` list cannot hold
-        this component (a combination no filter can evaluate); default: any model can."""
-
-    def position(self, model) -> int:
-        """Where :func:`~torchtea.checking.check.extend` inserts it among ``model``'s components (default: at the
-        end); raises ``ValueError`` naming what the model lacks when it cannot be added."""
-        return len(model.components)
 
     # ---- values -----------------------------------------------------------------------------------------
     def typical(self, param: str, h: float, t_ref: float) -> float:

@@ -55,22 +55,6 @@ class LowPass(Component):
                 bs.append((1.0 - a) * bs[-1])
         return torch.stack(rows, dim=1), torch.stack(bs, dim=1)
 
-    single = True
-
-    def validate(self, components, spec):
-        filters = [c.name for _, c in components if c.kind == "filter"]
-        if len(filters) > 1:
-            raise ValueError(f"model {spec!r}: one sensor filter at most ({', '.join(filters)})")
-
-    def position(self, model):
-        """Right after the last stochastic component: a sensor's digital filter filters its whole signal, white
-        noise included."""
-        last = max((i for i, (_, c) in enumerate(model.components) if c.kind in ("state", "measurement")),
-                   default=None)
-        if last is None:
-            raise ValueError(f"a {self.name} filters stochastic components; {model.spec!r} has none")
-        return last + 1
-
     def typical(self, param, h, t_ref):
         return 5.0
 

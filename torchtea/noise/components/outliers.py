@@ -21,7 +21,6 @@ class Spikes(Component):
 
     name = "spikes"
     kind = "mean"
-    needs_argument = "spikes need their count: spikes:K (check finds the spikes and their count itself)"
     #: more outliers than this are not isolated spikes but heavy-tailed noise, which no mean term describes
     MAX_SPIKES = 50
     #: how many times the filter is rerun with the spikes found set aside
@@ -39,22 +38,6 @@ class Spikes(Component):
                                       ParamSpec(f"t{j}", "free", "t (s from the first sample)")))
         self.held = {p.name: self.WORDS if p.name.startswith("t") else self.SIZE_WORDS for p in self.params}
         self.located = tuple(p.name for p in self.params)
-
-    @property
-    def token(self):
-        return f"{self.name}:{self.count}"
-
-    def configured(self, argument):
-        try:
-            count = int(argument)
-        except ValueError:
-            count = 0
-        if not 1 <= count <= self.MAX_SPIKES:
-            raise ValueError(f"spikes:{argument}: the count must be a whole number from 1 to {self.MAX_SPIKES}")
-        return Spikes(count)
-
-    def token_for(self, label, values):
-        return f"{self.name}:{sum(1 for n in values if n.startswith(f'{label}.t'))}"
 
     def mean(self, v, t, inputs):
         h = float(t[1] - t[0]) if t.shape[-1] > 1 else 1.0

@@ -115,20 +115,6 @@ class TemperatureOrder(Component):
     held = {"t_ref": None}
     params = (ParamSpec("order_per_degC", "free", "1/°C"), ParamSpec("t_ref", "free", "T_ref (°C)"))
 
-    def validate(self, components, spec):
-        names = [c.name for _, c in components]
-        if names.count(self.name) > 1 or sum(c.order_param is not None for _, c in components) != 1:
-            raise ValueError(f"model {spec!r}: temperature-order drives the order of exactly one fractional "
-                             "component, and a model holds one temperature-order")
-        if any(c.kind == "filter" for _, c in components):
-            raise ValueError(f"model {spec!r}: temperature-order drives the order of one fractional component and "
-                             "cannot be combined with a sensor filter (low-pass, digital-filter)")
-
-    def position(self, model):
-        if model.order_name is None:
-            raise ValueError(f"temperature-order drives a fractional component's order; {model.spec!r} has none")
-        return len(model.components)
-
     def typical(self, param, h, t_ref):
         return {"order_per_degC": 0.03, "t_ref": t_ref}[param]
 

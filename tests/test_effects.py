@@ -785,3 +785,46 @@ def test_the_batched_chirp_search_is_the_per_rate_loop():
     assert found["ratio"] == pytest.approx(best[3], rel=1e-12)
     assert found["log_p"] == pytest.approx(min(0.0, best[0] + math.log(tests)), rel=1e-9, abs=1e-12)
     assert stats.f.logsf(best[3], 2, 200) == pytest.approx(-100 * math.log1p(best[3] / 100), rel=1e-9)
+
+
+def test_a_users_state_effect_needs_its_block_only():
+    """A state effect that writes only its block (the own-effect how-to's Gauss–Markov bias): its spectrum is the
+    block's stationary one, its derivatives come from forward-mode differentiation, and the model's exact
+    likelihood, spectrum and Whittle derivatives are the built-in gauss-markov's (which writes all of them in closed
+    form); check screens it by the Whittle likelihood-ratio."""
+    from torchtea.fitting.exact import exact_loglik
+    from torchtea.noise.derivatives import spectrum_jacobian
+
+    class Wander(Component):
+        name = "wander"
+        kind = "state"
+        params = (ParamSpec("sigma", "positive", "σ (units)"), ParamSpec("tau_s", "positive", "τ (s)"))
+
+        def n_states(self, memory):
+            return 1
+
+        def block(self, v, h, memory):
+            a = torch.exp(-h / v["tau_s"])
+            return a.reshape(-1, 1, 1), (v["sigma"] * torch.sqrt(1 - a * a)).reshape(-1, 1, 1)
+
+        def typical(self, param, h, t_ref):
+            return {"sigma": 5e-3, "tau_s": 2.0}[param]
+
+    register(Wander)
+    try:
+        mine, built_in = parse_model("fractional+white+wander"), parse_model("fractional+white+gauss-markov")
+        values = default_values(built_in, H)
+        values["gauss-markov.tau_s"] = 2.0
+        rename = {k.replace("gauss-markov", "wander"): x for k, x in values.items()}
+        omega = torch.linspace(1e-3, 3.1, 300, dtype=torch.float64)
+        S_mine, dS_mine = spectrum_jacobian(mine, mine.to_unconstrained(rename, H), omega, H)
+        S_built, dS_built = spectrum_jacobian(built_in, built_in.to_unconstrained(values, H), omega, H)
+        torch.testing.assert_close(S_mine, S_built, rtol=1e-10, atol=0.0)
+        torch.testing.assert_close(dS_mine, dS_built, rtol=1e-8, atol=1e-12 * float(S_built.max()))
+        y = simulate_model(built_in, values, n_steps=3000, h=H, generator=torch.Generator().manual_seed(3))[0, 0]
+        a, b = exact_loglik(mine, rename, y, H), exact_loglik(built_in, values, y, H)
+        assert float(np.ravel(a)[0]) == pytest.approx(float(np.ravel(b)[0]), rel=1e-10)
+        row = next(s for s in check(y.numpy(), H, intervals=False, candidates=("wander",)).screens)
+        assert row["effect"] == "wander" and row["test"].startswith("Whittle LR") and row["p_value"] is not None
+    finally:
+        unregister("wander")

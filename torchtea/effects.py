@@ -81,8 +81,9 @@ def register(effect, *, replace: bool = False):
                          "effect's fractional order: the effect needs an order_param")
     if comp.kind == "mean" and type(comp).mean is Component.mean:
         raise ValueError(f"{where}: a mean effect must define mean(v, t, inputs)")
-    if comp.kind == "state" and (type(comp).block is Component.block or type(comp).spectrum is Component.spectrum):
-        raise ValueError(f"{where}: a state effect must define block(v, h, memory) and spectrum(v, omega, h)")
+    if comp.kind == "state" and type(comp).block is Component.block:
+        raise ValueError(f"{where}: a state effect must define block(v, h, memory) (its spectrum, unless it writes "
+                         "its own, is the block's stationary one)")
     try:
         COMPONENTS.add(name, comp, replace=replace)
     except ValueError as e:

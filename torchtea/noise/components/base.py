@@ -160,8 +160,19 @@ class Component:
 
     # ---- spectra (stationary parts) -------------------------------------------------------------
     def spectrum(self, v: dict, omega: Tensor, h: float) -> Tensor:
-        """Two-sided spectral density at ω (rad/sample) for parameter values ``v`` (each ``(B,)``) → ``(B, W)``."""
-        raise NotImplementedError
+        r"""Two-sided spectral density at ω (rad/sample) for parameter values ``v`` (each ``(B,)``) → ``(B, W)``.
+        Default for a state: the stationary spectrum of its :meth:`block`'s output (state 0),
+        :math:`S(\omega) = \frac{1}{2\pi}\,\lVert e_0^\top (I - F e^{-i\omega})^{-1} G \rVert^2` — right for a
+        stable block (every eigenvalue of F inside the unit circle); a block that does not return to a mean (a random
+        walk) writes its own."""
+        if self.kind != "state":
+            raise NotImplementedError(f"component {self.name!r} ({self.kind}) has no spectrum of its own")
+        F, G = self.block(v, h, None)
+        z = torch.exp(-1j * omega.to(torch.float64))  # (W,)
+        eye = torch.eye(F.shape[-1], dtype=torch.complex128)
+        M = eye - F.to(torch.complex128).unsqueeze(1) * z.reshape(1, -1, 1, 1)  # (B, W, n, n)
+        X = torch.linalg.solve(M, G.to(torch.complex128).unsqueeze(1).expand(-1, z.shape[0], -1, -1))
+        return (X[..., 0, :].abs() ** 2).sum(-1) / (2.0 * math.pi)
 
     def spectrum_derivatives(self, v: dict, omega: Tensor, h: float) -> tuple[Tensor, Tensor]:
         """The spectrum ``S`` ``(B, W)`` and its derivatives with respect to the component's parameters, in the order

@@ -8,8 +8,8 @@ import pytest
 import torch
 
 from torchtea.cli import main
-from torchtea.export.datasheet import compare
 from torchtea.export.terms import axis_terms
+from torchtea.fitting.datasheet import compare
 from torchtea.fitting.mle import fit_series
 from torchtea.noise import simulate_model
 from torchtea.sensors.io import write_columns

@@ -12,8 +12,9 @@ import torch
 from torchtea.checking.allan import model_avar
 from torchtea.cli import main
 from torchtea.export.terms import BIAS_INSTABILITY_FACTOR
+from torchtea.fitting.datasheet import datasheet_model, read_datasheet
 from torchtea.fitting.mle import fit_series
-from torchtea.fitting.plan import datasheet_model, length_for, parse_target, plan, read_datasheet, tie_length
+from torchtea.fitting.plan import length_for, parse_target, plan, tie_length
 from torchtea.noise.model import parse_model
 from torchtea.noise.simulate import simulate_model
 

@@ -227,8 +227,8 @@ def json_page() -> str:
     """The fields of the JSON files the commands write, from the ``meaning`` table each file carries."""
     from .checking.report import MEANING as CHECK_MEANING
     from .engines.presets import get_preset
-    from .export.datasheet import VERDICT_MEANING
     from .export.run import EXPORT_MEANING
+    from .fitting.datasheet import VERDICT_MEANING
     from .fitting.recording import FIT_MEANING
     from .reports.identify import estimate_meaning
     from .reports.report import SUMMARY_MEANING

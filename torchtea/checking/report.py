@@ -15,7 +15,8 @@ import numpy as np
 import torch
 from scipy import stats
 
-from ..fitting.plan import plan_document, plan_lines, verdict_lines
+from ..fitting.datasheet import verdict_lines
+from ..fitting.plan import plan_document, plan_lines
 from ..likelihood.whittle import periodogram
 from ..noise.model import parse_model
 from ..render.plots import pyplot, save_figure
@@ -293,7 +294,7 @@ def write_report(out: Path, results: dict, meta: dict, plots: bool = True, datas
     """``check.json`` and ``report.md`` (and the figures) for ``results`` {channel label: CheckResult}; ``meta``
     describes the recording (``channels``: label → its column, sensor, axis and unit, as
     :meth:`~torchtea.sensors.measurements.Measurements.describe` writes them); ``datasheet``: label → the axis held
-    against a datasheet (:func:`torchtea.export.datasheet.compare`). Returns the JSON document."""
+    against a datasheet (:func:`torchtea.fitting.datasheet.compare`). Returns the JSON document."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     channels = meta.get("channels", {})

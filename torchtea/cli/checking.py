@@ -176,8 +176,9 @@ def cmd_fit(args) -> int:
 
 def cmd_plan(args) -> int:
     """``torchtea plan``: how long to record (:mod:`torchtea.fitting.plan`)."""
+    from ..fitting.datasheet import datasheet_model, read_datasheet
     from ..fitting.mle import fit_series
-    from ..fitting.plan import datasheet_model, parse_target, plan_document, plan_lines, read_datasheet
+    from ..fitting.plan import parse_target, plan_document, plan_lines
     from ..noise import parse_model
     from ..render.strictjson import dumps, write
 

@@ -1,5 +1,5 @@
 """``torchtea export`` and the export that ``fit --export`` and ``check --export`` make
-(:mod:`torchtea.export.run`), with the datasheet verdicts (:mod:`torchtea.export.datasheet`)."""
+(:mod:`torchtea.export.run`), with the datasheet verdicts (:mod:`torchtea.fitting.datasheet`)."""
 from __future__ import annotations
 
 import sys
@@ -126,9 +126,9 @@ def _export_plan(args, m, names):
 
 
 def _sheets(args) -> dict:
-    """``--datasheet`` files read (:func:`torchtea.export.datasheet.read_sheets`), once; a bad one is one line."""
+    """``--datasheet`` files read (:func:`torchtea.fitting.datasheet.read_sheets`), once; a bad one is one line."""
     if not hasattr(args, "_sheets"):
-        from ..export.datasheet import read_sheets
+        from ..fitting.datasheet import read_sheets
 
         try:
             args._sheets = read_sheets(getattr(args, "datasheet", None))
@@ -138,11 +138,11 @@ def _sheets(args) -> dict:
 
 
 def _datasheet_verdicts(args, m, fits: dict, inputs) -> dict:
-    """Each axis whose sensor has a ``--datasheet`` against it (:func:`torchtea.export.datasheet.compare`), its
+    """Each axis whose sensor has a ``--datasheet`` against it (:func:`torchtea.fitting.datasheet.compare`), its
     numbers as an export makes them (:func:`torchtea.export.run.export_axes`, no NEES study)."""
-    from ..export.datasheet import compare
     from ..export.run import export_axes
     from ..export.terms import parse_horizon
+    from ..fitting.datasheet import compare
 
     sheets = _sheets(args)
     held = {c.label: c.sensor for c in m.channels if c.sensor in sheets and c.label in fits}
@@ -170,7 +170,7 @@ def _export(args, m, plan, fits: dict, inputs, meta: dict, out: Path, *, quiet: 
 
 
 def _print_verdicts(verdicts: dict) -> None:
-    from ..fitting.plan import verdict_lines
+    from ..fitting.datasheet import verdict_lines
 
     if verdicts:
         print("against the datasheet (fitted [95 %] against its value, SI units):")

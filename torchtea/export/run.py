@@ -107,7 +107,7 @@ def export_recording(m, plan: ExportPlan, fits: dict, out: Path, *, inputs: dict
     axes = export_axes(fits, m.series(), {c.label: c.sensor for c in m.channels}, m.h, plan.horizon,
                        inputs=inputs, nees=nees, seed=seed)
     if sheets:
-        from .datasheet import compare
+        from ..fitting.datasheet import compare
 
         for a in axes:
             if a.sensor in sheets:
@@ -215,7 +215,7 @@ def markdown(axes: list, doc: dict) -> str:
     lines += left or ["Nothing: every component is white noise, a random walk, a ramp or a constant level."]
     held = [a for a in axes if a.datasheet]
     if held:
-        from .datasheet import verdict_lines
+        from ..fitting.datasheet import verdict_lines
 
         lines += ["", "## Against the datasheet", ""]
         for a in held:

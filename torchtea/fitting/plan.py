@@ -29,7 +29,7 @@ strong-evidence level (:func:`tie_length`) — in the favour of the one ahead in
 when neither is. That is an expectation from this record's own statistic, itself noisy: the tests check it against
 simulation.
 
-**Datasheets.** :func:`datasheet_model` turns a datasheet's N, B and K into white noise, a flicker (fractional order
+**Datasheets.** :func:`~.datasheet.datasheet_model` turns a datasheet's N, B and K into white noise, a flicker (fractional order
 ½, pole at 0) and a random walk. IEEE Std 952's rate PSDs are two-sided — white noise :math:`N^2`, whose Allan
 variance is :math:`N^2/\tau`, and flicker :math:`B^2/(2\pi f)`, whose Allan deviation is flat at
 :math:`\sqrt{2\ln 2/\pi}\,B = 0.664\,B` — and the fractional part at order ½ has the two-sided PSD
@@ -37,13 +37,7 @@ variance is :math:`N^2/\tau`, and flicker :math:`B^2/(2\pi f)`, whose Allan devi
 from __future__ import annotations
 
 import math
-
-try:
-    import tomllib
-except ImportError:  # (Python 3.10)
-    import tomli as tomllib
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 import torch
@@ -53,9 +47,8 @@ from ..noise.components import STOCHASTIC_KINDS
 from ..noise.model import NoiseModel, parse_model
 from ..noise.navigation import nav_term_of, nav_value
 
-__all__ = ["PlanRow", "plan", "B_CONVENTIONS", "length_for", "tie_length", "datasheet_model", "read_datasheet", "EXACT_ORDINATES",
-           "DATASHEET_UNITS", "nav_numbers", "plan_document", "plan_lines", "plan_table", "parse_target",
-           "duration", "verdict_lines"]
+__all__ = ["PlanRow", "plan", "length_for", "tie_length", "EXACT_ORDINATES", "nav_numbers", "plan_document",
+           "plan_lines", "plan_table", "parse_target", "duration"]
 
 Z95 = 1.959963984540054
 #: Up to this many Fourier ordinates (records of 2·10⁶ samples) the information is summed over each: 0.6 s for the
@@ -283,115 +276,6 @@ def tie_length(d0: float, dk: int, n0: int, close: float = 6.0, limit: float = 1
     return int(math.ceil(hi))
 
 
-# --------------------------------------------------------------------------- datasheets
-
-G = 9.80665
-DEG = math.pi / 180.0
-#: The units datasheets print, to SI (rad, m/s², s): term → unit → factor. N: a noise density (gyroscope
-#: rad/s/√Hz, accelerometer m/s²/√Hz); B: a bias instability (rad/s, m/s²); K: a rate random walk (rad/s²/√Hz,
-#: m/s³/√Hz).
-DATASHEET_UNITS = {
-    "gyroscope": {
-        "N": {"rad/s/sqrt(Hz)": 1.0, "deg/s/sqrt(Hz)": DEG, "°/s/√Hz": DEG, "mdps/sqrt(Hz)": 1e-3 * DEG,
-              "deg/sqrt(h)": DEG / 60.0, "°/√h": DEG / 60.0},
-        "B": {"rad/s": 1.0, "deg/s": DEG, "°/s": DEG, "deg/h": DEG / 3600.0, "°/h": DEG / 3600.0},
-        "K": {"rad/s^2/sqrt(Hz)": 1.0, "deg/h/sqrt(h)": DEG / 3600.0 / 60.0, "°/h/√h": DEG / 3600.0 / 60.0,
-              "deg/s/sqrt(s)": DEG, "°/s/√s": DEG},
-    },
-    "accelerometer": {
-        "N": {"m/s^2/sqrt(Hz)": 1.0, "ug/sqrt(Hz)": 1e-6 * G, "µg/√Hz": 1e-6 * G, "mg/sqrt(Hz)": 1e-3 * G,
-              "m/s/sqrt(h)": 1.0 / 60.0},
-        "B": {"m/s^2": 1.0, "ug": 1e-6 * G, "µg": 1e-6 * G, "mg": 1e-3 * G},
-        "K": {"m/s^3/sqrt(Hz)": 1.0, "ug/sqrt(s)": 1e-6 * G, "µg/√s": 1e-6 * G, "m/s^2/sqrt(h)": 1.0 / 60.0},
-    },
-}
-
-
-#: How a datasheet's bias instability B may be given, and what it is over IEEE Std 952's coefficient B: the minimum of
-#: the Allan deviation (the flat floor of a flicker, 0.664 B — how data sheets quote an "in-run bias stability" and
-#: Allan tools a "bias instability"), the default; or the coefficient itself.
-B_CONVENTIONS = {"allan-minimum": math.sqrt(2.0 * math.log(2.0) / math.pi), "ieee952": 1.0}
-
-
-def read_datasheet(path) -> dict:
-    """A datasheet file (TOML): ``sensor`` (gyroscope or accelerometer), ``rate_hz``, and the terms it gives —
-    ``N``, ``B``, ``K`` — each ``{value = …, unit = "…"}`` in a unit of :data:`DATASHEET_UNITS`, optionally
-    ``source``; B also ``convention`` (:data:`B_CONVENTIONS`: ``"allan-minimum"``, the default, the Allan deviation's
-    floor as data sheets quote it; ``"ieee952"``, the coefficient). Returns ``{"sensor", "rate_hz", "N", "B", "K"}``
-    in SI, B as IEEE 952's coefficient (a term not given: None), ``source`` and ``B_convention``.
-    Raises ``ValueError`` naming the file and what is wrong."""
-    path = Path(path)
-    try:
-        doc = tomllib.loads(path.read_text())
-    except FileNotFoundError:
-        raise ValueError(f"{path}: no such file") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise ValueError(f"{path}: not TOML ({exc})") from None
-    sensor = doc.get("sensor")
-    if sensor not in DATASHEET_UNITS:
-        raise ValueError(f"{path}: sensor must be one of {', '.join(DATASHEET_UNITS)}, got {sensor!r}")
-    rate = doc.get("rate_hz")
-    if not isinstance(rate, (int, float)) or rate <= 0:
-        raise ValueError(f"{path}: rate_hz (the sample rate the sensor is read at, Hz) is missing or not positive")
-    out = {"sensor": sensor, "rate_hz": float(rate), "source": doc.get("source", "")}
-    for term in ("N", "B", "K"):
-        entry = doc.get(term)
-        if entry is None:
-            out[term] = None
-            continue
-        units = DATASHEET_UNITS[sensor][term]
-        if not isinstance(entry, dict) or "value" not in entry or entry.get("unit") not in units:
-            raise ValueError(f"{path}: {term} must be {{value = …, unit = \"…\"}} with unit one of "
-                             f"{', '.join(units)}; got {entry!r}")
-        if not float(entry["value"]) > 0:
-            raise ValueError(f"{path}: {term} must be positive, got {entry['value']!r}")
-        out[term] = float(entry["value"]) * units[entry["unit"]]
-        out.setdefault("printed", {})[term] = f"{entry['value']} {entry['unit']}"
-        if term == "B":
-            convention = entry.get("convention", "allan-minimum")
-            if convention not in B_CONVENTIONS:
-                raise ValueError(f"{path}: B's convention must be one of {', '.join(B_CONVENTIONS)}; got "
-                                 f"{convention!r}")
-            out[term] /= B_CONVENTIONS[convention]
-            out["B_convention"] = convention
-            if convention == "allan-minimum":
-                out["printed"][term] += " at the Allan floor"
-    if out["N"] is None:
-        raise ValueError(f"{path}: N (the noise density) is needed; B and K are optional")
-    return out
-
-
-#: The flicker's pole, as a fraction of its stability limit: all but 0 (a pole at 0 exactly is the logit's −∞).
-FLICKER_POLE_FRACTION = 1e-9
-
-
-def datasheet_model(sheet: dict) -> tuple[NoiseModel, dict, float, dict, tuple]:
-    """The noise model a datasheet's numbers describe (:func:`read_datasheet`): white noise of density N, a flicker
-    of bias instability B (fractional order ½, pole at 0, ``q = B²/h``) and a random walk K, those given.
-    Returns ``(model, values, h, terms, fixed)``: ``terms`` N, B, K as :func:`plan` takes them, ``fixed`` the
-    flicker's order and pole (its shape is given; B sets its level)."""
-    h = 1.0 / sheet["rate_hz"]
-    tokens, values = [], {}
-    if sheet.get("B"):
-        tokens.append("fractional")
-        values.update({"fractional.order": 0.5, "fractional.q": sheet["B"] ** 2 / h,
-                       "fractional.pole": -FLICKER_POLE_FRACTION * 2.0 ** 0.5 / h ** 0.5})
-    tokens.append("white")
-    values["white.r"] = sheet["N"] ** 2 / h
-    if sheet.get("K"):
-        tokens.append("random-walk")
-        values["random-walk.sigma"] = sheet["K"]
-    model = parse_model("+".join(tokens))
-    terms = nav_numbers(model, values, h)
-    fixed = ()
-    if sheet.get("B"):
-        terms["B"] = (sheet["B"], "fractional.q", 0.5)
-        fixed = ("fractional.order", "fractional.pole")
-    return model, values, h, terms, fixed
-
-
-# --------------------------------------------------------------------------- what the command prints
-
 def parse_target(text: str) -> tuple[str, float]:
     """``"K=10%"`` → ``("K", 0.10)``: a number (N, B, K or a parameter's name) within ± that much of its value."""
     name, sep, value = text.partition("=")
@@ -498,26 +382,4 @@ def plan_lines(label: str, doc: dict, markdown: bool = False) -> list[str]:
                    t["absent"] if t.get("absent") else "not within 10¹⁰ samples" if t["samples"] is None else
                       f"{duration(t['seconds'])} ({t['samples']} samples)"))
     out += [f"{pad}note: {x}" for x in doc["notes"]]
-    return out
-
-
-def _g(x) -> str:
-    return "—" if x is None or (isinstance(x, float) and not math.isfinite(x)) else f"{x:.3g}"
-
-
-def verdict_lines(label: str, doc: dict, markdown: bool = False) -> list[str]:
-    """One axis held against a datasheet (:func:`torchtea.export.datasheet.compare`'s document) as lines: a row per
-    term; ``markdown``: a markdown table."""
-    out = []
-    if markdown:
-        out += ["| term | fitted [95 %] | datasheet | fitted / datasheet | verdict |", "|---|---|---|---|---|"]
-    for r in doc["rows"]:
-        ci = "" if r["ci95"] is None else f" [{_g(r['ci95'][0])}, {_g(r['ci95'][1])}]"
-        sheet = f"{_g(r['datasheet'])} {r['unit']}" + (f" ({r['datasheet_as_printed']})"
-                                                      if r["datasheet_as_printed"] else "")
-        if markdown:
-            out.append(f"| {r['term']} | {_g(r['fitted'])}{ci} {r['unit']} | {sheet} | {r['words']} | "
-                       f"**{r['verdict']}** |")
-        else:
-            out.append(f"  {label} {r['term']}: {_g(r['fitted'])}{ci} against {sheet}: {r['verdict']} — {r['words']}")
     return out

@@ -1,6 +1,6 @@
-"""Issue 47's refactors against the code before them: every output the same, bit for bit.
+"""A refactor against the code before it: every output the same, bit for bit.
 
-    python experiments/refactor/issue47.py [--old a720df1] [--cases components,fit,check,cli]
+    python experiments/refactor/same_bits.py --old REV [--cases components,fit,check,cli]
 
 The old tree is checked out with ``git worktree`` (removed afterwards); each case runs in a child process whose
 ``sys.path`` starts with one tree and prints a digest: the SHA-256 of every number it computed, written with
@@ -24,9 +24,12 @@ The old tree is checked out with ``git worktree`` (removed afterwards); each cas
 * ``tea_exact`` — the TEA with the exact filter as KFx (``run_tea_exact``) on a grown model's three series with a
   missing sample: KFo and KFw apart and joint, one view per series, numeric R;
 * ``cli`` — ``torchtea fit --json`` of the bundled recording's first 3000 samples (the seconds, the command and
-  the file's path — each tree's own — left out).
+  the file's path — each tree's own — left out);
+* ``export`` — ``torchtea export --format all`` of two simulated channels (6000 samples, fractional+white+random-walk,
+  an 8-realisation filter study): every file it writes, as text (the run's folder, the command, the recording's path
+  and ``export.json``'s ``topic``, which later code adds, left out).
 
-Writes experiments/refactor/issue47.json.
+Writes experiments/refactor/same_bits.json.
 """
 from __future__ import annotations
 
@@ -259,6 +262,27 @@ elif case == "cli":
     doc.pop("seconds"); doc.pop("command", None); doc.pop("meaning", None)
     doc.pop("recording")  # the bundled file's path, inside each tree
     out = {"digest": digest(doc), "bic": {a: x["bic"] for a, x in doc["axes"].items()}}
+elif case == "export":
+    import contextlib, io, pathlib, tempfile
+    from torchtea.cli import main
+    from torchtea.noise import default_values, simulate_model
+    from torchtea.sensors.io import write_columns
+    work = pathlib.Path(tempfile.mkdtemp())
+    m = "fractional+white+random-walk"
+    ys = [simulate_model(m, default_values(m, H), n_steps=6000, h=H, generator=torch.Generator().manual_seed(s))[0, 0]
+          .numpy() for s in (1, 2)]
+    csv = write_columns(work / "imu.csv", {"t": np.arange(6000) * H, "ax": ys[0], "gx": ys[1]})
+    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
+        main(["export", str(csv), "--units", "ms2,rad/s", "--format", "all", "--model", m, "--nees", "8",
+              "--no-plots", "--out", str(work / "out")])
+    for f in sorted((work / "out").iterdir()):
+        text = f.read_text().replace(str(work), "W")
+        if f.name == "export.json":
+            doc = json.loads(text)
+            for k in ("command", "meaning", "recording", "topic"):
+                doc.pop(k, None)
+            text = json.dumps(doc, sort_keys=True)
+        out[f.name] = hashlib.sha256(text.encode()).hexdigest()
 print(json.dumps(out))
 '''
 
@@ -274,14 +298,14 @@ def run(tree: Path, case: str) -> dict:
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--old", default="a720df1", help="the commit before the refactor (default a720df1)")
-    ap.add_argument("--cases", default="components,fit,check,loop,cli,starts,tea,tea_exact")
+    ap.add_argument("--old", required=True, help="the git revision of the code before the refactor")
+    ap.add_argument("--cases", default="components,fit,check,loop,cli,starts,tea,tea_exact,export")
     args = ap.parse_args()
     new = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
     if subprocess.run(["git", "status", "--porcelain", "--untracked-files=no", "--", ".",
-                       ":!experiments/refactor/issue47.json"], cwd=ROOT, capture_output=True, text=True).stdout.strip():
+                       ":!experiments/refactor/same_bits.json"], cwd=ROOT, capture_output=True, text=True).stdout.strip():
         new += " + uncommitted changes"
-    old_dir = Path(tempfile.mkdtemp(prefix="issue47-old-"))
+    old_dir = Path(tempfile.mkdtemp(prefix="same-bits-old-"))
     subprocess.run(["git", "worktree", "add", "--detach", str(old_dir), args.old], cwd=ROOT, check=True,
                    capture_output=True)
     results, same = {"old": args.old, "new": new, "cases": {}}, True
@@ -294,8 +318,8 @@ def main() -> int:
             print(f"{case:12s} {'the same, bit for bit' if equal else 'DIFFERENT'}")
     finally:
         subprocess.run(["git", "worktree", "remove", "--force", str(old_dir)], cwd=ROOT, capture_output=True)
-    (HERE / "issue47.json").write_text(json.dumps(results, indent=1) + "\n")
-    print(f"{args.old} → {new}: {'every output the same' if same else 'outputs differ'}; written {HERE / 'issue47.json'}")
+    (HERE / "same_bits.json").write_text(json.dumps(results, indent=1) + "\n")
+    print(f"{args.old} → {new}: {'every output the same' if same else 'outputs differ'}; written {HERE / 'same_bits.json'}")
     return 0 if same else 1
 
 

@@ -17,7 +17,7 @@ from ..fitting.whittle_path import (
 )
 from ..noise.components import COMPONENTS
 from ..noise.grammar import position, token
-from ..noise.model import NoiseModel, parse_model
+from ..noise.model import NoiseModel, assemble, component_of, parse_model
 from .diagnostics import innovations, metrics, run_diagnostics
 from .screens import candidates as candidates_all
 from .screens import screening_of
@@ -42,9 +42,12 @@ def extend(model: NoiseModel, effect: str) -> NoiseModel:
     names = [c.name for _, c in model.components]
     if name in names and not screening_of(comp).add_again:
         raise ValueError(f"model {model.spec!r} already has {name!r}")
-    tokens = [token(c) for _, c in model.components]
-    tokens.insert(position(comp, model), effect)
-    return parse_model("+".join(tokens))
+    at = position(comp, model)
+    comps, tokens = [c for _, c in model.components], [token(c) for _, c in model.components]
+    tokens.insert(at, effect)
+    spec = "+".join(tokens)  # (what a refusal names)
+    comps.insert(at, component_of(comp, effect.partition(":")[2], spec))
+    return assemble(comps, spec)
 
 
 def assess(model, values, y, h, inputs, level):

@@ -247,10 +247,10 @@ class NoiseModel:
     def without(self, name: str) -> NoiseModel:
         """The same model without every component called ``name`` (the null of a presence test)."""
         name = name.partition(":")[0]  # (a token, spikes:3, names its component)
-        kept = [grammar.token(c) for _, c in self.components if c.name != name]
+        kept = [c for _, c in self.components if c.name != name]
         if not kept:
             raise ValueError(f"the model {self.spec!r} has nothing left without {name!r}")
-        return parse_model("+".join(kept))
+        return assemble(kept)
 
     # ------------------------------------------------------------------ parameter sets
     def as_dict(self, values) -> dict:
@@ -533,7 +533,7 @@ def parse_model(spec) -> NoiseModel:
     parts = [p for p in text.split("+")]
     if not text or any(not p for p in parts):
         raise ValueError(f"bad model spec {spec!r}: components joined by '+', e.g. fractional+white")
-    comps, seen = [], {}
+    comps = []
     for token in parts:
         p, _, argument = token.partition(":")
         if p not in COMPONENTS:  # an installed package's effect, registered on first use
@@ -542,17 +542,32 @@ def parse_model(spec) -> NoiseModel:
             load_entry_points()
         if p not in COMPONENTS:
             raise ValueError(f"unknown component {p!r} in model {spec!r}; choose from: {', '.join(COMPONENTS)}")
-        comp = COMPONENTS[p]
-        if argument:
-            comp = grammar.configured(comp, argument)
-        elif grammar.grammar_of(comp).needs_argument:
-            raise ValueError(f"model {spec!r}: {grammar.grammar_of(comp).needs_argument}")
-        seen[p] = seen.get(p, 0) + 1
-        label = p if seen[p] == 1 else f"{p}{seen[p]}"
-        comps.append((label, comp))
-    for p, count in seen.items():
-        if count > 1 and grammar.grammar_of(COMPONENTS[p]).single:
-            raise ValueError(f"model {spec!r}: at most one {p}")
+        comps.append(component_of(COMPONENTS[p], argument, spec))
+    return assemble(comps, spec)
+
+
+def component_of(comp: Component, argument: str, spec) -> Component:
+    """The registered ``comp`` as the spec ``spec`` writes it: configured by ``argument`` (``spikes:13``), or refused
+    where it needs one and has none."""
+    if argument:
+        return grammar.configured(comp, argument)
+    if grammar.grammar_of(comp).needs_argument:
+        raise ValueError(f"model {spec!r}: {grammar.grammar_of(comp).needs_argument}")
+    return comp
+
+
+def assemble(components: list, spec=None) -> NoiseModel:
+    """The model of these components in this order (each labelled by its name, a second one ``name2`` …), as
+    :func:`parse_model` builds it from a spec: refused (naming ``spec``, default the components' own spec) where a
+    model cannot hold them."""
+    spec = "+".join(grammar.token(c) for c in components) if spec is None else spec
+    comps, seen = [], {}
+    for comp in components:
+        seen[comp.name] = seen.get(comp.name, 0) + 1
+        comps.append((comp.name if seen[comp.name] == 1 else f"{comp.name}{seen[comp.name]}", comp))
+    for name, count in seen.items():
+        if count > 1 and grammar.grammar_of(dict((c.name, c) for c in components)[name]).single:
+            raise ValueError(f"model {spec!r}: at most one {name}")
     if not any(c.kind in ("state", "measurement") for _, c in comps):
         raise ValueError(f"model {spec!r} has no stochastic component (fractional, white, random-walk …)")
     for _, comp in comps:

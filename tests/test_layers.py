@@ -355,3 +355,26 @@ def test_an_effect_holds_its_physics_only():
              "tea_note", "tea_refusal", "nav_term", "nav_value", "nav_note", "token", "configured", "needs_argument",
              "token_for", "single", "validate", "position", "screen", "start"}
     assert not moved & set(own)
+
+
+def test_what_an_effect_explains_is_named_by_that_diagnostics_signature():
+    """Two facts kept apart on purpose — a failed diagnostic's signature names the effects that would fit it, an
+    effect's screening says which failures it explains physically (what ranks it first) — and held consistent: every
+    diagnostic an effect explains names that effect in its signature, on a failure of the kind it explains."""
+    from torchtea.checking.diagnostics import Diagnostic
+    from torchtea.checking.screens import screening_of
+    from torchtea.noise.components import COMPONENTS
+
+    failing = {  # a failure of each diagnostic that some effect explains, of the kind it explains
+        "lines": Diagnostic("lines", "frequency", 40.0, 1e-9, 0.01, "a line", "Hz", [(3.37, 3.37)], ["high"]),
+        "spectrum": Diagnostic("spectrum", "frequency", 9.0, 1e-9, 0.01, "a band", "Hz", [(10.0, 12.0)], ["high"],
+                               {"band_hi_hz": [50.0]}),
+        "temperature": Diagnostic("temperature", "time", 70.0, 1e-9, 0.01, "follows T", "", [], [],
+                                  {"p_bias": 1e-12}),
+        "extremes": Diagnostic("extremes", "time", 8.0, 1e-9, 0.01, "shocks", "s", [(12.0, 12.0)], ["high"]),
+    }
+    explained = {(d, name) for name, c in COMPONENTS.items() for d in screening_of(c).explains}
+    assert {d for d, _ in explained} <= set(failing), "an explained diagnostic without a failure here to sign"
+    for d, name in sorted(explained):
+        words, names = failing[d].signature()
+        assert name in names, (d, name, names)

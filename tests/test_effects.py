@@ -793,6 +793,7 @@ def test_a_users_state_effect_needs_its_block_only():
     likelihood, spectrum and Whittle derivatives are the built-in gauss-markov's (which writes all of them in closed
     form); check screens it by the Whittle likelihood-ratio."""
     from torchtea.fitting.exact import exact_loglik
+    from torchtea.fitting.mle import whittle_fit
     from torchtea.noise.derivatives import spectrum_jacobian
 
     class Wander(Component):
@@ -824,6 +825,19 @@ def test_a_users_state_effect_needs_its_block_only():
         y = simulate_model(built_in, values, n_steps=3000, h=H, generator=torch.Generator().manual_seed(3))[0, 0]
         a, b = exact_loglik(mine, rename, y, H), exact_loglik(built_in, values, y, H)
         assert float(np.ravel(a)[0]) == pytest.approx(float(np.ravel(b)[0]), rel=1e-10)
+        # one frequency grid per parameter set, as the Whittle fits of several series (or with regressors) ask
+        u3 = built_in.to_unconstrained(values, H).repeat(3, 1)
+        S3, dS3 = spectrum_jacobian(mine, u3, omega.expand(3, -1), H)
+        torch.testing.assert_close(S3, S_built.expand(3, -1), rtol=1e-10, atol=0.0)
+        # the Whittle fit of two series with a profiled ramp, from the same start: the built-in's maximum
+        ys = [simulate_model(built_in, values, n_steps=3000, h=H, generator=torch.Generator().manual_seed(s))[0, 0]
+              .numpy() for s in (4, 5)]
+        start = {k: float(x) for k, x in values.items() if not k.startswith(("offset", "ramp"))}
+        fits = [whittle_fit(m, ys, H, grid=False, starts=[[s], [s]]) for m, s in (
+            (parse_model("fractional+white+ramp+wander"), {k.replace("gauss-markov", "wander"): x
+                                                           for k, x in start.items()}),
+            (parse_model("fractional+white+ramp+gauss-markov"), start))]
+        np.testing.assert_allclose(fits[0].loglik, fits[1].loglik, rtol=1e-8)
         row = next(s for s in check(y.numpy(), H, intervals=False, candidates=("wander",)).screens)
         assert row["effect"] == "wander" and row["test"].startswith("Whittle LR") and row["p_value"] is not None
     finally:

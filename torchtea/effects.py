@@ -5,8 +5,8 @@ Every part of a noise model — the built-in ones (``torchtea.noise.components.C
 ``spikes``, ``sinusoid``, ``drifting-line``, ``temperature-bias``, ``thermal-lag``, ``temperature-order``,
 ``quantisation``) and any a user writes — is a
 :class:`~torchtea.noise.components.Component` subclass that carries its own knowledge: its parameters with units
-and transforms, its spectrum or state block or mean, its typical values (``torchtea simulate``), and where
-``check`` inserts it. :func:`parse_model` finds it here by
+and transforms, its spectrum or state block or mean, and its typical values (``torchtea simulate``).
+:func:`parse_model` finds it here by
 name. A user adds an effect from their own module or notebook::
 
     import torch

@@ -1,7 +1,8 @@
 """One registry, one rule: what the package and its users attach to a key — an effect to its name, a screen or starts
 to an effect's class, an export format to its name.
 
-- **Registering** under a key that has an entry already raises ``ValueError`` naming both, unless ``replace=True``:
+- **Registering** under a key that has an entry already raises ``ValueError`` naming the key and what it holds,
+  unless ``replace=True``:
   nothing is overwritten by accident, a built-in entry included.
 - **Unregistering** removes a user's entry; where it had replaced a built-in one, the built-in entry is back. A
   built-in entry itself is not removed (``ValueError``): replace it instead.

@@ -140,7 +140,8 @@ def register_start(effect, *, replace: bool = False):
 
 def unregister_start(effect) -> None:
     """Remove the starts a user registered for the effect class ``effect`` (or an instance's class): a built-in
-    effect's own starts are back where a user replaced them, the defaults elsewhere."""
+    effect's own starts are back where a user replaced them, the defaults elsewhere; a built-in effect's own starts
+    are not removed (``ValueError``)."""
     REGISTRY.remove(effect if isinstance(effect, type) else type(effect))
 
 

@@ -167,12 +167,13 @@ class Component:
         walk) writes its own."""
         if self.kind != "state":
             raise NotImplementedError(f"component {self.name!r} ({self.kind}) has no spectrum of its own")
-        F, G = self.block(v, h, None)
-        z = torch.exp(-1j * omega.to(torch.float64))  # (W,)
-        eye = torch.eye(F.shape[-1], dtype=torch.complex128)
-        M = eye - F.to(torch.complex128).unsqueeze(1) * z.reshape(1, -1, 1, 1)  # (B, W, n, n)
-        X = torch.linalg.solve(M, G.to(torch.complex128).unsqueeze(1).expand(-1, z.shape[0], -1, -1))
-        return (X[..., 0, :].abs() ** 2).sum(-1) / (2.0 * math.pi)
+        F, G = self.block(v, h, None)  # (B, n, n), (B, n, m)
+        z = torch.exp(-1j * omega.to(device=F.device, dtype=torch.float64))
+        z = z.unsqueeze(0) if z.ndim == 1 else z  # (1 or B, W): one frequency grid, or one per parameter set
+        eye = torch.eye(F.shape[-1], dtype=torch.complex128, device=F.device)
+        M = eye - F.to(torch.complex128).unsqueeze(1) * z[..., None, None]  # (B, W, n, n)
+        X = torch.linalg.solve(M, G.to(torch.complex128).unsqueeze(1))  # (B, W, n, m)
+        return ((X[..., 0, :].abs() ** 2).sum(-1) / (2.0 * math.pi)).to(F.dtype)
 
     def spectrum_derivatives(self, v: dict, omega: Tensor, h: float) -> tuple[Tensor, Tensor]:
         """The spectrum ``S`` ``(B, W)`` and its derivatives with respect to the component's parameters, in the order

@@ -7,7 +7,8 @@ to an effect's class, an export format to its name.
 - **Unregistering** removes a user's entry; where it had replaced a built-in one, the built-in entry is back. A
   built-in entry itself is not removed (``ValueError``): replace it instead.
 - **Looking up** a class walks its method resolution order (:meth:`Registry.find`): a subclass has its parent's entry
-  unless it registers its own.
+  unless it registers its own. A registry keyed by the effects' classes (``by_class``) takes an effect instance for
+  its class wherever it takes a key.
 
 The package's own entries are marked built in by :meth:`Registry.seal` once its modules have registered them."""
 from __future__ import annotations
@@ -23,15 +24,22 @@ def _name(key) -> str:
 
 
 class Registry(Mapping):
-    """Entries by key (read as a mapping); ``what`` names an entry in the messages (``"screen"``, ``"effect"``)."""
+    """Entries by key (read as a mapping); ``what`` names an entry in the messages (``"screen"``, ``"effect"``);
+    ``by_class``: keyed by classes, an instance standing for its class."""
 
-    def __init__(self, what: str):
+    def __init__(self, what: str, *, by_class: bool = False):
         self.what = what
+        self.by_class = by_class
         self._entries: dict = {}
         self._built_in: dict = {}
 
+    def key(self, key):
+        """``key`` as this registry keys it (an instance's class, for a registry ``by_class``)."""
+        return type(key) if self.by_class and not isinstance(key, type) else key
+
     def add(self, key, value, *, replace: bool = False) -> None:
         """``value`` under ``key``; a key with an entry already needs ``replace=True``."""
+        key = self.key(key)
         if key in self._entries and not replace:
             old = self._entries[key]
             taken = (f"{key.__name__} has its {self.what} registered already" if isinstance(key, type)
@@ -43,6 +51,7 @@ class Registry(Mapping):
     def remove(self, key) -> None:
         """Take ``key``'s entry away: a user's is removed (nothing happens where there is none), a replaced built-in
         entry comes back, a built-in entry is kept (``ValueError``)."""
+        key = self.key(key)
         if key in self._built_in:
             if self._entries.get(key) is self._built_in[key]:
                 which = f"{key.__name__}'s {self.what}" if isinstance(key, type) else f"{self.what} {key!r}"
@@ -60,9 +69,10 @@ class Registry(Mapping):
         """Whether ``key``'s entry is the package's own (not a user's, nor a user's replacement)."""
         return key in self._built_in and self._entries.get(key) is self._built_in[key]
 
-    def find(self, cls: type, default: Any = None) -> Any:
-        """The entry of the class ``cls`` or its nearest parent; ``default`` where none has one."""
-        for c in cls.__mro__:
+    def find(self, cls, default: Any = None) -> Any:
+        """The entry of the class ``cls`` (or an instance's class) or its nearest parent; ``default`` where none has
+        one."""
+        for c in (cls if isinstance(cls, type) else type(cls)).__mro__:
             if c in self._entries:
                 return self._entries[c]
         return default

@@ -38,24 +38,23 @@ class Grammar:
 
 
 #: The effects' grammar by class (a subclass has its parent's unless it registers its own).
-GRAMMAR = Registry("grammar")
+GRAMMAR = Registry("grammar", by_class=True)
 PLAIN = Grammar()
 
 
 def register_grammar(effect, *, replace: bool = False, **fields) -> None:
     """The effect class ``effect`` (or an instance's class) is written and placed as ``fields`` say
     (:class:`Grammar`'s)."""
-    cls = effect if isinstance(effect, type) else type(effect)
-    GRAMMAR.add(cls, Grammar(**fields), replace=replace)
+    GRAMMAR.add(effect, Grammar(**fields), replace=replace)
 
 
 def unregister_grammar(effect) -> None:
     """Remove what a user registered for the effect class ``effect`` (a built-in entry it replaced is back)."""
-    GRAMMAR.remove(effect if isinstance(effect, type) else type(effect))
+    GRAMMAR.remove(effect)
 
 
 def grammar_of(comp) -> Grammar:
-    return GRAMMAR.find(type(comp), PLAIN)
+    return GRAMMAR.find(comp, PLAIN)
 
 
 def token(comp) -> str:

@@ -561,12 +561,13 @@ def assemble(components: list, spec=None) -> NoiseModel:
     :func:`parse_model` builds it from a spec: refused (naming ``spec``, default the components' own spec) where a
     model cannot hold them."""
     spec = "+".join(grammar.token(c) for c in components) if spec is None else spec
-    comps, seen = [], {}
+    comps, by_name = [], {}
     for comp in components:
-        seen[comp.name] = seen.get(comp.name, 0) + 1
-        comps.append((comp.name if seen[comp.name] == 1 else f"{comp.name}{seen[comp.name]}", comp))
-    for name, count in seen.items():
-        if count > 1 and grammar.grammar_of(dict((c.name, c) for c in components)[name]).single:
+        same = by_name.setdefault(comp.name, [])
+        same.append(comp)
+        comps.append((comp.name if len(same) == 1 else f"{comp.name}{len(same)}", comp))
+    for name, same in by_name.items():
+        if len(same) > 1 and grammar.grammar_of(same[0]).single:
             raise ValueError(f"model {spec!r}: at most one {name}")
     if not any(c.kind in ("state", "measurement") for _, c in comps):
         raise ValueError(f"model {spec!r} has no stochastic component (fractional, white, random-walk …)")

@@ -33,7 +33,7 @@ class NavTerm:
 
 
 #: The effects' terms by class (a subclass has its parent's unless it registers its own).
-NAV_TERMS = Registry("navigation term")
+NAV_TERMS = Registry("navigation term", by_class=True)
 NO_TERM = NavTerm()
 
 
@@ -41,18 +41,17 @@ def register_nav_term(effect, term: str | None = None, value: Callable | None = 
                       *, replace: bool = False) -> None:
     """The effect class ``effect`` (or an instance's class) is the IEEE 952 ``term`` in a navigation filter (see
     :class:`NavTerm` for ``value`` and ``note``)."""
-    cls = effect if isinstance(effect, type) else type(effect)
-    NAV_TERMS.add(cls, NavTerm(term, value, note), replace=replace)
+    NAV_TERMS.add(effect, NavTerm(term, value, note), replace=replace)
 
 
 def unregister_nav_term(effect) -> None:
     """Remove what a user registered for the effect class ``effect`` (a built-in entry it replaced is back)."""
-    NAV_TERMS.remove(effect if isinstance(effect, type) else type(effect))
+    NAV_TERMS.remove(effect)
 
 
 def nav_term_of(comp) -> NavTerm:
     """The entry of ``comp``'s class or its nearest parent's (no term where none has one)."""
-    return NAV_TERMS.find(type(comp), NO_TERM)
+    return NAV_TERMS.find(comp, NO_TERM)
 
 
 def nav_value(comp, label: str, values: dict, h: float) -> tuple[float, str, float] | None:

@@ -78,7 +78,7 @@ class TEARole:
 
 
 #: The components' places in the TEA by class, where the kind's default is not it (a subclass has its parent's).
-TEA_ROLES = Registry("TEA role")
+TEA_ROLES = Registry("TEA role", by_class=True)
 _DEFAULT = TEARole()
 #: What the TEA does with a component of each kind by default, in the identification's report.
 KIND_NOTES = {"measurement": "in KFx's R (and KFo's, KFw's)", "mean": "removed from the series at its fitted values",
@@ -88,13 +88,12 @@ KIND_NOTES = {"measurement": "in KFx's R (and KFo's, KFw's)", "mean": "removed f
 def register_tea_role(effect, part: Callable | None = None, note: str | None = None, refusal: str | None = None,
                       *, replace: bool = False) -> None:
     """The effect class ``effect`` (or an instance's class) has the place in the TEA that :class:`TEARole` says."""
-    cls = effect if isinstance(effect, type) else type(effect)
-    TEA_ROLES.add(cls, TEARole(part, note, refusal), replace=replace)
+    TEA_ROLES.add(effect, TEARole(part, note, refusal), replace=replace)
 
 
 def unregister_tea_role(effect) -> None:
     """Remove what a user registered for the effect class ``effect`` (a built-in entry it replaced is back)."""
-    TEA_ROLES.remove(effect if isinstance(effect, type) else type(effect))
+    TEA_ROLES.remove(effect)
 
 
 def tea_part(comp, label: str, v: dict, h: float) -> TEAPart | None:
@@ -103,7 +102,7 @@ def tea_part(comp, label: str, v: dict, h: float) -> TEAPart | None:
     ``x_{k+1} = h(A x_k + ω_k) + x_k`` with ``A = (F − I)/h`` and ``Q0 = G Gᵀ/h²`` — exactly (the same transition and
     drive). A measurement noise is KFx's R, a mean is taken from the series before the TEA runs (None for both). A
     filter or a modifier has no general place: :class:`TEAUnsupported`, saying why."""
-    role = TEA_ROLES.find(type(comp), _DEFAULT)
+    role = TEA_ROLES.find(comp, _DEFAULT)
     if role.part is not None:
         return role.part(comp, label, v, h)
     if comp.kind in ("measurement", "mean"):
@@ -120,7 +119,7 @@ def tea_part(comp, label: str, v: dict, h: float) -> TEAPart | None:
 
 def tea_note(comp) -> str:
     """What the TEA does with ``comp``, in the identification's report."""
-    role = TEA_ROLES.find(type(comp), _DEFAULT)
+    role = TEA_ROLES.find(comp, _DEFAULT)
     return role.note if role.note is not None else KIND_NOTES.get(comp.kind, "")
 
 

@@ -65,7 +65,7 @@ class Screen:
 
 #: The screens by the effect's class (a subclass inherits its parent's unless it registers its own; the rule of
 #: :class:`~torchtea.core.registry.Registry` for registering again and unregistering).
-REGISTRY = Registry("screen")
+REGISTRY = Registry("screen", by_class=True)
 
 
 def register_screen(effect, test: str, configure: Callable | None = None, *, replace: bool = False):
@@ -74,10 +74,8 @@ def register_screen(effect, test: str, configure: Callable | None = None, *, rep
     ``torch.distributions.register_kl`` attaches a divergence to a pair of classes. Register it in the module that
     defines the effect, so that whatever loads the effect — ``--effects``, a Dask worker, an entry point — loads its
     screen too."""
-    cls = effect if isinstance(effect, type) else type(effect)
-
     def attach(run: Callable) -> Callable:
-        REGISTRY.add(cls, Screen(run, test, configure), replace=replace)
+        REGISTRY.add(effect, Screen(run, test, configure), replace=replace)
         return run
     return attach
 
@@ -85,12 +83,12 @@ def register_screen(effect, test: str, configure: Callable | None = None, *, rep
 def unregister_screen(effect) -> None:
     """Remove the screen a user registered for the effect class ``effect`` (or an instance's class): its kind's
     default is back, or the built-in screen it had replaced."""
-    REGISTRY.remove(effect if isinstance(effect, type) else type(effect))
+    REGISTRY.remove(effect)
 
 
 def screen_of(comp) -> Screen | None:
     """The screen registered for ``comp``'s class or its nearest parent; None: the default one."""
-    return REGISTRY.find(type(comp))
+    return REGISTRY.find(comp)
 
 
 @dataclass(frozen=True)
@@ -118,7 +116,7 @@ class Screening:
 
 
 #: How check treats each effect as a candidate, by class (a subclass has its parent's unless it registers its own).
-SCREENING = Registry("screening")
+SCREENING = Registry("screening", by_class=True)
 DEFAULT_SCREENING = Screening()
 
 
@@ -128,19 +126,18 @@ def register_screening(effect, *, candidate: bool = True, order: int = 100, expl
     """How ``check`` treats the effect class ``effect`` (or an instance's class) as a candidate: see
     :class:`Screening`. An effect without it is screened with the defaults (a candidate, after the built-in ones,
     explaining no diagnostic in particular)."""
-    cls = effect if isinstance(effect, type) else type(effect)
-    SCREENING.add(cls, Screening(candidate, order, tuple(explains), tuple(special_cases), add_again, not_screened),
+    SCREENING.add(effect, Screening(candidate, order, tuple(explains), tuple(special_cases), add_again, not_screened),
                   replace=replace)
 
 
 def unregister_screening(effect) -> None:
     """Remove what a user registered for the effect class ``effect`` (a built-in entry it replaced is back)."""
-    SCREENING.remove(effect if isinstance(effect, type) else type(effect))
+    SCREENING.remove(effect)
 
 
 def screening_of(comp) -> Screening:
     """How ``check`` treats ``comp`` as a candidate: its class's entry or its nearest parent's, else the defaults."""
-    return SCREENING.find(type(comp), DEFAULT_SCREENING)
+    return SCREENING.find(comp, DEFAULT_SCREENING)
 
 
 def candidates() -> tuple:

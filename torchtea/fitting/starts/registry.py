@@ -119,7 +119,7 @@ class Starts:
 
 #: The starts by the effect's class (a subclass inherits its parent's unless it registers its own; the rule of
 #: :class:`~torchtea.core.registry.Registry` for registering again and unregistering).
-REGISTRY = Registry("starts")
+REGISTRY = Registry("starts", by_class=True)
 #: The defaults, for an effect without starts of its own.
 DEFAULT = Starts()
 
@@ -128,7 +128,7 @@ def register_start(effect, *, replace: bool = False):
     """Class decorator: the :class:`Starts` subclass becomes the starts of the effect class ``effect`` (or of an
     effect instance's class). Register it in the module that defines the effect, so that whatever loads the effect
     loads its starts too. A class that has starts already (a built-in effect's) keeps them unless ``replace``."""
-    cls = effect if isinstance(effect, type) else type(effect)
+    cls = REGISTRY.key(effect)
 
     def attach(starts: type) -> type:
         if not (isinstance(starts, type) and issubclass(starts, Starts)):
@@ -142,12 +142,12 @@ def unregister_start(effect) -> None:
     """Remove the starts a user registered for the effect class ``effect`` (or an instance's class): a built-in
     effect's own starts are back where a user replaced them, the defaults elsewhere; a built-in effect's own starts
     are not removed (``ValueError``)."""
-    REGISTRY.remove(effect if isinstance(effect, type) else type(effect))
+    REGISTRY.remove(effect)
 
 
 def starts_of(comp) -> Starts:
     """The starts registered for ``comp``'s class or its nearest parent; the defaults (:class:`Starts`) otherwise."""
-    return REGISTRY.find(type(comp), DEFAULT)
+    return REGISTRY.find(comp, DEFAULT)
 
 
 def initial_values(model, y: Tensor, h: float, order: float = 0.3) -> dict:

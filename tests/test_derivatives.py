@@ -7,7 +7,7 @@ import math
 import pytest
 import torch
 
-from torchtea.noise.components import COMPONENTS, Component, ParamSpec
+from torchtea.noise.components import COMPONENTS, ParamSpec, StateEffect
 from torchtea.noise.derivatives import spectrum_jacobian, state_space_derivatives
 from torchtea.noise.model import parse_model, state_memory
 
@@ -130,20 +130,16 @@ def test_the_state_space_derivatives_are_forward_mode_of_the_assembly(spec):
             torch.testing.assert_close(got, want, rtol=1e-10, atol=1e-14)
 
 
-class _Wander(Component):
+class _Wander(StateEffect):
     """A user's state effect that gives no derivatives: a first-order Gauss–Markov process parametrised by its
     pole."""
 
     name = "wander"
-    kind = "state"
     params = (ParamSpec("sigma", "positive", "σ"), ParamSpec("pole", "bounded", "a", (0.0, 1.0)))
 
     def spectrum(self, v, omega, h):
         a, s = v["pole"].unsqueeze(-1), v["sigma"].unsqueeze(-1)
         return s * s / (2 * math.pi * (1 - 2 * a * torch.cos(omega) + a * a))
-
-    def n_states(self, memory):
-        return 1
 
     def block(self, v, h, memory):
         return v["pole"].reshape(-1, 1, 1).clone(), v["sigma"].reshape(-1, 1, 1).clone()

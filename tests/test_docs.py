@@ -19,7 +19,7 @@ from torchtea.checking.screens import candidates, screen_test
 from torchtea.cli import build_parser
 from torchtea.effects import register, unregister
 from torchtea.noise import default_values, simulate_model
-from torchtea.noise.components import COMPONENTS, Component, ParamSpec
+from torchtea.noise.components import COMPONENTS, MeanEffect, ParamSpec
 
 ROOT = Path(__file__).resolve().parent.parent
 DOCS = ROOT / "docs"
@@ -56,10 +56,9 @@ def test_sane_lists_reads_github_lists_as_github_does():
     assert reference.sane_lists("# Title\n- a\n") == "# Title\n- a\n"  # a list under a heading needs nothing
 
 
-class _Bump(Component):
+class _Bump(MeanEffect):
     """A test's effect: a Gaussian bump of height ``a`` at the record's middle."""
     name = "doc-bump"
-    kind = "mean"
     params = (ParamSpec("a", "free", "units"),)
 
     def mean(self, v, t, inputs):

@@ -19,16 +19,15 @@ from torchtea.effects import register, unregister
 from torchtea.fitting.mle import fit_series, regress_mean
 from torchtea.fitting.starts import Starts, initial_values, register_start, unregister_start
 from torchtea.fitting.starts.markov import GaussMarkovStarts, band
-from torchtea.noise.components import COMPONENTS, Component, ParamSpec
+from torchtea.noise.components import COMPONENTS, Component, MeanEffect, ParamSpec, StateEffect
 from torchtea.noise.model import parse_model
 from torchtea.noise.simulate import default_values, simulate_model, temperature_profile
 
 H = 0.01
 
 
-class WarmUp(Component):  # a settling transient after power-on: A·exp(−t/τ)
+class WarmUp(MeanEffect):  # a settling transient after power-on: A·exp(−t/τ)
     name = "warm-up"
-    kind = "mean"
     params = (ParamSpec("amplitude", "free", "units"), ParamSpec("tau_s", "positive", "τ (s)"))
 
     def mean(self, v, t, inputs):
@@ -93,13 +92,17 @@ def test_the_registry_refuses_what_it_cannot_use():
         return type("Bad", (WarmUp,), attrs)
 
     for attrs, words in [({"name": "Warm Up"}, "lower-case"), ({"name": "a+b"}, "'+'"), ({"name": "drift2"}, "digit"),
-                         ({"kind": "noise"}, "kind 'noise'"), ({"kind": "filter"}, "built into the state-space"),
+                         ({"kind": "noise"}, "kind 'noise'"), ({"kind": "state"}, "derives from torchtea.effects.StateEffect"), ({"kind": "filter"}, "built into the state-space"),
                          ({"kind": "modifier"}, "built into the state-space"), ({"params": ()}, "ParamSpec"),
                          ({"name": "white"}, "registered already (White, built in)")]:
         with pytest.raises(ValueError, match="effect Bad") as info:
             register(effect(**attrs))
         assert words in str(info.value)
-    no_mean = type("NoMean", (Component,), {"name": "no-mean", "kind": "mean", "params": WarmUp.params})
+    plain = type("Plain", (Component,), {"name": "plain", "kind": "mean", "params": WarmUp.params,
+                                         "mean": WarmUp.mean})
+    with pytest.raises(ValueError, match="effect Plain: an effect of kind 'mean' derives from torchtea.effects.MeanEffect"):
+        register(plain)
+    no_mean = type("NoMean", (MeanEffect,), {"name": "no-mean", "params": WarmUp.params})
     with pytest.raises(ValueError, match="effect NoMean: a mean effect must define mean"):
         register(no_mean)
     with pytest.raises(TypeError):
@@ -122,11 +125,10 @@ def test_an_installed_package_registers_its_effects_by_entry_point(tmp_path, mon
     first model that names the effect loads it."""
     (tmp_path / "my_effects.py").write_text(textwrap.dedent("""
         import torch
-        from torchtea.noise.components import Component, ParamSpec
+        from torchtea.effects import MeanEffect, ParamSpec
 
-        class Step(Component):
+        class Step(MeanEffect):
             name = "level-step-demo"
-            kind = "mean"
             params = (ParamSpec("size", "free", "units"),)
 
             def mean(self, v, t, inputs):
@@ -154,7 +156,7 @@ def test_the_command_line_takes_a_users_effects_module(tmp_path, capsys):
     mod = tmp_path / "my_effects.py"
     # the same class as this module's, written to a file of its own as a user would
     mod.write_text("import torch\nfrom torchtea.effects import register\n"
-                   "from torchtea.noise.components import Component, ParamSpec\n\n\n@register\n"
+                   "from torchtea.effects import MeanEffect, ParamSpec\n\n\n@register\n"
                    + inspect.getsource(WarmUp))
     spec = "fractional+white+warm-up"
     try:
@@ -796,13 +798,9 @@ def test_a_users_state_effect_needs_its_block_only():
     from torchtea.fitting.mle import whittle_fit
     from torchtea.noise.derivatives import spectrum_jacobian
 
-    class Wander(Component):
+    class Wander(StateEffect):
         name = "wander"
-        kind = "state"
         params = (ParamSpec("sigma", "positive", "σ (units)"), ParamSpec("tau_s", "positive", "τ (s)"))
-
-        def n_states(self, memory):
-            return 1
 
         def block(self, v, h, memory):
             a = torch.exp(-h / v["tau_s"])

@@ -224,7 +224,7 @@ def f():
 def test_no_engine_switches_on_a_components_name():
     """Outside noise/components/ no module asks a component for its name to decide what to do
     (``c.name == "fractional"``, ``model.has("temperature-order")``, ``COMPONENTS["white"]``): the engines ask the
-    component's own attributes (``order_param``, ``stationary``, ``varies_order`` …) or what is registered for its
+    component's own attributes (``order_param``, ``stationary``, the base of its kind …) or what is registered for its
     class (its place in the TEA, its navigation term)."""
     import re
 
@@ -345,15 +345,22 @@ def test_every_registry_follows_one_rule():
 
 def test_an_effect_holds_its_physics_only():
     """The base class of the effects declares its physics and the hooks every engine calls, nothing of screening,
-    starting, the TEA, the exports or the spec grammar (each registered apart, by class): at most 21 members of its
-    own today, none of the names that moved."""
+    starting, the TEA, the exports or the spec grammar (each registered apart, by class), and of each kind's hooks
+    only what every kind shares (the bases of the kinds declare theirs): at most 15 members of its own, none of the
+    names that moved; every kind has its base."""
     from torchtea.noise.components import Component
 
     own = [k for k in vars(Component) if not k.startswith("__")]
-    assert len(own) <= 21, own
+    assert len(own) <= 15, own
+    from torchtea.noise.components import COMPONENTS, KIND_BASES
+
+    for name in COMPONENTS:
+        comp = COMPONENTS[name]
+        assert isinstance(comp, KIND_BASES[comp.kind]), name
     moved = {"candidate", "screen_order", "explains", "special_cases", "add_again", "not_screened", "tea_part",
              "tea_note", "tea_refusal", "nav_term", "nav_value", "nav_note", "token", "configured", "needs_argument",
-             "token_for", "single", "validate", "position", "screen", "start"}
+             "token_for", "single", "validate", "position", "screen", "start", "block", "mean", "measurement_variance",
+             "gain", "filter_block", "first_row", "run_exact", "orders", "level", "diffuse", "varies_order", "n_states"}
     assert not moved & set(own)
 
 

@@ -10,7 +10,7 @@ import torch
 from torchtea.effects import register, unregister
 from torchtea.fitting.mle import Fit, bic, fit_series
 from torchtea.fitting.starts import initial_values, starts_of
-from torchtea.noise.components import Component, ParamSpec
+from torchtea.noise.components import MeanEffect, ParamSpec
 from torchtea.noise.model import parse_model
 from torchtea.noise.simulate import default_values, simulate_model
 
@@ -36,10 +36,9 @@ def test_every_kind_round_trips_and_the_model_uses_the_parameters_own_transform(
         model.to_unconstrained({**v, "resonance.frequency_hz": 60.0}, H)
 
 
-class Chirp(Component):
+class Chirp(MeanEffect):
     """A user's mean with a frequency below Nyquist and a bounded share: A·sin(2π f t)·(1 + s)."""
     name = "test-tone"
-    kind = "mean"
     params = (ParamSpec("frequency_hz", "nyquist", "Hz"), ParamSpec("share", "bounded", "-", (0.0, 1.0)),
               ParamSpec("amplitude", "free", "units"))
 
@@ -132,9 +131,8 @@ def test_the_default_starts_are_inside_every_kinds_range():
     """The default start of each kind transforms to a finite unconstrained value: a pole's at half its stability
     limit at the order started from (it was 0.5, a positive pole, whose transform is NaN); a 'bounded' parameter
     needs finite bounds (register refuses others)."""
-    class Kinds(Component):
+    class Kinds(MeanEffect):
         name = "test-kinds"
-        kind = "mean"
         order_param = "order"
         params = (ParamSpec("order", "bounded", "-", (0.0, 1.0)), ParamSpec("pole", "fraction", "1/s"),
                   ParamSpec("level", "positive", "units"), ParamSpec("f", "nyquist", "Hz"),

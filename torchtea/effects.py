@@ -4,19 +4,20 @@ Every part of a noise model — the built-in ones (``torchtea.noise.components.C
 ``random-walk``, ``gauss-markov``, ``resonance``, ``low-pass``, ``digital-filter``, ``offset``, ``ramp``, ``step``,
 ``spikes``, ``sinusoid``, ``drifting-line``, ``temperature-bias``, ``thermal-lag``, ``temperature-order``,
 ``quantisation``) and any a user writes — is a
-:class:`~torchtea.noise.components.Component` subclass that carries its own knowledge: its parameters with units
-and transforms, its spectrum or state block or mean, and its typical values (``torchtea simulate``).
+:class:`~torchtea.noise.components.Component` that carries its own knowledge: its parameters with units
+and transforms, its spectrum or state block or mean, and its typical values (``torchtea simulate``). A user's
+effect derives from the base of its kind — :class:`StateEffect` (a noise with a state block),
+:class:`MeasurementEffect` (white noise added to each sample) or :class:`MeanEffect` (a function of time and the
+inputs) —, which declares the hooks that kind's engines call.
 :func:`parse_model` finds it here by
 name. A user adds an effect from their own module or notebook::
 
     import torch
-    from torchtea.effects import register
-    from torchtea.noise.components import Component, ParamSpec
+    from torchtea.effects import MeanEffect, ParamSpec, register
 
     @register
-    class WarmUp(Component):  # a settling transient after power-on: A·exp(−t/τ)
+    class WarmUp(MeanEffect):  # a settling transient after power-on: A·exp(−t/τ)
         name = "warm-up"
-        kind = "mean"
         params = (ParamSpec("amplitude", "free", "units"), ParamSpec("tau_s", "positive", "τ (s)"))
 
         def mean(self, v, t, inputs):
@@ -37,10 +38,19 @@ from __future__ import annotations
 import math
 from importlib import metadata
 
-from .noise.components import COMPONENTS, Component, ParamSpec
+from .noise.components import (
+    COMPONENTS,
+    KIND_BASES,
+    Component,
+    MeanEffect,
+    MeasurementEffect,
+    ParamSpec,
+    StateEffect,
+)
 from .noise.components.base import SCALES
 
-__all__ = ["register", "unregister", "registered", "ENTRY_POINTS"]
+__all__ = ["register", "unregister", "registered", "ENTRY_POINTS", "StateEffect", "MeasurementEffect", "MeanEffect",
+           "ParamSpec"]
 
 #: The entry-point group a package registers its effects under.
 ENTRY_POINTS = "torchtea.effects"
@@ -66,8 +76,9 @@ def register(effect, *, replace: bool = False):
     if name[-1].isdigit():
         raise ValueError(f"{where}: name {name!r} must not end in a digit (a second copy is labelled {name}2)")
     if comp.kind not in KINDS:
-        raise ValueError(f"{where}: kind {comp.kind!r} must be one of {', '.join(KINDS)} (a filter or a modifier "
-                         "is built into the state-space assembly: only the built-in ones run)")
+        raise ValueError(f"{where}: kind {comp.kind!r} must be one of {', '.join(KINDS)}: derive the effect from "
+                         "StateEffect, MeasurementEffect or MeanEffect (a filter or a modifier is built into the "
+                         "state-space assembly: only the built-in ones run)")
     if not comp.params or not all(isinstance(p, ParamSpec) for p in comp.params):
         raise ValueError(f"{where}: params must be a non-empty tuple of ParamSpec")
     if any(p.kind not in SCALES for p in comp.params):
@@ -79,11 +90,16 @@ def register(effect, *, replace: bool = False):
     if any(p.kind == "fraction" for p in comp.params) and comp.order_param is None:
         raise ValueError(f"{where}: a 'fraction' parameter is a pole's fraction of the stability limit at the "
                          "effect's fractional order: the effect needs an order_param")
-    if comp.kind == "mean" and type(comp).mean is Component.mean:
+    if not isinstance(comp, KIND_BASES[comp.kind]):
+        raise ValueError(f"{where}: an effect of kind {comp.kind!r} derives from "
+                         f"torchtea.effects.{KIND_BASES[comp.kind].__name__} (the hooks its kind's engines call)")
+    if comp.kind == "mean" and type(comp).mean is MeanEffect.mean:
         raise ValueError(f"{where}: a mean effect must define mean(v, t, inputs)")
-    if comp.kind == "state" and type(comp).block is Component.block:
+    if comp.kind == "state" and type(comp).block is StateEffect.block:
         raise ValueError(f"{where}: a state effect must define block(v, h, memory) (its spectrum, unless it writes "
                          "its own, is the block's stationary one)")
+    if comp.kind == "measurement" and type(comp).measurement_variance is MeasurementEffect.measurement_variance:
+        raise ValueError(f"{where}: a measurement effect must define measurement_variance(v)")
     try:
         COMPONENTS.add(name, comp, replace=replace)
     except ValueError as e:

@@ -392,7 +392,7 @@ def stochastic_avar(model, values: dict, h: float, m, temperature=None, n_orders
     """The model's AVAR at cluster sizes ``m``. A temperature-driven order makes the model non-stationary: its
     AVAR is then the average of the stationary AVARs at ``n_orders`` quantiles of the orders α_k the temperature
     gave (locally stationary — exact for τ short against the time the order takes to change)."""
-    mod = next((lb for lb, c in model.components if c.varies_order), None)
+    mod = next(iter(model.modifiers), None)
     if mod is None or temperature is None:
         return allan.model_avar(model, values, h, m)[0]
     order = model.order_name

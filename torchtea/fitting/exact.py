@@ -79,7 +79,7 @@ def exact_pass(model, values: dict, y, h: float, *, inputs: dict | None = None, 
 def gradient_supported(model: NoiseModel, y) -> str | None:
     """Why the exact likelihood's gradient of ``model`` on ``y`` is taken by central differences here (None: the
     sensitivity filter of :mod:`torchtea.likelihood.gradient` gives it): a time-varying order or missing samples."""
-    if any(c.varies_order for _, c in model.components):
+    if model.modifiers:
         return "a temperature-driven order makes the transition vary"
     if np.isnan(np.asarray(y, dtype=np.float64)).any():
         return "the series has missing samples"

@@ -33,7 +33,7 @@ from torch import Tensor
 from ..core.search import refine_frequency, remove_regressors
 from ..likelihood.settings import current as likelihood_settings
 from ..likelihood.whittle import RESOLUTION, WhittleData, periodogram, whittle_data
-from ..noise.components import STOCHASTIC_KINDS
+from ..noise.components import STOCHASTIC_KINDS, MeanEffect
 from ..noise.model import NoiseModel, parse_model
 from . import scoring
 from .exact import FIT_MEMORY, ExactPass, centred, exact_loglik, exact_pass, gradient_supported, unknown_level
@@ -90,7 +90,7 @@ def regress_mean(model: NoiseModel, y, h: float, inputs: dict | None = None) -> 
 def _level(model: NoiseModel, y: np.ndarray, vals: dict, t: np.ndarray, ok: np.ndarray) -> None:
     """The level (an ``offset``'s) in ``vals``, in place: the mean of what is left plus what was removed."""
     for label, comp in model.components:
-        if comp.level:
+        if isinstance(comp, MeanEffect) and comp.level:
             m = model.mean({**{n: 0.0 for n in model.names}, **vals}, torch.as_tensor(t)).numpy()[0]
             vals[f"{label}.{comp.params[0].name}"] = float(np.mean((y - m)[ok]))
 

@@ -28,7 +28,7 @@ from torch import Tensor
 from ..core.gl import broadcast_shapes
 from ..core.memory import MemoryConfig, SOEKernel, memory_plan, parse_memory
 from . import grammar
-from .components import COMPONENTS, ORDER_BOUNDS, Component
+from .components import COMPONENTS, ORDER_BOUNDS, Component, FractionalState, MeanEffect, Modifier, StateEffect
 
 __all__ = ["NoiseModel", "PAPER_MODEL", "parse_model", "StateSpace", "VaryingRow", "StateMemory", "state_memory",
            "EXACT_MEMORY_LIMIT", "ROW_TABLE"]
@@ -215,12 +215,18 @@ class NoiseModel:
     def diffuse(self) -> bool:
         """A component does not return to a mean (a random walk): the Whittle fits profile a trend out
         (:attr:`~torchtea.noise.components.Component.diffuse`)."""
-        return any(c.diffuse for _, c in self.components)
+        return any(isinstance(c, StateEffect) and c.diffuse for _, c in self.components)
 
     @property
     def has_level(self) -> bool:
         """A component carries the series' constant level (an ``offset``): the fits do not centre the series."""
-        return any(comp.level for _, comp in self.components)
+        return any(isinstance(c, MeanEffect) and c.level for _, c in self.components)
+
+    @property
+    def modifiers(self) -> list:
+        """The labels of the components that change the fractional state's order in time
+        (:class:`~torchtea.noise.components.Modifier`)."""
+        return [label for label, c in self.components if isinstance(c, Modifier)]
 
     def references(self) -> set:
         """The parameters the components hold as references, not estimates (a temperature's ``t_ref``)."""
@@ -451,11 +457,12 @@ class NoiseModel:
         return F, G, C, g0
 
     def _varying_order(self, byc, blocks, noise_cols, lowpass, h, n_steps, mem, inputs, B, n, orders=None):
-        mods = [label for label, c in self.components if c.varies_order]
+        mods = self.modifiers
         if not mods and orders is None:
             return None
         fracs = self.order_labels
-        if len(mods) + (orders is not None) > 1 or len(fracs) != 1 or lowpass is not None:
+        if (len(mods) + (orders is not None) > 1 or len(fracs) != 1 or lowpass is not None
+                or not isinstance(dict(self.components)[fracs[0]], FractionalState)):
             raise ValueError(f"model {self.spec!r}: a time-varying order (temperature-order, or a known order "
                              "trajectory) drives the order of one fractional component, once, and cannot be combined "
                              "with a sensor filter (low-pass, digital-filter)")
@@ -481,7 +488,7 @@ class NoiseModel:
                 weight.append(pos - j)
         G_ = max(len(g_) for g_ in grids)
         tabulated = torch.stack([torch.cat([g_, g_[-1:].expand(G_ - len(g_))]) for g_ in grids])  # (B, G)
-        row, g = comps[fracs[0]].first_row(tabulated, frac["pole"].unsqueeze(-1), frac["q"].unsqueeze(-1), h, mem)
+        row, g = comps[fracs[0]].first_row({k: x.unsqueeze(-1) for k, x in frac.items()}, tabulated, h, mem)
         sl = blocks[fracs[0]]
         table = row.new_zeros(B, G_, n)
         table[..., sl] = row
@@ -507,7 +514,7 @@ class NoiseModel:
                 raise ValueError(f"orders must have shape ({n_steps},) or (B, {n_steps}) with B = {B}, finite; got "
                                  f"shape {tuple(a.shape)}")
             return a.reshape(-1, n_steps).expand(B, n_steps)
-        mods = [lb for lb, c in self.components if c.varies_order]
+        mods = self.modifiers
         if not mods:
             return alpha0.reshape(B, 1).expand(B, n_steps)
         self.check_inputs(inputs, ("modifier",))

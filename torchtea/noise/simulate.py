@@ -101,7 +101,7 @@ def simulate_states(model, values, *, n_steps: int, h: float, realisations: int 
         forcing = torch.as_tensor(forcing, dtype=torch.float64).expand(B, R_, N)
     if x0 is not None:
         x0 = torch.as_tensor(x0, dtype=torch.float64).expand(B, R_)
-    modified = any(c.varies_order for _, c in model.components)  # a temperature-driven order
+    modified = bool(model.modifiers)  # a temperature-driven order
     run = model.orders_in_time(v, N, inputs, orders)  # (B, N): the trajectory, the modifier's, or the constant
     if orders is not None:
         orders = run

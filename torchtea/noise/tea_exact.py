@@ -256,7 +256,7 @@ class _ExactRun:
     def row(self, a, f):
         """The fractional block's first row ``(…, J + M)`` and noise loading under orders a and poles f."""
         a_in = a.clamp(self.k_lo, self.k_hi)
-        return self.comp.first_row(a_in, f, self.q, self.h, self.mem)
+        return self.comp.first_row({"pole": f, "q": self.q}, a_in, self.h, self.mem)
 
     def dot_c(self, M):
         """``C z`` for states ``M`` ``(R, D)`` (one parameter set: the product as it always was)."""

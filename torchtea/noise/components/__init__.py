@@ -35,7 +35,20 @@ the searches on a series), numpy, torch and scipy's filters and optimisers (no s
 from __future__ import annotations
 
 from ...core.registry import Registry
-from .base import ORDER_BOUNDS, STOCHASTIC_KINDS, Component, ParamSpec, logit
+from .base import (
+    KIND_BASES,
+    ORDER_BOUNDS,
+    STOCHASTIC_KINDS,
+    Component,
+    FilterEffect,
+    FractionalState,
+    MeanEffect,
+    MeasurementEffect,
+    Modifier,
+    ParamSpec,
+    StateEffect,
+    logit,
+)
 from .filters import DigitalFilter, LowPass
 from .fractional import Fractional
 from .levels import Offset, Ramp, Step
@@ -45,7 +58,8 @@ from .measurement import Quantisation, White
 from .outliers import Spikes
 from .thermal import TemperatureBias, TemperatureOrder, ThermalLag
 
-__all__ = ["ParamSpec", "Component", "STOCHASTIC_KINDS", "COMPONENTS", "ORDER_BOUNDS", "logit",
+__all__ = ["ParamSpec", "Component", "StateEffect", "FractionalState", "MeasurementEffect", "MeanEffect",
+           "FilterEffect", "Modifier", "KIND_BASES", "STOCHASTIC_KINDS", "COMPONENTS", "ORDER_BOUNDS", "logit",
            # the built-in effects
            "Fractional", "White", "Quantisation", "RandomWalk", "LowPass", "Offset", "Ramp", "Sinusoid",
            "TemperatureBias", "TemperatureOrder", "GaussMarkov", "ThermalLag", "Step", "DriftingLine",

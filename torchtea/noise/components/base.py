@@ -134,10 +134,13 @@ STOCHASTIC_KINDS = ("state", "measurement", "filter")
 
 
 class Component:
-    """Base class: a named part of the model. Subclasses set ``name``, ``kind`` and ``params``."""
+    """Base class of every effect: a named part of the model with its parameters. An effect derives from the base of
+    its kind — :class:`StateEffect`, :class:`MeasurementEffect`, :class:`MeanEffect` (a user's effect is one of these
+    three), :class:`FilterEffect` or :class:`Modifier` — which sets ``kind`` and declares the hooks the engines call
+    for that kind; a subclass sets ``name`` and ``params`` and writes them."""
 
     name: str = ""
-    kind: str = ""  # "state", "measurement", "filter", "mean", "modifier" (changes another component)
+    kind: str = ""  # "state", "measurement", "filter", "mean", "modifier": set by the base of the kind
     params: tuple = ()
     inputs: tuple = ()  # input channels the component reads (e.g. "temperature")
     #: the parameter that is a fractional order — the memory the TEA's KFo estimates, over which the Whittle profile
@@ -146,34 +149,22 @@ class Component:
     #: False for a component that makes the model's dynamics change in time: the model then has no spectrum that
     #: defines its likelihood, and only the exact likelihood fits it
     stationary: bool = True
-    #: True for a modifier that drives the order of the model's fractional component in time (``orders(v, α₀, T)``)
-    varies_order: bool = False
-    #: True for a component that does not return to a mean (a random walk): the transform of a series holding it
-    #: carries the whole excursion over the record at every Fourier frequency, as a trend's would — its periodogram
-    #: twice the spectrum there —, so the Whittle fits profile a trend out of its models (generalised least squares
-    #: under each spectrum, :class:`~torchtea.likelihood.whittle.Regressors`)
-    diffuse: bool = False
+    #: Parameters the exact fits hold where the data put them, name → None for a reference (not an estimate:
+    #: the temperature's ``t_ref``) or the words the report gives for its interval (an estimate made elsewhere —
+    #: a line's frequency at the refined periodogram peak — which counts as estimated in BIC).
+    held: dict = {}
+    #: Of the held estimates, those every fit holds (their likelihood is not smooth — a time — so no optimiser can
+    #: move them): at the value the least-squares start found (:meth:`~torchtea.fitting.starts.Starts.fit_residual`), counted as estimated in BIC.
+    located: tuple = ()
 
     def check_fixed(self, label: str, fixed) -> None:
         """Raise ``ValueError`` when the parameter names ``fixed`` hold some of this component's parameters in a way
         its fit cannot (default: any is fine)."""
 
-    # ---- spectra (stationary parts) -------------------------------------------------------------
     def spectrum(self, v: dict, omega: Tensor, h: float) -> Tensor:
-        r"""Two-sided spectral density at ω (rad/sample) for parameter values ``v`` (each ``(B,)``) → ``(B, W)``.
-        Default for a state: the stationary spectrum of its :meth:`block`'s output (state 0),
-        :math:`S(\omega) = \frac{1}{2\pi}\,\lVert e_0^\top (I - F e^{-i\omega})^{-1} G \rVert^2` — right for a
-        stable block (every eigenvalue of F inside the unit circle); a block that does not return to a mean (a random
-        walk) writes its own."""
-        if self.kind != "state":
-            raise NotImplementedError(f"component {self.name!r} ({self.kind}) has no spectrum of its own")
-        F, G = self.block(v, h, None)  # (B, n, n), (B, n, m)
-        z = torch.exp(-1j * omega.to(device=F.device, dtype=torch.float64))
-        z = z.unsqueeze(0) if z.ndim == 1 else z  # (1 or B, W): one frequency grid, or one per parameter set
-        eye = torch.eye(F.shape[-1], dtype=torch.complex128, device=F.device)
-        M = eye - F.to(torch.complex128).unsqueeze(1) * z[..., None, None]  # (B, W, n, n)
-        X = torch.linalg.solve(M, G.to(torch.complex128).unsqueeze(1))  # (B, W, n, m)
-        return ((X[..., 0, :].abs() ** 2).sum(-1) / (2.0 * math.pi)).to(F.dtype)
+        """Two-sided spectral density at ω (rad/sample) for parameter values ``v`` (each ``(B,)``) → ``(B, W)``:
+        what the Whittle likelihood and the spectra of ``check`` read of a state or measurement effect."""
+        raise NotImplementedError(f"component {self.name!r} ({self.kind}) has no spectrum of its own")
 
     def spectrum_derivatives(self, v: dict, omega: Tensor, h: float) -> tuple[Tensor, Tensor]:
         """The spectrum ``S`` ``(B, W)`` and its derivatives with respect to the component's parameters, in the order
@@ -182,9 +173,22 @@ class Component:
         forward-mode automatic differentiation (one pass per parameter), so that a user's effect needs none."""
         return forward_derivatives(self.spectrum, self.params, v, omega, h)
 
-    # ---- state blocks ---------------------------------------------------------------------------
-    def n_states(self, memory) -> int:
-        return 0
+    def typical(self, param: str, h: float, t_ref: float) -> float:
+        """A MEMS-like value of ``param`` (accelerometer units, m/s²; sample time ``h``; ``t_ref`` the mean
+        temperature): what ``torchtea simulate --model`` uses unless ``--set`` gives another."""
+        raise NotImplementedError(f"component {self.name!r} has no typical value of {param!r}")
+
+
+class StateEffect(Component):
+    """A linear Gaussian state block driven by white noise (a random walk, a Gauss–Markov bias, the fractional
+    noise): the exact Kalman filter and the simulator stack its :meth:`block`; its output is its state 0."""
+
+    kind = "state"
+    #: True for a block that does not return to a mean (a random walk): the transform of a series holding it
+    #: carries the whole excursion over the record at every Fourier frequency, as a trend's would — its periodogram
+    #: twice the spectrum there —, so the Whittle fits profile a trend out of its models (generalised least squares
+    #: under each spectrum, :class:`~torchtea.likelihood.whittle.Regressors`)
+    diffuse: bool = False
 
     def block(self, v: dict, h: float, memory) -> tuple[Tensor, Tensor]:
         """Transition ``F`` ``(B, n, n)`` and noise loading ``G`` ``(B, n, m)`` of the block (process noise
@@ -199,33 +203,99 @@ class Component:
         (F, G), (dF, dG) = forward_derivatives(lambda values: self.block(values, h, memory), self.params, v)
         return F, G, dF, dG
 
+    def spectrum(self, v: dict, omega: Tensor, h: float) -> Tensor:
+        r"""Default: the stationary spectrum of the block's output (state 0),
+        :math:`S(\omega) = \frac{1}{2\pi}\,\lVert e_0^\top (I - F e^{-i\omega})^{-1} G \rVert^2` — right for a
+        stable block (every eigenvalue of F inside the unit circle); a block that does not return to a mean (a random
+        walk) writes its own."""
+        F, G = self.block(v, h, None)  # (B, n, n), (B, n, m)
+        z = torch.exp(-1j * omega.to(device=F.device, dtype=torch.float64))
+        z = z.unsqueeze(0) if z.ndim == 1 else z  # (1 or B, W): one frequency grid, or one per parameter set
+        eye = torch.eye(F.shape[-1], dtype=torch.complex128, device=F.device)
+        M = eye - F.to(torch.complex128).unsqueeze(1) * z[..., None, None]  # (B, W, n, n)
+        X = torch.linalg.solve(M, G.to(torch.complex128).unsqueeze(1))  # (B, W, n, m)
+        return ((X[..., 0, :].abs() ** 2).sum(-1) / (2.0 * math.pi)).to(F.dtype)
+
+
+class FractionalState(StateEffect):
+    """A state of fractional order (:attr:`order_param`) whose block is a Grünwald–Letnikov memory of its own past:
+    the order moves only the block's first row, so an order that changes in time (a :class:`Modifier`, a known
+    trajectory) changes that row per step, and the TEA's order filter reads it."""
+
+    def first_row(self, v: dict, alpha: Tensor, h: float, memory) -> tuple[Tensor, Tensor]:
+        """The block's first row of F, ``(*S, n)``, and its noise loading ``(*S,)`` for orders ``alpha`` ``(*S,)``;
+        the effect's other parameters ``v`` broadcast against ``alpha``."""
+        raise NotImplementedError
+
+    def run_exact(self, v: dict, alpha: Tensor, h: float, xi: Tensor, forcing: Tensor | None = None,
+                  x0: Tensor | None = None) -> Tensor:
+        """The state ``(S, N)`` by its recursion over the whole past (the simulator's exact memory): ``alpha``
+        ``(S, N)`` the order of each step, ``xi`` ``(S, N)`` the standard-normal drive, ``forcing`` a known input."""
+        raise NotImplementedError
+
+
+class MeasurementEffect(Component):
+    """Independent white noise added to the measurement (white noise, the output's rounding)."""
+
+    kind = "measurement"
+
+    def measurement_variance(self, v: dict) -> Tensor:
+        """The variance ``(B,)`` it adds to every sample."""
+        raise NotImplementedError
+
     def variance_derivatives(self, v: dict) -> tuple[Tensor, Tensor]:
-        """A measurement component's :meth:`measurement_variance` ``(B,)`` and its derivatives ``(B, p)``. Default:
-        forward-mode automatic differentiation."""
+        """:meth:`measurement_variance` ``(B,)`` and its derivatives ``(B, p)``. Default: forward-mode automatic
+        differentiation."""
         return forward_derivatives(self.measurement_variance, self.params, v)
 
-    # ---- means ------------------------------------------------------------------------------------
+
+class MeanEffect(Component):
+    """A deterministic function of time and the input channels (a level, a ramp, a line, a temperature's bias): the
+    Whittle likelihood removes it by regression first, the exact filter subtracts it."""
+
+    kind = "mean"
+    #: it carries the series' constant level: the fits do not centre the series (``offset``)
+    level: bool = False
+
     def mean(self, v: dict, t: Tensor, inputs: dict) -> Tensor:
         """Deterministic contribution ``(B, N)`` at times ``t`` (s, from the first sample)."""
         raise NotImplementedError
 
-    def measurement_variance(self, v: dict) -> Tensor:
+
+class FilterEffect(Component):
+    """The sensor's low-pass filter of the stochastic effects listed before it: it multiplies their spectra by its
+    :meth:`gain`, and the state-space assembly stacks its :meth:`filter_block` after them."""
+
+    kind = "filter"
+    #: first-order stages in cascade
+    stages: int = 1
+
+    def gain(self, v: dict, omega: Tensor, h: float) -> Tensor:
+        """The filter's power gain ``(B, W)`` at ω (rad/sample)."""
         raise NotImplementedError
 
-    #: Parameters the exact fits hold where the data put them, name → None for a reference (not an estimate:
-    #: the temperature's ``t_ref``) or the words the report gives for its interval (an estimate made elsewhere —
-    #: a line's frequency at the refined periodogram peak — which counts as estimated in BIC).
-    held: dict = {}
-    #: Of the held estimates, those every fit holds (their likelihood is not smooth — a time — so no optimiser can
-    #: move them): at the value the least-squares start found (:meth:`~torchtea.fitting.starts.Starts.fit_residual`), counted as estimated in BIC.
-    located: tuple = ()
+    def gain_derivatives(self, v: dict, omega: Tensor, h: float) -> tuple[Tensor, Tensor]:
+        """:meth:`gain` ``(B, W)`` and its derivatives with respect to the parameters ``(B, p, W)``."""
+        return forward_derivatives(self.gain, self.params, v, omega, h)
 
-    # ---- how a model holds it ---------------------------------------------------------------------------
-    #: it carries the series' constant level: the fits do not centre the series (``offset``)
-    level: bool = False
+    def filter_block(self, v: dict, h: float) -> tuple[Tensor, Tensor]:
+        """The filter as a state space fed by its input: ``A`` ``(B, m, m)``, ``b`` ``(B, m)``, output the last
+        state."""
+        raise NotImplementedError
 
-    # ---- values -----------------------------------------------------------------------------------------
-    def typical(self, param: str, h: float, t_ref: float) -> float:
-        """A MEMS-like value of ``param`` (accelerometer units, m/s²; sample time ``h``; ``t_ref`` the mean
-        temperature): what ``torchtea simulate --model`` uses unless ``--set`` gives another."""
-        raise NotImplementedError(f"component {self.name!r} has no typical value of {param!r}")
+
+class Modifier(Component):
+    """Changes the order of the model's :class:`FractionalState` in time: the model is then not stationary
+    (only the exact likelihood fits it)."""
+
+    kind = "modifier"
+    stationary = False
+
+    def orders(self, v: dict, alpha0: Tensor, T: Tensor) -> Tensor:
+        """``(B, N)`` orders α_k for ``(B,)`` α₀ and the input channel ``(N,)``."""
+        raise NotImplementedError
+
+
+#: The base of each kind: an effect of a kind derives from it.
+KIND_BASES = {"state": StateEffect, "measurement": MeasurementEffect, "mean": MeanEffect, "filter": FilterEffect,
+              "modifier": Modifier}

@@ -6,19 +6,16 @@ import math
 import torch
 from torch import Tensor
 
-from .base import Component, ParamSpec
+from .base import FilterEffect, ParamSpec
 
 
-class LowPass(Component):
+class LowPass(FilterEffect):
     r"""First-order low-pass :math:`l_k = a l_{k-1} + (1-a) s_k`, :math:`a = e^{-2\pi f_c h}`, of the stochastic
     components before it, :math:`s_k` their sum (the sensor's digital filter), started from rest before the first
     sample. Multiplies their spectra by :math:`(1-a)^2/(1 - 2a\cos\omega + a^2)`."""
 
     name = "low-pass"
-    kind = "filter"
     params = (ParamSpec("cutoff_hz", "positive", "f_c (Hz)"),)
-    #: first-order stages in cascade, each with the cut-off ``cutoff_hz``
-    stages = 1
 
     def gain(self, v, omega, h):
         a = self.coefficient(v, h).unsqueeze(-1)

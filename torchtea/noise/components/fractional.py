@@ -8,16 +8,15 @@ from torch import Tensor
 
 from ...core import forward
 from ...core.gl import gl_tail_coefficients
-from .base import ORDER_BOUNDS, Component, ParamSpec
+from .base import ORDER_BOUNDS, FractionalState, ParamSpec
 
 
-class Fractional(Component):
+class Fractional(FractionalState):
     r"""The paper's (43)–(45): :math:`x_{k+1} = h^{\alpha}(f x_k + \omega_k) - \sum_{j\ge1} c_j(\alpha) x_{k+1-j}`,
     ω ~ N(0, q), zero history before ``x_0 = 0``. Spectrum (ALGORITHMS.md §5)
     :math:`S(\omega) = q h^{2\alpha} / (2\pi |(1-e^{-i\omega})^\alpha - f h^\alpha e^{-i\omega}|^2)`."""
 
     name = "fractional"
-    kind = "state"
     order_param = "order"
     #: order 1 with its pole at 0 is a random walk, order 1 with a pole a first-order Gauss–Markov bias (at order 0
     #: it is white noise: dropping it beside a white component)
@@ -66,13 +65,11 @@ class Fractional(Component):
         d_pole = -S * 2.0 * hp * (im * so - re * co) / D
         return S, torch.stack([d_alpha, d_pole, S / q], dim=1)
 
-    def n_states(self, memory) -> int:
-        return memory.lags + memory.n_modes
-
-    def first_row(self, alpha: Tensor, f: Tensor, q: Tensor, h: float, memory) -> tuple[Tensor, Tensor]:
+    def first_row(self, v: dict, alpha: Tensor, h: float, memory) -> tuple[Tensor, Tensor]:
         """The block's first row of F, ``(*S, J + M)``, and its noise loading ``h^α √q`` ``(*S,)`` for orders
         ``alpha`` ``(*S,)`` (the only part of the block that depends on the order, so a time-varying order
-        changes this row alone); ``f``, ``q`` broadcast against ``alpha``."""
+        changes this row alone); ``v``'s ``pole`` and ``q`` broadcast against ``alpha``."""
+        f, q = v["pole"], v["q"]
         J, M = memory.lags, memory.n_modes
         hp = h ** alpha
         c = gl_tail_coefficients(alpha.reshape(-1), J).reshape(*alpha.shape, J)  # c_1 … c_J
@@ -125,7 +122,7 @@ class Fractional(Component):
         F, G = self.block(v, h, memory)
         alpha, f, q = v["order"], v["pole"], v["q"]
         B, n = F.shape[0], F.shape[-1]
-        _, (d_row, d_g) = forward.jvp(lambda a: self.first_row(a, f, q, h, memory), (alpha,),
+        _, (d_row, d_g) = forward.jvp(lambda a: self.first_row({"pole": f, "q": q}, a, h, memory), (alpha,),
                                       (torch.ones_like(alpha),))
         dF = F.new_zeros(B, 3, n, n)
         dG = G.new_zeros(B, 3, n, 1)
@@ -136,12 +133,12 @@ class Fractional(Component):
         return F, G, dF, dG
 
     def block(self, v, h, memory):
-        alpha, f, q = v["order"], v["pole"], v["q"]
+        alpha = v["order"]
         B = alpha.shape[0]
         J, M = memory.lags, memory.n_modes
         n = J + M
         F = alpha.new_zeros(B, n, n)
-        F[:, 0], g = self.first_row(alpha, f, q, h, memory)
+        F[:, 0], g = self.first_row(v, alpha, h, memory)
         idx = torch.arange(1, J)
         F[:, idx, idx - 1] = 1.0
         if M:

@@ -3,12 +3,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from .base import Component, ParamSpec
+from .base import MeanEffect, ParamSpec
 
 
-class Offset(Component):
+class Offset(MeanEffect):
     name = "offset"
-    kind = "mean"
     params = (ParamSpec("value", "free", "units"),)
     level = True
 
@@ -19,12 +18,11 @@ class Offset(Component):
         return 0.0
 
 
-class Ramp(Component):
+class Ramp(MeanEffect):
     """slope · (t − t̄): a linear drift through zero at the middle of the record (t̄ the mean time), so that it
     does not move the series' mean (which ``offset``, or the centring of a model without one, carries)."""
 
     name = "ramp"
-    kind = "mean"
     params = (ParamSpec("slope", "free", "units/s"),)
 
     def mean(self, v, t, inputs):
@@ -34,14 +32,13 @@ class Ramp(Component):
         return 1e-4
 
 
-class Step(Component):
+class Step(MeanEffect):
     r"""A level step at an unknown time (a knock, a mounting shift): ``size`` added from ``t_step`` (s from the first
     sample) on. The time is the least-squares location of one step in the residual (the split k that maximises
     c_k²/(k(N−k)), c the cumulative sum: the location for white noise), held in every fit, which estimates the
     size; the time counts as an estimated parameter (in BIC) and has no interval yet."""
 
     name = "step"
-    kind = "mean"
     params = (ParamSpec("size", "free", "units"), ParamSpec("t_step", "free", "t₀ (s from the first sample)"))
     held = {"t_step": "least-squares location of one step (held in the fits): no interval"}
     located = ("t_step",)

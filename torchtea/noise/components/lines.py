@@ -6,14 +6,13 @@ import math
 import numpy as np
 import torch
 
-from .base import Component, ParamSpec
+from .base import MeanEffect, ParamSpec
 
 
-class Sinusoid(Component):
+class Sinusoid(MeanEffect):
     """A sin(2π f₀ t + φ): a vibration line. Not a spectral density — removed before the Whittle sum."""
 
     name = "sinusoid"
-    kind = "mean"
     params = (ParamSpec("frequency_hz", "positive", "f₀ (Hz)"), ParamSpec("amplitude", "positive", "A (units)"),
               ParamSpec("phase", "free", "φ (rad)"))
 
@@ -30,7 +29,7 @@ class Sinusoid(Component):
     held = {"frequency_hz": "refined periodogram peak (held in the exact refit): no interval"}
 
 
-class DriftingLine(Component):
+class DriftingLine(MeanEffect):
     r"""A vibration line whose frequency moves linearly in time (a fan or a motor speeding up or slowing down):
     :math:`A \sin(2\pi (f_0 \tau + \tfrac12 f_1 \tau^2) + \varphi)`, τ = t − t̄ the time from the record's
     middle, so f₀ is the frequency there and f₁ its rate (Hz/s). Its power is spread over |f₁| T Hz, so the line
@@ -39,7 +38,6 @@ class DriftingLine(Component):
     f₁ refined and held (counted in BIC), the amplitude and phase by least squares."""
 
     name = "drifting-line"
-    kind = "mean"
     params = (ParamSpec("frequency_hz", "positive", "f₀ (Hz), at the record's middle"),
               ParamSpec("rate_hz_per_s", "free", "f₁ (Hz/s)"),
               ParamSpec("amplitude", "positive", "A (units)"), ParamSpec("phase", "free", "φ (rad)"))

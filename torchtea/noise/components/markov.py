@@ -5,15 +5,14 @@ import math
 
 import torch
 
-from .base import Component, ParamSpec
+from .base import ParamSpec, StateEffect
 
 
-class RandomWalk(Component):
+class RandomWalk(StateEffect):
     r"""Bias random walk :math:`b_{k+1} = b_k + \sigma\sqrt{h}\,\xi_k`, ``b_0 = 0`` (σ: rate random walk K, units/√s).
     Spectrum of its increments' integral: :math:`\sigma^2 h / (2\pi \cdot 4\sin^2(\omega/2))`."""
 
     name = "random-walk"
-    kind = "state"
     diffuse = True
 
     params = (ParamSpec("sigma", "positive", "K (units/√s)"),)
@@ -26,9 +25,6 @@ class RandomWalk(Component):
         r""":math:`\partial_\sigma S = 2S/\sigma`."""
         S = self.spectrum(v, omega, h)
         return S, (2.0 * S / v["sigma"].unsqueeze(-1)).unsqueeze(1)
-
-    def n_states(self, memory) -> int:
-        return 1
 
     def typical(self, param, h, t_ref):
         return 2e-3
@@ -46,7 +42,7 @@ class RandomWalk(Component):
         return F, G, F.new_zeros(F.shape[0], 1, 1, 1), G.new_full((G.shape[0], 1, 1, 1), math.sqrt(h))
 
 
-class GaussMarkov(Component):
+class GaussMarkov(StateEffect):
     r"""First-order Gauss–Markov noise, IEEE Std 952's exponentially correlated noise (in every INS error model as a
     bias instability): :math:`b_{k+1} = a\,b_k + \sigma\sqrt{1-a^2}\,\xi_k`, :math:`a = e^{-h/\tau}`, so that
     σ is its stationary standard deviation and τ its correlation time (autocorrelation :math:`\sigma^2
@@ -55,7 +51,6 @@ class GaussMarkov(Component):
     deviation peaks near τ_A ≈ 1.89 τ at ≈ 0.62 σ (the flat "bias instability" region when τ is long)."""
 
     name = "gauss-markov"
-    kind = "state"
     params = (ParamSpec("sigma", "positive", "σ (units), stationary standard deviation"),
               ParamSpec("tau_s", "positive", "τ (s), correlation time"))
 
@@ -79,9 +74,6 @@ class GaussMarkov(Component):
         dlog_a = -2.0 * a / (1.0 - a * a) - 2.0 * (a - co) / den
         return S, torch.stack([2.0 * S / v["sigma"].unsqueeze(-1), S * dlog_a * a * h / (tau * tau)], dim=1)
 
-    def n_states(self, memory) -> int:
-        return 1
-
     def block(self, v, h, memory):
         a = self.coefficient(v, h)
         F = a.reshape(-1, 1, 1).clone()
@@ -103,7 +95,7 @@ class GaussMarkov(Component):
         return {"sigma": 5e-3, "tau_s": 20.0}[param]
 
 
-class Resonance(Component):
+class Resonance(StateEffect):
     r"""A vibration band: narrow-band random vibration, white noise through a damped second-order resonator — a
     mechanical mode of the board or the part, or vibration aliased into the band, whose power spreads over a band
     instead of one line (a line that wanders is not a line). The AR(2) with complex poles
@@ -121,7 +113,6 @@ class Resonance(Component):
     the band where the data's spectrum stands highest above its own smooth trend."""
 
     name = "resonance"
-    kind = "state"
     params = (ParamSpec("frequency_hz", "nyquist", "f_r (Hz), centre of the band"),
               ParamSpec("bandwidth_hz", "positive", "B (Hz), half-power width"),
               ParamSpec("sigma", "positive", "σ (units), stationary standard deviation"))
@@ -161,9 +152,6 @@ class Resonance(Component):
         d_freq = d_a1 * (-2.0 * rho * torch.sin(theta) * 2.0 * math.pi * h)
         d_band = d_a1 * (2.0 * torch.cos(theta) * (-math.pi * h * rho)) + d_a2 * (2.0 * math.pi * h * rho * rho)
         return S, torch.stack([S * d_freq, S * d_band, 2.0 * S / v["sigma"].unsqueeze(-1)], dim=1)
-
-    def n_states(self, memory) -> int:
-        return 2
 
     def block(self, v, h, memory):
         a1, a2, g = self.coefficients(v, h)

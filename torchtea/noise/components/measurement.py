@@ -5,14 +5,13 @@ import math
 
 import torch
 
-from .base import Component, ParamSpec
+from .base import MeasurementEffect, ParamSpec
 
 
-class White(Component):
+class White(MeasurementEffect):
     """Measurement (ADC) noise ν_k ~ N(0, r): spectrum r/2π."""
 
     name = "white"
-    kind = "measurement"
     params = (ParamSpec("r", "positive", "variance (units²)"),)
 
     def measurement_variance(self, v):
@@ -33,11 +32,10 @@ class White(Component):
         return S, torch.full_like(S, 1.0 / (2.0 * math.pi)).unsqueeze(1)
 
 
-class Quantisation(Component):
+class Quantisation(MeasurementEffect):
     """Quantisation of step Δ, modelled as white noise of variance Δ²/12."""
 
     name = "quantisation"
-    kind = "measurement"
     params = (ParamSpec("step", "positive", "Δ (units)"),)
 
     def measurement_variance(self, v):

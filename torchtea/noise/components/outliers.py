@@ -3,10 +3,10 @@ from __future__ import annotations
 
 import torch
 
-from .base import Component, ParamSpec
+from .base import MeanEffect, ParamSpec
 
 
-class Spikes(Component):
+class Spikes(MeanEffect):
     r"""Isolated spikes (shocks, a knock on the bench, a corrupted sample): ``count`` additive outliers, spike j of
     size :math:`s_j` at sample :math:`k_j` (time :math:`t_j`), :math:`\mu_k = \sum_j s_j [k = k_j]` — the additive
     outlier of time-series analysis (Box & Tiao 1975; Chen & Liu 1993). Written ``spikes:K`` in a spec (K its count).
@@ -20,7 +20,6 @@ class Spikes(Component):
     orthogonal to the noise parameters) and both count as estimated in BIC (2K parameters)."""
 
     name = "spikes"
-    kind = "mean"
     #: more outliers than this are not isolated spikes but heavy-tailed noise, which no mean term describes
     MAX_SPIKES = 50
     #: how many times the filter is rerun with the spikes found set aside

@@ -6,15 +6,14 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from .base import Component, ParamSpec
+from .base import MeanEffect, Modifier, ParamSpec
 
 
-class TemperatureBias(Component):
+class TemperatureBias(MeanEffect):
     """β (T_k − T_ref) added to the output; T the measured ``temperature`` input (°C), T_ref its mean
     unless fixed."""
 
     name = "temperature-bias"
-    kind = "mean"
     inputs = ("temperature",)
     held = {"t_ref": None}
     params = (ParamSpec("bias_per_degC", "free", "units/°C"), ParamSpec("t_ref", "free", "T_ref (°C)"))
@@ -62,7 +61,7 @@ class _FirstOrderLag(torch.autograd.Function):
         return (gy * z).sum(-1), None
 
 
-class ThermalLag(Component):
+class ThermalLag(MeanEffect):
     r"""A bias that follows the temperature through a first-order lag: :math:`\beta\,(T^{\tau}_k - T_\mathrm{ref})`
     with :math:`T^{\tau}_k = a\,T^{\tau}_{k-1} + (1-a)\,T_k`, :math:`a = e^{-h/\tau}`, :math:`T^{\tau}_0 = T_0` —
     the die is not where the temperature sensor is, and heat takes τ to cross (a lag of 140 s is seen on MEMS
@@ -70,7 +69,6 @@ class ThermalLag(Component):
     squares for each τ of a log-spaced grid (1 s to the record's length), the best τ kept."""
 
     name = "thermal-lag"
-    kind = "mean"
     inputs = ("temperature",)
     params = (ParamSpec("bias_per_degC", "free", "units/°C"), ParamSpec("tau_s", "positive", "τ (s), thermal lag"),
               ParamSpec("t_ref", "free", "T_ref (°C)"))
@@ -98,7 +96,7 @@ class ThermalLag(Component):
         return {"bias_per_degC": 0.02, "tau_s": 60.0, "t_ref": t_ref}[param]
 
 
-class TemperatureOrder(Component):
+class TemperatureOrder(Modifier):
     r"""The fractional component's order driven by temperature: :math:`\alpha_k = \alpha_0 + \gamma (T_k - T_\mathrm{ref})`,
     α₀ the fractional component's ``order`` (its value at T_ref, the mean temperature unless fixed), T the
     measured ``temperature`` input (°C). The GL difference is the paper's A-type (10): step k+1 uses
@@ -108,9 +106,6 @@ class TemperatureOrder(Component):
     T_ref (γ = 0), and γ is fitted by the exact likelihood only."""
 
     name = "temperature-order"
-    kind = "modifier"
-    stationary = False
-    varies_order = True
     inputs = ("temperature",)
     held = {"t_ref": None}
     params = (ParamSpec("order_per_degC", "free", "1/°C"), ParamSpec("t_ref", "free", "T_ref (°C)"))

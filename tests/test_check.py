@@ -221,9 +221,9 @@ def test_an_order_at_its_bound_is_not_scanned_for_a_temperature_slope():
     at_bound = refine_exact(model, y, H, {**v, "fractional.order": 1.0}, fixed=["fractional.order"], intervals=False)
     assert at_bound.values["fractional.order"] == 1.0
     r = check(y, H, model=model, inputs={"temperature": T}, fit=at_bound, intervals=False)
-    row = next(s for s in r.screens if s["effect"] == "temperature-order")
-    assert row["p_value"] is None and "at its bound" in row["note"]
-    assert [s for s in r.screens if s["effect"] == "temperature-bias"][0]["p_value"] is not None  # the rest screened
+    row = next(s for s in r.screens if s.effect == "temperature-order")
+    assert row.p_value is None and "at its bound" in row.note
+    assert [s for s in r.screens if s.effect == "temperature-bias"][0].p_value is not None  # the rest screened
 
 
 def test_a_quiet_temperature_order_scan_stops_early_and_says_so(monkeypatch):
@@ -241,11 +241,11 @@ def test_a_quiet_temperature_order_scan_stops_early_and_says_so(monkeypatch):
         return r.screens[0]
 
     quiet, loud = row(1), row(3)
-    assert "scan stopped" in quiet["note"] and quiet["statistic"] < 2 * temperature_screens.SCAN_QUIET
-    assert loud["note"] == "" and loud["statistic"] > 2 * temperature_screens.SCAN_QUIET
+    assert "scan stopped" in quiet.note and quiet.statistic < 2 * temperature_screens.SCAN_QUIET
+    assert loud.note == "" and loud.statistic > 2 * temperature_screens.SCAN_QUIET
     monkeypatch.setattr(temperature_screens, "SCAN_QUIET", -math.inf)  # never quiet: both stages run
     full = row(1)
-    assert full["note"] == "" and quiet["statistic"] <= full["statistic"] < 2.0
+    assert full.note == "" and quiet.statistic <= full.statistic < 2.0
 
 
 def test_the_model_intervals_reach_the_json():
@@ -350,8 +350,8 @@ def test_a_refit_starts_from_several_places_and_keeps_the_best(monkeypatch):
     monkeypatch.setattr(ck, "refine_best", corrupted_screen_start)
     r = check(y, H, intervals=False)
     assert forced == ["the screen's start"]
-    row = next(s for s in r.screens if s["effect"] == "ramp")
-    assert "the best from the " in row["note"] and "from the screen's start −∞" in row["note"], row["note"]
+    row = next(s for s in r.screens if s.effect == "ramp")
+    assert "the best from the " in row.note and "from the screen's start −∞" in row.note, row.note
     ramp = next(sg for sg in r.suggestions if sg.effect == "ramp")
     assert ramp.fit.loglik > r.fit.loglik and ramp.gain > 0
 
@@ -364,9 +364,9 @@ def test_a_candidate_that_cannot_join_the_model_is_skipped_with_a_note():
     y = simulate_model(m, default_values(m, H), n_steps=3000, h=H, generator=torch.Generator().manual_seed(2))[0, 0]
     T = temperature_profile(3000, H)
     r = check(y.numpy(), H, model=m, inputs={"temperature": T.numpy()}, intervals=False)
-    row = next(s for s in r.screens if s["effect"] == "temperature-order")
-    assert row["p_value"] is None and "cannot be combined with a sensor filter (low-pass" in row["note"]
-    assert next(s for s in r.screens if s["effect"] == "temperature-bias")["p_value"] is not None
+    row = next(s for s in r.screens if s.effect == "temperature-order")
+    assert row.p_value is None and "cannot be combined with a sensor filter (low-pass" in row.note
+    assert next(s for s in r.screens if s.effect == "temperature-bias").p_value is not None
     with pytest.raises(ValueError, match="cannot be combined with a sensor filter"):
         parse_model("fractional+white+low-pass+temperature-order")
 
@@ -609,10 +609,10 @@ def test_a_refit_that_loses_what_the_screen_saw_is_a_failed_fit_not_evidence(mon
 
     monkeypatch.setattr(ck, "refine_best", no_optimiser)
     r = check(y, H, intervals=False, candidates=["ramp"])
-    row = next(s for s in r.screens if s["effect"] == "ramp")
-    assert row["passed"] and row["statistic"] > 20, row
-    assert row.get("refit_failed") and not row.get("not_confirmed"), row
-    assert "an optimiser's failure" in row["note"], row["note"]
+    row = next(s for s in r.screens if s.effect == "ramp")
+    assert row.passed and row.statistic > 20, row
+    assert row.refit_failed and not row.not_confirmed, row
+    assert "an optimiser's failure" in row.note, row.note
     assert r.failed_refits == ["ramp"] and r.unconfirmed == [] and not r.suggestions
     lines = "\n".join(channels_mod._channel_lines("ax", "x", r))
     assert "refits failed to find what the screens saw" in lines and "no effect of the library passes" not in lines
@@ -637,7 +637,7 @@ def test_a_whittle_screen_the_exact_likelihood_does_not_confirm_is_said_so(monke
     real_refit, real_best = ck.refit, rf.refine_best
 
     def screen_point_off(run, model, alt, label, fit, wf, row, fixed, refine=True):
-        if row["effect"] == "random-walk":
+        if row.effect == "random-walk":
             row["start"] = dict(row["start"], **{"random-walk.sigma": row["start"]["random-walk.sigma"] * 1e3})
         return real_refit(run, model, alt, label, fit, wf, row, fixed, refine=refine)
 
@@ -662,10 +662,10 @@ def test_a_whittle_screen_the_exact_likelihood_does_not_confirm_is_said_so(monke
     monkeypatch.setattr(rf, "model_fit", no_better_own_fit)
     r = check(y, H, intervals=False, candidates=["random-walk"])
     assert asked == ["fractional+white+random-walk"]
-    row = next(s for s in r.screens if s["effect"] == "random-walk")
-    assert row["passed"] and row["test"].startswith("Whittle"), row
-    assert row.get("not_confirmed") and not row.get("refit_failed"), row
-    assert "does not confirm it" in row["note"] and "optimiser" not in row["note"], row["note"]
+    row = next(s for s in r.screens if s.effect == "random-walk")
+    assert row.passed and row.test.startswith("Whittle"), row
+    assert row.not_confirmed and not row.refit_failed, row
+    assert "does not confirm it" in row.note and "optimiser" not in row.note, row.note
     assert r.unconfirmed == ["random-walk"] and r.failed_refits == []
     lines = "\n".join(channels_mod._channel_lines("ax", "x", r))
     assert "exact likelihood does not confirm them" in lines and "no effect of the library passes" not in lines
@@ -718,8 +718,8 @@ def test_a_refit_that_misses_what_its_screen_saw_is_fitted_on_its_own_too():
 
     y, T, _ = random_case(["low-pass"], 0)
     first = check(y, H, inputs={"temperature": T}, intervals=False)
-    row = next(r for r in first.screens if r["effect"] == "digital-filter")
-    assert row["passed"] and "the extended model's own fit" in row["note"]
+    row = next(r for r in first.screens if r.effect == "digital-filter")
+    assert row.passed and "the extended model's own fit" in row.note
     res = first.auto(intervals=False)
     assert res.model.spec == "fractional+white+low-pass" and res.adequate
     tie = next(t for t in res.ties if "digital-filter" in t["effects"])
@@ -753,9 +753,9 @@ def test_on_a_long_record_the_best_suggestion_alone_is_refitted(monkeypatch):
     monkeypatch.setattr(ck, "LONG_RECORD", 1000)
     y, T = _two_effects()
     r = ck.check(y, H, inputs={"temperature": T}, fits="exact", intervals=False)
-    assert sum(bool(row.get("passed")) for row in r.screens) > 1
+    assert sum(bool(row.passed) for row in r.screens) > 1
     top = r.suggestions[0]
-    row = next(x for x in r.screens if x["effect"] == top.effect)
-    assert "refitted as the best suggestion" in row["note"]
-    others = [x for x in r.screens if x.get("passed") and x["effect"] != top.effect]
-    assert all("the best suggestion alone is refitted" in x["note"] for x in others)
+    row = next(x for x in r.screens if x.effect == top.effect)
+    assert "refitted as the best suggestion" in row.note
+    others = [x for x in r.screens if x.passed and x.effect != top.effect]
+    assert all("the best suggestion alone is refitted" in x.note for x in others)

@@ -190,16 +190,16 @@ def test_check_screens_and_suggests_a_users_effect(warm_up):
     assert candidates_all()[-1] == "warm-up" and "warm-up" not in CANDIDATES
     m, v, y = _series(n=6000, seed=5, amplitude=0.3)
     r = check(y, H, intervals=False)
-    row = next(s for s in r.screens if s["effect"] == "warm-up")
-    assert row["test"] == MEAN_SCREEN and row["passed"] and row["p_value"] < 1e-4
+    row = next(s for s in r.screens if s.effect == "warm-up")
+    assert row.test == MEAN_SCREEN and row.passed and row.p_value < 1e-4
     top = r.suggestions[0]
     assert top.effect == "warm-up" and top.fit.model.spec == m
     assert top.fit.values["warm-up.tau_s"] == pytest.approx(20, rel=0.3)
     y0 = simulate_model("fractional+white", default_values("fractional+white", H), n_steps=6000, h=H,
                         generator=torch.Generator().manual_seed(5))[0, 0].numpy()
     r0 = check(y0, H, intervals=False)
-    row0 = next(s for s in r0.screens if s["effect"] == "warm-up")
-    assert row0["p_value"] is not None and not row0["passed"] and not r0.suggestions
+    row0 = next(s for s in r0.screens if s.effect == "warm-up")
+    assert row0.p_value is not None and not row0.passed and not r0.suggestions
 
 
 def test_a_users_effect_may_register_its_own_screen(warm_up):
@@ -223,7 +223,7 @@ def test_a_users_effect_may_register_its_own_screen(warm_up):
         m, v, y = _series(n=6000, seed=5, amplitude=0.3)
         r = check(y, H, intervals=False, candidates=("warm-up",))
         row = r.screens[0]
-        assert calls == ["warm-up"] and row["test"].startswith("exact LR of the whitened") and row["p_value"] < 1e-4
+        assert calls == ["warm-up"] and row.test.startswith("exact LR of the whitened") and row.p_value < 1e-4
         assert r.suggestions[0].effect == "warm-up"
         assert r.suggestions[0].fit.values["warm-up.tau_s"] == pytest.approx(20, rel=0.3)
     finally:
@@ -370,8 +370,8 @@ def test_a_users_state_effect_without_strengths_is_screened():
     try:
         y = simulate_model("fractional+white", default_values("fractional+white", H), n_steps=3000, h=H,
                            generator=torch.Generator().manual_seed(1))[0, 0].numpy()
-        row = next(s for s in check(y, H, intervals=False).screens if s["effect"] == "my-gm")
-        assert row["p_value"] is not None and row["test"].startswith("Whittle LR")
+        row = next(s for s in check(y, H, intervals=False).screens if s.effect == "my-gm")
+        assert row.p_value is not None and row.test.startswith("Whittle LR")
     finally:
         unregister("my-gm")
         unregister_start(Plain)
@@ -452,8 +452,8 @@ def test_check_names_each_new_effect_first_on_a_recording_of_the_random_study(ef
     seed = {"step": 0, "gauss-markov": 2, "thermal-lag": 4, "drifting-line": 0, "digital-filter": 0}[effect]
     y, T, truth = random_case([effect], seed)
     r = check(y, 0.01, inputs={"temperature": T}, intervals=False)
-    row = next(s for s in r.screens if s["effect"] == effect)
-    assert row["passed"]
+    row = next(s for s in r.screens if s.effect == effect)
+    assert row.passed
     top = r.suggestions[0]
     assert top.effect == effect
     for p, x in top.parameters.items():
@@ -701,8 +701,8 @@ def test_a_slow_periodic_bias_ends_as_one_sinusoid():
     res = check(y, H, intervals=False).auto(intervals=False)
     assert res.model.spec == "fractional+white+sinusoid" and res.adequate
     assert abs(res.fit.values["sinusoid.frequency_hz"] / v["sinusoid.frequency_hz"] - 1) < 0.02
-    row = next(r for r in res.steps[0].screens if r["effect"] == "sinusoid")
-    assert row["passed"] and "a slow line" in row["note"]
+    row = next(r for r in res.steps[0].screens if r.effect == "sinusoid")
+    assert row.passed and "a slow line" in row.note
 
 
 @pytest.mark.slow
@@ -837,6 +837,6 @@ def test_a_users_state_effect_needs_its_block_only():
             (parse_model("fractional+white+ramp+gauss-markov"), start))]
         np.testing.assert_allclose(fits[0].loglik, fits[1].loglik, rtol=1e-8)
         row = next(s for s in check(y.numpy(), H, intervals=False, candidates=("wander",)).screens)
-        assert row["effect"] == "wander" and row["test"].startswith("Whittle LR") and row["p_value"] is not None
+        assert row.effect == "wander" and row.test.startswith("Whittle LR") and row.p_value is not None
     finally:
         unregister("wander")

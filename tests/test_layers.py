@@ -343,6 +343,28 @@ def test_every_registry_follows_one_rule():
         assert registry[key] is built_in, what
 
 
+#: The check's modules in the order its package's docstring reads them: the loop's.
+CHECK_ORDER = ("allan", "diagnostics", "screens", "models", "screening", "ranking", "refits", "results", "simplify",
+               "loop", "check", "report", "tblog", "channels")
+
+
+def test_the_check_reads_in_the_loops_order():
+    """Each module of torchtea.checking imports only those before it in the loop's order (lazily too), and the
+    package's docstring names them in that order; no module of it is left out of the order."""
+    graph = imports()
+    pkg = "torchtea.checking"
+    own = {m.split(".")[2] for m in graph if m.startswith(pkg + ".")}
+    assert own == set(CHECK_ORDER), own ^ set(CHECK_ORDER)
+    for i, name in enumerate(CHECK_ORDER):
+        for m, targets in graph.items():
+            if m == f"{pkg}.{name}" or m.startswith(f"{pkg}.{name}."):
+                later = {t.split(".")[2] for t in targets if t.startswith(pkg + ".")} & set(CHECK_ORDER[i + 1:])
+                assert not later, (m, later)
+    doc = torchtea.checking.__doc__
+    positions = [doc.index(f":mod:`.{name}`") for name in CHECK_ORDER]
+    assert positions == sorted(positions), [n for _, n in sorted(zip(positions, CHECK_ORDER))]
+
+
 def test_an_effect_holds_its_physics_only():
     """The base class of the effects declares its physics and the hooks every engine calls, nothing of screening,
     starting, the TEA, the exports or the spec grammar (each registered apart, by class), and of each kind's hooks

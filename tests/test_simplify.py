@@ -101,7 +101,7 @@ def test_a_weak_effect_never_fitted_on_the_way_is_named_as_a_tie():
 
     res = check(_white_and_walk(seed=0, k=8e-6), H).auto()
     assert res.model.spec == "white+random-walk" and res.adequate
-    ramp = next(r for r in res.screens if r["effect"] == "ramp")
+    ramp = next(r for r in res.screens if r.effect == "ramp")
     assert not ramp["passed"]
     tie = next(t for t in res.ties if t["effects"] == ["ramp"])
     assert tie["kind"] == "add" and 0 <= tie["bic_difference"] < CLOSE_BIC and not tie["fails"]
@@ -149,7 +149,7 @@ def test_a_temperature_effect_masked_by_a_random_walk_added_first_is_swapped_in(
     y = simulate_model("white+temperature-bias", v, n_steps=n, h=h, inputs={"temperature": T},
                        generator=torch.Generator().manual_seed(2))[0, 0].numpy()
     first = check(y, h, inputs={"temperature": T.numpy()}, intervals=False)
-    assert "temperature-bias" in {r["effect"] for r in first.screens if r.get("passed")}
+    assert "temperature-bias" in {r.effect for r in first.screens if r.passed}
     masked = first.add("random-walk", intervals=False)
     res = simplify(masked, intervals=False)
     assert res is not masked

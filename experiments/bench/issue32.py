@@ -164,7 +164,7 @@ elif case == "check":
     r = check(y, H, intervals=False)
     dt = time.perf_counter() - t
     digest = {"adequate": r.adequate,
-              "screens": [(s["effect"], None if s["statistic"] is None else round(float(s["statistic"]), 9))
+              "screens": [(s.effect, None if s.statistic is None else round(float(s.statistic), 9))
                           for s in r.screens],
               "suggestions": [(s.effect, round(float(s.gain), 9)) for s in r.suggestions]}
 print(json.dumps({"seconds": dt, "digest": digest}))

@@ -37,7 +37,7 @@ def main():
             r = check(y, H, inputs={"temperature": T}, intervals=False, candidates=effects)
             rows.append({"case": name, "list": label, "effects": len(effects), "seconds": r.seconds,
                          "timings": r.timings, "top": r.suggestions[0].effect if r.suggestions else None,
-                         "passed": [s["effect"] for s in r.screens if s.get("passed")]})
+                         "passed": [s.effect for s in r.screens if s.passed]})
     print("| case | effects screened | seconds | fit | screens | refits | passed the screen | top |")
     print("|---|---|---|---|---|---|---|---|")
     for r in rows:

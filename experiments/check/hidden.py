@@ -45,7 +45,7 @@ def run_case(effect: str, seed: int) -> dict:
     t0 = time.perf_counter()
     r = check(y, H, model=BASE, inputs={"temperature": T}, intervals=False)
     out = {"effect": effect, "seed": seed, "strength": STRENGTH[effect], "truth": truth, "adequate": r.adequate, "failed": r.failed,
-           "metrics": r.metrics, "screens": r.screens, "timings": r.timings, "seconds": time.perf_counter() - t0,
+           "metrics": r.metrics, "screens": [s.as_dict() for s in r.screens], "timings": r.timings, "seconds": time.perf_counter() - t0,
            "suggestions": [s.as_dict() for s in r.suggestions], "notes": r.notes}
     out["top"] = r.suggestions[0].effect if r.suggestions else None
     return out

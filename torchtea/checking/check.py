@@ -43,6 +43,7 @@ r"""``check``: fit a noise model, test it against the measurements, and rank the
 """
 from __future__ import annotations
 
+import copy
 import time
 
 import numpy as np
@@ -62,7 +63,6 @@ from .refits import (
     LONG_RECORD,
     NULL_EFFECT,
     CheckRun,
-    add_note,
     better_model_fit,
     degenerate,
     held_fixed,
@@ -236,28 +236,28 @@ def _check_once(run: CheckRun, model, fit: Fit, wf, screen_level, candidates, in
     run.say(f"screening {len(effects)} effects")
     rows = screen_all(model, fit, wf, inn, diags, y, h, inputs, effects, cache)
     clock("screen")
-    screened = [r for r in rows if r["p_value"] is not None]
+    screened = [r for r in rows if r.p_value is not None]
     threshold = screen_level / max(1, len(screened))
     suggestions = []
     refits = []
     refitted = {}
     failed_before = {d.name for d in diags if d.passed is False}
     for row in screened:
-        row["passed"] = bool(row["p_value"] < threshold)
-        row["threshold"] = threshold
-    passed = [r for r in screened if r["passed"]]
+        row.passed = bool(row.p_value < threshold)
+        row.threshold = threshold
+    passed = [r for r in screened if r.passed]
     long = run.exact(model) and len(y) > LONG_RECORD and len(passed) > 1
     for k, row in enumerate(passed):
-        run.say(f"{'evaluating' if long else 'refitting'} {model.spec}+{row['effect']} ({k + 1}/{len(passed)})")
-        alt = extend(model, row["token"])
+        run.say(f"{'evaluating' if long else 'refitting'} {model.spec}+{row.effect} ({k + 1}/{len(passed)})")
+        alt = extend(model, row.token)
         label = new_label(model, alt)
         estimates, fixed = held_fixed(alt, label)
         f2 = refit(run, model, alt, label, fit, wf, row, fixed, refine=not long)
         if long:
-            add_note(row, "a long record: its gain is the exact likelihood's at the best of its starts, not maximised "
+            row.add_note("a long record: its gain is the exact likelihood's at the best of its starts, not maximised "
                            "(a lower bound); the best suggestion alone is refitted")
         refits.append(f2)
-        refitted[row["effect"]] = f2
+        refitted[row.effect] = f2
         f2.count(estimates)
         gain = fit.bic_exact - f2.bic_exact
         lr = 2.0 * (f2.loglik_exact - fit.loglik_exact)
@@ -266,11 +266,11 @@ def _check_once(run: CheckRun, model, fit: Fit, wf, screen_level, candidates, in
             if base_there > fit.loglik_exact + BASE_SLACK and f2.loglik_exact - base_there < NULL_EFFECT:
                 better = refined_model(model, fit, f2, y, h, inputs, intervals, run.fits)
                 if better is not None:
-                    return None, (better, f"{row['effect']}'s refit put {row['effect']} at its null value (its "
+                    return None, (better, f"{row.effect}'s refit put {row.effect} at its null value (its "
                                           f"share of ℓ {f2.loglik_exact - base_there:.2f} nats), the rest at a better "
                                           "point of the model's own likelihood")
         if gain <= 0 and long:
-            add_note(row, f"at the best of its starts the exact likelihood lowers no BIC (gain {gain:.1f}, a lower "
+            row.add_note(f"at the best of its starts the exact likelihood lowers no BIC (gain {gain:.1f}, a lower "
                            "bound: not maximised on a long record); not suggested")
             continue
         if gain <= 0:
@@ -278,12 +278,11 @@ def _check_once(run: CheckRun, model, fit: Fit, wf, screen_level, candidates, in
             continue
         _, d2, m2 = _assess(alt, f2.values, y, h, inputs, run.level)
         repairs = sorted(failed_before & {d.name for d in d2 if d.passed})
-        suggestions.append(Suggestion(row["effect"], float(gain), row["p_value"], row["test"], f2, d2, m2, repairs,
+        suggestions.append(Suggestion(row.effect, float(gain), row.p_value, row.test, f2, d2, m2, repairs,
                                       label))
-    near = [dict(r) for r in screened if near_candidate(r, model, fit.n)]
+    near = [copy.copy(r) for r in screened if near_candidate(r, model, fit.n)]
     for row in rows:
-        for k in ("start", "modes"):
-            row.pop(k, None)
+        row.start = row.modes = None
     clock("refits")
     if refits and restart:
         better = better_model_fit(model, fit, refits, y, h, inputs, intervals, run.fits)
@@ -305,7 +304,7 @@ def _refit_best(run: CheckRun, fit: Fit, suggestions: list, rows: list, failed_b
     best of its starts — refitted from the start that ranked it, its gain, diagnostics and repairs anew, its screen's
     row saying so; the suggestions ranked again."""
     top = suggestions[0]
-    row = next(r for r in rows if r["effect"] == top.effect)
+    row = next(r for r in rows if r.effect == top.effect)
     run.say(f"refitting {top.fit.model.spec}")
     alt = top.fit.model
     estimates, fixed = held_fixed(alt, top.label)
@@ -314,5 +313,5 @@ def _refit_best(run: CheckRun, fit: Fit, suggestions: list, rows: list, failed_b
     top.fit, top.gain = f2, float(fit.bic_exact - f2.bic_exact)
     _, top.diagnostics, top.metrics = _assess(alt, f2.values, run.y, run.h, run.inputs, run.level)
     top.repairs = sorted(failed_before & {d.name for d in top.diagnostics if d.passed})
-    row["note"] = row["note"].replace("; the best suggestion alone is refitted", "; refitted as the best suggestion")
+    row.note = row.note.replace("; the best suggestion alone is refitted", "; refitted as the best suggestion")
     return rank(suggestions, failed_before)

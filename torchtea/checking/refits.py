@@ -18,10 +18,10 @@ from ..fitting.whittle_path import fits_exactly
 from . import models
 from .models import REFIT_TOLERANCE
 from .ranking import CLOSE_BIC
-from .screening import new_label
+from .screening import ScreenRow, new_label
 
 __all__ = ["CheckRun", "Clock", "refit", "refit_from", "held_fixed", "loglik_at", "refined_model", "better_model_fit",
-           "degenerate", "refit_degenerate", "add_note", "judge_no_gain", "BASE_RESTARTS", "BASE_SLACK", "NESTED_SLACK", "LONG_RECORD",
+           "degenerate", "refit_degenerate", "judge_no_gain", "BASE_RESTARTS", "BASE_SLACK", "NESTED_SLACK", "LONG_RECORD",
            "NULL_EFFECT", "FIT_FAILED_SLACK", "near", "near_fits", "NEAR_SLACK"]
 
 
@@ -141,7 +141,7 @@ NULL_EFFECT = 1.92
 FIT_FAILED_SLACK = 5.0
 
 
-def refit(run: CheckRun, model, alt, label, fit: Fit, wf, row: dict, fixed: list, refine: bool = True) -> Fit:
+def refit(run: CheckRun, model, alt, label, fit: Fit, wf, row: ScreenRow, fixed: list, refine: bool = True) -> Fit:
     """The extended model ``alt`` (the model with the component ``label``) fitted by exact likelihood from several
     starts (:func:`~torchtea.fitting.mle.refine_best`), the best kept:
 
@@ -165,12 +165,12 @@ def refit(run: CheckRun, model, alt, label, fit: Fit, wf, row: dict, fixed: list
     comp = dict(alt.components)[label]
     new = [n for n in alt.names if n not in model.names]
     base = dict(fit.values)
-    start = dict(row["start"])
+    start = dict(row.start)
     if comp.kind in ("mean", "modifier"):
         starts = _mean_starts(run, model, alt, wf, base, start, new)
     else:
         starts = _stochastic_starts(run, model, alt, label, comp, row, base, start, new)
-    earlier = run.carry.get(row["effect"])
+    earlier = run.carry.get(row.effect)
     if earlier is not None:  # the last step's refit of this effect: its values there, the model's here
         kept = {n: earlier.values[n] for n in new if n in earlier.values}
         if len(kept) == len(new):
@@ -203,18 +203,18 @@ def refit(run: CheckRun, model, alt, label, fit: Fit, wf, row: dict, fixed: list
         there = next((t[2] for t in tried if t[0] == starts[0][0]), None)
         there = "not refined (its ℓ far below the others')" if there is None else (
             f"{there:.2f}" if math.isfinite(there) else "−∞: no finite likelihood")
-        add_note(row, f"refitted from {len(tried)} starts; the best from {winner[0]} (ℓ {winner[2]:.2f}; from the "
+        row.add_note(f"refitted from {len(tried)} starts; the best from {winner[0]} (ℓ {winner[2]:.2f}; from the "
                        f"screen's start {there})")
     if refine and run.exact(alt) and not f2.loglik >= fit.loglik - NESTED_SLACK:
-        add_note(row, f"every refit ended below the model's ℓ {fit.loglik:.2f} (best {f2.loglik:.2f}): an optimiser "
+        row.add_note(f"every refit ended below the model's ℓ {fit.loglik:.2f} (best {f2.loglik:.2f}): an optimiser "
                        "failure (the models are nested)")
     return f2
 
 
-def _short_of_screen(f2: Fit, fit: Fit, row: dict) -> bool:
+def _short_of_screen(f2: Fit, fit: Fit, row: ScreenRow) -> bool:
     """Whether the refit ``f2``'s likelihood-ratio over the model's ``fit`` falls :data:`FIT_FAILED_SLACK` short of half
     its screen's statistic (a likelihood-ratio of a cheaper likelihood or with the model held)."""
-    stat = row.get("statistic")
+    stat = row.statistic
     return stat is not None and 2.0 * (f2.loglik - fit.loglik) < 0.5 * stat - FIT_FAILED_SLACK
 
 
@@ -244,7 +244,7 @@ def _mean_starts(run: CheckRun, model, alt, wf, base: dict, start: dict, new: li
     return starts
 
 
-def _stochastic_starts(run: CheckRun, model, alt, label: str, comp, row: dict, base: dict, start: dict,
+def _stochastic_starts(run: CheckRun, model, alt, label: str, comp, row: ScreenRow, base: dict, start: dict,
                        new: list) -> list:
     """:func:`refit`'s starts for a stochastic effect: the screen's, the model's fit with the effect at the screen's
     values, vanishing (:meth:`~torchtea.fitting.starts.Starts.vanishing`) and at its starting strengths, each mode of
@@ -262,7 +262,7 @@ def _stochastic_starts(run: CheckRun, model, alt, label: str, comp, row: dict, b
         starts.append(("the model's fit with the effect vanishing", {**base, **vanish}))
     for k, s_ in enumerate(starts_of(comp).strengths(comp, label, model, base, h, len(y))):
         starts.append((f"the model's fit with the effect at strength {k + 1}", {**base, **s_}))
-    modes = row.pop("modes", None)  # (the Whittle screen's fits of the extended model)
+    modes, row.modes = row.modes, None  # (the Whittle screen's fits of the extended model)
     if modes is None and alt.stationary and not np.isnan(y).any():
         key = ("whittle", alt.spec)
         if key not in cache:
@@ -331,37 +331,33 @@ class Clock:
         self.t = now
 
 
-def add_note(row: dict, text: str) -> None:
-    row["note"] = f"{row['note']}; {text}" if row.get("note") else text
-
-
-def judge_no_gain(run: CheckRun, row: dict, fit: Fit, alt, gain: float, lr: float) -> None:
+def judge_no_gain(run: CheckRun, row: ScreenRow, fit: Fit, alt, gain: float, lr: float) -> None:
     """Say in the screen's ``row`` why a passed screen's refit (of ``alt``; its likelihood-ratio ``lr`` over the model's
     ``fit``) lowered no BIC (``gain`` ≤ 0): where the screen's statistic was far larger, either the Whittle screen's
     own point lies below the model in the exact likelihood — the two likelihoods disagree on the record,
     ``not_confirmed`` — or the refit failed to find what the screen saw — an optimiser's failure, ``refit_failed``;
     otherwise the effect simply lowers no BIC."""
-    failed = row["statistic"] is not None and lr < 0.5 * row["statistic"] - FIT_FAILED_SLACK
-    at_screen = (loglik_at(alt, row["start"], run.y, run.h, run.inputs)
-                 if failed and row["test"].startswith("Whittle") and set(row.get("start") or ()) >= set(alt.names)
+    failed = row.statistic is not None and lr < 0.5 * row.statistic - FIT_FAILED_SLACK
+    at_screen = (loglik_at(alt, row.start, run.y, run.h, run.inputs)
+                 if failed and row.test.startswith("Whittle") and set(row.start or ()) >= set(alt.names)
                  else math.inf)
     if at_screen < fit.loglik_exact - BASE_SLACK:
         # the screen's own point is below the model in the exact likelihood: the cheap likelihood's gain does
         # not hold in the exact one (the optimiser is not what failed)
-        add_note(row, f"passed its screen (LR {row['statistic']:.1f}) on the Whittle likelihood, but the "
+        row.add_note(f"passed its screen (LR {row.statistic:.1f}) on the Whittle likelihood, but the "
                        "exact likelihood does not confirm it: at the screen's own point it is "
                        f"{fit.loglik_exact - at_screen:.1f} nats below the model's, and the exact refit gains only "
                        f"{lr:.1f} in 2ℓ (BIC gain {gain:.1f}) — the two likelihoods disagree on this record "
                        "(the Whittle likelihood takes it as stationary), which is no evidence for the effect; "
                        "not suggested")
-        row["not_confirmed"] = True
+        row.not_confirmed = True
     elif failed:
-        add_note(row, f"passed its screen (LR {row['statistic']:.1f}), but the exact refit gains only "
+        row.add_note(f"passed its screen (LR {row.statistic:.1f}), but the exact refit gains only "
                        f"{lr:.1f} in 2ℓ (BIC gain {gain:.1f}): the refit failed to find what the screen "
                        "saw — an optimiser's failure, not evidence against the effect; not suggested")
-        row["refit_failed"] = True
+        row.refit_failed = True
     else:
-        add_note(row, f"passed the screen but the exact refit does not lower BIC (gain {gain:.1f}): "
+        row.add_note(f"passed the screen but the exact refit does not lower BIC (gain {gain:.1f}): "
                        "not suggested")
 
 
@@ -371,15 +367,15 @@ def judge_no_gain(run: CheckRun, row: dict, fit: Fit, alt, gain: float, lr: floa
 NEAR_SLACK = 3.0
 
 
-def near(row: dict, model, n: int) -> bool:
+def near(row: ScreenRow, model, n: int) -> bool:
     """Whether a screen that did not pass puts the model with its effect within the tie margin of BIC by its
     likelihood-ratio statistic ``LR``: k·ln n − LR below :data:`~.ranking.CLOSE_BIC` + :data:`NEAR_SLACK`, k the
     parameters the effect adds (its references not counted)."""
-    if row["passed"] or row.get("statistic") is None or "LR" not in row["test"] or not row.get("start"):
+    if row.passed or row.statistic is None or "LR" not in row.test or not row.start:
         return False
-    alt = models.extend(model, row["token"])
+    alt = models.extend(model, row.token)
     k = len([n_ for n_ in alt.names if n_ not in model.names and n_ not in alt.references()])
-    return k * np.log(max(n, 2)) - float(row["statistic"]) < CLOSE_BIC + NEAR_SLACK
+    return k * np.log(max(n, 2)) - float(row.statistic) < CLOSE_BIC + NEAR_SLACK
 
 
 def near_fits(res, progress=None) -> dict:
@@ -393,16 +389,16 @@ def near_fits(res, progress=None) -> dict:
     run.carry = dict(res.refits)
     model, fit, out = res.model, res.fit, {}
     for row in res.near_rows:
-        alt = models.extend(model, row["token"])
+        alt = models.extend(model, row.token)
         label = new_label(model, alt)
         estimates, fixed = held_fixed(alt, label)
         cheap = run.exact(alt) and gradient_supported(alt, centred(alt, res.y)) is None
         run.say(f"fitting {alt.spec} for the ties")
         try:
-            f2 = refit(run, model, alt, label, fit, res.whittle, dict(row), fixed, refine=cheap)
+            f2 = refit(run, model, alt, label, fit, res.whittle, copy.copy(row), fixed, refine=cheap)
         except (ValueError, RuntimeError):
             continue
         f2.count(estimates)
         if abs(f2.bic_exact - fit.bic_exact) < CLOSE_BIC:
-            out[row["effect"]] = f2
+            out[row.effect] = f2
     return out

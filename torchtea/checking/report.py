@@ -376,7 +376,7 @@ def _channel_lines(r: CheckResult, a: str, info: dict, axis_doc: dict, out: Path
     lines += _unexplained_lines(r)
     lines += _datasheet_plan_lines(a, axis_doc)
     lines += ["", "Screens: " + "; ".join(
-        f"{s['effect']} {('p ' + _fmt(s['p_value'], '.2g')) if s['p_value'] is not None else s['note']}"
+        f"{s.effect} {('p ' + _fmt(s.p_value, '.2g')) if s.p_value is not None else s.note}"
         for s in r.screens), ""]
     for note in r.notes:
         lines.append(f"Note: {note}")

@@ -54,8 +54,8 @@ class Suggestion:
 @dataclass
 class CheckRecord:
     """What :func:`~.check.check` found (the data and their reading; :class:`~.check.CheckResult` adds the loop's
-    verbs). ``diagnostics``: list of :class:`~.diagnostics.Diagnostic`; ``screens``: one dict
-    per effect screened (its statistic, p-value, whether it passed); ``suggestions``: :class:`Suggestion` s, best
+    verbs). ``diagnostics``: list of :class:`~.diagnostics.Diagnostic`; ``screens``: one
+    :class:`~.screening.ScreenRow` per effect screened (its statistic, p-value, whether it passed); ``suggestions``: :class:`Suggestion` s, best
     first; ``before``: the result this one was built from by :meth:`add`."""
 
     y: np.ndarray
@@ -119,13 +119,13 @@ class CheckRecord:
     def failed_refits(self) -> list[str]:
         """The effects whose screen passed but whose refit failed to find what the screen saw (an optimiser's
         failure, not evidence against the effect)."""
-        return [r["effect"] for r in self.screens if r.get("refit_failed")]
+        return [r.effect for r in self.screens if r.refit_failed]
 
     @property
     def unconfirmed(self) -> list[str]:
         """The effects whose Whittle screen passed but which the exact likelihood does not confirm: below the model
         at the screen's own point and no gain when refitted (the two likelihoods disagree on this record)."""
-        return [r["effect"] for r in self.screens if r.get("not_confirmed")]
+        return [r.effect for r in self.screens if r.not_confirmed]
 
     @property
     def failing_ranges_s(self) -> list:
@@ -197,7 +197,7 @@ class CheckRecord:
                              ci95_method=self.fit.ci95_method, loglik=self.fit.loglik_exact, bic=self.fit.bic_exact,
                              observed=self.fit.n, method=self.fit.method),
                 "diagnostics": [d.as_dict() for d in self.diagnostics],
-                "screens": self.screens,
+                "screens": [r.as_dict() for r in self.screens],
                 "suggestions": [s.as_dict() for s in self.suggestions],
                 "level": self.level, "screen_level": self.screen_level,
                 "seconds": sum(r.seconds for r in self.steps), "seconds_this_step": self.seconds,

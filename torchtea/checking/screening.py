@@ -17,7 +17,7 @@ from .diagnostics import LEVEL, Diagnostic, Innovations
 from .models import extend
 from .screens import NotScreened, boundary_logsf
 
-__all__ = ["ScreenContext", "screen_all", "whittle_screens", "new_label", "SCREEN_TOLERANCE"]
+__all__ = ["ScreenRow", "ScreenContext", "screen_all", "whittle_screens", "new_label", "SCREEN_TOLERANCE"]
 
 #: A Whittle screen's fit has converged when it can gain less than this many nats (its starts that crawl below the
 #: best at less than ten times this an iteration are left in the race): half the time of the fit to 10⁻⁶, the
@@ -29,6 +29,50 @@ SCREEN_TOLERANCE = 1e-3
 def new_label(base: NoiseModel, alt: NoiseModel) -> str:
     old = {label for label, _ in base.components}
     return next(label for label, _ in alt.components if label not in old)
+
+
+@dataclass
+class ScreenRow:
+    """One candidate effect's screen against the model: its test, likelihood-ratio statistic and p-value (None where
+    it was not screened, and ``note`` says why), whether it passed at the Bonferroni ``threshold``, and what its refit
+    found. ``start`` (the values the screen found, the model's with them) and ``modes`` (the Whittle screen's fits
+    of the extended model) are the refit's starts, not written out."""
+
+    effect: str
+    test: str
+    statistic: float | None = None
+    p_value: float | None = None
+    log10_p: float | None = None
+    note: str = ""
+    #: the spec token of the component screened (:func:`.screens.configure`: how many spikes); None where it could
+    #: not be configured
+    token: str | None = None
+    passed: bool | None = None
+    threshold: float | None = None
+    #: the exact likelihood does not confirm what the Whittle screen saw (the two likelihoods disagree on the record)
+    not_confirmed: bool = False
+    #: the exact refit did not find what the screen saw (an optimiser's failure)
+    refit_failed: bool = False
+    start: dict | None = None
+    modes: list | None = None
+
+    def add_note(self, text: str) -> None:
+        self.note = f"{self.note}; {text}" if self.note else text
+
+    def as_dict(self) -> dict:
+        """As ``check.json`` has it: the token where the effect was configured, whether it passed and the threshold
+        where it was screened, ``not_confirmed`` and ``refit_failed`` where true."""
+        out = {"effect": self.effect, "test": self.test, "statistic": self.statistic, "p_value": self.p_value,
+               "log10_p": self.log10_p, "note": self.note}
+        if self.token is not None:
+            out["token"] = self.token
+        if self.passed is not None:
+            out.update(passed=self.passed, threshold=self.threshold)
+        if self.not_confirmed:
+            out["not_confirmed"] = True
+        if self.refit_failed:
+            out["refit_failed"] = True
+        return out
 
 
 @dataclass
@@ -65,7 +109,7 @@ class ScreenContext:
 
 
 def screen_all(model: NoiseModel, fit: Fit, wf, inn: Innovations, diags, y, h, inputs, effects,
-               cache: dict | None = None) -> list[dict]:
+               cache: dict | None = None) -> list[ScreenRow]:
     """Screening statistic, p-value and a starting point for each candidate effect: each component's own
     screen (:func:`.screens.run_screen`), the stochastic ones without one by the Whittle
     likelihood-ratio (all of them on one periodogram)."""
@@ -74,22 +118,21 @@ def screen_all(model: NoiseModel, fit: Fit, wf, inn: Innovations, diags, y, h, i
     stochastic = []
     for effect in effects:
         comp = COMPONENTS[effect]
-        row = {"effect": effect, "test": screens.screen_test(comp), "statistic": None, "p_value": None, "log10_p": None,
-               "start": None, "note": ""}
+        row = ScreenRow(effect, screens.screen_test(comp))
         out.append(row)
         ctx = ScreenContext(model, None, "", fit, inn, diags, y, t, h, inputs)
         try:
-            row["token"] = screens.configure(comp, ctx)
-            alt = extend(model, row["token"])
+            row.token = screens.configure(comp, ctx)
+            alt = extend(model, row.token)
         except (ValueError, NotScreened) as exc:
-            row["note"] = f"not screened: {exc}"
+            row.note = f"not screened: {exc}"
             continue
         label = new_label(model, alt)
         ctx.alt, ctx.label = alt, label
         missing = [k for k in comp.inputs if inputs is None or inputs.get(k) is None]
         reason = f"needs the {' and '.join(missing)} channel" if missing else screens.screening_of(comp).why_not(comp, model)
         if reason:
-            row["note"] = f"not screened: {reason}"
+            row.note = f"not screened: {reason}"
             continue
         if screens.whittle_screened(comp):
             stochastic.append((row, alt))
@@ -97,13 +140,13 @@ def screen_all(model: NoiseModel, fit: Fit, wf, inn: Innovations, diags, y, h, i
         try:
             lr, logp, values, note = screens.run_screen(comp, ctx)
         except NotScreened as exc:
-            row["note"] = f"not screened: {exc}"
+            row.note = f"not screened: {exc}"
             continue
-        row.update(statistic=lr, start={**dict(fit.values), **values}, note=note,
-                   p_value=float(math.exp(logp)), log10_p=float(logp / math.log(10)))
+        row.statistic, row.start, row.note = lr, {**dict(fit.values), **values}, note
+        row.p_value, row.log10_p = float(math.exp(logp)), float(logp / math.log(10))
     if stochastic and np.isnan(y).any():
         for row, _ in stochastic:
-            row["note"] = "not screened: the Whittle likelihood-ratio needs a complete series (missing samples)"
+            row.note = "not screened: the Whittle likelihood-ratio needs a complete series (missing samples)"
     elif stochastic:
         whittle_screens(model, wf, stochastic, y, h, inputs, {} if cache is None else cache)
     return out
@@ -119,7 +162,7 @@ def whittle_screens(model, base, rows_alts, y, h, inputs, cache: dict):
     for row, alt in rows_alts:
         key = ("whittle screen", alt.spec)
         if key in cache:
-            row.update(cache[key])
+            _found(row, cache[key])
             continue
         label = new_label(model, alt)
         # the grid as well as the effect's strengths from the model's fit: a model that lacks a random walk (or a
@@ -139,4 +182,9 @@ def whittle_screens(model, base, rows_alts, y, h, inputs, cache: dict):
         found = dict(statistic=lr, p_value=float(math.exp(logp)), log10_p=float(logp / math.log(10)),
                      start=vals, modes=modes)
         cache[key] = found
-        row.update(found)
+        _found(row, found)
+
+
+def _found(row: ScreenRow, found: dict) -> None:
+    row.statistic, row.p_value, row.log10_p = found["statistic"], found["p_value"], found["log10_p"]
+    row.start, row.modes = found["start"], found["modes"]

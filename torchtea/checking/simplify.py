@@ -92,7 +92,7 @@ def _swaps(res) -> dict:
         for lb, comp in cur.model.components:
             if lb in old or lb not in now or now[lb].name != comp.name:
                 continue
-            passed = [r["effect"] for r in prev.screens if r.get("passed") and r["effect"] != comp.name]
+            passed = [r.effect for r in prev.screens if r.passed and r.effect != comp.name]
             out.setdefault(lb, [])
             out[lb] += [e for e in passed if e not in out[lb]]
     return out

@@ -82,15 +82,12 @@ def _put_back(values: dict, model, m, removed: str) -> dict:
             for n, v in values.items() if n.split(".", 1)[0] == lb}
 
 
-def _estimated(model) -> int:
-    """The parameters a model estimates (as BIC counts them in check: held estimates too, references not)."""
-    refs = model.references()
-    return sum(1 for n in model.names if n not in refs)
-
-
 def _fit(model, y, h, inputs, starts):
+    """The exact fit from ``starts``, its BIC counting what check's counts (held estimates and located times as
+    estimated, references not: :meth:`~torchtea.fitting.results.Fit.count`)."""
     fixed = _fixed(model)
     fit, _ = refine_best(model, y, h, starts, inputs=inputs, fixed=fixed, must=[name for name, _ in starts])
+    fit.count({**model.held_estimates(), **model.located()})
     return fit
 
 
@@ -147,12 +144,12 @@ def oracle(y, h: float, truth: dict, model, inputs: dict | None = None, base: st
     told = {}
     for lb, names in (rivals or {}).items():
         for rival in names:
-            told.setdefault(lb, {})[rival] = _rival(model, lb, rival, y, h, inputs, full, reduced[lb][1], n)
+            told.setdefault(lb, {})[rival] = _rival(model, lb, rival, y, h, inputs, full, reduced[lb][1])
     return {"loglik": full.loglik, "effects": effects, "threshold": threshold, "n": n, "model": model.spec,
             "rivals": told}
 
 
-def _rival(model, label, rival, y, h, inputs, full, without, n) -> dict:
+def _rival(model, label, rival, y, h, inputs, full, without) -> dict:
     """The true model with ``label`` swapped for ``rival``, fitted from the reduced model's maximum with the rival at
     its typical values and at a tenth and ten times its scale parameters, and from its own exact fit where the
     model is stationary."""
@@ -176,8 +173,7 @@ def _rival(model, label, rival, y, h, inputs, full, without, n) -> dict:
         except ValueError:
             pass
     fit = _fit(m, y, h, inputs, starts)
-    k_true, k_rival = _estimated(full.model), _estimated(m)
-    d = (k_rival - k_true) * math.log(n) - 2.0 * (fit.loglik - full.loglik)
+    d = fit.bic - full.bic
     return {"model": m.spec, "loglik": fit.loglik, "bic_difference": d}
 
 

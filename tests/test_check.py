@@ -638,7 +638,7 @@ def test_a_whittle_screen_the_exact_likelihood_does_not_confirm_is_said_so(monke
 
     def screen_point_off(run, model, alt, label, fit, wf, row, fixed, refine=True):
         if row.effect == "random-walk":
-            row["start"] = dict(row["start"], **{"random-walk.sigma": row["start"]["random-walk.sigma"] * 1e3})
+            row.start = dict(row.start, **{"random-walk.sigma": row.start["random-walk.sigma"] * 1e3})
         return real_refit(run, model, alt, label, fit, wf, row, fixed, refine=refine)
 
     def no_optimiser(model, yy, h, starts, **kw):

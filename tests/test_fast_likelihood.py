@@ -212,8 +212,8 @@ def test_time_varying_rows_are_tabulated_without_loss(monkeypatch):
     f64 = {"dtype": torch.float64}
     alpha = COMPONENTS["temperature-order"].orders({"order_per_degC": torch.tensor([0.03], **f64), "t_ref": torch.tensor(
         [v["temperature-order.t_ref"]], **f64)}, torch.tensor([v["fractional.order"]], **f64), inp["temperature"])[0]
-    row, _ = COMPONENTS["fractional"].first_row(alpha[1:6], torch.tensor(v["fractional.pole"], **f64),
-                                                torch.tensor(v["fractional.q"], **f64), H,
+    row, _ = COMPONENTS["fractional"].first_row({"pole": torch.tensor(v["fractional.pole"], **f64),
+                                                 "q": torch.tensor(v["fractional.q"], **f64)}, alpha[1:6], H,
                                                 nm.state_memory("soe:1e-4", len(y)))
     got = ss.varying.rows()[0, :5, : row.shape[-1]]
     torch.testing.assert_close(got, row, rtol=1e-14, atol=1e-14)

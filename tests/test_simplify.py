@@ -9,13 +9,14 @@ import pytest
 import torch
 
 from torchtea.checking.check import change_words, check
+from torchtea.checking.screening import ScreenRow
 from torchtea.checking.simplify import alternatives, carried_labels, simplify
 from torchtea.noise.model import parse_model
 from torchtea.noise.simulate import simulate_model, temperature_profile
 
 
 def _step(spec, passed=()):
-    return SimpleNamespace(model=parse_model(spec), screens=[{"effect": e, "passed": True} for e in passed])
+    return SimpleNamespace(model=parse_model(spec), screens=[ScreenRow(e, "a test", passed=True) for e in passed])
 
 
 def test_the_alternatives_are_each_component_dropped_its_special_cases_and_the_added_effects_swapped():
@@ -102,7 +103,7 @@ def test_a_weak_effect_never_fitted_on_the_way_is_named_as_a_tie():
     res = check(_white_and_walk(seed=0, k=8e-6), H).auto()
     assert res.model.spec == "white+random-walk" and res.adequate
     ramp = next(r for r in res.screens if r.effect == "ramp")
-    assert not ramp["passed"]
+    assert not ramp.passed
     tie = next(t for t in res.ties if t["effects"] == ["ramp"])
     assert tie["kind"] == "add" and 0 <= tie["bic_difference"] < CLOSE_BIC and not tie["fails"]
     assert tie["model"] not in _fitted_on_the_way(res) and "ramp" in res.near

@@ -345,7 +345,7 @@ def test_every_registry_follows_one_rule():
 
 #: The check's modules in the order its package's docstring reads them: the loop's.
 CHECK_ORDER = ("allan", "diagnostics", "screens", "models", "screening", "ranking", "refits", "results", "simplify",
-               "loop", "check", "report", "tblog", "channels")
+               "loop", "check", "replicates", "report", "tblog", "channels")
 
 
 def test_the_check_reads_in_the_loops_order():

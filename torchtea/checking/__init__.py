@@ -9,8 +9,9 @@ it is missing (:func:`check`). The modules read in the loop's order, each using 
 4. what a step found, as data (:mod:`.results`);
 5. the loop's moves — taking away and swapping (:mod:`.simplify`) — and its policy (:mod:`.loop`);
 6. one step of it, the entry point (:mod:`.check`: :func:`check`, :class:`CheckResult` with its verbs);
-7. the outputs: the report (:mod:`.report`), TensorBoard (:mod:`.tblog`), and a recording's channels checked one
-   by one or on a cluster (:mod:`.channels`).
+7. the outputs: several recordings and a record's windows side by side (:mod:`.replicates`), the report
+   (:mod:`.report`), TensorBoard (:mod:`.tblog`), and a recording's channels checked one by one or on a cluster
+   (:mod:`.channels`).
 
 The studies' hidden-effect records and oracle are in :mod:`torchtea.studies`. Its layer is above the fits: it may import
 :mod:`torchtea.fitting` and everything below it, never the exports, reports, studies or the command line."""

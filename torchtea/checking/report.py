@@ -17,12 +17,13 @@ from scipy import stats
 
 from ..fitting.datasheet import verdict_lines
 from ..fitting.plan import plan_document, plan_lines
+from ..fitting.windows import WINDOWS_MEANING
 from ..likelihood.whittle import periodogram
 from ..noise.model import parse_model
 from ..render.plots import pyplot, save_figure
 from ..render.strictjson import write
 from ..sensors.measurements import DOCUMENT_MEANING, RECORDING_MEANING
-from . import allan
+from . import allan, replicates
 from .check import CLOSE_BIC, CheckResult, change_words
 
 __all__ = ["write_report", "axis_document", "figures", "MEANING"]
@@ -290,19 +291,29 @@ def _sqrt_r(r: CheckResult) -> float | None:
     return math.sqrt(sum(rs) * r.h) if rs else None
 
 
-def write_report(out: Path, results: dict, meta: dict, plots: bool = True, datasheet: dict | None = None) -> dict:
+def write_report(out: Path, results: dict, meta: dict, plots: bool = True, datasheet: dict | None = None,
+                 windows: dict | None = None) -> dict:
     """``check.json`` and ``report.md`` (and the figures) for ``results`` {channel label: CheckResult}; ``meta``
     describes the recording (``channels``: label → its column, sensor, axis and unit, as
     :meth:`~torchtea.sensors.measurements.Measurements.describe` writes them); ``datasheet``: label → the axis held
-    against a datasheet (:func:`torchtea.fitting.datasheet.compare`). Returns the JSON document."""
+    against a datasheet (:func:`torchtea.fitting.datasheet.compare`); ``windows``: label → the noise over time
+    (:func:`torchtea.fitting.windows.noise_over_time`). Returns the JSON document."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     channels = meta.get("channels", {})
     doc = _check_document(results, meta, datasheet)
+    if windows:
+        doc["meaning"].update(WINDOWS_MEANING)
+        for a, w in windows.items():
+            doc["axes"][a]["windows"] = w
+        if len(results) == 1:
+            doc["windows"] = next(iter(windows.values()))
     lines = _header_lines(meta, next(iter(results.values())))
     lines += _summary_lines(results, channels, doc)
     for a, r in results.items():
         lines += _channel_lines(r, a, channels.get(a, {}), doc["axes"][a], out, plots)
+        if windows and a in windows:
+            lines += _windows_lines(r, a, windows[a], doc["axes"][a]["unit"], out, plots)
     (out / "report.md").write_text("\n".join(lines))
     write(out / "check.json", doc)
     return doc
@@ -384,6 +395,20 @@ def _channel_lines(r: CheckResult, a: str, info: dict, axis_doc: dict, out: Path
         for p in figures(r, out, a, axis_doc["unit"]):
             lines.append(f"![{p.stem}]({p.name})")
     lines.append("")
+    return lines
+
+
+def _windows_lines(r: CheckResult, a: str, w: dict, unit: str, out: Path, plots: bool) -> list[str]:
+    """One channel's noise over time: the tests in words, the parameters over time and the dynamic Allan deviation."""
+    lines = [f"### {a}: the noise over time", ""] + replicates.windows_lines(w, markdown=True) + [""]
+    if plots:
+        plt = pyplot()
+        y = r.innovations.y - r.innovations.mean
+        for p in (replicates.windows_figure(plt, w, out, a, unit),
+                  replicates.dynamic_allan_figure(plt, np.where(r.innovations.observed, y, np.nan), r.h, w["length_s"],
+                                                out, a, unit)):
+            lines.append(f"![{p.stem}]({p.name})")
+        lines.append("")
     return lines
 
 

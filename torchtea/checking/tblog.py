@@ -30,9 +30,12 @@ def _step_text(row: dict, k: int) -> str:
             f"{', '.join(row['failed']) or 'nothing'}")
 
 
-def write_check_runs(logdir, results: dict, units: dict | None = None, figures: bool = True) -> list[Path]:
+def write_check_runs(logdir, results: dict, units: dict | None = None, figures: bool = True,
+                     windows: dict | None = None) -> list[Path]:
     """One TensorBoard run per channel of ``results`` (label → :class:`~.check.CheckResult`, the loop's last) under
-    ``logdir``; ``units``: label → unit for the figures' axes. Returns the runs' folders."""
+    ``logdir``; ``units``: label → unit for the figures' axes; ``windows``: label → its noise over time
+    (:func:`torchtea.fitting.windows.noise_over_time`): each noise parameter per window as scalars (at the window's
+    middle, in whole seconds), its figures as images. Returns the runs' folders."""
     from torch.utils.tensorboard import SummaryWriter
 
     logdir = Path(logdir)
@@ -53,6 +56,8 @@ def write_check_runs(logdir, results: dict, units: dict | None = None, figures: 
                 w.add_text("loop/step", _step_text(row, k), k)
                 if figures:
                     _add_figures(w, r, label, (units or {}).get(label, "units"), k)
+            if windows and label in windows:
+                _add_windows(w, res, label, windows[label], (units or {}).get(label, "units"), figures)
             ties = "; ".join(t["words"] for t in res.ties) or "none"
             w.add_text("verdict", f"**{label}**: `{res.model.spec}`, {'adequate' if res.adequate else 'NOT adequate'}"
                                   f" — {res.loop_end or 'one check, no loop'}. Ties: {ties}", len(rows) - 1)
@@ -60,15 +65,38 @@ def write_check_runs(logdir, results: dict, units: dict | None = None, figures: 
     return runs
 
 
-def _add_figures(w, res, label: str, unit: str, k: int) -> None:
-    """The step's figures, drawn as report.md draws them, as images at global step ``k``."""
+def _add_windows(w, res, label: str, doc: dict, unit: str, figures: bool) -> None:
+    """The noise over time: each parameter per window (step: the window's middle, s) and its figures."""
+    from .replicates import dynamic_allan_figure, windows_figure, windows_lines
+
+    for row in doc["rows"]:
+        for name, v in row["parameters"].items():
+            w.add_scalar(f"windows/{name}", v, int(round(0.5 * (row["from_s"] + row["to_s"]))))
+    w.add_text("windows", "  \n".join(windows_lines(doc)), 0)
+    if figures:
+        from ..render.plots import pyplot
+
+        plt = pyplot()
+        y = np.where(res.innovations.observed, res.innovations.y - res.innovations.mean, np.nan)
+        with tempfile.TemporaryDirectory() as tmp:
+            for p in (windows_figure(plt, doc, Path(tmp), label, unit),
+                      dynamic_allan_figure(plt, y, res.h, doc["length_s"], Path(tmp), label, unit)):
+                _add_image(w, p, f"windows/{p.stem.split('_')[0]}", 0)
+
+
+def _add_image(w, path: Path, tag: str, k: int) -> None:
     import matplotlib.image as mpimg
 
+    img = mpimg.imread(str(path))
+    if img.dtype != np.uint8:
+        img = (np.clip(img, 0.0, 1.0) * 255).astype(np.uint8)
+    w.add_image(tag, img[..., :3], k, dataformats="HWC")
+
+
+def _add_figures(w, res, label: str, unit: str, k: int) -> None:
+    """The step's figures, drawn as report.md draws them, as images at global step ``k``."""
     from .report import figures as make_figures
 
     with tempfile.TemporaryDirectory() as tmp:
         for p in make_figures(res, Path(tmp), label, unit):
-            img = mpimg.imread(str(p))
-            if img.dtype != np.uint8:
-                img = (np.clip(img, 0.0, 1.0) * 255).astype(np.uint8)
-            w.add_image(f"figures/{p.stem.removeprefix(label + '_')}", img[..., :3], k, dataformats="HWC")
+            _add_image(w, p, f"figures/{p.stem.removeprefix(label + '_')}", k)

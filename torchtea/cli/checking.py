@@ -16,6 +16,7 @@ from .common import (
     _measurements,
     _model_inputs,
     _note,
+    _positive_float,
     _progress,
     _recording_flags,
     _steps,
@@ -39,7 +40,12 @@ def _add_fit(sub) -> None:
                                       "axis the file names)",
                      temperature_help="temperature column (°C) for temperature-bias / temperature-order (a torchtea "
                                       "recording: temp)", samples_default="all",
-                     samples_help="use the first N samples (default all)")
+                     samples_help="use the first N samples (default all)", several=True)
+    fp.add_argument("--together", action="store_true",
+                    help="several recordings of one sensor: one model per channel whose noise parameters all share "
+                         "(each recording its own mean terms), the likelihood the sum of theirs; then per noise "
+                         "parameter a test of one value in all against its own in each, and from three recordings "
+                         "the turn-on bias repeatability")
     fp.add_argument("--model", default="fractional+white",
                     help="components joined by '+': fractional, white, quantisation, random-walk, gauss-markov, "
                          "resonance, low-pass, digital-filter, offset, ramp, step, spikes:K, sinusoid, drifting-line, "
@@ -121,6 +127,10 @@ def _add_check(sub) -> None:
                          "of them to its maximum), exact (the exact likelihood's maximum whatever the length) or "
                          "whittle (the long-record path without the refinement, whatever the length: the Whittle "
                          "estimates as they are)")
+    ck.add_argument("--windows", type=_positive_float, metavar="SECONDS",
+                    help="the final model's noise parameters over time: fitted in windows of SECONDS, "
+                         "half-overlapping, with a test of their constancy and where one changes (report, check.json "
+                         "'windows', the parameters over time and the dynamic Allan deviation as figures)")
     ck.add_argument("--no-intervals", action="store_true", help="skip the finite-difference intervals (faster)")
     ck.add_argument("--out", help="output directory (default check-<recording name>)")
     ck.add_argument("--no-plots", action="store_true")
@@ -140,6 +150,10 @@ def cmd_fit(args) -> int:
 
     model = parse_model(args.model)
     _check_cluster_flags(args)
+    paths = list(args.recording or [])
+    if args.together or len(paths) > 1:
+        return _fit_together(args, model, paths)
+    args.recording = paths[0] if paths else None
     m = _measurements(args, "a fit", min_samples=100)
     if args.datasheet and not args.export:
         raise CLIError("--datasheet holds the exported numbers against the datasheet: give --export FORMAT too "
@@ -171,6 +185,95 @@ def cmd_fit(args) -> int:
                               m.recording.rate_hz)))
     if args.out:
         print(f"written {args.out}")
+    return 0
+
+
+def _windows(args, m, results: dict, inputs) -> dict | None:
+    """``check --windows``: each channel's final model's noise over time (:mod:`torchtea.fitting.windows`)."""
+    from ..fitting.windows import noise_over_time
+
+    if args.windows is None:
+        return None
+    out = {}
+    for a, r in results.items():
+        _note(f"{a}: fitting {r.model.spec}'s noise in windows of {args.windows:g} s")
+        out[a] = noise_over_time(r.model, m.channel(a).values, m.h, args.windows, fit=r.fit, inputs=inputs)
+    return out
+
+
+def _fit_together(args, model, paths: list) -> int:
+    """``torchtea fit A B … --together``: each channel's pooled fit over the recordings (:mod:`torchtea.fitting.together`)."""
+    from ..checking.replicates import together_allan_figure, together_lines
+    from ..fitting.together import REPLICATES_MEANING, fit_together
+    from ..render.plots import pyplot
+    from ..render.strictjson import dumps, write
+    from ..sensors.measurements import DOCUMENT_MEANING, RECORDING_MEANING
+
+    if not args.together:
+        raise CLIError(f"{len(paths)} recordings: fit them together with --together (one model, its noise "
+                       "parameters shared), or one at a time")
+    if len(paths) < 2:
+        raise CLIError("--together needs two or more recordings")
+    for flag in ("export", "datasheet", "workers", "connect"):
+        if getattr(args, flag, None):
+            raise CLIError(f"--{flag} is not available with --together")
+    if args.method != "exact":
+        raise CLIError("--together fits by the exact likelihood (--method exact)")
+    ms, inputs = [], []
+    for path in paths:
+        args.recording = path
+        m = _measurements(args, "a fit", min_samples=100)
+        ms.append(m)
+        inputs.append(_model_inputs(args, [model], m, note=len(ms) == 1))
+    first = ms[0]
+    for m in ms[1:]:
+        if abs(m.h - first.h) > 1e-9 * first.h:
+            raise CLIError(f"{m.recording.path}: {m.recording.rate_hz:g} Hz, {first.recording.path}: "
+                           f"{first.recording.rate_hz:g} Hz: recordings fitted together share their rate")
+        if m.labels != first.labels:
+            raise CLIError(f"{m.recording.path}: channels {', '.join(m.labels)}, {first.recording.path}: "
+                           f"{', '.join(first.labels)}: give the same --columns")
+    names = [Path(p).name for p in paths]
+    if len(set(names)) < len(names):
+        names = [str(p) for p in paths]
+    t0 = time.perf_counter()
+    axes, lines, figures = {}, [], []
+    step, close = _progress(len(first.labels), f"fit {model.spec} together", "channel", bar=not args.json)
+    step(0, len(first.labels))
+    try:
+        for k, label in enumerate(first.labels):
+            series = [m.channel(label).values for m in ms]
+            inp = None if inputs[0] is None else [{"temperature": i["temperature"]} for i in inputs]
+            tg = fit_together(model, series, first.h, inputs=inp, recordings=names)
+            axes[label] = {"unit": first.channel(label).unit, "replicates": tg.as_dict()}
+            lines += together_lines(label, first.channel(label).title, tg, first.channel(label).unit)
+            if args.out:
+                figures.append(together_allan_figure(pyplot(), tg, series, first.h, Path(args.out).parent,
+                                                     f"{Path(args.out).stem}_{label}", first.channel(label).unit,
+                                                     inp))
+            step(k + 1, len(first.labels))
+    finally:
+        close()
+    doc = {"model": model.spec, "method": "exact", "together": True,
+           "recordings": [m.describe() for m in ms], "axes": axes,
+           "meaning": {**RECORDING_MEANING, **DOCUMENT_MEANING, **REPLICATES_MEANING,
+                       "recordings": "each recording as read, in the order given (in replicates: their names)",
+                       "axes": "per channel: its unit and the recordings fitted together (replicates)"},
+           "seconds": time.perf_counter() - t0, "warnings": [line for m in ms for line in m.notes()],
+           "command": "torchtea " + " ".join(sys.argv[1:]) if sys.argv[1:] else ""}
+    if args.out:
+        write(Path(args.out), doc)
+    if args.json:
+        print(dumps(doc))
+        return 0
+    print(f"{len(ms)} recordings fitted together at {first.recording.rate_hz:g} Hz ({', '.join(names)}), "
+          f"model {model.spec}: noise parameters shared, each recording its own mean terms")
+    print("\n".join(lines))
+    print("p: likelihood-ratio test of one value in every recording against each its own (χ², recordings − 1 "
+          f"degrees of freedom), differs below the threshold (the family level {axes[first.labels[0]]['replicates']['level']:g} "
+          "over the parameters tested); units: " + "; ".join(f"{k}: {v}" for k, v in _units_of(first).items()))
+    if args.out:
+        print(f"written {args.out}" + (f"; figures: {', '.join(p.name for p in figures)}" if figures else ""))
     return 0
 
 
@@ -250,6 +353,7 @@ def cmd_plan(args) -> int:
 
 def cmd_check(args) -> int:
     from ..checking.channels import summary_lines
+    from ..checking.replicates import windows_lines
     from ..checking.report import write_report
     from ..render.strictjson import dumps
 
@@ -261,6 +365,11 @@ def cmd_check(args) -> int:
     if _sheets(args) and args.no_intervals:
         raise CLIError("--datasheet compares intervals: drop --no-intervals")
     inputs = None if args.temperature is None else {"temperature": m.temperature_input()}
+    if args.windows is not None:
+        n = int(round(args.windows * m.recording.rate_hz))
+        if n < 200 or 2 * n > m.samples:
+            raise CLIError(f"--windows {args.windows:g}: {n} samples a window; the record ({m.samples} samples) must "
+                           "hold two windows, each of at least 200 samples")
     t0 = time.perf_counter()
     results = _check_channels(args, m, inputs, auto=args.auto, intervals=not args.no_intervals)
     name = Path(m.recording.path).stem
@@ -275,8 +384,9 @@ def cmd_check(args) -> int:
         verdicts = {a.label: a.datasheet for a in axes if a.datasheet}
     else:
         verdicts = _datasheet_verdicts(args, m, fits, inputs)
-    doc = write_report(out, results, meta, plots=not args.no_plots, datasheet=verdicts)
-    _tensorboard(args, m, results)
+    windows = _windows(args, m, results, inputs)
+    doc = write_report(out, results, meta, plots=not args.no_plots, datasheet=verdicts, windows=windows)
+    _tensorboard(args, m, results, windows)
     if args.json:
         print(dumps(doc))
         return 0
@@ -285,6 +395,8 @@ def cmd_check(args) -> int:
 
         print("\n".join(export_lines(exported, axes, out / "export")))
     print("\n".join(summary_lines(results, {c.label: c.title for c in m.channels})))
+    for a, w in (windows or {}).items():
+        print(f"{a}: " + "\n".join(windows_lines(w)))
     _print_verdicts(verdicts)
     print(f"units: {'; '.join(f'{k}: {v}' for k, v in _units_of(m).items())}")
     print(f"report: {out / 'report.md'}; JSON: {out / 'check.json'}")

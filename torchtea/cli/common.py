@@ -247,11 +247,16 @@ def _stretch(text: str) -> tuple:
 
 
 def _recording_flags(parser, *, columns_help: str, temperature_help: str | None, samples_default: str,
-                     samples_help: str) -> None:
+                     samples_help: str, several: bool = False) -> None:
     """The flags that say how to read a recording, the same on ``identify``, ``fit`` and ``check``
-    (:func:`_measurements`)."""
-    parser.add_argument("recording", nargs="?", help="recording: a CSV, or a ROS bag (.bag, .db3, .mcap or a ROS 2 "
-                                                     "bag's folder) (default: the bundled MPU-6050 recording)")
+    (:func:`_measurements`); ``several``: the command takes one or more recordings (each read with the same flags)."""
+    what = ("a CSV, or a ROS bag (.bag, .db3, .mcap or a ROS 2 bag's folder) (default: the bundled MPU-6050 "
+            "recording)")
+    if several:
+        parser.add_argument("recording", nargs="*", metavar="RECORDING",
+                            help=f"recording(s): each {what}; several are fitted together with --together")
+    else:
+        parser.add_argument("recording", nargs="?", help=f"recording: {what}")
     parser.add_argument("--topic", help="ROS bag: its sensor_msgs/Imu topic (default: the bag's only one; the bag's "
                                         "topics are listed when it has several)")
     parser.add_argument("--columns", help=columns_help)
@@ -436,11 +441,11 @@ def _check_channels(args, m, inputs, *, auto: bool, intervals: bool) -> dict:
     return results
 
 
-def _tensorboard(args, m, results: dict) -> None:
+def _tensorboard(args, m, results: dict, windows: dict | None = None) -> None:
     """``--logdir``: the loop of each channel as a TensorBoard run (:func:`torchtea.checking.tblog.write_check_runs`)."""
     if getattr(args, "logdir", None):
         from ..checking.tblog import write_check_runs
 
         runs = write_check_runs(args.logdir, results, {c.label: c.unit for c in m.channels},
-                                figures=not args.no_plots)
+                                figures=not args.no_plots, windows=windows)
         _note(f"TensorBoard: {len(runs)} run(s) in {args.logdir} (tensorboard --logdir {args.logdir})")

@@ -110,6 +110,29 @@ def test_the_pooled_fit_without_sensitivity_gradients_reaches_the_same_maximum()
     assert ll >= -float(joint.neg_loglik(start[None])[0]) and math.isfinite(ll)
 
 
+def test_three_recordings_at_other_temperatures_share_one_reference():
+    """Three recordings, each with its own bias and temperature (offset first in the model, so a recording's own
+    coordinate comes before the shared ones): one temperature reference for all (the recordings' mean, weighted by
+    their samples), the mean terms each recording's own — its temperature coefficient found in each —, the noise
+    shared, the levels' spread reported."""
+    from torchtea.noise import temperature_profile
+
+    model = "offset+white+random-walk+temperature-bias"
+    ys, inputs = [], []
+    for k, (bias, shift) in enumerate([(0.02, 0.0), (-0.01, 3.0), (0.005, -2.0)]):
+        T = temperature_profile(4000, H, generator=torch.Generator().manual_seed(70 + k)).numpy() + shift
+        y = _series(4000, 80 + k) + bias + 0.01 * (T - 25.0)
+        ys.append(y)
+        inputs.append({"temperature": T})
+    tg = fit_together(model, ys, H, inputs=inputs)
+    refs = {v["temperature-bias.t_ref"] for v in tg.values}
+    assert len(refs) == 1 and refs.pop() == pytest.approx(np.mean([i["temperature"].mean() for i in inputs]))
+    assert {"temperature-bias.bias_per_degC", "offset.value"} <= set(tg.own)
+    assert tg.shared == ["white.r", "random-walk.sigma"] and [p["name"] for p in tg.parameters] == tg.shared
+    assert all(0.0 < v["temperature-bias.bias_per_degC"] < 0.02 for v in tg.values), tg.values
+    assert tg.bias is not None and len(tg.bias["levels"]) == 3 and tg.bias["ci95"][0] <= tg.bias["spread"]
+
+
 def test_the_levels_spread_is_found_within_its_interval():
     """Five recordings whose levels are 0.01 apart (a spread of 0.0158): each level recovered within four of its
     standard errors, the spread's interval holds the recordings' own spread; five recordings at one level: the
@@ -152,7 +175,11 @@ def test_fit_takes_several_recordings_together(tmp_path, capsys):
     assert "--together" in capsys.readouterr().err
     assert main(["fit", str(paths[0]), str(paths[1]), "--units", "rad/s", "--together", "--rate", "100",
                  "--samples", "50"]) == 2
-    capsys.readouterr()
+    assert "50 samples" in capsys.readouterr().err
+    two = write_columns(tmp_path / "two.csv", {"t": np.arange(3000) * H, "gyr_x": _series(3000, 41),
+                                               "gyr_y": _series(3000, 42)})
+    assert main(["fit", str(paths[0]), str(two), "--units", "rad/s", "--rate", "100", "--together"]) == 2
+    assert "need the same channels" in capsys.readouterr().err
     y = _series(3000, 40)
     other = write_columns(tmp_path / "fast.csv", {"t": np.arange(len(y)) * 0.005, "gyr_x": y})
     assert main(["fit", str(paths[0]), str(other), "--units", "rad/s", "--together", "--model", MODEL]) == 2
@@ -170,12 +197,12 @@ def test_a_white_level_that_doubles_is_found_where_it_changes():
     extra = np.random.default_rng(51).standard_normal(n) * math.sqrt(LAW["white.r"])
     ramp = 0.002 * np.arange(n) * H
     y = base + ramp
-    y[20_000:] += extra[20_000:]
+    y[19_500:] += extra[19_500:]  # (at 195 s: within a piece of the test, not on a boundary between pieces)
     d = noise_over_time(MODEL + "+ramp", y, H, 30.0)
     assert d["model"] == MODEL and d["length_s"] == 30.0 and len(d["rows"]) == 19
     assert {c["name"]: c["changes"] for c in d["constancy"]} == {"white.r": True, "random-walk.sigma": False}
     (change,) = d["changes"]
-    assert change["parameters"] == ["white.r"] and abs(change["at_s"] - 200.0) < 0.05 * n * H, change
+    assert change["parameters"] == ["white.r"] and abs(change["at_s"] - 195.0) < 3.0, change
     assert change["after"]["white.r"] / change["before"]["white.r"] == pytest.approx(2.0, rel=0.15)
     assert "within the record" in change["advice"]
     still = noise_over_time(MODEL + "+ramp", base + ramp, H, 30.0)

@@ -77,7 +77,7 @@ def windows_figure(plt, doc: dict, out: Path, tag: str, unit: str) -> Path:
 
 def dynamic_allan(y: np.ndarray, h: float, length_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The data's overlapping Allan deviation in windows of ``length_s`` seconds, half-overlapping: the windows'
-    middles (s), the averaging times τ (s) and the deviations ``(windows, τ)`` (NaN where a window misses samples)."""
+    middles (s), the averaging times τ (s) and the deviations ``(windows, τ)`` (a missing sample filled with the window's mean; NaN where half the window is missing)."""
     y = np.asarray(y, dtype=np.float64)
     n = int(round(length_s / h))
     m = allan.octave_clusters(n)
@@ -86,7 +86,11 @@ def dynamic_allan(y: np.ndarray, h: float, length_s: float) -> tuple[np.ndarray,
     for a in starts:
         w = y[a:a + n]
         mids.append((a + n / 2) * h)
-        rows.append(allan.data_adev(w, h, m) if np.isfinite(w).all() else np.full(len(m), np.nan))
+        ok = np.isfinite(w)
+        if ok.mean() < 0.5:  # (a window mostly missing: no deviation)
+            rows.append(np.full(len(m), np.nan))
+            continue
+        rows.append(allan.data_adev(np.where(ok, w, np.mean(w[ok])), h, m))
     return np.array(mids), m * h, np.array(rows)
 
 
@@ -125,8 +129,11 @@ def together_lines(label: str, title: str, tg, unit: str) -> list[str]:
     width = max(len(name) for name in tg.recordings)
     for p in tg.parameters:
         ci = "(at its bound: no interval)" if p["ci95"] is None else f"[{p['ci95'][0]:.4g}, {p['ci95'][1]:.4g}]"
+        if p["differs"]:
+            ci = "(pooled, but it differs)"
+        given = f" (tested with {', '.join(p['given'])} each recording's own)" if p.get("given") else ""
         lines.append(f"    {p['name']:22s} {p['value']:12.5g} {ci:27s} p {num(p['p_value'], '.3g')}"
-                     + ("  DIFFERS" if p["differs"] else ""))
+                     + ("  DIFFERS" if p["differs"] else "") + given)
         for name, v in zip(tg.recordings, p["values"]):
             vci = "(at its bound: no interval)" if v["ci95"] is None else f"[{v['ci95'][0]:.4g}, {v['ci95'][1]:.4g}]"
             lines.append(f"        {name:{width}s} {v['value']:12.5g} {vci}")
@@ -134,7 +141,9 @@ def together_lines(label: str, title: str, tg, unit: str) -> list[str]:
         b = tg.bias
         lines.append(f"    turn-on bias repeatability (1σ between recordings) {b['spread']:.4g} {unit}, 95 % "
                      f"[{b['ci95'][0]:.3g}, {b['ci95'][1]:.3g}]; levels "
-                     + ", ".join(f"{lv['level']:.5g} ± {lv['se']:.2g}" for lv in b["levels"]))
+                     + ", ".join(f"{lv['level']:.5g} ± {lv['se']:.2g}" for lv in b["levels"])
+                     + (" (an accelerometer's level holds gravity's projection: across mountings it is no "
+                        "repeatability)" if "accelerometer" in title else ""))
     for note in tg.notes:
         lines.append(f"    note: {note}")
     return lines

@@ -214,7 +214,7 @@ def _fit_together(args, model, paths: list) -> int:
                        "parameters shared), or one at a time")
     if len(paths) < 2:
         raise CLIError("--together needs two or more recordings")
-    for flag in ("export", "datasheet", "workers", "connect"):
+    for flag in ("export", "datasheet", "workers", "scheduler", "profile", "bootstrap"):
         if getattr(args, flag, None):
             raise CLIError(f"--{flag} is not available with --together")
     if args.method != "exact":
@@ -230,9 +230,9 @@ def _fit_together(args, model, paths: list) -> int:
         if abs(m.h - first.h) > 1e-9 * first.h:
             raise CLIError(f"{m.recording.path}: {m.recording.rate_hz:g} Hz, {first.recording.path}: "
                            f"{first.recording.rate_hz:g} Hz: recordings fitted together share their rate")
-        if m.labels != first.labels:
+        if set(m.labels) != set(first.labels):
             raise CLIError(f"{m.recording.path}: channels {', '.join(m.labels)}, {first.recording.path}: "
-                           f"{', '.join(first.labels)}: give the same --columns")
+                           f"{', '.join(first.labels)}: the recordings fitted together need the same channels")
     names = [Path(p).name for p in paths]
     if len(set(names)) < len(names):
         names = [str(p) for p in paths]

@@ -83,15 +83,17 @@ def regress_mean(model: NoiseModel, y, h: float, inputs: dict | None = None) -> 
         if comp.kind == "mean" and start is None:
             start = initial_values(model, torch.as_tensor(np.where(ok, y, np.nanmean(y))), h)
         vals.update(starts_of(comp).fit_residual(comp, label, resid, t, ok, h, start or {}, inputs))
-    _level(model, y, vals, t, ok)
+    _level(model, y, vals, t, ok, inputs)
     return vals, resid
 
 
-def _level(model: NoiseModel, y: np.ndarray, vals: dict, t: np.ndarray, ok: np.ndarray) -> None:
-    """The level (an ``offset``'s) in ``vals``, in place: the mean of what is left plus what was removed."""
+def _level(model: NoiseModel, y: np.ndarray, vals: dict, t: np.ndarray, ok: np.ndarray,
+           inputs: dict | None = None) -> None:
+    """The level (an ``offset``'s) in ``vals``, in place: the mean of what is left plus what was removed (the other
+    mean terms at their values, with the input channels they read)."""
     for label, comp in model.components:
         if isinstance(comp, MeanEffect) and comp.level:
-            m = model.mean({**{n: 0.0 for n in model.names}, **vals}, torch.as_tensor(t)).numpy()[0]
+            m = model.mean({**{n: 0.0 for n in model.names}, **vals}, torch.as_tensor(t), inputs).numpy()[0]
             vals[f"{label}.{comp.params[0].name}"] = float(np.mean((y - m)[ok]))
 
 
@@ -258,7 +260,7 @@ def whittle_fit(model, series: list, h: float, *, inputs: list | None = None, fi
         for s, kept in enumerate(modes):
             mean_list[s].update(zip(names, beta[flat.index(kept[0])].tolist()))
             _level(model, np.asarray(series[s], dtype=np.float64), mean_list[s], np.arange(len(series[s])) * h,
-                   ~np.isnan(np.asarray(series[s], dtype=np.float64)))
+                   ~np.isnan(np.asarray(series[s], dtype=np.float64)), None if inputs is None else inputs[s])
     P = U.shape[-1]
     H = dict(zip(flat, objective.hessian(U[flat], flat) if hessian else torch.zeros(len(flat), P, P,
                                                                                    dtype=torch.float64)))

@@ -30,6 +30,9 @@ from .mle import fit_series
 from .results import intervals_from_hessian
 from .scoring import INFORMATION_STEP, logit_limits, score
 
+#: Step (unconstrained coordinates) of the central differences where there is no sensitivity gradient.
+FD_STEP = 1e-4
+
 __all__ = ["Together", "fit_together", "bias_repeatability", "TOGETHER_LEVEL", "REPLICATES_MEANING"]
 
 #: The family level of the test that the recordings agree on every noise parameter.
@@ -177,29 +180,51 @@ class _Joint:
             X, f = [], []
             bounds = [(-b, b) if math.isfinite(b) else (None, None) for b in self.limits()]
             for x0 in X0:
-                res = optimize.minimize(lambda x: float(self.neg_loglik(x[None])[0]), x0, method="L-BFGS-B",
-                                        bounds=bounds, options={"maxiter": 500})
+                res = optimize.minimize(self._value_and_gradient, x0, jac=True, method="L-BFGS-B", bounds=bounds,
+                                        options={"maxiter": 500})
                 X.append(res.x)
                 f.append(res.fun)
             X, f = np.array(X), np.array(f)
         best = int(np.argmin(f))
         return X[best], -float(f[best])
 
-    def information(self, x: np.ndarray) -> np.ndarray:
-        """The observed information (Hessian of −ℓ) at ``x``: central differences of the exact gradients, or of the
-        likelihood where there are none."""
-        D, d = self.D, INFORMATION_STEP
-        E = np.eye(D) * d
+    def _value_and_gradient(self, x: np.ndarray) -> tuple[float, np.ndarray]:
+        """−ℓ at ``x`` and its gradient by central differences (one batch of 1 + 2D points)."""
+        E = np.eye(self.D) * FD_STEP
+        f = self.neg_loglik(np.concatenate([x[None], x + E, x - E]))
+        return float(f[0]), (f[1:self.D + 1] - f[self.D + 1:]) / (2 * FD_STEP)
+
+    def information(self, x: np.ndarray) -> np.ndarray | None:
+        """The observed information (Hessian of −ℓ) at ``x``: central differences of the exact gradients, or second
+        central differences of the likelihood where there are none; None where a point of them has no finite
+        likelihood."""
+        D = self.D
         if self.exact_gradient:
-            _, g, _ = self.vgi(np.concatenate([x + E, x - E]))
-            H = (g[:D] - g[D:]) / (2 * d)
+            E = np.eye(D) * INFORMATION_STEP
+            f, g, _ = self.vgi(np.concatenate([x + E, x - E]))
+            H = (g[:D] - g[D:]) / (2 * INFORMATION_STEP)
         else:
-            f0 = self.neg_loglik(x[None])[0]
-            pts = [x + E[i] + E[j] for i in range(D) for j in range(D)] + [x + E[i] for i in range(D)]
+            E = np.eye(D) * FD_STEP
+            pts = [x + s * E[i] + t * E[j] for i in range(D) for j in range(D) for s, t in
+                   ((1, 1), (1, -1), (-1, 1), (-1, -1))]
             f = self.neg_loglik(np.array(pts))
-            fij, fi = f[:D * D].reshape(D, D), f[D * D:]
-            H = (fij - fi[:, None] - fi[None, :] + f0) / (d * d)
+            q = f.reshape(D, D, 4)
+            H = (q[..., 0] - q[..., 1] - q[..., 2] + q[..., 3]) / (4 * FD_STEP * FD_STEP)
+        if not np.all(f < 1e299):
+            return None
         return 0.5 * (H + H.T)
+
+
+def _common_references(model, separate: list, h: float) -> list:
+    """Each recording's unconstrained values from its own fit, with every reference (a temperature's ``t_ref``) at one
+    value for all — the recordings' values weighted by their samples —: a temperature-driven order's α₀ is then the
+    order at one temperature in every recording, and each recording's level the bias there."""
+    refs = [n for n in model.names if n in model.references()]
+    if not refs:
+        return [f.u.detach().clone() for f in separate]
+    weights = np.array([f.n for f in separate], dtype=np.float64)
+    common = {n: float(np.average([f.values[n] for f in separate], weights=weights)) for n in refs}
+    return [model.to_unconstrained({n: [common.get(n, x)] for n, x in f.values.items()}, h)[0] for f in separate]
 
 
 def _with(u: torch.Tensor, source: torch.Tensor, idx) -> torch.Tensor:
@@ -214,7 +239,8 @@ def _values(model, U: torch.Tensor, h: float) -> dict:
 
 
 def fit_together(model, series: list, h: float, *, inputs: list | None = None, recordings: list | None = None,
-                 level: float = TOGETHER_LEVEL, separate: list | None = None, progress=None) -> Together:
+                 level: float = TOGETHER_LEVEL, separate: list | None = None, repeatability: bool = True,
+                 progress=None) -> Together:
     """Fit ``model`` to several recordings (``series``: 1-D arrays of one channel, NaN = missing; ``inputs`` one dict
     or None per recording) with its noise parameters shared and its mean parameters each recording's own; then test,
     per noise parameter, whether the recordings agree on it, and (three or more) their bias's spread.
@@ -236,7 +262,7 @@ def fit_together(model, series: list, h: float, *, inputs: list | None = None, r
     free = [i for i, n in enumerate(model.names) if n in separate[0].free and n not in model.located()]
     shared = [i for i in free if kinds[model.names[i]] != "mean"]
     own = [i for i in free if kinds[model.names[i]] == "mean"]
-    bases = [f.u.detach().clone() for f in separate]
+    bases = _common_references(model, separate, h)
     joint = _Joint.split(model, ys, h, inputs, bases, shared, own)
     say(f"fitting the {R} recordings together")
     # from each recording's own noise values and from their average, each recording's own mean terms beside them
@@ -261,7 +287,7 @@ def fit_together(model, series: list, h: float, *, inputs: list | None = None, r
             notes.append(f"{', '.join(differing)} differ together: a component's parameters trade off against each "
                          f"other (the fractional order, pole and drive along a ridge), so each one freed alone takes "
                          f"up the same difference — read it as {label} differing between the recordings")
-    bias = bias_repeatability(model, series, values, h, inputs, names) if R >= 3 else None
+    bias = bias_repeatability(model, series, values, h, inputs, names) if R >= 3 and repeatability else None
     return Together(model, names, [model.names[i] for i in shared], [model.names[i] for i in own], values, ll, se,
                     ci, separate, tests, level, threshold, bias, notes, (joint, x))
 
@@ -275,10 +301,12 @@ def _shared_intervals(model, joint: _Joint, x: np.ndarray, h: float) -> tuple[di
     u = joint.unpack(x, 0)[0]
     P = len(model.names)
     Hfull = torch.zeros(P, P, dtype=torch.float64)
-    try:
+    try:  # (the information must be positive definite as a whole, the recordings' own coordinates too)
+        if H is None or not np.all(np.linalg.eigvalsh(H) > 0):
+            raise np.linalg.LinAlgError
         Hs = np.linalg.inv(np.linalg.inv(H)[np.ix_(pos, pos)])
     except np.linalg.LinAlgError:
-        Hs = np.full((len(pos), len(pos)), np.nan)
+        Hs = np.full((len(pos), len(pos)), -1.0)  # (not positive definite: no interval)
     idx = torch.tensor(shared, dtype=torch.int64)
     Hfull[idx[:, None], idx[None, :]] = torch.as_tensor(Hs)
     mask = torch.zeros(P, dtype=torch.bool)
@@ -327,7 +355,7 @@ def _parameter_tests(model, joint: _Joint, x: np.ndarray, ll: float, shared: lis
             new, x2, ll2 = regrouped(current, cx, i, np.arange(R), [own])
             lr = max(0.0, 2.0 * (ll2 - cll))
             trial[i] = (float(stats.chi2.sf(lr, df)), lr, new, x2, ll2)
-        best = min(remaining, key=lambda i: trial[i][0])
+        best = max(remaining, key=lambda i: trial[i][1])  # (one df for all: the largest ratio, even where p underflows)
         if trial[best][0] >= threshold:
             for i in remaining:
                 found[i] = (trial[i][0], trial[i][1], list(freed), False)
@@ -365,6 +393,8 @@ def _level(model, y: np.ndarray, values: dict, h: float, inputs: dict | None) ->
     ok = np.isfinite(w).all(0)
     wy, w1 = w[0, ok], w[1, ok]
     info = float(w1 @ w1)
+    if not info > 0:
+        raise ValueError("the recording's level cannot be estimated: no observed sample its filter whitens")
     return float(wy @ w1) / info, 1.0 / math.sqrt(info)
 
 
@@ -379,12 +409,13 @@ def bias_repeatability(model, series: list, values: list, h: float, inputs: list
     names = list(recordings) if recordings is not None else [f"recording {r + 1}" for r in range(R)]
     levels = [_level(model, y, v, h, inp) for y, v, inp in zip(series, values, inputs)]
     b = np.array([lv for lv, _ in levels])
-    s2 = np.array([se * se for _, se in levels])
+    s2 = np.maximum(np.array([se * se for _, se in levels]), 1e-300)
 
     def reml(sig2: float) -> float:
         w = 1.0 / (sig2 + s2)
         mu = float(np.sum(w * b) / np.sum(w))
-        return float(-0.5 * (np.sum(np.log(sig2 + s2)) + math.log(np.sum(w)) + np.sum(w * (b - mu) ** 2)))
+        out = float(-0.5 * (np.sum(np.log(sig2 + s2)) + math.log(np.sum(w)) + np.sum(w * (b - mu) ** 2)))
+        return out if math.isfinite(out) else -math.inf
 
     spread = float(np.var(b, ddof=1)) + float(s2.max())
     hi = max(spread * 100.0, 1e-300)

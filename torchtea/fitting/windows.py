@@ -3,13 +3,16 @@ and where one changes (:func:`noise_over_time`).
 
 The record's fitted mean (its level, ramp, lines, temperature terms) is removed first; the model's noise part is then
 fitted in windows of the given length, half-overlapping (the rows a picture draws, each with its 95 % interval). The
-test uses every other window — windows that do not overlap — as recordings of one sensor fitted together
-(:func:`~.together.fit_together`: noise parameters shared, each window its own level): per noise parameter the
-likelihood ratio of its own value in each window against one value in all, χ² with W − 1 degrees of freedom, at the
-family level over the parameters (Bonferroni). Where a parameter is not constant, the change is located: the pooled
-likelihood with the parameter one value before a window boundary and another after, the boundary that maximises it,
-then refined within the windows either side on the record itself (the two values held, the split moved in steps of a
-tenth of a window). A change near an end names the stretch to leave out."""
+test cuts the whole record into W pieces of at least that length that do not overlap and fits them as recordings of
+one sensor together (:func:`~.together.fit_together`: noise parameters shared, each piece its own level): per noise
+parameter the likelihood ratio of its own value in each piece against one value in all, χ² with W − 1 degrees of
+freedom, at the family level over the parameters (Bonferroni). The pieces are taken as independent, each with its own
+level: exact for white noise and a random walk, a composite likelihood where the noise has a longer memory (a
+fractional part, a slow Gauss–Markov bias), whose χ² is then approximate. Where a parameter is not constant, the
+change is located: the pooled likelihood with the parameter one value before a boundary between pieces and another
+after, the boundary that maximises it, then refined within the pieces either side on the record itself (the two values
+held, the split moved in 40 steps over the two pieces, each side its own level). A change near an end names the
+stretch to leave out."""
 from __future__ import annotations
 
 import numpy as np
@@ -31,9 +34,9 @@ WINDOWS_MEANING = {
                "windows of length_s seconds, half-overlapping; a test that each is constant; where one changes",
     "length_s": "the windows' length (s); they start every length_s / 2",
     "rows": "per window: from_s, to_s, each noise parameter's value and 95 % interval (ci95)",
-    "constancy": "per noise parameter, over the windows that do not overlap: the likelihood-ratio statistic of its own "
-                 "value in each window against one in all, its degrees of freedom, p_value and whether it changes "
-                 "(p below the family level over the parameters)",
+    "constancy": "per noise parameter, over the whole record cut into pieces of at least a window's length that do "
+                 "not overlap: the likelihood-ratio statistic of its own value in each piece against one in all, its "
+                 "degrees of freedom, p_value and whether it changes (p below the family level over the parameters)",
     "changes": "where a parameter changes: at_s (the split that maximises the likelihood with the parameter one value "
                "before and another after), the parameters, the constancy test's p_value, the values before and after, "
                "and what to do (the stretch to leave out where it is near an end)",
@@ -45,10 +48,6 @@ def noise_part(model):
     model = parse_model(model)
     kept = [c for _, c in model.components if c.kind in ("state", "measurement", "filter")]
     return assemble(kept)
-
-
-def _window_inputs(inputs, a: int, b: int):
-    return None if inputs is None else {k: np.asarray(v)[a:b] for k, v in inputs.items()}
 
 
 def noise_over_time(model, y, h: float, length_s: float, *, fit: Fit | None = None, inputs: dict | None = None,
@@ -82,11 +81,13 @@ def noise_over_time(model, y, h: float, length_s: float, *, fit: Fit | None = No
     names = [nm for nm in noise.names if nm in fits[0].free]
     rows = [{"from_s": a * h, "to_s": (a + n) * h, "parameters": {nm: f.values[nm] for nm in names},
              "ci95": {nm: f.ci95.get(nm) for nm in names}} for a, f in zip(starts, fits)]
-    apart = list(range(0, len(starts), 2))  # windows that do not overlap
-    say(f"testing the noise parameters' constancy over {len(apart)} windows")
-    tg = fit_together(noise, [residual[starts[k]:starts[k] + n] for k in apart], h,
-                      separate=[fits[k] for k in apart], level=level,
-                      recordings=[f"{starts[k] * h:g}–{(starts[k] + n) * h:g} s" for k in apart])
+    W = N // n  # the pieces of the test: the whole record, none shorter than a window
+    cuts = [round(k * N / W) for k in range(W + 1)]
+    pieces = [(cuts[k], cuts[k + 1]) for k in range(W)]
+    say(f"testing the noise parameters' constancy over {W} pieces of the record")
+    own = [fit_series(noise, [residual[a:b]], h, intervals=False)[0] for a, b in pieces]
+    tg = fit_together(noise, [residual[a:b] for a, b in pieces], h, separate=own, level=level, repeatability=False,
+                      recordings=[f"{a * h:g}–{b * h:g} s" for a, b in pieces])
     constancy = [{"name": p["name"], "statistic": p["statistic"], "df": p["df"], "p_value": p["p_value"],
                   "changes": p["differs"]} for p in tg.parameters]
     changes = []
@@ -95,17 +96,18 @@ def noise_over_time(model, y, h: float, length_s: float, *, fit: Fit | None = No
         joint, x = tg.pooled
         for p in changing:
             say(f"locating the change of {p['name']}")
-            changes.append(_locate(noise, joint, x, tg, p, residual, starts, apart, n, h, N))
+            changes.append(_locate(noise, joint, x, tg, p, residual, pieces, h))
         changes = _merge(changes, n * h)
     return {"length_s": n * h, "rows": rows, "constancy": constancy, "changes": changes,
             "threshold": tg.threshold, "level": level, "model": noise.spec, "notes": notes}
 
 
-def _locate(noise, joint, x, tg, p: dict, residual, starts, apart, n, h, N) -> dict:
-    """The change of parameter ``p``: the window boundary that maximises the pooled likelihood with the parameter
-    one value before and another after, refined on the record between the windows either side."""
+def _locate(noise, joint, x, tg, p: dict, residual, pieces: list, h: float) -> dict:
+    """The change of parameter ``p``: the boundary between pieces that maximises the pooled likelihood with the
+    parameter one value before and another after, refined on the record over the pieces either side."""
     i = noise.names.index(p["name"])
-    W = len(apart)
+    W = len(pieces)
+    N = pieces[-1][1]
     own = [f.u.detach().clone() for f in tg.separate]
     best = None
     for k in range(1, W):
@@ -115,8 +117,7 @@ def _locate(noise, joint, x, tg, p: dict, residual, starts, apart, n, h, N) -> d
             best = (ll2, k, new, x2)
     _, k, new, x2 = best
     before, after = _values(noise, new.unpack(x2, 0), h), _values(noise, new.unpack(x2, W - 1), h)
-    coarse = starts[apart[k]]
-    span = (max(0, coarse - n), min(N, coarse + n))  # the windows either side of the boundary
+    span = (pieces[k - 1][0], pieces[k][1])  # the pieces either side of the boundary
     grid = np.unique(np.linspace(span[0] + 20, span[1] - 20, 41).astype(int))
     y = np.asarray(residual)
     lls = []
@@ -127,12 +128,12 @@ def _locate(noise, joint, x, tg, p: dict, residual, starts, apart, n, h, N) -> d
     at = int(grid[int(np.argmax(lls))])
     at_s, T = at * h, N * h
     if at_s < EDGE_SHARE * T:
-        advice = f"the first {at_s:.4g} s differ: leave them out (--exclude 0:{at_s:.4g})"
+        advice = f"the first {at_s:.1f} s differ: leave them out (--exclude 0:{at_s:.1f})"
     elif at_s > (1 - EDGE_SHARE) * T:
-        advice = f"the last {T - at_s:.4g} s differ: leave them out (--exclude {at_s:.4g}:{T:.4g})"
+        advice = f"the last {T - at_s:.1f} s differ: leave them out (--exclude {at_s:.1f}:{T:.1f})"
     else:
-        advice = (f"the noise changes at {at_s:.4g} s, within the record: check the two parts apart "
-                  f"(--exclude 0:{at_s:.4g}, --exclude {at_s:.4g}:{T:.4g})")
+        advice = (f"the noise changes at {at_s:.1f} s, within the record: check the two parts apart "
+                  f"(--exclude 0:{at_s:.1f}, --exclude {at_s:.1f}:{T:.1f})")
     return {"at_s": at_s, "parameters": [p["name"]], "p_value": p["p_value"],
             "before": {p["name"]: before[p["name"]]}, "after": {p["name"]: after[p["name"]]}, "advice": advice}
 

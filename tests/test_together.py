@@ -186,6 +186,7 @@ def test_fit_takes_several_recordings_together(tmp_path, capsys):
     assert "share their rate" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_a_white_level_that_doubles_is_found_where_it_changes():
     """A record whose white variance doubles at 2/3 of it (a ramp on top): the white level's constancy test rejects,
     the change is located within 5 % of the record of the truth, the random walk is not blamed; a record of one law

@@ -9,10 +9,11 @@ from pathlib import Path
 
 import numpy as np
 
+from ..render.plots import save_figure
 from ..render.text import num
 from . import allan
 
-__all__ = ["windows_lines", "windows_figure", "dynamic_allan", "dynamic_allan_figure", "together_lines",
+__all__ = ["windows_lines", "windows_figure", "check_residual", "dynamic_allan", "dynamic_allan_figure", "together_lines",
            "together_allan_figure"]
 
 
@@ -68,11 +69,14 @@ def windows_figure(plt, doc: dict, out: Path, tag: str, unit: str) -> Path:
         ax.legend(fontsize=7, loc="best")
     axes[-1, 0].set_xlabel("time (s), window middle")
     fig.suptitle(f"{tag}: noise parameters over time ({unit})", fontsize=10)
-    fig.tight_layout()
-    path = Path(out) / f"windows_{tag}.png"
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return save_figure(plt, fig, Path(out) / f"windows_{tag}.png")
+
+
+def check_residual(res) -> np.ndarray:
+    """What a check's model leaves of its series (its fitted mean removed), NaN where a sample is missing: the series
+    the dynamic Allan deviation reads."""
+    inn = res.innovations
+    return np.where(inn.observed, inn.y - inn.mean, np.nan)
 
 
 def dynamic_allan(y: np.ndarray, h: float, length_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -114,11 +118,7 @@ def dynamic_allan_figure(plt, y: np.ndarray, h: float, length_s: float, out: Pat
     ax2.set_ylabel("log10 τ (s)")
     ax2.set_xlabel("time (s), window middle")
     ax2.set_title("each τ against its median over the record: where the noise moves", fontsize=9)
-    fig.tight_layout()
-    path = Path(out) / f"dadev_{tag}.png"
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return save_figure(plt, fig, Path(out) / f"dadev_{tag}.png")
 
 
 def together_lines(label: str, title: str, tg, unit: str) -> list[str]:
@@ -173,8 +173,4 @@ def together_allan_figure(plt, tg, series: list, h: float, out: Path, tag: str, 
     ax.set_title(f"{tag}: {tg.verdict}", fontsize=10)
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=8)
-    fig.tight_layout()
-    path = Path(out) / f"allan_{tag}.png"
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return save_figure(plt, fig, Path(out) / f"allan_{tag}.png")

@@ -403,10 +403,9 @@ def _windows_lines(r: CheckResult, a: str, w: dict, unit: str, out: Path, plots:
     lines = [f"### {a}: the noise over time", ""] + replicates.windows_lines(w, markdown=True) + [""]
     if plots:
         plt = pyplot()
-        y = r.innovations.y - r.innovations.mean
         for p in (replicates.windows_figure(plt, w, out, a, unit),
-                  replicates.dynamic_allan_figure(plt, np.where(r.innovations.observed, y, np.nan), r.h, w["length_s"],
-                                                out, a, unit)):
+                  replicates.dynamic_allan_figure(plt, replicates.check_residual(r), r.h, w["length_s"], out, a,
+                                                  unit)):
             lines.append(f"![{p.stem}]({p.name})")
         lines.append("")
     return lines

@@ -67,7 +67,7 @@ def write_check_runs(logdir, results: dict, units: dict | None = None, figures: 
 
 def _add_windows(w, res, label: str, doc: dict, unit: str, figures: bool) -> None:
     """The noise over time: each parameter per window (step: the window's middle, s) and its figures."""
-    from .replicates import dynamic_allan_figure, windows_figure, windows_lines
+    from .replicates import check_residual, dynamic_allan_figure, windows_figure, windows_lines
 
     for row in doc["rows"]:
         for name, v in row["parameters"].items():
@@ -77,10 +77,9 @@ def _add_windows(w, res, label: str, doc: dict, unit: str, figures: bool) -> Non
         from ..render.plots import pyplot
 
         plt = pyplot()
-        y = np.where(res.innovations.observed, res.innovations.y - res.innovations.mean, np.nan)
         with tempfile.TemporaryDirectory() as tmp:
             for p in (windows_figure(plt, doc, Path(tmp), label, unit),
-                      dynamic_allan_figure(plt, y, res.h, doc["length_s"], Path(tmp), label, unit)):
+                      dynamic_allan_figure(plt, check_residual(res), res.h, doc["length_s"], Path(tmp), label, unit)):
                 _add_image(w, p, f"windows/{p.stem.split('_')[0]}", 0)
 
 

@@ -243,7 +243,7 @@ def _fit_together(args, model, paths: list) -> int:
     try:
         for k, label in enumerate(first.labels):
             series = [m.channel(label).values for m in ms]
-            inp = None if inputs[0] is None else [{"temperature": i["temperature"]} for i in inputs]
+            inp = None if inputs[0] is None else inputs
             tg = fit_together(model, series, first.h, inputs=inp, recordings=names)
             axes[label] = {"unit": first.channel(label).unit, "replicates": tg.as_dict()}
             lines += together_lines(label, first.channel(label).title, tg, first.channel(label).unit)
@@ -365,11 +365,13 @@ def cmd_check(args) -> int:
     if _sheets(args) and args.no_intervals:
         raise CLIError("--datasheet compares intervals: drop --no-intervals")
     inputs = None if args.temperature is None else {"temperature": m.temperature_input()}
-    if args.windows is not None:
-        n = int(round(args.windows * m.recording.rate_hz))
-        if n < 200 or 2 * n > m.samples:
-            raise CLIError(f"--windows {args.windows:g}: {n} samples a window; the record ({m.samples} samples) must "
-                           "hold two windows, each of at least 200 samples")
+    if args.windows is not None:  # (refused before any work)
+        from ..fitting.windows import window_samples
+
+        try:
+            window_samples(args.windows, m.h, m.samples)
+        except ValueError as exc:
+            raise CLIError(f"--windows: {exc}") from None
     t0 = time.perf_counter()
     results = _check_channels(args, m, inputs, auto=args.auto, intervals=not args.no_intervals)
     name = Path(m.recording.path).stem

@@ -25,13 +25,10 @@ from scipy import optimize, stats
 
 from ..noise.components import MeanEffect
 from ..noise.model import NoiseModel, parse_model
-from .exact import centred, exact_loglik, exact_loglik_grad, gradient_supported
+from .exact import FIT_MEMORY, centred, gradient_supported
 from .mle import fit_series
 from .results import intervals_from_hessian
-from .scoring import INFORMATION_STEP, logit_limits, score
-
-#: Step (unconstrained coordinates) of the central differences where there is no sensitivity gradient.
-FD_STEP = 1e-4
+from .scoring import FD_STEP, INFORMATION_STEP, fd_hessian, logit_limits, objective, score, scoring_objective
 
 __all__ = ["Together", "fit_together", "bias_repeatability", "TOGETHER_LEVEL", "REPLICATES_MEANING"]
 
@@ -119,6 +116,11 @@ class _Joint:
             k += int(self.groups[i].max()) + 1 if len(self.groups[i]) else 1
         self.D = k
         self.exact_gradient = all(gradient_supported(model, y) is None for y in ys)
+        # each recording's exact −ℓ (and gradient, information) over its free coordinates, the others at its base
+        idx = np.array(self.free, dtype=np.int64)
+        self._values = [objective(model, y, h, b.clone(), idx, inp, FIT_MEMORY) for y, b, inp in zip(ys, bases, inputs)]
+        self._vgi = ([scoring_objective(model, y, h, b.clone(), idx, inp, FIT_MEMORY)
+                      for y, b, inp in zip(ys, bases, inputs)] if self.exact_gradient else None)
 
     @classmethod
     def split(cls, model, ys, h, inputs, bases, shared, own):
@@ -146,26 +148,24 @@ class _Joint:
         return x
 
     def neg_loglik(self, points: np.ndarray) -> np.ndarray:
-        f = np.zeros(len(np.atleast_2d(points)))
-        for r, y in enumerate(self.ys):
-            U = self.unpack(points, r)
-            f -= exact_loglik(self.model, self.model.from_unconstrained(U, self.h), y, self.h, inputs=self.inputs[r])
-        return np.where(np.isfinite(f), f, 1e300)
+        """The pooled −ℓ ``(K,)`` at K joint points; 1e300 where a recording's ℓ is not finite."""
+        points = np.atleast_2d(points)
+        f = sum(values(points[:, self.columns(r)]) for r, values in enumerate(self._values))
+        return np.minimum(f, 1e300)
 
     def vgi(self, points: np.ndarray):
-        """−ℓ ``(K,)``, its gradient ``(K, D)`` and the scoring information ``(K, D, D)`` (sums of the recordings')."""
+        """−ℓ ``(K,)``, its gradient ``(K, D)`` and the scoring information ``(K, D, D)`` (sums of the recordings';
+        1e300, zero gradient and information where a recording's ℓ is not finite)."""
         K = len(points)
         f, g, info = np.zeros(K), np.zeros((K, self.D)), np.zeros((K, self.D, self.D))
-        for r, y in enumerate(self.ys):
-            ll, gr, inf = exact_loglik_grad(self.model, self.unpack(points, r), y, self.h, self.free,
-                                            inputs=self.inputs[r])
+        for r, vgi in enumerate(self._vgi):
             c = self.columns(r)
-            f -= ll
-            g[:, c] -= gr
-            info[:, c[:, None], c[None, :]] += inf
-        bad = ~(np.isfinite(f) & np.isfinite(g).all(-1) & np.isfinite(info).all((-1, -2)))
-        return (np.where(bad, 1e300, f), np.where(bad[:, None], 0.0, g),
-                np.where(bad[:, None, None], 0.0, info))
+            fr, gr, ir = vgi(points[:, c])
+            f += fr
+            g[:, c] += gr
+            info[:, c[:, None], c[None, :]] += ir
+        bad = f >= 1e299
+        return (np.where(bad, 1e300, f), np.where(bad[:, None], 0.0, g), np.where(bad[:, None, None], 0.0, info))
 
     def limits(self) -> np.ndarray:
         owner = [i for i in self.free for _ in range(int(self.groups[i].max()) + 1)]
@@ -199,18 +199,19 @@ class _Joint:
         central differences of the likelihood where there are none; None where a point of them has no finite
         likelihood."""
         D = self.D
+        values = []  # (every −ℓ the differences took, to refuse a point without a finite one)
         if self.exact_gradient:
             E = np.eye(D) * INFORMATION_STEP
             f, g, _ = self.vgi(np.concatenate([x + E, x - E]))
+            values.append(f)
             H = (g[:D] - g[D:]) / (2 * INFORMATION_STEP)
         else:
-            E = np.eye(D) * FD_STEP
-            pts = [x + s * E[i] + t * E[j] for i in range(D) for j in range(D) for s, t in
-                   ((1, 1), (1, -1), (-1, 1), (-1, -1))]
-            f = self.neg_loglik(np.array(pts))
-            q = f.reshape(D, D, 4)
-            H = (q[..., 0] - q[..., 1] - q[..., 2] + q[..., 3]) / (4 * FD_STEP * FD_STEP)
-        if not np.all(f < 1e299):
+            def batch(points):
+                values.append(self.neg_loglik(points))
+                return values[-1]
+
+            H = fd_hessian(batch, x)
+        if not all(np.all(f < 1e299) for f in values):
             return None
         return 0.5 * (H + H.T)
 

@@ -18,12 +18,13 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+from ..noise.components import STOCHASTIC_KINDS
 from ..noise.model import assemble, parse_model
 from .exact import centred, exact_loglik
 from .mle import Fit, fit_series
 from .together import TOGETHER_LEVEL, _values, fit_together, regrouped
 
-__all__ = ["noise_over_time", "noise_part", "WINDOWS_MEANING", "EDGE_SHARE"]
+__all__ = ["noise_over_time", "noise_part", "window_samples", "WINDOWS_MEANING", "EDGE_SHARE"]
 
 #: A change within this share of the record from either end is a stretch at that end to leave out.
 EDGE_SHARE = 0.25
@@ -46,8 +47,18 @@ WINDOWS_MEANING = {
 def noise_part(model):
     """The model's noise: its state, measurement and filter components (its means and modifiers left out)."""
     model = parse_model(model)
-    kept = [c for _, c in model.components if c.kind in ("state", "measurement", "filter")]
+    kept = [c for _, c in model.components if c.kind in STOCHASTIC_KINDS]
     return assemble(kept)
+
+
+def window_samples(length_s: float, h: float, n_samples: int) -> int:
+    """The samples of a window of ``length_s`` seconds; ``ValueError`` where a record of ``n_samples`` cannot hold two
+    of them, or a window is under 200 samples."""
+    n = int(round(length_s / h))
+    if n < 200 or 2 * n > n_samples:
+        raise ValueError(f"windows of {length_s:g} s are {n} samples: the record ({n_samples} samples) must hold two "
+                         "windows, each of at least 200 samples")
+    return n
 
 
 def noise_over_time(model, y, h: float, length_s: float, *, fit: Fit | None = None, inputs: dict | None = None,
@@ -59,11 +70,7 @@ def noise_over_time(model, y, h: float, length_s: float, *, fit: Fit | None = No
     say = progress or (lambda line: None)
     y = np.asarray(y, dtype=np.float64)
     N = len(y)
-    n = int(round(length_s / h))
-    if n < 200:
-        raise ValueError(f"windows of {length_s:g} s are {n} samples: at least 200 are needed")
-    if 2 * n > N:
-        raise ValueError(f"windows of {length_s:g} s: the record ({N * h:g} s) holds fewer than two")
+    n = window_samples(length_s, h, N)
     if fit is None:
         fit = fit_series(model, [y], h, inputs=None if inputs is None else [inputs], intervals=False)[0]
     t = torch.arange(N, dtype=torch.float64) * h

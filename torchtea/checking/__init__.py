@@ -8,7 +8,8 @@ it is missing (:func:`check`). The modules read in the loop's order, each using 
 3. the ranking of what passed (:mod:`.ranking`) and the refits that confirm it (:mod:`.refits`);
 4. what a step found, as data (:mod:`.results`);
 5. the loop's moves — taking away and swapping (:mod:`.simplify`) — and its policy (:mod:`.loop`);
-6. one step of it, the entry point (:mod:`.check`: :func:`check`, :class:`CheckResult` with its verbs);
+6. one step of it, the entry point (:mod:`.check`: :func:`check`, :class:`CheckResult` with its verbs), and the loop
+   on several recordings of one sensor, by their pooled likelihood (:mod:`.pooled`);
 7. the outputs: several recordings and a record's windows side by side (:mod:`.replicates`), the report
    (:mod:`.report`), TensorBoard (:mod:`.tblog`), and a recording's channels checked one by one or on a cluster
    (:mod:`.channels`).

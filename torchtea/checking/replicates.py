@@ -14,7 +14,7 @@ from ..render.text import num
 from . import allan
 
 __all__ = ["windows_lines", "windows_figure", "check_residual", "dynamic_allan", "dynamic_allan_figure", "together_lines",
-           "together_allan_figure"]
+           "together_allan_figure", "pooled_lines"]
 
 
 def windows_lines(doc: dict, markdown: bool = False) -> list[str]:
@@ -174,3 +174,30 @@ def together_allan_figure(plt, tg, series: list, h: float, out: Path, tag: str, 
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=8)
     return save_figure(plt, fig, Path(out) / f"allan_{tag}.png")
+
+
+def pooled_lines(label: str, title: str, pc, unit: str, markdown: bool = False) -> list[str]:
+    """The text of one channel's loop on several recordings (:func:`~.pooled.check_together`): its path — each step's
+    model, change and pooled BIC, the candidates and what each recording fails —, why it ended, then the final
+    model's fit together (:func:`together_lines`)."""
+    bullet = "- " if markdown else "    "
+    lines = [f"{label} ({title}): {pc.model.spec} — " + ("adequate in every recording" if pc.adequate else
+                                                         "not adequate")]
+    for k, s in enumerate(pc.steps):
+        d = s.as_dict()
+        gain = "" if d["gain"] is None else f", gain {d['gain']:.1f}"
+        fails = "; ".join(f"{n} fails {', '.join(f)}" for n, f in d["failing"].items() if f) or "adequate in each"
+        lines.append(f"{bullet}step {k}: {d['model']} ({d['change']}{gain}); pooled BIC {d['bic']:.1f}, k {d['k']}; "
+                     f"{fails}")
+        if d["candidates"]:
+            lines.append(f"{bullet}    candidates: " + ", ".join(
+                f"{c['effect']} {c['gain']:+.1f} (screen passed in {', '.join(c['suggested_by'])})"
+                for c in d["candidates"]))
+        for f in d["faults"]:
+            lines.append(f"{bullet}    {f['recording']} alone: {f['effect']} (gain {f['gain']:.1f} there): located in "
+                         "that recording — its fault, not the sensor's")
+    lines.append(f"{bullet}loop: {pc.loop_end}")
+    tg = together_lines(label, title, pc.together, unit)
+    lines.append(f"{bullet}verdict: {tg[0].split(': ', 1)[1]}")
+    lines += [f"{bullet}{line.strip()}" for line in tg[1:]] if markdown else tg[1:]
+    return lines

@@ -98,7 +98,12 @@ def _add_check(sub) -> None:
                                       "axis the file names, both sensors side by side)",
                      temperature_help="temperature column (°C): enables the temperature diagnostic and the "
                                       "temperature effects (a torchtea recording: temp)", samples_default="all",
-                     samples_help="use the first N samples (default all)")
+                     samples_help="use the first N samples (default all)", several=True)
+    ck.add_argument("--together", action="store_true",
+                    help="several recordings of one sensor: per channel one model for all (noise parameters shared, "
+                         "each recording its own mean terms), every recording checked with it and the effects that "
+                         "pass a screen refitted to all together; with --auto the loop adds and takes away by the "
+                         "pooled BIC; then the recordings tested parameter by parameter against the final model")
     ck.add_argument("--model", default="fractional+white", help="noise model SPEC (default fractional+white)")
     ck.add_argument("--add", action="append", default=[], metavar="EFFECT",
                     help="add an effect and check again, before/after (repeatable)")
@@ -201,28 +206,18 @@ def _windows(args, m, results: dict, inputs) -> dict | None:
     return out
 
 
-def _fit_together(args, model, paths: list) -> int:
-    """``torchtea fit A B … --together``: each channel's pooled fit over the recordings (:mod:`torchtea.fitting.together`)."""
-    from ..checking.replicates import together_allan_figure, together_lines
-    from ..fitting.together import REPLICATES_MEANING, fit_together
-    from ..render.plots import pyplot
-    from ..render.strictjson import dumps, write
-    from ..sensors.measurements import DOCUMENT_MEANING, RECORDING_MEANING
+#: Why ``--exclude`` is refused with ``--together``.
+_EXCLUDE_WORDS = (" (it would leave the same seconds out of every recording): leave a stretch out of the one recording "
+                  "it disturbs before fitting them together")
 
-    if not args.together:
-        raise CLIError(f"{len(paths)} recordings: fit them together with --together (one model, its noise "
-                       "parameters shared), or one at a time")
-    if len(paths) < 2:
-        raise CLIError("--together needs two or more recordings")
-    for flag in ("export", "datasheet", "workers", "scheduler", "profile", "bootstrap"):
-        if getattr(args, flag, None):
-            raise CLIError(f"--{flag} is not available with --together")
-    if args.method != "exact":
-        raise CLIError("--together fits by the exact likelihood (--method exact)")
+
+def _several(args, paths: list, model, what: str, min_samples: int) -> tuple[list, list, list]:
+    """The recordings of ``fit``/``check --together``, each read with the same flags: their measurements, model
+    inputs and names; refused unless they share their rate and channels."""
     ms, inputs = [], []
     for path in paths:
         args.recording = path
-        m = _measurements(args, "a fit", min_samples=100)
+        m = _measurements(args, what, min_samples=min_samples)
         ms.append(m)
         inputs.append(_model_inputs(args, [model], m, note=len(ms) == 1))
     first = ms[0]
@@ -236,6 +231,29 @@ def _fit_together(args, model, paths: list) -> int:
     names = [Path(p).name for p in paths]
     if len(set(names)) < len(names):
         names = [str(p) for p in paths]
+    return ms, inputs, names
+
+
+def _fit_together(args, model, paths: list) -> int:
+    """``torchtea fit A B … --together``: each channel's pooled fit over the recordings (:mod:`torchtea.fitting.together`)."""
+    from ..checking.replicates import together_allan_figure, together_lines
+    from ..fitting.together import REPLICATES_MEANING, fit_together
+    from ..render.plots import pyplot
+    from ..render.strictjson import dumps, write
+    from ..sensors.measurements import DOCUMENT_MEANING, RECORDING_MEANING
+
+    if not args.together:
+        raise CLIError(f"{len(paths)} recordings: fit them together with --together (one model, its noise "
+                       "parameters shared), or one at a time")
+    if len(paths) < 2:
+        raise CLIError("--together needs two or more recordings")
+    for flag in ("export", "datasheet", "workers", "scheduler", "profile", "bootstrap", "exclude"):
+        if getattr(args, flag, None):
+            raise CLIError(f"--{flag} is not available with --together" + _EXCLUDE_WORDS * (flag == "exclude"))
+    if args.method != "exact":
+        raise CLIError("--together fits by the exact likelihood (--method exact)")
+    ms, inputs, names = _several(args, paths, model, "a fit", 100)
+    first = ms[0]
     t0 = time.perf_counter()
     axes, lines, figures = {}, [], []
     step, close = _progress(len(first.labels), f"fit {model.spec} together", "channel", bar=not args.json)
@@ -351,6 +369,85 @@ def cmd_plan(args) -> int:
     return 0
 
 
+def _check_together(args, paths: list) -> int:
+    """``torchtea check A B … --together``: each channel's loop on the recordings' pooled likelihood
+    (:func:`torchtea.checking.pooled.check_together`)."""
+    from ..checking.pooled import POOLED_MEANING, check_together
+    from ..checking.replicates import pooled_lines, together_allan_figure
+    from ..fitting.together import REPLICATES_MEANING
+    from ..noise import parse_model
+    from ..render.plots import pyplot
+    from ..render.strictjson import dumps, write
+    from ..sensors.measurements import DOCUMENT_MEANING, RECORDING_MEANING
+
+    if not args.together:
+        raise CLIError(f"{len(paths)} recordings: check them together with --together (one model, its noise "
+                       "parameters shared), or one at a time")
+    if len(paths) < 2:
+        raise CLIError("--together needs two or more recordings")
+    for flag in ("add", "exclude_start", "export", "datasheet", "workers", "scheduler", "logdir", "windows", "exclude"):
+        if getattr(args, flag, None):
+            raise CLIError(f"--{flag.replace('_', '-')} is not available with --together"
+                           + _EXCLUDE_WORDS * (flag == "exclude"))
+    model = parse_model(args.model)
+    ms, inputs, names = _several(args, paths, model, "check", 1000)
+    first = ms[0]
+    out = Path(args.out or f"check-together-{Path(paths[0]).stem}")
+    out.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    axes, lines, figures = {}, [], []
+    step, close = _progress(len(first.labels), f"check {model.spec} together", "channel", bar=not args.json)
+    step(0, len(first.labels))
+    try:
+        for k, label in enumerate(first.labels):
+            series = [m.channel(label).values for m in ms]
+            inp = None if inputs[0] is None else inputs
+            pc = check_together(model, series, first.h, inputs=inp, recordings=names,
+                                max_steps=args.max_steps if args.auto else 0, strong=args.strong,
+                                simplify=args.auto and not args.no_simplify, level=args.level,
+                                screen_level=args.screen_level, fits=args.fits,
+                                progress=lambda line, label=label: _note(f"{label}: {line}"))
+            unit, title = first.channel(label).unit, first.channel(label).title
+            axes[label] = {"unit": unit, **pc.as_dict()}
+            lines.append((label, title, pc, unit))
+            if not args.no_plots:
+                figures.append(together_allan_figure(pyplot(), pc.together, series, first.h, out, label, unit, inp))
+            step(k + 1, len(first.labels))
+    finally:
+        close()
+    doc = {"together": True, "auto": bool(args.auto), "rate_hz": first.recording.rate_hz,
+           "recordings": [m.describe() for m in ms], "axes": axes,
+           "meaning": {**RECORDING_MEANING, **DOCUMENT_MEANING, **REPLICATES_MEANING, **POOLED_MEANING,
+                       "recordings": "each recording as read, in the order given (in replicates: their names)",
+                       "axes": "per channel: its unit, the pooled loop (steps, loop_end, adequate) and the final "
+                               "model's fit together (replicates)"},
+           "seconds": time.perf_counter() - t0, "warnings": [line for m in ms for line in m.notes()],
+           "command": "torchtea " + " ".join(sys.argv[1:]) if sys.argv[1:] else ""}
+    write(out / "check.json", doc)
+    md = [f"# {len(ms)} recordings checked together", "",
+          f"Recordings ({first.recording.rate_hz:g} Hz): {', '.join(names)}. One model per channel: its noise "
+          "parameters shared, each recording its own mean terms; gains are falls of the pooled BIC (the shared "
+          "parameters counted once, each recording's own terms once per recording); adequacy is every recording's "
+          "diagnostics at the pooled values.", ""]
+    for (label, title, pc, unit), fig in zip(lines, figures or [None] * len(lines)):
+        md += [f"## {label}", ""] + pooled_lines(label, title, pc, unit, markdown=True)[1:] + [""]
+        if fig is not None:
+            md += [f"![{label}: the recordings' Allan deviations and the pooled model]({fig.name})", ""]
+    md.append("units: " + "; ".join(f"{k}: {v}" for k, v in _units_of(first).items()))
+    (out / "report.md").write_text("\n".join(md) + "\n", encoding="utf-8")
+    if args.json:
+        print(dumps(doc))
+        return 0
+    print(f"{len(ms)} recordings checked together at {first.recording.rate_hz:g} Hz ({', '.join(names)}): noise "
+          "parameters shared, each recording its own mean terms")
+    for label, title, pc, unit in lines:
+        print("\n".join(pooled_lines(label, title, pc, unit)))
+    print("gain: the fall of the pooled BIC; p: likelihood-ratio test of one value in every recording against each "
+          "its own; units: " + "; ".join(f"{k}: {v}" for k, v in _units_of(first).items()))
+    print(f"report: {out / 'report.md'}; JSON: {out / 'check.json'}")
+    return 0
+
+
 def cmd_check(args) -> int:
     from ..checking.channels import summary_lines
     from ..checking.replicates import windows_lines
@@ -358,6 +455,10 @@ def cmd_check(args) -> int:
     from ..render.strictjson import dumps
 
     _check_cluster_flags(args)
+    paths = list(args.recording or [])
+    if args.together or len(paths) > 1:
+        return _check_together(args, paths)
+    args.recording = paths[0] if paths else None
     m = _measurements(args, "check", min_samples=1000)
     plan = _export_plan(args, m, args.export)
     if plan and args.no_intervals:

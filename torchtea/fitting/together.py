@@ -27,7 +27,7 @@ from ..noise.components import MeanEffect
 from ..noise.model import NoiseModel, parse_model
 from .exact import FIT_MEMORY, centred, gradient_supported
 from .mle import fit_series
-from .results import intervals_from_hessian
+from .results import bic, intervals_from_hessian
 from .scoring import FD_STEP, INFORMATION_STEP, fd_hessian, logit_limits, objective, score, scoring_objective
 
 __all__ = ["Together", "fit_together", "bias_repeatability", "TOGETHER_LEVEL", "REPLICATES_MEANING"]
@@ -80,6 +80,22 @@ class Together:
     pooled: tuple | None = field(default=None, repr=False)
 
     @property
+    def n(self) -> int:
+        """The samples of all the recordings."""
+        return int(sum(f.n for f in self.separate))
+
+    @property
+    def k(self) -> int:
+        """The estimates: the shared parameters once, each recording's own mean terms and held estimates (a step's
+        time) once per recording."""
+        return len(self.shared) + len(self.recordings) * (len(self.own) + len(self.model.held_estimates()))
+
+    @property
+    def bic(self) -> float:
+        """BIC of the pooled fit on the pooled exact likelihood (what the loop on several recordings compares)."""
+        return bic(self.k, self.n, self.loglik)
+
+    @property
     def differs(self) -> list:
         """The noise parameters whose values differ between the recordings at the family level."""
         return [p["name"] for p in self.parameters if p["differs"]]
@@ -93,7 +109,7 @@ class Together:
     def as_dict(self) -> dict:
         return {"recordings": list(self.recordings), "model": self.model.spec, "shared": list(self.shared),
                 "own": list(self.own), "loglik_together": self.loglik,
-                "loglik_separate": float(sum(f.loglik for f in self.separate)),
+                "loglik_separate": float(sum(_exact_loglik(f) for f in self.separate)),
                 "level": self.level, "threshold": self.threshold, "parameters": self.parameters,
                 "verdict": "differ" if self.differs else "agree", "differs": self.differs,
                 "summary": self.verdict, "bias_repeatability": self.bias, "notes": list(self.notes)}
@@ -241,11 +257,13 @@ def _values(model, U: torch.Tensor, h: float) -> dict:
 
 def fit_together(model, series: list, h: float, *, inputs: list | None = None, recordings: list | None = None,
                  level: float = TOGETHER_LEVEL, separate: list | None = None, repeatability: bool = True,
-                 progress=None) -> Together:
+                 tests: bool = True, progress=None) -> Together:
     """Fit ``model`` to several recordings (``series``: 1-D arrays of one channel, NaN = missing; ``inputs`` one dict
     or None per recording) with its noise parameters shared and its mean parameters each recording's own; then test,
     per noise parameter, whether the recordings agree on it, and (three or more) their bias's spread.
-    ``separate``: the recordings' own exact fits, where already made. ``progress(line)`` takes what it is doing."""
+    ``separate``: the recordings' own fits, where already made (their exact likelihood is what the pooled one is held
+    against). ``tests``: the shared parameters' intervals and the per-parameter tests (without them, the pooled
+    maximum alone: what a loop comparing models needs). ``progress(line)`` takes what it is doing."""
     model = parse_model(model)
     say = progress or (lambda line: None)
     R = len(series)
@@ -260,7 +278,8 @@ def fit_together(model, series: list, h: float, *, inputs: list | None = None, r
             say(f"fitting {names[r]} on its own")
             separate.append(fit_series(model, [y], h, inputs=None if inputs[r] is None else [inputs[r]])[0])
     kinds = {n: dict(model.components)[n.rsplit(".", 1)[0]].kind for n in model.names}
-    free = [i for i, n in enumerate(model.names) if n in separate[0].free and n not in model.located()]
+    held = model.held_estimates()  # (a step's time, a line's frequency: each recording's own, where its fit put it)
+    free = [i for i, n in enumerate(model.names) if n in separate[0].free and n not in held]
     shared = [i for i in free if kinds[model.names[i]] != "mean"]
     own = [i for i in free if kinds[model.names[i]] == "mean"]
     bases = _common_references(model, separate, h)
@@ -270,11 +289,14 @@ def fit_together(model, series: list, h: float, *, inputs: list | None = None, r
     starts = [joint.pack([_with(u, bases[r], shared) for u in bases]) for r in range(R)] + [joint.pack(bases)]
     x, ll = joint.maximise(starts)
     notes = []
-    sum_separate = float(sum(f.loglik for f in separate))
+    sum_separate = float(sum(_exact_loglik(f) for f in separate))
     if ll > sum_separate + 1e-3 * R:
         notes.append(f"the pooled fit's ℓ ({ll:.2f}) is above the sum of the recordings' own fits' ({sum_separate:.2f}): "
                      "a recording's own fit fell short of its maximum; the tests use the pooled ℓ as the bound")
     values = [_values(model, joint.unpack(x, r), h) for r in range(R)]
+    if not tests:
+        return Together(model, names, [model.names[i] for i in shared], [model.names[i] for i in own], values, ll, {},
+                        {}, separate, [], level, level / max(1, len(shared)), None, notes, (joint, x))
     se, ci, how = _shared_intervals(model, joint, x, h)
     threshold = level / max(1, len(shared))
     say("testing each noise parameter: one value, or each recording its own")
@@ -291,6 +313,11 @@ def fit_together(model, series: list, h: float, *, inputs: list | None = None, r
     bias = bias_repeatability(model, series, values, h, inputs, names) if R >= 3 and repeatability else None
     return Together(model, names, [model.names[i] for i in shared], [model.names[i] for i in own], values, ll, se,
                     ci, separate, tests, level, threshold, bias, notes, (joint, x))
+
+
+def _exact_loglik(fit) -> float:
+    """A recording's own fit's exact log-likelihood (a fit on the long-record path climbs the Whittle one)."""
+    return float(fit.loglik_exact if fit.loglik_exact is not None else fit.loglik)
 
 
 def _shared_intervals(model, joint: _Joint, x: np.ndarray, h: float) -> tuple[dict, dict, dict]:

@@ -1,0 +1,302 @@
+"""The loop on several recordings of one sensor (:func:`check_together`): one model for all — its noise parameters
+shared, each recording its own mean terms (:func:`~torchtea.fitting.together.fit_together`) — grown and pruned by
+the pooled likelihood.
+
+Each step checks every recording on its own with the current model (:func:`~.check.check`, the screens' family level
+split over the recordings, so on recordings of the model the chance of any suggestion stays at the level); an effect
+that passes a screen in any recording is a candidate, and is refitted to all of them together: its gain is the fall of
+the pooled BIC (the shared parameters counted once, each recording's own terms once per recording). The loop adds the
+best candidate while it gains — past a model adequate in every recording only while it gains :data:`~.ranking.
+STRONG_BIC` or more —, then tries each component taken away or replaced by its special case (the fractional part by a
+random walk: :func:`~.simplify.alternatives`), kept where the pooled BIC falls and no recording's diagnostics fail
+that passed. Adequacy is every recording's diagnostics at the pooled values. An effect that is located in a
+recording (spikes, a step) is that recording's own fault, not the sensor's: it is named with the recording and not
+added. At the end the recordings are tested against the final model, parameter by parameter
+(:attr:`~torchtea.fitting.together.Together.parameters`), and their turn-on bias spread estimated."""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..fitting.together import Together, fit_together
+from ..noise.components import COMPONENTS
+from ..noise.grammar import token
+from ..noise.model import parse_model
+from . import simplify as simplifying
+from .check import check
+from .diagnostics import LEVEL
+from .models import assess, model_fit
+from .ranking import STRONG_BIC
+
+__all__ = ["check_together", "PooledCheck", "PooledStep", "POOLED_MEANING"]
+
+#: What a pooled check's entries in check.json mean (:meth:`PooledCheck.as_dict`).
+POOLED_MEANING = {
+    "steps": "the pooled loop's path: per step the model, the pooled exact log-likelihood, its estimates k (shared "
+             "once, each recording's own terms once per recording), the pooled BIC, the change that led there and "
+             "its gain (the fall of the pooled BIC), the diagnostics each recording fails at the pooled values, the "
+             "candidates (effects that passed a screen in a recording, which recordings, their pooled gain) and "
+             "the effects found located in one recording (its own fault: not added)",
+    "loop_end": "why the pooled loop ended, in words",
+    "adequate": "every recording's diagnostics pass at the final model's pooled values",
+}
+
+
+@dataclass
+class PooledStep:
+    """One step of the pooled loop: the model's pooled fit (``together``, no tests), each recording's own check of it
+    (``checks``), the diagnostics each recording fails at the pooled values (``failing``), the candidates and their
+    pooled gains, the recordings' own faults, and the change that led here."""
+
+    together: Together
+    checks: list
+    failing: list
+    change: str = "start"
+    gain: float | None = None
+    candidates: list = field(default_factory=list)
+    faults: list = field(default_factory=list)
+    tried: list = field(default_factory=list)
+    #: the candidates refitted together, best first (:meth:`_Loop.candidates`), once made
+    evaluated: list | None = field(default=None, repr=False)
+
+    @property
+    def model(self):
+        return self.together.model
+
+    @property
+    def adequate(self) -> bool:
+        return not any(self.failing)
+
+    def as_dict(self) -> dict:
+        tg = self.together
+        return {"model": tg.model.spec, "change": self.change, "gain": self.gain, "loglik": tg.loglik, "k": tg.k,
+                "n": tg.n, "bic": tg.bic, "adequate": self.adequate,
+                "failing": {name: list(f) for name, f in zip(tg.recordings, self.failing)},
+                "candidates": list(self.candidates), "faults": list(self.faults), "tried": list(self.tried)}
+
+
+@dataclass
+class PooledCheck:
+    """:func:`check_together`'s result: the path (``steps``, the last the final model), the final model's pooled fit
+    with its per-parameter tests and bias spread (``together``), and why the loop ended."""
+
+    steps: list
+    together: Together
+    loop_end: str
+    seconds: float = 0.0
+
+    @property
+    def model(self):
+        return self.together.model
+
+    @property
+    def final(self) -> PooledStep:
+        return self.steps[-1]
+
+    @property
+    def adequate(self) -> bool:
+        return self.final.adequate
+
+    def as_dict(self) -> dict:
+        return {"model": self.model.spec, "adequate": self.adequate, "loop_end": self.loop_end,
+                "steps": [s.as_dict() for s in self.steps], "replicates": self.together.as_dict(),
+                "seconds": self.seconds}
+
+
+def _own_fault(token: str) -> bool:
+    """An effect a recording's check configures on its own record (``spikes:K``) or locates in it (a step's time):
+    that recording's, not the sensor's."""
+    name = token.partition(":")[0]
+    return ":" in token or bool(COMPONENTS[name].located) if name in COMPONENTS else ":" in token
+
+
+class _Loop:
+    def __init__(self, series, h, inputs, names, level, screen_level, fits, say):
+        self.series, self.h, self.inputs, self.names = series, h, inputs, names
+        self.level, self.screen_level, self.fits, self.say = level, screen_level, fits, say
+        self.R = len(series)
+
+    def failing(self, tg: Together) -> list:
+        """Per recording, the diagnostics it fails at the pooled values."""
+        out = []
+        for y, v, inp in zip(self.series, tg.values, self.inputs):
+            _, diags, _ = assess(tg.model, v, y, self.h, inp, self.level)
+            out.append(sorted(d.name for d in diags if d.passed is False))
+        return out
+
+    def step(self, model, fits: list | None = None, change: str = "start", gain: float | None = None) -> PooledStep:
+        """Each recording checked on its own with ``model`` (from its ``fits`` where given), then the pooled fit from
+        those fits, and each recording's diagnostics at the pooled values."""
+        checks = []
+        for r, (y, inp) in enumerate(zip(self.series, self.inputs)):
+            self.say(f"{self.names[r]}: checking {model.spec}")
+            checks.append(check(y, self.h, model=model, inputs=inp, level=self.level,
+                                screen_level=self.screen_level / self.R, intervals=False, fits=self.fits,
+                                fit=None if fits is None else fits[r]))
+        tg = self.together(model, [c.fit for c in checks])
+        return PooledStep(tg, checks, self.failing(tg), change, gain)
+
+    def together(self, model, separate: list) -> Together:
+        self.say(f"fitting {model.spec} to the {self.R} recordings together")
+        return fit_together(model, self.series, self.h, inputs=self.inputs, recordings=self.names, separate=separate,
+                            tests=False, repeatability=False)
+
+    def fits_of(self, alt, node: PooledStep, effect: str | None = None) -> list:
+        """Each recording's own fit of ``alt``: its check's refit of ``effect`` where it made one, else fitted."""
+        out = []
+        for r, c in enumerate(node.checks):
+            have = [s.fit for s in c.suggestions if s.fit.model.spec == alt.spec]
+            have += [f for f in c.refits.values() if f.model.spec == alt.spec]
+            if have:
+                out.append(max(have, key=lambda f: f.loglik_exact))
+            else:
+                self.say(f"{self.names[r]}: fitting {alt.spec}")
+                out.append(model_fit(alt, self.series[r], self.h, inputs=self.inputs[r], intervals=False,
+                                     fits=self.fits))
+        return out
+
+    def candidates(self, node: PooledStep) -> list:
+        """The effects that passed a screen in some recording and gain there, each refitted to all together:
+        ``(gain, alt model, own fits, effect)``, best first; the recordings' own faults noted on ``node``."""
+        if node.evaluated is not None:
+            return node.evaluated
+        found: dict = {}
+        for name, c in zip(self.names, node.checks):
+            for s in c.suggestions:
+                if _own_fault(_token(node.model, s.fit.model)):
+                    node.faults.append({"recording": name, "effect": s.effect, "gain": s.gain,
+                                        "model": s.fit.model.spec})
+                    continue
+                best = found.get(s.effect)
+                if best is None or s.gain > best[1]:
+                    found[s.effect] = (s.fit.model, s.gain, (best[2] if best else []) + [name])
+                else:
+                    best[2].append(name)
+        out = []
+        for effect, (alt, _, by) in found.items():
+            fits = self.fits_of(alt, node, effect)
+            tg = self.together(alt, fits)
+            gain = float(node.together.bic - tg.bic)
+            node.candidates.append({"effect": effect, "model": alt.spec, "suggested_by": sorted(by), "gain": gain})
+            out.append((gain, alt, fits, effect))
+        node.candidates.sort(key=lambda c: -c["gain"])
+        node.evaluated = sorted(out, key=lambda t: -t[0])
+        return node.evaluated
+
+    def simpler(self, node: PooledStep) -> tuple | None:
+        """The best of the model's components taken away or replaced by its special case where it lowers the pooled
+        BIC and no recording fails a diagnostic it passed: ``(gain, step)``, or None."""
+        best = None
+        before = {(r, d) for r, f in enumerate(node.failing) for d in f}
+        for alt in simplifying.alternatives(node.checks[0]):
+            if alt.kind == "swap":
+                continue
+            fits = self.fits_of(alt.model, node)
+            tg = self.together(alt.model, fits)
+            gain = float(node.together.bic - tg.bic)
+            entry = {"change": alt.words, "model": alt.model.spec, "gain": gain if math.isfinite(tg.loglik) else None}
+            node.tried.append(entry)
+            if not math.isfinite(tg.loglik) or tg.loglik < -1e299:
+                entry["rejected"] = "no finite pooled likelihood"
+                continue
+            if gain <= 0 or (best is not None and gain <= best[0]):
+                continue
+            failing = self.failing(tg)
+            worse = {(r, d) for r, f in enumerate(failing) for d in f} - before
+            if worse:
+                entry["rejected"] = "fails " + ", ".join(f"{d} in {self.names[r]}" for r, d in sorted(worse))
+                continue
+            best = (gain, alt, fits)
+        if best is None:
+            return None
+        gain, alt, fits = best
+        return gain, self.step(alt.model, fits, alt.words, gain)
+
+
+def _token(model, alt) -> str:
+    """The token of the component ``alt`` has and ``model`` lacks (what a suggestion added)."""
+    have = {token(c) for _, c in model.components}
+    new = [token(c) for _, c in alt.components if token(c) not in have]
+    return new[0] if new else ""
+
+
+def check_together(model, series: list, h: float, *, inputs: list | None = None, recordings: list | None = None,
+                   max_steps: int = 6, strong: float | None = None, simplify: bool = True, level: float = LEVEL,
+                   screen_level: float = 0.05, fits: str = "auto", progress=None) -> PooledCheck:
+    """The loop on the pooled likelihood of several recordings of one sensor (module docstring): ``series`` 1-D arrays
+    of one channel (NaN = missing), ``inputs`` one dict or None per recording, ``recordings`` their names. Adds at
+    most ``max_steps`` effects; ``strong`` (default :data:`~.ranking.STRONG_BIC`) is the gain an adequate model's loop
+    asks for; ``simplify`` tries each component taken away or replaced by its special case, at most
+    :data:`~.simplify.MAX_CHANGES` changes. Returns the path and the final model's pooled fit with its tests."""
+    t0 = time.perf_counter()
+    model = parse_model(model)
+    R = len(series)
+    if R < 2:
+        raise ValueError("checking together needs two or more recordings")
+    series = [np.asarray(y, dtype=np.float64) for y in series]
+    inputs = [None] * R if inputs is None else list(inputs)
+    names = list(recordings) if recordings is not None else [f"recording {r + 1}" for r in range(R)]
+    strong = STRONG_BIC if strong is None else float(strong)
+    say = progress or (lambda line: None)
+    loop = _Loop(series, h, inputs, names, level, screen_level, fits, say)
+    node = loop.step(model)
+    steps = [node]
+    added = changes = 0
+    while True:
+        while added < max_steps:
+            cands = loop.candidates(node)
+            if not cands or cands[0][0] <= 0 or (node.adequate and cands[0][0] < strong):
+                break
+            gain, alt, alt_fits, effect = cands[0]
+            node = loop.step(alt, alt_fits, f"added {effect}", gain)
+            steps.append(node)
+            added += 1
+        if not simplify or changes >= simplifying.MAX_CHANGES:
+            break
+        found = loop.simpler(node)
+        if found is None:
+            break
+        node = found[1]
+        steps.append(node)
+        changes += 1
+    loop.candidates(node)  # (what the last model would still gain, for the words)
+    say(f"testing the recordings against {node.model.spec}, parameter by parameter")
+    final = fit_together(node.model, series, h, inputs=inputs, recordings=names, progress=say)
+    end = _loop_end(steps, added, changes, max_steps, strong)
+    return PooledCheck(steps, final, end, time.perf_counter() - t0)
+
+
+def _loop_end(steps: list, added: int, changes: int, max_steps: int, strong: float) -> str:
+    """Why the pooled loop ended, in words."""
+    node = steps[-1]
+    done = f"{added} effect(s) added" + (f", {changes} change(s) taking away or replacing" if changes else "")
+    best = node.candidates[0] if node.candidates else None
+    if max_steps == 0 and not changes:
+        end = ("the model checked, not the loop: " + ("adequate in every recording" if node.adequate else
+                                                      "not adequate"))
+        if best is not None and best["gain"] > 0:
+            end += f"; {best['effect']} would gain {best['gain']:.1f} pooled BIC"
+    elif node.adequate:
+        end = f"adequate in every recording after {done}"
+        if best is not None and best["gain"] > 0:
+            end += (f" ({best['effect']} would still gain {best['gain']:.1f} pooled BIC, under the {strong:g} an "
+                    "adequate model's loop asks for)")
+    elif added >= max_steps and best is not None and best["gain"] > 0:
+        end = f"stopped after {max_steps} effects added (max_steps), not adequate"
+    else:
+        end = f"not adequate after {done}, and no candidate lowers the pooled BIC"
+    if not node.adequate:
+        end += ": " + "; ".join(f"{n} fails {', '.join(f)}" for n, f in zip(node.together.recordings, node.failing)
+                                 if f)
+    faults = {}
+    for f in node.faults:
+        faults.setdefault(f["recording"], []).append(f["effect"])
+    if faults:
+        end += ("; found in one recording only, its own fault and not the sensor's (check it alone, or leave the "
+                "stretch out): " + "; ".join(f"{n}: {', '.join(e)}" for n, e in faults.items()))
+    if not math.isfinite(node.together.loglik):
+        end += "; the pooled likelihood is not finite"
+    return end

@@ -39,7 +39,9 @@ POOLED_MEANING = {
              "once, each recording's own terms once per recording), the pooled BIC, the change that led there and "
              "its gain (the fall of the pooled BIC), the diagnostics each recording fails at the pooled values, the "
              "candidates (effects that passed a screen in a recording, which recordings, their pooled gain) and "
-             "the effects found located in one recording (its own fault: not added)",
+             "the effects a recording's check suggests that are located in it (faults: not added; at the last step "
+             "that recording's own fault, before it perhaps what the model still lacked — a random walk looks like a "
+             "step)",
     "loop_end": "why the pooled loop ended, in words",
     "adequate": "every recording's diagnostics pass at the final model's pooled values",
 }

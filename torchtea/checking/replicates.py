@@ -193,7 +193,7 @@ def pooled_lines(label: str, title: str, pc, unit: str, markdown: bool = False) 
             lines.append(f"{bullet}    candidates: " + ", ".join(
                 f"{c['effect']} {c['gain']:+.1f} (screen passed in {', '.join(c['suggested_by'])})"
                 for c in d["candidates"]))
-        for f in d["faults"]:
+        for f in d["faults"] if k == len(pc.steps) - 1 else ():  # (before, the model may lack what explains it)
             lines.append(f"{bullet}    {f['recording']} alone: {f['effect']} (gain {f['gain']:.1f} there): located in "
                          "that recording — its fault, not the sensor's")
     lines.append(f"{bullet}loop: {pc.loop_end}")

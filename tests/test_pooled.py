@@ -77,7 +77,8 @@ def test_a_component_the_recordings_do_not_need_is_taken_away():
 
 def test_check_takes_several_recordings_together(tmp_path, capsys):
     """``torchtea check A.csv B.csv --together --auto``: check.json with each channel's path and replicates, a report
-    with the Allan figure; flags that make no sense together are one clear error each."""
+    with the Allan figure; without --auto the model checked and its pooled fit exported; flags that make no sense
+    together are one clear error each."""
     from torchtea.cli import main
     from torchtea.sensors.io import write_columns
 
@@ -96,9 +97,12 @@ def test_check_takes_several_recordings_together(tmp_path, capsys):
     assert ax["replicates"]["recordings"] == ["r0.csv", "r1.csv"] and "steps" in doc["meaning"]
     report = (out / "report.md").read_text()
     assert "## gx" in report and "allan_gx.png" in report and (out / "allan_gx.png").stat().st_size > 1000
-    assert main(args + ["--out", str(tmp_path / "once")]) == 0  # (no --auto: the model checked, nothing added)
+    # (no --auto: the model checked, nothing added; its pooled model exported)
+    assert main(args + ["--out", str(tmp_path / "once"), "--export", "ieee952", "--nees", "0"]) == 0
     once = json.loads((tmp_path / "once" / "check.json").read_text())["axes"]["gx"]
     assert len(once["steps"]) == 1 and once["steps"][0]["candidates"]
+    exported = json.loads((tmp_path / "once" / "export" / "export.json").read_text())
+    assert exported["pooled"]["recordings"] == ["r0.csv", "r1.csv"] and exported["axes"]["gx"]["model"] == "white"
     capsys.readouterr()
     assert main(args + ["--windows", "10"]) == 2
     assert "--windows is not available with --together" in capsys.readouterr().err
@@ -106,3 +110,74 @@ def test_check_takes_several_recordings_together(tmp_path, capsys):
     assert "same seconds out of every recording" in capsys.readouterr().err
     assert main(args[:2] + args[3:]) == 2
     assert "two or more recordings" in capsys.readouterr().err
+
+
+def test_the_pooled_model_as_one_recordings_fit_keeps_the_pooled_intervals():
+    """``Together.as_fit(r)``: the shared parameters at their pooled values with the pooled intervals (the others'
+    own terms profiled out), recording r's own terms at its values, every estimate counted."""
+    ys = [_series(3000, 7) + 0.01 * np.arange(3000) * H, _series(3000, 8) + 0.02 * np.arange(3000) * H]
+    tg = fit_together("white+random-walk+ramp", ys, H)
+    for r in (0, 1):
+        f = tg.as_fit(r, H)
+        assert f.values == tg.values[r] and f.n == 3000 and set(f.free) == {"white.r", "random-walk.sigma",
+                                                                           "ramp.slope"}
+        for name in tg.shared:
+            np.testing.assert_allclose(f.ci95[name], tg.ci95[name], rtol=1e-9)
+        lo, hi = f.ci95["ramp.slope"]
+        assert lo < tg.values[r]["ramp.slope"] < hi
+    assert tg.as_fit(0, H).values["ramp.slope"] != tg.as_fit(1, H).values["ramp.slope"]
+    with pytest.raises(ValueError, match="sample time"):
+        tg.as_fit(0)
+
+
+def test_a_datasheets_repeatability_is_read_and_held_against_the_recordings_spread(tmp_path):
+    """A datasheet's turn-on bias repeatability (1σ, a bias's units) read to SI; the recordings' spread against it:
+    within spec when its whole interval is below, worse when above, not determined when it holds it."""
+    from torchtea.fitting.datasheet import _repeatability_row, read_datasheet
+
+    path = tmp_path / "gyro.toml"
+    path.write_text('sensor = "gyroscope"\nrate_hz = 100\nN = { value = 0.005, unit = "deg/s/sqrt(Hz)" }\n'
+                    'repeatability = { value = 0.2, unit = "deg/s" }\n')
+    sheet = read_datasheet(path)
+    assert sheet["repeatability"] == pytest.approx(0.2 * math.pi / 180)
+    spec = sheet["repeatability"]
+    levels = [{"recording": "a", "level": 0.0, "se": 1e-5}] * 5
+    for ci, verdict in (([0.1 * spec, 0.9 * spec], "within spec"), ([1.1 * spec, 3 * spec], "worse than spec"),
+                        ([0.0, math.inf], "not determined by this record")):
+        row = _repeatability_row(sheet, {"spread": 0.5 * sum(c for c in ci if math.isfinite(c)), "ci95": ci,
+                                         "levels": levels}, "rad/s")
+        assert row["verdict"] == verdict and row["term"] == "repeatability" and "5 power-ups" in row["words"]
+    path.write_text('sensor = "gyroscope"\nrate_hz = 100\nN = { value = 0.005, unit = "deg/s/sqrt(Hz)" }\n'
+                    'repeatability = { value = 0.2, unit = "deg/s/sqrt(Hz)" }\n')
+    with pytest.raises(ValueError, match="repeatability must be"):
+        read_datasheet(path)
+
+
+def test_export_takes_several_recordings_together(tmp_path, capsys):
+    """``torchtea export A B C --together --model …``: the pooled model exported — the pooled fit's numbers, what
+    comes from where said in export.json and export.md — and the three recordings' turn-on bias spread held against
+    the datasheet's repeatability."""
+    from torchtea.cli import main
+    from torchtea.sensors.io import write_columns
+
+    paths = []
+    for k, bias in enumerate((0.01, -0.02, 0.015)):
+        y = _series(3000, 60 + k, shift=bias)
+        paths.append(write_columns(tmp_path / f"r{k}.csv", {"t": np.arange(len(y)) * H, "gyr_x": y}))
+    sheet = tmp_path / "gyro.toml"
+    sheet.write_text('sensor = "gyroscope"\nrate_hz = 100\nN = { value = 0.005, unit = "deg/s/sqrt(Hz)" }\n'
+                     'repeatability = { value = 1e-4, unit = "rad/s" }\n')
+    out = tmp_path / "ex"
+    assert main(["export", *map(str, paths), "--together", "--units", "rad/s", "--rate", "100", "--model",
+                 "white+random-walk", "--format", "ieee952", "--nees", "0", "--datasheet", str(sheet),
+                 "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "gx: white+random-walk: the 3 recordings agree" in text
+    doc = json.loads((out / "export.json").read_text())
+    assert doc["pooled"]["recordings"] == ["r0.csv", "r1.csv", "r2.csv"] and "pooled" in doc["meaning"]
+    tg = fit_together("white+random-walk", [_series(3000, 60 + k) for k in range(3)], H)
+    assert doc["axes"]["gx"]["bare"]["N"]["value"] == pytest.approx(math.sqrt(tg.values[0]["white.r"] * H),
+                                                                     rel=1e-3)
+    row = next(r for r in doc["axes"]["gx"]["datasheet"]["rows"] if r["term"] == "repeatability")
+    assert row["verdict"] == "worse than spec" and row["ci95"][0] > 1e-4  # (levels 0.01 apart, the sheet's 1e-4)
+    assert "Pooled:" in (out / "export.md").read_text()

@@ -14,7 +14,7 @@ from ..render.text import num
 from . import allan
 
 __all__ = ["windows_lines", "windows_figure", "check_residual", "dynamic_allan", "dynamic_allan_figure", "together_lines",
-           "together_allan_figure", "pooled_lines"]
+           "together_allan_figure", "pooled_lines", "pooled_report"]
 
 
 def windows_lines(doc: dict, markdown: bool = False) -> list[str]:
@@ -201,3 +201,24 @@ def pooled_lines(label: str, title: str, pc, unit: str, markdown: bool = False) 
     lines.append(f"{bullet}verdict: {tg[0].split(': ', 1)[1]}")
     lines += [f"{bullet}{line.strip()}" for line in tg[1:]] if markdown else tg[1:]
     return lines
+
+
+def pooled_report(lines: list, figures: list, names: list, rate_hz: float, units: dict, verdicts: dict) -> str:
+    """``report.md`` of ``check --together``: per channel (``lines``: ``(label, title, result, unit)``) its path,
+    verdict and Allan figure (``figures``, where drawn), the datasheet verdicts, the units."""
+    from ..fitting.datasheet import verdict_lines
+
+    md = [f"# {len(names)} recordings checked together", "",
+          f"Recordings ({rate_hz:g} Hz): {', '.join(names)}. One model per channel: its noise parameters shared, each "
+          "recording its own mean terms; gains are falls of the pooled BIC (the shared parameters counted once, each "
+          "recording's own terms once per recording); adequacy is every recording's diagnostics at the pooled "
+          "values.", ""]
+    for (label, title, pc, unit), fig in zip(lines, figures or [None] * len(lines)):
+        md += [f"## {label}", ""] + pooled_lines(label, title, pc, unit, markdown=True)[1:] + [""]
+        if fig is not None:
+            md += [f"![{label}: the recordings' Allan deviations and the pooled model]({fig.name})", ""]
+        if label in verdicts:
+            md += [f"Against {verdicts[label]['file']} (the pooled model):", ""]
+            md += verdict_lines(label, verdicts[label], markdown=True) + [""]
+    md.append("units: " + "; ".join(f"{k}: {v}" for k, v in units.items()))
+    return "\n".join(md) + "\n"

@@ -23,7 +23,17 @@ from .common import (
     _tensorboard,
     _units_of,
 )
-from .export import _datasheet_verdicts, _export, _export_flags, _export_plan, _print_verdicts, _sheets
+from .export import (
+    _datasheet_verdicts,
+    _export,
+    _export_flags,
+    _export_plan,
+    _pooled_export,
+    _print_verdicts,
+    _several,
+    _sheets,
+    _together_flags,
+)
 
 
 def add_parsers(sub) -> None:
@@ -206,34 +216,6 @@ def _windows(args, m, results: dict, inputs) -> dict | None:
     return out
 
 
-#: Why ``--exclude`` is refused with ``--together``.
-_EXCLUDE_WORDS = (" (it would leave the same seconds out of every recording): leave a stretch out of the one recording "
-                  "it disturbs before fitting them together")
-
-
-def _several(args, paths: list, model, what: str, min_samples: int) -> tuple[list, list, list]:
-    """The recordings of ``fit``/``check --together``, each read with the same flags: their measurements, model
-    inputs and names; refused unless they share their rate and channels."""
-    ms, inputs = [], []
-    for path in paths:
-        args.recording = path
-        m = _measurements(args, what, min_samples=min_samples)
-        ms.append(m)
-        inputs.append(_model_inputs(args, [model], m, note=len(ms) == 1))
-    first = ms[0]
-    for m in ms[1:]:
-        if abs(m.h - first.h) > 1e-9 * first.h:
-            raise CLIError(f"{m.recording.path}: {m.recording.rate_hz:g} Hz, {first.recording.path}: "
-                           f"{first.recording.rate_hz:g} Hz: recordings fitted together share their rate")
-        if set(m.labels) != set(first.labels):
-            raise CLIError(f"{m.recording.path}: channels {', '.join(m.labels)}, {first.recording.path}: "
-                           f"{', '.join(first.labels)}: the recordings fitted together need the same channels")
-    names = [Path(p).name for p in paths]
-    if len(set(names)) < len(names):
-        names = [str(p) for p in paths]
-    return ms, inputs, names
-
-
 def _fit_together(args, model, paths: list) -> int:
     """``torchtea fit A B … --together``: each channel's pooled fit over the recordings (:mod:`torchtea.fitting.together`)."""
     from ..checking.replicates import together_allan_figure, together_lines
@@ -242,20 +224,16 @@ def _fit_together(args, model, paths: list) -> int:
     from ..render.strictjson import dumps, write
     from ..sensors.measurements import DOCUMENT_MEANING, RECORDING_MEANING
 
-    if not args.together:
-        raise CLIError(f"{len(paths)} recordings: fit them together with --together (one model, its noise "
-                       "parameters shared), or one at a time")
-    if len(paths) < 2:
-        raise CLIError("--together needs two or more recordings")
-    for flag in ("export", "datasheet", "workers", "scheduler", "profile", "bootstrap", "exclude"):
-        if getattr(args, flag, None):
-            raise CLIError(f"--{flag} is not available with --together" + _EXCLUDE_WORDS * (flag == "exclude"))
+    _together_flags(args, paths, "fit", ("workers", "scheduler", "profile", "bootstrap", "exclude"))
     if args.method != "exact":
         raise CLIError("--together fits by the exact likelihood (--method exact)")
+    if args.datasheet and not args.export:
+        raise CLIError("--datasheet holds the exported numbers against the datasheet: give --export FORMAT too")
     ms, inputs, names = _several(args, paths, model, "a fit", 100)
     first = ms[0]
+    plan = _export_plan(args, first, args.export)
     t0 = time.perf_counter()
-    axes, lines, figures = {}, [], []
+    axes, lines, figures, pooled = {}, [], [], {}
     step, close = _progress(len(first.labels), f"fit {model.spec} together", "channel", bar=not args.json)
     step(0, len(first.labels))
     try:
@@ -264,6 +242,7 @@ def _fit_together(args, model, paths: list) -> int:
             inp = None if inputs[0] is None else inputs
             tg = fit_together(model, series, first.h, inputs=inp, recordings=names)
             axes[label] = {"unit": first.channel(label).unit, "replicates": tg.as_dict()}
+            pooled[label] = {"fit": tg.as_fit(0, first.h), "differs": tg.differs, "bias": tg.bias} if plan else {}
             lines += together_lines(label, first.channel(label).title, tg, first.channel(label).unit)
             if args.out:
                 figures.append(together_allan_figure(pyplot(), tg, series, first.h, Path(args.out).parent,
@@ -281,6 +260,11 @@ def _fit_together(args, model, paths: list) -> int:
            "command": "torchtea " + " ".join(sys.argv[1:]) if sys.argv[1:] else ""}
     if args.out:
         write(Path(args.out), doc)
+    if plan:  # (files beside --out, else in export-<first recording>)
+        out = Path(args.out).parent / "export" if args.out else Path(f"export-{Path(first.recording.path).stem}")
+        _pooled_export(args, ms, names, plan, {a: d["fit"] for a, d in pooled.items()}, inputs, out, quiet=args.json,
+                       differs={a: d["differs"] for a, d in pooled.items()},
+                       repeatability={a: d["bias"] for a, d in pooled.items()})
     if args.json:
         print(dumps(doc))
         return 0
@@ -373,25 +357,19 @@ def _check_together(args, paths: list) -> int:
     """``torchtea check A B … --together``: each channel's loop on the recordings' pooled likelihood
     (:func:`torchtea.checking.pooled.check_together`)."""
     from ..checking.pooled import POOLED_MEANING, check_together
-    from ..checking.replicates import pooled_lines, together_allan_figure
+    from ..checking.replicates import pooled_lines, pooled_report, together_allan_figure
     from ..fitting.together import REPLICATES_MEANING
     from ..noise import parse_model
     from ..render.plots import pyplot
     from ..render.strictjson import dumps, write
     from ..sensors.measurements import DOCUMENT_MEANING, RECORDING_MEANING
 
-    if not args.together:
-        raise CLIError(f"{len(paths)} recordings: check them together with --together (one model, its noise "
-                       "parameters shared), or one at a time")
-    if len(paths) < 2:
-        raise CLIError("--together needs two or more recordings")
-    for flag in ("add", "exclude_start", "export", "datasheet", "workers", "scheduler", "logdir", "windows", "exclude"):
-        if getattr(args, flag, None):
-            raise CLIError(f"--{flag.replace('_', '-')} is not available with --together"
-                           + _EXCLUDE_WORDS * (flag == "exclude"))
+    _together_flags(args, paths, "check", ("add", "exclude_start", "workers", "scheduler", "logdir", "windows",
+                                           "exclude", "no_intervals"))
     model = parse_model(args.model)
     ms, inputs, names = _several(args, paths, model, "check", 1000)
     first = ms[0]
+    plan = _export_plan(args, first, args.export)
     out = Path(args.out or f"check-together-{Path(paths[0]).stem}")
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
@@ -415,6 +393,17 @@ def _check_together(args, paths: list) -> int:
             step(k + 1, len(first.labels))
     finally:
         close()
+    fits = {label: pc.together.as_fit(0, first.h) for label, _, pc, _ in lines}
+    spread = {label: pc.together.bias for label, _, pc, _ in lines}
+    if plan:  # (the export holds the axes against the datasheet: its verdicts are the report's, made once)
+        _, exported = _pooled_export(args, ms, names, plan, fits, inputs, out / "export", quiet=True,
+                                     differs={label: pc.together.differs for label, _, pc, _ in lines},
+                                     repeatability=spread)
+        verdicts = {a.label: a.datasheet for a in exported if a.datasheet}
+    else:
+        verdicts = _datasheet_verdicts(args, first, fits, inputs[0], repeatability=spread)
+    for label, verdict in verdicts.items():
+        axes[label]["datasheet"] = verdict
     doc = {"together": True, "auto": bool(args.auto), "rate_hz": first.recording.rate_hz,
            "recordings": [m.describe() for m in ms], "axes": axes,
            "meaning": {**RECORDING_MEANING, **DOCUMENT_MEANING, **REPLICATES_MEANING, **POOLED_MEANING,
@@ -424,17 +413,8 @@ def _check_together(args, paths: list) -> int:
            "seconds": time.perf_counter() - t0, "warnings": [line for m in ms for line in m.notes()],
            "command": "torchtea " + " ".join(sys.argv[1:]) if sys.argv[1:] else ""}
     write(out / "check.json", doc)
-    md = [f"# {len(ms)} recordings checked together", "",
-          f"Recordings ({first.recording.rate_hz:g} Hz): {', '.join(names)}. One model per channel: its noise "
-          "parameters shared, each recording its own mean terms; gains are falls of the pooled BIC (the shared "
-          "parameters counted once, each recording's own terms once per recording); adequacy is every recording's "
-          "diagnostics at the pooled values.", ""]
-    for (label, title, pc, unit), fig in zip(lines, figures or [None] * len(lines)):
-        md += [f"## {label}", ""] + pooled_lines(label, title, pc, unit, markdown=True)[1:] + [""]
-        if fig is not None:
-            md += [f"![{label}: the recordings' Allan deviations and the pooled model]({fig.name})", ""]
-    md.append("units: " + "; ".join(f"{k}: {v}" for k, v in _units_of(first).items()))
-    (out / "report.md").write_text("\n".join(md) + "\n", encoding="utf-8")
+    (out / "report.md").write_text(pooled_report(lines, figures, names, first.recording.rate_hz, _units_of(first),
+                                                 verdicts), encoding="utf-8")
     if args.json:
         print(dumps(doc))
         return 0
@@ -442,6 +422,10 @@ def _check_together(args, paths: list) -> int:
           "parameters shared, each recording its own mean terms")
     for label, title, pc, unit in lines:
         print("\n".join(pooled_lines(label, title, pc, unit)))
+    if plan:
+        print(f"export of the pooled models: {out / 'export'} (noise terms from all recordings, the cover's data "
+              f"and mean terms {names[0]}'s)")
+    _print_verdicts(verdicts)
     print("gain: the fall of the pooled BIC; p: likelihood-ratio test of one value in every recording against each "
           "its own; units: " + "; ".join(f"{k}: {v}" for k, v in _units_of(first).items()))
     print(f"report: {out / 'report.md'}; JSON: {out / 'check.json'}")

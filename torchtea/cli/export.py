@@ -1,5 +1,6 @@
 """``torchtea export`` and the export that ``fit --export`` and ``check --export`` make
-(:mod:`torchtea.export.run`), with the datasheet verdicts (:mod:`torchtea.fitting.datasheet`)."""
+(:mod:`torchtea.export.run`), with the datasheet verdicts (:mod:`torchtea.fitting.datasheet`); the recordings that
+``--together`` reads and their pooled model's export."""
 from __future__ import annotations
 
 import sys
@@ -12,6 +13,7 @@ from .common import (
     _cluster,
     _cluster_flags,
     _measurements,
+    _model_inputs,
     _note,
     _recording_flags,
     _steps,
@@ -30,7 +32,10 @@ def _add_export(sub) -> None:
                                        "OpenVINS, IEEE 952, gtsam), with intervals and a cover")
     _recording_flags(ex, columns_help="the columns to export (default: every accelerometer and gyroscope axis)",
                      temperature_help="temperature column (°C) for the temperature effects", samples_default="all",
-                     samples_help="use the first N samples (default all)")
+                     samples_help="use the first N samples (default all)", several=True)
+    ex.add_argument("--together", action="store_true",
+                    help="several recordings of one sensor: per channel the model checked (or --model fitted) on "
+                         "all of them together, its noise parameters shared, and that pooled model exported")
     ex.add_argument("--format", action="append", required=True, metavar="FORMAT",
                     help="kalibr (imu.yaml), vins, orbslam3, openvins (kalibr_imu_chain.yaml), ieee952 (CSV), gtsam (YAML), "
                          "gtsam-python (a module setting PreintegrationCombinedParams) or all; repeatable or "
@@ -57,6 +62,10 @@ def cmd_export(args) -> int:
     _check_cluster_flags(args)
     if args.out:  # (before the checks: a wrong --out found after minutes of fitting loses them)
         _export_folder(args.out)
+    paths = list(args.recording or [])
+    if args.together or len(paths) > 1:
+        return _export_together(args, paths)
+    args.recording = paths[0] if paths else None
     if args.logdir and args.model:
         raise CLIError("--logdir shows the check's loop on each axis; with --model there is none: leave one out")
     m = _measurements(args, "an export", min_samples=1000)
@@ -137,9 +146,10 @@ def _sheets(args) -> dict:
     return args._sheets
 
 
-def _datasheet_verdicts(args, m, fits: dict, inputs) -> dict:
+def _datasheet_verdicts(args, m, fits: dict, inputs, repeatability: dict | None = None) -> dict:
     """Each axis whose sensor has a ``--datasheet`` against it (:func:`torchtea.fitting.datasheet.compare`), its
-    numbers as an export makes them (:func:`torchtea.export.run.export_axes`, no NEES study)."""
+    numbers as an export makes them (:func:`torchtea.export.run.export_axes`, no NEES study); ``repeatability``:
+    label → the recordings' turn-on bias spread where several were fitted together."""
     from ..export.run import export_axes
     from ..export.terms import parse_horizon
     from ..fitting.datasheet import compare
@@ -151,18 +161,21 @@ def _datasheet_verdicts(args, m, fits: dict, inputs) -> dict:
     _note(f"{', '.join(held)}: against the datasheet(s) {', '.join(sheets[s]['file'] for s in set(held.values()))} …")
     horizon, _ = parse_horizon(getattr(args, "horizon", None), m.h, m.samples)
     axes = export_axes({a: fits[a] for a in held}, m.series(), held, m.h, horizon, inputs=inputs, nees=0)
-    return {a.label: compare(a, sheets[a.sensor], fits[a.label], m.h) for a in axes}
+    return {a.label: compare(a, sheets[a.sensor], fits[a.label], m.h, repeatability=(repeatability or {}).get(a.label))
+            for a in axes}
 
 
-def _export(args, m, plan, fits: dict, inputs, meta: dict, out: Path, *, quiet: bool, plots: bool) -> tuple:
+def _export(args, m, plan, fits: dict, inputs, meta: dict, out: Path, *, quiet: bool, plots: bool,
+            repeatability: dict | None = None) -> tuple:
     """Export ``fits`` as ``plan`` says into ``out``; unless ``quiet``, print what was written and the datasheet
-    verdicts. Returns the export's JSON document and its axes' terms."""
+    verdicts (``repeatability``: label → recordings' turn-on bias spread, held against the datasheet's). Returns the
+    export's JSON document and its axes' terms."""
     from ..export.run import export_lines, export_recording
 
     _note(f"exporting {', '.join(plan.formats)} (cover over τ {plan.horizon[0]:g}–{plan.horizon[1]:g} s; NEES "
           f"study: {args.nees} realisations) …")
     doc, axes = export_recording(m, plan, fits, out, inputs=inputs, meta=meta, nees=args.nees, seed=args.export_seed,
-                                 values=args.values, plots=plots, sheets=_sheets(args))
+                                 values=args.values, plots=plots, sheets=_sheets(args), repeatability=repeatability)
     if not quiet:
         print("\n".join(export_lines(doc, axes, out)))
         _print_verdicts({a.label: a.datasheet for a in axes if a.datasheet})
@@ -201,3 +214,99 @@ def _export_flags(parser, *, standalone: bool) -> None:
                         help="hold each axis's N, B, K against a datasheet's (TOML, as torchtea plan --datasheet reads "
                              "it; examples/datasheets/): within spec, worse than spec, or not determined by this "
                              "record and how long would tell; one file per sensor, repeatable")
+
+
+#: Why ``--exclude`` is refused with ``--together``.
+_EXCLUDE_WORDS = (" (it would leave the same seconds out of every recording): leave a stretch out of the one recording "
+                  "it disturbs before fitting them together")
+
+
+def _together_flags(args, paths: list, verb: str, refused: tuple) -> None:
+    """Several recordings need ``--together``, and ``--together`` two or more; the flags ``refused`` (attribute
+    names) are not available with it: each one clear error."""
+    if not args.together:
+        raise CLIError(f"{len(paths)} recordings: {verb} them together with --together (one model, its noise "
+                       "parameters shared), or one at a time")
+    if len(paths) < 2:
+        raise CLIError("--together needs two or more recordings")
+    for flag in refused:
+        if getattr(args, flag, None):
+            raise CLIError(f"--{flag.replace('_', '-')} is not available with --together"
+                           + _EXCLUDE_WORDS * (flag == "exclude"))
+
+
+def _several(args, paths: list, model, what: str, min_samples: int) -> tuple[list, list, list]:
+    """The recordings of ``fit``/``check --together``, each read with the same flags: their measurements, model
+    inputs and names; refused unless they share their rate and channels."""
+    ms, inputs = [], []
+    for path in paths:
+        args.recording = path
+        m = _measurements(args, what, min_samples=min_samples)
+        ms.append(m)
+        inputs.append(_model_inputs(args, [model], m, note=len(ms) == 1))
+    first = ms[0]
+    for m in ms[1:]:
+        if abs(m.h - first.h) > 1e-9 * first.h:
+            raise CLIError(f"{m.recording.path}: {m.recording.rate_hz:g} Hz, {first.recording.path}: "
+                           f"{first.recording.rate_hz:g} Hz: recordings fitted together share their rate")
+        if set(m.labels) != set(first.labels):
+            raise CLIError(f"{m.recording.path}: channels {', '.join(m.labels)}, {first.recording.path}: "
+                           f"{', '.join(first.labels)}: the recordings fitted together need the same channels")
+    names = [Path(p).name for p in paths]
+    if len(set(names)) < len(names):
+        names = [str(p) for p in paths]
+    return ms, inputs, names
+
+
+def _pooled_export(args, ms: list, names: list, plan, fits: dict, inputs: list, out: Path, *, quiet: bool,
+                   differs: dict, repeatability: dict):
+    """The export of a pooled model (``fits``: label → :meth:`~torchtea.fitting.together.Together.as_fit` of the first
+    recording): its noise terms from all recordings, the cover's data and mean terms the first's, said in the
+    export's document, with the parameters in which the recordings differ (``differs``: label → names) and their
+    turn-on bias spread (``repeatability``: label → it or None) held against a datasheet's. Returns what
+    :func:`_export` returns."""
+    first = ms[0]
+    meta = first.describe()
+    words = (f"the model fitted to {len(ms)} recordings together ({', '.join(names)}): its noise parameters from all "
+             f"of them, with the pooled intervals; the mean terms, the cover's data and the figure's {names[0]}'s")
+    meta.update(command="torchtea " + " ".join(sys.argv[1:]), warnings=[w for m in ms for w in m.notes()],
+                pooled={"recordings": names, "words": words, "differs": differs})
+    _note(f"note: exporting {words}")
+    for label, d in differs.items():
+        if d:
+            _note(f"note: {label}: the recordings differ in {', '.join(d)}: the exported number is their compromise")
+    return _export(args, first, plan, fits, inputs[0], meta, out, quiet=quiet, plots=not getattr(args, "no_plots", False),
+                   repeatability=repeatability)
+
+
+def _export_together(args, paths: list) -> int:
+    """``torchtea export A B … --together``: each channel's model checked on the recordings together (as ``check
+    --together --auto``) or ``--model`` fitted to them together, and the pooled models exported."""
+    from ..checking.pooled import check_together
+    from ..fitting.together import fit_together
+    from ..noise import parse_model
+
+    _together_flags(args, paths, "export", ("workers", "scheduler", "logdir", "exclude", "exclude_start"))
+    model = parse_model(args.model or "fractional+white")
+    ms, inputs, names = _several(args, paths, model, "an export", 1000)
+    first = ms[0]
+    plan = _export_plan(args, first, args.format)
+    inp = None if inputs[0] is None else inputs
+    fits, differs, spread = {}, {}, {}
+    for label in first.labels:
+        series = [m.channel(label).values for m in ms]
+        def say(line, label=label):
+            _note(f"{label}: {line}")
+
+        if args.model:
+            tg = fit_together(model, series, first.h, inputs=inp, recordings=names, progress=say)
+            end = ""
+        else:
+            pc = check_together(model, series, first.h, inputs=inp, recordings=names, max_steps=args.max_steps,
+                                strong=args.strong, simplify=not args.no_simplify, fits=args.fits, progress=say)
+            tg, end = pc.together, f"; {pc.loop_end}"
+        fits[label], differs[label], spread[label] = tg.as_fit(0, first.h), tg.differs, tg.bias
+        print(f"{label}: {tg.model.spec}: {tg.verdict}{end}")
+    out = Path(args.out or f"export-{Path(paths[0]).stem}")
+    _pooled_export(args, ms, names, plan, fits, inputs, out, quiet=False, differs=differs, repeatability=spread)
+    return 0

@@ -28,6 +28,9 @@ EXPORT_MEANING = {
     **RECORDING_MEANING,
     **DOCUMENT_MEANING,
     "bare": "N (white noise density) and K (bias random walk) as the fitted model has them",
+    "pooled": "where several recordings were fitted together: their names, in words what comes from all of them (the "
+              "noise parameters, with the pooled intervals) and what from the first (mean terms, the cover's data), "
+              "and per axis the noise parameters in which the recordings differ (their pooled value a compromise)",
     "covered": "the least N, K whose Allan deviation covers the fitted model's over the horizon",
     "factor": "covered / bare (None where the model has none of the term)",
     "forced_by": "the τ where the cover touches the model and the component largest there",
@@ -100,10 +103,12 @@ def plan_export(m, names, horizon: str | None) -> ExportPlan | None:
 
 def export_recording(m, plan: ExportPlan, fits: dict, out: Path, *, inputs: dict | None = None,
                      meta: dict | None = None, nees: int = 64, seed: int = 0, values: str = "covered",
-                     plots: bool = True, sheets: dict | None = None) -> tuple[dict, list]:
+                     plots: bool = True, sheets: dict | None = None,
+                     repeatability: dict | None = None) -> tuple[dict, list]:
     """Export the fitted models ``fits`` (label → :class:`~torchtea.fitting.mle.Fit`) of ``m``'s channels as
     ``plan`` says, into ``out`` (:func:`export_axes`, then :func:`write_export` with ``meta`` and the plan's horizon
-    note). Returns the JSON document and the axes' terms."""
+    note); ``repeatability``: label → the turn-on bias repeatability of recordings fitted together, held against the
+    datasheet's. Returns the JSON document and the axes' terms."""
     axes = export_axes(fits, m.series(), {c.label: c.sensor for c in m.channels}, m.h, plan.horizon,
                        inputs=inputs, nees=nees, seed=seed)
     if sheets:
@@ -111,7 +116,8 @@ def export_recording(m, plan: ExportPlan, fits: dict, out: Path, *, inputs: dict
 
         for a in axes:
             if a.sensor in sheets:
-                a.datasheet = compare(a, sheets[a.sensor], fits[a.label], m.h)
+                a.datasheet = compare(a, sheets[a.sensor], fits[a.label], m.h,
+                                      repeatability=(repeatability or {}).get(a.label))
     doc = write_export(out, axes, plan.formats, dict(meta or {}, horizon_note=plan.horizon_note), which=values,
                        plots=plots)
     return doc, axes
@@ -191,6 +197,10 @@ def markdown(axes: list, doc: dict) -> str:
              f"Files: {', '.join(Path(p).name for p in doc['files'].values()) or 'none'}; values written: "
              f"**{doc['values']}**. Continuous time: N a white noise density, K a bias random walk; a filter at Δt "
              "uses σ_d = N/√Δt and σ_bd = K·√Δt.", ""]
+    if doc.get("pooled"):
+        lines += [f"Pooled: {doc['pooled']['words']}."] + [
+            f"- **{a}**: the recordings differ in {', '.join(d)}: its pooled value is their compromise, not the "
+            "number of every recording" for a, d in doc["pooled"].get("differs", {}).items() if d] + [""]
     for name, why in doc["skipped"].items():
         lines += [f"- **{name} not written**: {why}"]
     lines += ["", "| axis | model | N bare [95 %] | N covered [95 %] (× factor) | K bare [95 %] | "

@@ -12,6 +12,9 @@ deviation's minimum / 0.664) and a verdict:
 - **not determined by this record**: the interval holds the datasheet's value; for N and K, the record length at
   which the expected interval would no longer hold it (:func:`~torchtea.fitting.plan.length_for`, the fitted model
   taken as the truth);
+- the **turn-on bias repeatability**, where the datasheet gives one and three or more recordings were fitted
+  together: their levels' spread (:func:`~torchtea.fitting.together.bias_repeatability`) by the same rules, the
+  record being the number of power-ups;
 - **none in the model**: the fitted model has no such component (a random walk the loop did not add): the record
   shows none above its other noise, which is no measurement of it — not compared; **none seen**: the model has it
   but the fit puts almost none of it in the record (a walk at σ ≈ 0, an interval over more than six decades) — the same.
@@ -67,8 +70,10 @@ def read_datasheet(path) -> dict:
     """A datasheet file (TOML): ``sensor`` (gyroscope or accelerometer), ``rate_hz``, and the terms it gives —
     ``N``, ``B``, ``K`` — each ``{value = …, unit = "…"}`` in a unit of :data:`DATASHEET_UNITS`, optionally
     ``source``; B also ``convention`` (:data:`B_CONVENTIONS`: ``"allan-minimum"``, the default, the Allan deviation's
-    floor as data sheets quote it; ``"ieee952"``, the coefficient). Returns ``{"sensor", "rate_hz", "N", "B", "K"}``
-    in SI, B as IEEE 952's coefficient (a term not given: None), ``source`` and ``B_convention``.
+    floor as data sheets quote it; ``"ieee952"``, the coefficient); and ``repeatability``, the turn-on bias
+    repeatability (the bias's spread from one power-up to the next, 1σ, in a bias's units). Returns ``{"sensor",
+    "rate_hz", "N", "B", "K", "repeatability"}`` in SI, B as IEEE 952's coefficient (a term not given: None),
+    ``source`` and ``B_convention``.
     Raises ``ValueError`` naming the file and what is wrong."""
     path = Path(path)
     try:
@@ -106,8 +111,19 @@ def read_datasheet(path) -> dict:
             out["B_convention"] = convention
             if convention == "allan-minimum":
                 out["printed"][term] += " at the Allan floor"
+    entry = doc.get("repeatability")
+    out["repeatability"] = None
+    if entry is not None:  # (a bias's spread between power-ups: the units of a bias, B's)
+        units = DATASHEET_UNITS[sensor]["B"]
+        if not isinstance(entry, dict) or "value" not in entry or entry.get("unit") not in units:
+            raise ValueError(f"{path}: repeatability must be {{value = …, unit = \"…\"}} with unit one of "
+                             f"{', '.join(units)}; got {entry!r}")
+        if not float(entry["value"]) > 0:
+            raise ValueError(f"{path}: repeatability must be positive, got {entry['value']!r}")
+        out["repeatability"] = float(entry["value"]) * units[entry["unit"]]
+        out.setdefault("printed", {})["repeatability"] = f"{entry['value']} {entry['unit']} (1σ)"
     if out["N"] is None:
-        raise ValueError(f"{path}: N (the noise density) is needed; B and K are optional")
+        raise ValueError(f"{path}: N (the noise density) is needed; B, K and repeatability are optional")
     return out
 
 
@@ -156,11 +172,13 @@ VERDICT_MEANING = ("fitted: the axis's value (SI) with its 95 % interval; datash
     "the datasheet's value; record_for_s: the length that would tell), none in the model")
 
 
-def compare(terms, sheet: dict, fit, h: float) -> dict:
+def compare(terms, sheet: dict, fit, h: float, repeatability: dict | None = None) -> dict:
     """One axis against a datasheet: ``terms`` its :class:`~.terms.AxisTerms`, ``sheet`` a read datasheet, ``fit``
-    the axis's fit (for the record length a verdict needs), ``h`` the sample time. Returns ``{"sensor", "source",
-    "rows": [{"term", "fitted", "ci95", "datasheet", "datasheet_as_printed", "unit", "ratio", "ratio_ci95",
-    "verdict", "words", "record_for_s"}]}``."""
+    the axis's fit (for the record length a verdict needs), ``h`` the sample time; ``repeatability`` the turn-on
+    bias repeatability of several recordings fitted together
+    (:func:`~torchtea.fitting.together.bias_repeatability`), held against the datasheet's where it gives one.
+    Returns ``{"sensor", "source", "rows": [{"term", "fitted", "ci95", "datasheet", "datasheet_as_printed", "unit",
+    "ratio", "ratio_ci95", "verdict", "words", "record_for_s"}]}``."""
     rows = []
     for term in ("N", "B", "K"):
         spec = sheet.get(term)
@@ -208,9 +226,33 @@ def compare(terms, sheet: dict, fit, h: float) -> dict:
                             + (f"about {duration(n * h)} of recording would tell (expected, the fit as the truth)"
                                if n else "the plan gives no record length for it"))
         rows.append(row)
+    if sheet.get("repeatability") and repeatability is not None:
+        rows.append(_repeatability_row(sheet, repeatability, terms.ieee["B"].unit if "B" in terms.ieee else ""))
     return {"sensor": sheet["sensor"], "source": sheet.get("source", ""), "file": sheet.get("file", ""),
             "rows": rows,
             "meaning": VERDICT_MEANING}
+
+
+def _repeatability_row(sheet: dict, bias: dict, unit: str) -> dict:
+    """The recordings' turn-on bias spread (its REML value and profile interval) against the datasheet's."""
+    spec, value, ci = sheet["repeatability"], bias["spread"], list(bias["ci95"])
+    row = {"term": "repeatability", "fitted": value, "ci95": ci, "datasheet": spec,
+           "datasheet_as_printed": sheet.get("printed", {}).get("repeatability", ""), "unit": unit,
+           "ratio": value / spec, "ratio_ci95": [ci[0] / spec, ci[1] / spec], "record_for_s": None}
+    R = len(bias["levels"])
+    if ci[1] <= spec:
+        row["verdict"], row["words"] = "within spec", (f"{value / spec:.2g}× the datasheet's [{ci[0] / spec:.2g}, "
+                                                       f"{ci[1] / spec:.2g}] over {R} power-ups")
+    elif ci[0] > spec:
+        row["verdict"], row["words"] = "worse than spec", (f"{value / spec:.3g}× the datasheet's [{ci[0] / spec:.3g},"
+                                                           f" {ci[1] / spec:.3g}] over {R} power-ups")
+    else:
+        row["verdict"] = "not determined by this record"
+        row["words"] = (f"its interval [{ci[0] / spec:.2g}, {_g(ci[1] / spec)}]× the datasheet's holds it: {R} "
+                        "power-ups do not tell; more recordings, each from a power-up, would")
+    if sheet["sensor"] == "accelerometer":
+        row["words"] += " (an accelerometer's level holds gravity's projection: only recordings in one mounting)"
+    return row
 
 
 def read_sheets(paths) -> dict:

@@ -27,7 +27,7 @@ from ..noise.components import MeanEffect
 from ..noise.model import NoiseModel, parse_model
 from .exact import FIT_MEMORY, centred, gradient_supported
 from .mle import fit_series
-from .results import bic, intervals_from_hessian
+from .results import Fit, bic, intervals_from_hessian
 from .scoring import FD_STEP, INFORMATION_STEP, fd_hessian, logit_limits, objective, score, scoring_objective
 
 __all__ = ["Together", "fit_together", "bias_repeatability", "TOGETHER_LEVEL", "REPLICATES_MEANING"]
@@ -78,6 +78,8 @@ class Together:
     notes: list = field(default_factory=list)
     #: the pooled likelihood (its joint coordinates) and its maximum there, for tests that regroup a parameter
     pooled: tuple | None = field(default=None, repr=False)
+    #: the pooled observed information at that maximum over the joint coordinates (None: not computed, or not finite)
+    information: np.ndarray | None = field(default=None, repr=False)
 
     @property
     def n(self) -> int:
@@ -94,6 +96,38 @@ class Together:
     def bic(self) -> float:
         """BIC of the pooled fit on the pooled exact likelihood (what the loop on several recordings compares)."""
         return bic(self.k, self.n, self.loglik)
+
+    def as_fit(self, r: int = 0, h: float | None = None) -> Fit:
+        """The pooled model as recording ``r``'s fit (what an export or a datasheet's verdict takes): the shared noise
+        parameters' pooled values, that recording's own mean terms, and intervals from the pooled information — the
+        covariance of that recording's coordinates, the others' own terms profiled out —; ``h`` the sample time."""
+        if self.pooled is None or h is None:
+            raise ValueError("the pooled fit's intervals need its joint coordinates and the sample time")
+        joint, x = self.pooled
+        P = len(self.model.names)
+        u = joint.unpack(x, r)[0]
+        H = torch.zeros(P, P, dtype=torch.float64)
+        idx = torch.tensor(joint.free, dtype=torch.int64)
+        c = joint.columns(r)
+        try:
+            if self.information is None or not np.all(np.linalg.eigvalsh(self.information) > 0):
+                raise np.linalg.LinAlgError
+            Hr = np.linalg.inv(np.linalg.inv(self.information)[np.ix_(c, c)])
+        except np.linalg.LinAlgError:
+            Hr = np.full((len(c), len(c)), -1.0)  # (not positive definite: no interval)
+        H[idx[:, None], idx[None, :]] = torch.as_tensor(Hr)
+        mask = torch.zeros(P, dtype=torch.bool)
+        mask[idx] = True
+        values, se, ci, how = intervals_from_hessian(self.model, u, H, mask, h)
+        values = dict(self.values[r])
+        own = self.separate[r]
+        fit = Fit(self.model, "exact", values, se, ci, how, self.loglik, self.loglik, own.n,
+                  [self.model.names[i] for i in joint.free], True,
+                  notes=[f"pooled over {len(self.recordings)} recordings ({', '.join(self.recordings)}): the noise "
+                         f"parameters from all of them, the mean terms {self.recordings[r]}'s; loglik the pooled one"],
+                  u=u.detach().clone(), hessian=H)
+        fit.count({n: w for n, w in self.model.held_estimates().items()})
+        return fit
 
     @property
     def differs(self) -> list:
@@ -297,7 +331,7 @@ def fit_together(model, series: list, h: float, *, inputs: list | None = None, r
     if not tests:
         return Together(model, names, [model.names[i] for i in shared], [model.names[i] for i in own], values, ll, {},
                         {}, separate, [], level, level / max(1, len(shared)), None, notes, (joint, x))
-    se, ci, how = _shared_intervals(model, joint, x, h)
+    se, ci, how, H = _shared_intervals(model, joint, x, h)
     threshold = level / max(1, len(shared))
     say("testing each noise parameter: one value, or each recording its own")
     tests = _parameter_tests(model, joint, x, ll, shared, separate, h, threshold, se, ci, how)
@@ -312,7 +346,7 @@ def fit_together(model, series: list, h: float, *, inputs: list | None = None, r
                          f"up the same difference — read it as {label} differing between the recordings")
     bias = bias_repeatability(model, series, values, h, inputs, names) if R >= 3 and repeatability else None
     return Together(model, names, [model.names[i] for i in shared], [model.names[i] for i in own], values, ll, se,
-                    ci, separate, tests, level, threshold, bias, notes, (joint, x))
+                    ci, separate, tests, level, threshold, bias, notes, (joint, x), H)
 
 
 def _exact_loglik(fit) -> float:
@@ -320,9 +354,9 @@ def _exact_loglik(fit) -> float:
     return float(fit.loglik_exact if fit.loglik_exact is not None else fit.loglik)
 
 
-def _shared_intervals(model, joint: _Joint, x: np.ndarray, h: float) -> tuple[dict, dict, dict]:
+def _shared_intervals(model, joint: _Joint, x: np.ndarray, h: float) -> tuple[dict, dict, dict, np.ndarray | None]:
     """Intervals of the parameters every recording shares from the pooled observed information (the recordings' own
-    coordinates profiled out: the shared block of its inverse)."""
+    coordinates profiled out: the shared block of its inverse), and that information."""
     H = joint.information(x)
     shared = [i for i in joint.free if not joint.groups[i].any()]
     pos = [joint.offset[i] for i in shared]
@@ -342,7 +376,7 @@ def _shared_intervals(model, joint: _Joint, x: np.ndarray, h: float) -> tuple[di
     _, se, ci, how = intervals_from_hessian(model, u, Hfull, mask, h)
     keep = {model.names[i] for i in shared}
     return ({n: v for n, v in se.items() if n in keep}, {n: v for n, v in ci.items() if n in keep},
-            {n: v for n, v in how.items() if n in keep})
+            {n: v for n, v in how.items() if n in keep}, H)
 
 
 def regrouped(joint: _Joint, x: np.ndarray, i: int, groups, alternatives: list, each: bool = True

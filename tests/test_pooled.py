@@ -181,3 +181,26 @@ def test_export_takes_several_recordings_together(tmp_path, capsys):
     row = next(r for r in doc["axes"]["gx"]["datasheet"]["rows"] if r["term"] == "repeatability")
     assert row["verdict"] == "worse than spec" and row["ci95"][0] > 1e-4  # (levels 0.01 apart, the sheet's 1e-4)
     assert "Pooled:" in (out / "export.md").read_text()
+
+
+def test_plan_takes_several_recordings_together(tmp_path, capsys):
+    """``torchtea plan A B --together --model …``: the plan from the pooled fit (the pooled values as the truth), its
+    source saying so; --datasheet with it is one clear error."""
+    from torchtea.cli import main
+    from torchtea.fitting.plan import plan_document
+    from torchtea.sensors.io import write_columns
+
+    ys = [_series(3000, 70), _series(3000, 71, 0.05)]
+    paths = [write_columns(tmp_path / f"r{k}.csv", {"t": np.arange(len(y)) * H, "gyr_x": y}) for k, y in enumerate(ys)]
+    out = tmp_path / "plan.json"
+    args = ["plan", *map(str, paths), "--together", "--units", "rad/s", "--rate", "100", "--model",
+            "white+random-walk", "--lengths", "30,600"]
+    assert main(args + ["--out", str(out)]) == 0
+    doc = json.loads(out.read_text())
+    assert doc["source"].startswith("white+random-walk fitted to 2 recordings together (r0.csv, r1.csv)")
+    tg = fit_together("white+random-walk", ys, H, tests=False)
+    expected = plan_document(tg.model, tg.values[0], H, [3000, 60000], recorded=3000)
+    assert json.loads(json.dumps(doc["axes"]["gx"])) == json.loads(json.dumps(expected))
+    capsys.readouterr()
+    assert main(args + ["--datasheet", "examples/datasheets/mpu6050_gyroscope.toml"]) == 2
+    assert "--together plans from a model fitted" in capsys.readouterr().err

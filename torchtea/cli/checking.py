@@ -82,7 +82,10 @@ def _add_plan(sub) -> None:
                                      "length, from a recording's fit, a check, or a datasheet")
     _recording_flags(pl, columns_help="the columns to plan for (default: every accelerometer and gyroscope axis)",
                      temperature_help="temperature column (°C), for a --model with temperature effects",
-                     samples_default="all", samples_help="use the first N samples (default all)")
+                     samples_default="all", samples_help="use the first N samples (default all)", several=True)
+    pl.add_argument("--together", action="store_true",
+                    help="several recordings of one sensor: plan from --model fitted to all of them together (its "
+                         "noise parameters shared), the lengths those of one recording")
     pl.add_argument("--model", default="fractional+white",
                     help="fit this model SPEC to each column and plan from it (default fractional+white; --from-check "
                          "takes the model check's loop ended with)")
@@ -279,6 +282,28 @@ def _fit_together(args, model, paths: list) -> int:
     return 0
 
 
+def _plan_together(args, model, axes: dict, targets: list, lengths) -> str:
+    """``plan A B … --together``: each channel's plan from ``model`` fitted to the recordings together (the pooled
+    values as the truth, the lengths of one recording) into ``axes``; returns the source's words."""
+    from ..fitting.plan import plan_document
+    from ..fitting.together import fit_together
+
+    paths = list(args.recording or [])
+    if args.from_check or args.datasheet:
+        raise CLIError("--together plans from a model fitted to the recordings: leave out --from-check/--datasheet")
+    _together_flags(args, paths, "plan from", ("exclude",))
+    ms, inputs, names = _several(args, paths, model, "a plan", 100)
+    first = ms[0]
+    for label in first.labels:
+        _note(f"fitting {model.spec} to {label} of the {len(ms)} recordings together …")
+        tg = fit_together(model, [m.channel(label).values for m in ms], first.h,
+                          inputs=None if inputs[0] is None else inputs, recordings=names, tests=False)
+        n = tg.separate[0].n
+        axes[label] = plan_document(model, tg.values[0], first.h, lengths(first.h, n), recorded=n, targets=targets)
+    return (f"{model.spec} fitted to {len(ms)} recordings together ({', '.join(names)}): the pooled values as the "
+            f"truth, each length that of one recording ({names[0]}'s recorded)")
+
+
 def cmd_plan(args) -> int:
     """``torchtea plan``: how long to record (:mod:`torchtea.fitting.plan`)."""
     from ..fitting.datasheet import datasheet_model, read_datasheet
@@ -305,7 +330,9 @@ def cmd_plan(args) -> int:
         return sorted({max(8, int(round(x))) for x in ((x / h for x in lengths_s) if lengths_s else default)})
 
     try:
-        if args.datasheet:
+        if args.together or len(args.recording or []) > 1:
+            source = _plan_together(args, parse_model(args.model), axes, targets, lengths)
+        elif args.datasheet:
             sheet = read_datasheet(args.datasheet)
             model, values, h, terms, fixed = datasheet_model(sheet)
             source = f"datasheet {args.datasheet}" + (f" ({sheet['source']})" if sheet["source"] else "")
@@ -325,6 +352,7 @@ def cmd_plan(args) -> int:
                 ties[label] = doc["axes"][label].get("ties", [])
         else:
             model = parse_model(args.model)
+            args.recording = (args.recording or [None])[0]
             m = _measurements(args, "a plan", min_samples=100)
             inputs = _model_inputs(args, [model], m)
             source = f"{model.spec} fitted to {Path(m.recording.path).name}"

@@ -8,6 +8,7 @@ import math
 import numpy as np
 import pytest
 import torch
+from scipy import stats
 
 from torchtea.checking.pooled import check_together
 from torchtea.fitting.together import fit_together
@@ -52,6 +53,26 @@ def test_the_loop_adds_what_the_recordings_share_and_stops_adequate():
     doc = pc.as_dict()
     assert doc["replicates"]["verdict"] == "agree" and [s["model"] for s in doc["steps"]] == ["white",
                                                                                              "white+random-walk"]
+
+
+def test_a_little_of_an_effect_in_every_recording_is_found_by_their_screens_combined():
+    """Three short recordings with a weak random walk, checked from white alone: no recording suggests it (two
+    screens do not pass, the third's refit gains nothing there), their screens' p-values combined by Fisher's method
+    pass, and it becomes a candidate refitted to all together (seeded)."""
+    law = {"white.r": 1e-4, "random-walk.sigma": 2e-4}
+    ys = [simulate_model("white+random-walk", law, n_steps=4000, h=H,
+                         generator=torch.Generator().manual_seed(1 + k))[0, 0].numpy() for k in range(3)]
+    pc = check_together("white", ys, H, max_steps=0, simplify=False)
+    step = pc.steps[0]
+    rows = [next(r for r in c.screens if r.effect == "random-walk") for c in step.checks]
+    assert sum(not r.passed for r in rows) == 2
+    assert not any(s.effect == "random-walk" for c in step.checks for s in c.suggestions)
+    combined = next(c for c in step.combined if c["effect"] == "random-walk")
+    x = -2 * sum(math.log(r.p_value) for r in rows)
+    assert combined["p_value"] == pytest.approx(stats.chi2.sf(x, 6)) and combined["passed"]
+    assert combined["p_value"] < combined["threshold"] / 10
+    rw = next(c for c in step.candidates if c["effect"] == "random-walk")
+    assert rw["suggested_by"] == ["the recordings' screens combined"] and rw["model"] == "white+random-walk"
 
 
 def test_a_step_in_one_recording_is_its_fault_not_the_sensors():

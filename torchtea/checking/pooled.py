@@ -4,7 +4,8 @@ the pooled likelihood.
 
 Each step checks every recording on its own with the current model (:func:`~.check.check`, the screens' family level
 split over the recordings, so on recordings of the model the chance of any suggestion stays at the level); an effect
-that passes a screen in any recording is a candidate, and is refitted to all of them together: its gain is the fall of
+that passes a screen and gains in any recording is a candidate, and so is one whose screens pass combined over the
+recordings (Fisher's method: a little of it in each); each is refitted to all of them together: its gain is the fall of
 the pooled BIC (the shared parameters counted once, each recording's own terms once per recording). The loop adds the
 best candidate while it gains — past a model adequate in every recording only while it gains :data:`~.ranking.
 STRONG_BIC` or more —, then tries each component taken away or replaced by its special case (the fractional part by a
@@ -20,6 +21,7 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy import stats
 
 from ..fitting.together import Together, fit_together
 from ..noise.components import COMPONENTS
@@ -28,7 +30,7 @@ from ..noise.model import parse_model
 from . import simplify as simplifying
 from .check import check
 from .diagnostics import LEVEL
-from .models import assess, model_fit
+from .models import assess, extend, model_fit
 from .ranking import STRONG_BIC
 
 __all__ = ["check_together", "PooledCheck", "PooledStep", "POOLED_MEANING"]
@@ -42,6 +44,9 @@ POOLED_MEANING = {
              "the effects a recording's check suggests that are located in it (faults: not added; at the last step "
              "that recording's own fault, before it perhaps what the model still lacked — a random walk looks like a "
              "step)",
+    "combined_screens": "per step, each effect screened in every recording: its screens' p-values combined by "
+                        "Fisher's method, the threshold (the screens' family level over the effects) and whether it "
+                        "passed — an effect no recording shows enough of alone is then a candidate too",
     "loop_end": "why the pooled loop ended, in words",
     "adequate": "every recording's diagnostics pass at the final model's pooled values",
 }
@@ -61,6 +66,8 @@ class PooledStep:
     candidates: list = field(default_factory=list)
     faults: list = field(default_factory=list)
     tried: list = field(default_factory=list)
+    #: each effect's screens combined over the recordings (:meth:`_Loop.combined`)
+    combined: list = field(default_factory=list)
     #: the candidates refitted together, best first (:meth:`_Loop.candidates`), once made
     evaluated: list | None = field(default=None, repr=False)
 
@@ -77,7 +84,8 @@ class PooledStep:
         return {"model": tg.model.spec, "change": self.change, "gain": self.gain, "loglik": tg.loglik, "k": tg.k,
                 "n": tg.n, "bic": tg.bic, "adequate": self.adequate,
                 "failing": {name: list(f) for name, f in zip(tg.recordings, self.failing)},
-                "candidates": list(self.candidates), "faults": list(self.faults), "tried": list(self.tried)}
+                "candidates": list(self.candidates), "faults": list(self.faults), "tried": list(self.tried),
+                "combined_screens": list(self.combined)}
 
 
 @dataclass
@@ -173,20 +181,46 @@ class _Loop:
                                         "model": s.fit.model.spec})
                     continue
                 best = found.get(s.effect)
-                if best is None or s.gain > best[1]:
+                if best is None or s.gain > best[1]:  # (the model of the recording where it gains most)
                     found[s.effect] = (s.fit.model, s.gain, (best[2] if best else []) + [name])
                 else:
                     best[2].append(name)
+        for effect, tok in self.combined(node, set(found)):
+            found[effect] = (extend(node.model, tok), 0.0, ["the recordings' screens combined"])
         out = []
         for effect, (alt, _, by) in found.items():
             fits = self.fits_of(alt, node, effect)
             tg = self.together(alt, fits)
             gain = float(node.together.bic - tg.bic)
-            node.candidates.append({"effect": effect, "model": alt.spec, "suggested_by": sorted(by), "gain": gain})
+            node.candidates.append({"effect": effect, "model": alt.spec, "suggested_by": by, "gain": gain})
             out.append((gain, alt, fits, effect))
         node.candidates.sort(key=lambda c: -c["gain"])
         node.evaluated = sorted(out, key=lambda t: -t[0])
         return node.evaluated
+
+    def combined(self, node: PooledStep, found: set) -> list:
+        """The effects that no recording's screen passes alone but all of them together do: each recording's screen
+        p-value combined by Fisher's method (−2 Σ ln p, χ² with 2R degrees of freedom under the model: the
+        recordings are independent), at the screens' family level over the effects screened — an effect every
+        recording shows a little of. ``(effect, token)`` for those not in ``found``, not located in a recording."""
+        rows = {}
+        for c in node.checks:
+            for r in c.screens:
+                if r.p_value is not None and r.token is not None:
+                    rows.setdefault(r.effect, []).append(r)
+        full = {e: rs for e, rs in rows.items() if len(rs) == self.R}
+        threshold = self.screen_level / max(1, len(full))
+        out = []
+        for effect, rs in full.items():
+            if effect in found or _own_fault(rs[0].token) or any(r.token != rs[0].token for r in rs):
+                continue
+            x = -2.0 * sum(math.log(max(r.p_value, 1e-300)) for r in rs)
+            p = float(stats.chi2.sf(x, 2 * self.R))
+            node.combined.append({"effect": effect, "p_value": p, "threshold": threshold,
+                                  "passed": p < threshold, "p_values": [r.p_value for r in rs]})
+            if p < threshold:
+                out.append((effect, rs[0].token))
+        return out
 
     def simpler(self, node: PooledStep) -> tuple | None:
         """The best of the model's components taken away or replaced by its special case where it lowers the pooled

@@ -191,7 +191,7 @@ def pooled_lines(label: str, title: str, pc, unit: str, markdown: bool = False) 
                      f"{fails}")
         if d["candidates"]:
             lines.append(f"{bullet}    candidates: " + ", ".join(
-                f"{c['effect']} {c['gain']:+.1f} (screen passed in {', '.join(c['suggested_by'])})"
+                f"{c['effect']} {c['gain']:+.1f} ({_by(c['suggested_by'])})"
                 for c in d["candidates"]))
         for f in d["faults"] if k == len(pc.steps) - 1 else ():  # (before, the model may lack what explains it)
             lines.append(f"{bullet}    {f['recording']} alone: {f['effect']} (gain {f['gain']:.1f} there): located in "
@@ -201,6 +201,13 @@ def pooled_lines(label: str, title: str, pc, unit: str, markdown: bool = False) 
     lines.append(f"{bullet}verdict: {tg[0].split(': ', 1)[1]}")
     lines += [f"{bullet}{line.strip()}" for line in tg[1:]] if markdown else tg[1:]
     return lines
+
+
+def _by(recordings: list) -> str:
+    """Where a pooled candidate came from, in words."""
+    named = [r for r in recordings if not r.startswith("the recordings' screens")]
+    out = [f"suggested by {', '.join(named)}"] if named else []
+    return "; ".join(out + [r for r in recordings if r not in named])
 
 
 def pooled_report(lines: list, figures: list, names: list, rate_hz: float, units: dict, verdicts: dict) -> str:

@@ -100,6 +100,8 @@ def test_check_takes_several_recordings_together(tmp_path, capsys):
     """``torchtea check A.csv B.csv --together --auto``: check.json with each channel's path and replicates, a report
     with the Allan figure; without --auto the model checked and its pooled fit exported; flags that make no sense
     together are one clear error each."""
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
     from torchtea.cli import main
     from torchtea.sensors.io import write_columns
 
@@ -109,13 +111,19 @@ def test_check_takes_several_recordings_together(tmp_path, capsys):
         paths.append(write_columns(tmp_path / f"r{k}.csv", {"t": np.arange(len(y)) * H, "gyr_x": y}))
     out = tmp_path / "ck"
     args = ["check", *map(str, paths), "--units", "rad/s", "--model", "white", "--rate", "100", "--together"]
-    assert main(args + ["--auto", "--out", str(out)]) == 0
+    assert main(args + ["--auto", "--out", str(out), "--logdir", str(tmp_path / "tb")]) == 0
     text = capsys.readouterr().out
     assert "2 recordings checked together" in text and "step 1: white+random-walk (added random-walk" in text
     doc = json.loads((out / "check.json").read_text())
     ax = doc["axes"]["gx"]
     assert ax["model"] == "white+random-walk" and ax["steps"][0]["model"] == "white"
     assert ax["replicates"]["recordings"] == ["r0.csv", "r1.csv"] and "steps" in doc["meaning"]
+    ea = EventAccumulator(str(tmp_path / "tb" / "gx"), size_guidance={"scalars": 0, "images": 0, "tensors": 0})
+    ea.Reload()
+    assert [e.value for e in ea.Scalars("pooled/bic")] == pytest.approx([s["bic"] for s in ax["steps"]], rel=1e-6)
+    assert ea.Scalars("pooled/gain")[0].step == 1 and ea.Images("pooled/allan")[0].encoded_image_string[:4] == b"\x89PNG"
+    verdict = ea.Tensors("verdict/text_summary")[-1].tensor_proto.string_val[0].decode()
+    assert "white+random-walk" in verdict and "the 2 recordings" in verdict
     report = (out / "report.md").read_text()
     assert "## gx" in report and "allan_gx.png" in report and (out / "allan_gx.png").stat().st_size > 1000
     # (no --auto: the model checked, nothing added; its pooled model exported)

@@ -9,6 +9,10 @@ channel (``DIR/<label>``), each step of the loop a global step:
 - text ``loop/step``: what the step changed and what it repaired or broke; ``verdict`` at the last step: the model the
   loop ended with, adequate or not, why it stopped, the ties.
 
+``check A B --together --logdir DIR`` writes one run per channel too (:func:`write_pooled_runs`): each step of the
+pooled loop ``pooled/bic``, ``pooled/gain``, ``pooled/failing`` (diagnostics failed, over the recordings), its change
+and candidates as text, the recordings' Allan deviations with the final pooled model as an image and the verdict.
+
 Read back with TensorBoard's own event reader in the tests."""
 from __future__ import annotations
 
@@ -17,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["write_check_runs"]
+__all__ = ["write_check_runs", "write_pooled_runs"]
 
 
 def _step_text(row: dict, k: int) -> str:
@@ -99,3 +103,39 @@ def _add_figures(w, res, label: str, unit: str, k: int) -> None:
     with tempfile.TemporaryDirectory() as tmp:
         for p in make_figures(res, Path(tmp), label, unit):
             _add_image(w, p, f"figures/{p.stem.removeprefix(label + '_')}", k)
+
+
+def write_pooled_runs(logdir, results: dict, series: dict, h: float, units: dict | None = None,
+                      inputs: list | None = None, figures: bool = True) -> list[Path]:
+    """One TensorBoard run per channel of a check of several recordings together (``results``: label →
+    :class:`~.pooled.PooledCheck`; ``series``: label → the recordings' samples) under ``logdir``. Returns the runs'
+    folders."""
+    from torch.utils.tensorboard import SummaryWriter
+
+    from .replicates import pooled_lines, together_allan_figure
+
+    logdir = Path(logdir)
+    runs = []
+    for label, pc in results.items():
+        run = logdir / label
+        unit = (units or {}).get(label, "units")
+        with SummaryWriter(log_dir=str(run)) as w:
+            for k, step in enumerate(pc.steps):
+                d = step.as_dict()
+                w.add_scalar("pooled/bic", d["bic"], k)
+                w.add_scalar("pooled/failing", sum(len(f) for f in d["failing"].values()), k)
+                if d["gain"] is not None:
+                    w.add_scalar("pooled/gain", d["gain"], k)
+                cands = ", ".join(f"{c['effect']} {c['gain']:+.1f}" for c in d["candidates"]) or "none"
+                w.add_text("pooled/step", f"step {k}: `{d['model']}` ({d['change']}); candidates: {cands}", k)
+            last = len(pc.steps) - 1
+            if figures:
+                from ..render.plots import pyplot
+
+                with tempfile.TemporaryDirectory() as tmp:
+                    p = together_allan_figure(pyplot(), pc.together, series[label], h, Path(tmp), label, unit,
+                                              inputs)
+                    _add_image(w, p, "pooled/allan", last)
+            w.add_text("verdict", "  \n".join(pooled_lines(label, label, pc, unit)), last)
+        runs.append(run)
+    return runs

@@ -381,26 +381,14 @@ def cmd_plan(args) -> int:
     return 0
 
 
-def _check_together(args, paths: list) -> int:
-    """``torchtea check A B … --together``: each channel's loop on the recordings' pooled likelihood
-    (:func:`torchtea.checking.pooled.check_together`)."""
-    from ..checking.pooled import POOLED_MEANING, check_together
-    from ..checking.replicates import pooled_lines, pooled_report, together_allan_figure
-    from ..fitting.together import REPLICATES_MEANING
-    from ..noise import parse_model
+def _pooled_channels(args, model, ms: list, inputs: list, names: list, out: Path) -> tuple[dict, list, list]:
+    """``check --together``'s loop on each channel (:func:`torchtea.checking.pooled.check_together`): its document
+    per label, ``(label, title, result, unit)`` per channel, and the Allan figures drawn."""
+    from ..checking.pooled import check_together
+    from ..checking.replicates import together_allan_figure
     from ..render.plots import pyplot
-    from ..render.strictjson import dumps, write
-    from ..sensors.measurements import DOCUMENT_MEANING, RECORDING_MEANING
 
-    _together_flags(args, paths, "check", ("add", "exclude_start", "workers", "scheduler", "logdir", "windows",
-                                           "exclude", "no_intervals"))
-    model = parse_model(args.model)
-    ms, inputs, names = _several(args, paths, model, "check", 1000)
     first = ms[0]
-    plan = _export_plan(args, first, args.export)
-    out = Path(args.out or f"check-together-{Path(paths[0]).stem}")
-    out.mkdir(parents=True, exist_ok=True)
-    t0 = time.perf_counter()
     axes, lines, figures = {}, [], []
     step, close = _progress(len(first.labels), f"check {model.spec} together", "channel", bar=not args.json)
     step(0, len(first.labels))
@@ -421,6 +409,29 @@ def _check_together(args, paths: list) -> int:
             step(k + 1, len(first.labels))
     finally:
         close()
+    return axes, lines, figures
+
+
+def _check_together(args, paths: list) -> int:
+    """``torchtea check A B … --together``: each channel's loop on the recordings' pooled likelihood
+    (:func:`torchtea.checking.pooled.check_together`)."""
+    from ..checking.pooled import POOLED_MEANING
+    from ..checking.replicates import pooled_lines, pooled_report
+    from ..fitting.together import REPLICATES_MEANING
+    from ..noise import parse_model
+    from ..render.strictjson import dumps, write
+    from ..sensors.measurements import DOCUMENT_MEANING, RECORDING_MEANING
+
+    _together_flags(args, paths, "check", ("add", "exclude_start", "workers", "scheduler", "windows", "exclude",
+                                           "no_intervals"))
+    model = parse_model(args.model)
+    ms, inputs, names = _several(args, paths, model, "check", 1000)
+    first = ms[0]
+    plan = _export_plan(args, first, args.export)
+    out = Path(args.out or f"check-together-{Path(paths[0]).stem}")
+    out.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    axes, lines, figures = _pooled_channels(args, model, ms, inputs, names, out)
     fits = {label: pc.together.as_fit(0, first.h) for label, _, pc, _ in lines}
     spread = {label: pc.together.bias for label, _, pc, _ in lines}
     if plan:  # (the export holds the axes against the datasheet: its verdicts are the report's, made once)
@@ -441,6 +452,14 @@ def _check_together(args, paths: list) -> int:
            "seconds": time.perf_counter() - t0, "warnings": [line for m in ms for line in m.notes()],
            "command": "torchtea " + " ".join(sys.argv[1:]) if sys.argv[1:] else ""}
     write(out / "check.json", doc)
+    if args.logdir:
+        from ..checking.tblog import write_pooled_runs
+
+        runs = write_pooled_runs(args.logdir, {label: pc for label, _, pc, _ in lines},
+                                 {label: [m.channel(label).values for m in ms] for label, _, _, _ in lines}, first.h,
+                                 {label: unit for label, _, _, unit in lines}, None if inputs[0] is None else inputs,
+                                 figures=not args.no_plots)
+        _note(f"TensorBoard: {len(runs)} run(s) in {args.logdir} (tensorboard --logdir {args.logdir})")
     (out / "report.md").write_text(pooled_report(lines, figures, names, first.recording.rate_hz, _units_of(first),
                                                  verdicts), encoding="utf-8")
     if args.json:

@@ -30,7 +30,8 @@ def test_the_pooled_bic_counts_shared_parameters_once_and_own_terms_per_recordin
     ys = [_series(2000, 1, 0.1) + 0.01 * np.arange(2000) * H, _series(2500, 2)]
     tg = fit_together("white+random-walk+ramp", ys, H, tests=False)
     assert tg.shared == ["white.r", "random-walk.sigma"] and tg.own == ["ramp.slope"]
-    assert tg.k == 2 + 2 * 1 and tg.n == 4500 and tg.parameters == [] and tg.bias is None
+    assert tg.k == 2 + 2 * 1 and tg.n == 4500 and tg.parameters == [] and tg.bias is None and tg.finite
+    assert tg.verdict.startswith("not tested") and tg.as_dict()["verdict"] == "not tested"
     assert tg.bic == pytest.approx(tg.k * math.log(4500) - 2 * tg.loglik)
 
 
@@ -56,16 +57,16 @@ def test_the_loop_adds_what_the_recordings_share_and_stops_adequate():
 
 
 def test_a_little_of_an_effect_in_every_recording_is_found_by_their_screens_combined():
-    """Three short recordings with a weak random walk, checked from white alone: no recording suggests it (two
-    screens do not pass, the third's refit gains nothing there), their screens' p-values combined by Fisher's method
-    pass, and it becomes a candidate refitted to all together (seeded)."""
+    """Three short recordings with a weak random walk, checked from white alone: no recording suggests it (its screen
+    does not pass in at least two, where it does its refit gains nothing there), their screens' p-values combined by
+    Fisher's method pass, and it becomes a candidate refitted to all together (seeded)."""
     law = {"white.r": 1e-4, "random-walk.sigma": 2e-4}
     ys = [simulate_model("white+random-walk", law, n_steps=4000, h=H,
                          generator=torch.Generator().manual_seed(1 + k))[0, 0].numpy() for k in range(3)]
     pc = check_together("white", ys, H, max_steps=0, simplify=False)
     step = pc.steps[0]
     rows = [next(r for r in c.screens if r.effect == "random-walk") for c in step.checks]
-    assert sum(not r.passed for r in rows) == 2
+    assert sum(not r.passed for r in rows) >= 2
     assert not any(s.effect == "random-walk" for c in step.checks for s in c.suggestions)
     combined = next(c for c in step.combined if c["effect"] == "random-walk")
     x = -2 * sum(math.log(r.p_value) for r in rows)
@@ -155,6 +156,7 @@ def test_the_pooled_model_as_one_recordings_fit_keeps_the_pooled_intervals():
         lo, hi = f.ci95["ramp.slope"]
         assert lo < tg.values[r]["ramp.slope"] < hi
     assert tg.as_fit(0, H).values["ramp.slope"] != tg.as_fit(1, H).values["ramp.slope"]
+    assert tg.as_fit(0, H).loglik + tg.as_fit(1, H).loglik == pytest.approx(tg.loglik, abs=1e-6)
     with pytest.raises(ValueError, match="sample time"):
         tg.as_fit(0)
 
@@ -176,6 +178,8 @@ def test_a_datasheets_repeatability_is_read_and_held_against_the_recordings_spre
         row = _repeatability_row(sheet, {"spread": 0.5 * sum(c for c in ci if math.isfinite(c)), "ci95": ci,
                                          "levels": levels}, "rad/s")
         assert row["verdict"] == verdict and row["term"] == "repeatability" and "5 power-ups" in row["words"]
+    two = _repeatability_row(sheet, {"spread": None, "ci95": None, "levels": levels[:2]}, "rad/s")
+    assert two["verdict"] == "not determined by this record" and "three or more" in two["words"]
     path.write_text('sensor = "gyroscope"\nrate_hz = 100\nN = { value = 0.005, unit = "deg/s/sqrt(Hz)" }\n'
                     'repeatability = { value = 0.2, unit = "deg/s/sqrt(Hz)" }\n')
     with pytest.raises(ValueError, match="repeatability must be"):
@@ -233,3 +237,41 @@ def test_plan_takes_several_recordings_together(tmp_path, capsys):
     capsys.readouterr()
     assert main(args + ["--datasheet", "examples/datasheets/mpu6050_gyroscope.toml"]) == 2
     assert "--together plans from a model fitted" in capsys.readouterr().err
+
+
+def test_what_belongs_to_one_recording_and_why_the_loop_ended():
+    """A located effect (a step, even a second one) or one configured on its record (spikes:K) is a recording's
+    fault; the loop's words put max_steps before adequacy when the loop would have gone on."""
+    from types import SimpleNamespace
+
+    from torchtea.checking.pooled import _loop_end, _own_fault
+
+    assert _own_fault("step", "step") and _own_fault("spikes", "spikes:3") and not _own_fault("random-walk", None)
+    tg = SimpleNamespace(recordings=["a", "b"], finite=True)
+    node = SimpleNamespace(together=tg, adequate=True, failing=[[], []], faults=[],
+                           candidates=[{"effect": "sinusoid", "gain": 42.0}])
+    end = _loop_end([node], 2, 0, 2, 10.0)
+    assert end.startswith("stopped after 2 effects added (max_steps), adequate in every recording; sinusoid would")
+    node.candidates = [{"effect": "sinusoid", "gain": 4.0}]
+    assert _loop_end([node], 2, 0, 2, 10.0).startswith("adequate in every recording after 2 effect(s) added (sinusoid")
+    node.candidates, tg.finite = [{"effect": "ramp", "gain": None}], False
+    assert "not finite" in _loop_end([node], 0, 0, 6, 10.0)
+
+
+def test_check_together_reads_the_temperature_for_its_screens(tmp_path, capsys):
+    """``check A B --together --temperature temp`` from a model without temperature terms: the temperature is read
+    (its diagnostic and screens run, as for one recording), and a bias per °C that both recordings share is added."""
+    from torchtea.cli import main
+    from torchtea.sensors.io import write_columns
+
+    paths = []
+    for k in range(2):
+        y = _series(3000, 80 + k, shift=0.05 * k)
+        temp = 20.0 + 10.0 * np.linspace(0, 1, 3000) ** (1 + k)
+        paths.append(write_columns(tmp_path / f"r{k}.csv", {"t": np.arange(3000) * H, "gyr_x": y + 0.004 * temp,
+                                                            "temp": temp}))
+    assert main(["check", *map(str, paths), "--together", "--auto", "--units", "rad/s", "--rate", "100",
+                 "--model", "white+random-walk", "--temperature", "temp", "--out", str(tmp_path / "ck")]) == 0
+    assert "--temperature is not used" not in capsys.readouterr().err
+    ax = json.loads((tmp_path / "ck" / "check.json").read_text())["axes"]["gx"]
+    assert "temperature-bias" in ax["model"], [s["candidates"] for s in ax["steps"]]

@@ -2,15 +2,16 @@
 shared, each recording its own mean terms (:func:`~torchtea.fitting.together.fit_together`) — grown and pruned by
 the pooled likelihood.
 
-Each step checks every recording on its own with the current model (:func:`~.check.check`, the screens' family level
-split over the recordings, so on recordings of the model the chance of any suggestion stays at the level); an effect
-that passes a screen and gains in any recording is a candidate, and so is one whose screens pass combined over the
-recordings (Fisher's method: a little of it in each); each is refitted to all of them together: its gain is the fall of
+Each step checks every recording on its own with the current model (:func:`~.check.check`); an effect that passes a
+screen and gains in any recording is a candidate, and so is one whose screens pass combined over the recordings
+(Fisher's method: a little of it in each). Half the screens' family level goes to the recordings' own screens (split
+over the recordings), half to the combined ones (split over the effects), so on recordings of the model the chance
+of any candidate stays at the level. Each is refitted to all of them together: its gain is the fall of
 the pooled BIC (the shared parameters counted once, each recording's own terms once per recording). The loop adds the
 best candidate while it gains — past a model adequate in every recording only while it gains :data:`~.ranking.
 STRONG_BIC` or more —, then tries each component taken away or replaced by its special case (the fractional part by a
 random walk: :func:`~.simplify.alternatives`), kept where the pooled BIC falls and no recording's diagnostics fail
-that passed. Adequacy is every recording's diagnostics at the pooled values. An effect that is located in a
+that passed. Adequacy is every recording's diagnostics at the pooled values, each at the level over the recordings. An effect that is located in a
 recording (spikes, a step) is that recording's own fault, not the sensor's: it is named with the recording and not
 added. At the end the recordings are tested against the final model, parameter by parameter
 (:attr:`~torchtea.fitting.together.Together.parameters`), and their turn-on bias spread estimated."""
@@ -24,8 +25,8 @@ import numpy as np
 from scipy import stats
 
 from ..fitting.together import Together, fit_together
+from ..fitting.whittle_path import fits_exactly
 from ..noise.components import COMPONENTS
-from ..noise.grammar import token
 from ..noise.model import parse_model
 from . import simplify as simplifying
 from .check import check
@@ -48,7 +49,8 @@ POOLED_MEANING = {
                         "Fisher's method, the threshold (the screens' family level over the effects) and whether it "
                         "passed — an effect no recording shows enough of alone is then a candidate too",
     "loop_end": "why the pooled loop ended, in words",
-    "adequate": "every recording's diagnostics pass at the final model's pooled values",
+    "adequate": "every recording's diagnostics pass at the final model's pooled values, each at the level over the "
+                "recordings (failing: those that do not)",
 }
 
 
@@ -116,11 +118,15 @@ class PooledCheck:
                 "seconds": self.seconds}
 
 
-def _own_fault(token: str) -> bool:
+def _own_fault(effect: str, token: str | None) -> bool:
     """An effect a recording's check configures on its own record (``spikes:K``) or locates in it (a step's time):
-    that recording's, not the sensor's."""
-    name = token.partition(":")[0]
-    return ":" in token or bool(COMPONENTS[name].located) if name in COMPONENTS else ":" in token
+    that recording's, not the sensor's — also where the model has one already."""
+    return ":" in (token or "") or (effect in COMPONENTS and bool(COMPONENTS[effect].located))
+
+
+def _row_token(check_result, effect: str) -> str | None:
+    """The spec token a recording's screen of ``effect`` configured."""
+    return next((r.token for r in check_result.screens if r.effect == effect), None)
 
 
 class _Loop:
@@ -130,10 +136,12 @@ class _Loop:
         self.R = len(series)
 
     def failing(self, tg: Together) -> list:
-        """Per recording, the diagnostics it fails at the pooled values."""
+        """Per recording, the diagnostics it fails at the pooled values, each at the level over the recordings
+        (Bonferroni: a model of the recordings is called inadequate in any of them no more often than one check of
+        one recording calls it so)."""
         out = []
         for y, v, inp in zip(self.series, tg.values, self.inputs):
-            _, diags, _ = assess(tg.model, v, y, self.h, inp, self.level)
+            _, diags, _ = assess(tg.model, v, y, self.h, inp, self.level / self.R)
             out.append(sorted(d.name for d in diags if d.passed is False))
         return out
 
@@ -144,7 +152,7 @@ class _Loop:
         for r, (y, inp) in enumerate(zip(self.series, self.inputs)):
             self.say(f"{self.names[r]}: checking {model.spec}")
             checks.append(check(y, self.h, model=model, inputs=inp, level=self.level,
-                                screen_level=self.screen_level / self.R, intervals=False, fits=self.fits,
+                                screen_level=self.screen_level / (2 * self.R), intervals=False, fits=self.fits,
                                 fit=None if fits is None else fits[r]))
         tg = self.together(model, [c.fit for c in checks])
         return PooledStep(tg, checks, self.failing(tg), change, gain)
@@ -176,7 +184,7 @@ class _Loop:
         found: dict = {}
         for name, c in zip(self.names, node.checks):
             for s in c.suggestions:
-                if _own_fault(_token(node.model, s.fit.model)):
+                if _own_fault(s.effect, _row_token(c, s.effect)):
                     node.faults.append({"recording": name, "effect": s.effect, "gain": s.gain,
                                         "model": s.fit.model.spec})
                     continue
@@ -191,10 +199,14 @@ class _Loop:
         for effect, (alt, _, by) in found.items():
             fits = self.fits_of(alt, node, effect)
             tg = self.together(alt, fits)
+            if not (tg.finite and node.together.finite):
+                node.candidates.append({"effect": effect, "model": alt.spec, "suggested_by": by, "gain": None,
+                                        "rejected": "no finite pooled likelihood"})
+                continue
             gain = float(node.together.bic - tg.bic)
             node.candidates.append({"effect": effect, "model": alt.spec, "suggested_by": by, "gain": gain})
             out.append((gain, alt, fits, effect))
-        node.candidates.sort(key=lambda c: -c["gain"])
+        node.candidates.sort(key=lambda c: -math.inf if c["gain"] is None else -c["gain"])
         node.evaluated = sorted(out, key=lambda t: -t[0])
         return node.evaluated
 
@@ -209,10 +221,10 @@ class _Loop:
                 if r.p_value is not None and r.token is not None:
                     rows.setdefault(r.effect, []).append(r)
         full = {e: rs for e, rs in rows.items() if len(rs) == self.R}
-        threshold = self.screen_level / max(1, len(full))
+        threshold = 0.5 * self.screen_level / max(1, len(full))
         out = []
         for effect, rs in full.items():
-            if effect in found or _own_fault(rs[0].token) or any(r.token != rs[0].token for r in rs):
+            if effect in found or _own_fault(effect, rs[0].token) or any(r.token != rs[0].token for r in rs):
                 continue
             x = -2.0 * sum(math.log(max(r.p_value, 1e-300)) for r in rs)
             p = float(stats.chi2.sf(x, 2 * self.R))
@@ -233,9 +245,10 @@ class _Loop:
             fits = self.fits_of(alt.model, node)
             tg = self.together(alt.model, fits)
             gain = float(node.together.bic - tg.bic)
-            entry = {"change": alt.words, "model": alt.model.spec, "gain": gain if math.isfinite(tg.loglik) else None}
+            entry = {"change": alt.words, "model": alt.model.spec,
+                     "gain": gain if tg.finite and node.together.finite else None}
             node.tried.append(entry)
-            if not math.isfinite(tg.loglik) or tg.loglik < -1e299:
+            if entry["gain"] is None:
                 entry["rejected"] = "no finite pooled likelihood"
                 continue
             if gain <= 0 or (best is not None and gain <= best[0]):
@@ -250,13 +263,6 @@ class _Loop:
             return None
         gain, alt, fits = best
         return gain, self.step(alt.model, fits, alt.words, gain)
-
-
-def _token(model, alt) -> str:
-    """The token of the component ``alt`` has and ``model`` lacks (what a suggestion added)."""
-    have = {token(c) for _, c in model.components}
-    new = [token(c) for _, c in alt.components if token(c) not in have]
-    return new[0] if new else ""
 
 
 def check_together(model, series: list, h: float, *, inputs: list | None = None, recordings: list | None = None,
@@ -300,7 +306,11 @@ def check_together(model, series: list, h: float, *, inputs: list | None = None,
         changes += 1
     loop.candidates(node)  # (what the last model would still gain, for the words)
     say(f"testing the recordings against {node.model.spec}, parameter by parameter")
-    final = fit_together(node.model, series, h, inputs=inputs, recordings=names, progress=say)
+    joint, x = node.together.pooled
+    exact = all(fits_exactly(node.model, y, fits) for y in series)  # (else each recording's fit as its check made it)
+    final = fit_together(node.model, series, h, inputs=inputs, recordings=names, progress=say,
+                         separate=None if exact else [c.fit for c in node.checks],
+                         starts=[[joint.unpack(x, r)[0] for r in range(R)]])
     end = _loop_end(steps, added, changes, max_steps, strong)
     return PooledCheck(steps, final, end, time.perf_counter() - t0)
 
@@ -309,19 +319,21 @@ def _loop_end(steps: list, added: int, changes: int, max_steps: int, strong: flo
     """Why the pooled loop ended, in words."""
     node = steps[-1]
     done = f"{added} effect(s) added" + (f", {changes} change(s) taking away or replacing" if changes else "")
-    best = node.candidates[0] if node.candidates else None
+    best = next((c for c in node.candidates if c["gain"] is not None and c["gain"] > 0), None)
+    wanted = best is not None and best["gain"] >= (strong if node.adequate else 0.0)  # (what the loop would add)
+    state = "adequate in every recording" if node.adequate else "not adequate"
     if max_steps == 0 and not changes:
-        end = ("the model checked, not the loop: " + ("adequate in every recording" if node.adequate else
-                                                      "not adequate"))
-        if best is not None and best["gain"] > 0:
+        end = f"the model checked, not the loop: {state}"
+        if best is not None:
             end += f"; {best['effect']} would gain {best['gain']:.1f} pooled BIC"
+    elif added >= max_steps and wanted:
+        end = (f"stopped after {max_steps} effects added (max_steps), {state}; {best['effect']} would still gain "
+               f"{best['gain']:.1f} pooled BIC")
     elif node.adequate:
         end = f"adequate in every recording after {done}"
-        if best is not None and best["gain"] > 0:
+        if best is not None:
             end += (f" ({best['effect']} would still gain {best['gain']:.1f} pooled BIC, under the {strong:g} an "
                     "adequate model's loop asks for)")
-    elif added >= max_steps and best is not None and best["gain"] > 0:
-        end = f"stopped after {max_steps} effects added (max_steps), not adequate"
     else:
         end = f"not adequate after {done}, and no candidate lowers the pooled BIC"
     if not node.adequate:
@@ -333,6 +345,6 @@ def _loop_end(steps: list, added: int, changes: int, max_steps: int, strong: flo
     if faults:
         end += ("; found in one recording only, its own fault and not the sensor's (check it alone, or leave the "
                 "stretch out): " + "; ".join(f"{n}: {', '.join(e)}" for n, e in faults.items()))
-    if not math.isfinite(node.together.loglik):
-        end += "; the pooled likelihood is not finite"
+    if not node.together.finite:
+        end += "; the pooled likelihood of the model is not finite: no gain could be measured against it"
     return end

@@ -191,7 +191,7 @@ def pooled_lines(label: str, title: str, pc, unit: str, markdown: bool = False) 
                      f"{fails}")
         if d["candidates"]:
             lines.append(f"{bullet}    candidates: " + ", ".join(
-                f"{c['effect']} {c['gain']:+.1f} ({_by(c['suggested_by'])})"
+                f"{c['effect']} {_gain(c['gain'])} ({_by(c['suggested_by'])})"
                 for c in d["candidates"]))
         for f in d["faults"] if k == len(pc.steps) - 1 else ():  # (before, the model may lack what explains it)
             lines.append(f"{bullet}    {f['recording']} alone: {f['effect']} (gain {f['gain']:.1f} there): located in "
@@ -201,6 +201,10 @@ def pooled_lines(label: str, title: str, pc, unit: str, markdown: bool = False) 
     lines.append(f"{bullet}verdict: {tg[0].split(': ', 1)[1]}")
     lines += [f"{bullet}{line.strip()}" for line in tg[1:]] if markdown else tg[1:]
     return lines
+
+
+def _gain(gain) -> str:
+    return "(no finite pooled likelihood)" if gain is None else f"{gain:+.1f}"
 
 
 def _by(recordings: list) -> str:
@@ -219,7 +223,7 @@ def pooled_report(lines: list, figures: list, names: list, rate_hz: float, units
           f"Recordings ({rate_hz:g} Hz): {', '.join(names)}. One model per channel: its noise parameters shared, each "
           "recording its own mean terms; gains are falls of the pooled BIC (the shared parameters counted once, each "
           "recording's own terms once per recording); adequacy is every recording's diagnostics at the pooled "
-          "values.", ""]
+          "values, each at the level over the recordings.", ""]
     for (label, title, pc, unit), fig in zip(lines, figures or [None] * len(lines)):
         md += [f"## {label}", ""] + pooled_lines(label, title, pc, unit, markdown=True)[1:] + [""]
         if fig is not None:

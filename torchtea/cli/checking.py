@@ -245,7 +245,8 @@ def _fit_together(args, model, paths: list) -> int:
             inp = None if inputs[0] is None else inputs
             tg = fit_together(model, series, first.h, inputs=inp, recordings=names)
             axes[label] = {"unit": first.channel(label).unit, "replicates": tg.as_dict()}
-            pooled[label] = {"fit": tg.as_fit(0, first.h), "differs": tg.differs, "bias": tg.bias} if plan else {}
+            pooled[label] = ({"fit": tg.as_fit(0, first.h), "differs": tg.differs, "bias": tg.repeatability()}
+                             if plan else {})
             lines += together_lines(label, first.channel(label).title, tg, first.channel(label).unit)
             if args.out:
                 figures.append(together_allan_figure(pyplot(), tg, series, first.h, Path(args.out).parent,
@@ -425,7 +426,7 @@ def _check_together(args, paths: list) -> int:
     _together_flags(args, paths, "check", ("add", "exclude_start", "workers", "scheduler", "windows", "exclude",
                                            "no_intervals"))
     model = parse_model(args.model)
-    ms, inputs, names = _several(args, paths, model, "check", 1000)
+    ms, inputs, names = _several(args, paths, model, "check", 1000, checked=True)
     first = ms[0]
     plan = _export_plan(args, first, args.export)
     out = Path(args.out or f"check-together-{Path(paths[0]).stem}")
@@ -433,7 +434,7 @@ def _check_together(args, paths: list) -> int:
     t0 = time.perf_counter()
     axes, lines, figures = _pooled_channels(args, model, ms, inputs, names, out)
     fits = {label: pc.together.as_fit(0, first.h) for label, _, pc, _ in lines}
-    spread = {label: pc.together.bias for label, _, pc, _ in lines}
+    spread = {label: pc.together.repeatability() for label, _, pc, _ in lines}
     if plan:  # (the export holds the axes against the datasheet: its verdicts are the report's, made once)
         _, exported = _pooled_export(args, ms, names, plan, fits, inputs, out / "export", quiet=True,
                                      differs={label: pc.together.differs for label, _, pc, _ in lines},

@@ -235,15 +235,21 @@ def _together_flags(args, paths: list, verb: str, refused: tuple) -> None:
                            + _EXCLUDE_WORDS * (flag == "exclude"))
 
 
-def _several(args, paths: list, model, what: str, min_samples: int) -> tuple[list, list, list]:
-    """The recordings of ``fit``/``check --together``, each read with the same flags: their measurements, model
-    inputs and names; refused unless they share their rate and channels."""
+def _several(args, paths: list, model, what: str, min_samples: int, *, checked: bool = False
+             ) -> tuple[list, list, list]:
+    """The recordings of ``--together``, each read with the same flags: their measurements, model inputs and names;
+    refused unless they share their rate and channels. ``checked``: the model is checked, not only fitted — the
+    temperature is read wherever ``--temperature`` is given (its diagnostic and effects need it), as a check of
+    one recording reads it."""
     ms, inputs = [], []
     for path in paths:
         args.recording = path
         m = _measurements(args, what, min_samples=min_samples)
         ms.append(m)
-        inputs.append(_model_inputs(args, [model], m, note=len(ms) == 1))
+        if checked and args.temperature is not None:
+            inputs.append({"temperature": m.temperature_input()})
+        else:
+            inputs.append(_model_inputs(args, [model], m, note=len(ms) == 1))
     first = ms[0]
     for m in ms[1:]:
         if abs(m.h - first.h) > 1e-9 * first.h:
@@ -288,7 +294,7 @@ def _export_together(args, paths: list) -> int:
 
     _together_flags(args, paths, "export", ("workers", "scheduler", "logdir", "exclude", "exclude_start"))
     model = parse_model(args.model or "fractional+white")
-    ms, inputs, names = _several(args, paths, model, "an export", 1000)
+    ms, inputs, names = _several(args, paths, model, "an export", 1000, checked=not args.model)
     first = ms[0]
     plan = _export_plan(args, first, args.format)
     inp = None if inputs[0] is None else inputs
@@ -305,7 +311,7 @@ def _export_together(args, paths: list) -> int:
             pc = check_together(model, series, first.h, inputs=inp, recordings=names, max_steps=args.max_steps,
                                 strong=args.strong, simplify=not args.no_simplify, fits=args.fits, progress=say)
             tg, end = pc.together, f"; {pc.loop_end}"
-        fits[label], differs[label], spread[label] = tg.as_fit(0, first.h), tg.differs, tg.bias
+        fits[label], differs[label], spread[label] = tg.as_fit(0, first.h), tg.differs, tg.repeatability()
         print(f"{label}: {tg.model.spec}: {tg.verdict}{end}")
     out = Path(args.out or f"export-{Path(paths[0]).stem}")
     _pooled_export(args, ms, names, plan, fits, inputs, out, quiet=False, differs=differs, repeatability=spread)

@@ -235,11 +235,17 @@ def compare(terms, sheet: dict, fit, h: float, repeatability: dict | None = None
 
 def _repeatability_row(sheet: dict, bias: dict, unit: str) -> dict:
     """The recordings' turn-on bias spread (its REML value and profile interval) against the datasheet's."""
-    spec, value, ci = sheet["repeatability"], bias["spread"], list(bias["ci95"])
-    row = {"term": "repeatability", "fitted": value, "ci95": ci, "datasheet": spec,
-           "datasheet_as_printed": sheet.get("printed", {}).get("repeatability", ""), "unit": unit,
-           "ratio": value / spec, "ratio_ci95": [ci[0] / spec, ci[1] / spec], "record_for_s": None}
+    spec, value = sheet["repeatability"], bias["spread"]
     R = len(bias["levels"])
+    row = {"term": "repeatability", "fitted": value, "ci95": None, "datasheet": spec,
+           "datasheet_as_printed": sheet.get("printed", {}).get("repeatability", ""), "unit": unit,
+           "ratio": None, "ratio_ci95": None, "record_for_s": None}
+    if value is None:
+        row["verdict"] = "not determined by this record"
+        row["words"] = f"{R} recordings give no spread of the bias: three or more, each from a power-up, would"
+        return row
+    ci = list(bias["ci95"])
+    row.update(ci95=ci, ratio=value / spec, ratio_ci95=[ci[0] / spec, ci[1] / spec])
     if ci[1] <= spec:
         row["verdict"], row["words"] = "within spec", (f"{value / spec:.2g}× the datasheet's [{ci[0] / spec:.2g}, "
                                                        f"{ci[1] / spec:.2g}] over {R} power-ups")
@@ -252,6 +258,9 @@ def _repeatability_row(sheet: dict, bias: dict, unit: str) -> dict:
                         "power-ups do not tell; more recordings, each from a power-up, would")
     if sheet["sensor"] == "accelerometer":
         row["words"] += " (an accelerometer's level holds gravity's projection: only recordings in one mounting)"
+    else:
+        row["words"] += (" (a gyroscope's level holds the Earth's rate projected on its axis, up to 7.3·10⁻⁵ rad/s: "
+                         "only recordings in one mounting)")
     return row
 
 

@@ -80,6 +80,13 @@ class Together:
     pooled: tuple | None = field(default=None, repr=False)
     #: the pooled observed information at that maximum over the joint coordinates (None: not computed, or not finite)
     information: np.ndarray | None = field(default=None, repr=False)
+    #: whether the per-parameter tests ran (``fit_together(tests=False)``: the pooled maximum alone)
+    tested: bool = True
+
+    @property
+    def finite(self) -> bool:
+        """Whether the pooled likelihood is finite at the fit (a recording without a finite ℓ makes it −1e300)."""
+        return math.isfinite(self.loglik) and self.loglik > -1e299
 
     @property
     def n(self) -> int:
@@ -96,6 +103,13 @@ class Together:
     def bic(self) -> float:
         """BIC of the pooled fit on the pooled exact likelihood (what the loop on several recordings compares)."""
         return bic(self.k, self.n, self.loglik)
+
+    def repeatability(self) -> dict:
+        """The turn-on bias repeatability (:func:`bias_repeatability`) where there are three or more recordings, else
+        its place held: ``spread`` None, the recordings named (a datasheet's value is then not compared)."""
+        if self.bias is not None:
+            return self.bias
+        return {"spread": None, "ci95": None, "levels": [{"recording": n} for n in self.recordings]}
 
     def as_fit(self, r: int = 0, h: float | None = None) -> Fit:
         """The pooled model as recording ``r``'s fit (what an export or a datasheet's verdict takes): the shared noise
@@ -121,10 +135,12 @@ class Together:
         values, se, ci, how = intervals_from_hessian(self.model, u, H, mask, h)
         values = dict(self.values[r])
         own = self.separate[r]
-        fit = Fit(self.model, "exact", values, se, ci, how, self.loglik, self.loglik, own.n,
-                  [self.model.names[i] for i in joint.free], True,
+        ll_r = -float(joint.neg_loglik_of(r, x))  # (recording r's share of the pooled ℓ: its ℓ at the pooled values)
+        fit = Fit(self.model, "exact", values, se, ci, how, ll_r, ll_r, own.n,
+                  [self.model.names[i] for i in joint.free], self.finite,
                   notes=[f"pooled over {len(self.recordings)} recordings ({', '.join(self.recordings)}): the noise "
-                         f"parameters from all of them, the mean terms {self.recordings[r]}'s; loglik the pooled one"],
+                         f"parameters from all of them, with the pooled intervals; the mean terms "
+                         f"{self.recordings[r]}'s; loglik its exact log-likelihood at the pooled values"],
                   u=u.detach().clone(), hessian=H)
         fit.count({n: w for n, w in self.model.held_estimates().items()})
         return fit
@@ -136,6 +152,8 @@ class Together:
 
     @property
     def verdict(self) -> str:
+        if not self.tested:
+            return "not tested (the pooled fit alone)"
         if not self.differs:
             return f"the {len(self.recordings)} recordings agree: one noise model for all"
         return "the recordings differ in " + ", ".join(self.differs)
@@ -145,7 +163,8 @@ class Together:
                 "own": list(self.own), "loglik_together": self.loglik,
                 "loglik_separate": float(sum(_exact_loglik(f) for f in self.separate)),
                 "level": self.level, "threshold": self.threshold, "parameters": self.parameters,
-                "verdict": "differ" if self.differs else "agree", "differs": self.differs,
+                "verdict": "not tested" if not self.tested else "differ" if self.differs else "agree",
+                "differs": self.differs,
                 "summary": self.verdict, "bias_repeatability": self.bias, "notes": list(self.notes)}
 
 
@@ -202,6 +221,10 @@ class _Joint:
         points = np.atleast_2d(points)
         f = sum(values(points[:, self.columns(r)]) for r, values in enumerate(self._values))
         return np.minimum(f, 1e300)
+
+    def neg_loglik_of(self, r: int, x: np.ndarray) -> float:
+        """Recording ``r``'s −ℓ at the joint point ``x``."""
+        return float(self._values[r](np.atleast_2d(x)[:, self.columns(r)])[0])
 
     def vgi(self, points: np.ndarray):
         """−ℓ ``(K,)``, its gradient ``(K, D)`` and the scoring information ``(K, D, D)`` (sums of the recordings';
@@ -291,15 +314,17 @@ def _values(model, U: torch.Tensor, h: float) -> dict:
 
 def fit_together(model, series: list, h: float, *, inputs: list | None = None, recordings: list | None = None,
                  level: float = TOGETHER_LEVEL, separate: list | None = None, repeatability: bool = True,
-                 tests: bool = True, progress=None) -> Together:
+                 tests: bool = True, starts: list | None = None, progress=None) -> Together:
     """Fit ``model`` to several recordings (``series``: 1-D arrays of one channel, NaN = missing; ``inputs`` one dict
     or None per recording) with its noise parameters shared and its mean parameters each recording's own; then test,
     per noise parameter, whether the recordings agree on it, and (three or more) their bias's spread.
     ``separate``: the recordings' own fits, where already made (their exact likelihood is what the pooled one is held
     against). ``tests``: the shared parameters' intervals and the per-parameter tests (without them, the pooled
-    maximum alone: what a loop comparing models needs). ``progress(line)`` takes what it is doing."""
+    maximum alone: what a loop comparing models needs). ``starts``: more places to climb from, each one unconstrained
+    vector per recording (an earlier pooled maximum). ``progress(line)`` takes what it is doing."""
     model = parse_model(model)
     say = progress or (lambda line: None)
+    given = starts
     R = len(series)
     if R < 2:
         raise ValueError("fitting together needs two or more recordings")
@@ -321,6 +346,7 @@ def fit_together(model, series: list, h: float, *, inputs: list | None = None, r
     say(f"fitting the {R} recordings together")
     # from each recording's own noise values and from their average, each recording's own mean terms beside them
     starts = [joint.pack([_with(u, bases[r], shared) for u in bases]) for r in range(R)] + [joint.pack(bases)]
+    starts += [joint.pack([torch.as_tensor(u, dtype=torch.float64) for u in us]) for us in given or ()]
     x, ll = joint.maximise(starts)
     notes = []
     sum_separate = float(sum(_exact_loglik(f) for f in separate))
@@ -330,7 +356,7 @@ def fit_together(model, series: list, h: float, *, inputs: list | None = None, r
     values = [_values(model, joint.unpack(x, r), h) for r in range(R)]
     if not tests:
         return Together(model, names, [model.names[i] for i in shared], [model.names[i] for i in own], values, ll, {},
-                        {}, separate, [], level, level / max(1, len(shared)), None, notes, (joint, x))
+                        {}, separate, [], level, level / max(1, len(shared)), None, notes, (joint, x), tested=False)
     se, ci, how, H = _shared_intervals(model, joint, x, h)
     threshold = level / max(1, len(shared))
     say("testing each noise parameter: one value, or each recording its own")

@@ -34,7 +34,11 @@ from .diagnostics import LEVEL
 from .models import assess, extend, model_fit
 from .ranking import STRONG_BIC
 
-__all__ = ["check_together", "PooledCheck", "PooledStep", "POOLED_MEANING"]
+__all__ = ["check_together", "PooledCheck", "PooledStep", "POOLED_MEANING", "FINAL_SLACK"]
+
+#: The final fit (each recording's exact fit with its intervals, the loop's pooled maximum among the starts) is said to
+#: have found another maximum where its pooled ℓ is this much above the loop's last step.
+FINAL_SLACK = 0.5
 
 #: What a pooled check's entries in check.json mean (:meth:`PooledCheck.as_dict`).
 POOLED_MEANING = {
@@ -312,6 +316,12 @@ def check_together(model, series: list, h: float, *, inputs: list | None = None,
                          separate=None if exact else [c.fit for c in node.checks],
                          starts=[[joint.unpack(x, r)[0] for r in range(R)]])
     end = _loop_end(steps, added, changes, max_steps, strong)
+    if final.loglik > node.together.loglik + FINAL_SLACK:  # (the tests' fit climbed from more places)
+        failing = loop.failing(final)
+        end += (f"; the final fit found a higher maximum of the pooled likelihood than the loop's last step (ℓ "
+                f"{final.loglik - node.together.loglik:+.1f}), the replicates' values and tests are at it, and there "
+                + ("every recording is adequate" if not any(failing) else
+                   "; ".join(f"{n} fails {', '.join(f)}" for n, f in zip(names, failing) if f)))
     return PooledCheck(steps, final, end, time.perf_counter() - t0)
 
 

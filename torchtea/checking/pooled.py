@@ -149,16 +149,19 @@ class _Loop:
             out.append(sorted(d.name for d in diags if d.passed is False))
         return out
 
-    def step(self, model, fits: list | None = None, change: str = "start", gain: float | None = None) -> PooledStep:
+    def step(self, model, fits: list | None = None, change: str = "start", gain: float | None = None,
+             pooled: Together | None = None) -> PooledStep:
         """Each recording checked on its own with ``model`` (from its ``fits`` where given), then the pooled fit from
-        those fits, and each recording's diagnostics at the pooled values."""
+        those fits — ``pooled``, already made from them, where every check kept its fit —, and each recording's
+        diagnostics at the pooled values."""
         checks = []
         for r, (y, inp) in enumerate(zip(self.series, self.inputs)):
             self.say(f"{self.names[r]}: checking {model.spec}")
             checks.append(check(y, self.h, model=model, inputs=inp, level=self.level,
                                 screen_level=self.screen_level / (2 * self.R), intervals=False, fits=self.fits,
                                 fit=None if fits is None else fits[r]))
-        tg = self.together(model, [c.fit for c in checks])
+        kept = pooled is not None and all(c.fit is f for c, f in zip(checks, fits))
+        tg = pooled if kept else self.together(model, [c.fit for c in checks])
         return PooledStep(tg, checks, self.failing(tg), change, gain)
 
     def together(self, model, separate: list) -> Together:
@@ -166,8 +169,16 @@ class _Loop:
         return fit_together(model, self.series, self.h, inputs=self.inputs, recordings=self.names, separate=separate,
                             tests=False, repeatability=False)
 
-    def fits_of(self, alt, node: PooledStep, effect: str | None = None) -> list:
-        """Each recording's own fit of ``alt``: its check's refit of ``effect`` where it made one, else fitted."""
+    def versus(self, node: PooledStep, alt) -> tuple[list, Together, float | None]:
+        """``alt`` against the step's model: each recording's own fit of it (:meth:`fits_of`), their pooled fit, and
+        the fall of the pooled BIC — None where either pooled likelihood is not finite."""
+        fits = self.fits_of(alt, node)
+        tg = self.together(alt, fits)
+        gain = float(node.together.bic - tg.bic) if tg.finite and node.together.finite else None
+        return fits, tg, gain
+
+    def fits_of(self, alt, node: PooledStep) -> list:
+        """Each recording's own fit of ``alt``: its check's refit where it made one, else fitted."""
         out = []
         for r, c in enumerate(node.checks):
             have = [s.fit for s in c.suggestions if s.fit.model.spec == alt.spec]
@@ -182,7 +193,7 @@ class _Loop:
 
     def candidates(self, node: PooledStep) -> list:
         """The effects that passed a screen in some recording and gain there, each refitted to all together:
-        ``(gain, alt model, own fits, effect)``, best first; the recordings' own faults noted on ``node``."""
+        ``(gain, alt model, own fits, effect, pooled fit)``, best first; the recordings' own faults noted on ``node``."""
         if node.evaluated is not None:
             return node.evaluated
         found: dict = {}
@@ -201,15 +212,12 @@ class _Loop:
             found[effect] = (extend(node.model, tok), 0.0, ["the recordings' screens combined"])
         out = []
         for effect, (alt, _, by) in found.items():
-            fits = self.fits_of(alt, node, effect)
-            tg = self.together(alt, fits)
-            if not (tg.finite and node.together.finite):
-                node.candidates.append({"effect": effect, "model": alt.spec, "suggested_by": by, "gain": None,
-                                        "rejected": "no finite pooled likelihood"})
-                continue
-            gain = float(node.together.bic - tg.bic)
+            fits, tg, gain = self.versus(node, alt)
             node.candidates.append({"effect": effect, "model": alt.spec, "suggested_by": by, "gain": gain})
-            out.append((gain, alt, fits, effect))
+            if gain is None:
+                node.candidates[-1]["rejected"] = "no finite pooled likelihood"
+                continue
+            out.append((gain, alt, fits, effect, tg))
         node.candidates.sort(key=lambda c: -math.inf if c["gain"] is None else -c["gain"])
         node.evaluated = sorted(out, key=lambda t: -t[0])
         return node.evaluated
@@ -246,13 +254,10 @@ class _Loop:
         for alt in simplifying.alternatives(node.checks[0]):
             if alt.kind == "swap":
                 continue
-            fits = self.fits_of(alt.model, node)
-            tg = self.together(alt.model, fits)
-            gain = float(node.together.bic - tg.bic)
-            entry = {"change": alt.words, "model": alt.model.spec,
-                     "gain": gain if tg.finite and node.together.finite else None}
+            fits, tg, gain = self.versus(node, alt.model)
+            entry = {"change": alt.words, "model": alt.model.spec, "gain": gain}
             node.tried.append(entry)
-            if entry["gain"] is None:
+            if gain is None:
                 entry["rejected"] = "no finite pooled likelihood"
                 continue
             if gain <= 0 or (best is not None and gain <= best[0]):
@@ -262,11 +267,11 @@ class _Loop:
             if worse:
                 entry["rejected"] = "fails " + ", ".join(f"{d} in {self.names[r]}" for r, d in sorted(worse))
                 continue
-            best = (gain, alt, fits)
+            best = (gain, alt, fits, tg)
         if best is None:
             return None
-        gain, alt, fits = best
-        return gain, self.step(alt.model, fits, alt.words, gain)
+        gain, alt, fits, tg = best
+        return gain, self.step(alt.model, fits, alt.words, gain, pooled=tg)
 
 
 def check_together(model, series: list, h: float, *, inputs: list | None = None, recordings: list | None = None,
@@ -296,8 +301,8 @@ def check_together(model, series: list, h: float, *, inputs: list | None = None,
             cands = loop.candidates(node)
             if not cands or cands[0][0] <= 0 or (node.adequate and cands[0][0] < strong):
                 break
-            gain, alt, alt_fits, effect = cands[0]
-            node = loop.step(alt, alt_fits, f"added {effect}", gain)
+            gain, alt, alt_fits, effect, pooled = cands[0]
+            node = loop.step(alt, alt_fits, f"added {effect}", gain, pooled=pooled)
             steps.append(node)
             added += 1
         if not simplify or changes >= simplifying.MAX_CHANGES:

@@ -29,6 +29,7 @@ from .export import (
     _export_flags,
     _export_plan,
     _pooled_export,
+    _pooled_fits,
     _print_verdicts,
     _several,
     _sheets,
@@ -236,7 +237,7 @@ def _fit_together(args, model, paths: list) -> int:
     first = ms[0]
     plan = _export_plan(args, first, args.export)
     t0 = time.perf_counter()
-    axes, lines, figures, pooled = {}, [], [], {}
+    axes, lines, figures, togethers = {}, [], [], {}
     step, close = _progress(len(first.labels), f"fit {model.spec} together", "channel", bar=not args.json)
     step(0, len(first.labels))
     try:
@@ -245,8 +246,7 @@ def _fit_together(args, model, paths: list) -> int:
             inp = None if inputs[0] is None else inputs
             tg = fit_together(model, series, first.h, inputs=inp, recordings=names)
             axes[label] = {"unit": first.channel(label).unit, "replicates": tg.as_dict()}
-            pooled[label] = ({"fit": tg.as_fit(0, first.h), "differs": tg.differs, "bias": tg.repeatability()}
-                             if plan else {})
+            togethers[label] = tg
             lines += together_lines(label, first.channel(label).title, tg, first.channel(label).unit)
             if args.out:
                 figures.append(together_allan_figure(pyplot(), tg, series, first.h, Path(args.out).parent,
@@ -266,9 +266,7 @@ def _fit_together(args, model, paths: list) -> int:
         write(Path(args.out), doc)
     if plan:  # (files beside --out, else in export-<first recording>)
         out = Path(args.out).parent / "export" if args.out else Path(f"export-{Path(first.recording.path).stem}")
-        _pooled_export(args, ms, names, plan, {a: d["fit"] for a, d in pooled.items()}, inputs, out, quiet=args.json,
-                       differs={a: d["differs"] for a, d in pooled.items()},
-                       repeatability={a: d["bias"] for a, d in pooled.items()})
+        _pooled_export(args, ms, names, plan, togethers, inputs, out, quiet=args.json)
     if args.json:
         print(dumps(doc))
         return 0
@@ -433,14 +431,12 @@ def _check_together(args, paths: list) -> int:
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     axes, lines, figures = _pooled_channels(args, model, ms, inputs, names, out)
-    fits = {label: pc.together.as_fit(0, first.h) for label, _, pc, _ in lines}
-    spread = {label: pc.together.repeatability() for label, _, pc, _ in lines}
+    togethers = {label: pc.together for label, _, pc, _ in lines}
     if plan:  # (the export holds the axes against the datasheet: its verdicts are the report's, made once)
-        _, exported = _pooled_export(args, ms, names, plan, fits, inputs, out / "export", quiet=True,
-                                     differs={label: pc.together.differs for label, _, pc, _ in lines},
-                                     repeatability=spread)
+        _, exported = _pooled_export(args, ms, names, plan, togethers, inputs, out / "export", quiet=True)
         verdicts = {a.label: a.datasheet for a in exported if a.datasheet}
     else:
+        fits, spread = _pooled_fits(togethers, first.h)
         verdicts = _datasheet_verdicts(args, first, fits, inputs[0], repeatability=spread)
     for label, verdict in verdicts.items():
         axes[label]["datasheet"] = verdict

@@ -264,14 +264,21 @@ def _several(args, paths: list, model, what: str, min_samples: int, *, checked: 
     return ms, inputs, names
 
 
-def _pooled_export(args, ms: list, names: list, plan, fits: dict, inputs: list, out: Path, *, quiet: bool,
-                   differs: dict, repeatability: dict):
-    """The export of a pooled model (``fits``: label → :meth:`~torchtea.fitting.together.Together.as_fit` of the first
-    recording): its noise terms from all recordings, the cover's data and mean terms the first's, said in the
-    export's document, with the parameters in which the recordings differ (``differs``: label → names) and their
-    turn-on bias spread (``repeatability``: label → it or None) held against a datasheet's. Returns what
-    :func:`_export` returns."""
+def _pooled_fits(togethers: dict, h: float) -> tuple[dict, dict]:
+    """Each channel's pooled model as the first recording's fit (:meth:`~torchtea.fitting.together.Together.as_fit`)
+    and the recordings' turn-on bias spread (:meth:`~torchtea.fitting.together.Together.repeatability`), by label."""
+    return ({a: tg.as_fit(0, h) for a, tg in togethers.items()},
+            {a: tg.repeatability() for a, tg in togethers.items()})
+
+
+def _pooled_export(args, ms: list, names: list, plan, togethers: dict, inputs: list, out: Path, *, quiet: bool):
+    """The export of each channel's pooled model (``togethers``: label → its
+    :class:`~torchtea.fitting.together.Together`): its noise terms from all recordings, the cover's data and mean
+    terms the first's, said in the export's document, with the parameters in which the recordings differ and their
+    turn-on bias spread held against a datasheet's. Returns what :func:`_export` returns."""
     first = ms[0]
+    fits, repeatability = _pooled_fits(togethers, first.h)
+    differs = {a: tg.differs for a, tg in togethers.items()}
     meta = first.describe()
     words = (f"the model fitted to {len(ms)} recordings together ({', '.join(names)}): its noise parameters from all "
              f"of them, with the pooled intervals; the mean terms, the cover's data and the figure's {names[0]}'s")
@@ -298,7 +305,7 @@ def _export_together(args, paths: list) -> int:
     first = ms[0]
     plan = _export_plan(args, first, args.format)
     inp = None if inputs[0] is None else inputs
-    fits, differs, spread = {}, {}, {}
+    togethers = {}
     for label in first.labels:
         series = [m.channel(label).values for m in ms]
         def say(line, label=label):
@@ -311,8 +318,8 @@ def _export_together(args, paths: list) -> int:
             pc = check_together(model, series, first.h, inputs=inp, recordings=names, max_steps=args.max_steps,
                                 strong=args.strong, simplify=not args.no_simplify, fits=args.fits, progress=say)
             tg, end = pc.together, f"; {pc.loop_end}"
-        fits[label], differs[label], spread[label] = tg.as_fit(0, first.h), tg.differs, tg.repeatability()
+        togethers[label] = tg
         print(f"{label}: {tg.model.spec}: {tg.verdict}{end}")
     out = Path(args.out or f"export-{Path(paths[0]).stem}")
-    _pooled_export(args, ms, names, plan, fits, inputs, out, quiet=False, differs=differs, repeatability=spread)
+    _pooled_export(args, ms, names, plan, togethers, inputs, out, quiet=False)
     return 0

@@ -241,14 +241,16 @@ def test_plan_takes_several_recordings_together(tmp_path, capsys):
 
 def test_what_belongs_to_one_recording_and_why_the_loop_ended():
     """A located effect (a step, even a second one) or one configured on its record (spikes:K) is a recording's
-    fault; the loop's words put max_steps before adequacy when the loop would have gone on."""
+    fault; the loop's words put max_steps before adequacy when the loop would have gone on, and say where a
+    recording's screen passed but its refit failed (the optimiser's failure)."""
     from types import SimpleNamespace
 
     from torchtea.checking.pooled import _loop_end, _own_fault
 
     assert _own_fault("step", "step") and _own_fault("spikes", "spikes:3") and not _own_fault("random-walk", None)
     tg = SimpleNamespace(recordings=["a", "b"], finite=True)
-    node = SimpleNamespace(together=tg, adequate=True, failing=[[], []], faults=[],
+    fine = SimpleNamespace(failed_refits=[], unconfirmed=[])
+    node = SimpleNamespace(together=tg, adequate=True, failing=[[], []], faults=[], checks=[fine, fine],
                            candidates=[{"effect": "sinusoid", "gain": 42.0}])
     end = _loop_end([node], 2, 0, 2, 10.0)
     assert end.startswith("stopped after 2 effects added (max_steps), adequate in every recording; sinusoid would")
@@ -256,6 +258,9 @@ def test_what_belongs_to_one_recording_and_why_the_loop_ended():
     assert _loop_end([node], 2, 0, 2, 10.0).startswith("adequate in every recording after 2 effect(s) added (sinusoid")
     node.candidates, tg.finite = [{"effect": "ramp", "gain": None}], False
     assert "not finite" in _loop_end([node], 0, 0, 6, 10.0)
+    node.checks = [fine, SimpleNamespace(failed_refits=["gauss-markov"], unconfirmed=[])]
+    assert ("in b the screens of gauss-markov passed, but their refits failed to find what the screens saw — an "
+            "optimiser's failure" in _loop_end([node], 0, 0, 6, 10.0))
 
 
 def test_check_together_reads_the_temperature_for_its_screens(tmp_path, capsys):

@@ -360,6 +360,13 @@ def _loop_end(steps: list, added: int, changes: int, max_steps: int, strong: flo
     if faults:
         end += ("; found in one recording only, its own fault and not the sensor's (check it alone, or leave the "
                 "stretch out): " + "; ".join(f"{n}: {', '.join(e)}" for n, e in faults.items()))
+    for name, c in zip(node.together.recordings, node.checks):  # (as one recording's loop says them)
+        if c.failed_refits:
+            end += (f"; in {name} the screens of {', '.join(c.failed_refits)} passed, but their refits failed to find "
+                    "what the screens saw — an optimiser's failure, not evidence that nothing explains it")
+        if c.unconfirmed:
+            end += (f"; in {name} the Whittle screens of {', '.join(c.unconfirmed)} passed, but the exact likelihood "
+                    "does not confirm them: not stationary?")
     if not node.together.finite:
         end += "; the pooled likelihood of the model is not finite: no gain could be measured against it"
     return end

@@ -259,13 +259,13 @@ def test_stuck_threshold_follows_the_repetition_rate():
 
 
 def test_a_fault_stops_the_run_or_becomes_missing_never_physics(tmp_path, capsys):
-    """A zero-filled tail (every channel and the temperature, as in a real recording): the check stops with one
-    line naming the fault and --allow-missing; with it, the rows are missing samples, the temperature there is
-    interpolated, and no temperature effect is suggested (today's check explained such a tail as a temperature
+    """Zero-filled rows inside the record (every channel and the temperature, as in a real recording): the check
+    stops with one line naming the fault and --allow-missing; with it, the rows are missing samples, the temperature
+    there is interpolated, and no temperature effect is suggested (such rows were once explained as a temperature
     bias, ΔBIC 17 590)."""
     f = six_axis_csv(tmp_path, 3000)
     lines = f.read_text().splitlines()
-    f.write_text("\n".join(lines[:2721] + [",".join(["0"] * 8)] * 280) + "\n")
+    f.write_text("\n".join(lines[:2001] + [",".join(["0"] * 8)] * 280 + lines[2281:]) + "\n")
     common = ["check", f, "--columns", "acc_x", "--units", "g", "--temperature", "temp", "--rate", 100,
               "--no-plots", "--no-intervals", "--out", tmp_path / "ck"]
     assert run(*common) == 2
@@ -274,11 +274,31 @@ def test_a_fault_stops_the_run_or_becomes_missing_never_physics(tmp_path, capsys
     assert run(*common, "--allow-missing", "--json") == 0
     cap = capsys.readouterr()
     doc = json.loads(cap.out)
-    assert doc["faults"]["found"][0]["kind"] == "zero rows" and doc["faults"]["found"][0]["ranges"] == [[2720, 2999]]
-    assert doc["missing_samples"] == 280 and "recording fault" in cap.err
+    assert doc["faults"]["found"][0]["kind"] == "zero rows" and doc["faults"]["found"][0]["ranges"] == [[2000, 2279]]
+    assert doc["missing_samples"] == 280 and "recording fault" in cap.err and doc["zero_tail"] is None
     assert not any(s["effect"].startswith("temperature") for s in doc["suggestions"])
     report = (tmp_path / "ck" / "report.md").read_text()
     assert "Recording faults" in report and "zero rows" in report
+
+
+def test_a_zero_filled_tail_is_cut_with_a_note(tmp_path, capsys):
+    """The last rows 0 in every column (a logger that zero-filled what it did not receive, at the end): cut, said
+    on stderr and in the JSON, the run needing no --allow-missing; the fit is the fit of the record without them."""
+    f = six_axis_csv(tmp_path, 3000)
+    lines = f.read_text().splitlines()
+    f.write_text("\n".join(lines[:2721] + [",".join(["0"] * 8)] * 280) + "\n")
+    common = ["fit", f, "--columns", "acc_x", "--units", "g", "--temperature", "temp", "--rate", 100, "--model",
+              "white", "--json"]
+    assert run(*common) == 0
+    cap = capsys.readouterr()
+    doc = json.loads(cap.out)
+    assert doc["samples"] == 2720 and doc["samples_in_recording"] == 3000 and doc["missing_samples"] == 0
+    assert doc["zero_tail"]["first"] == 2720 and doc["zero_tail"]["rows"] == 280
+    assert "the last 280 rows" in cap.err and "cut" in cap.err
+    f.write_text("\n".join(lines[:2721]) + "\n")
+    assert run(*common) == 0
+    whole = json.loads(capsys.readouterr().out)
+    assert whole["zero_tail"] is None and whole["axes"]["ax"]["loglik"] == doc["axes"]["ax"]["loglik"]
 
 
 def test_prepare_names_the_faults_in_its_error(tmp_path):
@@ -350,8 +370,8 @@ def test_exclude_on_every_command_that_reads_a_recording(tmp_path, capsys):
 
 def test_zero_rows_are_found_before_the_stamps_are_read(tmp_path, capsys):
     """A recording whose last rows are 0 in every column, its time column too (a logger's zero fill): the stamps of
-    those rows are ignored, so the rate comes from the rest, and the rows are the logging fault they are — without
-    --rate (it used to stop with "time column … does not increase; give the rate")."""
+    those rows are ignored, so the rate comes from the rest, and the rows are the logging fault they are (a tail:
+    cut) — without --rate."""
     t, acc, gyro, T = six_axis(2000)
     cols = [t, acc / G0, gyro * 180 / math.pi, T]
     data = np.column_stack(cols)
@@ -361,6 +381,6 @@ def test_zero_rows_are_found_before_the_stamps_are_read(tmp_path, capsys):
     assert rec.rate_hz == pytest.approx(100.0, rel=1e-6)
     assert "ignored" in rec.metadata["time_zero_rows"]
     six = ("--units", "g,g,g,deg/s,deg/s,deg/s", "--temperature", "temp", "--bootstrap", 0)
-    assert run("fit", path, *six) == 2
-    assert "zero-filled rows" in capsys.readouterr().err
+    assert run("fit", path, *six) == 0  # (at the end: cut, with a note)
+    assert "zero-filled tail" in capsys.readouterr().err
     assert run("fit", path, *six, "--exclude", "17:20", "--json") == 0

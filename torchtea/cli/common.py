@@ -313,7 +313,7 @@ def _measurements(args, command: str, *, min_samples: int = 1, sensors=None):
     if rec.metadata.get("segments") and len(rec.metadata["segments"]) > 1 and args.segment is None:
         print(f"torchtea: note: {Path(rec.path).name} has {len(rec.metadata['segments'])} segments (device resets); "
               f"using the longest, segment {rec.metadata['segment']} (choose with --segment)", file=sys.stderr)
-    for key in ("time_column_skipped", "time_unit", "time_zero_rows"):
+    for key in ("layout", "units_read", "time_column_skipped", "time_unit", "time_zero_rows"):
         if key in rec.metadata:
             print(f"torchtea: note: {rec.metadata[key]}", file=sys.stderr)
     m = prepare(rec, samples=n, allow_missing=args.allow_missing, min_samples=min_samples, command=command,

@@ -1,8 +1,12 @@
 r"""A recording's own faults, found before anything is fitted: they are never physics.
 
-Four kinds, each a :class:`Fault` with the samples it covers (``ranges``, 0-based ``[first, last]``), the channels
+Five kinds, each a :class:`Fault` with the samples it covers (``ranges``, 0-based ``[first, last]``), the channels
 it touches and a line that says what was seen:
 
+* ``impossible values`` — values no sensor measured: not finite (``inf`` in the file, or a value whose conversion to
+  SI units overflows), beyond the full scale of a format that states it, or beyond :data:`PHYSICAL_LIMIT` (far past
+  any MEMS accelerometer's or gyroscope's range) — a damaged cell or a logger's junk; the file's line is named where
+  the reader knows it (:func:`impossible`).
 * ``stuck`` — a run in which **every channel of one sensor** repeats its previous value exactly (a sensor that stopped
   updating, a buffer re-sent), and ``zero rows`` — rows in which every channel, the temperature included, is exactly
   0 (a logger that zero-filled what it did not receive). A run counts when it is longer than the data's own
@@ -34,12 +38,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["Fault", "Faults", "find_faults", "apply_faults", "stuck_min_run", "STUCK_MIN_RUN", "PILEUP_MIN",
+__all__ = ["Fault", "Faults", "find_faults", "apply_faults", "impossible", "zero_tail", "stuck_min_run", "STUCK_MIN_RUN", "PILEUP_MIN",
            "TEMPERATURE_STEP_C", "TIME_JUMP_FACTOR", "KINDS"]
 
-KINDS = ("zero rows", "stuck", "clipping", "temperature step", "time jump")
+KINDS = ("impossible values", "zero rows", "stuck", "clipping", "temperature step", "time jump")
 #: A run of repeated values is never flagged below this length.
 STUCK_MIN_RUN = 8
+#: The largest magnitude (SI units) a channel of each sensor is taken to measure: 10⁶ m/s² (about 10⁵ g, past the
+#: range of shock accelerometers) and 10⁴ rad/s (about 5.7·10⁵ °/s, past any gyroscope's); a value beyond is a fault.
+PHYSICAL_LIMIT = {"accelerometer": 1e6, "gyroscope": 1e4}
 #: Fewest samples on a channel's extreme value for a pile-up (clipping of unknown full scale) …
 PILEUP_MIN = 5
 #: … which is looked for only in a channel of at least this many distinct values (coarser data pile up anywhere).
@@ -141,21 +148,57 @@ def _repeat_probability(same: np.ndarray) -> float:
 
 
 def find_faults(channels, *, h: float, temperature: np.ndarray | None = None,
-                time_s: np.ndarray | None = None) -> Faults:
+                time_s: np.ndarray | None = None, lines: dict | None = None) -> Faults:
     """The faults of a recording's ``channels`` (:class:`~torchtea.sensors.io.Channel` s), its ``temperature``
-    (°C) and time stamps ``time_s`` (s); ``h`` the sample time."""
+    (°C) and time stamps ``time_s`` (s); ``h`` the sample time; ``lines``: where in the file some samples are
+    (``"label:sample"`` → words, the reader's ``metadata["value_lines"]``), named in the messages."""
     items = []
     N = len(channels[0].values)
     masks = {c.label: np.zeros(N, dtype=bool) for c in channels}
     temp_rows = np.zeros(N, dtype=bool)
-    zero = _zero_rows(channels, temperature, h, items, masks, temp_rows)
-    _stuck(channels, zero, h, items, masks)
-    _clipping(channels, zero, h, items, masks)
-    if temperature is not None:
-        _temperature_steps(temperature, h, items, temp_rows)
-    if time_s is not None:
-        _time_jumps(time_s, h, items, N)
+    with np.errstate(invalid="ignore", over="ignore"):  # (an impossible value is found here, not warned of)
+        _impossible(channels, h, items, masks, lines or {})
+        zero = _zero_rows(channels, temperature, h, items, masks, temp_rows)
+        _stuck(channels, zero, h, items, masks)
+        _clipping(channels, zero | np.any(np.stack(list(masks.values())), axis=0), h, items, masks)
+        if temperature is not None:
+            _temperature_steps(temperature, h, items, temp_rows)
+        if time_s is not None:
+            _time_jumps(time_s, h, items, N)
     return Faults(tuple(items), masks, temp_rows, h)
+
+
+def impossible(c) -> np.ndarray:
+    """The samples of channel ``c`` that no sensor measured, bool ``(N,)``: not finite (NaN aside: a missing
+    sample), beyond the full scale its format states, or beyond :data:`PHYSICAL_LIMIT`."""
+    v = np.asarray(c.values)
+    with np.errstate(invalid="ignore", over="ignore"):
+        bad = np.isinf(v)
+        limit = PHYSICAL_LIMIT.get(c.sensor)
+        if limit is not None:
+            bad |= np.abs(v) > limit
+        if c.full_scale is not None:
+            raw = v / c.scale
+            bad |= (raw < c.full_scale[0] - 0.5) | (raw > c.full_scale[1] + 0.5)
+    return bad
+
+
+def _impossible(channels, h: float, items: list, masks: dict, lines: dict) -> None:
+    """Impossible values (:func:`impossible`), per channel, the first named with the file's line."""
+    for c in channels:
+        bad = impossible(c)
+        if bad.any():
+            runs = _runs(bad)
+            count = int(bad.sum())
+            first = [k for a, b in runs[:3] for k in range(a, min(b, a + 2) + 1)][:3]
+            said = "; ".join(lines.get(f"{c.label}:{k}", f"sample {k}: {c.values[k]:.6g} {c.unit}") for k in first)
+            limit = PHYSICAL_LIMIT.get(c.sensor)
+            items.append(Fault("impossible values", (c.label,), runs, count,
+                               f"channel {c.label}: {count} value(s) no sensor measured — not finite, or beyond "
+                               + ("the full scale or " if c.full_scale is not None else "")
+                               + (f"{limit:g} {c.unit}" if limit is not None else "any number")
+                               + f" ({_where(runs, h)}; {said}): a damaged value, not a measurement"))
+            masks[c.label] |= bad
 
 
 def _zero_rows(channels, temperature, h: float, items: list, masks: dict, temp_rows: np.ndarray) -> np.ndarray:
@@ -176,6 +219,16 @@ def _zero_rows(channels, temperature, h: float, items: list, masks: dict, temp_r
             if temperature is not None:
                 temp_rows |= zero
     return zero
+
+
+def zero_tail(channels, temperature=None) -> int:
+    """How many rows at the end are exactly 0 in every channel (and the temperature): a logger's zero-filled tail,
+    which :func:`~.measurements.prepare` cuts (0 with fewer than two columns, where a 0 may be a measurement)."""
+    cols = [c.raw for c in channels] + ([temperature] if temperature is not None else [])
+    if len(cols) < 2 or not len(cols[0]):
+        return 0
+    zero = np.all(np.stack([np.asarray(c) == 0.0 for c in cols]), axis=0)
+    return len(zero) - int(np.flatnonzero(~zero)[-1]) - 1 if (~zero).any() else 0
 
 
 def _stuck(channels, zero: np.ndarray, h: float, items: list, masks: dict) -> None:

@@ -39,6 +39,8 @@ from .text import (
     _stamps_and_rate,
     _time_column,
     read_series,
+    sniff_layout,
+    value_lines,
 )
 
 __all__ = ["RECORDER_COLUMNS", "InputError", "Channel", "Recording", "bundled_recording", "read_recording",
@@ -112,8 +114,11 @@ class Channel:
     def raw(self) -> np.ndarray:
         """The values as the file held them (counts come back exactly)."""
         raw = self.values / self.scale
+        if "counts" not in self.source_unit:
+            return raw
         rounded = np.rint(raw)
-        return rounded if np.nanmax(np.abs(raw - rounded), initial=0.0) < 1e-6 and "counts" in self.source_unit else raw
+        ok = np.isfinite(raw)  # (an impossible value, a fault of its own, does not decide the rounding)
+        return rounded if np.max(np.abs(raw[ok] - rounded[ok]), initial=0.0) < 1e-6 else raw
 
     def describe(self) -> dict:
         return {"column": self.name, "sensor": self.sensor, "axis": self.axis, "unit": self.unit,
@@ -272,14 +277,16 @@ def _make_channels(path: Path, names: Sequence[str], data: np.ndarray, units: li
         if unit is not None and unit != "counts":
             sensor, factor = UNITS[unit]
             if guess is not None and guess[0] != sensor:
-                raise InputError(f"{path}: column {name!r} looks like a {guess[0]} axis but --units says {unit} "
-                                 f"({sensor}); give its own unit (one unit per column, e.g. --units g,g,g,deg/s,"
-                                 "deg/s,deg/s)")
+                article = "an" if guess[0][0] in "aeiou" else "a"
+                raise InputError(f"{path}: column {name!r} looks like {article} {guess[0]} axis but --units says "
+                                 f"{unit} ({sensor}); give its own unit (one unit per column, in the order of the "
+                                 "file's columns or of --columns, e.g. --units g,g,g,deg/s,deg/s,deg/s)")
             axis = guess[1] if guess is not None else _axis_from_name(name)
             if axis is None:
                 raise InputError(f"{path}: column {name!r} is a {sensor} channel (--units {unit}) but its name says no "
                                  "axis x, y or z; rename it (e.g. acc_x)")
-            out.append(Channel(name, sensor, axis, col * factor, _UNIT_NAMES[unit], factor))
+            with np.errstate(over="ignore"):  # (a value that overflows is infinite: a fault the check names)
+                out.append(Channel(name, sensor, axis, col * factor, _UNIT_NAMES[unit], factor))
             continue
         if guess is None:
             if unit == "counts":
@@ -305,12 +312,39 @@ def _make_channels(path: Path, names: Sequence[str], data: np.ndarray, units: li
             # counts / (LSB per unit) × (SI per unit): the data in g and °/s give the same bits as their counts
             lsb = lsb_per_g if sensor == "accelerometer" else lsb_per_dps
             per_unit = STANDARD_GRAVITY if sensor == "accelerometer" else DEG
-            out.append(Channel(name, sensor, axis, col / lsb * per_unit, scale[1], scale[0], full_scale))
+            with np.errstate(over="ignore"):
+                out.append(Channel(name, sensor, axis, col / lsb * per_unit, scale[1], scale[0], full_scale))
             continue
         raise InputError(f"{path}: unknown unit of column {name!r} ({sensor} {axis}): give --units (g or ms2 for an "
                          "accelerometer, rad/s or deg/s for a gyroscope; one for all columns or one per column), or "
                          f"{'--lsb-per-g' if sensor == 'accelerometer' else '--lsb-per-dps'} for counts")
     return tuple(out)
+
+
+def _units_in_order(path: Path, units, wanted: list, header: list, *, given: bool, meta: dict) -> list:
+    """``--units`` for the columns ``wanted`` (the channels' order), given in the order of ``--columns`` (``given``)
+    or of the file's columns. Where that order contradicts the columns' names and the channels' order (ax … gz) does
+    not, the units are read in the channels' order. ``meta["units_read"]`` says which unit each column got."""
+    order = list(wanted) if given else sorted(wanted, key=header.index)
+    try:
+        by = dict(zip(order, parse_units(units, order)))
+        if units is None:
+            return [None] * len(wanted)
+        how = "in the order of --columns" if given else "in the order of the file's columns"
+        if not given and order != list(wanted) and _contradicts(by):
+            canonical = dict(zip(wanted, parse_units(units, wanted)))
+            if not _contradicts(canonical):
+                by, how = canonical, "in the channels' order ax … gz (the file's order contradicts the names)"
+    except ValueError as exc:
+        raise InputError(f"{path}: {exc}") from None
+    meta["units_read"] = f"--units read {how}: " + ", ".join(f"{c} {by[c]}" for c in order)
+    return [by[c] for c in wanted]
+
+
+def _contradicts(units_of: dict) -> bool:
+    """Whether a unit names another sensor than its column's name does."""
+    return any(UNITS[u][0] is not None and sensor_of(c) is not None and sensor_of(c)[0] != UNITS[u][0]
+               for c, u in units_of.items())
 
 
 def _axis_from_name(name: str) -> str | None:
@@ -386,11 +420,11 @@ def read_recording(path=None, *, columns: Sequence[str] | None = None, units=Non
     return _read_csv(path, lines, columns, units, lsb_per_g, lsb_per_dps, rate_hz, time_column, temperature_column)
 
 
-def _header_row(path: Path, lines: list[str], columns) -> tuple[dict, int]:
+def _header_row(path: Path, lines: list[str], columns, layout) -> tuple[dict, int]:
     """The ``key,value`` lines above a CSV's header row (the bundled format's ``Fs,100`` …) and the header's index."""
     meta: dict = {}
     for i, line in enumerate(lines):
-        parts = [p.strip() for p in line.split(",")]
+        parts = layout.fields(line)
         if len(parts) == 2 and not (columns and all(c in parts for c in columns)) and not default_columns(parts) \
                 and not _is_number(parts[0]):
             meta[parts[0]] = parts[1]
@@ -402,8 +436,11 @@ def _header_row(path: Path, lines: list[str], columns) -> tuple[dict, int]:
 def _read_csv(path: Path, lines: list[str], columns, units, lsb_per_g, lsb_per_dps, rate_hz, time_column,
               temperature_column) -> Recording:
     """A generic CSV or the bundled format (:func:`read_recording`'s arguments; ``lines``: the file's first lines)."""
-    meta, start = _header_row(path, lines, columns)
-    header = [h.strip() for h in lines[start].split(",")]
+    layout = sniff_layout(lines)
+    meta, start = _header_row(path, lines, columns, layout)
+    header = layout.fields(lines[start])
+    if layout.sep != ",":
+        meta["layout"] = f"read as {layout.words} (the separator found in the file)"
     wanted = list(columns) if columns else default_columns(header)
     if not wanted:
         raise InputError(f"{path}, line {start + 1}: no accelerometer or gyroscope column recognised in the header "
@@ -416,7 +453,7 @@ def _read_csv(path: Path, lines: list[str], columns, units, lsb_per_g, lsb_per_d
                          "--columns" + _delimiter_hint(lines[start]))
     bundled = "Fs" in meta
     tcol = _time_column(path, header, time_column)
-    if tcol is not None and time_column == "auto" and not _numeric_column(lines, start, header.index(tcol)):
+    if tcol is not None and time_column == "auto" and not _numeric_column(lines, start, header.index(tcol), layout):
         meta["time_column_skipped"] = (f"column {tcol!r} is not in seconds (its first value is not a number); "
                                        "it is not used as time stamps")
         tcol = None
@@ -424,16 +461,13 @@ def _read_csv(path: Path, lines: list[str], columns, units, lsb_per_g, lsb_per_d
         raise InputError(f"{path}: no temperature column {temperature_column!r} (the header has "
                          f"{', '.join(header[:12])}{' …' if len(header) > 12 else ''})")
     rate_hz, rate_source = _given_rate(path, meta, rate_hz, tcol, bundled)
-    try:
-        unit_list = parse_units(units, wanted)
-    except ValueError as exc:
-        raise InputError(str(exc)) from None
+    unit_list = _units_in_order(path, units, wanted, header, given=bool(columns), meta=meta)
     if bundled:
         lsb_per_g = 16384.0 if lsb_per_g is None else lsb_per_g  # MPU-6050 library defaults: ±2 g …
         lsb_per_dps = 131.0 if lsb_per_dps is None else lsb_per_dps  # … and ±250 °/s
     names = wanted + [c for c in (tcol, temperature_column) if c is not None and c not in wanted]
     try:
-        data = _parse_body(path, start, header, names)
+        data = _parse_body(path, start, header, names, layout)
     except InputError as exc:
         if tcol is not None and exc.column == tcol:
             raise InputError(f"{exc}; time stamps must be seconds (--time-column none ignores them)", tcol) from None
@@ -441,6 +475,7 @@ def _read_csv(path: Path, lines: list[str], columns, units, lsb_per_g, lsb_per_d
     channels = _make_channels(path, wanted, data[:, :len(wanted)], unit_list, default_counts=bundled,
                               lsb_per_g=lsb_per_g, lsb_per_dps=lsb_per_dps,
                               full_scale=(-32768.0, 32767.0) if bundled else None)
+    value_lines(path, start, header, layout, channels, meta)
     t, rate_hz, rate_source = _stamps_and_rate(path, tcol, data, names, meta, rate_hz, rate_source)
     return Recording(path=path, rate_hz=float(rate_hz), channels=channels, metadata=meta, time_s=t, time_column=tcol,
                      rate_source=rate_source, temperature=None if temperature_column is None

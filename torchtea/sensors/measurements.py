@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .datacheck import Missing, Timing, check_timing, find_missing, missing_error
-from .faults import Faults, apply_faults, find_faults
+from .faults import Faults, apply_faults, find_faults, zero_tail
 from .io import Channel, InputError, Recording
 
 __all__ = ["Measurements", "prepare", "fill_temperature", "RECORDING_MEANING", "DOCUMENT_MEANING"]
@@ -53,6 +53,9 @@ class Measurements:
     #: the stretches left out on request (``--exclude``): dicts with ``from_s``, ``to_s`` (as asked), ``first``,
     #: ``last`` (sample indices) and ``samples``; those made missing, or cut where they reach the end
     excluded: tuple = ()
+    #: the zero-filled tail cut (rows at the end that are 0 in every column): ``first`` (its first sample), ``rows``
+    #: and ``words``; None when the part used ends in a measurement
+    zero_tail: dict | None = None
 
     @property
     def h(self) -> float:
@@ -104,11 +107,12 @@ class Measurements:
                 "temperature_column": rec.temperature_column, "faults": self.faults.to_dict(),
                 "missing_samples": self.missing.count, "missing": self.missing.to_dict(),
                 "timing": None if self.timing is None else self.timing.to_dict(),
-                "excluded": [dict(e) for e in self.excluded]}
+                "excluded": [dict(e) for e in self.excluded], "zero_tail": self.zero_tail}
 
     def notes(self) -> list[str]:
         """Lines for stderr and the reports: the faults, then the timing warnings."""
-        out = [f"recording fault: {line}" for line in self.faults.lines()]
+        out = [f"recording fault: {line}" for line in
+               ([self.zero_tail["words"]] if self.zero_tail else []) + self.faults.lines()]
         for e in self.excluded:
             out.append(f"excluded on request (--exclude {e['from_s']:g}:{e['to_s']:g}): samples {e['first']}–"
                        f"{e['last']} ({e['samples']}), " + ("cut: the stretch reaches the end of the part used"
@@ -134,6 +138,8 @@ RECORDING_MEANING = {
     "missing": "the missing samples by cause and their longest run",
     "timing": "the file's time stamps against the rate in use (null: the file has no time column)",
     "excluded": "stretches left out on request (--exclude): their samples missing, or cut at the end",
+    "zero_tail": "rows at the end of the part used that were 0 in every column (a logger's zero-filled tail): cut, "
+                 "not analysed; null: none",
 }
 #: The entries every JSON document of a command that reads a recording has beside the recording's part.
 DOCUMENT_MEANING = {
@@ -186,9 +192,17 @@ def prepare(recording: Recording, *, samples: int | None = None, allow_missing: 
         rec = rec.head(keep)
         drop = drop[:keep]
         N = keep
+    tail = zero_tail(rec.channels, rec.temperature)
+    if tail:
+        rec, drop, N = rec.head(N - tail), drop[:N - tail], N - tail
+        tail = {"first": N, "rows": tail,
+                "words": f"the last {tail} rows (samples {N}–{N + tail - 1}, from {N * rec.h:.2f} s) are 0 in every "
+                         f"column{', the temperature too' if rec.temperature is not None else ''}: a logger's "
+                         "zero-filled tail, not measurements; cut"}
     if N < min_samples:
         raise InputError(f"{rec.path}: {N} samples; {command} needs at least {min_samples}")
-    faults = find_faults(rec.channels, h=rec.h, temperature=rec.temperature, time_s=rec.time_s)
+    faults = find_faults(rec.channels, h=rec.h, temperature=rec.temperature, time_s=rec.time_s,
+                         lines=rec.metadata.get("value_lines"))
     channels, temperature = apply_faults(rec.channels, rec.temperature, faults)
     values = np.column_stack([c.values for c in channels])
     unasked = find_missing(np.where(drop[:, None], 0.0, values), [c.label for c in channels])
@@ -211,4 +225,5 @@ def prepare(recording: Recording, *, samples: int | None = None, allow_missing: 
     timing = None
     if rec.time_s is not None:
         timing = check_timing(rec.time_s, rec.rate_hz, column=rec.time_column, rate_source=rec.rate_source)
-    return Measurements(rec, channels, faults, missing, timing, temperature, allow_missing, total, tuple(excluded))
+    return Measurements(rec, channels, faults, missing, timing, temperature, allow_missing, total, tuple(excluded),
+                        tail or None)

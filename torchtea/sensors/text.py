@@ -7,14 +7,17 @@ import csv
 import math
 from collections.abc import Sequence
 from contextlib import contextmanager
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from .datacheck import stamp_rate
 from .errors import InputError
+from .faults import impossible
 
-__all__ = ["read_series", "TIME_COLUMNS", "TIME_UNITS", "PLAUSIBLE_RATE_HZ", "HEAD_LINES"]
+__all__ = ["read_series", "TIME_COLUMNS", "TIME_UNITS", "PLAUSIBLE_RATE_HZ", "HEAD_LINES", "Layout", "sniff_layout",
+           "SEPARATORS"]
 
 #: Column names taken as time stamps when a reader is asked to find them (``time_column="auto"``), in seconds
 #: unless the name says otherwise (:data:`TIME_UNITS`) or the stamps' spacing shows ms, µs or ns.
@@ -35,7 +38,7 @@ HEAD_LINES = 200
 def _text_file(path: Path):
     """The file opened as text; what goes wrong while opening or reading it is one :class:`InputError` naming it."""
     try:
-        with open(path, newline="") as fh:
+        with open(path, newline="", encoding="utf-8-sig") as fh:  # (a byte-order mark is not part of the header)
             yield fh
     except FileNotFoundError:
         raise InputError(f"{path}: no such file") from None
@@ -53,15 +56,60 @@ def _read_text(path: Path) -> str:
 
 
 def _delimiter_hint(line: str) -> str:
-    """A hint when a header line looks separated by something other than commas."""
-    for sep, name in ((";", "semicolons"), ("\t", "tabs"), ("|", "'|'")):
-        if line.count(sep) >= 1 and line.count(sep) >= line.count(","):
-            return (f"; the header looks separated by {name}, but torchtea reads comma-separated files "
-                    f"(convert it, e.g. replace each {name[:-1] if name.endswith('s') else name} by a comma)")
+    """A hint when a header line looks separated by something torchtea does not read ('|')."""
+    if line.count("|") >= 1 and line.count("|") >= line.count(","):
+        return "; the header looks separated by '|', which torchtea does not read (comma, tab, semicolon or spaces)"
     return ""
 
 
-def _number(text: str, path: Path, line: int, column: str, *, allow_missing: bool) -> float:
+#: The separators a recording may use, in the order they are tried (``None``: runs of spaces or tabs).
+SEPARATORS = (("\t", "tab"), (";", "semicolon"), (",", "comma"), (None, "whitespace"))
+#: Lines at the end of a file's head whose fields are counted to find its separator.
+SNIFF_LINES = 20
+
+
+@dataclass(frozen=True)
+class Layout:
+    """How a text recording is laid out: its separator (``None``: runs of whitespace) and whether its numbers
+    write the decimal point as a comma (``1,25`` in a semicolon- or tab-separated file)."""
+
+    sep: str | None = ","
+    decimal_comma: bool = False
+
+    @property
+    def words(self) -> str:
+        name = dict(SEPARATORS)[self.sep]
+        return f"{name}-separated" + (", decimal commas" if self.decimal_comma else "")
+
+    def fields(self, line: str) -> list[str]:
+        """The fields of one line, stripped of spaces and of the quotes around a quoted cell."""
+        if '"' in line and self.sep is not None:
+            parts = next(csv.reader([line], delimiter=self.sep, skipinitialspace=True), [])
+        else:
+            parts = line.split(self.sep) if self.sep is not None else line.split()
+        parts = [p.strip().strip('"').strip() for p in parts]
+        return [p.replace(",", ".") for p in parts] if self.decimal_comma else parts
+
+
+def sniff_layout(lines: list[str]) -> Layout:
+    """The layout of a text recording from its first ``lines``: the first of :data:`SEPARATORS` that splits each of
+    the last :data:`SNIFF_LINES` lines (blank and ``#`` lines aside) into the same number of fields, more than one;
+    commas when none does (the errors that follow then name the line). A decimal comma is read where the separator is
+    not a comma and the numbers hold commas and no points."""
+    body = [ln for ln in lines if ln.strip() and not ln.lstrip().startswith("#")]
+    tail = body[-SNIFF_LINES:]
+    for sep, _ in SEPARATORS:
+        counts = {len(ln.split(sep) if sep is not None else ln.split()) for ln in tail}
+        if len(counts) == 1 and counts.pop() > 1:
+            if sep == "," or not tail:
+                return Layout(sep)
+            cells = [c for ln in tail for c in (ln.split(sep) if sep is not None else ln.split())]
+            decimal = any("," in c for c in cells) and not any("." in c for c in cells)
+            return Layout(sep, decimal)
+    return Layout(",")
+
+
+def _number(text: str, path: Path, line: int, column: str, *, allow_missing: bool, infinite: bool = False) -> float:
     t = text.strip()
     if t == "" or t.lower() == "nan":
         if allow_missing:
@@ -72,7 +120,9 @@ def _number(text: str, path: Path, line: int, column: str, *, allow_missing: boo
         v = float(t)
     except ValueError:
         raise InputError(f"{path}, line {line}: column {column!r} holds {t!r}, not a number", column) from None
-    if not math.isfinite(v):
+    if math.isnan(v) and allow_missing:
+        return math.nan
+    if math.isnan(v) or (math.isinf(v) and not infinite):
         raise InputError(f"{path}, line {line}: column {column!r} is not finite ({t})", column)
     return v
 
@@ -107,19 +157,21 @@ def _head_lines(path: Path, limit: int = HEAD_LINES) -> list[str]:
     return out
 
 
-def _parse_body(path: Path, start: int, header: list, wanted: list) -> np.ndarray:
+def _parse_body(path: Path, start: int, header: list, wanted: list, layout: Layout = Layout()) -> np.ndarray:
     """``(N, len(wanted))`` float64 of the rows after the header (line ``start``, 0-based); empty or ``nan`` fields
-    are NaN; blank lines and ``#`` lines are skipped. The fast path streams the file through numpy's C parser (memory:
-    the numbers only, whatever the file's size); a file it cannot read (an empty field, text, a row of another
-    length) is read again line by line, which names the line and column at fault."""
+    are NaN, ``inf`` fields infinite (a fault the recording's check names); blank lines and ``#`` lines are skipped.
+    The fast path streams the file through numpy's C parser (memory: the numbers only, whatever the file's size); a
+    file it cannot read (an empty field, text, a row of another length) is read again line by line, which names the
+    line and column at fault."""
     idx = [header.index(c) for c in wanted]
     try:
-        with np.errstate(all="ignore"):
-            arr = np.loadtxt(path, delimiter=",", skiprows=start + 1, ndmin=2, dtype=np.float64, comments="#",
-                             encoding="utf-8")
+        with np.errstate(all="ignore"), _text_file(path) as fh:
+            rows = (ln.replace(",", ".") for ln in fh) if layout.decimal_comma else fh
+            arr = np.loadtxt(rows, delimiter=layout.sep, skiprows=start + 1, ndmin=2, dtype=np.float64, comments="#",
+                             quotechar='"')
         if arr.shape[0] == 0:
             raise InputError(f"{path}: no data rows")
-        if arr.shape[1] != len(header) or np.isinf(arr).any():
+        if arr.shape[1] != len(header):
             raise ValueError
         return np.ascontiguousarray(arr[:, idx])
     except ValueError:
@@ -129,24 +181,57 @@ def _parse_body(path: Path, start: int, header: list, wanted: list) -> np.ndarra
     n = 0
     for i in range(start + 1, len(lines)):
         line = lines[i]
-        if not line.strip() or line.startswith("#"):
+        if not line.strip() or line.lstrip().startswith("#"):
             continue
-        parts = line.split(",")
+        parts = layout.fields(line)
         if len(parts) != len(header):
-            raise InputError(f"{path}, line {i + 1}: {len(parts)} fields, the header has {len(header)}")
+            raise InputError(f"{path}, line {i + 1}: {len(parts)} fields, the header has {len(header)}"
+                             + ("" if layout.sep == "," else f" (read as {layout.words})"))
         for k, j in enumerate(idx):
-            out[n, k] = _number(parts[j], path, i + 1, header[j], allow_missing=True)
+            out[n, k] = _number(parts[j], path, i + 1, header[j], allow_missing=True, infinite=True)
         n += 1
     if n == 0:
         raise InputError(f"{path}: no data rows")
     return out[:n]
 
 
-def _numeric_column(lines: list, start: int, j: int) -> bool:
+def data_lines(path: Path, start: int, samples) -> dict:
+    """``sample → (line number, line)`` of each of the data rows ``samples`` (0-based, blank and ``#`` lines aside)
+    after the header (line ``start``, 0-based; numbers 1-based): for messages that name a row."""
+    want = sorted(set(int(k) for k in samples))
+    out: dict = {}
+    if not want:
+        return out
+    k = -1
+    with _text_file(path) as fh:
+        for i, line in enumerate(fh):
+            if i <= start or not line.strip() or line.lstrip().startswith("#"):
+                continue
+            k += 1
+            if k == want[len(out)]:
+                out[k] = (i + 1, line.rstrip("\r\n"))
+                if len(out) == len(want):
+                    break
+    return out
+
+
+def value_lines(path: Path, start: int, header: list, layout: Layout, channels, meta: dict) -> None:
+    """``meta["value_lines"]``: the file's line, column and text of each channel's first impossible values
+    (:func:`~.faults.impossible`), which the recording's faults name."""
+    flagged = [(c, np.flatnonzero(impossible(c))[:3]) for c in channels]
+    if not any(len(k) for _, k in flagged):
+        return
+    at = data_lines(path, start, [k for _, ks in flagged for k in ks])
+    meta["value_lines"] = {f"{c.label}:{k}": f"line {at[k][0]}, column {c.name!r}: "
+                                             f"{layout.fields(at[k][1])[header.index(c.name)]!r}"
+                           for c, ks in flagged for k in ks if k in at}
+
+
+def _numeric_column(lines: list, start: int, j: int, layout: Layout = Layout()) -> bool:
     """Whether column ``j`` of the first data row after line ``start`` holds a number (or is empty)."""
     for line in lines[start + 1:]:
         if line.strip():
-            parts = line.split(",")
+            parts = layout.fields(line)
             if j >= len(parts):
                 return True  # the row's own error comes later
             t = parts[j].strip()

@@ -69,7 +69,7 @@ def check_measurements(m, model=None, *, inputs: dict | None = None, add: Iterab
                        levels: dict | None = None, progress: Callable | None = None,
                        log: Callable | None = None, client=None, threads: int | None = None,
                        effects: tuple = (), stages: Callable | None = None, fits: str = "auto",
-                       exclude_start: bool = False) -> dict:
+                       exclude_start: bool = False, done: dict | None = None, keep: Callable | None = None) -> dict:
     """Check each channel of ``m`` (:class:`~torchtea.sensors.measurements.Measurements`) with ``model`` (default
     :data:`PAPER_MODEL`): :func:`check_channel` with ``add``, ``auto``, ``max_steps``, ``strong``, ``simplify``; ``levels``: check's
     ``level``/``screen_level`` where given; ``exclude_start``: :func:`check_channel`'s. ``progress(done, total)`` after each channel; ``log(line)`` before each
@@ -78,37 +78,43 @@ def check_measurements(m, model=None, *, inputs: dict | None = None, add: Iterab
     ``client``: a ``distributed.Client``: each channel is one task on its workers (``threads`` numba threads each,
     default 1), the results in channel order and the same as in this process (every number a channel's check computes
     is its own: the kernels' parallel loops run whole parameter sets per thread, and torch runs on one thread either
-    way). ``effects``: users' modules of effects each task imports first. Returns label → result."""
+    way); ``stages`` hears each channel's stages from the workers too. ``effects``: users' modules of effects each
+    task imports first. ``done``: channels checked before (label → result: an interrupted run's, kept), not checked
+    again; ``keep(label, result)`` as each channel finishes (to keep it at once). Returns label → result in channel
+    order."""
     model = model or PAPER_MODEL
     kw = dict(inputs=inputs, add=tuple(add), auto=auto, max_steps=max_steps, strong=strong, intervals=intervals,
               simplify=simplify, levels=levels, effects=tuple(effects), fits=fits, exclude_start=exclude_start)
-    if client is not None:
-        return _on_cluster(m, model, kw, client, 1 if threads is None else threads, progress, log)
-    results = {}
-    for i, c in enumerate(m.channels):
+    results = {c.label: done[c.label] for c in m.channels if done and c.label in done}
+    todo = [c for c in m.channels if c.label not in results]
+    if progress is not None and results:
+        progress(len(results), len(m.channels))
+    if client is not None and todo:
+        results.update(_on_cluster(m, todo, model, kw, client, 1 if threads is None else threads,
+                                   (lambda k, total: progress(len(results) + k, len(m.channels))) if progress else None,
+                                   log, stages, keep))
+    for c in todo if client is None else ():
         if log is not None:
             log(f"checking {c.label}, {c.title} ({m.samples} samples, model {model}) …")
         say = None if stages is None else (lambda line, label=c.label: stages(f"  {label}: {line}"))
         results[c.label] = check_channel(c.values, m.h, model, progress=say, threads=threads, **kw)
+        if keep is not None:
+            keep(c.label, results[c.label])
         if progress is not None:
-            progress(i + 1, len(m.channels))
-    return results
+            progress(len(results), len(m.channels))
+    return {c.label: results[c.label] for c in m.channels}
 
 
-def _on_cluster(m, model, kw: dict, client, threads: int, progress, log) -> dict:
-    """The channels as tasks of ``client``'s cluster, one each."""
+def _on_cluster(m, todo: list, model, kw: dict, client, threads: int, progress, log, stages, keep) -> dict:
+    """The channels ``todo`` as tasks of ``client``'s cluster, one each; their stages streamed back to ``stages``."""
     from ..core.tasks import run_on_cluster
 
     if log is not None:
-        log(f"checking {len(m.channels)} channels on the cluster ({sum(client.nthreads().values())} worker threads, "
+        log(f"checking {len(todo)} channels on the cluster ({sum(client.nthreads().values())} worker threads, "
             f"{m.samples} samples each, model {model}) …")
-
-    def done(k, total):
-        if progress is not None:
-            progress(k, total)
-
-    calls = [(c.label, (c.values, m.h, model), dict(threads=threads, **kw)) for c in m.channels]
-    return run_on_cluster(client, check_channel, calls, name="check", progress=done)
+    calls = [(c.label, (c.values, m.h, model), dict(threads=threads, **kw)) for c in todo]
+    return run_on_cluster(client, check_channel, calls, name="check", progress=progress, on_result=keep,
+                          lines=stages)
 
 
 def summary_lines(results: dict, titles: dict) -> list[str]:

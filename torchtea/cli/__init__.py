@@ -13,6 +13,7 @@ imports ``export``), never this package."""
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
 
 from . import checking, export, simulate, studies, tea
@@ -39,16 +40,19 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv=None) -> int:
+    from ..core.checkpoint import CheckpointError
+    from ..core.tasks import TaskFailed
     from ..effects import import_effects
     from ..sensors.io import InputError
 
     parser = build_parser()
     args = parser.parse_args(argv)
+    previous = _stop_on_sigterm()
     try:
         for name in args.effects:
             import_effects(name)
         return args.func(args)
-    except (CLIError, InputError) as exc:
+    except (CLIError, InputError, TaskFailed, CheckpointError) as exc:
         if args.debug:
             raise
         print(f"torchtea: error: {exc}", file=sys.stderr)
@@ -58,6 +62,29 @@ def main(argv=None) -> int:
             raise
         print(f"torchtea: error: {exc}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print("torchtea: interrupted", file=sys.stderr)
-        return 130
+    except KeyboardInterrupt as exc:
+        how = "stopped (SIGTERM)" if isinstance(exc, Terminated) else "interrupted"
+        kept = getattr(exc, "kept", None)
+        print(f"torchtea: {how}" + (f": {kept}" if kept else ""), file=sys.stderr)
+        return 143 if isinstance(exc, Terminated) else 130
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM (a time limit, a batch scheduler, ``timeout``, ``kill``): raised where the run is, so that it stops as
+    on Ctrl-C — what finished is kept — and exits 143."""
+
+
+def _raise_terminated(signum, frame):
+    raise Terminated
+
+
+def _stop_on_sigterm():
+    """SIGTERM raises :class:`Terminated` while a command runs; the handler before (to put back), or None where
+    signals cannot be set (not the main thread)."""
+    try:
+        return signal.signal(signal.SIGTERM, _raise_terminated)
+    except ValueError:
+        return None

@@ -11,6 +11,7 @@ from .common import (
     CLIError,
     _check_channels,
     _check_cluster_flags,
+    _checkpoint,
     _cluster,
     _cluster_flags,
     _measurements,
@@ -20,6 +21,7 @@ from .common import (
     _progress,
     _recording_flags,
     _steps,
+    _stopped,
     _tensorboard,
     _units_of,
 )
@@ -179,20 +181,30 @@ def cmd_fit(args) -> int:
                        "(or use check --datasheet)")
     plan = _export_plan(args, m, args.export)
     inputs = _model_inputs(args, [model], m)
+    # (with --out, each channel's fit is kept as it is made, beside it: a stop loses only the fit running)
+    checkpoint = _checkpoint(args, Path(f"{args.out}.partial")) if args.out else None
+    if args.resume and checkpoint is None:
+        raise CLIError("--resume: fit keeps its channels beside --out FILE; give the --out of the interrupted run")
     client, close_cluster = _cluster(args)
-    step, close = _progress(len(m.channels), "fit " + model.spec, "channel", bar=not args.json)
+    step, close = _progress(len(m.channels), "fit " + model.spec, "channel", bar=not args.json, estimate=False)
     step(0, len(m.channels))  # (the clock starts with the first channel, not when it is done)
     try:
         doc, fits = fit_recording(m, model, inputs=inputs, method=args.method, bootstrap=args.bootstrap,
                                   seed=args.seed, profile=args.profile, progress=step,
                                   log=lambda line: _note(f"note: {line}"), client=client,
-                                  threads=args.threads_per_worker, effects=tuple(args.effects))
+                                  threads=args.threads_per_worker, effects=tuple(args.effects),
+                                  done=None if checkpoint is None else checkpoint.done,
+                                  keep=None if checkpoint is None else checkpoint.keep)
+    except KeyboardInterrupt as exc:
+        exc.kept = _stopped(checkpoint, len(m.channels))
+        raise
     finally:
         close()
         close_cluster()
     doc["command"] = "torchtea " + " ".join(sys.argv[1:]) if sys.argv[1:] else ""
     if args.out:
         write(Path(args.out), doc)
+        checkpoint.finish()
     if plan:  # (files beside --out, else in export-<recording>)
         out = Path(args.out).parent / "export" if args.out else Path(f"export-{Path(m.recording.path).stem}")
         _export(args, m, plan, {c.label: f for c, f in zip(m.channels, fits)}, inputs, m.describe(), out,
@@ -228,7 +240,7 @@ def _fit_together(args, model, paths: list) -> int:
     from ..render.strictjson import dumps, write
     from ..sensors.measurements import DOCUMENT_MEANING, RECORDING_MEANING
 
-    _together_flags(args, paths, "fit", ("workers", "scheduler", "profile", "bootstrap", "exclude"))
+    _together_flags(args, paths, "fit", ("workers", "scheduler", "profile", "bootstrap", "exclude", "resume"))
     if args.method != "exact":
         raise CLIError("--together fits by the exact likelihood (--method exact)")
     if args.datasheet and not args.export:
@@ -422,7 +434,7 @@ def _check_together(args, paths: list) -> int:
     from ..sensors.measurements import DOCUMENT_MEANING, RECORDING_MEANING
 
     _together_flags(args, paths, "check", ("add", "exclude_start", "workers", "scheduler", "windows", "exclude",
-                                           "no_intervals"))
+                                           "no_intervals", "resume"))
     model = parse_model(args.model)
     ms, inputs, names = _several(args, paths, model, "check", 1000, checked=True)
     first = ms[0]
@@ -502,9 +514,9 @@ def cmd_check(args) -> int:
         except ValueError as exc:
             raise CLIError(f"--windows: {exc}") from None
     t0 = time.perf_counter()
-    results = _check_channels(args, m, inputs, auto=args.auto, intervals=not args.no_intervals)
-    name = Path(m.recording.path).stem
-    out = Path(args.out or f"check-{name}")
+    out = Path(args.out or f"check-{Path(m.recording.path).stem}")
+    checkpoint = _checkpoint(args, out / "partial")
+    results = _check_channels(args, m, inputs, auto=args.auto, intervals=not args.no_intervals, checkpoint=checkpoint)
     meta = m.describe()
     meta.update(command="torchtea " + " ".join(sys.argv[1:]), seconds=time.perf_counter() - t0,
                 warnings=m.notes())
@@ -518,6 +530,7 @@ def cmd_check(args) -> int:
     windows = _windows(args, m, results, inputs)
     doc = write_report(out, results, meta, plots=not args.no_plots, datasheet=verdicts, windows=windows)
     _tensorboard(args, m, results, windows)
+    checkpoint.finish()
     if args.json:
         print(dumps(doc))
         return 0

@@ -122,10 +122,11 @@ _steps = _int_at_least(1)
 PROGRESS_EVERY_S = 10.0
 
 
-def _progress(total, desc, unit="step", *, bar=True):
+def _progress(total, desc, unit="step", *, bar=True, estimate=True):
     """Progress on stderr and a callback ``(done, total)``: a tqdm bar on a terminal (when ``bar``), else a
     line every :data:`PROGRESS_EVERY_S` seconds (``torchtea TEA: 12000/44930 steps (27 %), 31 s elapsed, about
-    85 s left``), so that logs of headless runs show that a long run is alive. Returns ``(step, close)``. ``total``
+    85 s left``; ``estimate`` False: parts too unequal for a time left, which is then not given), so that logs of
+    headless runs show that a long run is alive. Returns ``(step, close)``. ``total``
     None: the callback's own ``total`` (a library workflow that knows it only once it has read its input)."""
     if bar and sys.stderr.isatty():
         from tqdm import tqdm
@@ -152,7 +153,8 @@ def _progress(total, desc, unit="step", *, bar=True):
             return
         # the time left at the pace since the last line: the first window holds one-time costs (numba's compile
         # made a first line say 'about 5953 s left' of a run of minutes), so the first line gives none
-        left = ("about 0 s left" if done >= total_ else
+        left = ("the time left is not estimated (the parts differ in cost)" if not estimate else
+                "about 0 s left" if done >= total_ else
                 f"about {(now - last) * (total_ - done) / (done - d_last):.0f} s left" if d_last > d0 and done > d_last
                 else "the time left follows at the next line")
         start[2], start[3] = now, done
@@ -369,6 +371,10 @@ def _cluster_flags(parser, what: str) -> None:
                                             "(tcp://host:8786)")
     parser.add_argument("--connect-timeout", type=float, default=30.0,
                         help="--scheduler: seconds to wait for the scheduler and its first worker (default 30)")
+    parser.add_argument("--resume", action="store_true",
+                        help="go on with an interrupted run: each channel is kept as it finishes (check, export: "
+                             "OUT/partial; fit: OUT.partial), and the same command run again takes the channels "
+                             "kept, as it does without this flag; with it, a run that has none to go on is refused")
 
 
 def _check_cluster_flags(args) -> None:
@@ -419,13 +425,48 @@ def _cluster(args):
     return None, lambda: None
 
 
-def _check_channels(args, m, inputs, *, auto: bool, intervals: bool) -> dict:
-    """``check`` each channel of ``m`` (then ``--add``, then the loop with ``auto``) → label → result."""
+#: Flags that do not change a channel's result (where its files go, how it is shown, where it runs): a run that
+#: differs only in them goes on from the channels another kept.
+NOT_IDENTITY = ("func", "out", "json", "workers", "threads_per_worker", "scheduler", "connect_timeout", "no_plots",
+                "logdir", "debug", "resume", "export", "datasheet", "export_seed", "horizon", "nees", "values",
+                "windows", "format")
+
+
+def _checkpoint(args, folder):
+    """The :class:`~torchtea.core.checkpoint.Checkpoint` of this command in ``folder``: its identity the flags that
+    change a channel's result and the recording's file; the channels it takes from an interrupted run said."""
+    from ..core.checkpoint import Checkpoint, CheckpointError, file_identity
+
+    flags = {k: v for k, v in sorted(vars(args).items()) if k not in NOT_IDENTITY and k != "recording"}
+    path = args.recording
+    identity = {"flags": flags, "recording": file_identity(path) if path is not None and Path(path).exists()
+                else str(path)}
+    try:
+        cp = Checkpoint(folder, identity, resume=True if args.resume else None, say=_note)
+    except CheckpointError as exc:
+        raise CLIError(str(exc)) from None
+    if cp.done:
+        _note(f"going on with an interrupted run: {', '.join(cp.done)} kept in {folder} (not run again)")
+    return cp
+
+
+def _stopped(checkpoint, total: int) -> str:
+    """What an interrupted run kept, for its last line."""
+    if checkpoint is None or not checkpoint.done:
+        return "nothing finished was kept"
+    return (f"{len(checkpoint.done)} of {total} channels kept in {checkpoint.folder} ({', '.join(checkpoint.done)}); "
+            "the same command run again goes on from them")
+
+
+def _check_channels(args, m, inputs, *, auto: bool, intervals: bool, checkpoint=None) -> dict:
+    """``check`` each channel of ``m`` (then ``--add``, then the loop with ``auto``) → label → result; each kept in
+    ``checkpoint`` as it finishes, those it holds not checked again."""
     from ..checking.channels import check_measurements
 
     levels = {k: getattr(args, k) for k in ("level", "screen_level") if hasattr(args, k)}  # (else check's own)
     client, close_cluster = _cluster(args)
-    step, close = _progress(len(m.channels), "check", "channel", bar=not getattr(args, "json", False))
+    step, close = _progress(len(m.channels), "check", "channel", bar=not getattr(args, "json", False),
+                            estimate=False)
     step(0, len(m.channels))  # (the clock starts with the first channel, not when it is done)
     try:
         results = check_measurements(m, args.model, inputs=inputs, add=getattr(args, "add", []), auto=auto,
@@ -434,7 +475,12 @@ def _check_channels(args, m, inputs, *, auto: bool, intervals: bool) -> dict:
                                      exclude_start=getattr(args, "exclude_start", False),
                                      intervals=intervals, levels=levels, progress=step, log=_note, stages=_note,
                                      client=client, fits=getattr(args, "fits", "auto"),
-                                     threads=args.threads_per_worker, effects=tuple(args.effects))
+                                     threads=args.threads_per_worker, effects=tuple(args.effects),
+                                     done=None if checkpoint is None else checkpoint.done,
+                                     keep=None if checkpoint is None else checkpoint.keep)
+    except KeyboardInterrupt as exc:
+        exc.kept = _stopped(checkpoint, len(m.channels))
+        raise
     finally:
         close()
         close_cluster()

@@ -10,6 +10,7 @@ from .common import (
     CLIError,
     _check_channels,
     _check_cluster_flags,
+    _checkpoint,
     _cluster,
     _cluster_flags,
     _measurements,
@@ -17,6 +18,7 @@ from .common import (
     _note,
     _recording_flags,
     _steps,
+    _stopped,
     _tensorboard,
 )
 
@@ -56,9 +58,8 @@ def _add_export(sub) -> None:
 
 
 def cmd_export(args) -> int:
-    """``torchtea export``: check each axis to the end (as ``check --auto``) or fit ``--model``, then export."""
-    from ..fitting.recording import fit_channel
-
+    """``torchtea export``: check each axis to the end (as ``check --auto``) or fit ``--model``, then export; each
+    axis kept in ``OUT/partial`` as it finishes (a stop loses only the axis running; the same command goes on)."""
     _check_cluster_flags(args)
     if args.out:  # (before the checks: a wrong --out found after minutes of fitting loses them)
         _export_folder(args.out)
@@ -73,37 +74,51 @@ def cmd_export(args) -> int:
     inputs = None if args.temperature is None else {"temperature": m.temperature_input()}
     meta = m.describe()
     meta.update(command="torchtea " + " ".join(sys.argv[1:]), warnings=m.notes())
-    if args.model:
-        from ..noise import parse_model
-
-        model = parse_model(args.model)
-        if any(c.inputs for _, c in model.components) and inputs is None:
-            raise CLIError(f"model {model.spec!r} reads the temperature: give --temperature COL")
-        client, close_cluster = _cluster(args)
-        try:
-            if client is None:
-                fits = {}
-                for c in m.channels:
-                    print(f"torchtea: fitting {model.spec} to {c.label} …", file=sys.stderr)
-                    fits[c.label] = fit_channel(model, c.values, m.h, inputs=inputs)
-            else:
-                from ..core.tasks import run_on_cluster
-
-                _note(f"fitting {model.spec} to {len(m.channels)} channels on the cluster …")
-                fits = run_on_cluster(client, fit_channel, [
-                    (c.label, (model.spec, c.values, m.h), dict(inputs=inputs, effects=tuple(args.effects),
-                                                                threads=args.threads_per_worker or 1))
-                    for c in m.channels], name="fit")
-        finally:
-            close_cluster()
-    else:
-        results = _check_channels(args, m, inputs, auto=True, intervals=True)
-        fits = {a: r.fit for a, r in results.items()}
-        meta["loop_end"] = {a: r.loop_end for a, r in results.items()}
-        _tensorboard(args, m, results)
     out = Path(args.out or f"export-{Path(m.recording.path).stem}")
+    checkpoint = _checkpoint(args, out / "partial")
+    try:
+        if args.model:
+            fits = _fit_channels(args, m, inputs, checkpoint)
+        else:
+            results = _check_channels(args, m, inputs, auto=True, intervals=True, checkpoint=checkpoint)
+            fits = {a: r.fit for a, r in results.items()}
+            meta["loop_end"] = {a: r.loop_end for a, r in results.items()}
+            _tensorboard(args, m, results)
+    except KeyboardInterrupt as exc:
+        exc.kept = getattr(exc, "kept", None) or _stopped(checkpoint, len(m.channels))
+        raise
     _export(args, m, plan, fits, inputs, meta, out, quiet=False, plots=not args.no_plots)
+    checkpoint.finish()
     return 0
+
+
+def _fit_channels(args, m, inputs, checkpoint) -> dict:
+    """``export --model``: the model fitted to each channel (here or on the cluster), each kept in ``checkpoint``."""
+    from ..core.tasks import run_on_cluster
+    from ..fitting.recording import fit_channel
+    from ..noise import parse_model
+
+    model = parse_model(args.model)
+    if any(c.inputs for _, c in model.components) and inputs is None:
+        raise CLIError(f"model {model.spec!r} reads the temperature: give --temperature COL")
+    fits = dict(checkpoint.done)
+    todo = [c for c in m.channels if c.label not in fits]
+    client, close_cluster = _cluster(args)
+    try:
+        if client is None:
+            for c in todo:
+                print(f"torchtea: fitting {model.spec} to {c.label} …", file=sys.stderr)
+                fits[c.label] = fit_channel(model, c.values, m.h, inputs=inputs)
+                checkpoint.keep(c.label, fits[c.label])
+        elif todo:
+            _note(f"fitting {model.spec} to {len(todo)} channels on the cluster …")
+            fits.update(run_on_cluster(client, fit_channel, [
+                (c.label, (model.spec, c.values, m.h), dict(inputs=inputs, effects=tuple(args.effects),
+                                                            threads=args.threads_per_worker or 1))
+                for c in todo], name="fit", on_result=checkpoint.keep))
+    finally:
+        close_cluster()
+    return {c.label: fits[c.label] for c in m.channels}
 
 
 def _export_folder(out: str) -> None:
@@ -299,7 +314,7 @@ def _export_together(args, paths: list) -> int:
     from ..fitting.together import fit_together
     from ..noise import parse_model
 
-    _together_flags(args, paths, "export", ("workers", "scheduler", "logdir", "exclude", "exclude_start"))
+    _together_flags(args, paths, "export", ("workers", "scheduler", "logdir", "exclude", "exclude_start", "resume"))
     model = parse_model(args.model or "fractional+white")
     ms, inputs, names = _several(args, paths, model, "an export", 1000, checked=not args.model)
     first = ms[0]

@@ -49,7 +49,7 @@ def bootstrap_replicates(samples: int, asked: int | None) -> int:
 def fit_recording(m, model, *, inputs: dict | None = None, method: str = "exact", bootstrap: int | None = None,
                   seed: int = 0, profile: bool = False, progress: Callable | None = None,
                   log: Callable | None = None, client=None, threads: int | None = None,
-                  effects: tuple = ()) -> tuple[dict, list[Fit]]:
+                  effects: tuple = (), done: dict | None = None, keep: Callable | None = None) -> tuple[dict, list[Fit]]:
     """Fit ``model`` to each channel of ``m`` (:class:`~torchtea.sensors.measurements.Measurements`) one at a time
     (bounded memory; ``progress(done, total)`` after each), test the fractional part's presence by parametric
     bootstrap (:func:`~.presence.fractional_test`; replicates: :func:`bootstrap_replicates`; complete series only),
@@ -58,7 +58,8 @@ def fit_recording(m, model, *, inputs: dict | None = None, method: str = "exact"
     (``model``, ``method``, the recording's description, ``bootstrap``, ``axes``, ``meaning``, ``seconds``,
     ``warnings``) and the fits in channel order. ``client``: a ``distributed.Client``: each channel's fit is one task
     of its cluster (:func:`fit_channel`, ``threads`` numba threads each, default 1; the users' modules of ``effects``
-    imported there first), the same fits as in this process."""
+    imported there first), the same fits as in this process. ``done``: fits made before (label → fit: an interrupted
+    run's, kept), not made again; ``keep(label, fit)`` as each channel's fit is made (to keep it at once)."""
     from ..noise import parse_model
     from .presence import fractional_test
 
@@ -71,19 +72,24 @@ def fit_recording(m, model, *, inputs: dict | None = None, method: str = "exact"
             "simulated replicates, each fitted twice)")
     t0 = time.perf_counter()
     kw = dict(method=method, inputs=inputs, profile=profile)
-    if client is not None:
+    made = {c.label: done[c.label] for c in m.channels if done and c.label in done}
+    todo = [(c, y) for c, y in zip(m.channels, series) if c.label not in made]
+    if progress is not None and made:
+        progress(len(made), len(series))
+    if client is not None and todo:
         from ..core.tasks import run_on_cluster
 
         calls = [(c.label, (model.spec, y, m.h), dict(kw, threads=1 if threads is None else threads, effects=effects))
-                 for c, y in zip(m.channels, series)]
-        done = run_on_cluster(client, fit_channel, calls, name="fit", progress=progress)
-        fits = [done[c.label] for c in m.channels]
-    else:
-        fits = []
-        for i, y in enumerate(series):
-            fits.append(fit_channel(model, y, m.h, threads=threads, **kw))
-            if progress is not None:
-                progress(i + 1, len(series))
+                 for c, y in todo]
+        made.update(run_on_cluster(client, fit_channel, calls, name="fit", on_result=keep, progress=None if progress
+                                   is None else (lambda k, total: progress(len(made) + k, len(series)))))
+    for c, y in todo if client is None else ():
+        made[c.label] = fit_channel(model, y, m.h, threads=threads, **kw)
+        if keep is not None:
+            keep(c.label, made[c.label])
+        if progress is not None:
+            progress(len(made), len(series))
+    fits = [made[c.label] for c in m.channels]
     tests = [None] * len(series)
     if model.order_name is not None and n_boot > 0:
         if m.missing.count:

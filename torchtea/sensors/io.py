@@ -324,7 +324,8 @@ def _make_channels(path: Path, names: Sequence[str], data: np.ndarray, units: li
 def _units_in_order(path: Path, units, wanted: list, header: list, *, given: bool, meta: dict) -> list:
     """``--units`` for the columns ``wanted`` (the channels' order), given in the order of ``--columns`` (``given``)
     or of the file's columns. Where that order contradicts the columns' names and the channels' order (ax … gz) does
-    not, the units are read in the channels' order. ``meta["units_read"]`` says which unit each column got."""
+    not, the units are read in the channels' order. ``meta["units_read"]`` says which unit each column got where the
+    file's order is not the channels' (or the channels' order was taken)."""
     order = list(wanted) if given else sorted(wanted, key=header.index)
     try:
         by = dict(zip(order, parse_units(units, order)))
@@ -337,7 +338,8 @@ def _units_in_order(path: Path, units, wanted: list, header: list, *, given: boo
                 by, how = canonical, "in the channels' order ax … gz (the file's order contradicts the names)"
     except ValueError as exc:
         raise InputError(f"{path}: {exc}") from None
-    meta["units_read"] = f"--units read {how}: " + ", ".join(f"{c} {by[c]}" for c in order)
+    if len(set(by.values())) > 1 and order != list(wanted) or "contradicts" in how:  # (where the order matters)
+        meta["units_read"] = f"--units read {how}: " + ", ".join(f"{c} {by[c]}" for c in order)
     return [by[c] for c in wanted]
 
 

@@ -174,7 +174,9 @@ def local_cluster(workers: int, *, threads_per_worker: int | None = None, quiet:
     env = dict(dask.config.get("distributed.nanny.pre-spawn-environ", default={}))
     env.update(OMP_NUM_THREADS=threads, MKL_NUM_THREADS=threads, OPENBLAS_NUM_THREADS=threads)
     with dask.config.set({"distributed.nanny.pre-spawn-environ": env}):
-        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=":0")
+        # quiet: the worker processes log errors only (Ctrl-C's cancelled tasks are no news to the user)
+        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=":0",
+                               silence_logs=logging.ERROR if quiet else logging.WARNING)
     return cluster, Client(cluster)
 
 

@@ -3,6 +3,7 @@
 back (:func:`read_check`)."""
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -240,8 +241,14 @@ def read_check(path) -> tuple[dict, dict]:
     try:
         doc = json.loads(path.read_text(encoding="utf-8"))
         n = int(doc["samples"])
+        rate = doc["rate_hz"]
+        if isinstance(rate, bool) or not isinstance(rate, (int, float)) or not 0 < rate < math.inf:
+            raise ValueError(f"rate_hz {rate!r} is not a sample rate")
         fits = {}
         for label, axis in doc["axes"].items():
+            if "channels" in doc and not isinstance(doc["channels"][label]["column"], str) or not all(
+                    isinstance(t, dict) and isinstance(t.get("words"), str) for t in axis.get("ties", [])):
+                raise ValueError(f"axis {label!r}: its channel's column or ties are not as check writes them")
             base = axis["base"]
             model = parse_model(axis["model"])
             se = {k: None if v is None else float(v) for k, v in base["se"].items()}
@@ -255,6 +262,6 @@ def read_check(path) -> tuple[dict, dict]:
                               notes=[f"read from {path.name} (check's fit of the model its loop ended with)"])
     except FileNotFoundError:
         raise ValueError(f"{path}: no such file") from None
-    except (json.JSONDecodeError, KeyError, TypeError, ValueError) as exc:
+    except (json.JSONDecodeError, KeyError, TypeError, ValueError, AttributeError, IndexError) as exc:
         raise ValueError(f"{path}: not a check.json ({type(exc).__name__}: {exc})") from None
     return doc, fits

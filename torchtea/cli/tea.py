@@ -174,16 +174,17 @@ def _checked_fits(args):
         doc, fits = read_check(args.from_check)
     except ValueError as exc:
         raise CLIError(str(exc)) from None
+    columns = {label: doc.get("channels", {}).get(label, {}).get("column", label) for label in fits}
     if not args.columns:
-        args.columns = ",".join(doc["channels"][label]["column"] for label in fits)
+        args.columns = ",".join(columns.values())
     asked = {c.strip() for c in args.columns.split(",")}
-    plain = [lb for lb, f in fits.items() if f.model.order_name is None and doc["channels"][lb]["column"] in asked]
+    plain = [lb for lb, f in fits.items() if f.model.order_name is None and columns[lb] in asked]
     if plain:  # (check --auto drops the fractional part where BIC prefers the model without it)
         raise CLIError(f"--from-check {args.from_check}: the check ended without a fractional part on "
                        f"{', '.join(f'{lb} ({fits[lb].model.spec})' for lb in plain)} — BIC preferred the model "
                        "without it — and the TEA estimates a fractional order: leave those channels out (--columns), "
                        "or identify with --model, or check with --auto --no-simplify")
-    if args.temperature is None and doc.get("temperature_column"):
+    if args.temperature is None and isinstance(doc.get("temperature_column"), str):
         args.temperature = doc["temperature_column"]
     return doc, fits
 

@@ -82,29 +82,27 @@ def read_datasheet(path) -> dict:
         raise ValueError(f"{path}: no such file") from None
     except tomllib.TOMLDecodeError as exc:
         raise ValueError(f"{path}: not TOML ({exc})") from None
+    except UnicodeDecodeError:
+        raise ValueError(f"{path}: not a text file (a datasheet is TOML)") from None
+    except OSError as exc:
+        raise ValueError(f"{path}: cannot read ({exc.strerror})") from None
     sensor = doc.get("sensor")
-    if sensor not in DATASHEET_UNITS:
+    if not isinstance(sensor, str) or sensor not in DATASHEET_UNITS:
         raise ValueError(f"{path}: sensor must be one of {', '.join(DATASHEET_UNITS)}, got {sensor!r}")
     rate = doc.get("rate_hz")
-    if not isinstance(rate, (int, float)) or rate <= 0:
-        raise ValueError(f"{path}: rate_hz (the sample rate the sensor is read at, Hz) is missing or not positive")
-    out = {"sensor": sensor, "rate_hz": float(rate), "source": doc.get("source", "")}
+    if isinstance(rate, bool) or not isinstance(rate, (int, float)) or not 0 < rate < math.inf:
+        raise ValueError(f"{path}: rate_hz (the sample rate the sensor is read at, Hz) is missing or not a positive "
+                         "number")
+    out = {"sensor": sensor, "rate_hz": float(rate), "source": str(doc.get("source", ""))}
     for term in ("N", "B", "K"):
         entry = doc.get(term)
+        out[term] = None if entry is None else _term(path, term, entry, DATASHEET_UNITS[sensor][term])
         if entry is None:
-            out[term] = None
             continue
-        units = DATASHEET_UNITS[sensor][term]
-        if not isinstance(entry, dict) or "value" not in entry or entry.get("unit") not in units:
-            raise ValueError(f"{path}: {term} must be {{value = …, unit = \"…\"}} with unit one of "
-                             f"{', '.join(units)}; got {entry!r}")
-        if not float(entry["value"]) > 0:
-            raise ValueError(f"{path}: {term} must be positive, got {entry['value']!r}")
-        out[term] = float(entry["value"]) * units[entry["unit"]]
         out.setdefault("printed", {})[term] = f"{entry['value']} {entry['unit']}"
         if term == "B":
             convention = entry.get("convention", "allan-minimum")
-            if convention not in B_CONVENTIONS:
+            if not isinstance(convention, str) or convention not in B_CONVENTIONS:
                 raise ValueError(f"{path}: B's convention must be one of {', '.join(B_CONVENTIONS)}; got "
                                  f"{convention!r}")
             out[term] /= B_CONVENTIONS[convention]
@@ -114,17 +112,24 @@ def read_datasheet(path) -> dict:
     entry = doc.get("repeatability")
     out["repeatability"] = None
     if entry is not None:  # (a bias's spread between power-ups: the units of a bias, B's)
-        units = DATASHEET_UNITS[sensor]["B"]
-        if not isinstance(entry, dict) or "value" not in entry or entry.get("unit") not in units:
-            raise ValueError(f"{path}: repeatability must be {{value = …, unit = \"…\"}} with unit one of "
-                             f"{', '.join(units)}; got {entry!r}")
-        if not float(entry["value"]) > 0:
-            raise ValueError(f"{path}: repeatability must be positive, got {entry['value']!r}")
-        out["repeatability"] = float(entry["value"]) * units[entry["unit"]]
+        out["repeatability"] = _term(path, "repeatability", entry, DATASHEET_UNITS[sensor]["B"])
         out.setdefault("printed", {})["repeatability"] = f"{entry['value']} {entry['unit']} (1σ)"
     if out["N"] is None:
         raise ValueError(f"{path}: N (the noise density) is needed; B, K and repeatability are optional")
     return out
+
+
+def _term(path: Path, term: str, entry, units: dict) -> float:
+    """A term ``{value = …, unit = "…"}`` in SI: a positive finite number in one of ``units``; else a ValueError
+    naming the file and the term."""
+    unit = entry.get("unit") if isinstance(entry, dict) else None
+    if not isinstance(entry, dict) or "value" not in entry or not isinstance(unit, str) or unit not in units:
+        raise ValueError(f"{path}: {term} must be {{value = …, unit = \"…\"}} with unit one of "
+                         f"{', '.join(units)}; got {entry!r}")
+    value = entry["value"]
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 < value < math.inf:
+        raise ValueError(f"{path}: {term} must be a positive number, got {value!r}")
+    return float(value) * units[unit]
 
 
 #: The flicker's pole, as a fraction of its stability limit: all but 0 (a pole at 0 exactly is the logit's −∞).

@@ -56,6 +56,8 @@ def _reader(path: Path):
         reader.open()
     except (AnyReaderError, OSError, ValueError, KeyError) as exc:
         raise InputError(f"{path}: not a readable ROS bag ({type(exc).__name__}: {exc})") from None
+    except Exception as exc:  # (rosbags on a damaged file: a size field read as gigabytes, a record cut short …)
+        raise InputError(f"{path}: not a readable ROS bag, damaged ({type(exc).__name__}: {exc})") from None
     return reader
 
 
@@ -164,6 +166,16 @@ def read_bag(path, *, topic: str | None = None, temperature_topic: str | None = 
     stamp, "temperature": (N,) °C or None, "metadata"}`` — :func:`~torchtea.sensors.io.read_recording` makes the
     :class:`~torchtea.sensors.io.Recording` of it."""
     path = Path(path)
+    try:
+        return _read_bag(path, topic, temperature_topic, columns)
+    except InputError:
+        raise
+    except Exception as exc:  # (a damaged bag fails inside rosbags' or the array decoders' reading in many ways)
+        raise InputError(f"{path}: a damaged ROS bag: its messages cannot be read ({type(exc).__name__}: "
+                         f"{exc})") from None
+
+
+def _read_bag(path: Path, topic, temperature_topic, columns) -> dict:
     reader = _open(path)
     try:
         topics = _topics(reader)

@@ -37,6 +37,7 @@ from .text import (
     _numeric_column,
     _parse_body,
     _stamps_and_rate,
+    _text_file,
     _time_column,
     read_series,
     sniff_layout,
@@ -514,7 +515,7 @@ def _read_recorder_format(path: Path, lines: list[str], segment: int | None, rat
                           lsb_per_g, lsb_per_dps) -> Recording:
     headers: dict = {}
     header_line = None
-    with open(path, newline="") as fh:  # the segment headers, anywhere in the file (one pass, line by line)
+    with _text_file(path) as fh:  # the segment headers, anywhere in the file (one pass, line by line)
         for i, line in enumerate(fh, start=1):
             if i == 1:
                 continue

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import csv
 import math
+import warnings
 from collections.abc import Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -165,7 +166,8 @@ def _parse_body(path: Path, start: int, header: list, wanted: list, layout: Layo
     line and column at fault."""
     idx = [header.index(c) for c in wanted]
     try:
-        with np.errstate(all="ignore"), _text_file(path) as fh:
+        with np.errstate(all="ignore"), warnings.catch_warnings(), _text_file(path) as fh:
+            warnings.simplefilter("ignore", UserWarning)  # (no data rows: said below, as torchtea's own error)
             rows = (ln.replace(",", ".") for ln in fh) if layout.decimal_comma else fh
             arr = np.loadtxt(rows, delimiter=layout.sep, skiprows=start + 1, ndmin=2, dtype=np.float64, comments="#",
                              quotechar='"')

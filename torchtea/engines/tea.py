@@ -26,6 +26,7 @@ Shapes: ``n`` states, ``L`` estimated orders, ``m`` parameters, ``d`` inputs,
 """
 from __future__ import annotations
 
+import contextlib
 import math
 from dataclasses import dataclass
 
@@ -523,9 +524,11 @@ def _loop_bounded(model, params, weights, memory, carry, y, inputs, u_at, batch,
     while k < N:
         if compiled is not None and k + COMPILE_BLOCK <= N:
             try:
-                carry, hist, diverged_at, clamped, rows = compiled(
-                    carry, hist, diverged_at, clamped, y.narrow(nb, k, COMPILE_BLOCK),
-                    None if inputs is None else inputs.narrow(nb, k - 1, COMPILE_BLOCK), torch.tensor(k, device=device))
+                with _quiet_tracing():
+                    carry, hist, diverged_at, clamped, rows = compiled(
+                        carry, hist, diverged_at, clamped, y.narrow(nb, k, COMPILE_BLOCK),
+                        None if inputs is None else inputs.narrow(nb, k - 1, COMPILE_BLOCK),
+                        torch.tensor(k, device=device))
             except Exception as exc:  # noqa: BLE001 — any compiler failure: keep going in eager mode
                 import warnings
 
@@ -546,9 +549,28 @@ def _loop_bounded(model, params, weights, memory, carry, y, inputs, u_at, batch,
     return state[0]
 
 
+@contextlib.contextmanager
+def _quiet_tracing():
+    """While torch.compile traces and compiles the filter: Dynamo's note that it traces through a
+    ``functools.lru_cache`` (the memory kernel's tensors, cached by dtype and device: the traced values are those
+    constants, and Dynamo guards on dtype and device), and the deprecation notes torch's compiler raises about its
+    own code (``torch.jit``, ``torch._inductor``), are set aside: nothing a user of torchtea can act on. Every other
+    warning passes."""
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message=r"Dynamo detected a call to a `functools.lru_cache`",
+                                category=UserWarning)
+        for module in (r"torch\.jit", r"torch\._inductor", r"torch\._dynamo"):
+            warnings.filterwarnings("ignore", category=DeprecationWarning, module=module)
+            warnings.filterwarnings("ignore", category=FutureWarning, module=module)
+        yield
+
+
 def _compiled(fn):
     try:
-        return torch.compile(fn, dynamic=False, options={"cpp_wrapper": True})
+        with _quiet_tracing():  # (importing torch's compiler raises its own deprecation notes)
+            return torch.compile(fn, dynamic=False, options={"cpp_wrapper": True})
     except Exception as exc:  # noqa: BLE001 — e.g. a platform without a C++ compiler
         import warnings
 

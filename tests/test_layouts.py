@@ -46,9 +46,10 @@ def test_every_layout_reads_the_same_numbers(tmp_path, layout):
     for a, b in zip(ref.channels, rec.channels):
         assert a.label == b.label and np.array_equal(a.values, b.values)
     assert rec.rate_hz == ref.rate_hz and np.array_equal(rec.time_s, ref.time_s)
-    said = rec.metadata.get("layout", "")
-    assert ("comma" in said if layout["sep"] == "," else True) or said == ""
-    if layout["sep"] != ",":
+    if layout["sep"] == ",":
+        assert "layout" not in rec.metadata  # (commas, the usual: nothing said)
+    else:
+        said = rec.metadata["layout"]
         assert {"\t": "tab", ";": "semicolon"}.get(layout["sep"], "whitespace") + "-separated" in said
         assert ("decimal commas" in said) == (layout.get("decimal") == ",")
 
@@ -132,3 +133,45 @@ def test_counts_beyond_the_formats_full_scale_are_impossible(tmp_path):
     fault = next(x for x in m.faults.items if x.kind == "impossible values")
     assert fault.channels == ("ay",) and fault.ranges == [[900, 900]] and "line 903, column 'ay': '40000'" in \
         fault.message
+
+
+def test_comments_blank_lines_a_cut_last_line_and_dates_do_not_hide_the_layout(tmp_path):
+    """A logger's `#` lines and blank lines above and below the header; a short semicolon file whose last line was
+    cut (a logger killed); decimal commas beside a date and a clock time written with points: read as written, the
+    cut line named."""
+    t, acc, _ = _table()
+    rows = ["; ".join(f"{v:.6f}".replace(".", ",") for v in (t[i], *acc[i])) for i in range(30)]
+    f = tmp_path / "log.csv"
+    f.write_text("# logger v1\n\nt;ax;ay;az\n# started 01.02.2024 12:00:00\n" + "\n".join(rows) + "\n")
+    rec = read_recording(f, units="g")
+    assert rec.samples == 30 and rec.rate_hz == pytest.approx(100.0) and "decimal commas" in rec.metadata["layout"]
+    assert np.allclose(rec.channels[2].values / 9.80665, np.round(acc[:30, 2], 6))
+    f.write_text("date;t;ax;ay;az\n" + "\n".join(f"01.02.2024;{r}" for r in rows[:25]) + "\n01.02.2024;0,25;0,0")
+    with pytest.raises(InputError, match=r"line 27: 3 fields, the header has 5 \(read as semicolon-separated, "
+                                          r"decimal commas\)"):
+        read_recording(f, units="g")
+
+
+def test_an_impossible_temperature_is_a_fault_not_interpolated_silently(tmp_path):
+    t, acc, _ = _table()
+    T = np.full(N, 25.0)
+    T[400] = np.inf
+    T[401] = 1e6
+    f = _write(tmp_path / "temp.csv", ("t", "ax", "ay", "az", "temp"), np.column_stack([t, acc, T]))
+    m = prepare(read_recording(f, units="g", temperature_column="temp"))
+    fault = next(x for x in m.faults.items if x.kind == "impossible values")
+    assert fault.channels == ("temperature",) and fault.ranges == [[400, 401]] and fault.treatment == "temperature"
+    assert np.isnan(m.temperature[400:402]).all() and m.missing.count == 0
+    assert np.allclose(m.temperature_input()[400:402], 25.0)
+
+
+def test_read_series_reads_the_same_layouts(tmp_path):
+    from torchtea.sensors.text import read_series
+
+    for sep in (",", ";", "\t", " "):
+        f = tmp_path / "y.csv"
+        f.write_text(f"t{sep}y\n" + "\n".join(f"{i / 100}{sep}{i * 0.5}" for i in range(5)) + "\n")
+        assert np.array_equal(read_series(f, ["y"])["y"], np.arange(5) * 0.5)
+    f.write_text("t|y\n0|1\n")
+    with pytest.raises(InputError, match="separated by '|', which torchtea does not read"):
+        read_series(f, ["y"])

@@ -25,7 +25,7 @@ def test_a_checkpoint_keeps_parts_whole_and_knows_its_run(tmp_path):
     cp.keep("ax", {"value": np.arange(3.0)})
     cp.keep("gy/1", [1, 2])
     (folder / ".az.tmp").write_bytes(b"half a pickle")  # a part whose writing was cut: never taken
-    same = Checkpoint(folder, {"flags": {"model": "white", "exclude": [[1.0, 2.0]]}}, resume=True)
+    same = Checkpoint(folder, {"flags": {"model": "white", "exclude": ((1.0, 2.0),)}}, resume=True)  # (as argparse)
     assert list(same.done) == ["ax", "gy/1"] and np.array_equal(same.done["ax"]["value"], np.arange(3.0))
     (folder / "ax.pickle").write_bytes(b"not a pickle")
     said = []
@@ -34,13 +34,44 @@ def test_a_checkpoint_keeps_parts_whole_and_knows_its_run(tmp_path):
     with pytest.raises(CheckpointError, match="differs in flags"):
         Checkpoint(folder, {"flags": {"model": "white+random-walk"}}, resume=True)
     other = Checkpoint(folder, {"flags": {"model": "white+random-walk"}}, say=said.append)
-    assert other.done == {} and not folder.exists() and "starting afresh" in said[-1]
+    assert other.done == {} and "starts afresh" in said[-1]
+    assert (folder / "gy_1.pickle").exists()  # (another run's parts stay until this run keeps its first)
+    other.keep("az", 3)
+    assert sorted(f.name for f in folder.iterdir()) == ["az.pickle", "run.json"]
+    (folder / "run.json").write_text('{"identity": {"flags"')  # a run.json cut short: not a run to go on, replaced
+    again = Checkpoint(folder, {"flags": {"model": "white+random-walk"}}, say=said.append)
+    assert again.done == {} and "no readable run.json" in said[-1]
+    again.keep("az", 4)
+    assert Checkpoint(folder, {"flags": {"model": "white+random-walk"}}, resume=True).done == {"az": 4}
     with pytest.raises(CheckpointError, match="no interrupted run"):
-        Checkpoint(folder, {}, resume=True)
+        Checkpoint(tmp_path / "none", {}, resume=True)
     cp = Checkpoint(folder, {})
     cp.keep("ax", 1)
     cp.finish()
     assert not folder.exists()
+
+
+def test_a_run_is_the_same_run_by_its_flags_recording_and_effects_code(tmp_path, capsys):
+    """The identity `check`, `fit` and `export` keep: --exclude stretches (tuples from the command line, lists in
+    run.json) compare equal; a users' effects module whose code changed, or another flag, makes another run."""
+    from torchtea.cli import build_parser
+    from torchtea.cli.common import _checkpoint
+
+    mod = tmp_path / "mine.py"
+    mod.write_text("X = 1\n")
+
+    def args(*more):
+        a = build_parser().parse_args(["--effects", str(mod), "check", "--exclude", "1:2", *more])
+        a.recording = None
+        return a
+
+    _checkpoint(args(), tmp_path / "p", 6).keep("ax", 1)
+    assert _checkpoint(args(), tmp_path / "p", 6).done == {"ax": 1}
+    assert _checkpoint(args("--resume"), tmp_path / "p", 6).done == {"ax": 1}
+    assert _checkpoint(args("--auto"), tmp_path / "p", 6).done == {}
+    mod.write_text("X = 22\n")
+    assert _checkpoint(args(), tmp_path / "p", 6).done == {}
+    assert "not of this run" in capsys.readouterr().err
 
 
 def _wait_for_parts(folder, proc, count: int, timeout: float) -> int:

@@ -475,18 +475,19 @@ def test_a_run_stopped_too_early_says_its_checks_did_not_run(tmp_path, capsys, m
 # --------------------------------------------------------------------------- errors that help
 
 
-@pytest.mark.parametrize("header, sep", [("ax;ay;az", ";"), ("ax\tay\taz", "\t")])
-def test_wrong_delimiter_gets_a_hint(tmp_path, capsys, header, sep):
+@pytest.mark.parametrize("header, sep", [("ax;ay;az", ";"), ("ax\tay\taz", "\t"), ("ax|ay|az", "|")])
+def test_other_separators_are_read_and_an_unknown_one_gets_a_hint(tmp_path, capsys, header, sep):
     f = tmp_path / "semi.csv"
-    f.write_text(header + "\n" + "\n".join(sep.join(["0.01", "0.02", "1.0"]) for _ in range(200)) + "\n")
-    assert run("identify", f, "--units", "g", "--rate", 100) == 2
+    rng = np.random.default_rng(0)
+    f.write_text(header + "\n" + "\n".join(sep.join(f"{v:.5f}" for v in rng.normal(0, 0.01, 3) + [0, 0, 1])
+                                            for _ in range(200)) + "\n")
+    code = run("fit", f, "--units", "g", "--rate", 100, "--model", "white", "--json")
     err = capsys.readouterr().err
-    assert "no accelerometer or gyroscope column recognised in the header" in err
-    assert ("semicolons" if sep == ";" else "tabs") in err and "comma-separated" in err and err.count("\n") == 1
-    y = tmp_path / "y.csv"
-    y.write_text("t;y\n0;0.1\n")
-    assert run("estimate", y, "--h", 0.01) == 2
-    assert "missing column(s) 'y'" in (e := capsys.readouterr().err) and "semicolons" in e
+    if sep == "|":
+        assert code == 2 and "no accelerometer or gyroscope column recognised in the header" in err
+        assert "separated by '|', which torchtea does not read" in err and err.count("\n") == 1
+    else:
+        assert code == 0 and ("semicolon" if sep == ";" else "tab") + "-separated" in err
 
 
 def test_identify_names_the_missing_column(tmp_path, capsys):

@@ -47,7 +47,7 @@ def main(argv=None) -> int:
 
     parser = build_parser()
     args = parser.parse_args(argv)
-    previous = _stop_on_sigterm()
+    previous = _stop_on_sigterm() if args.command in KEEPING else None
     try:
         for name in args.effects:
             import_effects(name)
@@ -64,12 +64,18 @@ def main(argv=None) -> int:
         return 2
     except KeyboardInterrupt as exc:
         how = "stopped (SIGTERM)" if isinstance(exc, Terminated) else "interrupted"
-        kept = getattr(exc, "kept", None)
+        kept = getattr(args, "kept", None)  # (what a command that keeps its channels kept)
+        kept = kept() if kept is not None else None
         print(f"torchtea: {how}" + (f": {kept}" if kept else ""), file=sys.stderr)
         return 143 if isinstance(exc, Terminated) else 130
     finally:
         if previous is not None:
             signal.signal(signal.SIGTERM, previous)
+
+
+#: The commands that keep each channel as it finishes: SIGTERM stops them as Ctrl-C does (what finished is kept,
+#: exit 143); the others end on SIGTERM as any process does.
+KEEPING = ("check", "export", "fit")
 
 
 class Terminated(KeyboardInterrupt):

@@ -21,7 +21,6 @@ from .common import (
     _progress,
     _recording_flags,
     _steps,
-    _stopped,
     _tensorboard,
     _units_of,
 )
@@ -182,7 +181,7 @@ def cmd_fit(args) -> int:
     plan = _export_plan(args, m, args.export)
     inputs = _model_inputs(args, [model], m)
     # (with --out, each channel's fit is kept as it is made, beside it: a stop loses only the fit running)
-    checkpoint = _checkpoint(args, Path(f"{args.out}.partial")) if args.out else None
+    checkpoint = _checkpoint(args, Path(f"{args.out}.partial"), len(m.channels)) if args.out else None
     if args.resume and checkpoint is None:
         raise CLIError("--resume: fit keeps its channels beside --out FILE; give the --out of the interrupted run")
     client, close_cluster = _cluster(args)
@@ -195,9 +194,6 @@ def cmd_fit(args) -> int:
                                   threads=args.threads_per_worker, effects=tuple(args.effects),
                                   done=None if checkpoint is None else checkpoint.done,
                                   keep=None if checkpoint is None else checkpoint.keep)
-    except KeyboardInterrupt as exc:
-        exc.kept = _stopped(checkpoint, len(m.channels))
-        raise
     finally:
         close()
         close_cluster()
@@ -515,7 +511,7 @@ def cmd_check(args) -> int:
             raise CLIError(f"--windows: {exc}") from None
     t0 = time.perf_counter()
     out = Path(args.out or f"check-{Path(m.recording.path).stem}")
-    checkpoint = _checkpoint(args, out / "partial")
+    checkpoint = _checkpoint(args, out / "partial", len(m.channels))
     results = _check_channels(args, m, inputs, auto=args.auto, intervals=not args.no_intervals, checkpoint=checkpoint)
     meta = m.describe()
     meta.update(command="torchtea " + " ".join(sys.argv[1:]), seconds=time.perf_counter() - t0,

@@ -429,31 +429,48 @@ def _cluster(args):
 #: differs only in them goes on from the channels another kept.
 NOT_IDENTITY = ("func", "out", "json", "workers", "threads_per_worker", "scheduler", "connect_timeout", "no_plots",
                 "logdir", "debug", "resume", "export", "datasheet", "export_seed", "horizon", "nees", "values",
-                "windows", "format")
+                "windows", "format", "kept")
 
 
-def _checkpoint(args, folder):
+def _checkpoint(args, folder, total: int):
     """The :class:`~torchtea.core.checkpoint.Checkpoint` of this command in ``folder``: its identity the flags that
-    change a channel's result and the recording's file; the channels it takes from an interrupted run said."""
+    change a channel's result, the recording's file and the users' modules of effects; the channels it takes from an
+    interrupted run said. A stop from here on says what is kept (``args.kept``, read by ``main``); ``total``: the
+    channels of the run."""
     from ..core.checkpoint import Checkpoint, CheckpointError, file_identity
 
     flags = {k: v for k, v in sorted(vars(args).items()) if k not in NOT_IDENTITY and k != "recording"}
     path = args.recording
-    identity = {"flags": flags, "recording": file_identity(path) if path is not None and Path(path).exists()
-                else str(path)}
+    identity = {"flags": flags, "recording": file_identity(path) if path is not None else "the bundled recording",
+                "effects": [file_identity(_module_file(name)) for name in args.effects]}
     try:
         cp = Checkpoint(folder, identity, resume=True if args.resume else None, say=_note)
     except CheckpointError as exc:
         raise CLIError(str(exc)) from None
     if cp.done:
         _note(f"going on with an interrupted run: {', '.join(cp.done)} kept in {folder} (not run again)")
+    args.kept = lambda: _stopped(cp, total)
     return cp
+
+
+def _module_file(name: str) -> str:
+    """The file of a users' module of effects (``--effects``: a .py file, or a module name), for a run's identity: its
+    code changes the results."""
+    if name.endswith(".py"):
+        return name
+    import importlib.util
+
+    try:
+        spec = importlib.util.find_spec(name)
+    except (ImportError, ValueError):
+        spec = None
+    return spec.origin if spec is not None and spec.origin else name
 
 
 def _stopped(checkpoint, total: int) -> str:
     """What an interrupted run kept, for its last line."""
-    if checkpoint is None or not checkpoint.done:
-        return "nothing finished was kept"
+    if not checkpoint.done:
+        return "no channel had finished; nothing was kept"
     return (f"{len(checkpoint.done)} of {total} channels kept in {checkpoint.folder} ({', '.join(checkpoint.done)}); "
             "the same command run again goes on from them")
 
@@ -478,9 +495,6 @@ def _check_channels(args, m, inputs, *, auto: bool, intervals: bool, checkpoint=
                                      threads=args.threads_per_worker, effects=tuple(args.effects),
                                      done=None if checkpoint is None else checkpoint.done,
                                      keep=None if checkpoint is None else checkpoint.keep)
-    except KeyboardInterrupt as exc:
-        exc.kept = _stopped(checkpoint, len(m.channels))
-        raise
     finally:
         close()
         close_cluster()

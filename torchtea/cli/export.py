@@ -18,7 +18,6 @@ from .common import (
     _note,
     _recording_flags,
     _steps,
-    _stopped,
     _tensorboard,
 )
 
@@ -75,18 +74,14 @@ def cmd_export(args) -> int:
     meta = m.describe()
     meta.update(command="torchtea " + " ".join(sys.argv[1:]), warnings=m.notes())
     out = Path(args.out or f"export-{Path(m.recording.path).stem}")
-    checkpoint = _checkpoint(args, out / "partial")
-    try:
-        if args.model:
-            fits = _fit_channels(args, m, inputs, checkpoint)
-        else:
-            results = _check_channels(args, m, inputs, auto=True, intervals=True, checkpoint=checkpoint)
-            fits = {a: r.fit for a, r in results.items()}
-            meta["loop_end"] = {a: r.loop_end for a, r in results.items()}
-            _tensorboard(args, m, results)
-    except KeyboardInterrupt as exc:
-        exc.kept = getattr(exc, "kept", None) or _stopped(checkpoint, len(m.channels))
-        raise
+    checkpoint = _checkpoint(args, out / "partial", len(m.channels))
+    if args.model:
+        fits = _fit_channels(args, m, inputs, checkpoint)
+    else:
+        results = _check_channels(args, m, inputs, auto=True, intervals=True, checkpoint=checkpoint)
+        fits = {a: r.fit for a, r in results.items()}
+        meta["loop_end"] = {a: r.loop_end for a, r in results.items()}
+        _tensorboard(args, m, results)
     _export(args, m, plan, fits, inputs, meta, out, quiet=False, plots=not args.no_plots)
     checkpoint.finish()
     return 0

@@ -7,7 +7,8 @@ A :class:`Checkpoint` is a folder (``check``'s and ``export``'s ``OUT/partial``,
 each input file's size and modification time) — and one pickle per finished part (a channel's check or fit), each
 written to a temporary name and renamed, so that a part is whole or absent. A run with the same identity takes the
 parts kept and says so; a run of another identity replaces them (``resume=None``) or is refused (``resume=True``,
-``--resume``, which promises a run to go on). The folder is removed when the run's outputs are written.
+``--resume``, which promises a run to go on) — when it keeps its own first part, so that a run stopped before that
+loses nothing. The folder is removed when the run's outputs are written.
 
 The pickles are this library's objects: read them only with the torchtea that wrote them (the identity holds its
 version) and only from folders you made.
@@ -31,8 +32,11 @@ class CheckpointError(ValueError):
 
 
 def file_identity(path) -> dict:
-    """A file (or a folder: its files) by absolute path, size and modification time: what tells a changed input."""
+    """A file (or a folder: its files) by absolute path, size and modification time: what tells a changed input;
+    a path that is not there, by its name."""
     p = Path(path).resolve()
+    if not p.exists():
+        return {"path": str(p), "missing": True}
     if p.is_dir():
         files = sorted(f for f in p.rglob("*") if f.is_file())
         return {"path": str(p), "files": [file_identity(f) for f in files]}
@@ -57,22 +61,26 @@ class Checkpoint:
 
     def __init__(self, folder, identity: dict, *, resume: bool | None = None, say=None):
         self.folder = Path(folder)
-        self.identity = {**identity, "torchtea": _version()}
+        # (as run.json holds it: tuples as lists, any other object as its text — so that a run compares equal to
+        # the run it kept)
+        self.identity = json.loads(json.dumps({**identity, "torchtea": _version()}, default=str))
         self.say = say or (lambda line: None)
         self.done: dict = {}
+        self._fresh = True  # run.json (re)written and anything of another run cleared at the first keep
         found = self._found()
         if resume and found is None:
-            raise CheckpointError(f"--resume: no interrupted run to go on in {self.folder} (it holds no {RUN_FILE})")
+            raise CheckpointError(f"--resume: no interrupted run to go on in {self.folder} (it holds no readable "
+                                  f"{RUN_FILE})")
         if resume and found != self.identity:
             differ = sorted(k for k in set(found) | set(self.identity) if found.get(k) != self.identity.get(k))
             raise CheckpointError(f"--resume: the run kept in {self.folder} is not this one (it differs in "
                                   f"{', '.join(differ)}); run without --resume to start afresh")
         if found is not None and found == self.identity and resume is not False:
             self.done = self._load()
-        elif found is not None:
-            self.say(f"the parts kept in {self.folder} are of another run (another command, flags or input): "
-                     "starting afresh, they are replaced")
-            shutil.rmtree(self.folder, ignore_errors=True)
+            self._fresh = False
+        elif self.folder.exists():
+            self.say(f"the parts kept in {self.folder} are not of this run (another command, flags or input, or no "
+                     f"readable {RUN_FILE}): this run starts afresh and replaces them when it keeps its first part")
 
     def _found(self) -> dict | None:
         try:
@@ -94,20 +102,25 @@ class Checkpoint:
 
     def keep(self, label: str, result) -> None:
         """Write one finished part (whole or not at all: a temporary file renamed)."""
-        self.folder.mkdir(parents=True, exist_ok=True)
-        run = self.folder / RUN_FILE
-        if not run.exists():
-            run.write_text(json.dumps({"identity": self.identity, "meaning": "the parts of an interrupted torchtea "
-                                       "run, kept as each finished; the same command run again goes on from them"},
-                                      indent=1, default=str))
+        if self._fresh:  # (another run's parts go only now: a run stopped before its first part loses nothing kept)
+            shutil.rmtree(self.folder, ignore_errors=True)
+            self.folder.mkdir(parents=True, exist_ok=True)
+            text = json.dumps({"identity": self.identity, "meaning": "the parts of an interrupted torchtea run, kept "
+                               "as each finished; the same command run again goes on from them"}, indent=1)
+            self._write(RUN_FILE, text.encode())
+            self._fresh = False
         name = "".join(ch if ch.isalnum() or ch in "-_." else "_" for ch in label)
+        self._write(f"{name}.pickle", pickle.dumps((label, result), protocol=pickle.HIGHEST_PROTOCOL))
+        self.done[label] = result
+
+    def _write(self, name: str, data: bytes) -> None:
+        """A file whole or not at all: written to a temporary name, synced, renamed."""
         tmp = self.folder / f".{name}.tmp"
         with open(tmp, "wb") as fh:
-            pickle.dump((label, result), fh, protocol=pickle.HIGHEST_PROTOCOL)
+            fh.write(data)
             fh.flush()
             os.fsync(fh.fileno())
-        os.replace(tmp, self.folder / f"{name}.pickle")
-        self.done[label] = result
+        os.replace(tmp, self.folder / name)
 
     def finish(self) -> None:
         """The run's outputs are written: the parts are not needed any more."""

@@ -77,16 +77,16 @@ def run_on_cluster(client, fn: Callable, calls: list, *, name: str = "task", pro
     if lines is not None:
         client.subscribe_topic(topic, lambda event: lines(event[1]))
     futures = {}
-    for label, args, kw in calls:
-        # a channel's samples go to the workers as data, not inside the task graph (which Dask warns of above 10 MB)
-        args = [_scattered(client, a) for a in args]
-        kw = {k: _scattered(client, v) for k, v in kw.items()}
-        if lines is not None:
-            kw[lines_kw] = WorkerLines(topic, f"  {label}: ")
-        fut = client.submit(fn, *args, key=f"torchtea-{name}-{run}-{label}", **kw)
-        futures[fut.key] = (label, fut)
     results = {}
     try:
+        for label, args, kw in calls:
+            # a channel's samples go to the workers as data, not inside the task graph (Dask warns above 10 MB)
+            args = [_scattered(client, a) for a in args]
+            kw = {k: _scattered(client, v) for k, v in kw.items()}
+            if lines is not None:
+                kw[lines_kw] = WorkerLines(topic, f"  {label}: ")
+            fut = client.submit(fn, *args, key=f"torchtea-{name}-{run}-{label}", **kw)
+            futures[fut.key] = (label, fut)
         for fut in as_completed([f for _, f in futures.values()]):
             label, _ = futures.pop(fut.key)
             try:

@@ -521,31 +521,30 @@ def _loop_bounded(model, params, weights, memory, carry, y, inputs, u_at, batch,
 
     compiled = _compiled(advance) if compile else None
     k = 1
-    while k < N:
-        if compiled is not None and k + COMPILE_BLOCK <= N:
-            try:
-                with _quiet_tracing():
+    with _quiet_tracing() if compiled is not None else contextlib.nullcontext():
+        while k < N:
+            if compiled is not None and k + COMPILE_BLOCK <= N:
+                try:
                     carry, hist, diverged_at, clamped, rows = compiled(
                         carry, hist, diverged_at, clamped, y.narrow(nb, k, COMPILE_BLOCK),
-                        None if inputs is None else inputs.narrow(nb, k - 1, COMPILE_BLOCK),
-                        torch.tensor(k, device=device))
-            except Exception as exc:  # noqa: BLE001 — any compiler failure: keep going in eager mode
-                import warnings
+                        None if inputs is None else inputs.narrow(nb, k - 1, COMPILE_BLOCK), torch.tensor(k, device=device))
+                except Exception as exc:  # noqa: BLE001 — any compiler failure: keep going in eager mode
+                    import warnings
 
-                warnings.warn(f"torch.compile failed ({type(exc).__name__}: {exc}); continuing eagerly", stacklevel=2)
-                compiled = None
-                continue
-            record_block(k, rows, True)
-            k += COMPILE_BLOCK
-        else:
-            # off the CPU the guard is branch-free: no host-device synchronisation per step
-            carry, hist, diverged_at, clamped, row = one_step(carry, hist, diverged_at, clamped, y[..., k, :],
-                                                              u_at(k - 1), k, device.type != "cpu")
-            record_block(k, row, False)
-            k += 1
-        state[0] = (k, carry, diverged_at, clamped)
-        if progress is not None:
-            progress(k - 1, N)
+                    warnings.warn(f"torch.compile failed ({type(exc).__name__}: {exc}); continuing eagerly", stacklevel=2)
+                    compiled = None
+                    continue
+                record_block(k, rows, True)
+                k += COMPILE_BLOCK
+            else:
+                # off the CPU the guard is branch-free: no host-device synchronisation per step
+                carry, hist, diverged_at, clamped, row = one_step(carry, hist, diverged_at, clamped, y[..., k, :],
+                                                                  u_at(k - 1), k, device.type != "cpu")
+                record_block(k, row, False)
+                k += 1
+            state[0] = (k, carry, diverged_at, clamped)
+            if progress is not None:
+                progress(k - 1, N)
     return state[0]
 
 

@@ -51,6 +51,8 @@ PHYSICAL_LIMIT = {"accelerometer": 1e6, "gyroscope": 1e4}
 PILEUP_MIN = 5
 #: … which is looked for only in a channel of at least this many distinct values (coarser data pile up anywhere).
 PILEUP_LEVELS = 20
+#: Largest temperature magnitude (°C) a sensor's die is taken to report; beyond it a value is a fault.
+TEMPERATURE_LIMIT_C = 1000.0
 #: Smallest temperature change between consecutive samples called a fault (°C).
 TEMPERATURE_STEP_C = 1.0
 #: A stamp interval this many times the 99.9 % quantile of the intervals (and above 10 h) is a jump.
@@ -162,6 +164,7 @@ def find_faults(channels, *, h: float, temperature: np.ndarray | None = None,
         _stuck(channels, zero, h, items, masks)
         _clipping(channels, zero | np.any(np.stack(list(masks.values())), axis=0), h, items, masks)
         if temperature is not None:
+            temperature = _impossible_temperature(temperature, h, items, temp_rows)
             _temperature_steps(temperature, h, items, temp_rows)
         if time_s is not None:
             _time_jumps(time_s, h, items, N)
@@ -290,6 +293,24 @@ def _clipping(channels, zero: np.ndarray, h: float, items: list, masks: dict) ->
                                f"channel {c.label}: {count} samples {how} ({_where(runs, h)}): the sensor saturated "
                                "there, the values are not measurements"))
             masks[c.label] |= at
+
+
+def _impossible_temperature(temperature, h: float, items: list, temp_rows: np.ndarray) -> np.ndarray:
+    """Temperatures no die has (infinite, or beyond ±:data:`TEMPERATURE_LIMIT_C`): a fault, those samples missing
+    (interpolated where a model reads the temperature). Returns the temperature with them NaN."""
+    T = np.asarray(temperature, dtype=np.float64)
+    bad = np.isinf(T) | (np.abs(np.nan_to_num(T)) > TEMPERATURE_LIMIT_C)
+    if not bad.any():
+        return T
+    runs = _runs(bad)
+    count = int(bad.sum())
+    first = T[runs[0][0]]
+    items.append(Fault("impossible values", ("temperature",), runs, count,
+                       f"the temperature: {count} value(s) no die has — infinite, or beyond ±{TEMPERATURE_LIMIT_C:g} °C "
+                       f"({_where(runs, h)}; the first {first:g} °C): a damaged value; those temperature samples are "
+                       "treated as missing", treatment="temperature"))
+    temp_rows |= bad
+    return np.where(bad, np.nan, T)
 
 
 def _temperature_steps(temperature: np.ndarray, h: float, items: list, temp_rows: np.ndarray) -> None:

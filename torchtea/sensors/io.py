@@ -427,6 +427,8 @@ def _header_row(path: Path, lines: list[str], columns, layout) -> tuple[dict, in
     """The ``key,value`` lines above a CSV's header row (the bundled format's ``Fs,100`` …) and the header's index."""
     meta: dict = {}
     for i, line in enumerate(lines):
+        if not line.strip() or line.lstrip().startswith("#"):
+            continue  # (a logger's comment or a blank line above the header)
         parts = layout.fields(line)
         if len(parts) == 2 and not (columns and all(c in parts for c in columns)) and not default_columns(parts) \
                 and not _is_number(parts[0]):

@@ -195,6 +195,8 @@ def prepare(recording: Recording, *, samples: int | None = None, allow_missing: 
     tail = zero_tail(rec.channels, rec.temperature)
     if tail:
         rec, drop, N = rec.head(N - tail), drop[:N - tail], N - tail
+        for e in excluded:
+            e["cut"] = e["cut"] or e["last"] >= N  # (a stretch that reaches into the cut tail is cut with it)
         tail = {"first": N, "rows": tail,
                 "words": f"the last {tail} rows (samples {N}–{N + tail - 1}, from {N * rec.h:.2f} s) are 0 in every "
                          f"column{', the temperature too' if rec.temperature is not None else ''}: a logger's "

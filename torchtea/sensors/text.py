@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import csv
 import math
+import re
 import warnings
 from collections.abc import Sequence
 from contextlib import contextmanager
@@ -92,20 +93,33 @@ class Layout:
         return [p.replace(",", ".") for p in parts] if self.decimal_comma else parts
 
 
+#: A number written with a decimal comma (``-0,0123``, ``1,5e-3``) and one written with a decimal point.
+_COMMA_NUMBER = re.compile(r"^[+-]?\d+,\d+(?:[eE][+-]?\d+)?$")
+_POINT_NUMBER = re.compile(r"^[+-]?\d*\.\d+(?:[eE][+-]?\d+)?$")
+
+
+def _split(line: str, sep: str | None) -> list[str]:
+    return line.split(sep) if sep is not None else line.split()
+
+
 def sniff_layout(lines: list[str]) -> Layout:
-    """The layout of a text recording from its first ``lines``: the first of :data:`SEPARATORS` that splits each of
-    the last :data:`SNIFF_LINES` lines (blank and ``#`` lines aside) into the same number of fields, more than one;
-    commas when none does (the errors that follow then name the line). A decimal comma is read where the separator is
-    not a comma and the numbers hold commas and no points."""
+    """The layout of a text recording from its first ``lines``: the first of :data:`SEPARATORS` that splits at least
+    80 % of the last :data:`SNIFF_LINES` lines (blank and ``#`` lines aside) into the same number of fields, more than
+    one (a last line cut short, a ragged row, does not hide the separator); commas when none does (the errors that
+    follow then name the line). A decimal comma is read where the separator is not a comma and the cells that are
+    numbers write them with a comma, none with a point (text cells — names, dates, clock times — aside)."""
     body = [ln for ln in lines if ln.strip() and not ln.lstrip().startswith("#")]
     tail = body[-SNIFF_LINES:]
     for sep, _ in SEPARATORS:
-        counts = {len(ln.split(sep) if sep is not None else ln.split()) for ln in tail}
-        if len(counts) == 1 and counts.pop() > 1:
-            if sep == "," or not tail:
+        counts = [len(_split(ln, sep)) for ln in tail]
+        if not counts:
+            break
+        k = max(set(counts), key=counts.count)
+        if k > 1 and counts.count(k) >= 0.8 * len(counts):
+            if sep == ",":
                 return Layout(sep)
-            cells = [c for ln in tail for c in (ln.split(sep) if sep is not None else ln.split())]
-            decimal = any("," in c for c in cells) and not any("." in c for c in cells)
+            cells = [c.strip().strip('"') for ln in tail for c in _split(ln, sep)]
+            decimal = any(_COMMA_NUMBER.match(c) for c in cells) and not any(_POINT_NUMBER.match(c) for c in cells)
             return Layout(sep, decimal)
     return Layout(",")
 
@@ -232,7 +246,7 @@ def value_lines(path: Path, start: int, header: list, layout: Layout, channels, 
 def _numeric_column(lines: list, start: int, j: int, layout: Layout = Layout()) -> bool:
     """Whether column ``j`` of the first data row after line ``start`` holds a number (or is empty)."""
     for line in lines[start + 1:]:
-        if line.strip():
+        if line.strip() and not line.lstrip().startswith("#"):
             parts = layout.fields(line)
             if j >= len(parts):
                 return True  # the row's own error comes later
@@ -305,14 +319,16 @@ def _stamps_and_rate(path: Path, tcol, data: np.ndarray, names: list, meta: dict
 
 
 def read_series(path, columns: Sequence[str], optional: Sequence[str] = (), *, allow_missing=False) -> dict:
-    """Read named numeric columns of a CSV with a header row.
+    """Read named numeric columns of a CSV with a header row (comma-, tab-, semicolon- or space-separated, as
+    :func:`sniff_layout` finds).
 
     Returns ``{name: (N,) float64 array}`` for the required ``columns`` and those
     ``optional`` columns that exist.
     """
     path = Path(path)
     lines = _read_text(path).splitlines()
-    rows = list(csv.reader(lines))
+    layout = sniff_layout(lines[:HEAD_LINES])
+    rows = [layout.fields(line) if line.strip() else [] for line in lines]
     if not rows:
         raise InputError(f"{path}: empty file")
     header = [h.strip() for h in rows[0]]

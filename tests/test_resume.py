@@ -227,3 +227,33 @@ def test_ctrl_c_on_local_workers_keeps_the_channels_without_dasks_warnings(tmp_p
     assert "  ax: fitting" in err or "  ay: fitting" in err
     for noise in ("WARNING", "Traceback", "CancelledError", "distributed."):
         assert noise not in err, err
+
+
+@pytest.mark.slow
+def test_a_channel_that_keeps_killing_workers_is_one_error_naming_it(tmp_path):
+    """With Dask allowed no failure, a worker killed mid-channel makes that channel's task a KilledWorker: the run
+    stops with TaskFailed naming the channel, the channels finished already handed to `keep` and in `done`."""
+    import dask
+
+    from torchtea.core.tasks import TaskFailed, run_on_cluster
+    from torchtea.studies.cluster import local_cluster
+
+    with dask.config.set({"distributed.scheduler.allowed-failures": 0}):
+        cl, client = local_cluster(2, threads_per_worker=1)
+    kept = []
+    try:
+        pids = client.run(os.getpid)
+        calls = [("quick", (0.1,), {}), ("slow", (60.0,), {})]
+
+        def kill_the_slow_one(done, total):
+            busy = [addr for addr, keys in client.processing().items() if keys]
+            for addr in busy:
+                os.kill(pids[addr], signal.SIGKILL)
+
+        with pytest.raises(TaskFailed, match="task of slow: its task killed 1 worker") as e:
+            run_on_cluster(client, time.sleep, calls, name="task", progress=kill_the_slow_one,
+                           on_result=lambda label, r: kept.append(label))
+    finally:
+        client.close()
+        cl.close()
+    assert kept == ["quick"] and list(e.value.done) == ["quick"]

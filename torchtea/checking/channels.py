@@ -7,6 +7,7 @@ from collections.abc import Callable, Iterable
 
 import numpy as np
 
+from ..core.tasks import run_parts
 from ..core.threads import engine_threads
 from ..noise.model import PAPER_MODEL
 from .check import CheckResult, change_words, check
@@ -85,36 +86,27 @@ def check_measurements(m, model=None, *, inputs: dict | None = None, add: Iterab
     model = model or PAPER_MODEL
     kw = dict(inputs=inputs, add=tuple(add), auto=auto, max_steps=max_steps, strong=strong, intervals=intervals,
               simplify=simplify, levels=levels, effects=tuple(effects), fits=fits, exclude_start=exclude_start)
-    results = {c.label: done[c.label] for c in m.channels if done and c.label in done}
-    todo = [c for c in m.channels if c.label not in results]
-    if progress is not None and results:
-        progress(len(results), len(m.channels))
-    if client is not None and todo:
-        results.update(_on_cluster(m, todo, model, kw, client, 1 if threads is None else threads,
-                                   (lambda k, total: progress(len(results) + k, len(m.channels))) if progress else None,
-                                   log, stages, keep))
-    for c in todo if client is None else ():
+    channels = {c.label: c for c in m.channels}
+
+    def here(label):
+        c = channels[label]
         if log is not None:
             log(f"checking {c.label}, {c.title} ({m.samples} samples, model {model}) …")
-        say = None if stages is None else (lambda line, label=c.label: stages(f"  {label}: {line}"))
-        results[c.label] = check_channel(c.values, m.h, model, progress=say, threads=threads, **kw)
-        if keep is not None:
-            keep(c.label, results[c.label])
-        if progress is not None:
-            progress(len(results), len(m.channels))
-    return {c.label: results[c.label] for c in m.channels}
+        say = None if stages is None else (lambda line: stages(f"  {label}: {line}"))
+        return check_channel(c.values, m.h, model, progress=say, threads=threads, **kw)
 
+    def cluster(todo, made):
+        from ..core.tasks import run_on_cluster
 
-def _on_cluster(m, todo: list, model, kw: dict, client, threads: int, progress, log, stages, keep) -> dict:
-    """The channels ``todo`` as tasks of ``client``'s cluster, one each; their stages streamed back to ``stages``."""
-    from ..core.tasks import run_on_cluster
+        if log is not None:
+            log(f"checking {len(todo)} channels on the cluster ({sum(client.nthreads().values())} worker threads, "
+                f"{m.samples} samples each, model {model}) …")
+        calls = [(a, (channels[a].values, m.h, model), dict(threads=1 if threads is None else threads, **kw))
+                 for a in todo]
+        run_on_cluster(client, check_channel, calls, name="check", on_result=made, lines=stages)
 
-    if log is not None:
-        log(f"checking {len(todo)} channels on the cluster ({sum(client.nthreads().values())} worker threads, "
-            f"{m.samples} samples each, model {model}) …")
-    calls = [(c.label, (c.values, m.h, model), dict(threads=threads, **kw)) for c in todo]
-    return run_on_cluster(client, check_channel, calls, name="check", progress=progress, on_result=keep,
-                          lines=stages)
+    return run_parts(list(channels), here, done=done, keep=keep, progress=progress,
+                     cluster=None if client is None else cluster)
 
 
 def summary_lines(results: dict, titles: dict) -> list[str]:

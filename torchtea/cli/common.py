@@ -475,7 +475,7 @@ def _stopped(checkpoint, total: int) -> str:
             "the same command run again goes on from them")
 
 
-def _check_channels(args, m, inputs, *, auto: bool, intervals: bool, checkpoint=None) -> dict:
+def _check_channels(args, m, inputs, *, auto: bool, intervals: bool, checkpoint) -> dict:
     """``check`` each channel of ``m`` (then ``--add``, then the loop with ``auto``) → label → result; each kept in
     ``checkpoint`` as it finishes, those it holds not checked again."""
     from ..checking.channels import check_measurements
@@ -493,8 +493,7 @@ def _check_channels(args, m, inputs, *, auto: bool, intervals: bool, checkpoint=
                                      intervals=intervals, levels=levels, progress=step, log=_note, stages=_note,
                                      client=client, fits=getattr(args, "fits", "auto"),
                                      threads=args.threads_per_worker, effects=tuple(args.effects),
-                                     done=None if checkpoint is None else checkpoint.done,
-                                     keep=None if checkpoint is None else checkpoint.keep)
+                                     done=checkpoint.done, keep=checkpoint.keep)
     finally:
         close()
         close_cluster()

@@ -89,31 +89,32 @@ def cmd_export(args) -> int:
 
 def _fit_channels(args, m, inputs, checkpoint) -> dict:
     """``export --model``: the model fitted to each channel (here or on the cluster), each kept in ``checkpoint``."""
-    from ..core.tasks import run_on_cluster
+    from ..core.tasks import run_on_cluster, run_parts
     from ..fitting.recording import fit_channel
     from ..noise import parse_model
 
     model = parse_model(args.model)
     if any(c.inputs for _, c in model.components) and inputs is None:
         raise CLIError(f"model {model.spec!r} reads the temperature: give --temperature COL")
-    fits = dict(checkpoint.done)
-    todo = [c for c in m.channels if c.label not in fits]
+    channels = {c.label: c for c in m.channels}
+
+    def here(label):
+        print(f"torchtea: fitting {model.spec} to {label} …", file=sys.stderr)
+        return fit_channel(model, channels[label].values, m.h, inputs=inputs)
+
+    def cluster(todo, made):
+        _note(f"fitting {model.spec} to {len(todo)} channels on the cluster …")
+        run_on_cluster(client, fit_channel, [
+            (a, (model.spec, channels[a].values, m.h), dict(inputs=inputs, effects=tuple(args.effects),
+                                                            threads=args.threads_per_worker or 1))
+            for a in todo], name="fit", on_result=made)
+
     client, close_cluster = _cluster(args)
     try:
-        if client is None:
-            for c in todo:
-                print(f"torchtea: fitting {model.spec} to {c.label} …", file=sys.stderr)
-                fits[c.label] = fit_channel(model, c.values, m.h, inputs=inputs)
-                checkpoint.keep(c.label, fits[c.label])
-        elif todo:
-            _note(f"fitting {model.spec} to {len(todo)} channels on the cluster …")
-            fits.update(run_on_cluster(client, fit_channel, [
-                (c.label, (model.spec, c.values, m.h), dict(inputs=inputs, effects=tuple(args.effects),
-                                                            threads=args.threads_per_worker or 1))
-                for c in todo], name="fit", on_result=checkpoint.keep))
+        return run_parts(list(channels), here, done=checkpoint.done, keep=checkpoint.keep,
+                         cluster=None if client is None else cluster)
     finally:
         close_cluster()
-    return {c.label: fits[c.label] for c in m.channels}
 
 
 def _export_folder(out: str) -> None:

@@ -1,11 +1,12 @@
-"""Independent tasks (a recording's channels) on a Dask cluster: submitted together, gathered in their own order."""
+"""Independent tasks (a recording's channels): one after another here, or on a Dask cluster — submitted together,
+gathered in their own order — each handed on as it is made (:func:`run_parts`, :func:`run_on_cluster`)."""
 from __future__ import annotations
 
 from collections.abc import Callable
 
 import numpy as np
 
-__all__ = ["run_on_cluster", "WorkerLines", "TaskFailed"]
+__all__ = ["run_parts", "run_on_cluster", "WorkerLines", "TaskFailed"]
 
 #: Arguments larger than this (bytes of their arrays) are scattered to the workers before the tasks are submitted.
 SCATTER_BYTES = 1 << 20
@@ -24,6 +25,31 @@ def _nbytes(x) -> int:
 def _scattered(client, x):
     """``x`` itself, or a future of it on the workers when its arrays are large."""
     return client.scatter([x], hash=False)[0] if _nbytes(x) > SCATTER_BYTES else x
+
+
+def run_parts(labels: list, here: Callable, *, done: dict | None = None, keep: Callable | None = None,
+              progress: Callable | None = None, cluster: Callable | None = None) -> dict:
+    """label → result for each of ``labels``, in their order: those in ``done`` (an interrupted run's, kept) as they
+    are, the others made by ``here(label)`` one after another — or, given ``cluster``, by ``cluster(todo, made)``,
+    all at once (:func:`run_on_cluster` with ``on_result=made``). ``keep(label, result)`` as each is made (to keep it
+    at once), ``progress(done, total)`` after each, the parts taken from ``done`` counted first."""
+    results = {label: done[label] for label in labels if done and label in done}
+    todo = [label for label in labels if label not in results]
+
+    def made(label, result) -> None:
+        results[label] = result
+        if keep is not None:
+            keep(label, result)
+        if progress is not None:
+            progress(len(results), len(labels))
+
+    if progress is not None and results:
+        progress(len(results), len(labels))
+    if cluster is not None and todo:
+        cluster(todo, made)
+    for label in todo if cluster is None else ():
+        made(label, here(label))
+    return {label: results[label] for label in labels}
 
 
 class WorkerLines:

@@ -6,6 +6,7 @@ import math
 import time
 from collections.abc import Callable
 
+from ..core.tasks import run_parts
 from ..noise.grammar import token
 from ..render.text import num
 from ..sensors.measurements import DOCUMENT_MEANING, RECORDING_MEANING
@@ -72,24 +73,18 @@ def fit_recording(m, model, *, inputs: dict | None = None, method: str = "exact"
             "simulated replicates, each fitted twice)")
     t0 = time.perf_counter()
     kw = dict(method=method, inputs=inputs, profile=profile)
-    made = {c.label: done[c.label] for c in m.channels if done and c.label in done}
-    todo = [(c, y) for c, y in zip(m.channels, series) if c.label not in made]
-    if progress is not None and made:
-        progress(len(made), len(series))
-    if client is not None and todo:
+    values = {c.label: y for c, y in zip(m.channels, series)}
+
+    def cluster(todo, made):
         from ..core.tasks import run_on_cluster
 
-        calls = [(c.label, (model.spec, y, m.h), dict(kw, threads=1 if threads is None else threads, effects=effects))
-                 for c, y in todo]
-        made.update(run_on_cluster(client, fit_channel, calls, name="fit", on_result=keep, progress=None if progress
-                                   is None else (lambda k, total: progress(len(made) + k, len(series)))))
-    for c, y in todo if client is None else ():
-        made[c.label] = fit_channel(model, y, m.h, threads=threads, **kw)
-        if keep is not None:
-            keep(c.label, made[c.label])
-        if progress is not None:
-            progress(len(made), len(series))
-    fits = [made[c.label] for c in m.channels]
+        calls = [(a, (model.spec, values[a], m.h), dict(kw, threads=1 if threads is None else threads,
+                                                           effects=effects)) for a in todo]
+        run_on_cluster(client, fit_channel, calls, name="fit", on_result=made)
+
+    made = run_parts(list(values), lambda a: fit_channel(model, values[a], m.h, threads=threads, **kw), done=done,
+                     keep=keep, progress=progress, cluster=None if client is None else cluster)
+    fits = list(made.values())
     tests = [None] * len(series)
     if model.order_name is not None and n_boot > 0:
         if m.missing.count:

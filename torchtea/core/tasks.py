@@ -117,9 +117,9 @@ def run_on_cluster(client, fn: Callable, calls: list, *, name: str = "task", pro
             label, _ = futures.pop(fut.key)
             try:
                 results[label] = fut.result()
-            except KilledWorker:
-                raise TaskFailed(f"{name} of {label}: its task killed {_allowed_failures()} worker(s) in turn (out "
-                                 "of memory?); the other tasks were cancelled", results) from None
+            except KilledWorker as exc:  # (the scheduler's count: a remote one's setting need not be this process's)
+                raise TaskFailed(f"{name} of {label}: its task killed {exc.allowed_failures + 1} worker(s) in turn "
+                                 "(out of memory?); the other tasks were cancelled", results) from None
             if on_result is not None:
                 on_result(label, results[label])
             if progress is not None:
@@ -136,8 +136,3 @@ def run_on_cluster(client, fn: Callable, calls: list, *, name: str = "task", pro
             client.unsubscribe_topic(topic)
     return {label: results[label] for label, _, _ in calls}
 
-
-def _allowed_failures() -> int:
-    import dask
-
-    return int(dask.config.get("distributed.scheduler.allowed-failures", 3)) + 1

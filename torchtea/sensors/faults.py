@@ -193,8 +193,8 @@ def _impossible(channels, h: float, items: list, masks: dict, lines: dict) -> No
         if bad.any():
             runs = _runs(bad)
             count = int(bad.sum())
-            first = [k for a, b in runs[:3] for k in range(a, min(b, a + 2) + 1)][:3]
-            said = "; ".join(lines.get(f"{c.label}:{k}", f"sample {k}: {c.values[k]:.6g} {c.unit}") for k in first)
+            said = "; ".join(lines.get(f"{c.label}:{k}", f"sample {k}: {c.values[k]:.6g} {c.unit}")
+                             for k in np.flatnonzero(bad)[:3])  # (the samples the reader named, value_lines)
             limit = PHYSICAL_LIMIT.get(c.sensor)
             items.append(Fault("impossible values", (c.label,), runs, count,
                                f"channel {c.label}: {count} value(s) no sensor measured — not finite, or beyond "
@@ -204,34 +204,37 @@ def _impossible(channels, h: float, items: list, masks: dict, lines: dict) -> No
             masks[c.label] |= bad
 
 
+def _zero_mask(channels, temperature) -> np.ndarray:
+    """The rows in which every channel (and the temperature) is exactly 0, bool ``(N,)``; all False with fewer than
+    two columns (where a 0 may be a measurement)."""
+    cols = [c.raw for c in channels] + ([temperature] if temperature is not None else [])
+    if len(cols) < 2:
+        return np.zeros(len(channels[0].values), dtype=bool)
+    return np.all(np.stack([np.asarray(c) == 0.0 for c in cols]), axis=0)
+
+
 def _zero_rows(channels, temperature, h: float, items: list, masks: dict, temp_rows: np.ndarray) -> np.ndarray:
-    """Zero rows: every channel (and the temperature) exactly 0; their rows (all False with fewer than 2 columns)."""
-    zero = np.zeros(len(channels[0].values), dtype=bool)
-    if len(channels) + (temperature is not None) >= 2:
-        cols = [c.raw for c in channels] + ([temperature] if temperature is not None else [])
-        zero = np.all(np.stack([c == 0.0 for c in cols]), axis=0)
-        runs = _runs(zero)
-        if runs:
-            count = int(zero.sum())
-            items.append(Fault("zero rows", tuple(c.label for c in channels), runs, count,
-                               f"{count} rows are exactly 0 in every channel"
-                               + (", the temperature too" if temperature is not None else "")
-                               + f" ({_where(runs, h)}): a logging fault (zero-filled rows), not a measurement"))
-            for mk in masks.values():
-                mk |= zero
-            if temperature is not None:
-                temp_rows |= zero
+    """Zero rows (:func:`_zero_mask`) as a fault; their rows."""
+    zero = _zero_mask(channels, temperature)
+    runs = _runs(zero)
+    if runs:
+        count = int(zero.sum())
+        items.append(Fault("zero rows", tuple(c.label for c in channels), runs, count,
+                           f"{count} rows are exactly 0 in every channel"
+                           + (", the temperature too" if temperature is not None else "")
+                           + f" ({_where(runs, h)}): a logging fault (zero-filled rows), not a measurement"))
+        for mk in masks.values():
+            mk |= zero
+        if temperature is not None:
+            temp_rows |= zero
     return zero
 
 
 def zero_tail(channels, temperature=None) -> int:
-    """How many rows at the end are exactly 0 in every channel (and the temperature): a logger's zero-filled tail,
-    which :func:`~.measurements.prepare` cuts (0 with fewer than two columns, where a 0 may be a measurement)."""
-    cols = [c.raw for c in channels] + ([temperature] if temperature is not None else [])
-    if len(cols) < 2 or not len(cols[0]):
-        return 0
-    zero = np.all(np.stack([np.asarray(c) == 0.0 for c in cols]), axis=0)
-    return len(zero) - int(np.flatnonzero(~zero)[-1]) - 1 if (~zero).any() else 0
+    """How many rows at the end are zero rows (:func:`_zero_mask`): a logger's zero-filled tail, which
+    :func:`~.measurements.prepare` cuts (none where every row is one: the zero-rows fault says so)."""
+    measured = np.flatnonzero(~_zero_mask(channels, temperature))
+    return len(channels[0].values) - 1 - int(measured[-1]) if measured.size else 0  # (all zero: a fault, not a tail)
 
 
 def _stuck(channels, zero: np.ndarray, h: float, items: list, masks: dict) -> None:

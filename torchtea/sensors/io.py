@@ -327,11 +327,11 @@ def _units_in_order(path: Path, units, wanted: list, header: list, *, given: boo
     or of the file's columns. Where that order contradicts the columns' names and the channels' order (ax … gz) does
     not, the units are read in the channels' order. ``meta["units_read"]`` says which unit each column got where the
     file's order is not the channels' (or the channels' order was taken)."""
+    if units is None:
+        return [None] * len(wanted)
     order = list(wanted) if given else sorted(wanted, key=header.index)
     try:
         by = dict(zip(order, parse_units(units, order)))
-        if units is None:
-            return [None] * len(wanted)
         how = "in the order of --columns" if given else "in the order of the file's columns"
         if not given and order != list(wanted) and _contradicts(by):
             canonical = dict(zip(wanted, parse_units(units, wanted)))

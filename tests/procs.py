@@ -1,4 +1,5 @@
 """Helpers for tests that run torchtea in a child process."""
+import os
 import signal
 import time
 
@@ -25,3 +26,19 @@ def wait_for_progress(path, proc, at_least: int, timeout: float, poll: float = 0
         except (OSError, ValueError, IndexError):
             pass
     return done
+
+
+def kill_a_busy_worker(client, pids: dict, killed: list):
+    """A ``progress(done, total)`` callback for a run on ``client``'s cluster: the first time a worker is processing a
+    task, SIGKILL its process (``pids``: worker address → pid, ``client.run(os.getpid)``) and append ``(address, the
+    keys it was processing)`` to ``killed``; nothing after that."""
+
+    def kill(done, total):
+        if killed:
+            return
+        busy = [addr for addr, keys in client.processing().items() if keys]
+        if busy:
+            killed.append((busy[0], client.processing()[busy[0]]))
+            os.kill(pids[busy[0]], signal.SIGKILL)
+
+    return kill

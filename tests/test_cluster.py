@@ -316,23 +316,16 @@ def test_worker_killed_mid_run_gives_the_complete_identical_result():
     realisation lost or counted twice."""
     from torchtea.studies.cluster import local_cluster
 
+    from .procs import kill_a_busy_worker
+
     study = Study(Truth(h=1e-3, n_steps=600, order="0.35", param=-1.0, q=1e-4, r=1e-3, input_std=1.0),
                   get_preset("paper-example1"), realisations=48, seed=21)
     single = run_study(study)
     cl, client = local_cluster(2, threads_per_worker=1)
     killed = []
     try:
-        pids = client.run(os.getpid)
-
-        def kill_a_busy_worker(done, total):
-            if killed:
-                return
-            busy = [addr for addr, keys in client.processing().items() if keys]
-            if busy:
-                killed.append((busy[0], client.processing()[busy[0]]))
-                os.kill(pids[busy[0]], signal.SIGKILL)
-
-        sharded = run_study(study, client=client, shard=4, progress=kill_a_busy_worker)
+        sharded = run_study(study, client=client, shard=4,
+                            progress=kill_a_busy_worker(client, client.run(os.getpid), killed))
         assert killed, "no worker was busy when the first shard finished"
         lost_keys = killed[0][1]
         # the scheduler's story of a shard held by the killed worker: sent out for processing a second time

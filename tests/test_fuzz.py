@@ -3,8 +3,8 @@ check.json files — whatever the bytes, the reader returns a recording (or docu
 naming the input; no other exception and no numpy warning. And what a reader accepts it reads whole: a table written
 in any layout reads back to the same numbers.
 
-The quick suite runs a bounded number of examples of each; the slow suite runs the same properties on many more
-(``pytest -m slow tests/test_fuzz.py --hypothesis-show-statistics`` counts them)."""
+Each property runs on 50 inputs in the quick suite (`[quick]`) and on 3000 in the slow one (`[long]`:
+``pytest -m slow tests/test_fuzz.py``), inputs hypothesis rejects as invalid not counted."""
 from __future__ import annotations
 
 import json
@@ -19,10 +19,16 @@ from hypothesis import strategies as st
 from torchtea.sensors.io import InputError, read_recording
 from torchtea.sensors.measurements import prepare
 
-QUICK = settings(max_examples=50, deadline=None, suppress_health_check=[HealthCheck.too_slow,
-                                                                        HealthCheck.function_scoped_fixture])
-LONG = settings(max_examples=3000, deadline=None, suppress_health_check=[HealthCheck.too_slow,
-                                                                        HealthCheck.function_scoped_fixture])
+#: Each property runs on a bounded number of inputs in the quick suite and on many more in the slow one.
+EXAMPLES = pytest.mark.parametrize("examples", [pytest.param(50, id="quick"),
+                                                pytest.param(3000, id="long", marks=pytest.mark.slow)])
+
+
+def _fuzz(examples: int, body, **strategies) -> None:
+    """``body(**drawn)`` on ``examples`` inputs drawn from ``strategies`` (derandomised, as every property here)."""
+    settings(max_examples=examples, deadline=None, suppress_health_check=[HealthCheck.too_slow])(
+        given(**strategies)(body))()
+
 
 NAMES = ["t", "time", "time_ns", "ax", "ay", "az", "gx", "gy", "gz", "acc_x", "gyro_z", "temp", "x", "", "a b",
          '"ax"', "ax;ay", "Fs", "100", "#c", "é"]
@@ -93,17 +99,10 @@ def _read_any_csv(tmp_path, data, flags, allow_missing):
     m.notes()
 
 
-@QUICK
-@given(data=csv_texts(), flags=READ_FLAGS, allow_missing=st.booleans())
-def test_any_csv_reads_or_is_one_own_error(tmp_path, data, flags, allow_missing):
-    _read_any_csv(tmp_path, data, flags, allow_missing)
-
-
-@pytest.mark.slow
-@LONG
-@given(data=csv_texts(), flags=READ_FLAGS, allow_missing=st.booleans())
-def test_any_csv_reads_or_is_one_own_error_long(tmp_path, data, flags, allow_missing):
-    _read_any_csv(tmp_path, data, flags, allow_missing)
+@EXAMPLES
+def test_any_csv_reads_or_is_one_own_error(tmp_path, examples):
+    _fuzz(examples, lambda data, flags, allow_missing: _read_any_csv(tmp_path, data, flags, allow_missing),
+          data=csv_texts(), flags=READ_FLAGS, allow_missing=st.booleans())
 
 
 @st.composite
@@ -130,17 +129,9 @@ def _round_trip(tmp_path, case):
         assert np.array_equal(c.values, values[:, j]), (sep, decimal)
 
 
-@QUICK
-@given(case=tables())
-def test_a_table_in_any_layout_reads_back_whole(tmp_path, case):
-    _round_trip(tmp_path, case)
-
-
-@pytest.mark.slow
-@LONG
-@given(case=tables())
-def test_a_table_in_any_layout_reads_back_whole_long(tmp_path, case):
-    _round_trip(tmp_path, case)
+@EXAMPLES
+def test_a_table_in_any_layout_reads_back_whole(tmp_path, examples):
+    _fuzz(examples, lambda case: _round_trip(tmp_path, case), case=tables())
 
 
 def _recorder_file(n=400):
@@ -181,17 +172,9 @@ def _read_recorder(tmp_path, data):
         _raises_only_own(lambda: prepare(rec, allow_missing=True))
 
 
-@QUICK
-@given(data=damaged(RECORDER))
-def test_a_damaged_torchtea_recording_reads_or_is_one_own_error(tmp_path, data):
-    _read_recorder(tmp_path, data)
-
-
-@pytest.mark.slow
-@LONG
-@given(data=damaged(RECORDER))
-def test_a_damaged_torchtea_recording_reads_or_is_one_own_error_long(tmp_path, data):
-    _read_recorder(tmp_path, data)
+@EXAMPLES
+def test_a_damaged_torchtea_recording_reads_or_is_one_own_error(tmp_path, examples):
+    _fuzz(examples, lambda data: _read_recorder(tmp_path, data), data=damaged(RECORDER))
 
 
 # --------------------------------------------------------------------------- bags written with rosbags, then damaged
@@ -219,17 +202,10 @@ def _read_bag(tmp_path, kind, data):
         _raises_only_own(lambda: prepare(rec, allow_missing=True))
 
 
-@QUICK
-@given(kind=st.sampled_from(["ros1", "mcap"]), data=st.data())
-def test_a_damaged_bag_reads_or_is_one_own_error(tmp_path, bags, kind, data):
-    _read_bag(tmp_path, kind, data.draw(damaged(bags[kind])))
-
-
-@pytest.mark.slow
-@LONG
-@given(kind=st.sampled_from(["ros1", "mcap"]), data=st.data())
-def test_a_damaged_bag_reads_or_is_one_own_error_long(tmp_path, bags, kind, data):
-    _read_bag(tmp_path, kind, data.draw(damaged(bags[kind])))
+@EXAMPLES
+def test_a_damaged_bag_reads_or_is_one_own_error(tmp_path, bags, examples):
+    _fuzz(examples, lambda kind, data: _read_bag(tmp_path, kind, data.draw(damaged(bags[kind]))),
+          kind=st.sampled_from(["ros1", "mcap"]), data=st.data())
 
 
 # --------------------------------------------------------------------------- datasheets and check.json read back
@@ -288,17 +264,9 @@ def _read_sheet(tmp_path, data):
                                        and sheet[term] > 0), (term, sheet[term])
 
 
-@QUICK
-@given(data=sheets())
-def test_any_datasheet_reads_or_is_one_error_naming_it(tmp_path, data):
-    _read_sheet(tmp_path, data)
-
-
-@pytest.mark.slow
-@LONG
-@given(data=sheets())
-def test_any_datasheet_reads_or_is_one_error_naming_it_long(tmp_path, data):
-    _read_sheet(tmp_path, data)
+@EXAMPLES
+def test_any_datasheet_reads_or_is_one_error_naming_it(tmp_path, examples):
+    _fuzz(examples, lambda data: _read_sheet(tmp_path, data), data=sheets())
 
 
 @pytest.fixture(scope="module")
@@ -364,17 +332,9 @@ def _read_check(tmp_path, data):
     assert isinstance(doc, dict) and all(hasattr(f, "values") for f in fits.values())
 
 
-@QUICK
-@given(data=st.data())
-def test_a_damaged_check_json_reads_or_is_one_error_naming_it(tmp_path, check_json, data):
-    _read_check(tmp_path, data.draw(mutated_checks(check_json)))
-
-
-@pytest.mark.slow
-@LONG
-@given(data=st.data())
-def test_a_damaged_check_json_reads_or_is_one_error_naming_it_long(tmp_path, check_json, data):
-    _read_check(tmp_path, data.draw(mutated_checks(check_json)))
+@EXAMPLES
+def test_a_damaged_check_json_reads_or_is_one_error_naming_it(tmp_path, check_json, examples):
+    _fuzz(examples, lambda data: _read_check(tmp_path, data), data=mutated_checks(check_json))
 
 
 @pytest.mark.slow

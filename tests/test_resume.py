@@ -171,26 +171,19 @@ def test_a_killed_worker_is_replaced_and_the_check_is_the_same(tmp_path):
     from torchtea.sensors.measurements import prepare
     from torchtea.studies.cluster import local_cluster
 
+    from .procs import kill_a_busy_worker
+
     path = _recording(tmp_path, n=2500)
     m = prepare(read_recording(path, columns=["acc_x", "acc_z", "gyro_x"], units="g,g,rad/s"))
     here = check_measurements(m, "white", auto=True, intervals=False)
     cl, client = local_cluster(2, threads_per_worker=1)
     killed, lines, kept = [], [], []
     try:
-        pids = client.run(os.getpid)
-
-        def kill_a_busy_worker(done, total):
-            if killed:
-                return
-            busy = [addr for addr, keys in client.processing().items() if keys]
-            if busy:
-                killed.append(client.processing()[busy[0]])
-                os.kill(pids[busy[0]], signal.SIGKILL)
-
-        there = check_measurements(m, "white", auto=True, intervals=False, client=client, progress=kill_a_busy_worker,
+        there = check_measurements(m, "white", auto=True, intervals=False, client=client,
+                                   progress=kill_a_busy_worker(client, client.run(os.getpid), killed),
                                    stages=lines.append, keep=lambda label, r: kept.append(label))
         assert killed, "no worker was busy when the first channel finished"
-        story = client.story(killed[0][0])
+        story = client.story(killed[0][1][0])
         assert len([s for s in story if s[0] == "scheduler" and s[3] == "processing"]) >= 2, story
     finally:
         client.close()
